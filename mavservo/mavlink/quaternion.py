@@ -1,0 +1,105 @@
+"""Quaternion and Euler-angle helpers for the gimbal protocol (pure math, degrees at the edges).
+
+MAVLink carries gimbal attitudes as quaternions ``(w, x, y, z)`` and ArduPilot builds them from
+Euler angles in the aerospace ZYX / 3-2-1 order (yaw about z, then pitch about the new y, then
+roll about the new x). A servo gimbal with a yaw-pitch-roll axis stack has exactly those Euler
+angles as its servo angles, which is why this module speaks ZYX only.
+
+A quaternion whose components are NaN means "no attitude" in MAVLink (rates-only targets, retract);
+:func:`is_nan_quaternion` recognises it so callers never feed NaN into the trigonometry.
+
+Nothing here does I/O or reads a clock.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+Quaternion = tuple[float, float, float, float]
+"""``(w, x, y, z)``, the MAVLink component order."""
+
+IDENTITY: Quaternion = (1.0, 0.0, 0.0, 0.0)
+
+
+def wrap_180(angle_deg: float) -> float:
+    """Wrap an angle into ``[-180, 180)`` degrees (+180 becomes -180: the range is half-open)."""
+    wrapped = (angle_deg + 180.0) % 360.0 - 180.0
+    # float modulo of a tiny negative number can round up to exactly 360
+    return -180.0 if wrapped >= 180.0 else wrapped
+
+
+def is_nan_quaternion(q: Sequence[float]) -> bool:
+    """True when any component is NaN: MAVLink's "no attitude in this message"."""
+    return any(math.isnan(component) for component in q)
+
+
+def normalize(q: Sequence[float]) -> Quaternion:
+    """Scale ``q`` to unit length; a zero-length quaternion raises ``ValueError``.
+
+    Senders round components to float32, so received quaternions are only approximately unit;
+    normalising first keeps the ``asin`` in :func:`quaternion_to_euler` inside its domain.
+    """
+    w, x, y, z = (float(c) for c in q)
+    norm = math.sqrt(w * w + x * x + y * y + z * z)
+    if norm == 0.0 or not math.isfinite(norm):
+        raise ValueError(f"cannot normalise quaternion {tuple(q)!r}")
+    return (w / norm, x / norm, y / norm, z / norm)
+
+
+def euler_to_quaternion(roll_deg: float, pitch_deg: float, yaw_deg: float) -> Quaternion:
+    """ZYX (3-2-1) Euler angles in degrees to a unit quaternion ``(w, x, y, z)``."""
+    half_roll = math.radians(roll_deg) / 2.0
+    half_pitch = math.radians(pitch_deg) / 2.0
+    half_yaw = math.radians(yaw_deg) / 2.0
+    cr, sr = math.cos(half_roll), math.sin(half_roll)
+    cp, sp = math.cos(half_pitch), math.sin(half_pitch)
+    cy, sy = math.cos(half_yaw), math.sin(half_yaw)
+    return (
+        cr * cp * cy + sr * sp * sy,
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+    )
+
+
+def quaternion_to_euler(q: Sequence[float]) -> tuple[float, float, float]:
+    """Unit quaternion ``(w, x, y, z)`` to ZYX Euler ``(roll, pitch, yaw)`` in degrees.
+
+    Roll and yaw are in ``[-180, 180)``, pitch in ``[-90, 90]``. At pitch +-90 (gimbal lock) roll
+    and yaw are not separable; the split returned there is whatever the formulas give, and only
+    their combination is meaningful. NaN components raise ``ValueError``: callers must test
+    :func:`is_nan_quaternion` first.
+    """
+    if is_nan_quaternion(q):
+        raise ValueError("quaternion has NaN components (MAVLink 'no attitude')")
+    w, x, y, z = normalize(q)
+    roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+    sin_pitch = max(-1.0, min(1.0, 2.0 * (w * y - z * x)))
+    pitch = math.asin(sin_pitch)
+    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return (wrap_180(math.degrees(roll)), math.degrees(pitch), wrap_180(math.degrees(yaw)))
+
+
+def yaw_of(q: Sequence[float]) -> float:
+    """Heading (ZYX yaw) of an attitude quaternion in degrees, ``[-180, 180)``."""
+    return quaternion_to_euler(q)[2]
+
+
+def earth_to_body_yaw(earth_yaw_deg: float, vehicle_yaw_deg: float) -> float:
+    """Yaw relative to north -> yaw relative to the vehicle's nose, wrapped to ``[-180, 180)``.
+
+    Only the heading is converted: a servo gimbal cannot level itself, so roll and pitch stay
+    relative to the vehicle (see the gimbal device's documentation).
+    """
+    return wrap_180(earth_yaw_deg - vehicle_yaw_deg)
+
+
+def body_to_earth_yaw(body_yaw_deg: float, vehicle_yaw_deg: float) -> float:
+    """Inverse of :func:`earth_to_body_yaw`."""
+    return wrap_180(body_yaw_deg + vehicle_yaw_deg)
+
+
+def angle_difference(a_deg: float, b_deg: float) -> float:
+    """Smallest signed difference ``a - b`` in degrees, ``[-180, 180)``; for comparing headings."""
+    return wrap_180(a_deg - b_deg)
