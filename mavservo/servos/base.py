@@ -1,0 +1,148 @@
+"""The common vocabulary of every servo profile: state, faults, and the profile contract.
+
+A profile is the only place that knows what a servo's CAN payload means. Everything above it
+(scheduler, MAVLink telemetry) deals in :class:`ServoState` and :class:`Fault`, so adding a servo
+family never touches those layers. Profiles are pure: no I/O, no threads, no clock; the receive
+time of a reply is handed in by the caller.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, replace
+
+import can
+
+UNKNOWN = math.nan
+"""Value of a field that no reply has reported yet (NaN, so it never passes for a reading)."""
+
+
+class Fault(enum.Flag):
+    """Named fault conditions, one vocabulary for all protocols.
+
+    Raw error bits and error codes differ per servo family; each profile maps its own encoding
+    onto these members so consumers (STATUSTEXT, gimbal failure flags) never see raw integers.
+    ``NO_REPLY`` is never set by a servo: the scheduler raises it when a servo goes silent.
+    """
+
+    STALL = enum.auto()
+    LOW_VOLTAGE = enum.auto()
+    OVER_VOLTAGE = enum.auto()
+    OVER_CURRENT = enum.auto()
+    POWER = enum.auto()
+    OVERSPEED = enum.auto()
+    OVER_TEMPERATURE = enum.auto()
+    ENCODER = enum.auto()
+    PHASE_IMBALANCE = enum.auto()
+    OTHER = enum.auto()
+    """An error bit or code the profile does not know by name (never hidden as "no fault")."""
+    NO_REPLY = enum.auto()
+
+
+NO_FAULT = Fault(0)
+
+
+@dataclass(frozen=True)
+class ServoState:
+    """One servo's state in engineering units, as last reported.
+
+    Fields a reply did not carry keep the last reported value (profiles merge partial replies),
+    or :data:`UNKNOWN` (NaN) if nothing has reported them yet. ``timestamp`` is the receive time
+    of the reply that produced this state, in whatever clock the caller passed in.
+    """
+
+    position_deg: float
+    velocity_dps: float
+    current_a: float
+    temperature_c: float
+    faults: Fault
+    timestamp: float
+    voltage_v: float | None = None
+
+    @classmethod
+    def unknown(cls, timestamp: float = 0.0) -> ServoState:
+        """A state with nothing known yet: the starting point of a profile's merge."""
+        return cls(UNKNOWN, UNKNOWN, UNKNOWN, UNKNOWN, NO_FAULT, timestamp)
+
+    def with_faults(self, faults: Fault) -> ServoState:
+        """Copy with a different fault set (e.g. the scheduler adding ``Fault.NO_REPLY``)."""
+        return replace(self, faults=faults)
+
+
+class ServoProfile(ABC):
+    """Translate setpoints into CAN frames and CAN frames into :class:`ServoState`.
+
+    One instance per physical servo (constructed with its ``can_id``). An instance remembers the
+    last decoded state only so that replies carrying a subset of the fields (e.g. a fault report
+    without a position) can be merged into a complete state; that memory is the only state.
+    """
+
+    name: str = ""
+    """Short name used in YAML (``rmd-x``, ``lk``, ``cubemars-ak``)."""
+    resolution_deg: float = 1.0
+    """Finest position step the servo's regular telemetry reply can express."""
+    replies_per_command: int = 1
+    """Replies a position command provokes (used for bus-load budgeting)."""
+    replies_per_request: int = 1
+    """Replies each telemetry request provokes."""
+    min_id: int = 1
+    max_id: int = 32
+    min_angle_deg: float = -math.inf
+    max_angle_deg: float = math.inf
+    max_speed_dps: float = math.inf
+
+    def __init__(self, can_id: int) -> None:
+        if not self.min_id <= can_id <= self.max_id:
+            raise ValueError(
+                f"{self.name}: servo id {can_id} outside {self.min_id}..{self.max_id}"
+            )
+        self.can_id = can_id
+        self.last_state: ServoState | None = None
+        """The last decoded state, or None before the first reply."""
+
+    def _merge(self, timestamp: float, **fields: object) -> ServoState:
+        """Fold a partial reply into the last known state and remember the result."""
+        base = self.last_state or ServoState.unknown()
+        self.last_state = replace(base, timestamp=timestamp, **fields)
+        return self.last_state
+
+    @abstractmethod
+    def position_command(self, angle_deg: float, max_speed_dps: float | None = None) -> can.Message:
+        """Frame that moves the servo to ``angle_deg``, at most ``max_speed_dps`` if supported."""
+
+    @abstractmethod
+    def telemetry_requests(self) -> list[can.Message]:
+        """Frames to send for one telemetry poll; empty for servos that push their status."""
+
+    @abstractmethod
+    def is_reply(self, msg: can.Message) -> bool:
+        """True if ``msg`` was sent by this servo (by ID and frame format)."""
+
+    @abstractmethod
+    def decode(self, msg: can.Message, timestamp: float) -> ServoState | None:
+        """State after reply ``msg`` received at ``timestamp``; None if not this servo's reply."""
+
+    def _check_angle(self, angle_deg: float) -> None:
+        """Reject non-finite or unrepresentable angles: silently clamping one would move the
+        servo somewhere nobody asked for. Limits are the mapping layer's job, not ours."""
+        if not math.isfinite(angle_deg):
+            raise ValueError(f"{self.name}: angle must be finite, got {angle_deg!r}")
+        if not self.min_angle_deg <= angle_deg <= self.max_angle_deg:
+            raise ValueError(
+                f"{self.name}: angle {angle_deg} deg outside the protocol range "
+                f"{self.min_angle_deg}..{self.max_angle_deg}"
+            )
+
+    def _speed_limit(self, max_speed_dps: float | None, default: float) -> float:
+        """Validate a speed limit and saturate it to what the field can carry.
+
+        Saturation is safe here (a servo cannot go faster than its own limit anyway), whereas a
+        negative or NaN speed is a caller bug and raises.
+        """
+        speed = default if max_speed_dps is None else max_speed_dps
+        if math.isnan(speed) or speed < 0:
+            raise ValueError(f"{self.name}: speed limit must be >= 0, got {speed!r}")
+        return min(speed, self.max_speed_dps)
+

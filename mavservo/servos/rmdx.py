@@ -1,0 +1,184 @@
+"""MyActuator RMD-X (protocol V4.x) and the LK-Tech / older-firmware variant.
+
+Wire facts (standard 11-bit IDs, little-endian, 8-byte payloads, one reply per request):
+
+* requests go to ``0x140 + id``; V4 firmware replies on ``0x240 + id``, LK-Tech and older RMD
+  firmware reply on ``0x140 + id`` (the only difference between the two profiles here);
+* ``A4`` absolute position: ``[A4, 00, max speed u16 dps, angle i32 0.01 deg]``;
+* ``9C`` read status 2; replies to A4 and 9C:
+  ``[cmd, temperature i8 degC, iq i16 0.01 A, speed i16 dps, angle i16 whole degrees]``;
+* ``92`` multi-turn angle: ``angle i32 0.01 deg`` in bytes 4..7 (the only fine position);
+* ``9A`` status 1: ``[9A, temperature i8, 00, brake u8, voltage u16 0.1 V, error u16]``.
+
+Range policy: an angle that is not finite or does not fit the i32 0.01-deg field raises
+``ValueError``; a speed limit saturates at the u16 field maximum (65535 dps) and is never sent
+as 0 (which the servo would read as "no motion").
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+
+import can
+
+from .base import NO_FAULT, Fault, ServoProfile, ServoState
+
+CMD_POSITION = 0xA4
+CMD_STATUS_2 = 0x9C
+CMD_MULTI_TURN_ANGLE = 0x92
+CMD_STATUS_1 = 0x9A
+
+REQUEST_BASE = 0x140
+REPLY_BASE_V4 = 0x240
+
+ERROR_BITS: dict[int, Fault] = {
+    0x0002: Fault.STALL,
+    0x0004: Fault.LOW_VOLTAGE,
+    0x0008: Fault.OVER_VOLTAGE,
+    0x0010: Fault.OVER_CURRENT,
+    0x0040: Fault.POWER,
+    0x0100: Fault.OVERSPEED,
+    0x1000: Fault.OVER_TEMPERATURE,
+    0x2000: Fault.ENCODER,
+}
+"""9A error word bits as documented; any other set bit decodes as ``Fault.OTHER``."""
+
+_I32_MAX = 2**31 - 1
+
+
+def faults_from_error_word(word: int) -> Fault:
+    """Named faults for a 9A error word; unknown bits are reported, not dropped."""
+    faults = NO_FAULT
+    for bit, fault in ERROR_BITS.items():
+        if word & bit:
+            faults |= fault
+            word &= ~bit
+    return faults | Fault.OTHER if word else faults
+
+
+def error_word_from_faults(faults: Fault) -> int:
+    """Inverse of :func:`faults_from_error_word` for the named bits (used by the simulator)."""
+    return sum(bit for bit, fault in ERROR_BITS.items() if fault in faults)
+
+
+class RmdX(ServoProfile):
+    """RMD-X V4: replies on ``0x240 + id``.
+
+    ``fault_poll_every``: every Nth telemetry poll asks for 9A (faults, voltage) instead of 9C,
+    so faults surface without doubling the bus load. ``multi_turn_poll_every`` does the same
+    for 92 (a 0.01-deg position instead of whole degrees). None disables either.
+    """
+
+    name = "rmd-x"
+    resolution_deg = 1.0
+    min_id, max_id = 1, 32
+    min_angle_deg = -_I32_MAX / 100
+    max_angle_deg = _I32_MAX / 100
+    max_speed_dps = 65535.0
+    reply_base = REPLY_BASE_V4
+
+    def __init__(
+        self,
+        can_id: int,
+        *,
+        default_speed_dps: float = 360.0,
+        fault_poll_every: int | None = 10,
+        multi_turn_poll_every: int | None = None,
+    ) -> None:
+        super().__init__(can_id)
+        self.default_speed_dps = default_speed_dps
+        self.fault_poll_every = fault_poll_every
+        self.multi_turn_poll_every = multi_turn_poll_every
+        self.polls = 0
+        """Telemetry polls built so far; drives the 9A / 92 interleaving."""
+
+    @property
+    def request_id(self) -> int:
+        return REQUEST_BASE + self.can_id
+
+    @property
+    def reply_id(self) -> int:
+        return self.reply_base + self.can_id
+
+    def _request(self, payload: bytes) -> can.Message:
+        return can.Message(arbitration_id=self.request_id, is_extended_id=False, data=payload)
+
+    def position_command(self, angle_deg: float, max_speed_dps: float | None = None) -> can.Message:
+        self._check_angle(angle_deg)
+        speed = self._speed_limit(max_speed_dps, self.default_speed_dps)
+        speed_field = max(1, round(speed)) if speed > 0 else 0
+        angle_field = max(-_I32_MAX, min(_I32_MAX, round(angle_deg * 100)))
+        return self._request(struct.pack("<BBHi", CMD_POSITION, 0, speed_field, angle_field))
+
+    def telemetry_requests(self) -> list[can.Message]:
+        self.polls += 1
+        if self.fault_poll_every and self.polls % self.fault_poll_every == 0:
+            command = CMD_STATUS_1
+        elif self.multi_turn_poll_every and self.polls % self.multi_turn_poll_every == 0:
+            command = CMD_MULTI_TURN_ANGLE
+        else:
+            command = CMD_STATUS_2
+        return [self._request(bytes([command, 0, 0, 0, 0, 0, 0, 0]))]
+
+    def is_reply(self, msg: can.Message) -> bool:
+        return (
+            not msg.is_extended_id
+            and not msg.is_remote_frame
+            and msg.arbitration_id == self.reply_id
+            and len(msg.data) == 8
+        )
+
+    def decode(self, msg: can.Message, timestamp: float) -> ServoState | None:
+        if not self.is_reply(msg):
+            return None
+        data = bytes(msg.data)
+        command = data[0]
+        if command in (CMD_POSITION, CMD_STATUS_2):
+            _, temp, iq, speed, angle = struct.unpack("<BbhhH", data)
+            angle = angle - 0x10000 if angle >= 0x8000 else angle
+            return self._merge(
+                timestamp,
+                position_deg=self._coarse_position(float(angle)),
+                velocity_dps=float(speed),
+                current_a=iq / 100,
+                temperature_c=float(temp),
+            )
+        if command == CMD_MULTI_TURN_ANGLE:
+            (angle,) = struct.unpack_from("<i", data, 4)
+            return self._merge(timestamp, position_deg=angle / 100)
+        if command == CMD_STATUS_1:
+            _, temp, _, _, voltage, error = struct.unpack("<BbBBHH", data)
+            return self._merge(
+                timestamp,
+                temperature_c=float(temp),
+                voltage_v=voltage / 10,
+                faults=faults_from_error_word(error),
+            )
+        return None
+
+    def _coarse_position(self, whole_degrees: float) -> float:
+        """Keep a finer earlier reading (from 92) while the whole-degree one agrees with it.
+
+        Without this, interleaving 92 and 9C polls would make the position jump between 0.01
+        and 1 degree resolution on every poll.
+        """
+        last = self.last_state
+        if (
+            last is not None
+            and not math.isnan(last.position_deg)
+            and abs(last.position_deg - whole_degrees) <= 0.5
+        ):
+            return last.position_deg
+        return whole_degrees
+
+
+class LkTech(RmdX):
+    """LK-Tech and older RMD firmware: same payloads, reply on the request ID ``0x140 + id``.
+
+    Because request and reply share an ID, a loopback echo of our own request would look like
+    a reply; only use loopback adapter mode with this profile for testing the adapter itself.
+    """
+
+    name = "lk"
+    reply_base = REQUEST_BASE
