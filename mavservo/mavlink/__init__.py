@@ -1,0 +1,1 @@
+"""MAVLink side of the bridge: link, commands in, telemetry out, gimbal device."""

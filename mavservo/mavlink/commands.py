@@ -1,0 +1,387 @@
+"""MAVLink commands in, COMMAND_ACKs out: DO_SET_SERVO, DO_REPEAT_SERVO, DO_SET_ACTUATOR, and the
+message services REQUEST_MESSAGE / SET_MESSAGE_INTERVAL, for every component the bridge hosts.
+
+Addressing rules (why: real clients send the same command in different ways, see DESIGN.md):
+
+* addressed to one of our components -> handled there, exactly one ACK from that component;
+* broadcast (target component 0) -> acted on only when it concerns channels we map (or a hosted
+  gimbal claims it), ACKed from the component that acted; otherwise ignored silently, because the
+  autopilot or another component will answer it;
+* addressed to the autopilot -> ignored, except DO_SET_SERVO on a mapped channel when
+  ``act_on_autopilot_commands`` is set: acted on, not ACKed (the autopilot ACKs it);
+* another system id -> ignored.
+
+Senders retry until they see the ACK, with the same content. A retry (same sender, command,
+target and parameters within ``retry_window_s``, or any COMMAND_LONG with confirmation > 0 that
+matches an earlier one) is ACKed again with the earlier result and not applied twice; this
+matters for DO_REPEAT_SERVO, which would otherwise restart.
+
+Bad input never reaches the backend: everything is validated before the first setpoint goes out.
+Pure apart from logging: time comes in as an argument, messages go out as return values.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import Counter
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from mavservo.mavlink.arbitration import CommandHold
+from mavservo.mavlink.backend import ActuatorBackend, ApplyResult, Outcome
+from mavservo.mavlink.component import HostedComponent
+from mavservo.mavlink.settings import MavlinkSettings
+
+log = logging.getLogger(__name__)
+
+MAV_CMD_DO_SET_SERVO = 183
+MAV_CMD_DO_REPEAT_SERVO = 184
+MAV_CMD_DO_SET_ACTUATOR = 187
+MAV_CMD_SET_MESSAGE_INTERVAL = 511
+MAV_CMD_REQUEST_MESSAGE = 512
+
+INT32_MAX = 2**31 - 1
+#: Widest PWM any hobby servo protocol uses; narrower limits come from the channel mapping.
+PWM_MIN_US = 500.0
+PWM_MAX_US = 2500.0
+#: A repeat longer than this is almost certainly a unit mix-up (ms read as s), so it is refused.
+MAX_REPEAT_COUNT = 1000
+MAX_REPEAT_CYCLE_S = 600.0
+ACTUATORS_PER_GROUP = 6
+
+#: (component id, pymavlink message) to send from that component.
+Outgoing = tuple[int, Any]
+
+
+@dataclass(frozen=True)
+class Command:
+    """COMMAND_LONG and COMMAND_INT in one shape: seven float params (COMMAND_INT x/y as floats)."""
+
+    source: tuple[int, int]
+    target_system: int
+    target_component: int
+    command: int
+    params: tuple[float, ...]
+    is_int: bool = False
+    confirmation: int = 0
+
+    @classmethod
+    def from_message(cls, msg: Any) -> Command:
+        source = (msg.get_srcSystem(), msg.get_srcComponent())
+        if msg.get_type() == "COMMAND_INT":
+            params = (msg.param1, msg.param2, msg.param3, msg.param4, msg.x, msg.y, msg.z)
+            return cls(
+                source, msg.target_system, msg.target_component, msg.command,
+                tuple(float(p) for p in params), is_int=True,
+            )
+        params = (msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6,
+                  msg.param7)
+        return cls(
+            source, msg.target_system, msg.target_component, msg.command,
+            tuple(float(p) for p in params), confirmation=int(msg.confirmation),
+        )
+
+    def retry_key(self) -> tuple:
+        """Identity of a command for retry detection (NaN-safe, ignores confirmation)."""
+        params = tuple("nan" if math.isnan(p) else p for p in self.params)
+        return (self.source, self.target_component, self.command, self.is_int, params)
+
+
+@dataclass
+class _RepeatJob:
+    """A running DO_REPEAT_SERVO: alternate pwm and trim every half cycle, end on trim."""
+
+    channel: int
+    steps: list[tuple[float, float]]  # (due time, pwm), in order
+
+
+@dataclass
+class _Recent:
+    result: Outcome
+    when: float
+    ack_component: int | None
+
+
+@dataclass
+class CommandHandler:
+    """Decides, applies and ACKs commands. ``system_id`` is read at every call (it may follow
+    the autopilot). ``request_message(msg_id, now)`` returns the servo component's answer to
+    REQUEST_MESSAGE (or None when it does not publish it); ``set_interval(msg_id, interval_us)``
+    returns whether the servo component publishes that message."""
+
+    backend: ActuatorBackend
+    settings: MavlinkSettings
+    hold: CommandHold
+    system_id: Callable[[], int]
+    request_message: Callable[[int, float], Any | None]
+    set_interval: Callable[[int, float], bool]
+    gimbals: Mapping[int, HostedComponent] = field(default_factory=dict)
+    counters: Counter[str] = field(default_factory=Counter)
+    _recent: dict[tuple, _Recent] = field(default_factory=dict)
+    _repeats: dict[int, _RepeatJob] = field(default_factory=dict)
+
+    # ------------------------------------------------------------------ entry points
+
+    def handle(self, cmd: Command, now: float) -> list[Outgoing]:
+        """Process one command; returns the ACK (and any requested message) to send."""
+        if cmd.target_system not in (0, self.system_id()):
+            self.counters["ignored_other_system"] += 1
+            return []
+        servo_comp = self.settings.servo_component_id
+        target = cmd.target_component
+        if target == servo_comp or target in self.gimbals or target == 0:
+            return self._with_retry_check(cmd, now)
+        if (
+            target == self.settings.autopilot_component
+            and self.settings.act_on_autopilot_commands
+            and cmd.command == MAV_CMD_DO_SET_SERVO
+        ):
+            return self._with_retry_check(cmd, now, ack=False)
+        self.counters["ignored_other_component"] += 1
+        return []
+
+    def tick(self, now: float) -> None:
+        """Advance running DO_REPEAT_SERVO jobs."""
+        for channel in list(self._repeats):
+            job = self._repeats[channel]
+            while job.steps and job.steps[0][0] <= now:
+                _, pwm = job.steps.pop(0)
+                result = self.backend.apply_servo_output(channel, pwm, "do_repeat_servo", now)
+                self.hold.note_command(("servo", channel), now)
+                log.debug("repeat servo %d -> %.0f us: %s", channel, pwm, result.outcome.name)
+            if not job.steps:
+                del self._repeats[channel]
+
+    def repeating_channels(self) -> set[int]:
+        return set(self._repeats)
+
+    def cancel_all(self) -> None:
+        """Stop every running repeat (failsafe: nothing moves until fresh commands)."""
+        self._repeats.clear()
+
+    # ------------------------------------------------------------------ routing
+
+    def _with_retry_check(self, cmd: Command, now: float, ack: bool = True) -> list[Outgoing]:
+        self._forget_old(now)
+        key = cmd.retry_key()
+        recent = self._recent.get(key)
+        if recent is not None and (now - recent.when <= self.settings.retry_window_s
+                                   or cmd.confirmation > 0):
+            self.counters["retry_not_reapplied"] += 1
+            log.info("command %d from %s is a retry: ACK %s again, not applied",
+                     cmd.command, cmd.source, recent.result.name)
+            recent.when = now
+            if not ack or recent.ack_component is None:
+                return []
+            return [(recent.ack_component, self._ack(cmd, recent.result))]
+        decided = self._dispatch(cmd, now)
+        if decided is None:
+            self.counters["ignored_not_ours"] += 1
+            return []
+        component, result, extra = decided
+        self.counters[f"result_{result.outcome.name.lower()}"] += 1
+        if not result.ok:
+            kind = result.reason.split(":")[0] if ":" in result.reason else "backend"
+            self.counters[f"reason_{kind}"] += 1
+            log.warning("command %d from %s -> %s: %s", cmd.command, cmd.source,
+                        result.outcome.name, result.reason)
+        else:
+            log.info("command %d from %s accepted by component %d", cmd.command, cmd.source,
+                     component)
+        self._recent[key] = _Recent(result.outcome, now, component if ack else None)
+        if not ack:
+            return []
+        out: list[Outgoing] = [(component, self._ack(cmd, result.outcome))]
+        out.extend((component, m) for m in extra)
+        return out
+
+    def _forget_old(self, now: float) -> None:
+        # Keep entries a while longer than the window for confirmation>0 retries.
+        horizon = 5 * self.settings.retry_window_s
+        for key in [k for k, r in self._recent.items() if now - r.when > horizon]:
+            del self._recent[key]
+
+    def _dispatch(self, cmd: Command, now: float) -> tuple[int, ApplyResult, list] | None:
+        """Returns (acking component, result, messages to send after the ACK) or None."""
+        target = cmd.target_component
+        broadcast = target == 0
+        if target in self.gimbals:
+            return self._gimbal_command(self.gimbals[target], cmd, now, broadcast=False)
+        servo_comp = self.settings.servo_component_id
+        decided = self._servo_command(cmd, now, broadcast=broadcast or target != servo_comp)
+        if decided is not None:
+            result, extra = decided
+            return servo_comp, result, extra
+        if broadcast:
+            for device in self.gimbals.values():
+                answer = self._gimbal_command(device, cmd, now, broadcast=True)
+                if answer is not None:
+                    return answer
+        return None
+
+    def _gimbal_command(self, device: HostedComponent, cmd: Command, now: float,
+                        broadcast: bool) -> tuple[int, ApplyResult, list] | None:
+        comp = device.component_id
+        if cmd.command == MAV_CMD_REQUEST_MESSAGE and _is_int(cmd.params[0]):
+            message = device.requested_message(int(cmd.params[0]), now)
+            if message is not None:
+                return comp, ApplyResult(Outcome.ACCEPTED), [message]
+            if broadcast:
+                return None
+            return comp, ApplyResult(Outcome.UNSUPPORTED, "unsupported:message not published"), []
+        raw = device.handle_command(cmd.command, cmd.params, now)
+        if raw is None:
+            if broadcast:
+                return None
+            return comp, ApplyResult(Outcome.UNSUPPORTED, "unsupported:command"), []
+        return comp, ApplyResult(Outcome(int(raw)), "" if raw == 0 else "gimbal:refused"), []
+
+    def _servo_command(self, cmd: Command, now: float,
+                       broadcast: bool) -> tuple[ApplyResult, list] | None:
+        """None = not for us (only possible for broadcast / autopilot-addressed commands)."""
+        handlers = {
+            MAV_CMD_DO_SET_SERVO: self._do_set_servo,
+            MAV_CMD_DO_REPEAT_SERVO: self._do_repeat_servo,
+            MAV_CMD_DO_SET_ACTUATOR: self._do_set_actuator,
+        }
+        if cmd.command in handlers:
+            result = handlers[cmd.command](cmd, now, broadcast)
+            return None if result is None else (result, [])
+        if cmd.command == MAV_CMD_REQUEST_MESSAGE:
+            return self._request_message(cmd, now, broadcast)
+        if cmd.command == MAV_CMD_SET_MESSAGE_INTERVAL:
+            return self._set_message_interval(cmd, broadcast)
+        if broadcast:
+            return None
+        return ApplyResult(Outcome.UNSUPPORTED, f"unsupported:command {cmd.command}"), []
+
+    # ------------------------------------------------------------------ servo commands
+
+    def _servo_channel(self, cmd: Command, broadcast: bool) -> int | ApplyResult | None:
+        """Validated, mapped channel from param 1, or the refusal, or None (not ours)."""
+        raw = cmd.params[0]
+        if not _is_int(raw) or raw < 1:
+            return None if broadcast else _denied("bad_param", f"servo instance {raw!r}")
+        channel = int(raw)
+        if channel not in self.backend.mapped_servo_channels():
+            return None if broadcast else _denied("unmapped", f"servo channel {channel}")
+        return channel
+
+    def _do_set_servo(self, cmd: Command, now: float, broadcast: bool) -> ApplyResult | None:
+        channel = self._servo_channel(cmd, broadcast)
+        if not isinstance(channel, int):
+            return channel
+        pwm = cmd.params[1]
+        if not _valid_pwm(pwm):
+            return _denied("bad_param", f"PWM {pwm!r} outside {PWM_MIN_US:.0f}..{PWM_MAX_US:.0f}")
+        self._repeats.pop(channel, None)
+        result = self.backend.apply_servo_output(channel, pwm, "do_set_servo", now)
+        if result.ok:
+            self.hold.note_command(("servo", channel), now)
+        return result
+
+    def _do_repeat_servo(self, cmd: Command, now: float, broadcast: bool) -> ApplyResult | None:
+        channel = self._servo_channel(cmd, broadcast)
+        if not isinstance(channel, int):
+            return channel
+        pwm, count, cycle = cmd.params[1], cmd.params[2], cmd.params[3]
+        if not _valid_pwm(pwm):
+            return _denied("bad_param", f"PWM {pwm!r}")
+        if not _is_int(count) or not 1 <= count <= MAX_REPEAT_COUNT:
+            return _denied("bad_param", f"repeat count {count!r}")
+        if not math.isfinite(cycle) or cycle <= 0:
+            return _denied("bad_param", f"cycle time {cycle!r}")
+        cycle_s = cycle / 1000.0 if self.settings.repeat_servo_cycle == "milliseconds" else cycle
+        if cycle_s > MAX_REPEAT_CYCLE_S:
+            return _denied("bad_param", f"cycle time {cycle_s} s")
+        result = self.backend.apply_servo_output(channel, pwm, "do_repeat_servo", now)
+        if not result.ok:
+            return result
+        self.hold.note_command(("servo", channel), now)
+        half = cycle_s / 2.0
+        trim = self.settings.trim_us(channel)
+        steps = [(now + k * half, trim if k % 2 else pwm) for k in range(1, 2 * int(count))]
+        self._repeats[channel] = _RepeatJob(channel, steps)
+        return result
+
+    def _do_set_actuator(self, cmd: Command, now: float, broadcast: bool) -> ApplyResult | None:
+        group = cmd.params[6]
+        if not _is_int(group) or group < 0:
+            return None if broadcast else _denied("bad_param", f"actuator group {group!r}")
+        values: dict[int, float] = {}
+        for i, raw in enumerate(cmd.params[:ACTUATORS_PER_GROUP]):
+            value = raw
+            if cmd.is_int and i >= 4 and raw == INT32_MAX:
+                value = math.nan  # COMMAND_INT x/y cannot carry NaN: INT32_MAX means "leave"
+            if math.isnan(value):
+                continue
+            values[int(group) * ACTUATORS_PER_GROUP + i + 1] = value
+        mapped = self.backend.mapped_actuator_indices()
+        ours = {index: v for index, v in values.items() if index in mapped}
+        if not ours:
+            if broadcast:
+                return None
+            what = "no actuator value given" if not values else f"unmapped indices {sorted(values)}"
+            return _denied("unmapped" if values else "bad_param", what)
+        bad = {index: v for index, v in ours.items() if not -1.0 <= v <= 1.0}
+        if bad:
+            return _denied("bad_param", f"actuator values outside [-1, 1]: {bad}")
+        worst = ApplyResult(Outcome.ACCEPTED)
+        for index, value in sorted(ours.items()):
+            result = self.backend.apply_actuator(index, value, "do_set_actuator", now)
+            if result.ok:
+                self.hold.note_command(("actuator", index), now)
+            elif worst.ok:
+                worst = result
+        return worst
+
+    # ------------------------------------------------------------------ message services
+
+    def _request_message(self, cmd: Command, now: float,
+                         broadcast: bool) -> tuple[ApplyResult, list] | None:
+        msg_id = cmd.params[0]
+        if not _is_int(msg_id) or msg_id < 0:
+            return None if broadcast else (_denied("bad_param", f"message id {msg_id!r}"), [])
+        message = self.request_message(int(msg_id), now)
+        if message is None:
+            if broadcast:
+                return None
+            return ApplyResult(Outcome.UNSUPPORTED, f"unsupported:message {int(msg_id)}"), []
+        return ApplyResult(Outcome.ACCEPTED), [message]
+
+    def _set_message_interval(self, cmd: Command,
+                              broadcast: bool) -> tuple[ApplyResult, list] | None:
+        msg_id, interval = cmd.params[0], cmd.params[1]
+        if not _is_int(msg_id) or msg_id < 0 or not math.isfinite(interval) or interval < -1:
+            return None if broadcast else (_denied("bad_param", "message interval"), [])
+        if not self.set_interval(int(msg_id), interval):
+            if broadcast:
+                return None
+            return ApplyResult(Outcome.UNSUPPORTED, f"unsupported:message {int(msg_id)}"), []
+        return ApplyResult(Outcome.ACCEPTED), []
+
+    # ------------------------------------------------------------------ helpers
+
+    @staticmethod
+    def _ack(cmd: Command, result: Outcome) -> Any:
+        return mavlink2.MAVLink_command_ack_message(
+            command=cmd.command, result=int(result), progress=0, result_param2=0,
+            target_system=cmd.source[0], target_component=cmd.source[1],
+        )
+
+
+def _is_int(value: float) -> bool:
+    return math.isfinite(value) and float(value).is_integer()
+
+
+def _valid_pwm(value: float) -> bool:
+    return math.isfinite(value) and PWM_MIN_US <= value <= PWM_MAX_US
+
+
+def _denied(kind: str, detail: str) -> ApplyResult:
+    return ApplyResult(Outcome.DENIED, f"{kind}:{detail}")
+

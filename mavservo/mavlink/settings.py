@@ -1,0 +1,121 @@
+"""Settings of the MAVLink side, decoupled from the YAML schema.
+
+The ``mavlink:`` section of the config is validated by ``mavservo/config.py``; the MAVLink layer
+only needs a small, typed, immutable view of it. Keeping this view here means the MAVLink code and
+its tests do not depend on the config module, and the bridge builds it with
+:meth:`MavlinkSettings.from_mapping` from the validated section (a dict or a pydantic model dump).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+FOLLOW = "follow"
+
+#: MAV_COMP_ID_SERVO1: the component every servo group is published as by default.
+DEFAULT_SERVO_COMPONENT = 140
+
+
+@dataclass(frozen=True)
+class SigningSettings:
+    """MAVLink 2 signing: a 32-byte secret; unsigned input is refused unless ``accept_unsigned``."""
+
+    key: bytes
+    accept_unsigned: bool = False
+
+    @classmethod
+    def from_mapping(cls, raw: Mapping[str, Any] | None) -> SigningSettings | None:
+        if not raw:
+            return None
+        if raw.get("key"):
+            key_hex = str(raw["key"])
+        elif raw.get("key_file"):
+            with open(raw["key_file"], encoding="ascii") as handle:
+                key_hex = handle.read().strip()
+        else:
+            raise ValueError("signing needs 'key' or 'key_file'")
+        key = bytes.fromhex(key_hex)
+        if len(key) != 32:
+            raise ValueError("signing key must be 64 hex characters (32 bytes)")
+        return cls(key=key, accept_unsigned=bool(raw.get("accept_unsigned", False)))
+
+
+@dataclass(frozen=True)
+class TelemetryRates:
+    """Publication rates in Hz; 0 disables a stream (SET_MESSAGE_INTERVAL can change them)."""
+
+    actuator_output_status_hz: float = 10.0
+    esc_telemetry_hz: float = 4.0
+    named_value_float_hz: float = 2.0
+    gimbal_attitude_status_hz: float = 10.0
+
+
+@dataclass(frozen=True)
+class MavlinkSettings:
+    """Everything the MAVLink side needs to know, in MAVLink units.
+
+    ``system_id`` is ``"follow"`` (take the autopilot's system id from its first HEARTBEAT) or a
+    fixed int. ``servo_output_port_width`` is how many channels one SERVO_OUTPUT_RAW ``port``
+    covers: 16 is what ArduPilot sends in MAVLink 2 (port 1 = servo 17..32); the spec's older
+    wording says 8. ``channel_trims_us`` holds the PWM trim of each mapped servo output channel,
+    which DO_REPEAT_SERVO returns to (1500 when missing).
+    """
+
+    url: str = "udpin:127.0.0.1:14551"
+    baud: int = 115200
+    system_id: int | Literal["follow"] = FOLLOW
+    autopilot_system: int = 1
+    autopilot_component: int = 1
+    heartbeat_timeout_s: float = 2.0
+    signing: SigningSettings | None = None
+    allowed_sources: frozenset[tuple[int, int]] = frozenset()
+    act_on_autopilot_commands: bool = False
+    repeat_servo_cycle: Literal["seconds", "milliseconds"] = "seconds"
+    command_hold_s: float = 2.0
+    mirror_servo_output_raw: bool = True
+    mirror_actuator_output_status: bool = False
+    actuator_output_status_units: Literal["pwm", "normalized"] = "pwm"
+    servo_output_port_width: int = 16
+    telemetry: TelemetryRates = field(default_factory=TelemetryRates)
+    servo_component_id: int = DEFAULT_SERVO_COMPONENT
+    channel_trims_us: Mapping[int, float] = field(default_factory=dict)
+    retry_window_s: float = 2.0
+
+    @classmethod
+    def from_mapping(
+        cls, raw: Mapping[str, Any], channel_trims_us: Mapping[int, float] | None = None
+    ) -> MavlinkSettings:
+        """Build from the (already validated) ``mavlink:`` config section as a plain mapping."""
+        autopilot = raw.get("autopilot") or {}
+        mirror = raw.get("mirror") or {}
+        telemetry = raw.get("telemetry") or {}
+        sources = frozenset(
+            (int(s["system"]), int(s["component"])) for s in raw.get("allowed_sources") or []
+        )
+        system_id = raw.get("system_id", FOLLOW)
+        defaults = cls()
+        return cls(
+            url=str(raw.get("url", defaults.url)),
+            baud=int(raw.get("baud", defaults.baud)),
+            system_id=FOLLOW if system_id == FOLLOW else int(system_id),
+            autopilot_system=int(autopilot.get("system", 1)),
+            autopilot_component=int(autopilot.get("component", 1)),
+            heartbeat_timeout_s=float(raw.get("heartbeat_timeout_s", 2.0)),
+            signing=SigningSettings.from_mapping(raw.get("signing")),
+            allowed_sources=sources,
+            act_on_autopilot_commands=bool(raw.get("act_on_autopilot_commands", False)),
+            repeat_servo_cycle=raw.get("repeat_servo_cycle", "seconds"),
+            command_hold_s=float(raw.get("command_hold_s", 2.0)),
+            mirror_servo_output_raw=bool(mirror.get("servo_output_raw", True)),
+            mirror_actuator_output_status=bool(mirror.get("actuator_output_status", False)),
+            actuator_output_status_units=mirror.get("actuator_output_status_units", "pwm"),
+            servo_output_port_width=int(raw.get("servo_output_port_width", 16)),
+            telemetry=TelemetryRates(**{k: float(v) for k, v in telemetry.items()}),
+            servo_component_id=int(raw.get("servo_component_id", DEFAULT_SERVO_COMPONENT)),
+            channel_trims_us=dict(channel_trims_us or {}),
+        )
+
+    def trim_us(self, channel: int) -> float:
+        return float(self.channel_trims_us.get(channel, 1500.0))
