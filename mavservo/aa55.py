@@ -1,0 +1,497 @@
+"""AA-55 framing of the Waveshare USB-CAN-A / Seeed USB-CAN Analyzer family, without any I/O.
+
+Two protocols share the serial line:
+
+* ``variable``: ``AA | type | ID (2 B LE std / 4 B LE ext) | data (DLC B) | 55`` with
+  ``type = 0xC0 | ext << 5 | rtr << 4 | DLC``. Remote frames carry no data bytes; the DLC nibble
+  is the requested length. There is no checksum, so validation is structural (type bits, DLC <= 8,
+  ID range, end marker) and a rejected candidate is rescanned from the byte after its 0xAA: a
+  0xAA inside a payload is legal and a real frame can overlap a false start.
+* ``fixed``: 20-byte frames ``AA 55 | command | ... | checksum`` where the checksum is the low byte
+  of the sum of bytes 2..18. The adapter's settings frame is one of these (in both protocols);
+  data travels this way when the adapter is set to the fixed protocol.
+
+The module is sans-I/O (like h11): bytes in, frames out, nothing else. That is what lets the
+decoder be fuzzed and property-tested, and lets the same code serve the host interface
+(:mod:`mavservo.usbcan`) and the adapter emulator (:mod:`mavservo.sim.adapter`).
+"""
+
+from __future__ import annotations
+
+import enum
+import re
+from collections import Counter, deque
+from dataclasses import dataclass
+from typing import Any, Literal, Protocol
+
+import can
+
+__all__ = [
+    "BITRATE_CODES",
+    "MODES",
+    "AdapterSettings",
+    "ControlFrame",
+    "Decoder",
+    "Frame",
+    "Rejection",
+    "encode",
+    "settings_frame",
+]
+
+ProtocolName = Literal["variable", "fixed"]
+PROTOCOLS: tuple[str, ...] = ("variable", "fixed")
+
+START = 0xAA
+END = 0x55
+FIXED_LENGTH = 20
+MAX_STD_ID = 0x7FF
+MAX_EXT_ID = 0x1FFFFFFF
+
+#: CAN bitrate -> the adapter's bitrate code in the settings frame.
+BITRATE_CODES: dict[int, int] = {
+    1_000_000: 0x01,
+    800_000: 0x02,
+    500_000: 0x03,
+    400_000: 0x04,
+    250_000: 0x05,
+    200_000: 0x06,
+    125_000: 0x07,
+    100_000: 0x08,
+    50_000: 0x09,
+    20_000: 0x0A,
+    10_000: 0x0B,
+    5_000: 0x0C,
+}
+_BITRATES_BY_CODE = {code: rate for rate, code in BITRATE_CODES.items()}
+
+#: Operating mode name -> code in the settings frame.
+MODES: dict[str, int] = {"normal": 0, "loopback": 1, "silent": 2, "loopback_silent": 3}
+_MODES_BY_CODE = {code: name for name, code in MODES.items()}
+
+# Command bytes of the fixed 20-byte frames (byte 2).
+CMD_FIXED_DATA = 0x01
+CMD_SETTINGS_FIXED = 0x02  # settings, then use the fixed 20-byte protocol
+CMD_SETTINGS_VARIABLE = 0x12  # settings, then use the variable-length protocol
+CMD_STATUS = 0x04
+
+
+class Rejection(str, enum.Enum):
+    """Why a candidate frame starting at a 0xAA byte was not accepted."""
+
+    BAD_TYPE = "bad_type"
+    BAD_DLC = "bad_dlc"
+    BAD_ID = "bad_id"
+    BAD_END = "bad_end"
+    BAD_CHECKSUM = "bad_checksum"
+    BAD_FIXED = "bad_fixed"  # checksum fine, but a field is impossible (type, format, DLC, ID)
+    TRUNCATED = "truncated"  # the line went idle in the middle of a candidate
+
+
+class FrameLike(Protocol):
+    arbitration_id: int
+    is_extended_id: bool
+    is_remote_frame: bool
+    data: Any
+
+
+class Frame:
+    """A decoded CAN frame: the light type the decoder emits (a ``can.Message`` costs 4x more).
+
+    It has the attributes of ``can.Message`` that matter on this link, and :meth:`to_message`.
+    """
+
+    __slots__ = ("arbitration_id", "is_extended_id", "is_remote_frame", "dlc", "data", "timestamp")
+
+    def __init__(
+        self,
+        arbitration_id: int,
+        is_extended_id: bool,
+        is_remote_frame: bool,
+        dlc: int,
+        data: bytes,
+        timestamp: float = 0.0,
+    ) -> None:
+        self.arbitration_id = arbitration_id
+        self.is_extended_id = is_extended_id
+        self.is_remote_frame = is_remote_frame
+        self.dlc = dlc
+        self.data = data
+        self.timestamp = timestamp
+
+    def to_message(self, channel: Any = None, is_rx: bool = True) -> can.Message:
+        return can.Message(
+            timestamp=self.timestamp,
+            arbitration_id=self.arbitration_id,
+            is_extended_id=self.is_extended_id,
+            is_remote_frame=self.is_remote_frame,
+            dlc=self.dlc,
+            data=self.data,
+            channel=channel,
+            is_rx=is_rx,
+            check=False,
+        )
+
+    def key(self) -> tuple[int, bool, bool, int, bytes]:
+        """Identity of the frame on the wire, for comparisons in tests and tools."""
+        return (self.arbitration_id, self.is_extended_id, self.is_remote_frame, self.dlc, self.data)
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Frame):
+            return NotImplemented
+        return self.key() == other.key()
+
+    def __hash__(self) -> int:
+        return hash(self.key())
+
+    def __repr__(self) -> str:
+        kind = "ext" if self.is_extended_id else "std"
+        rtr = " rtr" if self.is_remote_frame else ""
+        return f"Frame(0x{self.arbitration_id:X} {kind}{rtr} dlc={self.dlc} data={self.data.hex()})"
+
+
+@dataclass(frozen=True)
+class AdapterSettings:
+    """The adapter set-up carried by a settings frame (decoded by the adapter emulator)."""
+
+    bitrate: int | None  # None: a code this module does not know
+    extended: bool
+    filter_id: int
+    mask: int
+    mode: str
+    protocol: ProtocolName
+    raw: bytes = b""
+
+
+@dataclass(frozen=True)
+class ControlFrame:
+    """A checksummed 20-byte frame that is neither data nor settings (status request/reply...)."""
+
+    command: int
+    raw: bytes
+
+
+def _frame_dlc(frame: FrameLike) -> int:
+    dlc = getattr(frame, "dlc", None)
+    data_len = len(frame.data) if frame.data is not None else 0
+    if frame.is_remote_frame:
+        return data_len if dlc is None else int(dlc)
+    return data_len
+
+
+def _validate(frame: FrameLike) -> tuple[int, bool, bool, int, bytes]:
+    arb_id = int(frame.arbitration_id)
+    ext = bool(frame.is_extended_id)
+    rtr = bool(frame.is_remote_frame)
+    data = bytes(frame.data or b"")
+    limit = MAX_EXT_ID if ext else MAX_STD_ID
+    if not 0 <= arb_id <= limit:
+        kind = "extended" if ext else "standard"
+        raise ValueError(
+            f"arbitration ID 0x{arb_id:X} is out of range for a {kind} frame (0..0x{limit:X})"
+        )
+    if len(data) > 8:
+        raise ValueError(f"data is {len(data)} bytes long; classic CAN carries at most 8")
+    dlc = _frame_dlc(frame)
+    if not 0 <= dlc <= 8:
+        raise ValueError(f"DLC {dlc} is out of range 0..8")
+    if rtr:
+        data = b""  # remote frames carry no data on the wire
+    return arb_id, ext, rtr, dlc, data
+
+
+def encode(frame: FrameLike, protocol: ProtocolName = "variable") -> bytes:
+    """Bytes that put ``frame`` on the serial line in ``protocol``.
+
+    Raises ``ValueError`` for an impossible frame (ID out of range, more than 8 data bytes) or an
+    unknown protocol, so a bad frame never reaches the wire.
+    """
+    arb_id, ext, rtr, dlc, data = _validate(frame)
+    if protocol == "variable":
+        type_byte = 0xC0 | (0x20 if ext else 0) | (0x10 if rtr else 0) | dlc
+        ident = arb_id.to_bytes(4 if ext else 2, "little")
+        return bytes((START, type_byte)) + ident + data + b"\x55"
+    if protocol == "fixed":
+        body = bytearray((START, END, CMD_FIXED_DATA, 2 if ext else 1, 2 if rtr else 1))
+        body += arb_id.to_bytes(4, "little")
+        body.append(dlc)
+        body += data.ljust(8, b"\x00")
+        body.append(0)  # reserved
+        body.append(sum(body[2:]) & 0xFF)
+        return bytes(body)
+    raise ValueError(f"unknown protocol {protocol!r}; expected one of {PROTOCOLS}")
+
+
+def settings_frame(
+    bitrate: int = 1_000_000,
+    *,
+    extended: bool = False,
+    filter_id: int = 0,
+    mask: int = 0,
+    mode: str = "normal",
+    protocol: ProtocolName = "variable",
+) -> bytes:
+    """The 20-byte frame that configures the adapter (bitrate, filter, mode, protocol)."""
+    if bitrate not in BITRATE_CODES:
+        known = ", ".join(str(b) for b in BITRATE_CODES)
+        raise ValueError(f"bitrate {bitrate} is not supported by the adapter; use one of {known}")
+    if mode not in MODES:
+        raise ValueError(f"unknown mode {mode!r}; expected one of {', '.join(MODES)}")
+    if protocol not in PROTOCOLS:
+        raise ValueError(f"unknown protocol {protocol!r}; expected one of {PROTOCOLS}")
+    for name, value in (("filter_id", filter_id), ("mask", mask)):
+        if not 0 <= value <= 0xFFFFFFFF:
+            raise ValueError(f"{name} 0x{value:X} does not fit in 32 bits")
+    command = CMD_SETTINGS_VARIABLE if protocol == "variable" else CMD_SETTINGS_FIXED
+    body = bytearray((START, END, command, BITRATE_CODES[bitrate], 2 if extended else 1))
+    body += filter_id.to_bytes(4, "little") + mask.to_bytes(4, "little")
+    body += bytes((MODES[mode], 0x01, 0, 0, 0, 0))
+    body.append(sum(body[2:]) & 0xFF)
+    return bytes(body)
+
+
+def _variable_alternatives() -> bytes:
+    """Regex alternatives matching exactly the structurally valid variable-length frames.
+
+    One alternative per (extended, remote, DLC) so the payload length is tied to the DLC nibble,
+    and the ID's top byte is bounded so out-of-range IDs never match. Searching for the leftmost
+    match from a position is the same as the byte-by-byte state machine that rescans after every
+    rejected 0xAA, but runs in C.
+    """
+    alts = []
+    for dlc in range(9):
+        alts.append(re.escape(bytes((0xC0 | dlc,))) + rb".[\x00-\x07]" + b".{%d}" % dlc + rb"\x55")
+        alts.append(
+            re.escape(bytes((0xE0 | dlc,))) + rb"...[\x00-\x1f]" + b".{%d}" % dlc + rb"\x55"
+        )
+        alts.append(re.escape(bytes((0xD0 | dlc,))) + rb".[\x00-\x07]\x55")
+        alts.append(re.escape(bytes((0xF0 | dlc,))) + rb"...[\x00-\x1f]\x55")
+    return b"|".join(alts)
+
+
+_VARIABLE_RE = re.compile(rb"\xaa(?:\x55.{18}|" + _variable_alternatives() + rb")", re.DOTALL)
+_FIXED_RE = re.compile(rb"\xaa\x55.{18}", re.DOTALL)
+
+
+class Decoder:
+    """Rebuilds frames from a serial byte stream, whatever its chunking or corruption.
+
+    ``feed(data)`` returns, in stream order, :class:`Frame` for data frames and
+    :class:`AdapterSettings` / :class:`ControlFrame` for 20-byte control frames. It never raises,
+    and between calls it keeps at most one incomplete candidate (< 20 bytes), so memory is bounded.
+    Call :meth:`flush` when the line has gone idle: a candidate still incomplete then was a false
+    start (or a truncated frame) and is rescanned, so a real frame behind it is not held back.
+
+    Counters: ``frames``, ``settings``, ``control``, ``bytes_discarded``, ``rejected`` (per
+    :class:`Rejection`), and ``rejections``, the last ``keep_rejections`` rejected candidates with
+    their bytes, for logs.
+    """
+
+    def __init__(self, protocol: ProtocolName = "variable", keep_rejections: int = 256) -> None:
+        if protocol not in PROTOCOLS:
+            raise ValueError(f"unknown protocol {protocol!r}; expected one of {PROTOCOLS}")
+        self.protocol: ProtocolName = protocol
+        self._pattern = _VARIABLE_RE if protocol == "variable" else _FIXED_RE
+        self._buf = bytearray()
+        self.frames = 0
+        self.settings = 0
+        self.control = 0
+        self.bytes_discarded = 0
+        self.rejected: Counter[Rejection] = Counter()
+        self.rejections: deque[tuple[Rejection, bytes]] = deque(maxlen=keep_rejections)
+
+    @property
+    def pending(self) -> int:
+        """Bytes held back as the start of an incomplete candidate."""
+        return len(self._buf)
+
+    def set_protocol(self, protocol: ProtocolName) -> None:
+        """Switch protocol (the adapter does so on a settings frame); pending bytes are kept."""
+        if protocol not in PROTOCOLS:
+            raise ValueError(f"unknown protocol {protocol!r}; expected one of {PROTOCOLS}")
+        self.protocol = protocol
+        self._pattern = _VARIABLE_RE if protocol == "variable" else _FIXED_RE
+
+    def feed(
+        self, data: bytes, timestamp: float = 0.0
+    ) -> list[Frame | AdapterSettings | ControlFrame]:
+        buf = self._buf
+        buf += data
+        out: list[Frame | AdapterSettings | ControlFrame] = []
+        append = out.append
+        from_bytes = int.from_bytes
+        pos = 0
+        frames = 0
+        rescan = True
+        while rescan:  # leaves the inner loop only to rescan after a failed checksum
+            rescan = False
+            for m in self._pattern.finditer(buf, pos):
+                start = m.start()
+                if start != pos:
+                    self._reject_gap(buf, pos, start)
+                raw = m.group()
+                type_byte = raw[1]
+                if type_byte == END:
+                    item = self._fixed(raw)
+                    if item is None:  # bad checksum or impossible field: rescan after the 0xAA
+                        pos = start + 1
+                        rescan = True
+                        break
+                    if isinstance(item, Frame):
+                        item.timestamp = timestamp
+                        frames += 1
+                    append(item)
+                elif type_byte & 0x20:
+                    frames += 1
+                    append(
+                        Frame(
+                            from_bytes(raw[2:6], "little"),
+                            True,
+                            bool(type_byte & 0x10),
+                            type_byte & 0x0F,
+                            raw[6:-1],
+                            timestamp,
+                        )
+                    )
+                else:
+                    frames += 1
+                    append(
+                        Frame(
+                            from_bytes(raw[2:4], "little"),
+                            False,
+                            bool(type_byte & 0x10),
+                            type_byte & 0x0F,
+                            raw[4:-1],
+                            timestamp,
+                        )
+                    )
+                pos = m.end()
+        self.frames += frames
+        # Tail: keep the earliest 0xAA that could still begin a valid frame.
+        end = len(buf)
+        keep = self._incomplete_start(buf, pos, end)
+        if keep > pos:
+            self._reject_gap(buf, pos, keep)
+        del buf[:keep]
+        return out
+
+    def flush(self) -> list[Frame | AdapterSettings | ControlFrame]:
+        """The line went idle: give up on the pending candidate and rescan what follows it."""
+        if not self._buf:
+            return []
+        pending = bytes(self._buf)
+        self._buf.clear()
+        self.rejected[Rejection.TRUNCATED] += 1
+        self.rejections.append((Rejection.TRUNCATED, pending))
+        self.bytes_discarded += 1
+        out = self.feed(pending[1:])
+        if self._buf:  # still incomplete after rescanning: truncated for good
+            return out + self.flush()
+        return out
+
+    # -- internals ----------------------------------------------------------------------------
+
+    def _fixed(self, raw: bytes) -> Frame | AdapterSettings | ControlFrame | None:
+        if sum(raw[2:19]) & 0xFF != raw[19]:
+            self._record(Rejection.BAD_CHECKSUM, raw)
+            return None
+        command = raw[2]
+        if command in (CMD_SETTINGS_VARIABLE, CMD_SETTINGS_FIXED):
+            self.settings += 1
+            return AdapterSettings(
+                bitrate=_BITRATES_BY_CODE.get(raw[3]),
+                extended=raw[4] == 2,
+                filter_id=int.from_bytes(raw[5:9], "little"),
+                mask=int.from_bytes(raw[9:13], "little"),
+                mode=_MODES_BY_CODE.get(raw[13], f"unknown({raw[13]})"),
+                protocol="variable" if command == CMD_SETTINGS_VARIABLE else "fixed",
+                raw=raw,
+            )
+        if command == CMD_FIXED_DATA:
+            kind, fmt, dlc = raw[3], raw[4], raw[9]
+            arb_id = int.from_bytes(raw[5:9], "little")
+            ext = kind == 2
+            if kind not in (1, 2) or fmt not in (1, 2) or dlc > 8:
+                self._record(Rejection.BAD_FIXED, raw)
+                return None
+            if arb_id > (MAX_EXT_ID if ext else MAX_STD_ID):
+                self._record(Rejection.BAD_FIXED, raw)
+                return None
+            rtr = fmt == 2
+            return Frame(arb_id, ext, rtr, dlc, b"" if rtr else raw[10 : 10 + dlc])
+        self.control += 1
+        return ControlFrame(command, raw)
+
+    def _record(self, reason: Rejection, raw: bytes) -> None:
+        self.rejected[reason] += 1
+        self.rejections.append((reason, raw))
+        self.bytes_discarded += 1
+
+    def _reject_gap(self, buf: bytearray, pos: int, stop: int) -> None:
+        """Account for the bytes in ``buf[pos:stop]``, none of which starts a valid frame."""
+        start = buf.find(START, pos, stop)
+        if start < 0:
+            self.bytes_discarded += stop - pos
+            return
+        self.bytes_discarded += start - pos
+        while start >= 0:
+            reason = self._why_not(buf, start)
+            self._record(reason, bytes(buf[start : min(start + FIXED_LENGTH, len(buf))]))
+            nxt = buf.find(START, start + 1, stop)
+            self.bytes_discarded += (nxt if nxt >= 0 else stop) - start - 1
+            start = nxt
+
+    def _why_not(self, buf: bytearray, start: int) -> Rejection:
+        """The reason the candidate at ``start`` (known not to be a valid frame) fails."""
+        n = len(buf)
+        if start + 1 >= n:
+            return Rejection.TRUNCATED
+        type_byte = buf[start + 1]
+        if type_byte == END:
+            if start + FIXED_LENGTH > n:
+                return Rejection.TRUNCATED
+            return Rejection.BAD_CHECKSUM
+        if self.protocol == "fixed" or type_byte & 0xC0 != 0xC0:
+            return Rejection.BAD_TYPE
+        dlc = type_byte & 0x0F
+        if dlc > 8:
+            return Rejection.BAD_DLC
+        ext = bool(type_byte & 0x20)
+        id_len = 4 if ext else 2
+        length = 3 + id_len + (0 if type_byte & 0x10 else dlc)
+        if start + 2 + id_len > n:
+            return Rejection.TRUNCATED
+        arb_id = int.from_bytes(buf[start + 2 : start + 2 + id_len], "little")
+        if arb_id > (MAX_EXT_ID if ext else MAX_STD_ID):
+            return Rejection.BAD_ID
+        if start + length > n:
+            return Rejection.TRUNCATED
+        return Rejection.BAD_END
+
+    def _incomplete_start(self, buf: bytearray, pos: int, end: int) -> int:
+        """Index of the first 0xAA at or after ``pos`` that may still grow into a valid frame."""
+        start = buf.find(START, max(pos, end - FIXED_LENGTH + 1))
+        while start >= 0:
+            if self._could_complete(buf, start, end):
+                return start
+            start = buf.find(START, start + 1)
+        return end
+
+    def _could_complete(self, buf: bytearray, start: int, end: int) -> bool:
+        avail = end - start
+        if avail < 2:
+            return True
+        type_byte = buf[start + 1]
+        if type_byte == END:
+            return avail < FIXED_LENGTH
+        if self.protocol == "fixed" or type_byte & 0xC0 != 0xC0 or type_byte & 0x0F > 8:
+            return False
+        ext = bool(type_byte & 0x20)
+        id_len = 4 if ext else 2
+        length = 3 + id_len + (0 if type_byte & 0x10 else type_byte & 0x0F)
+        if avail >= length:
+            return False  # complete but did not match: not a valid frame
+        if avail >= 2 + id_len:
+            arb_id = int.from_bytes(buf[start + 2 : start + 2 + id_len], "little")
+            if arb_id > (MAX_EXT_ID if ext else MAX_STD_ID):
+                return False
+        return True

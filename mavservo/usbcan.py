@@ -1,0 +1,247 @@
+"""python-can interface ``aa55`` for the Waveshare / Seeed USB-CAN adapters, over pyserial.
+
+Registered under the ``can.interface`` entry point group, so ``can.Bus(interface="aa55",
+channel="/dev/ttyUSB0", bitrate=1_000_000)`` and python-can's own tools (``can.viewer``,
+``can.logger``) use it. Compared with python-can's ``seeedstudio`` driver it reads in chunks instead
+of one byte per system call, rescans rejected candidates instead of dropping them, honours
+``recv(timeout)`` exactly (0 = non-blocking), never raises a TypeError on a timeout mid-frame, and
+turns a vanished device into ``can.CanOperationError`` instead of a hang.
+"""
+
+from __future__ import annotations
+
+import collections
+import logging
+import select
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import can
+import serial
+
+from mavservo import aa55
+
+log = logging.getLogger(__name__)
+
+#: When the line has been idle this long with a partial candidate pending, the candidate was a
+#: false start or a truncated frame: the decoder rescans it (a real frame takes ~65 us at 2 Mbaud).
+IDLE_FLUSH_S = 0.005
+_READ_CHUNK = 4096
+
+
+def _descriptor(port: serial.SerialBase) -> int | None:
+    """The port's file descriptor, or None for pyserial URL ports that have none."""
+    try:
+        return port.fileno()
+    except (AttributeError, NotImplementedError, OSError, ValueError):
+        return None
+
+
+class AA55Bus(can.BusABC):
+    """A CAN bus behind an AA-55 USB-CAN adapter on a serial port.
+
+    :param channel: serial device (``/dev/ttyUSB0``, ``COM3``) or any pyserial URL.
+    :param bitrate: CAN bitrate, one of :data:`mavservo.aa55.BITRATE_CODES`.
+    :param serial_baud: serial line speed (the adapter's default is 2,000,000).
+    :param protocol: ``"variable"`` (everyday) or ``"fixed"`` (20-byte checksummed frames).
+    :param mode: ``normal``, ``loopback``, ``silent`` or ``loopback_silent``.
+    :param extended: configure the adapter for extended frames (its hardware filter works on one
+        kind only; sending either kind works regardless).
+    :param can_filters: with exactly one filter, it is also programmed into the adapter.
+    :param on_reject: called with ``(reason, raw_bytes)`` for each rejected candidate, from the
+        receiving thread; must not block (it is how run logs record garbage on the line).
+    """
+
+    def __init__(
+        self,
+        channel: str,
+        bitrate: int = 1_000_000,
+        serial_baud: int = 2_000_000,
+        protocol: aa55.ProtocolName = "variable",
+        mode: str = "normal",
+        extended: bool = False,
+        can_filters: can.typechecking.CanFilters | None = None,
+        on_reject: Callable[[aa55.Rejection, bytes], None] | None = None,
+        **kwargs: Any,
+    ) -> None:
+        if not channel:
+            raise can.CanInitializationError("aa55: a serial port is required (channel=...)")
+        self._settings_kwargs = dict(
+            bitrate=bitrate, mode=mode, protocol=protocol, extended=extended
+        )
+        try:  # validate before opening anything
+            aa55.settings_frame(**self._settings_kwargs)
+        except ValueError as exc:
+            raise can.CanInitializationError(f"aa55: {exc}") from exc
+        self.framing: aa55.ProtocolName = protocol
+        self.bitrate = bitrate
+        self.serial_baud = serial_baud
+        self.on_reject = on_reject
+        self.decoder = aa55.Decoder(protocol)
+        self._rx: collections.deque[can.Message] = collections.deque()
+        self._read_lock = threading.Lock()
+        self._write_lock = threading.Lock()
+        self._last_byte_time = 0.0
+        self._seen_rejections = 0
+        self._hw_filter: tuple[int, int] | None = None
+        self.channel_info = f"AA-55 USB-CAN on {channel}"
+        try:
+            self._serial = serial.serial_for_url(
+                channel, baudrate=serial_baud, timeout=0, write_timeout=1.0
+            )
+        except (serial.SerialException, ValueError, OSError) as exc:
+            raise can.CanInitializationError(f"aa55: cannot open {channel}: {exc}") from exc
+        self._fd = _descriptor(self._serial)
+        self._protocol = can.CanProtocol.CAN_20
+        super().__init__(channel=channel, can_filters=can_filters, **kwargs)
+        self.channel = channel
+        self._send_settings()
+
+    # -- configuration ------------------------------------------------------------------------
+
+    def _send_settings(self) -> None:
+        filter_id, mask = self._hw_filter if self._hw_filter else (0, 0)
+        frame = aa55.settings_frame(filter_id=filter_id, mask=mask, **self._settings_kwargs)
+        self._write(frame)
+
+    def _apply_filters(self, filters: can.typechecking.CanFilters | None) -> None:
+        super()._apply_filters(filters)
+        hw = None
+        if filters and len(filters) == 1:
+            only = filters[0]
+            extended = bool(only.get("extended", False))
+            if extended == self._settings_kwargs["extended"]:
+                hw = (only["can_id"], only["can_mask"])
+        changed = hw != self._hw_filter
+        self._hw_filter = hw
+        if changed and hasattr(self, "_serial"):
+            self._send_settings()
+
+    # -- sending ------------------------------------------------------------------------------
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        try:
+            data = aa55.encode(msg, self.framing)
+        except ValueError as exc:
+            raise can.CanOperationError(f"aa55: cannot send {msg}: {exc}") from exc
+        self._write(data)
+
+    def _write(self, data: bytes) -> None:
+        with self._write_lock:
+            try:
+                self._serial.write(data)
+            except serial.SerialTimeoutException as exc:
+                raise can.CanTimeoutError(f"aa55: write timed out on {self.channel}") from exc
+            except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
+                raise can.CanOperationError(
+                    f"aa55: the adapter on {self.channel} is gone ({exc})"
+                ) from exc
+
+    # -- receiving ----------------------------------------------------------------------------
+
+    def _read_available(self, wait: float) -> bool:
+        """Read what the port has, waiting up to ``wait`` s for the first byte. False on timeout.
+
+        Waiting is done with ``select`` on the descriptor (the port's own timeout stays 0), so a
+        read costs one system call for a whole chunk, not one per byte.
+        """
+        ser = self._serial
+        try:
+            if wait > 0 and not ser.in_waiting:
+                if self._fd is not None:
+                    ready, _, _ = select.select([self._fd], [], [], wait)
+                    if not ready:
+                        return False
+                else:  # ports without a descriptor (pyserial URLs): poll
+                    time.sleep(min(wait, 0.001))
+            waiting = ser.in_waiting
+            chunk = ser.read(max(waiting, 1)) if waiting or self._fd is not None else b""
+        except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
+            raise can.CanOperationError(
+                f"aa55: the adapter on {self.channel} is gone ({exc})"
+            ) from exc
+        if not chunk:
+            return False
+        self._last_byte_time = time.monotonic()
+        self._absorb(self.decoder.feed(chunk, time.time()))
+        return True
+
+    def _absorb(self, items: list[aa55.Frame | aa55.AdapterSettings | aa55.ControlFrame]) -> None:
+        channel = self.channel
+        rx = self._rx
+        for item in items:
+            if type(item) is aa55.Frame:
+                rx.append(item.to_message(channel))
+            else:
+                log.debug("aa55: control frame from adapter: %s", item)
+        if self.on_reject is not None:
+            self._report_rejections()
+
+    def _report_rejections(self) -> None:
+        total = sum(self.decoder.rejected.values())
+        new = total - self._seen_rejections
+        self._seen_rejections = total
+        if new <= 0 or self.on_reject is None:
+            return
+        recent = list(self.decoder.rejections)[-new:]
+        for reason, raw in recent:
+            self.on_reject(reason, raw)
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        deadline = None if timeout is None else time.monotonic() + timeout
+        with self._read_lock:
+            while True:
+                if self._rx:
+                    return self._rx.popleft(), False
+                now = time.monotonic()
+                idle = now - self._last_byte_time
+                if self.decoder.pending and idle >= IDLE_FLUSH_S:
+                    self._absorb(self.decoder.flush())
+                    continue
+                if deadline is not None and now >= deadline:
+                    if self._read_available(0):
+                        continue
+                    return None, False
+                wait = 0.1 if deadline is None else deadline - now
+                if self.decoder.pending:
+                    wait = min(wait, IDLE_FLUSH_S - idle)
+                self._read_available(wait)
+
+    # -- lifecycle ----------------------------------------------------------------------------
+
+    def fileno(self) -> int:
+        try:
+            return self._serial.fileno()
+        except Exception:  # pragma: no cover - platform dependent
+            return -1
+
+    def stats(self) -> dict[str, Any]:
+        """Decoder counters, for summaries and run logs."""
+        d = self.decoder
+        return {
+            "frames": d.frames,
+            "bytes_discarded": d.bytes_discarded,
+            "rejected": {r.value: n for r, n in d.rejected.items()},
+            "control_frames": d.control + d.settings,
+        }
+
+    def shutdown(self) -> None:
+        super().shutdown()
+        try:
+            self._serial.close()
+        except Exception as exc:  # closing a vanished device must not raise
+            log.debug("aa55: close failed: %s", exc)
+
+    @staticmethod
+    def _detect_available_configs() -> list[can.typechecking.AutoDetectedConfig]:
+        try:
+            from serial.tools import list_ports
+        except ImportError:  # pragma: no cover
+            return []
+        return [
+            {"interface": "aa55", "channel": port.device}
+            for port in list_ports.comports()
+            if port.vid == 0x1A86  # QinHeng CH340/CH341, the chip inside these adapters
+        ]
