@@ -117,7 +117,7 @@ class CommandHandler:
     settings: MavlinkSettings
     hold: CommandHold
     system_id: Callable[[], int]
-    request_message: Callable[[int, float], Any | None]
+    request_message: Callable[[int, float], list[Any] | None]
     set_interval: Callable[[int, float], bool]
     gimbals: Mapping[int, HostedComponent] = field(default_factory=dict)
     counters: Counter[str] = field(default_factory=Counter)
@@ -346,12 +346,12 @@ class CommandHandler:
         msg_id = cmd.params[0]
         if not _is_int(msg_id) or msg_id < 0:
             return None if broadcast else (_denied("bad_param", f"message id {msg_id!r}"), [])
-        message = self.request_message(int(msg_id), now)
-        if message is None:
+        messages = self.request_message(int(msg_id), now)
+        if messages is None:
             if broadcast:
                 return None
             return ApplyResult(Outcome.UNSUPPORTED, f"unsupported:message {int(msg_id)}"), []
-        return ApplyResult(Outcome.ACCEPTED), [message]
+        return ApplyResult(Outcome.ACCEPTED), list(messages)
 
     def _set_message_interval(self, cmd: Command,
                               broadcast: bool) -> tuple[ApplyResult, list] | None:

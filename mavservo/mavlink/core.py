@@ -1,0 +1,194 @@
+"""The MAVLink side's decisions, without sockets or threads.
+
+:class:`MavlinkCore` takes received messages and the passing of time, and returns what each hosted
+component must send. Everything that touches the network (connection, encoders, signing,
+threads) is in :mod:`mavservo.mavlink.link` and :mod:`mavservo.mavlink.side`; keeping the core
+pure makes the addressing, arbitration and failsafe rules testable without timing.
+
+System id: with ``system_id: follow`` the bridge takes the system id of the first HEARTBEAT from a
+vehicle component numbered like the configured autopilot component (not a GCS), and watches that
+autopilot for failsafe; until then it uses the configured autopilot system id. A fixed id is used
+as is, and the configured autopilot (system, component) is watched.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import Counter
+from collections.abc import Sequence
+from typing import Any
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from mavservo.mavlink.arbitration import CommandHold
+from mavservo.mavlink.backend import ActuatorBackend
+from mavservo.mavlink.commands import Command, CommandHandler, Outgoing
+from mavservo.mavlink.component import MAV_TYPE_GIMBAL, MAV_TYPE_SERVO, HostedComponent
+from mavservo.mavlink.failsafe import FailsafeEvent, HeartbeatWatchdog
+from mavservo.mavlink.mirror import Mirror
+from mavservo.mavlink.settings import FOLLOW, MavlinkSettings
+from mavservo.mavlink.telemetry import (
+    MAV_SEVERITY_CRITICAL,
+    MAV_SEVERITY_NOTICE,
+    Telemetry,
+)
+
+log = logging.getLogger(__name__)
+
+MAV_TYPE_GCS = 6
+MAV_AUTOPILOT_INVALID = 8
+MAV_STATE_ACTIVE = 4
+MAV_STATE_CRITICAL = 5
+HEARTBEAT_PERIOD_S = 1.0
+COMMAND_TYPES = ("COMMAND_LONG", "COMMAND_INT")
+MIRROR_TYPES = ("SERVO_OUTPUT_RAW", "ACTUATOR_OUTPUT_STATUS")
+
+
+class MavlinkCore:
+    """Routes messages to the command handler, the mirror, the gimbal devices and the watchdog."""
+
+    def __init__(
+        self,
+        settings: MavlinkSettings,
+        backend: ActuatorBackend,
+        gimbals: Sequence[HostedComponent] = (),
+        boot_time: float = 0.0,
+    ) -> None:
+        self.settings = settings
+        self.backend = backend
+        self.gimbals = {g.component_id: g for g in gimbals}
+        if settings.servo_component_id in self.gimbals:
+            raise ValueError("a gimbal uses the servo component id")
+        self.components: dict[int, int] = {settings.servo_component_id: MAV_TYPE_SERVO}
+        self.components.update({cid: MAV_TYPE_GIMBAL for cid in self.gimbals})
+        following = settings.system_id == FOLLOW
+        self._system_id = settings.autopilot_system if following else int(settings.system_id)
+        self._system_id_known = not following
+        self.watched = (settings.autopilot_system, settings.autopilot_component)
+        self.hold = CommandHold(settings.command_hold_s)
+        self.mirror = Mirror(backend, settings, self.hold)
+        self.telemetry = Telemetry(backend, settings.telemetry, boot_time)
+        self.watchdog = HeartbeatWatchdog(settings.heartbeat_timeout_s)
+        self.commands = CommandHandler(
+            backend=backend,
+            settings=settings,
+            hold=self.hold,
+            system_id=lambda: self._system_id,
+            request_message=self.telemetry.request,
+            set_interval=lambda msg_id, us: self.telemetry.set_interval(msg_id, us, self._now),
+            gimbals=self.gimbals,
+        )
+        self._now = boot_time
+        self._next_heartbeat = {cid: boot_time for cid in self.components}
+        self.counters: Counter[str] = Counter()
+
+    @property
+    def system_id(self) -> int:
+        return self._system_id
+
+    # ------------------------------------------------------------------ input
+
+    def on_message(self, msg: Any, now: float) -> list[Outgoing]:
+        """One received message (already signature-checked by the link)."""
+        self._now = now
+        kind = msg.get_type()
+        if kind == "BAD_DATA":
+            self.counters["bad_data"] += 1
+            return []
+        source = (msg.get_srcSystem(), msg.get_srcComponent())
+        if source[0] == self._system_id and source[1] in self.components:
+            return []  # our own traffic echoed back by a router
+        self.counters["received"] += 1
+        if kind == "HEARTBEAT":
+            return self._heartbeat(msg, source, now)
+        from_autopilot = source == self.watched
+        if from_autopilot and kind in MIRROR_TYPES:
+            if self.watchdog.in_failsafe:
+                self.counters["mirror_ignored_in_failsafe"] += 1
+            else:
+                self.mirror.handle(msg, now)
+            return []
+        if not from_autopilot and not self._source_allowed(source):
+            self.counters["rejected_source"] += 1
+            log.warning("message %s from %s rejected: not in allowed_sources", kind, source)
+            return []
+        if kind in COMMAND_TYPES:
+            return self.commands.handle(Command.from_message(msg), now)
+        self._to_gimbals(msg, now)
+        return []
+
+    def _source_allowed(self, source: tuple[int, int]) -> bool:
+        allowed = self.settings.allowed_sources
+        return not allowed or source in allowed
+
+    def _heartbeat(self, msg: Any, source: tuple[int, int], now: float) -> list[Outgoing]:
+        if (not self._system_id_known and source[1] == self.settings.autopilot_component
+                and msg.type != MAV_TYPE_GCS and msg.autopilot != MAV_AUTOPILOT_INVALID):
+            self._system_id = source[0]
+            self._system_id_known = True
+            self.watched = source
+            log.info("following autopilot system id %d", source[0])
+        if source == self.watched and self.watchdog.heartbeat(now) is FailsafeEvent.RECOVERED:
+            self.backend.leave_failsafe(now)
+            self.mirror.reset()
+            self.hold.release_all()
+            self.telemetry.announce(MAV_SEVERITY_NOTICE,
+                                    "servo bridge: autopilot back, waiting for commands")
+        self._to_gimbals(msg, now)
+        return []
+
+    def _to_gimbals(self, msg: Any, now: float) -> None:
+        """Deliver a message to each gimbal it is addressed to (or broadcast to)."""
+        target_system = getattr(msg, "target_system", 0)
+        target_component = getattr(msg, "target_component", 0)
+        if target_system not in (0, self._system_id):
+            return
+        for cid, device in self.gimbals.items():
+            if target_component in (0, cid):
+                device.handle_message(msg, now)
+
+    # ------------------------------------------------------------------ time
+
+    def tick(self, now: float) -> list[Outgoing]:
+        """Everything due at ``now``: failsafe, repeats, heartbeats, telemetry, gimbal status."""
+        self._now = now
+        out: list[Outgoing] = []
+        if self.watchdog.check(now) is FailsafeEvent.LOST:
+            self.counters["failsafe_entered"] += 1
+            self.commands.cancel_all()
+            self.backend.enter_failsafe("autopilot heartbeat lost", now)
+            self.telemetry.announce(MAV_SEVERITY_CRITICAL,
+                                    "servo bridge: autopilot lost, servos in failsafe")
+        if not self.watchdog.in_failsafe:
+            self.commands.tick(now)
+        for cid, mav_type in self.components.items():
+            if now >= self._next_heartbeat[cid]:
+                self._next_heartbeat[cid] = max(self._next_heartbeat[cid] + HEARTBEAT_PERIOD_S,
+                                                now)
+                out.append((cid, self._heartbeat_message(mav_type)))
+        servo = self.settings.servo_component_id
+        out.extend((servo, m) for m in self.telemetry.periodic(now))
+        for cid, device in self.gimbals.items():
+            out.extend((cid, m) for m in device.periodic(now))
+        return out
+
+    def announce(self, severity: int, text: str) -> None:
+        """Queue a STATUSTEXT from the servo component (link events from the I/O layer)."""
+        self.telemetry.announce(severity, text)
+
+    def _heartbeat_message(self, mav_type: int) -> Any:
+        state = MAV_STATE_CRITICAL if self.watchdog.in_failsafe else MAV_STATE_ACTIVE
+        return mavlink2.MAVLink_heartbeat_message(mav_type, MAV_AUTOPILOT_INVALID, 0, 0, state, 3)
+
+    def stats(self) -> dict[str, Any]:
+        """Counters for the bridge's summary."""
+        return {
+            "system_id": self._system_id,
+            "core": dict(self.counters),
+            "commands": dict(self.commands.counters),
+            "mirror": dict(self.mirror.counters),
+            "mirror_held_by_command": self.hold.mirror_suppressed,
+            "telemetry": dict(self.telemetry.counters),
+            "failsafe_count": self.watchdog.failsafe_count,
+            "in_failsafe": self.watchdog.in_failsafe,
+        }

@@ -1,0 +1,47 @@
+"""Autopilot heartbeat watchdog: link lost -> servos to their failsafe; link back -> announce.
+
+The bridge must not keep flying the last commanded surface positions when the autopilot is gone
+(cable pulled, autopilot rebooting). The monitor only decides; the MAVLink side calls the backend
+(``enter_failsafe`` / ``leave_failsafe``) and announces the transitions. After recovery nothing
+moves until a fresh command or stream sample arrives (the backend enforces that).
+
+The watchdog arms on the first HEARTBEAT: before the autopilot has ever been seen there is nothing
+to lose, and a bridge started before the autopilot must not begin in failsafe. Pure: time comes in.
+"""
+
+from __future__ import annotations
+
+import enum
+
+
+class FailsafeEvent(enum.Enum):
+    LOST = "lost"
+    RECOVERED = "recovered"
+
+
+class HeartbeatWatchdog:
+    """Tracks the watched autopilot's HEARTBEAT and reports transitions exactly once each."""
+
+    def __init__(self, timeout_s: float) -> None:
+        self.timeout_s = timeout_s
+        self.last_heartbeat: float | None = None
+        self.in_failsafe = False
+        self.failsafe_count = 0
+
+    def heartbeat(self, now: float) -> FailsafeEvent | None:
+        """The autopilot's HEARTBEAT arrived at ``now``; RECOVERED when it ends a failsafe."""
+        self.last_heartbeat = now
+        if self.in_failsafe:
+            self.in_failsafe = False
+            return FailsafeEvent.RECOVERED
+        return None
+
+    def check(self, now: float) -> FailsafeEvent | None:
+        """LOST once when no HEARTBEAT has arrived for ``timeout_s``."""
+        if self.in_failsafe or self.last_heartbeat is None:
+            return None
+        if now - self.last_heartbeat >= self.timeout_s:
+            self.in_failsafe = True
+            self.failsafe_count += 1
+            return FailsafeEvent.LOST
+        return None

@@ -1,0 +1,104 @@
+"""The MAVLink side as the bridge uses it: link + core + a tick thread.
+
+``MavlinkSide(settings, backend, gimbals=[...])`` opens the connection, hosts the servo component
+and every gimbal component, and runs two threads: the link's receive thread (messages into the
+core) and a tick thread (heartbeats, telemetry, failsafe, DO_REPEAT_SERVO steps) every
+``TICK_S``. Both enter the core under one lock, so the core needs no locking of its own.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from mavservo.mavlink.backend import ActuatorBackend
+from mavservo.mavlink.commands import Outgoing
+from mavservo.mavlink.component import HostedComponent
+from mavservo.mavlink.core import MavlinkCore
+from mavservo.mavlink.link import MavlinkLink
+from mavservo.mavlink.settings import MavlinkSettings
+from mavservo.mavlink.telemetry import MAV_SEVERITY_WARNING
+
+log = logging.getLogger(__name__)
+
+TICK_S = 0.01
+
+
+class MavlinkSide:
+    """Lifecycle owner of the MAVLink half of the bridge: ``start()``, ``stop()``, ``stats()``."""
+
+    def __init__(
+        self,
+        settings: MavlinkSettings,
+        backend: ActuatorBackend,
+        gimbals: Sequence[HostedComponent] = (),
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self._clock = clock
+        self._lock = threading.Lock()
+        self.core = MavlinkCore(settings, backend, gimbals, boot_time=clock())
+        self.link = MavlinkLink(
+            settings.url, self._on_message, baud=settings.baud, signing=settings.signing,
+            on_event=self._on_link_event, clock=clock,
+        )
+        for cid in self.core.components:
+            self.link.add_component(cid, self.core.system_id)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> None:
+        self.link.start()
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._tick_loop, name="mavlink-tick", daemon=True)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=2.0)
+            self._thread = None
+        self.link.stop()
+
+    def __enter__(self) -> MavlinkSide:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def stats(self) -> dict[str, Any]:
+        with self._lock:
+            return {**self.core.stats(), "link": self.link.stats()}
+
+    # ------------------------------------------------------------------ plumbing
+
+    def _on_message(self, msg: Any, now: float) -> None:
+        with self._lock:
+            out = self.core.on_message(msg, now)
+        self._send(out)
+
+    def _on_link_event(self, text: str) -> None:
+        with self._lock:
+            self.core.announce(MAV_SEVERITY_WARNING, f"servo bridge: {text}")
+
+    def _tick_loop(self) -> None:
+        next_tick = self._clock()
+        while not self._stop.is_set():
+            now = self._clock()
+            with self._lock:
+                out = self.core.tick(now)
+            self._send(out)
+            next_tick += TICK_S
+            delay = next_tick - self._clock()
+            if delay < 0:
+                next_tick = self._clock()
+                delay = 0
+            self._stop.wait(delay)
+
+    def _send(self, out: list[Outgoing]) -> None:
+        system_id = self.core.system_id
+        for component_id, msg in out:
+            self.link.send(component_id, msg, system_id)
