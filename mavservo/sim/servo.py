@@ -1,0 +1,439 @@
+"""Simulated CAN servos: the device side of every profile, with physics and fault injection.
+
+A :class:`SimServo` answers exactly what the real servo answers, at the same resolution (an RMD
+status reply carries whole degrees, so even a perfect servo shows up to 0.5 deg of error), and
+its telemetry moves the way a real one does: a position loop with speed and acceleration limits,
+current that follows acceleration, friction and load, temperature that rises with current
+squared and cools toward ambient, and a limp drift when no command has arrived for
+``relax_after_s`` (what the scheduler's keep-alive refresh exists to prevent).
+
+Nothing here reads a clock or does I/O: every call takes ``now`` (seconds, any monotonic base)
+and the randomness (dropped replies, current noise) comes from a seeded generator, so a run is
+reproducible. The simulated bus (:mod:`mavservo.sim.canbus`) and the adapter emulator decide
+when "now" is.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+import struct
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
+from typing import Any
+
+import can
+
+from ..servos import get_profile
+from ..servos.base import NO_FAULT, Fault
+from ..servos.cubemars import (
+    DEFAULT_POLE_PAIRS,
+    MODE_POSITION,
+    MODE_POSITION_SPEED,
+    STATUS_BASE,
+    error_code_from_faults,
+)
+from ..servos.rmdx import (
+    CMD_MULTI_TURN_ANGLE,
+    CMD_POSITION,
+    CMD_STATUS_1,
+    CMD_STATUS_2,
+    REPLY_BASE_V4,
+    REQUEST_BASE,
+    error_word_from_faults,
+)
+
+Reply = tuple[float, can.Message]
+"""A frame the servo will put on the bus, and the earliest time it is ready to."""
+
+_MAX_STEPS_PER_ADVANCE = 20_000
+_STEP_S = 0.001
+
+
+def _from_mapping(cls: type, values: Mapping[str, Any] | None, what: str) -> Any:
+    """Build a dataclass from a YAML mapping, naming unknown keys instead of ignoring them."""
+    values = dict(values or {})
+    known = {f.name for f in fields(cls)}
+    unknown = sorted(set(values) - known)
+    if unknown:
+        raise ValueError(f"unknown {what} option(s) {unknown}; known: {sorted(known)}")
+    return cls(**values)
+
+
+@dataclass
+class Physics:
+    """Mechanical and thermal model of one servo (defaults: a small gimbal-class actuator)."""
+
+    max_speed_dps: float = 720.0
+    """The servo's own speed ceiling; a command's speed limit can only lower it."""
+    max_accel_dps2: float = 3600.0
+    position_gain: float = 20.0
+    """1/s: velocity demand per degree of error near the target (smooth final approach)."""
+    current_per_accel: float = 0.0005
+    """A per deg/s^2: current needed to accelerate the rotor and load inertia."""
+    viscous_current: float = 0.002
+    """A per deg/s of speed (viscous friction)."""
+    friction_current: float = 0.15
+    """A of Coulomb friction while moving."""
+    load_current: float = 0.0
+    """A needed to hold a constant external load torque (e.g. an off-balance camera)."""
+    current_noise_a: float = 0.01
+    ambient_c: float = 25.0
+    heating_c_per_a2s: float = 0.05
+    """degC per second per A^2 of winding loss."""
+    cooling_per_s: float = 0.01
+    """Fraction of the excess over ambient shed per second."""
+    over_current_a: float = 10.0
+    over_temperature_c: float = 80.0
+    voltage_v: float = 24.0
+    initial_position_deg: float = 0.0
+    relax_after_s: float | None = None
+    """Seconds without a command after which the servo goes limp; None: never."""
+    relax_rate_dps: float = 5.0
+    """Speed of the limp drift toward ``relax_rest_deg`` (gravity, spring of the cable...)."""
+    relax_rest_deg: float = 0.0
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any] | None) -> Physics:
+        return _from_mapping(cls, values, "physics")
+
+
+@dataclass
+class Faults:
+    """Faults injected into one servo; all mutable at run time so tests can flip them."""
+
+    drop_reply_prob: float = 0.0
+    """Probability that any one reply or status push is lost."""
+    reply_delay_s: float = 0.0
+    """Extra delay before every reply (a slow or overloaded servo)."""
+    silent: bool = False
+    """Stop answering altogether (commands still move the servo: a lost TX path)."""
+    over_current: bool = False
+    """Report the over-current fault flag regardless of the physics."""
+    over_temperature: bool = False
+    """Report the over-temperature fault flag regardless of the physics."""
+
+    @classmethod
+    def from_dict(cls, values: Mapping[str, Any] | None) -> Faults:
+        return _from_mapping(cls, values, "fault")
+
+
+class SimServo:
+    """One simulated servo speaking ``profile`` on ``can_id``.
+
+    ``receive(msg, now)`` handles a frame seen on the bus and returns the replies it provokes;
+    ``poll(now)`` returns status pushes that are due (push-style profiles only), and
+    ``next_push_time()`` says when the next one is. Physics is integrated lazily up to each
+    ``now``; times that go backwards are treated as "now" (no rewinding).
+    """
+
+    def __init__(
+        self,
+        profile: str,
+        can_id: int,
+        physics: Physics | None = None,
+        faults: Faults | None = None,
+        *,
+        seed: int = 0,
+        status_rate_hz: float = 50.0,
+        reply_latency_s: float = 0.0002,
+        erpm_per_dps: float = DEFAULT_POLE_PAIRS / 6,
+    ) -> None:
+        get_profile(profile)  # a clear error for unknown names
+        if profile not in _DEVICES:
+            raise ValueError(f"no simulated device for profile {profile!r}")
+        self.profile = profile
+        self.can_id = can_id
+        self.physics = physics or Physics()
+        self.faults = faults or Faults()
+        self.reply_latency_s = reply_latency_s
+        self.status_rate_hz = status_rate_hz
+        self.erpm_per_dps = erpm_per_dps
+        self._rng = random.Random(seed)
+        self._device = _DEVICES[profile](self)
+
+        self.time: float | None = None
+        self.position_deg = self.physics.initial_position_deg
+        self.velocity_dps = 0.0
+        self.accel_dps2 = 0.0
+        self.temperature_c = self.physics.ambient_c
+        self.target_deg = self.position_deg
+        self.speed_limit_dps = self.physics.max_speed_dps
+        self.accel_limit_dps2 = self.physics.max_accel_dps2
+        self.last_command_time: float | None = None
+        self._next_push: float | None = None
+
+        self.commands = 0
+        self.requests = 0
+        self.replies = 0
+        self.replies_dropped = 0
+
+    # -- physics ---------------------------------------------------------------------------
+
+    @property
+    def relaxed(self) -> bool:
+        """True while the servo is limp because no command came for ``relax_after_s``."""
+        limit = self.physics.relax_after_s
+        if limit is None or self.time is None:
+            return False
+        since = self.last_command_time if self.last_command_time is not None else self._t0
+        return self.time - since > limit
+
+    @property
+    def current_a(self) -> float:
+        """Motor current implied by the present motion and load (noise-free)."""
+        p = self.physics
+        if self.relaxed:
+            return 0.0
+        moving = abs(self.velocity_dps) > 1e-6
+        friction = math.copysign(p.friction_current, self.velocity_dps) if moving else 0.0
+        return (
+            p.current_per_accel * self.accel_dps2
+            + p.viscous_current * self.velocity_dps
+            + friction
+            + p.load_current
+        )
+
+    def measured_current_a(self) -> float:
+        """Current as a sensor reports it (with seeded noise)."""
+        return self.current_a + self._rng.gauss(0.0, self.physics.current_noise_a)
+
+    @property
+    def active_faults(self) -> Fault:
+        """Fault flags the servo reports now: injected ones plus those the physics trips."""
+        faults = NO_FAULT
+        if self.faults.over_current or abs(self.current_a) > self.physics.over_current_a:
+            faults |= Fault.OVER_CURRENT
+        if self.faults.over_temperature or self.temperature_c > self.physics.over_temperature_c:
+            faults |= Fault.OVER_TEMPERATURE
+        return faults
+
+    def advance(self, now: float) -> None:
+        """Integrate the physics up to ``now`` (fixed 1 ms steps, bounded per call)."""
+        if self.time is None:
+            self.time = now
+            self._t0 = now
+            return
+        span = now - self.time
+        if span <= 0:
+            return
+        steps = min(_MAX_STEPS_PER_ADVANCE, max(1, math.ceil(span / _STEP_S)))
+        h = span / steps
+        for _ in range(steps):
+            self._step(h)
+        self.time = now
+
+    def _step(self, h: float) -> None:
+        p = self.physics
+        self.time = (self.time or 0.0) + h
+        if self.relaxed:
+            offset = self.position_deg - p.relax_rest_deg
+            drift = min(p.relax_rate_dps, abs(offset) / h)
+            self.velocity_dps = -math.copysign(drift, offset) if offset else 0.0
+            self.accel_dps2 = 0.0
+        else:
+            error = self.target_deg - self.position_deg
+            accel = self.accel_limit_dps2
+            wanted = min(
+                self.speed_limit_dps,
+                p.position_gain * abs(error),
+                math.sqrt(2.0 * accel * abs(error)),
+            )
+            wanted = math.copysign(wanted, error)
+            self.accel_dps2 = max(-accel, min(accel, (wanted - self.velocity_dps) / h))
+            self.velocity_dps += self.accel_dps2 * h
+        self.position_deg += self.velocity_dps * h
+        current = self.current_a
+        self.temperature_c += (
+            p.heating_c_per_a2s * current * current
+            - p.cooling_per_s * (self.temperature_c - p.ambient_c)
+        ) * h
+
+    def command_position(
+        self,
+        angle_deg: float,
+        speed_dps: float | None,
+        now: float,
+        accel_dps2: float | None = None,
+    ) -> None:
+        """Apply a decoded position command (called by the protocol devices)."""
+        self.advance(now)
+        self.commands += 1
+        self.last_command_time = self.time
+        self.target_deg = angle_deg
+        ceiling = self.physics.max_speed_dps
+        self.speed_limit_dps = ceiling if not speed_dps else min(speed_dps, ceiling)
+        accel_ceiling = self.physics.max_accel_dps2
+        self.accel_limit_dps2 = (
+            accel_ceiling if not accel_dps2 else min(accel_dps2, accel_ceiling)
+        )
+
+    # -- the bus side ------------------------------------------------------------------------
+
+    def receive(self, msg: can.Message, now: float) -> list[Reply]:
+        """Frame ``msg`` finished on the bus at ``now``: act on it, return the replies."""
+        if msg.is_remote_frame or not self._device.accepts(msg):
+            return []
+        self.advance(now)
+        reply = self._device.handle(msg, self.time if self.time is not None else now)
+        return self._emit(reply, now)
+
+    def next_push_time(self) -> float | None:
+        """When the next unsolicited status push is due; None for polled profiles."""
+        if not self._device.pushes:
+            return None
+        return self._next_push
+
+    def poll(self, now: float) -> list[Reply]:
+        """Status pushes due by ``now`` (at most one: a late caller does not get a flood)."""
+        if not self._device.pushes or self.status_rate_hz <= 0:
+            return []
+        period = 1.0 / self.status_rate_hz
+        if self._next_push is None:
+            self._next_push = now + period
+            self.advance(now)
+            return []
+        if now < self._next_push:
+            return []
+        due = self._next_push
+        self._next_push = max(due + period, now - period + 1e-9)
+        self.advance(now)
+        return self._emit(self._device.status(), due)
+
+    def _emit(self, reply: can.Message | None, now: float) -> list[Reply]:
+        if reply is None or self.faults.silent:
+            return []
+        if self.faults.drop_reply_prob and self._rng.random() < self.faults.drop_reply_prob:
+            self.replies_dropped += 1
+            return []
+        self.replies += 1
+        due = now + self.reply_latency_s + self.faults.reply_delay_s
+        reply.timestamp = due
+        return [(due, reply)]
+
+
+def _clamp(value: float, low: int, high: int) -> int:
+    return max(low, min(high, int(value)))
+
+
+def _round_half_up(value: float) -> int:
+    return math.floor(value + 0.5)
+
+
+class _RmdDevice:
+    """Device side of RMD-X V4 (``reply_base`` 0x240) and LK / old firmware (0x140)."""
+
+    pushes = False
+    reply_base = REPLY_BASE_V4
+
+    def __init__(self, servo: SimServo) -> None:
+        self.servo = servo
+        self.request_id = REQUEST_BASE + servo.can_id
+        self.reply_id = self.reply_base + servo.can_id
+
+    def accepts(self, msg: can.Message) -> bool:
+        return (
+            not msg.is_extended_id and msg.arbitration_id == self.request_id and len(msg.data) == 8
+        )
+
+    def handle(self, msg: can.Message, now: float) -> can.Message | None:
+        data = bytes(msg.data)
+        command = data[0]
+        servo = self.servo
+        if command == CMD_POSITION:
+            _, _, speed, angle = struct.unpack("<BBHi", data)
+            servo.command_position(angle / 100, float(speed), now)
+            return self._status_2(command)
+        servo.requests += 1
+        if command == CMD_STATUS_2:
+            return self._status_2(command)
+        if command == CMD_MULTI_TURN_ANGLE:
+            angle = _clamp(round(servo.position_deg * 100), -(2**31), 2**31 - 1)
+            return self._reply(struct.pack("<BBBBi", command, 0, 0, 0, angle))
+        if command == CMD_STATUS_1:
+            return self._reply(
+                struct.pack(
+                    "<BbBBHH",
+                    command,
+                    _clamp(round(servo.temperature_c), -128, 127),
+                    0,
+                    0,
+                    _clamp(round(servo.physics.voltage_v * 10), 0, 0xFFFF),
+                    error_word_from_faults(servo.active_faults),
+                )
+            )
+        return None
+
+    def _status_2(self, command: int) -> can.Message:
+        servo = self.servo
+        return self._reply(
+            struct.pack(
+                "<Bbhhh",
+                command,
+                _clamp(round(servo.temperature_c), -128, 127),
+                _clamp(round(servo.measured_current_a() * 100), -32768, 32767),
+                _clamp(round(servo.velocity_dps), -32768, 32767),
+                _clamp(_round_half_up(servo.position_deg), -32768, 32767),
+            )
+        )
+
+    def _reply(self, payload: bytes) -> can.Message:
+        return can.Message(arbitration_id=self.reply_id, is_extended_id=False, data=payload)
+
+
+class _LkDevice(_RmdDevice):
+    reply_base = REQUEST_BASE
+
+
+class _CubeMarsDevice:
+    """Device side of CubeMars AK servo mode: obeys modes 4 and 6, pushes status."""
+
+    pushes = True
+
+    def __init__(self, servo: SimServo) -> None:
+        self.servo = servo
+        self.status_id = STATUS_BASE | servo.can_id
+
+    def accepts(self, msg: can.Message) -> bool:
+        mode = msg.arbitration_id >> 8
+        return (
+            msg.is_extended_id
+            and msg.arbitration_id & 0xFF == self.servo.can_id
+            and (
+                (mode == MODE_POSITION and len(msg.data) == 4)
+                or (mode == MODE_POSITION_SPEED and len(msg.data) == 8)
+            )
+        )
+
+    def handle(self, msg: can.Message, now: float) -> can.Message | None:
+        data = bytes(msg.data)
+        servo = self.servo
+        if msg.arbitration_id >> 8 == MODE_POSITION:
+            (position,) = struct.unpack(">i", data)
+            servo.command_position(position / 10_000, None, now)
+        else:
+            position, speed, accel = struct.unpack(">ihh", data)
+            per = servo.erpm_per_dps
+            servo.command_position(position / 10_000, abs(speed) * 10 / per, now,
+                                   abs(accel) * 10 / per)
+        return self.status()
+
+    def status(self) -> can.Message:
+        servo = self.servo
+        payload = struct.pack(
+            ">hhhbB",
+            _clamp(round(servo.position_deg * 10), -32768, 32767),
+            _clamp(round(servo.velocity_dps * servo.erpm_per_dps / 10), -32768, 32767),
+            _clamp(round(servo.measured_current_a() * 100), -32768, 32767),
+            _clamp(round(servo.temperature_c), -128, 127),
+            error_code_from_faults(servo.active_faults),
+        )
+        return can.Message(arbitration_id=self.status_id, is_extended_id=True, data=payload)
+
+
+_DEVICES: dict[str, type] = {
+    "rmd-x": _RmdDevice,
+    "lk": _LkDevice,
+    "cubemars-ak": _CubeMarsDevice,
+}
+"""Profile name -> device-side model; a new profile adds its device here."""
