@@ -320,6 +320,7 @@ class Decoder:
         append = out.append
         from_bytes = int.from_bytes
         pos = 0
+        end = len(buf)
         frames = 0
         rescan = True
         while rescan:  # leaves the inner loop only to rescan after a failed checksum
@@ -327,6 +328,8 @@ class Decoder:
             for m in self._pattern.finditer(buf, pos):
                 start = m.start()
                 if start != pos:
+                    if start > end - FIXED_LENGTH and self._held_back(buf, pos, start, end):
+                        break  # an earlier candidate may still complete and swallow this match
                     self._reject_gap(buf, pos, start)
                 raw = m.group()
                 type_byte = raw[1]
@@ -367,7 +370,6 @@ class Decoder:
                 pos = m.end()
         self.frames += frames
         # Tail: keep the earliest 0xAA that could still begin a valid frame.
-        end = len(buf)
         keep = self._incomplete_start(buf, pos, end)
         if keep > pos:
             self._reject_gap(buf, pos, keep)
@@ -466,6 +468,18 @@ class Decoder:
         if start + length > n:
             return Rejection.TRUNCATED
         return Rejection.BAD_END
+
+    def _held_back(self, buf: bytearray, pos: int, stop: int, end: int) -> bool:
+        """True when a 0xAA in ``buf[pos:stop]`` may still grow into a frame covering ``stop``.
+
+        Emitting the later match now would make the output depend on how the stream was chunked.
+        """
+        start = buf.find(START, max(pos, end - FIXED_LENGTH + 1), stop)
+        while start >= 0:
+            if self._could_complete(buf, start, end):
+                return True
+            start = buf.find(START, start + 1, stop)
+        return False
 
     def _incomplete_start(self, buf: bytearray, pos: int, end: int) -> int:
         """Index of the first 0xAA at or after ``pos`` that may still grow into a valid frame."""

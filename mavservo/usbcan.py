@@ -107,7 +107,8 @@ class AA55Bus(can.BusABC):
         self._write(frame)
 
     def _apply_filters(self, filters: can.typechecking.CanFilters | None) -> None:
-        super()._apply_filters(filters)
+        # Software filtering stays on (BusABC applies self._filters in recv); the hardware filter
+        # only spares the serial line when one filter of the adapter's ID kind is given.
         hw = None
         if filters and len(filters) == 1:
             only = filters[0]

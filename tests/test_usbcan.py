@@ -1,0 +1,165 @@
+"""The ``aa55`` python-can interface over a real pseudo-terminal; the test plays the adapter."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import select
+import time
+import tty
+from collections.abc import Iterator
+
+import can
+import pytest
+
+from mavservo import aa55
+from mavservo.aa55 import Frame
+
+
+class AdapterEnd:
+    """The adapter's side of a pty pair: raw bytes in and out, with bounded reads."""
+
+    def __init__(self) -> None:
+        self.master, slave = os.openpty()
+        tty.setraw(self.master)
+        tty.setraw(slave)
+        self.path = os.ttyname(slave)
+        self._slave = slave  # kept open so the line stays up while the bus reopens it
+
+    def read(self, n: int, timeout: float = 2.0) -> bytes:
+        out = b""
+        deadline = time.monotonic() + timeout
+        while len(out) < n and time.monotonic() < deadline:
+            ready, _, _ = select.select([self.master], [], [], deadline - time.monotonic())
+            if ready:
+                out += os.read(self.master, n - len(out))
+        return out
+
+    def write(self, data: bytes) -> None:
+        os.write(self.master, data)
+
+    def unplug(self) -> None:
+        os.close(self.master)
+        os.close(self._slave)
+
+
+@pytest.fixture
+def adapter() -> Iterator[AdapterEnd]:
+    end = AdapterEnd()
+    yield end
+    for fd in (end.master, end._slave):
+        with contextlib.suppress(OSError):  # already closed by an unplug test
+            os.close(fd)
+
+
+def test_bus_sends_settings_then_frames(adapter: AdapterEnd) -> None:
+    with can.Bus(interface="aa55", channel=adapter.path, bitrate=500_000, mode="normal") as bus:
+        assert adapter.read(20) == aa55.settings_frame(500_000)
+        msg = can.Message(
+            arbitration_id=0x141, data=bytes.fromhex("A400F40128230000"), is_extended_id=False
+        )
+        bus.send(msg)
+        assert adapter.read(13) == aa55.encode(msg)
+
+
+def test_fixed_protocol_is_configured_and_used(adapter: AdapterEnd) -> None:
+    with can.Bus(interface="aa55", channel=adapter.path, protocol="fixed") as bus:
+        settings = adapter.read(20)
+        assert settings[2] == aa55.CMD_SETTINGS_FIXED
+        msg = can.Message(arbitration_id=0x2901, data=b"\x01\x02", is_extended_id=True)
+        bus.send(msg)
+        assert adapter.read(20) == aa55.encode(msg, "fixed")
+        adapter.write(aa55.encode(msg, "fixed"))
+        got = bus.recv(2.0)
+        assert got is not None and got.arbitration_id == 0x2901 and bytes(got.data) == b"\x01\x02"
+
+
+def test_recv_returns_frames_across_garbage_and_split_writes(adapter: AdapterEnd) -> None:
+    sent = [
+        Frame(0x240 + i, False, False, 8, bytes([0x9C, i, 0, 0, 0, 0, 0, 0])) for i in range(1, 9)
+    ]
+    stream = b"\x00\xaa\xaa".join(aa55.encode(f) for f in sent)
+    with can.Bus(interface="aa55", channel=adapter.path) as bus:
+        adapter.read(20)
+        for i in range(0, len(stream), 5):
+            adapter.write(stream[i : i + 5])
+        got = []
+        for _ in range(len(sent) * 3):
+            msg = bus.recv(1.0)
+            if msg is None:
+                break
+            got.append(
+                Frame(
+                    msg.arbitration_id,
+                    msg.is_extended_id,
+                    msg.is_remote_frame,
+                    msg.dlc,
+                    bytes(msg.data),
+                )
+            )
+        assert got == sent
+        assert bus.stats()["rejected"]["bad_type"] == 2 * (len(sent) - 1)  # two false 0xAA per gap
+
+
+def test_recv_timeout_is_honoured_and_zero_does_not_block(adapter: AdapterEnd) -> None:
+    with can.Bus(interface="aa55", channel=adapter.path) as bus:
+        adapter.read(20)
+        assert bus.recv(0) is None
+        t0 = time.monotonic()
+        assert bus.recv(0.05) is None
+        assert time.monotonic() - t0 >= 0.05
+
+
+def test_partial_frame_then_idle_is_not_an_error(adapter: AdapterEnd) -> None:
+    """python-can issue #2024: seeedstudio raises TypeError when a read times out mid-frame."""
+    frame = aa55.encode(Frame(0x123, False, False, 8, bytes(8)))
+    with can.Bus(interface="aa55", channel=adapter.path) as bus:
+        adapter.read(20)
+        adapter.write(frame[:6])
+        assert bus.recv(0.05) is None
+        adapter.write(frame[6:])  # the rest arrives late: a truncated candidate, then garbage
+        bus.recv(0.05)
+        good = aa55.encode(Frame(0x124, False, False, 1, b"\x01"))
+        adapter.write(good)
+        msg = bus.recv(1.0)
+        assert msg is not None and msg.arbitration_id == 0x124
+
+
+def test_software_filters_apply_and_single_filter_goes_to_hardware(adapter: AdapterEnd) -> None:
+    filters = [{"can_id": 0x241, "can_mask": 0x7FF, "extended": False}]
+    with can.Bus(interface="aa55", channel=adapter.path, can_filters=filters) as bus:
+        settings = adapter.read(20)
+        assert int.from_bytes(settings[5:9], "little") == 0x241
+        assert int.from_bytes(settings[9:13], "little") == 0x7FF
+        adapter.write(
+            aa55.encode(Frame(0x242, False, False, 0, b""))
+            + aa55.encode(Frame(0x241, False, False, 0, b""))
+        )
+        msg = bus.recv(1.0)
+        assert msg is not None and msg.arbitration_id == 0x241
+
+
+def test_unplugged_adapter_raises_can_operation_error(adapter: AdapterEnd) -> None:
+    bus = can.Bus(interface="aa55", channel=adapter.path)
+    try:
+        adapter.read(20)
+        adapter.unplug()
+        with pytest.raises(can.CanOperationError, match="gone"):
+            for _ in range(3):  # bounded: the first read after the hang-up must fail
+                bus.recv(0.2)
+    finally:
+        bus.shutdown()
+
+
+def test_bad_arguments_are_initialisation_errors(adapter: AdapterEnd) -> None:
+    with pytest.raises(can.CanInitializationError, match="bitrate 12345"):
+        can.Bus(interface="aa55", channel=adapter.path, bitrate=12345)
+    with pytest.raises(can.CanInitializationError, match="cannot open"):
+        can.Bus(interface="aa55", channel="/dev/does-not-exist")
+
+
+def test_send_of_impossible_frame_is_a_clear_error(adapter: AdapterEnd) -> None:
+    with can.Bus(interface="aa55", channel=adapter.path) as bus:
+        bad = can.Message(arbitration_id=0x800, is_extended_id=False, check=False)
+        with pytest.raises(can.CanOperationError, match="out of range"):
+            bus.send(bad)
