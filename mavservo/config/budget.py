@@ -1,0 +1,89 @@
+"""Worst-case bus load of a configuration, per bus (paper eq. 4).
+
+The frames each servo puts on the bus come from its profile (what one position command and one
+telemetry poll look like, and how many replies each gets), the rates from the scheduler settings,
+and the arithmetic from :mod:`mavservo.busload`. A configuration whose worst case exceeds its
+bus's ``max_load`` is refused at load time, before anything touches the bus.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from mavservo.busload import FrameFlow, ServoTraffic, load_ratio
+
+if TYPE_CHECKING:
+    from mavservo.config.schema import BusConfig, Config, SchedulerConfig, ServoConfig
+
+
+@dataclass(frozen=True)
+class BusLoad:
+    """The worst-case load R of one bus against its budget."""
+
+    bus: str
+    bitrate: int
+    load: float
+    max_load: float
+    servo_count: int
+
+    @property
+    def over_budget(self) -> bool:
+        return self.load > self.max_load
+
+
+def command_rate_hz(servo: ServoConfig, timing: SchedulerConfig) -> float:
+    """Worst-case commands per second: one per period, or back-to-back for ``immediate``."""
+    if servo.command_mode == "immediate":
+        return 1.0 / timing.immediate_min_spacing_s
+    return 1.0 / timing.command_period_s
+
+
+def telemetry_rate_hz(servo: ServoConfig, timing: SchedulerConfig) -> float:
+    """Polls per second: the servo's own rate, never faster than the telemetry loop runs."""
+    return min(servo.telemetry_hz, 1.0 / timing.telemetry_period_s)
+
+
+def servo_flows(servo: ServoConfig, timing: SchedulerConfig) -> list[FrameFlow]:
+    """Every frame flow one servo causes, from its profile's own frames."""
+    from mavservo.servos import get_profile  # imported late: the profiles are a separate layer
+
+    profile_class = get_profile(servo.profile)
+    profile = profile_class(servo.can_id)
+    command = profile.position_command(0.0, servo.max_speed_dps)
+    requests = profile.telemetry_requests()
+    poll_hz = telemetry_rate_hz(servo, timing)
+    traffic = ServoTraffic(
+        command_hz=command_rate_hz(servo, timing),
+        command_extended=bool(command.is_extended_id),
+        command_dlc=int(command.dlc),
+        replies_per_command=int(profile_class.replies_per_command),
+        request_hz=poll_hz,
+        request_shapes=tuple((bool(r.is_extended_id), int(r.dlc)) for r in requests),
+        replies_per_request=int(profile_class.replies_per_request),
+    )
+    flows = traffic.flows()
+    if not requests:
+        # A push-style servo (CubeMars servo mode) reports on its own; count those frames at
+        # the rate the config asks for, in the command's identifier format.
+        flows.append(FrameFlow(poll_hz, bool(command.is_extended_id), 8))
+    return flows
+
+
+def bus_loads(config: Config) -> list[BusLoad]:
+    """Worst-case R for every bus in the config, in config order."""
+    loads = []
+    for bus in config.can.buses:
+        servos = [s for s in config.servos if _bus_name(config, s) == bus.name]
+        loads.append(_bus_load(bus, servos, config.scheduler))
+    return loads
+
+
+def _bus_load(bus: BusConfig, servos: list[ServoConfig], timing: SchedulerConfig) -> BusLoad:
+    flows = [flow for servo in servos for flow in servo_flows(servo, timing)]
+    return BusLoad(bus.name, bus.bitrate, load_ratio(flows, bus.bitrate), bus.max_load,
+                   len(servos))
+
+
+def _bus_name(config: Config, servo: ServoConfig) -> str:
+    return servo.bus if servo.bus is not None else config.can.buses[0].name

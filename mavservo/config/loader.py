@@ -1,0 +1,184 @@
+"""Load a config file and turn every problem into one ``FILE:LINE: key.path: message`` line.
+
+Validation happens in three passes, each only when the previous one found nothing, because a
+later pass needs the earlier guarantees: YAML syntax and duplicate keys, then the pydantic
+models (types, ranges, unknown keys), then the cross-section checks and the bus-load budget.
+All problems of a pass are reported together, so one run of ``mavservo check`` shows every
+typo at once instead of one per attempt.
+"""
+
+from __future__ import annotations
+
+import difflib
+import types
+import typing
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, ValidationError
+
+from mavservo.config.schema import Config
+from mavservo.config.semantic import budget_checks, cross_checks
+from mavservo.config.yamlsource import (
+    Problem,
+    YamlDocument,
+    YamlSyntaxError,
+    format_path,
+    parse_yaml,
+)
+
+_DATA_DIR = Path(__file__).resolve().parent.parent / "data"
+
+
+class ConfigError(Exception):
+    """A config that cannot be used; ``str()`` has one ``FILE:LINE: path: message`` per problem."""
+
+    def __init__(self, filename: str, problems: list[Problem]) -> None:
+        self.filename = filename
+        self.problems = sorted(problems, key=lambda p: (p.line or 0, format_path(p.path)))
+        super().__init__("\n".join(p.format(filename) for p in self.problems))
+
+
+def default_config_path() -> Path:
+    """The built-in default (``config/sim.yaml``, shipped inside the package as data)."""
+    return _DATA_DIR / "sim.yaml"
+
+
+def load_config(path: str | Path) -> Config:
+    """Read and validate a config file; raises :class:`ConfigError` (also for unreadable files)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        problem = Problem((), None, f"cannot read the file: {reason}")
+        raise ConfigError(str(path), [problem]) from None
+    return load_config_text(text, str(path), base_dir=path.resolve().parent)
+
+
+def load_config_text(text: str, filename: str = "<config>", base_dir: Path | None = None) -> Config:
+    """Validate YAML text; ``filename`` is used in messages, ``base_dir`` for relative paths.
+
+    ``base_dir`` defaults to the directory of ``filename`` (the current one for ``<config>``).
+    """
+    if base_dir is None:
+        base_dir = Path(filename).resolve().parent if not filename.startswith("<") else Path.cwd()
+    try:
+        document = parse_yaml(text)
+    except YamlSyntaxError as exc:
+        raise ConfigError(filename, [Problem((), exc.line, exc.message)]) from None
+    if document.problems:
+        raise ConfigError(filename, document.problems)
+    if document.data is None:
+        raise ConfigError(filename, [Problem((), 1, "the file is empty; expected at least a "
+                                                    "'servos' section")])
+    try:
+        config = Config.model_validate(document.data, context={"base_dir": base_dir})
+    except ValidationError as exc:
+        raise ConfigError(filename, _pydantic_problems(exc, document)) from None
+    for check in (cross_checks, budget_checks):
+        findings = check(config)
+        if findings:
+            problems = []
+            for loc, message in findings:
+                path, line = document.line_of(loc)
+                problems.append(Problem(tuple(loc), line, message))
+            raise ConfigError(filename, problems)
+    return config
+
+
+# ------------------------------------------------------------------ pydantic errors -> problems
+
+
+def _pydantic_problems(exc: ValidationError, document: YamlDocument) -> list[Problem]:
+    merged: dict[tuple[tuple[str | int, ...], int | None], list[str]] = {}
+    for error in exc.errors(include_url=False):
+        loc = tuple(error["loc"])
+        if error["type"] == "union_tag_invalid":
+            loc = loc + ("source",)
+        path, line = document.line_of(loc)
+        if error["type"] == "missing":
+            path = path + (loc[-1],)
+        message = _describe(error, loc)
+        messages = merged.setdefault((path, line), [])
+        if message not in messages:
+            messages.append(message)
+    return [Problem(path, line, " or ".join(messages)) for (path, line), messages in merged.items()]
+
+
+def _describe(error: dict[str, Any], loc: tuple[str | int, ...]) -> str:
+    kind = error["type"]
+    if kind == "extra_forbidden":
+        allowed = _allowed_keys(loc[:-1])
+        hint = ""
+        if allowed:
+            close = difflib.get_close_matches(str(loc[-1]), allowed, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            hint += f"; expected one of: {', '.join(allowed)}"
+        return f"unknown key {loc[-1]!r}{hint}"
+    if kind == "missing":
+        return "required key is missing"
+    if not loc:
+        return "expected a mapping of sections (mavlink, can, servos, channels, ...), " \
+               f"found {type(error['input']).__name__}"
+    message = error["msg"]
+    for prefix in ("Value error, ", "Assertion failed, "):
+        message = message.removeprefix(prefix)
+    value = error.get("input")
+    if isinstance(value, (dict, list)) or kind in ("value_error", "assertion_error"):
+        return message
+    return f"{message}, found {_short(value)}"
+
+
+def _short(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _allowed_keys(loc: tuple[str | int, ...]) -> list[str]:
+    """Field names of the model that ``loc`` points into, following the schema's annotations."""
+    annotation: Any = Config
+    for part in loc:
+        annotation = _step(annotation, part)
+        if annotation is None:
+            return []
+    model = _as_model(annotation)
+    return list(model.model_fields) if model is not None else []
+
+
+def _step(annotation: Any, part: str | int) -> Any:
+    """The annotation one ``loc`` element further down, or None when it cannot be followed."""
+    for candidate in _flatten(annotation):
+        model = _as_model(candidate)
+        if model is not None and isinstance(part, str):
+            if part in model.model_fields:
+                return model.model_fields[part].annotation
+            continue
+        origin = typing.get_origin(candidate)
+        if origin is list and isinstance(part, int):
+            return typing.get_args(candidate)[0]
+        if origin is dict and isinstance(part, str):
+            return typing.get_args(candidate)[1]
+    # A union tag (e.g. "servo_output"): pick the member whose ``source`` literal matches.
+    for candidate in _flatten(annotation):
+        model = _as_model(candidate)
+        source = model.model_fields.get("source") if model is not None else None
+        if source is not None and part in typing.get_args(source.annotation):
+            return model
+    return None
+
+
+def _flatten(annotation: Any) -> list[Any]:
+    """Unwrap Annotated and unions into their member types."""
+    origin = typing.get_origin(annotation)
+    if origin is typing.Annotated:
+        return _flatten(typing.get_args(annotation)[0])
+    if origin in (typing.Union, types.UnionType):
+        return [member for arg in typing.get_args(annotation) for member in _flatten(arg)]
+    return [annotation]
+
+
+def _as_model(annotation: Any) -> type[BaseModel] | None:
+    if isinstance(annotation, type) and issubclass(annotation, BaseModel):
+        return annotation
+    return None

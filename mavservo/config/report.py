@@ -1,0 +1,107 @@
+"""``mavservo check``: validate config files and show what they resolve to.
+
+Prints, for each valid file, the servos, the channel mapping with the angles the input's
+min/trim/max land on (after reverse, trim and soft limits), the gimbal groups, and the
+worst-case bus load per bus. Touches no hardware: the bus load comes from arithmetic only.
+"""
+
+from __future__ import annotations
+
+import sys
+from typing import TextIO
+
+from mavservo.config.budget import BusLoad, bus_loads
+from mavservo.config.loader import ConfigError, load_config
+from mavservo.config.schema import Config, ServoOutputChannel
+from mavservo.mapping import ChannelMap, Rejected
+
+EXIT_OK = 0
+EXIT_INVALID = 2
+
+
+def _table(headers: list[str], rows: list[list[str]]) -> list[str]:
+    widths = [max(len(headers[i]), *(len(row[i]) for row in rows)) for i in range(len(headers))]
+
+    def line(cells: list[str]) -> str:
+        padded = (cell.ljust(width) for cell, width in zip(cells, widths, strict=True))
+        return "  ".join(padded).rstrip()
+    return [line(headers), line(["-" * width for width in widths])] + [line(row) for row in rows]
+
+
+def _angle_text(channel_map: ChannelMap, value: float) -> str:
+    target = channel_map.to_angle(value)
+    if isinstance(target, Rejected):
+        return "rejected"
+    return f"{target.angle_deg:+.1f}" + ("*" if target.clamped else "")
+
+
+def resolved_mapping(config: Config) -> str:
+    """A human-readable description of what a validated config does."""
+    lines = ["servos:"]
+    lines += ["  " + row for row in _table(
+        ["name", "profile", "id", "bus", "limits deg", "mode", "telemetry", "failsafe"],
+        [[s.name, s.profile, str(s.can_id), config.bus_of(s).name,
+          f"[{s.limits_deg[0]:g}, {s.limits_deg[1]:g}]", s.command_mode, f"{s.telemetry_hz:g} Hz",
+          s.failsafe.action + (f" {s.failsafe.position_deg:g}"
+                               if s.failsafe.action == "position" else "")
+          + f" after {s.failsafe.timeout_s:g} s"]
+         for s in config.servos])]
+    if config.channels:
+        rows = []
+        for channel in config.channels:
+            channel_map = ChannelMap.from_config(channel, config)
+            name = (f"servo {channel.channel}" if isinstance(channel, ServoOutputChannel)
+                    else f"actuator {channel.index}")
+            unit = " us" if channel_map.kind == "pwm" else ""
+            rows.append([
+                name, channel.servo,
+                f"{channel_map.input_min:g}/{channel_map.input_trim:g}/{channel_map.input_max:g}"
+                + unit,
+                " / ".join(_angle_text(channel_map, v) for v in
+                           (channel_map.input_min, channel_map.input_trim, channel_map.input_max)),
+                "yes" if channel.reverse else "no",
+                f"{channel.max_slew_dps:g} deg/s" if channel.max_slew_dps else "-",
+            ])
+        lines += ["", "channels (angles for input min / trim / max; * = clamped by limits):"]
+        lines += ["  " + row for row in _table(
+            ["input", "servo", "min/trim/max", "angle deg", "reverse", "slew"], rows)]
+    if config.gimbals:
+        lines += ["", "gimbals:"]
+        for gimbal in config.gimbals:
+            axes = ", ".join(f"{axis}={servo}" for axis, servo in gimbal.axes().items())
+            lines.append(f"  {gimbal.name} (component {gimbal.component_id}): {axes}")
+    lines += ["", "worst-case bus load (paper eq. 4):"]
+    try:
+        loads = bus_loads(config)
+    except ModuleNotFoundError:
+        lines.append("  (servo profiles not available: load not computed)")
+    else:
+        lines += ["  " + _load_line(load) for load in loads]
+    return "\n".join(lines)
+
+
+def _load_line(load: BusLoad) -> str:
+    verdict = "OVER BUDGET" if load.over_budget else "ok"
+    return (f"{load.bus}: R = {load.load:.3f} of max {load.max_load:g} "
+            f"({load.servo_count} servos, {load.bitrate} bit/s) {verdict}")
+
+
+def check_main(paths: list[str], out: TextIO | None = None, err: TextIO | None = None) -> int:
+    """Validate every file in ``paths``; 0 when all are valid, 2 otherwise. Never raises."""
+    out = out if out is not None else sys.stdout
+    err = err if err is not None else sys.stderr
+    if not paths:
+        print("mavservo check: no config file given", file=err)
+        return EXIT_INVALID
+    status = EXIT_OK
+    for path in paths:
+        try:
+            config = load_config(path)
+        except ConfigError as exc:
+            print(str(exc), file=err)
+            status = EXIT_INVALID
+            continue
+        print(f"{path}: valid\n", file=out)
+        print(resolved_mapping(config), file=out)
+        print(file=out)
+    return status

@@ -1,0 +1,596 @@
+"""The shape of a mavservo YAML file, as pydantic v2 models.
+
+Every model forbids unknown keys: a typo such as ``limts_deg`` must stop the process at start-up,
+not leave a servo without its soft limits. Defaults are chosen so that a minimal file (one bus,
+one servo, one channel) is a few lines long. Checks that need only one model live here as field
+or model validators; checks that relate several sections (a channel naming a servo, CAN ids
+colliding on one bus, the bus-load budget) live in :mod:`mavservo.config.semantic` so that each
+problem can point at the exact key that causes it.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
+
+#: Names are used as dictionary keys, in log lines and in MAVLink NAMED_VALUE_FLOAT labels.
+NAME_PATTERN = r"^[A-Za-z_][A-Za-z0-9_\-]*$"
+Name = Annotated[str, Field(pattern=NAME_PATTERN, max_length=32)]
+
+#: MAV_COMP_ID_SERVO1..14: the component ids a servo component may use.
+SERVO_COMPONENT_IDS = range(140, 154)
+#: MAV_COMP_ID_GIMBAL (154) and MAV_COMP_ID_GIMBAL2..6 (171..175).
+GIMBAL_COMPONENT_IDS = (154, *range(171, 176))
+
+#: Bitrates the AA-55 adapters can be set to (the settings frame only has codes for these).
+AA55_BITRATES = (
+    1_000_000, 800_000, 500_000, 400_000, 250_000, 200_000,
+    125_000, 100_000, 50_000, 20_000, 10_000, 5_000,
+)
+
+#: Prefixes pymavlink's ``mavlink_connection`` understands as network endpoints.
+_MAVLINK_URL_PREFIXES = ("udpin:", "udpout:", "udp:", "udpbcast:", "tcp:", "tcpin:")
+
+#: Absolute PWM bounds a channel's input range must stay within (DO_SET_SERVO sanity range).
+PWM_MIN_US = 800
+PWM_MAX_US = 2200
+
+_HEX_KEY = re.compile(r"^[0-9a-fA-F]{64}$")
+
+
+class StrictModel(BaseModel):
+    """Base for every section: unknown keys are errors, and models are immutable once loaded."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+def _ordered_pair(value: tuple[float, float], what: str = "range") -> tuple[float, float]:
+    low, high = value
+    if not low < high:
+        raise ValueError(f"{what} must be [low, high] with low < high, got [{low}, {high}]")
+    return value
+
+
+AngleRange = tuple[float, float]
+
+
+# --------------------------------------------------------------------------------------- mavlink
+
+
+class ComponentAddress(StrictModel):
+    """A MAVLink (system, component) pair."""
+
+    system: int = Field(1, ge=1, le=255)
+    component: int = Field(1, ge=0, le=255)
+
+
+class SigningConfig(StrictModel):
+    """MAVLink 2 signing: the 32-byte secret as 64 hex characters, inline or in a file.
+
+    A key file holds the 64 hex characters (surrounding whitespace ignored).
+    Relative paths are taken from the directory of the config file, so a config and its key can
+    be moved together.
+    """
+
+    key: str | None = None
+    key_file: Path | None = None
+    accept_unsigned: bool = False
+
+    @field_validator("key")
+    @classmethod
+    def _key_is_hex(cls, key: str | None) -> str | None:
+        if key is not None and not _HEX_KEY.match(key):
+            raise ValueError(
+                f"expected 64 hexadecimal characters (a 32-byte key), got {len(key)} characters"
+            )
+        return key
+
+    @field_validator("key_file")
+    @classmethod
+    def _key_file_is_readable(cls, path: Path | None, info: ValidationInfo) -> Path | None:
+        if path is None:
+            return None
+        base_dir = (info.context or {}).get("base_dir")
+        resolved = path if path.is_absolute() or base_dir is None else Path(base_dir) / path
+        try:
+            raw = resolved.read_bytes()
+        except OSError as exc:
+            raise ValueError(f"expected a readable key file, cannot read {resolved}: "
+                             f"{exc.strerror or exc}") from None
+        if _parse_key_bytes(raw) is None:
+            raise ValueError(
+                f"key file {resolved} must hold 64 hex characters, found {len(raw.strip())} bytes"
+            )
+        return resolved
+
+    @model_validator(mode="after")
+    def _exactly_one_source(self) -> SigningConfig:
+        if (self.key is None) == (self.key_file is None):
+            raise ValueError("signing needs exactly one of 'key' or 'key_file'")
+        return self
+
+    def secret_key(self) -> bytes:
+        """The 32-byte signing secret (reads ``key_file`` again, so a rotated key is picked up)."""
+        if self.key is not None:
+            return bytes.fromhex(self.key)
+        assert self.key_file is not None  # guaranteed by _exactly_one_source
+        key = _parse_key_bytes(self.key_file.read_bytes())
+        if key is None:
+            raise ValueError(f"key file {self.key_file} no longer holds a valid key")
+        return key
+
+
+def _parse_key_bytes(raw: bytes) -> bytes | None:
+    text = raw.strip()
+    if len(text) == 64:
+        try:
+            return bytes.fromhex(text.decode("ascii"))
+        except (UnicodeDecodeError, ValueError):
+            return None
+    return None
+
+
+class MirrorConfig(StrictModel):
+    """Which autopilot output streams the bridge follows without an explicit command."""
+
+    servo_output_raw: bool = True
+    actuator_output_status: bool = False
+    #: What ACTUATOR_OUTPUT_STATUS ``actuator[]`` values the autopilot sends: PWM us or [-1, 1].
+    actuator_output_status_units: Literal["pwm", "normalized"] = "pwm"
+
+
+class TelemetryRates(StrictModel):
+    """Rates (Hz) of the MAVLink telemetry the bridge publishes; 0 turns a stream off.
+
+    (0 rather than null, because that is what SET_MESSAGE_INTERVAL's -1/0 map onto at run time.)
+    """
+
+    actuator_output_status_hz: float = Field(10.0, ge=0, le=100)
+    esc_telemetry_hz: float = Field(4.0, ge=0, le=100)
+    named_value_float_hz: float = Field(2.0, ge=0, le=100)
+    gimbal_attitude_status_hz: float = Field(10.0, ge=0, le=100)
+
+
+class MavlinkConfig(StrictModel):
+    """The MAVLink side: where the autopilot is and how the bridge presents itself."""
+
+    url: str = "sim"
+    baud: int = Field(115200, gt=0)
+    system_id: Literal["follow"] | Annotated[int, Field(ge=1, le=255)] = "follow"
+    servo_component_id: int = Field(140, description="MAV_COMP_ID_SERVO1..14 the servos use")
+    #: Channels per SERVO_OUTPUT_RAW ``port``: 16 is what ArduPilot sends in MAVLink 2.
+    servo_output_port_width: Literal[8, 16] = 16
+    autopilot: ComponentAddress = ComponentAddress()
+    heartbeat_timeout_s: float = Field(2.0, gt=0)
+    signing: SigningConfig | None = None
+    allowed_sources: list[ComponentAddress] = []
+    act_on_autopilot_commands: bool = False
+    repeat_servo_cycle: Literal["seconds", "milliseconds"] = "seconds"
+    command_hold_s: float = Field(2.0, ge=0)
+    mirror: MirrorConfig = MirrorConfig()
+    telemetry: TelemetryRates = TelemetryRates()
+
+    @field_validator("url")
+    @classmethod
+    def _url_is_a_connection_string(cls, url: str) -> str:
+        if url == "sim" or url.startswith(_MAVLINK_URL_PREFIXES):
+            return url
+        if url.startswith("/") or re.match(r"^COM\d+", url):  # serial device, maybe "dev,baud"
+            return url
+        raise ValueError(
+            "expected 'sim', a pymavlink connection string (udpin:HOST:PORT, udpout:, tcp:, "
+            f"tcpin:) or a serial device path, got {url!r}"
+        )
+
+    @field_validator("servo_component_id")
+    @classmethod
+    def _servo_component_range(cls, value: int) -> int:
+        if value not in SERVO_COMPONENT_IDS:
+            raise ValueError(
+                f"expected a servo component id in 140..153 (MAV_COMP_ID_SERVO1..14), got {value}"
+            )
+        return value
+
+
+# ------------------------------------------------------------------------------------------- CAN
+
+
+class BusConfig(StrictModel):
+    """One CAN bus: the project's ``aa55`` adapter, or any python-can interface."""
+
+    name: Name = "bus0"
+    interface: str = "aa55"
+    channel: str | int = "sim"
+    bitrate: int = Field(1_000_000, gt=0)
+    serial_baud: int = Field(2_000_000, gt=0)
+    protocol: Literal["variable", "fixed"] = "variable"
+    max_load: float = Field(0.35, gt=0, le=1)
+
+    @model_validator(mode="after")
+    def _aa55_bitrate_has_a_code(self) -> BusConfig:
+        if self.interface == "aa55" and self.bitrate not in AA55_BITRATES:
+            codes = ", ".join(str(rate) for rate in AA55_BITRATES)
+            raise ValueError(f"an aa55 adapter supports bitrates {codes}; got {self.bitrate}")
+        return self
+
+
+class CanConfig(StrictModel):
+    buses: list[BusConfig] = Field(default_factory=lambda: [BusConfig()], min_length=1)
+
+
+# ---------------------------------------------------------------------------------------- servos
+
+
+class FailsafeConfig(StrictModel):
+    """What a servo does when its commands stop (link lost, autopilot silent, shutdown).
+
+    ``hold`` keeps the last target, ``neutral`` goes to the servo's ``neutral_deg``, ``position``
+    goes to ``position_deg``, ``release`` stops commanding (motor off, if the profile can).
+    """
+
+    action: Literal["hold", "neutral", "position", "release"] = "hold"
+    position_deg: float | None = None
+    timeout_s: float = Field(1.0, gt=0)
+
+    @model_validator(mode="after")
+    def _position_needs_an_angle(self) -> FailsafeConfig:
+        if self.action == "position" and self.position_deg is None:
+            raise ValueError("failsafe action 'position' needs position_deg")
+        return self
+
+
+ProfileName = Literal["rmd-x", "lk", "cubemars-ak"]
+
+
+class ServoConfig(StrictModel):
+    """One CAN servo. ``bus`` may be omitted when there is exactly one bus."""
+
+    name: Name
+    profile: ProfileName
+    can_id: int = Field(ge=0, le=0x7FF)
+    bus: Name | None = None
+    max_speed_dps: float = Field(360.0, gt=0)
+    limits_deg: AngleRange = (-180.0, 180.0)
+    neutral_deg: float = 0.0
+    command_mode: Literal["periodic", "immediate"] = "periodic"
+    telemetry_hz: float = Field(10.0, gt=0)
+    failsafe: FailsafeConfig = FailsafeConfig()
+
+    @field_validator("limits_deg")
+    @classmethod
+    def _limits_ordered(cls, value: AngleRange) -> AngleRange:
+        return _ordered_pair(value, "limits_deg")
+
+    @field_validator("can_id")
+    @classmethod
+    def _id_fits_profile(cls, value: int, info: ValidationInfo) -> int:
+        profile = info.data.get("profile")
+        top = PROFILE_MAX_CAN_ID.get(profile) if profile else None
+        if top is not None and not 1 <= value <= top:
+            raise ValueError(f"a {profile} servo id must be in 1..{top}, got {value}")
+        return value
+
+    @model_validator(mode="after")
+    def _angles_inside_limits(self) -> ServoConfig:
+        low, high = self.limits_deg
+        if not low <= self.neutral_deg <= high:
+            raise ValueError(
+                f"neutral_deg {self.neutral_deg} is outside limits_deg [{low}, {high}]"
+            )
+        return self
+
+
+#: Largest servo id each profile can address (RMD/LK: 0x140 + id must stay below 0x180 replies;
+#: CubeMars: the low byte of the extended id).
+PROFILE_MAX_CAN_ID: dict[str, int] = {"rmd-x": 32, "lk": 32, "cubemars-ak": 255}
+
+
+# -------------------------------------------------------------------------------------- channels
+
+
+class PwmInput(StrictModel):
+    """A PWM input range in microseconds; ``trim`` defaults to the middle."""
+
+    min: float = 1100
+    max: float = 1900
+    trim: float | None = None
+
+    @model_validator(mode="after")
+    def _ordered(self) -> PwmInput:
+        trim = self.resolved_trim
+        if not PWM_MIN_US <= self.min < trim < self.max <= PWM_MAX_US:
+            raise ValueError(
+                f"expected {PWM_MIN_US} <= min < trim < max <= {PWM_MAX_US}, "
+                f"got min {self.min}, trim {trim}, max {self.max}"
+            )
+        return self
+
+    @property
+    def resolved_trim(self) -> float:
+        return (self.min + self.max) / 2 if self.trim is None else self.trim
+
+
+class NormalizedInput(StrictModel):
+    """A normalized input range (DO_SET_ACTUATOR values); defaults are the full [-1, 1]."""
+
+    min: float = -1.0
+    max: float = 1.0
+    trim: float | None = None
+
+    @model_validator(mode="after")
+    def _ordered(self) -> NormalizedInput:
+        trim = self.resolved_trim
+        if not -1.0 <= self.min < trim < self.max <= 1.0:
+            raise ValueError(
+                "expected -1 <= min < trim < max <= 1, "
+                f"got min {self.min}, trim {trim}, max {self.max}"
+            )
+        return self
+
+    @property
+    def resolved_trim(self) -> float:
+        return (self.min + self.max) / 2 if self.trim is None else self.trim
+
+
+class _ChannelCommon(StrictModel):
+    servo: Name
+    output_deg: AngleRange | None = None  # None: the servo's limits_deg
+    reverse: bool = False
+    trim_deg: float = 0.0
+    max_slew_dps: float | None = Field(None, gt=0)
+
+    @field_validator("output_deg")
+    @classmethod
+    def _output_ordered(cls, value: AngleRange | None) -> AngleRange | None:
+        return None if value is None else _ordered_pair(value, "output_deg")
+
+    @model_validator(mode="after")
+    def _trim_inside_output(self) -> _ChannelCommon:
+        if self.output_deg is not None:
+            low, high = self.output_deg
+            centre = (low + high) / 2 + self.trim_deg
+            if not low < centre < high:
+                raise ValueError(
+                    f"trim_deg {self.trim_deg} moves the centre ({centre}) outside output_deg "
+                    f"({low}, {high})"
+                )
+        return self
+
+
+class ServoOutputChannel(_ChannelCommon):
+    """A MAVLink servo output channel: SERVO_OUTPUT_RAW mirroring and DO_SET_SERVO, PWM in us.
+
+    ``channel`` is 1-based; channels 17..32 arrive as SERVO_OUTPUT_RAW port 1.
+    """
+
+    source: Literal["servo_output"]
+    channel: int = Field(ge=1, le=32)
+    input: PwmInput = PwmInput()
+
+    @property
+    def key(self) -> int:
+        return self.channel
+
+
+class ActuatorChannel(_ChannelCommon):
+    """A DO_SET_ACTUATOR / ACTUATOR_OUTPUT_STATUS index (1-based), normalized input."""
+
+    source: Literal["actuator"]
+    index: int = Field(ge=1, le=32)
+    input: NormalizedInput = NormalizedInput()
+
+    @property
+    def key(self) -> int:
+        return self.index
+
+
+ChannelConfig = Annotated[ServoOutputChannel | ActuatorChannel, Field(discriminator="source")]
+
+
+# --------------------------------------------------------------------------------------- gimbals
+
+
+class GimbalLimits(StrictModel):
+    """Per-axis angle limits of a gimbal group; an omitted axis takes its servo's limits."""
+
+    roll: AngleRange | None = None
+    pitch: AngleRange | None = None
+    yaw: AngleRange | None = None
+
+    @field_validator("roll", "pitch", "yaw")
+    @classmethod
+    def _ordered(cls, value: AngleRange | None) -> AngleRange | None:
+        return None if value is None else _ordered_pair(value)
+
+
+class GimbalConfig(StrictModel):
+    """A gimbal device (protocol v2) made of up to three servos."""
+
+    name: Name
+    component_id: int = 154
+    roll: Name | None = None
+    pitch: Name | None = None
+    yaw: Name | None = None
+    limits_deg: GimbalLimits = GimbalLimits()
+    act_as_manager: bool = False
+    #: (roll, pitch, yaw) for RETRACT (None: the MAVLink layer's default stowed pose) and NEUTRAL.
+    retract_pose_deg: tuple[float, float, float] | None = None
+    neutral_pose_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    #: Reported in GIMBAL_DEVICE_INFORMATION (32 characters at most there).
+    vendor_name: str = Field("mavservo", max_length=32)
+    model_name: str = Field("CAN servo gimbal", max_length=32)
+
+    @field_validator("component_id")
+    @classmethod
+    def _gimbal_component_range(cls, value: int) -> int:
+        if value not in GIMBAL_COMPONENT_IDS:
+            raise ValueError(
+                f"expected a gimbal component id, 154 or 171..175, got {value}"
+            )
+        return value
+
+    @model_validator(mode="after")
+    def _has_an_axis(self) -> GimbalConfig:
+        if not self.axes():
+            raise ValueError("a gimbal needs at least one of roll, pitch, yaw")
+        return self
+
+    def axes(self) -> dict[str, str]:
+        """Axis name -> servo name, for the axes present."""
+        named = {"roll": self.roll, "pitch": self.pitch, "yaw": self.yaw}
+        return {axis: servo for axis, servo in named.items() if servo is not None}
+
+
+# ------------------------------------------------------------------------------------- scheduler
+
+
+class SchedulerConfig(StrictModel):
+    """Timing of the dual-loop scheduler (paper: T_c = 50 ms, telemetry 80-100 ms)."""
+
+    command_period_s: float = Field(0.05, gt=0)
+    telemetry_period_s: float = Field(0.09, gt=0)
+    refresh_interval_s: float = Field(0.2, gt=0)
+    immediate_min_spacing_s: float = Field(0.005, gt=0)
+    reply_timeout_s: float = Field(0.05, gt=0)
+    realtime: bool = False
+
+    @model_validator(mode="after")
+    def _refresh_not_faster_than_commands(self) -> SchedulerConfig:
+        if self.refresh_interval_s < self.command_period_s:
+            raise ValueError(
+                f"refresh_interval_s ({self.refresh_interval_s}) must be >= command_period_s "
+                f"({self.command_period_s}): a refresh re-sends the last command"
+            )
+        return self
+
+
+# ------------------------------------------------------------------------------------ simulation
+
+
+class SimAutopilotConfig(StrictModel):
+    """The built-in autopilot stream simulator (used when ``mavlink.url`` is ``sim``).
+
+    ``script`` is a list of timed events in :mod:`sitl.script`'s format, checked here with the
+    simulator's own parser so a bad event is reported with its line.
+    """
+
+    profile: Literal["sweep", "steps", "staircase", "hold", "random-walk", "replay"] = "sweep"
+    servo_output_rate_hz: float = Field(20.0, gt=0)
+    replay_file: Path | None = None  # a .tlog, for profile "replay"
+    speed: float = Field(1.0, gt=0)  # replay speed factor
+    seed: int = 0  # random-walk seed
+    gimbal: bool = False  # also act as a gimbal manager sending SET_ATTITUDE
+    command_target: tuple[int, int] = (1, 0)  # (system, component) commands are addressed to
+    script: list[dict[str, Any]] = []
+
+    @field_validator("script")
+    @classmethod
+    def _script_parses(cls, script: list[dict[str, Any]]) -> list[dict[str, Any]]:
+        from sitl.script import parse_script  # the simulator owns the event format
+
+        try:
+            parse_script(script)
+        except (ValueError, TypeError, KeyError) as exc:
+            raise ValueError(f"bad simulation script: {exc}") from None
+        return script
+
+    @model_validator(mode="after")
+    def _replay_needs_a_file(self) -> SimAutopilotConfig:
+        if self.profile == "replay" and self.replay_file is None:
+            raise ValueError("profile 'replay' needs replay_file")
+        return self
+
+
+SimValue = float | int | bool | str | None
+
+
+class SimServoConfig(StrictModel):
+    """Physics and fault injection of one simulated servo, in :mod:`mavservo.sim.servo` terms."""
+
+    physics: dict[str, SimValue] = {}
+    faults: dict[str, SimValue] = {}
+
+    @field_validator("physics")
+    @classmethod
+    def _known_physics(cls, values: dict[str, SimValue]) -> dict[str, SimValue]:
+        from mavservo.sim.servo import Physics  # the simulator owns the meaning of these keys
+
+        Physics.from_dict(values)
+        return values
+
+    @field_validator("faults")
+    @classmethod
+    def _known_faults(cls, values: dict[str, SimValue]) -> dict[str, SimValue]:
+        from mavservo.sim.servo import Faults
+
+        Faults.from_dict(values)
+        return values
+
+
+class SimulationConfig(StrictModel):
+    """Only used by ``sim`` endpoints.
+
+    ``servos`` maps a servo name (or ``default``, for all the others) to its simulated physics
+    and injected faults.
+    """
+
+    autopilot: SimAutopilotConfig = SimAutopilotConfig()
+    servos: dict[str, SimServoConfig] = {}
+
+
+# --------------------------------------------------------------------------------------- logging
+
+
+class LoggingConfig(StrictModel):
+    """Where a run's records go: CAN logs (python-can writers), MAVLink tlog, text log."""
+
+    dir: Path = Path("runs")
+    can_formats: list[Literal["asc", "blf", "csv", "log", "trc"]] = ["asc"]
+    rotate_mb: float | None = Field(50.0, gt=0)
+    tlog: bool = True
+    level: Literal["debug", "info", "warning", "error"] = "info"
+
+
+# ------------------------------------------------------------------------------------------ root
+
+
+class Config(StrictModel):
+    """A whole mavservo configuration file."""
+
+    mavlink: MavlinkConfig = MavlinkConfig()
+    can: CanConfig = CanConfig()
+    servos: list[ServoConfig] = Field(min_length=1)
+    channels: list[ChannelConfig] = []
+    gimbals: list[GimbalConfig] = []
+    scheduler: SchedulerConfig = SchedulerConfig()
+    simulation: SimulationConfig = SimulationConfig()
+    logging: LoggingConfig = LoggingConfig()
+
+    def servo(self, name: str) -> ServoConfig:
+        """The servo called ``name`` (KeyError if there is none)."""
+        for servo in self.servos:
+            if servo.name == name:
+                return servo
+        raise KeyError(name)
+
+    def bus_of(self, servo: ServoConfig) -> BusConfig:
+        """The bus a servo hangs on (the only bus when ``servo.bus`` is omitted)."""
+        name = servo.bus if servo.bus is not None else self.can.buses[0].name
+        for bus in self.can.buses:
+            if bus.name == name:
+                return bus
+        raise KeyError(name)
+
+    def channel_output_deg(self, channel: ServoOutputChannel | ActuatorChannel) -> AngleRange:
+        """A channel's output range, defaulting to its servo's soft limits."""
+        return channel.output_deg or self.servo(channel.servo).limits_deg

@@ -1,0 +1,210 @@
+"""Checks that relate several sections of a config to each other.
+
+Each check returns ``(key path, message)`` pairs pointing at the key that has to change, so the
+loader can print the line of that key. They run only on a config that passed the per-model
+validation, so every field here already has the right type.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+from mavservo.config.schema import (
+    ActuatorChannel,
+    Config,
+    ServoConfig,
+    ServoOutputChannel,
+)
+
+Finding = tuple[tuple[str | int, ...], str]
+
+#: CubeMars servo-mode command ids are (mode << 8) | id for modes 0..7; replies use 0x29 << 8.
+_CUBEMARS_MODES = range(8)
+_CUBEMARS_REPLY_MODE = 0x29
+
+
+def can_identifiers(servo: ServoConfig) -> frozenset[tuple[bool, int]]:
+    """Every (extended, arbitration id) a servo sends or answers on, from its profile's layout.
+
+    RMD-X requests on 0x140+N and replies on 0x240+N; LK uses 0x140+N both ways; CubeMars uses
+    extended ids (mode << 8) | N. Two servos whose sets intersect cannot share a bus.
+    """
+    n = servo.can_id
+    if servo.profile == "rmd-x":
+        return frozenset({(False, 0x140 + n), (False, 0x240 + n)})
+    if servo.profile == "lk":
+        return frozenset({(False, 0x140 + n)})
+    ids = {(True, (mode << 8) | n) for mode in _CUBEMARS_MODES}
+    ids.add((True, (_CUBEMARS_REPLY_MODE << 8) | n))
+    return frozenset(ids)
+
+
+def cross_checks(config: Config) -> list[Finding]:
+    """All cross-section problems, in file order of the sections."""
+    findings: list[Finding] = []
+    for check in (_bus_names, _servo_names, _servo_buses, _can_id_collisions, _failsafe_positions,
+                  _channels, _gimbals, _simulation_names):
+        findings.extend(check(config))
+    return findings
+
+
+def budget_checks(config: Config) -> list[Finding]:
+    """The worst-case bus load of each bus against its ``max_load``."""
+    from mavservo.config.budget import bus_loads
+
+    findings: list[Finding] = []
+    try:
+        loads = bus_loads(config)
+    except ModuleNotFoundError as exc:  # the servo profiles layer is not installed yet
+        if not (exc.name or "").startswith("mavservo.servos"):
+            raise
+        return findings
+    for index, load in enumerate(loads):
+        if load.over_budget:
+            findings.append((
+                ("can", "buses", index, "max_load"),
+                f"worst-case bus load {load.load:.3f} of bus {load.bus!r} ({load.servo_count} "
+                f"servos at {load.bitrate} bit/s) exceeds max_load {load.max_load}; lengthen "
+                "scheduler periods, lower telemetry_hz, raise the bitrate or move servos to "
+                "another bus",
+            ))
+    return findings
+
+
+def _duplicates(names: list[str]) -> Iterator[tuple[int, int]]:
+    """(index, index of the first occurrence) for every repeated name."""
+    first: dict[str, int] = {}
+    for index, name in enumerate(names):
+        if name in first:
+            yield index, first[name]
+        else:
+            first[name] = index
+
+
+def _bus_names(config: Config) -> Iterator[Finding]:
+    names = [bus.name for bus in config.can.buses]
+    for index, earlier in _duplicates(names):
+        yield (("can", "buses", index, "name"),
+               f"bus name {names[index]!r} is already used by can.buses[{earlier}]")
+
+
+def _servo_names(config: Config) -> Iterator[Finding]:
+    names = [servo.name for servo in config.servos]
+    for index, earlier in _duplicates(names):
+        yield (("servos", index, "name"),
+               f"servo name {names[index]!r} is already used by servos[{earlier}]")
+
+
+def _servo_buses(config: Config) -> Iterator[Finding]:
+    bus_names = [bus.name for bus in config.can.buses]
+    for index, servo in enumerate(config.servos):
+        if servo.bus is None and len(bus_names) > 1:
+            yield (("servos", index, "bus"),
+                   f"expected a bus name (one of {', '.join(bus_names)}): there is more than "
+                   "one bus")
+        elif servo.bus is not None and servo.bus not in bus_names:
+            yield (("servos", index, "bus"),
+                   f"expected one of the buses in can.buses ({', '.join(bus_names)}), "
+                   f"found {servo.bus!r}")
+
+
+def _can_id_collisions(config: Config) -> Iterator[Finding]:
+    bus_names = {bus.name for bus in config.can.buses}
+    claimed: dict[tuple[str, bool, int], int] = {}
+    for index, servo in enumerate(config.servos):
+        bus = servo.bus if servo.bus is not None else config.can.buses[0].name
+        if bus not in bus_names:
+            continue  # reported by _servo_buses
+        clash = None
+        for extended, ident in sorted(can_identifiers(servo)):
+            owner = claimed.get((bus, extended, ident))
+            if owner is not None and clash is None:
+                clash = (owner, ident)
+        if clash is not None:
+            owner, ident = clash
+            other = config.servos[owner]
+            yield (("servos", index, "can_id"),
+                   f"CAN id {servo.can_id} ({servo.profile}) collides on bus {bus!r} with "
+                   f"servos[{owner}] {other.name!r} ({other.profile} id {other.can_id}): both "
+                   f"use arbitration id 0x{ident:X}")
+            continue
+        for extended, ident in can_identifiers(servo):
+            claimed[(bus, extended, ident)] = index
+
+
+def _failsafe_positions(config: Config) -> Iterator[Finding]:
+    for index, servo in enumerate(config.servos):
+        position = servo.failsafe.position_deg
+        low, high = servo.limits_deg
+        if position is not None and not low <= position <= high:
+            yield (("servos", index, "failsafe", "position_deg"),
+                   f"expected an angle inside limits_deg [{low}, {high}], found {position}")
+
+
+def _channels(config: Config) -> Iterator[Finding]:
+    servos = {servo.name: servo for servo in config.servos}
+    by_input: dict[tuple[str, int], int] = {}
+    by_servo: dict[tuple[str, str], int] = {}
+    for index, channel in enumerate(config.channels):
+        key_name = "channel" if isinstance(channel, ServoOutputChannel) else "index"
+        servo = servos.get(channel.servo)
+        if servo is None:
+            yield (("channels", index, "servo"),
+                   f"expected the name of a servo in servos ({', '.join(servos)}), "
+                   f"found {channel.servo!r}")
+        earlier = by_input.setdefault((channel.source, channel.key), index)
+        if earlier != index:
+            yield (("channels", index, key_name),
+                   f"{channel.source} {key_name} {channel.key} is already mapped by "
+                   f"channels[{earlier}]")
+        earlier = by_servo.setdefault((channel.source, channel.servo), index)
+        if earlier != index:
+            yield (("channels", index, "servo"),
+                   f"servo {channel.servo!r} is already driven by a {channel.source} mapping "
+                   f"(channels[{earlier}]); one servo takes one mapping per source")
+        if servo is not None and channel.output_deg is None:
+            yield from _trim_inside_limits(index, channel, servo)
+
+
+def _trim_inside_limits(
+    index: int, channel: ServoOutputChannel | ActuatorChannel, servo: ServoConfig
+) -> Iterator[Finding]:
+    low, high = servo.limits_deg
+    centre = (low + high) / 2 + channel.trim_deg
+    if not low < centre < high:
+        yield (("channels", index, "trim_deg"),
+               f"trim_deg {channel.trim_deg} moves the centre ({centre}) outside the servo's "
+               f"limits_deg ({low}, {high})")
+
+
+def _gimbals(config: Config) -> Iterator[Finding]:
+    servo_names = [servo.name for servo in config.servos]
+    gimbal_names = [gimbal.name for gimbal in config.gimbals]
+    for index, earlier in _duplicates(gimbal_names):
+        yield (("gimbals", index, "name"),
+               f"gimbal name {gimbal_names[index]!r} is already used by gimbals[{earlier}]")
+    ids = [gimbal.component_id for gimbal in config.gimbals]
+    for index, earlier in _duplicates([str(i) for i in ids]):
+        yield (("gimbals", index, "component_id"),
+               f"component id {ids[index]} is already used by gimbals[{earlier}]")
+    used: dict[str, str] = {}
+    for index, gimbal in enumerate(config.gimbals):
+        for axis, servo in gimbal.axes().items():
+            where = f"gimbals[{index}].{axis}"
+            if servo not in servo_names:
+                yield (("gimbals", index, axis),
+                       f"expected the name of a servo in servos ({', '.join(servo_names)}), "
+                       f"found {servo!r}")
+            elif servo in used:
+                yield (("gimbals", index, axis),
+                       f"servo {servo!r} already drives {used[servo]}")
+            else:
+                used[servo] = where
+
+
+def _simulation_names(config: Config) -> Iterator[Finding]:
+    servo_names = {servo.name for servo in config.servos}
+    for name in config.simulation.servos:
+        if name != "default" and name not in servo_names:
+            yield (("simulation", "servos", name),
+                   f"expected 'default' or the name of a configured servo, found {name!r}")

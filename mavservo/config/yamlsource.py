@@ -1,0 +1,133 @@
+"""YAML text -> (plain data, node tree), so every later error can name its line.
+
+PyYAML's ``safe_load`` throws the positions away. Composing the node graph first keeps each
+node's start mark; the same graph is then constructed into plain Python data for pydantic, and a
+pydantic ``loc`` tuple (``("channels", 2, "channel")``) is walked back down the graph to find the
+line it came from. Duplicate mapping keys, which PyYAML would silently resolve to the last one,
+are reported here because they are exactly the silent typo the config must refuse.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import yaml
+from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One thing wrong with a config: where (key path, 1-based line) and what."""
+
+    path: tuple[str | int, ...]
+    line: int | None
+    message: str
+
+    def format(self, filename: str) -> str:
+        where = f"{filename}:{self.line}" if self.line is not None else filename
+        key = format_path(self.path)
+        return f"{where}: {key}: {self.message}" if key else f"{where}: {self.message}"
+
+
+def format_path(path: Sequence[str | int]) -> str:
+    """``("channels", 2, "servo")`` -> ``channels[2].servo``."""
+    text = ""
+    for part in path:
+        if isinstance(part, int):
+            text += f"[{part}]"
+        else:
+            text += f".{part}" if text else str(part)
+    return text
+
+
+class YamlSyntaxError(Exception):
+    """The text is not valid YAML; carries the 1-based line of the problem."""
+
+    def __init__(self, line: int | None, message: str) -> None:
+        super().__init__(message)
+        self.line = line
+        self.message = message
+
+
+@dataclass(frozen=True)
+class YamlDocument:
+    """A parsed document: the constructed data, its node tree, and structural problems."""
+
+    data: Any
+    root: Node | None
+    problems: list[Problem]
+
+    def line_of(self, loc: Sequence[str | int]) -> tuple[tuple[str | int, ...], int | None]:
+        """The key path that exists in the document for ``loc``, and the line it starts on.
+
+        Elements of ``loc`` that do not name a node (pydantic adds union tags such as
+        ``"servo_output"`` or ``"int"``) are skipped. A key that is missing from its mapping
+        resolves to the mapping itself, which is the right line for "field required".
+        """
+        node = self.root
+        path: list[str | int] = []
+        line = _line(node)
+        for part in loc:
+            child, key_node = _child(node, part)
+            if child is None:
+                continue
+            node = child
+            path.append(part)
+            # For a key, point at the key itself: an unknown key's value may be a block below it.
+            line = _line(key_node) if key_node is not None else _line(child)
+        return tuple(path), line
+
+
+def parse_yaml(text: str) -> YamlDocument:
+    """Parse one YAML document; raises :class:`YamlSyntaxError` with the line on bad syntax."""
+    loader = yaml.SafeLoader(text)
+    try:
+        root = loader.get_single_node()
+        problems: list[Problem] = []
+        if root is not None:
+            _find_duplicate_keys(root, (), problems)
+        data = loader.construct_document(root) if root is not None else None
+    except yaml.MarkedYAMLError as exc:
+        mark = exc.problem_mark or exc.context_mark
+        line = mark.line + 1 if mark is not None else None
+        what = " ".join(part for part in (exc.context, exc.problem) if part)
+        raise YamlSyntaxError(line, f"invalid YAML: {what}") from None
+    except yaml.YAMLError as exc:
+        raise YamlSyntaxError(None, f"invalid YAML: {exc}") from None
+    finally:
+        loader.dispose()
+    return YamlDocument(data, root, problems)
+
+
+def _line(node: Node | None) -> int | None:
+    return node.start_mark.line + 1 if node is not None else None
+
+
+def _child(node: Node | None, part: str | int) -> tuple[Node | None, Node | None]:
+    """(value node, key node) for ``part`` under ``node``, or (None, None)."""
+    if isinstance(node, MappingNode) and isinstance(part, str):
+        for key_node, value_node in node.value:
+            if isinstance(key_node, ScalarNode) and key_node.value == part:
+                return value_node, key_node
+    if isinstance(node, SequenceNode) and isinstance(part, int) and 0 <= part < len(node.value):
+        return node.value[part], None
+    return None, None
+
+
+def _find_duplicate_keys(node: Node, path: tuple[str | int, ...], out: list[Problem]) -> None:
+    if isinstance(node, MappingNode):
+        seen: dict[str, int] = {}
+        for key_node, value_node in node.value:
+            key = key_node.value if isinstance(key_node, ScalarNode) else None
+            if key is not None:
+                if key in seen:
+                    out.append(Problem(path + (key,), _line(key_node),
+                                       f"duplicate key (first given on line {seen[key]})"))
+                else:
+                    seen[key] = _line(key_node) or 0
+            _find_duplicate_keys(value_node, path + ((key,) if key is not None else ()), out)
+    elif isinstance(node, SequenceNode):
+        for index, item in enumerate(node.value):
+            _find_duplicate_keys(item, path + (index,), out)
