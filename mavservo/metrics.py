@@ -1,0 +1,250 @@
+"""Timing figures of the paper (eqs. 1-5) as bounded, pure accumulators.
+
+Nothing here reads a clock or starts a thread: callers pass every timestamp in. Every sample
+store is a ring buffer, so a bridge that runs for days keeps a constant memory footprint; the
+mean and sigma are kept exactly over *all* samples (Welford), the percentiles over the most
+recent ``window`` samples, which is what a live monitor and an end-of-run report want.
+
+The scheduler owns one ``SchedulerMetrics`` and updates it under its lock; ``to_dict()`` is the
+JSON-serialisable snapshot the API, the live monitor and the run log share.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections import deque
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+DEFAULT_WINDOW = 4096
+
+
+def percentile(sorted_values: list[float], q: float) -> float:
+    """Linear-interpolated percentile (``q`` in 0..100) of an already sorted, non-empty list."""
+    if not sorted_values:
+        raise ValueError("percentile of an empty sample")
+    if not 0.0 <= q <= 100.0:
+        raise ValueError(f"percentile must be in 0..100, got {q}")
+    position = (len(sorted_values) - 1) * q / 100.0
+    low = math.floor(position)
+    high = min(low + 1, len(sorted_values) - 1)
+    fraction = position - low
+    return sorted_values[low] + (sorted_values[high] - sorted_values[low]) * fraction
+
+
+class SampleStats:
+    """Running mean and population sigma (paper eq. 5) over all samples, plus a bounded window.
+
+    Population sigma (divide by N, not N - 1) because eq. (5) is written that way.
+    """
+
+    def __init__(self, window: int = DEFAULT_WINDOW) -> None:
+        if window < 1:
+            raise ValueError("window must hold at least one sample")
+        self.count = 0
+        self._mean = 0.0
+        self._m2 = 0.0
+        self.minimum = math.inf
+        self.maximum = -math.inf
+        self.recent: deque[float] = deque(maxlen=window)
+
+    def add(self, value: float) -> None:
+        self.count += 1
+        delta = value - self._mean
+        self._mean += delta / self.count
+        self._m2 += delta * (value - self._mean)
+        self.minimum = min(self.minimum, value)
+        self.maximum = max(self.maximum, value)
+        self.recent.append(value)
+
+    def extend(self, values: Iterable[float]) -> None:
+        for value in values:
+            self.add(value)
+
+    @property
+    def mean(self) -> float | None:
+        return self._mean if self.count else None
+
+    @property
+    def sigma(self) -> float | None:
+        return math.sqrt(self._m2 / self.count) if self.count else None
+
+    def summary(self) -> dict[str, Any]:
+        """Count, mean, sigma, min, max and p50/p95/p99 of the recent window (None when empty)."""
+        if not self.count:
+            return {"n": 0, "mean": None, "sigma": None, "min": None, "max": None,
+                    "p50": None, "p95": None, "p99": None}
+        ordered = sorted(self.recent)
+        return {
+            "n": self.count,
+            "mean": self.mean,
+            "sigma": self.sigma,
+            "min": self.minimum,
+            "max": self.maximum,
+            "p50": percentile(ordered, 50),
+            "p95": percentile(ordered, 95),
+            "p99": percentile(ordered, 99),
+        }
+
+
+class PeriodStats:
+    """Intervals between successive events against a nominal period.
+
+    Reports the achieved period (mean, sigma) and the p99 of ``|interval - nominal|``, the two
+    figures the command-loop goal is written in.
+    """
+
+    def __init__(self, nominal_s: float | None, window: int = DEFAULT_WINDOW) -> None:
+        self.nominal_s = nominal_s
+        self.intervals = SampleStats(window)
+        self.deviations = SampleStats(window)
+        self._last: float | None = None
+
+    def mark(self, t: float) -> None:
+        if self._last is not None:
+            interval = t - self._last
+            self.intervals.add(interval)
+            if self.nominal_s is not None:
+                self.deviations.add(abs(interval - self.nominal_s))
+        self._last = t
+
+    def summary(self) -> dict[str, Any]:
+        out = {"nominal": self.nominal_s, "interval": self.intervals.summary()}
+        out["abs_deviation"] = self.deviations.summary()
+        return out
+
+
+class LoadMeter:
+    """Measured bus load R (paper eq. 4) over a sliding time window.
+
+    ``add(t, bits)`` for every frame seen on the bus (sent or received); ``ratio(now)`` is the
+    bits inside ``(now - window_s, now]`` divided by ``window_s * bitrate``. The event store is
+    bounded by ``max_events``: at most a window's worth of frames is ever kept.
+    """
+
+    def __init__(self, bitrate: int, window_s: float = 1.0, max_events: int = 65536) -> None:
+        if bitrate <= 0 or window_s <= 0:
+            raise ValueError("bitrate and window must be positive")
+        self.bitrate = bitrate
+        self.window_s = window_s
+        self._events: deque[tuple[float, int]] = deque(maxlen=max_events)
+        self._bits_in_window = 0
+        self.total_bits = 0
+        self.peak = 0.0
+
+    def _expire(self, now: float) -> None:
+        horizon = now - self.window_s
+        while self._events and self._events[0][0] <= horizon:
+            self._bits_in_window -= self._events.popleft()[1]
+
+    def add(self, t: float, bits: int) -> None:
+        if len(self._events) == self._events.maxlen:
+            self._bits_in_window -= self._events[0][1]
+        self._events.append((t, bits))
+        self._bits_in_window += bits
+        self.total_bits += bits
+        self._expire(t)
+        self.peak = max(self.peak, self._bits_in_window / (self.window_s * self.bitrate))
+
+    def ratio(self, now: float) -> float:
+        self._expire(now)
+        return self._bits_in_window / (self.window_s * self.bitrate)
+
+
+@dataclass
+class ServoMetrics:
+    """Per-servo counters and timing samples."""
+
+    command_period_s: float | None = None
+    window: int = DEFAULT_WINDOW
+    latency: SampleStats = field(init=False)
+    telemetry_intervals: PeriodStats = field(init=False)
+    command_intervals: PeriodStats = field(init=False)
+    commands_sent: int = 0
+    refreshes_sent: int = 0
+    requests_sent: int = 0
+    received: int = 0
+    lost: int = 0
+    late_replies: int = 0
+    rejected: int = 0
+    setpoints_accepted: int = 0
+    setpoints_rejected: int = 0
+
+    def __post_init__(self) -> None:
+        self.latency = SampleStats(self.window)
+        self.telemetry_intervals = PeriodStats(None, self.window)
+        self.command_intervals = PeriodStats(self.command_period_s, self.window)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "latency_s": self.latency.summary(),
+            "telemetry_interval_s": self.telemetry_intervals.intervals.summary(),
+            "command_interval_s": self.command_intervals.summary(),
+            "frames": {
+                "commands": self.commands_sent,
+                "refreshes": self.refreshes_sent,
+                "requests": self.requests_sent,
+                "sent": self.commands_sent + self.refreshes_sent + self.requests_sent,
+                "received": self.received,
+                "lost": self.lost,
+                "late_replies": self.late_replies,
+                "rejected": self.rejected,
+            },
+            "setpoints": {
+                "accepted": self.setpoints_accepted,
+                "rejected": self.setpoints_rejected,
+            },
+        }
+
+
+class SchedulerMetrics:
+    """Everything one scheduler (one bus) measures; ``to_dict(now)`` is JSON-serialisable."""
+
+    def __init__(
+        self,
+        servo_names: Iterable[str],
+        command_period_s: float,
+        telemetry_period_s: float,
+        bitrate: int,
+        load_window_s: float = 1.0,
+        window: int = DEFAULT_WINDOW,
+    ) -> None:
+        self.servos = {
+            name: ServoMetrics(command_period_s=command_period_s, window=window)
+            for name in servo_names
+        }
+        self.command_ticks = PeriodStats(command_period_s, window)
+        self.command_lateness = SampleStats(window)
+        self.telemetry_ticks = PeriodStats(telemetry_period_s, window)
+        self.missed_command_slots = 0
+        self.bus_rejected = 0
+        self.load = LoadMeter(bitrate, load_window_s)
+        self.info: dict[str, Any] = {}
+
+    def to_dict(self, now: float) -> dict[str, Any]:
+        return {
+            "info": dict(self.info),
+            "command_tick": self.command_ticks.summary(),
+            "command_lateness_s": self.command_lateness.summary(),
+            "telemetry_tick": self.telemetry_ticks.summary(),
+            "missed_command_slots": self.missed_command_slots,
+            "bus_rejected": self.bus_rejected,
+            "load": {
+                "window_s": self.load.window_s,
+                "current": self.load.ratio(now),
+                "peak": self.load.peak,
+                "total_bits": self.load.total_bits,
+            },
+            "servos": {name: servo.to_dict() for name, servo in self.servos.items()},
+        }
+
+
+def write_json(path: str | Path, snapshot: dict[str, Any]) -> Path:
+    """Write a ``to_dict`` snapshot to ``path`` (parents created), return the path."""
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    target.write_text(json.dumps(snapshot, indent=2, sort_keys=True) + "\n")
+    return target

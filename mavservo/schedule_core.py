@@ -1,0 +1,571 @@
+"""The scheduler's policy core: what goes on the bus when, as a pure state machine.
+
+No threads, no I/O, no clock: ``step(now)`` is given the time and returns the frames to send
+now, in order, and when to call it again; ``submit`` accepts setpoints; ``on_reply`` and
+``sent``/``send_failed`` feed back what happened on the wire. That is what the fake-clock tests
+drive, and what :mod:`mavservo.scheduler` runs on absolute monotonic deadlines.
+
+Rules (paper section 3.3):
+
+* Command slots every ``command_period_s`` on absolute deadlines ``start + k * T_c``. A late
+  wake-up serves the most recent slot and counts the skipped ones as missed; it never replays
+  them (replaying would send bursts of stale commands).
+* Within a step, command frames always come before telemetry requests.
+* Telemetry is suspended around command slots: a request is sent only if it, and the replies
+  it provokes, fit on the bus before ``next command slot - command_guard_s``. Requests that do
+  not fit wait until the commands of that slot have gone out (the paper's "resume once the
+  command interval is satisfied"), so no request ever delays a command past its slot.
+* ``periodic`` servos: a new setpoint goes out on the next command slot (latency 0..T_c, mean
+  T_c/2 plus the loop's wake-up error). ``immediate`` servos: a new setpoint goes out at once
+  (the runner is woken), but never sooner than ``immediate_min_spacing_s`` after the previous
+  command to that servo (latency ~ wake-up error, at most the spacing); slots still refresh.
+* Keep-alive: a servo with a setpoint and no newer one for ``refresh_interval_s`` gets its
+  last setpoint re-sent on a slot. Frames only ever carry the newest accepted setpoint, and
+  setpoints carry per-servo sequence numbers, so a stale setpoint can never follow a newer one.
+* Telemetry: every servo has its own poll deadline at its own rate (``telemetry_hz``, default
+  ``1 / telemetry_period_s``) checked on telemetry ticks every ``telemetry_period_s``; due
+  servos are served oldest-due first (round robin when all are equally late). A servo with a
+  request still unanswered is not polled again until the reply or its timeout.
+* A reply expected but not received within ``reply_timeout_s`` is lost; after
+  ``offline_after_missed`` losses in a row a servo is offline until its next reply.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Literal
+
+import can
+
+from .busload import ServoTraffic, frame_time, message_bits, worst_case_load
+
+CommandMode = Literal["periodic", "immediate"]
+FrameKind = Literal["command", "refresh", "request"]
+_REPLY_DLC = 8
+
+
+class ScheduleError(ValueError):
+    """A configuration the scheduler refuses to run (e.g. worst-case bus load over the limit)."""
+
+
+@dataclass(frozen=True)
+class TimingConfig:
+    """Timing and budget of one bus. Defaults follow the paper (T_c = 50 ms, T_t = 90 ms)."""
+
+    command_period_s: float = 0.05
+    telemetry_period_s: float = 0.09
+    refresh_interval_s: float | None = None
+    """Re-send the last setpoint after this long without a new one; None: every command slot
+    (the paper's fixed-rate command stream)."""
+    immediate_min_spacing_s: float = 0.01
+    reply_timeout_s: float = 0.05
+    offline_after_missed: int = 3
+    command_guard_s: float = 0.001
+    """No telemetry request may still be on the bus this close before a command slot."""
+    max_load: float = 0.5
+    bitrate: int = 1_000_000
+    spin_s: float = 0.001
+    """The runner sleeps until this long before a deadline, then spins (see scheduler)."""
+    realtime: bool = False
+    realtime_priority: int = 50
+    load_window_s: float = 1.0
+
+    def __post_init__(self) -> None:
+        positive = {
+            "command_period_s": self.command_period_s,
+            "telemetry_period_s": self.telemetry_period_s,
+            "immediate_min_spacing_s": self.immediate_min_spacing_s,
+            "reply_timeout_s": self.reply_timeout_s,
+            "max_load": self.max_load,
+            "bitrate": self.bitrate,
+            "load_window_s": self.load_window_s,
+        }
+        for name, value in positive.items():
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ScheduleError(f"timing: {name} must be a positive number, got {value!r}")
+        if self.refresh_interval_s is not None and not self.refresh_interval_s > 0:
+            raise ScheduleError("timing: refresh_interval_s must be positive or None")
+        if self.command_guard_s < 0 or self.spin_s < 0:
+            raise ScheduleError("timing: command_guard_s and spin_s must be >= 0")
+        if self.offline_after_missed < 1:
+            raise ScheduleError("timing: offline_after_missed must be >= 1")
+
+    @property
+    def refresh_s(self) -> float:
+        return self.command_period_s if self.refresh_interval_s is None else self.refresh_interval_s
+
+
+@dataclass(frozen=True)
+class ServoSpec:
+    """One servo on this bus: its name (as the mapping layer knows it), profile and policy."""
+
+    name: str
+    profile: object  # a mavservo.servos.ServoProfile (duck-typed: tests may pass their own)
+    command_mode: CommandMode = "periodic"
+    telemetry_hz: float | None = None
+    """Polls per second; None: ``1 / telemetry_period_s``; 0: never poll."""
+    max_speed_dps: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.command_mode not in ("periodic", "immediate"):
+            raise ScheduleError(
+                f"servo {self.name!r}: command_mode must be 'periodic' or 'immediate', "
+                f"got {self.command_mode!r}"
+            )
+        if self.telemetry_hz is not None and not (
+            math.isfinite(self.telemetry_hz) and self.telemetry_hz >= 0
+        ):
+            raise ScheduleError(f"servo {self.name!r}: telemetry_hz must be >= 0")
+
+
+@dataclass(frozen=True)
+class Setpoint:
+    seq: int
+    angle_deg: float
+    source: str
+    t: float
+    msg: can.Message
+
+
+@dataclass(frozen=True)
+class SetpointResult:
+    """Outcome of ``submit``: accepted with its sequence number, or rejected with a reason."""
+
+    accepted: bool
+    seq: int | None
+    reason: str = ""
+
+
+@dataclass
+class Expectation:
+    """A reply the bus owes us: ``kind`` of frame that provoked it, when, and until when."""
+
+    kind: FrameKind
+    t_tx: float
+    deadline: float
+
+
+@dataclass(frozen=True)
+class Outgoing:
+    """One frame to send, in order. ``seq`` is the setpoint's sequence number (None: request)."""
+
+    servo: str
+    kind: FrameKind
+    msg: can.Message
+    seq: int | None
+    expectations: tuple[Expectation, ...] = ()
+
+
+@dataclass(frozen=True)
+class ReplyMatch:
+    """What a decoded reply answered: ``kind`` None means unsolicited (push-style servo),
+    ``"late"`` a reply whose expectation had already timed out (counted lost)."""
+
+    kind: FrameKind | Literal["late"] | None
+    t_tx: float | None
+    latency_s: float | None
+    back_online: bool
+
+
+@dataclass
+class Decision:
+    """The result of one ``step``: frames in send order and the bookkeeping around them."""
+
+    frames: list[Outgoing]
+    next_deadline: float
+    command_slot: float | None = None
+    telemetry_tick: float | None = None
+    missed_slots: int = 0
+    lost: list[str] = field(default_factory=list)
+    went_offline: list[str] = field(default_factory=list)
+    late_polls: list[str] = field(default_factory=list)
+    deferred_polls: int = 0
+
+
+@dataclass
+class _ServoSlot:
+    spec: ServoSpec
+    poll_period: float | None
+    poll_cost_s: float
+    command_cost_s: float
+    next_poll_due: float
+    latest: Setpoint | None = None
+    sent_seq: int = 0
+    last_command_time: float | None = None
+    released: bool = False
+    expected: deque[Expectation] = field(default_factory=deque)
+    missed_in_a_row: int = 0
+    awaiting_first_reply_since: float | None = None
+
+    @property
+    def has_unsent_setpoint(self) -> bool:
+        return (
+            not self.released and self.latest is not None and self.latest.seq > self.sent_seq
+        )
+
+    @property
+    def request_outstanding(self) -> bool:
+        return any(e.kind == "request" for e in self.expected)
+
+
+def _msg_shape(msg: can.Message) -> tuple[bool, int]:
+    return bool(msg.is_extended_id), int(msg.dlc)
+
+
+class ScheduleCore:
+    """The dual-loop policy as a state machine driven by ``now`` (see module docstring)."""
+
+    def __init__(self, servos: Sequence[ServoSpec], timing: TimingConfig, start: float) -> None:
+        names = [s.name for s in servos]
+        if len(set(names)) != len(names):
+            raise ScheduleError(f"duplicate servo names on one bus: {names}")
+        if not servos:
+            raise ScheduleError("a scheduler needs at least one servo")
+        self.timing = timing
+        self.start = start
+        self.warnings: list[str] = []
+        self._slots: dict[str, _ServoSlot] = {}
+        self._order = names
+        self._rr_offset = 0
+        self._next_command_slot = start
+        self._next_telemetry_tick = start
+        self._poll_round: list[str] = []
+        self.worst_case_load = self._check_budget(servos)
+        for spec in servos:
+            poll_period = self._poll_period(spec)
+            # No staggering: servos sharing the tick rate are polled in the same round, one
+            # after another, so each sees exactly one request per T_t.
+            self._slots[spec.name] = _ServoSlot(
+                spec=spec,
+                poll_period=poll_period,
+                poll_cost_s=self._poll_cost(spec),
+                command_cost_s=self._command_cost(spec),
+                next_poll_due=start if poll_period else math.inf,
+            )
+        self._check_polls_fit()
+
+    def anchor(self, start: float) -> None:
+        """Move the time origin (the runner anchors the schedule when it actually starts)."""
+        self.start = start
+        self._next_command_slot = start
+        self._next_telemetry_tick = start
+        for slot in self._slots.values():
+            if slot.poll_period:
+                slot.next_poll_due = start
+
+    # ----------------------------------------------------------------- configuration checks
+    def _poll_period(self, spec: ServoSpec) -> float | None:
+        if not spec.profile.telemetry_requests():
+            return None
+        hz = spec.telemetry_hz
+        if hz is None:
+            hz = 1 / self.timing.telemetry_period_s
+        if hz == 0:
+            return None
+        if hz > 1 / self.timing.telemetry_period_s * (1 + 1e-9):
+            self.warnings.append(
+                f"servo {spec.name!r}: telemetry_hz {hz:g} is faster than the telemetry tick "
+                f"({1 / self.timing.telemetry_period_s:g} Hz); it will be polled at the tick rate"
+            )
+        return max(1 / hz, self.timing.telemetry_period_s)
+
+    def _poll_cost(self, spec: ServoSpec) -> float:
+        """Worst-case bus time one poll of this servo takes: requests plus their replies."""
+        cost = 0.0
+        bitrate = self.timing.bitrate
+        for req in spec.profile.telemetry_requests():
+            extended, dlc = _msg_shape(req)
+            cost += frame_time(extended, dlc, bitrate, bool(req.is_remote_frame))
+            replies = int(getattr(spec.profile, "replies_per_request", 1))
+            cost += replies * frame_time(extended, _REPLY_DLC, bitrate)
+        return cost
+
+    def _command_hz(self, spec: ServoSpec) -> float:
+        hz = 1 / self.timing.command_period_s
+        if spec.command_mode == "immediate":
+            hz += 1 / self.timing.immediate_min_spacing_s
+        return hz
+
+    def _traffic(self, spec: ServoSpec) -> ServoTraffic:
+        command = spec.profile.position_command(0.0, spec.max_speed_dps)
+        requests = spec.profile.telemetry_requests()
+        period = self._poll_period(spec) if requests else None
+        return ServoTraffic(
+            command_hz=self._command_hz(spec),
+            command_extended=bool(command.is_extended_id),
+            command_dlc=int(command.dlc),
+            replies_per_command=int(getattr(spec.profile, "replies_per_command", 1)),
+            request_hz=0.0 if period is None else 1 / period,
+            request_shapes=tuple(_msg_shape(r) for r in requests),
+            replies_per_request=int(getattr(spec.profile, "replies_per_request", 1)),
+            reply_dlc=_REPLY_DLC,
+        )
+
+    def _check_budget(self, servos: Sequence[ServoSpec]) -> float:
+        warnings_before = len(self.warnings)
+        traffic = {spec.name: self._traffic(spec) for spec in servos}
+        del self.warnings[warnings_before:]  # _poll_period warns again in __init__
+        load = worst_case_load(traffic.values(), self.timing.bitrate)
+        if load > self.timing.max_load:
+            per_servo = {
+                name: worst_case_load([t], self.timing.bitrate) for name, t in traffic.items()
+            }
+            heaviest = sorted(per_servo.items(), key=lambda kv: -kv[1])[:3]
+            detail = ", ".join(f"{name} {share:.1%}" for name, share in heaviest)
+            raise ScheduleError(
+                f"worst-case bus load R = {load:.1%} exceeds max_load {self.timing.max_load:.1%} "
+                f"at {self.timing.bitrate} bit/s with {len(servos)} servos (heaviest: {detail}); "
+                "lower telemetry_hz, lengthen command_period_s or immediate_min_spacing_s, "
+                "or raise the bitrate"
+            )
+        return load
+
+    def _command_cost(self, spec: ServoSpec) -> float:
+        """Worst-case bus time of one command to this servo and the replies it provokes."""
+        command = spec.profile.position_command(0.0, spec.max_speed_dps)
+        replies = int(getattr(spec.profile, "replies_per_command", 1))
+        bitrate = self.timing.bitrate
+        return message_bits(command) / bitrate + replies * frame_time(
+            bool(command.is_extended_id), _REPLY_DLC, bitrate
+        )
+
+    def _command_burst_s(self) -> float:
+        return sum(slot.command_cost_s for slot in self._slots.values())
+
+    def _check_polls_fit(self) -> None:
+        """Say so at start-up when the configured poll rates cannot all fit between slots."""
+        t = self.timing
+        free_per_period = t.command_period_s - t.command_guard_s - self._command_burst_s()
+        demand_per_period = sum(
+            slot.poll_cost_s * t.command_period_s / slot.poll_period
+            for slot in self._slots.values()
+            if slot.poll_period
+        )
+        if free_per_period <= 0 or demand_per_period > free_per_period:
+            self.warnings.append(
+                f"telemetry cannot keep its rate: polls need {demand_per_period * 1e3:.2f} ms of "
+                f"bus per {t.command_period_s * 1e3:g} ms command period but only "
+                f"{max(free_per_period, 0) * 1e3:.2f} ms is free; servos will be polled late "
+                "(oldest first) and the achieved intervals will show it"
+            )
+
+    # ----------------------------------------------------------------------- upper layers
+    @property
+    def servo_names(self) -> list[str]:
+        return list(self._order)
+
+    def latest(self, name: str) -> Setpoint | None:
+        return self._slots[name].latest
+
+    def is_online(self, name: str) -> bool:
+        return self._slots[name].missed_in_a_row < self.timing.offline_after_missed
+
+    def submit(self, name: str, angle_deg: float, source: str, t: float) -> SetpointResult:
+        """Accept a setpoint unless it is unknown, invalid or older than the accepted one."""
+        slot = self._slots.get(name)
+        if slot is None:
+            return SetpointResult(False, None, f"unknown servo {name!r}")
+        if not math.isfinite(angle_deg):
+            return SetpointResult(False, None, f"angle must be finite, got {angle_deg!r}")
+        latest = slot.latest
+        if latest is not None and t < latest.t:
+            return SetpointResult(
+                False, None,
+                f"stale: t={t:.6f} is older than accepted setpoint #{latest.seq} "
+                f"(t={latest.t:.6f})",
+            )
+        try:
+            msg = slot.spec.profile.position_command(angle_deg, slot.spec.max_speed_dps)
+        except ValueError as exc:
+            return SetpointResult(False, None, str(exc))
+        seq = (latest.seq if latest else 0) + 1
+        slot.latest = Setpoint(seq, angle_deg, source, t, msg)
+        slot.released = False
+        return SetpointResult(True, seq)
+
+    def release(self, name: str) -> None:
+        """Stop commanding and refreshing a servo until its next setpoint (failsafe release)."""
+        self._slots[name].released = True
+
+    def wants_immediate_wake(self, name: str) -> bool:
+        slot = self._slots.get(name)
+        return bool(slot and slot.spec.command_mode == "immediate" and slot.has_unsent_setpoint)
+
+    # ------------------------------------------------------------------------ the policy
+    def _command_frame(self, slot: _ServoSlot, kind: FrameKind, now: float) -> Outgoing:
+        assert slot.latest is not None
+        replies = int(getattr(slot.spec.profile, "replies_per_command", 1))
+        expectations = tuple(
+            Expectation("command", now, now + self.timing.reply_timeout_s) for _ in range(replies)
+        )
+        slot.expected.extend(expectations)
+        slot.sent_seq = slot.latest.seq
+        slot.last_command_time = now
+        if not replies:
+            slot.awaiting_first_reply_since = now
+        return Outgoing(slot.spec.name, kind, slot.latest.msg, slot.latest.seq, expectations)
+
+    def _expire(self, now: float, decision: Decision) -> None:
+        for name, slot in self._slots.items():
+            while slot.expected and slot.expected[0].deadline <= now:
+                slot.expected.popleft()
+                decision.lost.append(name)
+                slot.missed_in_a_row += 1
+                if slot.missed_in_a_row == self.timing.offline_after_missed:
+                    decision.went_offline.append(name)
+
+    def _serve_command_slot(self, now: float, decision: Decision) -> None:
+        t = self.timing
+        if now < self._next_command_slot:
+            return
+        skipped = math.floor((now - self._next_command_slot) / t.command_period_s + 1e-9)
+        slot_time = self._next_command_slot + skipped * t.command_period_s
+        decision.missed_slots = skipped
+        decision.command_slot = slot_time
+        self._next_command_slot = slot_time + t.command_period_s
+        refresh_due = t.refresh_s - t.command_period_s / 2
+        for name in self._order:
+            slot = self._slots[name]
+            if slot.released or slot.latest is None:
+                continue
+            if slot.has_unsent_setpoint:
+                decision.frames.append(self._command_frame(slot, "command", now))
+                slot.last_command_time = slot_time
+            elif (
+                slot.last_command_time is None
+                or slot_time - slot.last_command_time >= refresh_due
+            ):
+                decision.frames.append(self._command_frame(slot, "refresh", now))
+                slot.last_command_time = slot_time
+
+    def _serve_immediate(self, now: float, decision: Decision) -> None:
+        for name in self._order:
+            slot = self._slots[name]
+            if slot.spec.command_mode != "immediate" or not slot.has_unsent_setpoint:
+                continue
+            last = slot.last_command_time
+            if last is None or now - last >= self.timing.immediate_min_spacing_s:
+                decision.frames.append(self._command_frame(slot, "command", now))
+
+    def _serve_telemetry(self, now: float, decision: Decision) -> None:
+        t = self.timing
+        if now >= self._next_telemetry_tick:
+            behind = math.floor((now - self._next_telemetry_tick) / t.telemetry_period_s + 1e-9)
+            decision.telemetry_tick = self._next_telemetry_tick + behind * t.telemetry_period_s
+            self._next_telemetry_tick = decision.telemetry_tick + t.telemetry_period_s
+            half_tick = t.telemetry_period_s / 2
+            due = [
+                name for name, slot in self._slots.items()
+                if slot.poll_period and slot.next_poll_due - now <= half_tick
+            ]
+            n = len(self._order)
+            rank = {name: (i - self._rr_offset) % n for i, name in enumerate(self._order)}
+            self._rr_offset = (self._rr_offset + 1) % n
+            due.sort(key=lambda name: (self._slots[name].next_poll_due, rank[name]))
+            # a new round keeps any leftovers of the previous one in front (they are older)
+            self._poll_round = [m for m in self._poll_round if m not in due] + due
+        if not self._poll_round:
+            return
+        # suspension: nothing may still occupy the bus at the next command slot
+        # (the command frames of this very step go first and take their own bus time)
+        bus_free_until = self._next_command_slot - t.command_guard_s
+        budget = bus_free_until - now - sum(
+            self._slots[out.servo].command_cost_s for out in decision.frames
+        )
+        remaining: list[str] = []
+        for name in self._poll_round:
+            slot = self._slots[name]
+            if slot.request_outstanding:
+                remaining.append(name)
+                continue
+            if slot.poll_cost_s > budget:
+                remaining.append(name)
+                continue
+            budget -= slot.poll_cost_s
+            if now - slot.next_poll_due > t.telemetry_period_s / 2:
+                decision.late_polls.append(name)
+            replies = int(getattr(slot.spec.profile, "replies_per_request", 1))
+            for req in slot.spec.profile.telemetry_requests():
+                expectations = tuple(
+                    Expectation("request", now, now + t.reply_timeout_s) for _ in range(replies)
+                )
+                slot.expected.extend(expectations)
+                decision.frames.append(Outgoing(name, "request", req, None, expectations))
+            assert slot.poll_period is not None
+            slot.next_poll_due += slot.poll_period
+            if slot.next_poll_due < now:  # far behind: do not try to catch up with a burst
+                slot.next_poll_due = now + slot.poll_period
+        decision.deferred_polls = len(remaining)
+        self._poll_round = remaining
+
+    def step(self, now: float) -> Decision:
+        """Frames to send at ``now`` (commands first) and when to call ``step`` again."""
+        decision = Decision(frames=[], next_deadline=math.inf)
+        self._expire(now, decision)
+        self._serve_command_slot(now, decision)
+        self._serve_immediate(now, decision)
+        self._serve_telemetry(now, decision)
+        decision.next_deadline = self.next_deadline(now)
+        return decision
+
+    def next_deadline(self, now: float) -> float:
+        """Earliest time a frame may have to go out: slot, telemetry tick, end of a spacing.
+
+        Reply timeouts are deliberately not deadlines: they are checked on the next step (at
+        most one command period later), which keeps the runner from waking, and spinning,
+        once per outstanding reply.
+        """
+        t = self.timing
+        candidates = [self._next_command_slot, self._next_telemetry_tick]
+        for slot in self._slots.values():
+            if slot.spec.command_mode == "immediate" and slot.has_unsent_setpoint:
+                last = slot.last_command_time
+                candidates.append(now if last is None else last + t.immediate_min_spacing_s)
+        if self._poll_round and any(
+            not self._slots[name].request_outstanding for name in self._poll_round
+        ):
+            # deferred polls go right after the next command slot's frames
+            candidates.append(self._next_command_slot)
+        return min(candidates)
+
+    # ------------------------------------------------------------------ wire feedback
+    def sent(self, out: Outgoing, t: float) -> None:
+        """The runner wrote ``out`` at ``t``: time its replies from the real write time."""
+        for expectation in out.expectations:
+            expectation.t_tx = t
+            expectation.deadline = t + self.timing.reply_timeout_s
+        slot = self._slots[out.servo]
+        if out.kind != "request" and slot.awaiting_first_reply_since is not None:
+            slot.awaiting_first_reply_since = t
+
+    def send_failed(self, out: Outgoing) -> None:
+        """The bus refused ``out``: forget its replies and let the next slot try again."""
+        slot = self._slots[out.servo]
+        for expectation in out.expectations:
+            if expectation in slot.expected:
+                slot.expected.remove(expectation)
+        if out.seq is not None and slot.sent_seq == out.seq:
+            slot.sent_seq = out.seq - 1
+
+    def on_reply(self, name: str, t: float) -> ReplyMatch:
+        """A reply from ``name`` was decoded at ``t``: match it to the oldest expectation."""
+        slot = self._slots[name]
+        back_online = slot.missed_in_a_row >= self.timing.offline_after_missed
+        slot.missed_in_a_row = 0
+        if slot.expected:
+            expectation = slot.expected.popleft()
+            latency = t - expectation.t_tx if expectation.kind != "request" else None
+            return ReplyMatch(expectation.kind, expectation.t_tx, latency, back_online)
+        if slot.poll_period is not None or int(
+            getattr(slot.spec.profile, "replies_per_command", 1)
+        ):
+            # this servo only speaks when asked: an unmatched reply came after its timeout
+            return ReplyMatch("late", None, None, back_online)
+        if slot.awaiting_first_reply_since is not None:
+            since = slot.awaiting_first_reply_since
+            slot.awaiting_first_reply_since = None
+            return ReplyMatch(None, since, t - since, back_online)
+        return ReplyMatch(None, None, None, back_online)

@@ -1,0 +1,414 @@
+"""The dual-loop priority scheduler: the only writer to one CAN bus.
+
+:class:`Scheduler` runs the pure policy of :mod:`mavservo.schedule_core` on absolute monotonic
+deadlines in one thread (the only caller of ``bus.send``, so command-over-telemetry priority is
+structural), and decodes replies in a second thread (``bus.recv``) through the servo profiles.
+Upper layers talk to it through a small thread-safe API: ``set_setpoint``, ``state``,
+``is_online``, ``subscribe``, ``release``, ``metrics``.
+
+Waiting: sleep until ``spin_s`` before the deadline, then spin (yielding the GIL on every turn
+so the receive thread is never starved). On a shared non-real-time machine that is what keeps a
+50 ms loop within a fraction of a millisecond when a core is free; ``realtime=True`` asks for
+SCHED_FIFO, which is what holds under load, and reports (never raises) when the OS refuses.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import threading
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import can
+
+from .busload import message_bits
+from .metrics import SchedulerMetrics, write_json
+from .schedule_core import (
+    Decision,
+    FrameKind,
+    Outgoing,
+    ScheduleCore,
+    ScheduleError,
+    ServoSpec,
+    SetpointResult,
+    TimingConfig,
+)
+from .servos.base import Fault, ServoState
+
+__all__ = [
+    "ScheduleError",
+    "Scheduler",
+    "SchedulerObserver",
+    "ServoSpec",
+    "SetpointResult",
+    "StateCallback",
+    "TimingConfig",
+]
+
+log = logging.getLogger(__name__)
+
+StateCallback = Callable[[str, ServoState], None]
+_RECV_TIMEOUT_S = 0.05
+
+
+class SchedulerObserver:
+    """Hooks called from the scheduler's threads; every method is an optional no-op.
+
+    Implementations MUST be non-blocking (append to a queue, bump a counter): they run inside
+    the command loop and the receive loop, so a slow observer would delay commands. Exceptions
+    are logged and swallowed; they never stop the loop. ``bus`` is the scheduler's name.
+    """
+
+    def on_setpoint(
+        self, servo: str, seq: int, angle_deg: float, source: str, t: float
+    ) -> None:
+        """A setpoint was accepted into the scheduler."""
+
+    def on_tx(
+        self, bus: str, msg: can.Message, t: float, kind: FrameKind, servo: str,
+        seq: int | None,
+    ) -> None:
+        """``bus.send`` returned for ``msg``; ``t`` is the monotonic time just after the write."""
+
+    def on_rx(self, bus: str, msg: can.Message, t: float, servo: str, state: ServoState) -> None:
+        """A reply from ``servo`` was decoded into ``state``."""
+
+    def on_lost(self, bus: str, servo: str, t: float) -> None:
+        """A reply ``servo`` owed us did not arrive within ``reply_timeout_s``."""
+
+    def on_reject(self, bus: str, reason: str, raw_bytes: bytes, t: float) -> None:
+        """The bus's frame decoder rejected bytes (forwarded through ``report_reject``)."""
+
+
+class Scheduler:
+    """One bus, its servos and the two loops. Refuses an over-budget schedule at construction.
+
+    ``servos``: :class:`ServoSpec` per servo (name, profile, command mode, telemetry rate).
+    ``clock``: a monotonic clock in seconds (injectable). ``observer``: see
+    :class:`SchedulerObserver`. Construction raises :class:`ScheduleError` (a ``ValueError``)
+    with the computed worst-case R when the schedule cannot fit ``timing.max_load``.
+    """
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        servos: Sequence[ServoSpec],
+        timing: TimingConfig | None = None,
+        *,
+        clock: Callable[[], float] = time.monotonic,
+        observer: SchedulerObserver | None = None,
+        name: str | None = None,
+    ) -> None:
+        self.timing = timing or TimingConfig()
+        self.name = name or str(getattr(bus, "channel_info", "bus"))
+        self._bus = bus
+        self._clock = clock
+        self._observer = observer or SchedulerObserver()
+        self._core = ScheduleCore(servos, self.timing, start=clock())
+        self._specs = {spec.name: spec for spec in servos}
+        self._metrics = SchedulerMetrics(
+            self._specs, self.timing.command_period_s, self.timing.telemetry_period_s,
+            self.timing.bitrate, self.timing.load_window_s,
+        )
+        self._states: dict[str, ServoState] = {}
+        self._subscribers: list[StateCallback] = []
+        self._lock = threading.Lock()
+        self._wake = threading.Event()
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._started_at: float | None = None
+        self._cpu = {"runner_s": 0.0, "receiver_s": 0.0}
+        self.realtime_status = "not requested"
+        for warning in self._core.warnings:
+            log.warning("scheduler %s: %s", self.name, warning)
+
+    # --------------------------------------------------------------------------- lifecycle
+    def start(self) -> None:
+        """Anchor the schedule at the current time and start the two threads."""
+        if self._threads:
+            raise RuntimeError("scheduler already started")
+        self._stop.clear()
+        with self._lock:
+            self._started_at = self._clock()
+            self._core.anchor(self._started_at)
+        self._threads = [
+            threading.Thread(target=self._run, name=f"mavservo-sched-{self.name}", daemon=True),
+            threading.Thread(target=self._receive, name=f"mavservo-rx-{self.name}", daemon=True),
+        ]
+        for thread in self._threads:
+            thread.start()
+
+    def stop(self, timeout: float = 2.0) -> None:
+        """Stop both threads (the bus stays open: it belongs to the caller)."""
+        self._stop.set()
+        self._wake.set()
+        for thread in self._threads:
+            thread.join(timeout)
+        self._threads = []
+
+    def __enter__(self) -> Scheduler:
+        self.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    # ------------------------------------------------------------------------ upper layers
+    @property
+    def warnings(self) -> list[str]:
+        """Start-up findings (e.g. telemetry rates that cannot be kept), already logged."""
+        return list(self._core.warnings)
+
+    @property
+    def worst_case_load(self) -> float:
+        return self._core.worst_case_load
+
+    @property
+    def servo_names(self) -> list[str]:
+        return self._core.servo_names
+
+    def set_setpoint(
+        self, servo: str, angle_deg: float, source: str, t: float | None = None
+    ) -> SetpointResult:
+        """Queue a new setpoint; rejected if unknown, invalid, or older (``t``) than the last."""
+        when = self._clock() if t is None else t
+        with self._lock:
+            result = self._core.submit(servo, angle_deg, source, when)
+            servo_metrics = self._metrics.servos.get(servo)
+            if servo_metrics is not None:
+                if result.accepted:
+                    servo_metrics.setpoints_accepted += 1
+                else:
+                    servo_metrics.setpoints_rejected += 1
+            wake = result.accepted and self._core.wants_immediate_wake(servo)
+        if result.accepted:
+            assert result.seq is not None
+            self._notify_observer("on_setpoint", servo, result.seq, angle_deg, source, when)
+        if wake:
+            self._wake.set()
+        return result
+
+    def release(self, servo: str) -> None:
+        """Stop sending and refreshing ``servo`` until its next setpoint (failsafe release)."""
+        with self._lock:
+            self._core.release(servo)
+
+    def state(self, servo: str) -> ServoState | None:
+        with self._lock:
+            return self._states.get(servo)
+
+    def is_online(self, servo: str) -> bool:
+        """False after ``offline_after_missed`` replies in a row did not arrive."""
+        with self._lock:
+            return self._core.is_online(servo)
+
+    def subscribe(self, callback: StateCallback) -> Callable[[], None]:
+        """Call ``callback(servo, state)`` on every decoded reply and when a servo goes offline.
+
+        Runs in the receive (or command) thread: keep it short. Returns an unsubscribe function.
+        """
+        with self._lock:
+            self._subscribers.append(callback)
+
+        def unsubscribe() -> None:
+            with self._lock:
+                if callback in self._subscribers:
+                    self._subscribers.remove(callback)
+
+        return unsubscribe
+
+    def report_reject(self, reason: str, raw_bytes: bytes, t: float | None = None) -> None:
+        """Count a frame the bus's decoder rejected (wire the aa55 bus's callback here)."""
+        when = self._clock() if t is None else t
+        with self._lock:
+            self._metrics.bus_rejected += 1
+        self._notify_observer("on_reject", self.name, reason, raw_bytes, when)
+
+    def metrics(self) -> dict[str, Any]:
+        """JSON-serialisable snapshot: per servo L, sigma_L, intervals, frame counts; bus R."""
+        now = self._clock()
+        with self._lock:
+            snapshot = self._metrics.to_dict(now)
+            for name in self._specs:
+                snapshot["servos"][name]["online"] = self._core.is_online(name)
+        snapshot["info"].update(
+            bus=self.name,
+            worst_case_load=self.worst_case_load,
+            max_load=self.timing.max_load,
+            bitrate=self.timing.bitrate,
+            command_period_s=self.timing.command_period_s,
+            telemetry_period_s=self.timing.telemetry_period_s,
+            warnings=self.warnings,
+            realtime=self.realtime_status,
+            uptime_s=None if self._started_at is None else now - self._started_at,
+            cpu=dict(self._cpu),
+        )
+        return snapshot
+
+    def write_metrics(self, path: str | Path) -> Path:
+        """Write ``metrics()`` as JSON (the run log calls this at the end of a run)."""
+        return write_json(path, self.metrics())
+
+    # ------------------------------------------------------------------------ the threads
+    def _notify_observer(self, method: str, *args: Any) -> None:
+        try:
+            getattr(self._observer, method)(*args)
+        except Exception:  # an observer must never stop the loop
+            log.exception("scheduler observer %s failed", method)
+
+    def _notify_subscribers(self, servo: str, state: ServoState) -> None:
+        with self._lock:
+            subscribers = list(self._subscribers)
+        for callback in subscribers:
+            try:
+                callback(servo, state)
+            except Exception:
+                log.exception("scheduler subscriber failed for %s", servo)
+
+    def _apply_realtime(self) -> None:
+        if not self.timing.realtime:
+            return
+        try:
+            param = os.sched_param(self.timing.realtime_priority)
+            os.sched_setscheduler(0, os.SCHED_FIFO, param)  # 0: the calling thread on Linux
+            self.realtime_status = f"SCHED_FIFO priority {self.timing.realtime_priority}"
+        except (AttributeError, OSError) as exc:
+            self.realtime_status = f"refused: {exc!r}"
+            log.warning("scheduler %s: real-time priority refused: %r", self.name, exc)
+
+    def _wait_until(self, deadline: float) -> None:
+        """Sleep to ``spin_s`` before ``deadline``, then spin; return early when woken."""
+        spin = self.timing.spin_s
+        while not self._stop.is_set():
+            remaining = deadline - self._clock()
+            if remaining <= 0:
+                return
+            if remaining > spin:
+                if self._wake.wait(remaining - spin):
+                    self._wake.clear()
+                    return
+                continue
+            while self._clock() < deadline:
+                if self._wake.is_set():
+                    self._wake.clear()
+                    return
+                time.sleep(0)  # yield the GIL so the receive thread keeps its timestamps true
+            return
+
+    def _run(self) -> None:
+        self._apply_realtime()
+        while not self._stop.is_set():
+            decision = self._step()
+            self._send_all(decision)
+            with self._lock:
+                deadline = self._core.next_deadline(self._clock())
+            self._cpu["runner_s"] = time.thread_time()
+            self._wait_until(deadline)
+
+    def _step(self) -> Decision:
+        now = self._clock()
+        offline_states: list[tuple[str, ServoState]] = []
+        with self._lock:
+            decision = self._core.step(now)
+            metrics = self._metrics
+            metrics.missed_command_slots += decision.missed_slots
+            if decision.command_slot is not None:
+                metrics.command_lateness.add(now - decision.command_slot)
+                if not any(out.kind != "request" for out in decision.frames):
+                    metrics.command_ticks.mark(now)
+            if decision.telemetry_tick is not None:
+                metrics.telemetry_ticks.mark(now)
+            for servo in decision.lost:
+                metrics.servos[servo].lost += 1
+            for servo in decision.went_offline:
+                state = self._states.get(servo)
+                if state is not None:
+                    state = state.with_faults(state.faults | Fault.NO_REPLY)
+                    self._states[servo] = state
+                    offline_states.append((servo, state))
+        for servo in decision.lost:
+            self._notify_observer("on_lost", self.name, servo, now)
+        for servo in decision.went_offline:
+            log.warning("scheduler %s: servo %s offline (no reply)", self.name, servo)
+        for servo, state in offline_states:
+            self._notify_subscribers(servo, state)
+        return decision
+
+    def _send_all(self, decision: Decision) -> None:
+        slot_marked = decision.command_slot is None
+        for out in decision.frames:
+            try:
+                self._bus.send(out.msg)
+            except can.CanError as exc:
+                log.warning("scheduler %s: send to %s failed: %s", self.name, out.servo, exc)
+                with self._lock:
+                    self._core.send_failed(out)
+                continue
+            t = self._clock()
+            with self._lock:
+                self._core.sent(out, t)
+                self._account_tx(out, t)
+                if not slot_marked and out.kind != "request":
+                    self._metrics.command_ticks.mark(t)
+                    slot_marked = True
+            self._notify_observer("on_tx", self.name, out.msg, t, out.kind, out.servo, out.seq)
+
+    def _account_tx(self, out: Outgoing, t: float) -> None:
+        servo = self._metrics.servos[out.servo]
+        if out.kind == "request":
+            servo.requests_sent += 1
+        else:
+            if out.kind == "command":
+                servo.commands_sent += 1
+            else:
+                servo.refreshes_sent += 1
+            servo.command_intervals.mark(t)
+        self._metrics.load.add(t, message_bits(out.msg))
+
+    def _receive(self) -> None:
+        while not self._stop.is_set():
+            try:
+                msg = self._bus.recv(timeout=_RECV_TIMEOUT_S)
+            except can.CanError as exc:
+                log.warning("scheduler %s: receive failed: %s", self.name, exc)
+                self._stop.wait(_RECV_TIMEOUT_S)
+                continue
+            if msg is not None:
+                self.handle_frame(msg, self._clock())
+            self._cpu["receiver_s"] = time.thread_time()
+
+    def handle_frame(self, msg: can.Message, t: float) -> ServoState | None:
+        """Decode one received frame (called by the receive thread; public for tests and for
+        buses that deliver frames through a Notifier instead)."""
+        with self._lock:
+            if not msg.is_error_frame and not getattr(msg, "is_fd", False):
+                self._metrics.load.add(t, message_bits(msg))
+        servo = next(
+            (name for name, spec in self._specs.items() if spec.profile.is_reply(msg)), None
+        )
+        if servo is None:
+            return None
+        state = self._specs[servo].profile.decode(msg, t)
+        with self._lock:
+            servo_metrics = self._metrics.servos[servo]
+            if state is None:
+                servo_metrics.rejected += 1
+                return None
+            match = self._core.on_reply(servo, t)
+            servo_metrics.received += 1
+            if match.kind == "late":
+                servo_metrics.late_replies += 1
+            if match.latency_s is not None and math.isfinite(match.latency_s):
+                servo_metrics.latency.add(match.latency_s)
+            if match.kind in ("request", None):
+                servo_metrics.telemetry_intervals.mark(t)
+            self._states[servo] = state
+        if match.back_online:
+            log.info("scheduler %s: servo %s back online", self.name, servo)
+        self._notify_observer("on_rx", self.name, msg, t, servo, state)
+        self._notify_subscribers(servo, state)
+        return state
