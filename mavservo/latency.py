@@ -9,7 +9,7 @@ sum. From the host we can timestamp five points of one command's life::
 ``accept`` and ``tx`` together are the host's T_tx, ``round_trip`` is T_usb + T_can + T_servo
 (the part on the far side of the serial port), ``publish`` is T_rx up to the moment the state
 leaves as MAVLink. ``LatencyTracer`` follows those points with O(1) work per event and bounded
-memory (one open record per servo, a ring of recent samples per stage), so it can stay on in
+memory (one open record per servo, ``metrics.SampleStats`` rings per stage), so it can stay on in
 flight. It reads no clock: every time comes in as an argument (``time.monotonic()`` seconds).
 
 The tracer has the scheduler's observer method names, so it can be registered as an observer
@@ -18,12 +18,12 @@ directly, or be fed by :class:`mavservo.runlog.RunLog`, which forwards to it.
 
 from __future__ import annotations
 
-import math
 import threading
-from collections import deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any
+
+from mavservo.metrics import SampleStats
 
 STAGES: tuple[str, ...] = ("accept", "tx", "round_trip", "publish")
 """Stage names in the order a command passes through them."""
@@ -89,37 +89,12 @@ class CommandTrace:
         ]
 
 
-def percentile(sorted_values: list[float], q: float) -> float:
-    """Linear-interpolated percentile ``q`` in [0, 100] of an already sorted, non-empty list."""
-    if not sorted_values:
-        raise ValueError("percentile of an empty list")
-    if len(sorted_values) == 1:
-        return sorted_values[0]
-    pos = (len(sorted_values) - 1) * q / 100.0
-    low = math.floor(pos)
-    high = min(low + 1, len(sorted_values) - 1)
-    frac = pos - low
-    return sorted_values[low] * (1.0 - frac) + sorted_values[high] * frac
-
-
-def summarize(samples: Iterable[float]) -> dict[str, float | int]:
-    """count, mean, std, p50/p95/p99, min, max of a sample (seconds); just count 0 if empty."""
-    values = sorted(samples)
-    if not values:
-        return {"count": 0}
-    n = len(values)
-    mean = sum(values) / n
-    var = sum((v - mean) ** 2 for v in values) / (n - 1) if n > 1 else 0.0
-    return {
-        "count": n,
-        "mean": mean,
-        "std": math.sqrt(var),
-        "min": values[0],
-        "p50": percentile(values, 50),
-        "p95": percentile(values, 95),
-        "p99": percentile(values, 99),
-        "max": values[-1],
-    }
+def summarize(samples: Iterable[float]) -> dict[str, Any]:
+    """n, mean, sigma (paper eq. 5), min, max, p50/p95/p99 of a sample, via ``metrics``."""
+    values = list(samples)
+    stats = SampleStats(window=max(1, len(values)))
+    stats.extend(values)
+    return stats.summary()
 
 
 class LatencyTracer:
@@ -138,8 +113,8 @@ class LatencyTracer:
         self._lock = threading.Lock()
         self._pending_receipt: dict[str, float] = {}
         self._open: dict[str, CommandTrace] = {}
-        self._samples: dict[str, deque[float]] = {s: deque(maxlen=window) for s in STAGES}
-        self._totals: deque[float] = deque(maxlen=window)
+        self._stages = {stage: SampleStats(window) for stage in STAGES}
+        self._total = SampleStats(window)
         self._on_record = on_record
         self.counts: dict[str, int] = {
             "commands": 0,
@@ -216,10 +191,9 @@ class LatencyTracer:
         stages = trace.stage_seconds()
         for stage, value in stages.items():
             if value is not None:
-                self._samples[stage].append(value)
+                self._stages[stage].add(value)
         if outcome == "complete":
-            total = sum(v for v in stages.values() if v is not None)
-            self._totals.append(total)
+            self._total.add(sum(v for v in stages.values() if v is not None))
         if self._on_record is not None:
             self._on_record(trace)
 
@@ -230,13 +204,11 @@ class LatencyTracer:
                 self._finish(self._open.pop(servo), "open")
 
     def summary(self) -> dict[str, Any]:
-        """Counts and per-stage statistics (seconds) over the recent window."""
+        """Counts and per-stage statistics (seconds): mean and sigma over every sample, the
+        percentiles over the most recent ``window`` (``metrics.SampleStats``)."""
         with self._lock:
-            stages = {s: list(self._samples[s]) for s in STAGES}
-            totals = list(self._totals)
-            counts = dict(self.counts)
-        return {
-            "counts": counts,
-            "stages": {s: summarize(v) for s, v in stages.items()},
-            "total": summarize(totals),
-        }
+            return {
+                "counts": dict(self.counts),
+                "stages": {stage: stats.summary() for stage, stats in self._stages.items()},
+                "total": self._total.summary(),
+            }

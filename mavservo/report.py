@@ -403,16 +403,16 @@ def summary_rows(run: Run, series: LoadSeries) -> list[tuple[str, str]]:
     round_trip = summarize(stages["round_trip"])
     rows.append(("Latency L, round trip (mean / p50 / p95 / p99) [ms]",
                  " / ".join(_ms(round_trip.get(k)) for k in ("mean", "p50", "p95", "p99"))))
-    rows.append(("Jitter sigma_L [ms]", _ms(round_trip.get("std"))))
+    rows.append(("Jitter sigma_L [ms]", _ms(round_trip.get("sigma"))))
     for stage in STAGES:
         s = summarize(stages[stage])
         rows.append((f"Stage {stage}: {STAGE_DESCRIPTIONS[stage]} (p50 / p95 / p99) [ms]",
                      " / ".join(_ms(s.get(k)) for k in ("p50", "p95", "p99"))
-                     + f" (n={s['count']})"))
+                     + f" (n={s['n']})"))
     intervals = [v for trace in run.servos.values() for v in trace.intervals_s()]
     iv = summarize(intervals)
-    rows.append(("Telemetry interval (mean / std / p99) [ms]",
-                 " / ".join(_ms(iv.get(k)) for k in ("mean", "std", "p99"))))
+    rows.append(("Telemetry interval (mean / sigma / p99) [ms]",
+                 " / ".join(_ms(iv.get(k)) for k in ("mean", "sigma", "p99"))))
     outcomes: dict[str, int] = defaultdict(int)
     for row in run.latency_rows:
         outcomes[row.get("outcome", "?")] += 1
