@@ -105,10 +105,16 @@ class CubeMarsAK(ServoProfile):
             data=struct.pack(
                 ">ihh",
                 position,
-                min(32767, round(speed * self.erpm_per_dps / 10)),
-                min(32767, round(accel * self.erpm_per_dps / 10)),
+                self._erpm_field(speed),
+                self._erpm_field(accel),
             ),
         )
+
+    def _erpm_field(self, dps: float) -> int:
+        """A speed or acceleration in units of 10 ERPM, saturated, and never rounded down to
+        0 when it was not 0 (the servo would read 0 as "no limit")."""
+        field = min(32767, round(dps * self.erpm_per_dps / 10))
+        return max(1, field) if dps > 0 else 0
 
     def telemetry_requests(self) -> list[can.Message]:
         return []

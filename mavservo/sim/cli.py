@@ -1,0 +1,161 @@
+"""``mavservo sim``: run the USB-CAN adapter emulator with simulated servos until signalled.
+
+The first line of standard output is the device path to open (flushed at once), so a script
+can do ``path=$(mavservo sim ... | head -1)``. Servos, bitrate and faults come from options or
+from the ``simulation`` section of a YAML file (options given explicitly win)::
+
+    simulation:
+      bitrate: 1000000          # CAN bitrate until the host's settings frame says otherwise
+      protocol: variable        # or fixed
+      seed: 0
+      status_rate_hz: 50        # push rate of push-style servos (cubemars-ak)
+      line_faults: {flip_prob: 0.0, drop_byte_prob: 0.0, burst_prob: 0.0, burst_len: 8,
+                    direction: to_host}
+      servos:
+        - id: 1
+          profile: rmd-x        # rmd-x | lk | cubemars-ak
+          physics: {max_speed_dps: 720, max_accel_dps2: 3600, relax_after_s: 2.0, ...}
+          faults: {drop_reply_prob: 0.0, reply_delay_s: 0.0, silent: false,
+                   over_current: false, over_temperature: false}
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+from collections.abc import Sequence
+from typing import Any
+
+from .adapter import AdapterEmulator, LineFaults
+from .servo import Faults, Physics, SimServo
+
+
+def _ids(text: str) -> list[int]:
+    return [int(part, 0) for part in text.split(",") if part.strip()]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="mavservo sim",
+        description="Emulate an AA-55 USB-CAN adapter with simulated CAN servos on a pty.",
+    )
+    parser.add_argument("--config", help="YAML file with a 'simulation' section")
+    parser.add_argument("--servos", type=int, default=None, help="number of servos (default 1)")
+    parser.add_argument("--ids", type=_ids, default=None, help="servo IDs, e.g. 1,2,3")
+    parser.add_argument("--profile", default=None, help="rmd-x | lk | cubemars-ak")
+    parser.add_argument("--bitrate", type=int, default=None)
+    parser.add_argument("--protocol", choices=("variable", "fixed"), default=None)
+    parser.add_argument("--link", default=None, help="path of the device symlink to publish")
+    parser.add_argument("--seed", type=int, default=None)
+    parser.add_argument("--status-rate-hz", type=float, default=None)
+    parser.add_argument("--relax-after", type=float, default=None,
+                        help="seconds without command before a servo goes limp")
+    faults = parser.add_argument_group("fault injection (all servos)")
+    faults.add_argument("--drop-reply-prob", type=float, default=None)
+    faults.add_argument("--reply-delay", type=float, default=None, help="seconds")
+    faults.add_argument("--silent-ids", type=_ids, default=None)
+    faults.add_argument("--over-current-ids", type=_ids, default=None)
+    faults.add_argument("--over-temperature-ids", type=_ids, default=None)
+    faults.add_argument("--flip-prob", type=float, default=None, help="per byte, serial line")
+    faults.add_argument("--drop-byte-prob", type=float, default=None)
+    faults.add_argument("--burst-prob", type=float, default=None)
+    faults.add_argument("--line-direction", choices=("to_host", "to_adapter", "both"),
+                        default=None)
+    return parser
+
+
+def load_simulation_section(path: str) -> dict[str, Any]:
+    """The ``simulation`` mapping of a YAML file (empty if absent)."""
+    import yaml
+
+    with open(path, encoding="utf-8") as handle:
+        document = yaml.safe_load(handle) or {}
+    section = document.get("simulation") or {}
+    if not isinstance(section, dict):
+        raise ValueError(f"{path}: 'simulation' must be a mapping")
+    return section
+
+
+def build_emulator(args: argparse.Namespace) -> AdapterEmulator:
+    """Servos and adapter from the YAML section, with command-line options on top."""
+    section = load_simulation_section(args.config) if args.config else {}
+    seed = args.seed if args.seed is not None else int(section.get("seed", 0))
+    rate = args.status_rate_hz or float(section.get("status_rate_hz", 50.0))
+    specs: list[dict[str, Any]] = [dict(s) for s in section.get("servos") or []]
+    if args.ids is not None or args.servos is not None or not specs:
+        profile = args.profile or "rmd-x"
+        ids = args.ids or list(range(1, (args.servos or 1) + 1))
+        specs = [{"id": i, "profile": profile} for i in ids]
+    elif args.profile:
+        for spec in specs:
+            spec["profile"] = args.profile
+
+    servos = []
+    for index, spec in enumerate(specs):
+        unknown = set(spec) - {"id", "profile", "physics", "faults"}
+        if unknown:
+            raise ValueError(f"simulation.servos[{index}]: unknown key(s) {sorted(unknown)}")
+        physics = Physics.from_dict(spec.get("physics"))
+        faults = Faults.from_dict(spec.get("faults"))
+        can_id = int(spec["id"])
+        if args.relax_after is not None:
+            physics.relax_after_s = args.relax_after
+        if args.drop_reply_prob is not None:
+            faults.drop_reply_prob = args.drop_reply_prob
+        if args.reply_delay is not None:
+            faults.reply_delay_s = args.reply_delay
+        faults.silent |= can_id in (args.silent_ids or [])
+        faults.over_current |= can_id in (args.over_current_ids or [])
+        faults.over_temperature |= can_id in (args.over_temperature_ids or [])
+        servos.append(SimServo(spec.get("profile", "rmd-x"), can_id, physics, faults,
+                               seed=seed + index, status_rate_hz=rate))
+
+    line = LineFaults.from_dict(section.get("line_faults"))
+    for option, field in (("flip_prob", "flip_prob"), ("drop_byte_prob", "drop_byte_prob"),
+                          ("burst_prob", "burst_prob"), ("line_direction", "direction")):
+        value = getattr(args, option)
+        if value is not None:
+            setattr(line, field, value)
+    return AdapterEmulator(
+        servos,
+        bitrate=args.bitrate or int(section.get("bitrate", 1_000_000)),
+        protocol=args.protocol or section.get("protocol", "variable"),
+        line_faults=line,
+        link_path=args.link,
+        seed=seed,
+    )
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run until SIGINT or SIGTERM; exit 0 on a clean stop, 2 on a configuration error."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        emulator = build_emulator(args)
+    except (OSError, ValueError, KeyError) as error:
+        print(f"mavservo sim: {error}", file=sys.stderr)
+        return 2
+    stop = threading.Event()
+    previous = {sig: signal.signal(sig, lambda *_: stop.set())
+                for sig in (signal.SIGINT, signal.SIGTERM)}
+    emulator.start()
+    try:
+        print(emulator.path, flush=True)
+        servo_list = ", ".join(f"{s.profile}:{s.can_id}" for s in emulator.servos)
+        print(f"# {emulator.device} at {emulator.bitrate} bit/s, servos {servo_list}",
+              file=sys.stderr, flush=True)
+        while not stop.wait(0.2):
+            if emulator.error is not None:
+                print(f"mavservo sim: adapter failed: {emulator.error!r}", file=sys.stderr)
+                return 1
+    finally:
+        emulator.stop()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
