@@ -1,6 +1,7 @@
 """Replay ArduPlane's real gimbal traffic (tests/data/plane-gimbal.tlog) through GimbalDevice.
 
-The expected timeline is the one in /work/shared/sitl-recordings/plane-gimbal-commands.txt: each GCS command shows up as a new GIMBAL_DEVICE_SET_ATTITUDE target, the yaw-lock commands as
+The expected timeline is the one in /work/shared/sitl-recordings/plane-gimbal-commands.txt:
+each GCS command shows up as a new GIMBAL_DEVICE_SET_ATTITUDE target, the yaw-lock commands as
 earth-frame yaw (flags 28) that the device must turn into body yaw with the vehicle's heading, and
 the retract as ArduPilot's RETRACT/identity alternation, which must hold the retract pose for its
 whole 3.2 s instead of flickering to 0/0/0.
