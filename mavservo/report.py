@@ -507,10 +507,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         paths = generate(args.logdir, args.out)
     except ReportError as exc:
-        console.print(f"[bold red]error:[/] {exc}", highlight=False)
+        console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
         return 2
     for key, path in paths.items():
-        console.print(f"wrote {key}: {path}", highlight=False)
+        console.print(f"wrote {key}: {path}", highlight=False, soft_wrap=True)
     return 0
 
 

@@ -1,0 +1,109 @@
+"""report: runs on a recorded run directory and produces every figure and the summary."""
+
+from __future__ import annotations
+
+import random
+import shutil
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import can
+import pytest
+
+from mavservo import report
+from mavservo.busload import message_bits
+from mavservo.runlog import RunLog, read_can_log
+
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def _record_run(directory: Path, seconds: float = 3.0, seed: int = 7) -> RunLog:
+    """A recorded run as the bridge would write it: two servos, step setpoints, jittery replies."""
+    rng = random.Random(seed)
+    log = RunLog(directory, buses={"bus0": {"bitrate": 1_000_000, "max_load": 0.35}},
+                 servos={"left": {"profile": "rmd-x", "can_id": 1},
+                         "right": {"profile": "rmd-x", "can_id": 2}})
+    t0 = time.monotonic()
+    position = {"left": 0.0, "right": 0.0}
+    seq = 0
+    t = t0
+    while t < t0 + seconds:
+        for can_id, servo in ((1, "left"), (2, "right")):
+            target = 20.0 if int(t - t0) % 2 else -20.0
+            seq += 1
+            log.mavlink_received(servo, t)
+            log.on_setpoint(servo, seq, target, "servo_output_raw", t + 0.0002)
+            cmd = can.Message(arbitration_id=0x140 + can_id, is_extended_id=False,
+                              data=b"\xa4\x00\x68\x01" + bytes(4))
+            written = t + 0.0004 + rng.uniform(0, 0.0005)
+            log.on_tx("bus0", cmd, written, "command", servo, seq)
+            position[servo] += (target - position[servo]) * 0.3
+            reply = can.Message(arbitration_id=0x240 + can_id, is_extended_id=False,
+                                data=b"\xa4\x1e" + bytes(6))
+            decoded = written + 0.002 + rng.uniform(0, 0.002)
+            state = SimpleNamespace(position_deg=position[servo], velocity_dps=50.0,
+                                    current_a=0.4, temperature_c=35.0, faults=None)
+            log.on_rx("bus0", reply, decoded, servo, state)
+            log.telemetry_sent(servo, decoded + rng.uniform(0, 0.05))
+        t += 0.05 + rng.uniform(-0.003, 0.003)
+    log.on_lost("bus0", "left", t)
+    log.on_reject("bus0", "bad_end_marker", b"\xaa\xc8\x00", t)
+    log.close({"scheduler": {"missed_command_slots": 0}})
+    return log
+
+
+@pytest.fixture(scope="module")
+def recorded_run(tmp_path_factory) -> Path:
+    directory = tmp_path_factory.mktemp("run")
+    _record_run(directory)
+    return directory
+
+
+def test_report_writes_every_figure_and_lists_it(recorded_run, tmp_path):
+    copied = tmp_path / "copied-run"  # works from the files alone, wherever they are
+    shutil.copytree(recorded_run, copied)
+    assert report.main([str(copied)]) == 0
+    out = copied / "report"
+    markdown = (out / report.REPORT_FILE).read_text()
+    for name in report.FIGURES.values():
+        data = (out / name).read_bytes()
+        assert data.startswith(PNG_MAGIC) and len(data) > 5000, name
+        assert f"]({name})" in markdown
+    frames = read_can_log(copied, "blf")
+    tx = sum(1 for m in frames if not m.is_rx)
+    assert f"| CAN frames TX / RX | {tx} / {len(frames) - tx} |" in markdown
+    assert "| Decoder rejections | 1 |" in markdown
+    assert "| Replies lost (timeouts) | 1 |" in markdown
+
+
+def test_summary_latency_matches_the_latency_log(recorded_run):
+    run = report.load_run(recorded_run)
+    samples = report.stage_samples(run.latency_rows)["round_trip"]
+    assert samples and all(0.002 <= s <= 0.0041 for s in samples)
+    rows = dict(report.summary_rows(run, report.bus_load_series(run.frames, run.start_wall)))
+    mean_ms = float(rows["Latency L, round trip (mean / p50 / p95 / p99) [ms]"].split(" / ")[0])
+    assert mean_ms == pytest.approx(1e3 * sum(samples) / len(samples), abs=0.01)
+
+
+def test_bus_load_windows_add_up_to_every_frame(recorded_run):
+    run = report.load_run(recorded_run)
+    series = report.bus_load_series(run.frames, run.start_wall)
+    assert set(series) == {0}
+    _, bits = series[0]
+    assert sum(bits) == sum(message_bits(m) for m in run.frames)
+
+
+def test_report_on_an_empty_run_still_draws_every_figure(tmp_path):
+    RunLog(tmp_path).close()
+    out = tmp_path / "out"
+    assert report.main([str(tmp_path), "--out", str(out)]) == 0
+    assert all((out / name).stat().st_size > 0 for name in report.FIGURES.values())
+
+
+def test_not_a_run_directory_is_a_clear_error(tmp_path, capsys):
+    (tmp_path / "notes.txt").write_text("hello")
+    assert report.main([str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "not a mavservo run directory" in err
+    assert report.main([str(tmp_path / "missing")]) == 2
