@@ -1,0 +1,101 @@
+"""metrics: eq. (5) sigma, percentiles, bounded windows, sliding-window bus load."""
+
+from __future__ import annotations
+
+import json
+import statistics
+
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from mavservo.metrics import (
+    LoadMeter,
+    PeriodStats,
+    SampleStats,
+    SchedulerMetrics,
+    percentile,
+    write_json,
+)
+
+finite = st.floats(-1e3, 1e3, allow_nan=False)
+
+
+@given(st.lists(finite, min_size=1, max_size=200))
+def test_mean_and_population_sigma_match_eq_5(values):
+    stats = SampleStats()
+    stats.extend(values)
+    assert stats.mean == pytest.approx(statistics.fmean(values), abs=1e-6)
+    assert stats.sigma == pytest.approx(statistics.pstdev(values), abs=1e-6)
+    assert (stats.minimum, stats.maximum) == (min(values), max(values))
+
+
+@given(st.lists(finite, min_size=1, max_size=200), st.floats(0, 100))
+def test_percentile_matches_linear_interpolation(values, q):
+    ordered = sorted(values)
+    assert percentile(ordered, q) == pytest.approx(np.percentile(ordered, q), abs=1e-6)
+
+
+def test_percentile_of_nothing_is_an_error():
+    with pytest.raises(ValueError):
+        percentile([], 50)
+
+
+def test_window_bounds_memory_but_mean_covers_everything():
+    stats = SampleStats(window=10)
+    stats.extend(range(100))
+    assert len(stats.recent) == 10 and stats.count == 100
+    summary = stats.summary()
+    assert summary["mean"] == pytest.approx(49.5)
+    assert summary["p50"] == pytest.approx(94.5)  # percentiles describe the recent window
+
+
+def test_empty_summary_is_all_none():
+    summary = SampleStats().summary()
+    assert summary["n"] == 0 and summary["sigma"] is None and summary["p99"] is None
+
+
+def test_period_stats_measure_intervals_and_deviation_from_nominal():
+    period = PeriodStats(nominal_s=0.05)
+    for t in (0.0, 0.050, 0.101, 0.149, 0.200):
+        period.mark(t)
+    summary = period.summary()
+    assert summary["interval"]["n"] == 4
+    assert summary["interval"]["mean"] == pytest.approx(0.05)
+    assert summary["abs_deviation"]["max"] == pytest.approx(0.002)
+
+
+def test_load_meter_slides_its_window():
+    meter = LoadMeter(bitrate=1000, window_s=1.0)
+    meter.add(0.0, 100)
+    meter.add(0.5, 200)
+    assert meter.ratio(0.5) == pytest.approx(0.3)
+    assert meter.ratio(1.2) == pytest.approx(0.2)  # the frame at t=0 left the window
+    assert meter.ratio(2.0) == 0.0
+    assert meter.total_bits == 300 and meter.peak == pytest.approx(0.3)
+
+
+@given(st.lists(st.tuples(st.floats(0, 0.01), st.integers(1, 200)), max_size=300))
+def test_load_meter_agrees_with_a_brute_force_window(events):
+    meter = LoadMeter(bitrate=10_000, window_s=0.05, max_events=10_000)
+    t, history = 0.0, []
+    for dt, bits in events:
+        t += dt
+        meter.add(t, bits)
+        history.append((t, bits))
+    expected = sum(b for ts, b in history if ts > t - 0.05) / (0.05 * 10_000)
+    assert meter.ratio(t) == pytest.approx(expected)
+
+
+def test_scheduler_metrics_snapshot_is_json(tmp_path):
+    metrics = SchedulerMetrics(["a", "b"], 0.05, 0.09, 1_000_000)
+    metrics.servos["a"].latency.extend([0.001, 0.003])
+    metrics.servos["a"].commands_sent = 2
+    metrics.load.add(1.0, 135)
+    snapshot = metrics.to_dict(now=1.0)
+    assert snapshot["servos"]["a"]["latency_s"]["sigma"] == pytest.approx(0.001)
+    assert snapshot["servos"]["a"]["frames"]["sent"] == 2
+    assert snapshot["load"]["current"] == pytest.approx(135e-6)
+    path = write_json(tmp_path / "deep" / "metrics.json", snapshot)
+    assert json.loads(path.read_text()) == json.loads(json.dumps(snapshot))
