@@ -233,7 +233,7 @@ class CommandHandler:
             if broadcast:
                 return None
             return comp, ApplyResult(Outcome.UNSUPPORTED, "unsupported:message not published"), []
-        raw = device.handle_command(cmd.command, cmd.params, now)
+        raw = device.handle_command(cmd.command, cmd.params, now, sender=cmd.source)
         if raw is None:
             if broadcast:
                 return None

@@ -8,7 +8,6 @@ sends them from the device's own component (own sequence numbers, own heartbeat)
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from typing import Any, Protocol, runtime_checkable
 
 #: MAV_TYPE_GIMBAL, advertised in the HEARTBEAT of gimbal components.
@@ -26,8 +25,15 @@ class HostedComponent(Protocol):
     def handle_message(self, msg: Any, now: float) -> None:
         """A message addressed to this component, or broadcast, that it may care about."""
 
-    def handle_command(self, command: int, params: Sequence[float], now: float) -> int | None:
-        """Handle a command; return a MAV_RESULT, or None when the command is not for it."""
+    def handle_command(
+        self,
+        command: int,
+        params: tuple[float, ...],
+        now: float,
+        *,
+        sender: tuple[int, int] | None = None,
+    ) -> int | None:
+        """Handle a command from ``sender``; a MAV_RESULT, or None when it is not for it."""
 
     def periodic(self, now: float) -> list[Any]:
         """Messages due at ``now`` (attitude status at its rate, ...), sent from its component."""
