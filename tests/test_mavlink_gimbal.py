@@ -514,3 +514,34 @@ def test_manager_configure_controls_who_may_point():
     assert_angles(backend.last, (0.0, -60.0, 0.0))
     # "me" without knowing who "me" is cannot be honoured
     assert device.handle_command(configure, take, 4.0) == mav.MAV_RESULT_DENIED
+
+
+GIMBAL_YAML = """
+servos:
+  - {name: gimbal_roll, profile: cubemars-ak, can_id: 1, limits_deg: [-30, 30]}
+  - {name: gimbal_pitch, profile: cubemars-ak, can_id: 2, limits_deg: [-90, 30]}
+  - {name: gimbal_yaw, profile: cubemars-ak, can_id: 3, limits_deg: [-160, 160]}
+gimbals:
+  - name: camera
+    roll: gimbal_roll
+    pitch: gimbal_pitch
+    yaw: gimbal_yaw
+    limits_deg: {roll: [-30, 30], pitch: [-90, 30]}   # yaw: the servo's own limits
+    act_as_manager: true
+    model_name: AK gimbal
+"""
+
+
+def test_settings_from_a_gimbal_config():
+    from mavservo.config import load_config_text
+    from mavservo.mavlink.gimbal import settings_from_config
+
+    config = load_config_text(GIMBAL_YAML, "gimbal.yaml")
+    servo_limits = {servo.name: tuple(servo.limits_deg) for servo in config.servos}
+    gimbal_settings = settings_from_config(config.gimbals[0], servo_limits, status_rate_hz=20.0)
+    assert gimbal_settings.axis_servos == AXIS_SERVOS
+    assert gimbal_settings.limits_deg == LIMITS
+    assert gimbal_settings.retract_pose() == (0.0, -90.0, 0.0)
+    assert gimbal_settings.component_id == 154 and gimbal_settings.act_as_manager
+    assert gimbal_settings.model_name == "AK gimbal"
+    assert gimbal_settings.status_rate_hz == 20.0
