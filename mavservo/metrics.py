@@ -72,6 +72,12 @@ class SampleStats:
     def sigma(self) -> float | None:
         return math.sqrt(self._m2 / self.count) if self.count else None
 
+    def fraction_within(self, low: float, high: float) -> float | None:
+        """Share of the recent window inside ``[low, high]`` (e.g. intervals in 70-100 ms)."""
+        if not self.recent:
+            return None
+        return sum(1 for v in self.recent if low <= v <= high) / len(self.recent)
+
     def summary(self) -> dict[str, Any]:
         """Count, mean, sigma, min, max and p50/p95/p99 of the recent window (None when empty)."""
         if not self.count:
@@ -159,6 +165,7 @@ class ServoMetrics:
     """Per-servo counters and timing samples."""
 
     command_period_s: float | None = None
+    telemetry_period_s: float | None = None
     window: int = DEFAULT_WINDOW
     latency: SampleStats = field(init=False)
     telemetry_intervals: PeriodStats = field(init=False)
@@ -175,13 +182,13 @@ class ServoMetrics:
 
     def __post_init__(self) -> None:
         self.latency = SampleStats(self.window)
-        self.telemetry_intervals = PeriodStats(None, self.window)
+        self.telemetry_intervals = PeriodStats(self.telemetry_period_s, self.window)
         self.command_intervals = PeriodStats(self.command_period_s, self.window)
 
     def to_dict(self) -> dict[str, Any]:
         return {
             "latency_s": self.latency.summary(),
-            "telemetry_interval_s": self.telemetry_intervals.intervals.summary(),
+            "telemetry_interval_s": self.telemetry_intervals.summary(),
             "command_interval_s": self.command_intervals.summary(),
             "frames": {
                 "commands": self.commands_sent,
@@ -213,7 +220,11 @@ class SchedulerMetrics:
         window: int = DEFAULT_WINDOW,
     ) -> None:
         self.servos = {
-            name: ServoMetrics(command_period_s=command_period_s, window=window)
+            name: ServoMetrics(
+                command_period_s=command_period_s,
+                telemetry_period_s=telemetry_period_s,
+                window=window,
+            )
             for name in servo_names
         }
         self.command_ticks = PeriodStats(command_period_s, window)

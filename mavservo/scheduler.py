@@ -114,6 +114,11 @@ class Scheduler:
             self._specs, self.timing.command_period_s, self.timing.telemetry_period_s,
             self.timing.bitrate, self.timing.load_window_s,
         )
+        for spec in servos:  # a servo polled at its own rate is judged against that rate
+            if spec.telemetry_hz:
+                self._metrics.servos[spec.name].telemetry_intervals.nominal_s = max(
+                    1 / spec.telemetry_hz, self.timing.telemetry_period_s
+                )
         self._states: dict[str, ServoState] = {}
         self._subscribers: list[StateCallback] = []
         self._lock = threading.Lock()
@@ -125,6 +130,9 @@ class Scheduler:
         self.realtime_status = "not requested"
         for warning in self._core.warnings:
             log.warning("scheduler %s: %s", self.name, warning)
+        if getattr(bus, "on_reject", "absent") is None:
+            # an aa55 bus with no rejection callback yet: count its decoder rejections here
+            bus.on_reject = self.report_reject
 
     # --------------------------------------------------------------------------- lifecycle
     def start(self) -> None:
@@ -221,12 +229,24 @@ class Scheduler:
 
         return unsubscribe
 
-    def report_reject(self, reason: str, raw_bytes: bytes, t: float | None = None) -> None:
-        """Count a frame the bus's decoder rejected (wire the aa55 bus's callback here)."""
+    def report_reject(self, reason: object, raw_bytes: bytes, t: float | None = None) -> None:
+        """Count a frame the bus's decoder rejected.
+
+        Matches the aa55 bus's ``on_reject(reason, raw_bytes)`` callback, which the constructor
+        installs when the bus has that attribute unset. ``reason`` may be an enum (its value is
+        reported) or a string.
+        """
         when = self._clock() if t is None else t
+        text = str(getattr(reason, "value", reason))
         with self._lock:
             self._metrics.bus_rejected += 1
-        self._notify_observer("on_reject", self.name, reason, raw_bytes, when)
+        self._notify_observer("on_reject", self.name, text, bytes(raw_bytes), when)
+
+    @property
+    def metrics_store(self) -> SchedulerMetrics:
+        """The live accumulators (for benches and reports after ``stop()``; while running,
+        prefer the ``metrics()`` snapshot, which is taken under the scheduler's lock)."""
+        return self._metrics
 
     def metrics(self) -> dict[str, Any]:
         """JSON-serialisable snapshot: per servo L, sigma_L, intervals, frame counts; bus R."""

@@ -97,9 +97,14 @@ def test_commands_reach_the_servos_and_telemetry_comes_back(sim_bus):
             )
 
         assert wait_for(settled), {n: scheduler.state(n) for n in targets}
-        assert wait_for(lambda: all(
-            scheduler.metrics()["servos"][n]["telemetry_interval_s"]["n"] >= 3 for n in targets
-        ))
+
+        def polled_enough() -> bool:
+            servos_now = scheduler.metrics()["servos"]
+            return all(
+                servos_now[n]["telemetry_interval_s"]["interval"]["n"] >= 3 for n in targets
+            )
+
+        assert wait_for(polled_enough)
     for sim in servos.servos:
         assert sim.target_deg == pytest.approx(targets[f"s{sim.can_id}"], abs=0.01)
     snapshot = json.loads(json.dumps(scheduler.metrics()))
