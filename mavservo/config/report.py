@@ -71,12 +71,7 @@ def resolved_mapping(config: Config) -> str:
             axes = ", ".join(f"{axis}={servo}" for axis, servo in gimbal.axes().items())
             lines.append(f"  {gimbal.name} (component {gimbal.component_id}): {axes}")
     lines += ["", "worst-case bus load (paper eq. 4):"]
-    try:
-        loads = bus_loads(config)
-    except ModuleNotFoundError:
-        lines.append("  (servo profiles not available: load not computed)")
-    else:
-        lines += ["  " + _load_line(load) for load in loads]
+    lines += ["  " + _load_line(load) for load in bus_loads(config)]
     return "\n".join(lines)
 
 

@@ -53,13 +53,7 @@ def budget_checks(config: Config) -> list[Finding]:
     from mavservo.config.budget import bus_loads
 
     findings: list[Finding] = []
-    try:
-        loads = bus_loads(config)
-    except ModuleNotFoundError as exc:  # the servo profiles layer is not installed yet
-        if not (exc.name or "").startswith("mavservo.servos"):
-            raise
-        return findings
-    for index, load in enumerate(loads):
+    for index, load in enumerate(bus_loads(config)):
         if load.over_budget:
             findings.append((
                 ("can", "buses", index, "max_load"),

@@ -91,6 +91,9 @@ def parse_yaml(text: str) -> YamlDocument:
         data = loader.construct_document(root) if root is not None else None
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
+        if exc.context_mark is not None and mark is not None and mark.index >= len(text.rstrip()):
+            # Hit the end of the file: the unclosed bracket or quote is where it went wrong.
+            mark = exc.context_mark
         line = mark.line + 1 if mark is not None else None
         what = " ".join(part for part in (exc.context, exc.problem) if part)
         raise YamlSyntaxError(line, f"invalid YAML: {what}") from None
