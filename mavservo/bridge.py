@@ -1,0 +1,408 @@
+"""Wiring and lifecycle: config -> buses -> schedulers -> servo backend -> MAVLink side.
+
+:class:`Bridge` builds every piece from a validated :class:`~mavservo.config.Config`, starts them
+in dependency order (simulators, buses, schedulers, MAVLink) and stops them in reverse, leaving
+each servo in its configured failsafe state and flushing the run log. Each piece it wires is
+usable alone (tests start a scheduler on a ``virtual`` bus, the MAVLink side with a test backend);
+the bridge adds only what needs all of them: the ``sim`` endpoints, reconnects, the run log and
+the summary.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import socket
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import can
+
+from mavservo.config import Config
+from mavservo.mavlink.gimbal import GimbalDevice, GimbalSettings
+from mavservo.mavlink.settings import MavlinkSettings, SigningSettings
+from mavservo.mavlink.side import MavlinkSide
+from mavservo.resilient_bus import ResilientBus
+from mavservo.runlog import RunLog, new_run_dir
+from mavservo.schedule_core import ServoSpec, TimingConfig
+from mavservo.scheduler import Scheduler, SchedulerObserver
+from mavservo.servo_backend import ServoBackend
+from mavservo.servos import get_profile
+from mavservo.sim.adapter import AdapterEmulator
+from mavservo.sim.servo import Faults, Physics, SimServo
+
+log = logging.getLogger(__name__)
+
+SIM = "sim"
+MAV_SEVERITY_WARNING = 4
+MAV_SEVERITY_INFO = 6
+
+
+def free_udp_port() -> int:
+    """A UDP port on 127.0.0.1 that nobody holds right now (for the built-in autopilot)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+class _FanOut(SchedulerObserver):
+    """Passes scheduler events to several observers (run log, latency tracer, live status)."""
+
+    def __init__(self, *observers: Any) -> None:
+        self.observers = [o for o in observers if o is not None]
+
+    def _call(self, name: str, *args: Any) -> None:
+        for observer in self.observers:
+            method = getattr(observer, name, None)
+            if method is not None:
+                method(*args)
+
+    def on_setpoint(self, *args: Any) -> None:
+        self._call("on_setpoint", *args)
+
+    def on_tx(self, *args: Any) -> None:
+        self._call("on_tx", *args)
+
+    def on_rx(self, *args: Any) -> None:
+        self._call("on_rx", *args)
+
+    def on_lost(self, *args: Any) -> None:
+        self._call("on_lost", *args)
+
+    def on_reject(self, *args: Any) -> None:
+        self._call("on_reject", *args)
+
+
+def simulated_servos(config: Config, bus_name: str) -> list[SimServo]:
+    """The simulated devices for the servos on ``bus_name`` (``simulation.servos`` tunes them)."""
+    out = []
+    overrides = config.simulation.servos
+    for index, servo in enumerate(config.servos):
+        if config.bus_of(servo).name != bus_name:
+            continue
+        tuning = overrides.get(servo.name) or overrides.get("default")
+        physics = Physics.from_dict(tuning.physics if tuning else None)
+        faults = Faults.from_dict(tuning.faults if tuning else None)
+        if tuning is None or "initial_position_deg" not in tuning.physics:
+            low, high = servo.limits_deg
+            physics = dataclasses.replace(physics, initial_position_deg=min(high, max(low, 0.0)))
+        out.append(SimServo(servo.profile, servo.can_id, physics, faults, seed=index))
+    return out
+
+
+class Bridge:
+    """The whole bridge for one config. ``start()``, then ``stop()`` (idempotent).
+
+    ``log_dir``: base directory for run logs (None: the config's ``logging.dir``; False: none).
+    ``status``: called with one-line events (link lost, adapter back, failsafe) for the console.
+    """
+
+    def __init__(
+        self,
+        config: Config,
+        *,
+        config_path: str | Path | None = None,
+        log_dir: str | Path | None | bool = None,
+        status: Callable[[str], None] | None = None,
+    ) -> None:
+        self.config = config
+        self.config_path = config_path
+        self._status = status or (lambda line: log.info("%s", line))
+        self.emulators: dict[str, AdapterEmulator] = {}
+        self.buses: dict[str, can.BusABC] = {}
+        self.schedulers: dict[str, Scheduler] = {}
+        self.autopilot_sim: Any = None
+        self.mavlink: MavlinkSide | None = None
+        self.backend: ServoBackend | None = None
+        self.runlog: RunLog | None = None
+        self.run_dir: Path | None = None
+        self.events: list[tuple[float, str]] = []
+        self._log_dir = log_dir
+        self._stop = threading.Event()
+        self._tick_thread: threading.Thread | None = None
+        self._started = False
+        self._stopped = False
+        self.started_at: float | None = None
+
+    # ------------------------------------------------------------------ lifecycle
+
+    def start(self) -> Bridge:
+        try:
+            self._start()
+        except BaseException:
+            self.stop()
+            raise
+        return self
+
+    def _start(self) -> None:
+        cfg = self.config
+        self._open_runlog()
+        observer = _FanOut(self.runlog)
+        for bus_cfg in cfg.can.buses:
+            self.buses[bus_cfg.name] = self._open_bus(bus_cfg)
+        sinks: dict[str, Scheduler] = {}
+        for bus_cfg in cfg.can.buses:
+            specs = [
+                ServoSpec(
+                    name=s.name,
+                    profile=get_profile(s.profile)(s.can_id),
+                    command_mode=s.command_mode,
+                    telemetry_hz=s.telemetry_hz,
+                    max_speed_dps=s.max_speed_dps,
+                )
+                for s in cfg.servos
+                if cfg.bus_of(s).name == bus_cfg.name
+            ]
+            if not specs:
+                continue
+            sched = cfg.scheduler
+            timing = TimingConfig(
+                command_period_s=sched.command_period_s,
+                telemetry_period_s=sched.telemetry_period_s,
+                refresh_interval_s=sched.refresh_interval_s,
+                immediate_min_spacing_s=sched.immediate_min_spacing_s,
+                reply_timeout_s=sched.reply_timeout_s,
+                max_load=bus_cfg.max_load,
+                bitrate=bus_cfg.bitrate,
+                realtime=sched.realtime,
+            )
+            scheduler = Scheduler(
+                self.buses[bus_cfg.name], specs, timing, observer=observer, name=bus_cfg.name
+            )
+            self.schedulers[bus_cfg.name] = scheduler
+            for spec in specs:
+                sinks[spec.name] = scheduler
+        self.backend = ServoBackend(cfg, sinks, on_event=self._event)
+        for scheduler in self.schedulers.values():
+            scheduler.start()
+        self.mavlink = self._make_mavlink()
+        self.mavlink.start()
+        if self.autopilot_sim is not None:
+            self.autopilot_sim.start()
+        self._tick_thread = threading.Thread(target=self._tick, name="bridge-tick", daemon=True)
+        self._tick_thread.start()
+        self._started = True
+        self.started_at = time.monotonic()
+
+    def stop(self) -> dict[str, Any]:
+        """Failsafe every servo, flush the last frames, close logs and devices; return summary."""
+        if self._stopped:
+            return self.summary()
+        self._stopped = True
+        self._stop.set()
+        if self.autopilot_sim is not None:
+            _quietly(self.autopilot_sim.stop)
+        if self.backend is not None and self._started:
+            self.backend.failsafe_all("bridge shutting down", time.monotonic())
+            time.sleep(2 * self.config.scheduler.command_period_s)  # let the failsafe go out
+        if self._tick_thread is not None:
+            self._tick_thread.join(1.0)
+        summary = self.summary()
+        if self.mavlink is not None:
+            _quietly(self.mavlink.stop)
+        for scheduler in self.schedulers.values():
+            _quietly(scheduler.stop)
+        for bus in self.buses.values():
+            _quietly(bus.shutdown)
+        for emulator in self.emulators.values():
+            _quietly(emulator.stop)
+        if self.runlog is not None:
+            _quietly(lambda: self.runlog.close(summary))
+        return summary
+
+    def __enter__(self) -> Bridge:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    # ------------------------------------------------------------------ pieces
+
+    def _open_runlog(self) -> None:
+        if self._log_dir is False:
+            return
+        cfg = self.config.logging
+        base = Path(self._log_dir) if self._log_dir else cfg.dir
+        self.run_dir = new_run_dir(base)
+        buses = {
+            b.name: {"bitrate": b.bitrate, "max_load": b.max_load, "interface": b.interface}
+            for b in self.config.can.buses
+        }
+        servos = {
+            s.name: {"profile": s.profile, "can_id": s.can_id, "bus": self.config.bus_of(s).name}
+            for s in self.config.servos
+        }
+        self.runlog = RunLog(
+            self.run_dir,
+            formats=cfg.can_formats,
+            rotate_bytes=int((cfg.rotate_mb or 1e6) * 1024 * 1024),
+            buses=buses,
+            servos=servos,
+            config_path=self.config_path,
+            tlog=cfg.tlog,
+        )
+
+    def _open_bus(self, bus_cfg: Any) -> can.BusABC:
+        name = bus_cfg.name
+        channel = bus_cfg.channel
+        if bus_cfg.interface == "aa55":
+            if channel == SIM:
+                emulator = AdapterEmulator(
+                    simulated_servos(self.config, name),
+                    bitrate=bus_cfg.bitrate,
+                    protocol=bus_cfg.protocol,
+                )
+                self.emulators[name] = emulator.start()
+                channel = emulator.path
+
+            def open_aa55() -> can.BusABC:
+                return can.Bus(
+                    interface="aa55",
+                    channel=channel,
+                    bitrate=bus_cfg.bitrate,
+                    serial_baud=bus_cfg.serial_baud,
+                    protocol=bus_cfg.protocol,
+                    on_reject=lambda reason, raw: self._rejected(name, reason, raw),
+                )
+
+            return ResilientBus(open_aa55, name=name, on_event=self._event)
+
+        def open_other() -> can.BusABC:
+            return can.Bus(interface=bus_cfg.interface, channel=channel, bitrate=bus_cfg.bitrate)
+
+        return ResilientBus(open_other, name=name, on_event=self._event)
+
+    def _rejected(self, bus_name: str, reason: Any, raw: bytes) -> None:
+        scheduler = self.schedulers.get(bus_name)
+        if scheduler is not None:
+            scheduler.report_reject(getattr(reason, "value", str(reason)), raw)
+
+    def _make_mavlink(self) -> MavlinkSide:
+        cfg = self.config
+        raw = cfg.mavlink.model_dump(mode="python")
+        raw.pop("signing", None)
+        trims = {
+            c.channel: c.input.resolved_trim for c in cfg.channels if c.source == "servo_output"
+        }
+        settings = MavlinkSettings.from_mapping(raw, channel_trims_us=trims)
+        if cfg.mavlink.signing is not None:
+            settings = dataclasses.replace(
+                settings,
+                signing=SigningSettings(
+                    key=cfg.mavlink.signing.secret_key(),
+                    accept_unsigned=cfg.mavlink.signing.accept_unsigned,
+                ),
+            )
+        if cfg.mavlink.url == SIM:
+            from sitl.factory import simulator_from_config
+
+            port = free_udp_port()
+            settings = dataclasses.replace(settings, url=f"udpin:127.0.0.1:{port}")
+            self.autopilot_sim = simulator_from_config(
+                cfg.simulation.autopilot, f"udpout:127.0.0.1:{port}"
+            )
+        assert self.backend is not None
+        gimbals = [
+            GimbalDevice(
+                GimbalSettings(
+                    name=g.name,
+                    axis_servos=g.axes(),
+                    limits_deg={
+                        axis: tuple(limits)
+                        for axis, limits in g.limits_deg.model_dump().items()
+                        if limits is not None
+                    },
+                    component_id=g.component_id,
+                    act_as_manager=g.act_as_manager,
+                    vendor_name=g.vendor_name,
+                    model_name=g.model_name,
+                    status_rate_hz=max(5.0, cfg.mavlink.telemetry.gimbal_attitude_status_hz),
+                    retract_pose_deg=g.retract_pose_deg,
+                    neutral_pose_deg=g.neutral_pose_deg,
+                ),
+                self.backend,
+            )
+            for g in cfg.gimbals
+        ]
+        return MavlinkSide(settings, self.backend, gimbals)
+
+    def _tick(self) -> None:
+        period = self.config.scheduler.command_period_s
+        next_t = time.monotonic()
+        while not self._stop.is_set():
+            next_t += period
+            if self.backend is not None:
+                self.backend.tick(time.monotonic())
+            self._stop.wait(max(0.0, next_t - time.monotonic()))
+
+    def _event(self, text: str) -> None:
+        self.events.append((time.monotonic(), text))
+        self._status(text)
+        if self.mavlink is not None:
+            _quietly(lambda: self.mavlink.core.announce(MAV_SEVERITY_WARNING, text[:50]))
+
+    # ------------------------------------------------------------------ views
+
+    def status_rows(self) -> list[dict[str, Any]]:
+        """One row per servo for the live status line."""
+        rows = []
+        if self.backend is None:
+            return rows
+        now = time.monotonic()  # the scheduler stamps states with its monotonic clock
+        for status in self.backend.servo_statuses():
+            state = status.state
+            rows.append(
+                {
+                    "servo": status.name,
+                    "setpoint_deg": status.setpoint_deg,
+                    "position_deg": None if state is None else state.position_deg,
+                    "velocity_dps": None if state is None else state.velocity_dps,
+                    "current_a": None if state is None else state.current_a,
+                    "temperature_c": None if state is None else state.temperature_c,
+                    "faults": "" if state is None else _fault_names(state.faults),
+                    "online": status.online,
+                    "age_s": None if state is None else max(0.0, now - state.timestamp),
+                }
+            )
+        return rows
+
+    def summary(self) -> dict[str, Any]:
+        """Frames, errors, latency, bus load: what the end-of-run summary prints."""
+        out: dict[str, Any] = {
+            "uptime_s": None if self.started_at is None else time.monotonic() - self.started_at,
+            "buses": {},
+            "servos": {},
+            "events": [text for _, text in self.events[-20:]],
+            "run_dir": None if self.run_dir is None else str(self.run_dir),
+        }
+        for name, scheduler in self.schedulers.items():
+            metrics = scheduler.metrics()
+            bus = self.buses.get(name)
+            out["buses"][name] = {
+                **{k: v for k, v in metrics.items() if k != "servos"},
+                "transport": bus.stats() if bus is not None and hasattr(bus, "stats") else {},
+            }
+            out["servos"].update(metrics.get("servos", {}))
+        if self.mavlink is not None:
+            out["mavlink"] = _quietly(self.mavlink.stats) or {}
+        if self.backend is not None:
+            out["backend"] = dict(self.backend.counters)
+        return out
+
+
+def _fault_names(faults: Any) -> str:
+    if not faults:
+        return ""
+    return "|".join(m.name for m in type(faults) if m in faults and m.value and m.name)
+
+
+def _quietly(fn: Callable[[], Any]) -> Any:
+    """Run a shutdown step; a failing step is logged and must not stop the others."""
+    try:
+        return fn()
+    except Exception as exc:  # noqa: BLE001 - shutdown must go on
+        log.warning("shutdown step failed: %s", exc)
+        return None

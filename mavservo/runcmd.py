@@ -1,0 +1,103 @@
+"""``mavservo run``: load a config, run the bridge, show a live status, print a summary.
+
+Exit status: 0 after a clean run (duration elapsed, SIGINT or SIGTERM); 2 for a bad config or bad
+arguments (nothing was touched); 1 when start-up fails for another reason (a port that cannot be
+opened...). Errors are one clear line, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import signal
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from mavservo.config import Config, ConfigError, default_config_path, load_config
+from mavservo.console import StatusDisplay, format_summary
+
+log = logging.getLogger("mavservo")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="mavservo run",
+        description="Run the MAVLink <-> CAN servo bridge (default: the built-in simulation).",
+    )
+    parser.add_argument("--config", "-c", help="YAML config (default: the built-in sim.yaml)")
+    parser.add_argument("--duration", type=float, help="stop after this many seconds")
+    parser.add_argument("--log-dir", help="base directory for run logs (default: logging.dir)")
+    parser.add_argument("--no-log", action="store_true", help="write no run log")
+    parser.add_argument("--mavlink", help="override mavlink.url (pymavlink connection string)")
+    parser.add_argument("--port", help="override the first CAN bus's channel (serial device)")
+    parser.add_argument("--quiet", "-q", action="store_true", help="no live status, summary only")
+    parser.add_argument("--verbose", "-v", action="store_true", help="debug logging")
+    return parser
+
+
+def apply_overrides(config: Config, mavlink: str | None, port: str | None) -> Config:
+    """The command-line overrides, applied to a validated config (re-validated as a whole)."""
+    data = config.model_dump(mode="python")
+    if mavlink:
+        data["mavlink"]["url"] = mavlink
+    if port:
+        data["can"]["buses"][0]["channel"] = port
+    return Config.model_validate(data)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    logging.basicConfig(
+        level=logging.DEBUG if args.verbose else logging.WARNING,
+        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+    )
+    path = Path(args.config) if args.config else default_config_path()
+    try:
+        config = apply_overrides(load_config(path), args.mavlink, args.port)
+    except ConfigError as exc:
+        print(f"mavservo: invalid configuration\n{exc}", file=sys.stderr)
+        return 2
+    except (OSError, ValueError) as exc:
+        print(f"mavservo: cannot use {path}: {exc}", file=sys.stderr)
+        return 2
+
+    from mavservo.bridge import Bridge
+
+    display = StatusDisplay(enabled=not args.quiet)
+    bridge = Bridge(
+        config,
+        config_path=path,
+        log_dir=False if args.no_log else args.log_dir,
+        status=display.event,
+    )
+    stop = threading.Event()
+
+    def on_signal(signum: int, _frame: Any) -> None:
+        stop.set()
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        try:
+            bridge.start()
+        except Exception as exc:  # noqa: BLE001 - one clear line, not a traceback
+            print(f"mavservo: cannot start: {exc}", file=sys.stderr)
+            log.debug("start-up failure", exc_info=True)
+            return 1
+        display.started(path, bridge)
+        deadline = None if args.duration is None else time.monotonic() + args.duration
+        with display:
+            while not stop.is_set():
+                if deadline is not None and time.monotonic() >= deadline:
+                    break
+                display.update(bridge.status_rows())
+                stop.wait(0.2)
+        summary = bridge.stop()
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    print(format_summary(summary))
+    return 0

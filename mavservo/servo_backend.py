@@ -1,0 +1,253 @@
+"""The servo side of the bridge as the MAVLink layer sees it (:class:`ActuatorBackend`).
+
+It turns MAVLink-unit requests (PWM, normalized values, gimbal angles) into scheduler setpoints
+through the YAML mapping, applies soft limits and slew-rate limits, refuses commands for offline
+servos, and carries out each servo's failsafe action. Arbitration between MAVLink sources
+(explicit commands override mirroring) happens in the MAVLink layer; here every accepted request
+is simply the newest goal of its servo.
+
+Slew limiting needs time to pass, so a goal further away than one step is approached by
+:meth:`ServoBackend.tick`, which the bridge calls every command period.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+
+from mavservo.config import Config
+from mavservo.mapping import ChannelMap, Rejected, clamp
+from mavservo.mavlink.backend import ACCEPTED, ApplyResult, Outcome, ServoStatus
+from mavservo.servos.base import ServoState
+
+log = logging.getLogger(__name__)
+
+
+class SetpointSink:
+    """What the backend needs from a scheduler (one per bus); :class:`Scheduler` fits it."""
+
+    def set_setpoint(self, servo: str, angle_deg: float, source: str, t: float | None = None): ...
+    def release(self, servo: str) -> None: ...
+    def state(self, servo: str) -> ServoState | None: ...
+    def is_online(self, servo: str) -> bool: ...
+
+
+@dataclass
+class _Servo:
+    """Book-keeping of one servo: where it is told to go, and what it was last sent."""
+
+    name: str
+    index: int
+    sink: SetpointSink
+    limits_deg: tuple[float, float]
+    neutral_deg: float
+    failsafe_action: str
+    failsafe_position_deg: float | None
+    max_slew_dps: float | None = None
+    goal_deg: float | None = None
+    sent_deg: float | None = None
+    sent_at: float | None = None
+    source: str = ""
+    servo_channel: int | None = None
+    actuator_index: int | None = None
+    channel_map: ChannelMap | None = None
+
+
+class ServoBackend:
+    """:class:`~mavservo.mavlink.backend.ActuatorBackend` over the mapping and the schedulers.
+
+    ``sinks`` maps each servo name to the scheduler of its bus. ``on_event`` receives one line
+    per notable decision (failsafe, clamps) for logs and STATUSTEXT.
+    """
+
+    def __init__(
+        self,
+        config: Config,
+        sinks: Mapping[str, SetpointSink],
+        on_event: Callable[[str], None] | None = None,
+    ) -> None:
+        self._lock = threading.RLock()
+        self._on_event = on_event or (lambda line: log.info("%s", line))
+        self._servos: dict[str, _Servo] = {}
+        for index, servo in enumerate(config.servos):
+            self._servos[servo.name] = _Servo(
+                name=servo.name,
+                index=index,
+                sink=sinks[servo.name],
+                limits_deg=tuple(servo.limits_deg),
+                neutral_deg=servo.neutral_deg,
+                failsafe_action=servo.failsafe.action,
+                failsafe_position_deg=servo.failsafe.position_deg,
+            )
+        self._by_channel: dict[int, _Servo] = {}
+        self._by_actuator: dict[int, _Servo] = {}
+        for entry in config.channels:
+            servo = self._servos[entry.servo]
+            servo.channel_map = ChannelMap.from_config(entry, config)
+            servo.max_slew_dps = entry.max_slew_dps
+            if entry.source == "servo_output":
+                self._by_channel[entry.channel] = servo
+                servo.servo_channel = entry.channel
+            else:
+                self._by_actuator[entry.index] = servo
+                servo.actuator_index = entry.index
+        self._gimbals = {g.name: g.axes() for g in config.gimbals}
+        self.in_failsafe = False
+        self.counters: dict[str, int] = {"accepted": 0, "rejected": 0, "clamped": 0}
+
+    # ------------------------------------------------------------------ ActuatorBackend
+
+    def mapped_servo_channels(self) -> set[int]:
+        return set(self._by_channel)
+
+    def mapped_actuator_indices(self) -> set[int]:
+        return set(self._by_actuator)
+
+    def apply_servo_output(
+        self, channel: int, pwm_us: float, source: str, now: float
+    ) -> ApplyResult:
+        servo = self._by_channel.get(channel)
+        if servo is None:
+            return ApplyResult(Outcome.DENIED, f"servo channel {channel} is not mapped")
+        return self._apply_input(servo, pwm_us, source, now)
+
+    def apply_actuator(self, index: int, value: float, source: str, now: float) -> ApplyResult:
+        servo = self._by_actuator.get(index)
+        if servo is None:
+            return ApplyResult(Outcome.DENIED, f"actuator {index} is not mapped")
+        return self._apply_input(servo, value, source, now)
+
+    def apply_gimbal(
+        self,
+        gimbal: str,
+        roll_deg: float | None,
+        pitch_deg: float | None,
+        yaw_deg: float | None,
+        source: str,
+        now: float,
+    ) -> ApplyResult:
+        axes = self._gimbals.get(gimbal)
+        if axes is None:
+            return ApplyResult(Outcome.DENIED, f"no gimbal named {gimbal!r}")
+        wanted = {"roll": roll_deg, "pitch": pitch_deg, "yaw": yaw_deg}
+        targets = [
+            (self._servos[axes[a]], v) for a, v in wanted.items() if v is not None and a in axes
+        ]
+        for servo, _ in targets:
+            if not servo.sink.is_online(servo.name):
+                return ApplyResult(Outcome.TEMPORARILY_REJECTED, f"servo {servo.name} is offline")
+        for servo, angle in targets:
+            result = self._set_goal(servo, angle, source, now)
+            if not result.ok:
+                return result
+        return ACCEPTED
+
+    def servo_statuses(self) -> list[ServoStatus]:
+        out = []
+        with self._lock:
+            for servo in self._servos.values():
+                state = servo.sink.state(servo.name)
+                normalized = None
+                if state is not None and servo.channel_map is not None:
+                    normalized = servo.channel_map.angle_to_normalized(state.position_deg)
+                out.append(
+                    ServoStatus(
+                        name=servo.name,
+                        index=servo.index,
+                        state=state,
+                        online=servo.sink.is_online(servo.name),
+                        setpoint_deg=servo.goal_deg,
+                        normalized=normalized,
+                        servo_channel=servo.servo_channel,
+                        actuator_index=servo.actuator_index,
+                    )
+                )
+        return out
+
+    def enter_failsafe(self, reason: str, now: float) -> None:
+        with self._lock:
+            self.in_failsafe = True
+            for servo in self._servos.values():
+                self._apply_failsafe(servo, now)
+        self._on_event(f"failsafe: {reason}")
+
+    def leave_failsafe(self, now: float) -> None:
+        with self._lock:
+            self.in_failsafe = False
+        self._on_event("failsafe cleared: servos move again on fresh commands")
+
+    # ------------------------------------------------------------------ bridge API
+
+    def tick(self, now: float) -> None:
+        """Advance slew-limited servos one step toward their goals (call every command period)."""
+        with self._lock:
+            for servo in self._servos.values():
+                if servo.goal_deg is not None and servo.sent_deg != servo.goal_deg:
+                    self._send_step(servo, now)
+
+    def failsafe_all(self, reason: str, now: float) -> None:
+        """Shutdown path: every servo to its failsafe action (same as a lost link)."""
+        self.enter_failsafe(reason, now)
+
+    # ------------------------------------------------------------------ internals
+
+    def _apply_input(self, servo: _Servo, value: float, source: str, now: float) -> ApplyResult:
+        assert servo.channel_map is not None
+        target = servo.channel_map.to_angle(value)
+        if isinstance(target, Rejected):
+            with self._lock:
+                self.counters["rejected"] += 1
+            return ApplyResult(Outcome.DENIED, target.detail)
+        if not servo.sink.is_online(servo.name):
+            return ApplyResult(Outcome.TEMPORARILY_REJECTED, f"servo {servo.name} is offline")
+        if target.clamped:
+            with self._lock:
+                self.counters["clamped"] += 1
+        return self._set_goal(servo, target.angle_deg, source, now)
+
+    def _set_goal(self, servo: _Servo, angle_deg: float, source: str, now: float) -> ApplyResult:
+        angle, clamped = clamp(angle_deg, servo.limits_deg)
+        with self._lock:
+            if clamped:
+                self.counters["clamped"] += 1
+            servo.goal_deg = angle
+            servo.source = source
+            self.counters["accepted"] += 1
+            return self._send_step(servo, now)
+
+    def _send_step(self, servo: _Servo, now: float) -> ApplyResult:
+        assert servo.goal_deg is not None
+        step = servo.goal_deg
+        if (
+            servo.max_slew_dps is not None
+            and servo.sent_deg is not None
+            and servo.sent_at is not None
+        ):
+            assert servo.channel_map is not None
+            step = servo.channel_map.slew(servo.sent_deg, servo.goal_deg, now - servo.sent_at)
+            if step == servo.sent_deg:
+                return ACCEPTED  # no time has passed yet; the next tick moves it
+        result = servo.sink.set_setpoint(servo.name, step, servo.source, now)
+        if getattr(result, "accepted", True):
+            servo.sent_deg = step
+            servo.sent_at = now
+            return ACCEPTED
+        reason = getattr(result, "reason", "rejected by the scheduler")
+        return ApplyResult(Outcome.DENIED, str(reason))
+
+    def _apply_failsafe(self, servo: _Servo, now: float) -> None:
+        action = servo.failsafe_action
+        if action == "release":
+            servo.sink.release(servo.name)
+            servo.goal_deg = None
+            return
+        if action == "hold":
+            return  # the scheduler keeps refreshing the last setpoint
+        angle = servo.neutral_deg if action == "neutral" else servo.failsafe_position_deg
+        if angle is None:
+            return
+        servo.goal_deg = clamp(angle, servo.limits_deg)[0]
+        servo.source = "failsafe"
+        self._send_step(servo, now)
