@@ -396,6 +396,21 @@ def _ms(value: Any) -> str:
 LoadSeries = dict[int, tuple[list[float], list[float]]]
 
 
+def scheduler_servo_metrics(metrics: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """Per-servo dicts of ``scheduler.metrics()`` snapshots found in metrics.json.
+
+    The bridge may hand over one scheduler's snapshot (``{"servos": ...}``) or one per bus
+    (``{"bus0": {"servos": ...}}``); both are accepted.
+    """
+    found: dict[str, dict[str, Any]] = {}
+    candidates = [metrics, *(v for v in metrics.values() if isinstance(v, dict))]
+    for candidate in candidates:
+        servos = candidate.get("servos")
+        if isinstance(servos, dict):
+            found.update({k: v for k, v in servos.items() if isinstance(v, dict)})
+    return found
+
+
 def summary_rows(run: Run, series: LoadSeries) -> list[tuple[str, str]]:
     """Table-2 style rows: (quantity, value)."""
     rows: list[tuple[str, str]] = []
@@ -428,6 +443,17 @@ def summary_rows(run: Run, series: LoadSeries) -> list[tuple[str, str]]:
     rows.append(("Decoder rejections", str(run.rejections)))
     dropped = run.metrics.get("runlog", {}).get("dropped_total")
     rows.append(("Log lines dropped (slow disk)", "n/a" if dropped is None else str(dropped)))
+    for servo, data in sorted(scheduler_servo_metrics(run.metrics).items()):
+        lat = data.get("latency_s") or {}
+        frames = data.get("frames") or {}
+        if lat.get("n"):
+            rows.append((f"Scheduler {servo}: L every request (mean / sigma / p99) [ms]",
+                         " / ".join(_ms(lat.get(k)) for k in ("mean", "sigma", "p99"))
+                         + f" (n={lat['n']})"))
+        if frames:
+            rows.append((f"Scheduler {servo}: frames sent / received / lost / late",
+                         " / ".join(str(frames.get(k, 0))
+                                    for k in ("sent", "received", "lost", "late_replies"))))
     names = bus_names_by_channel(run.header)
     for channel, (_, bits) in sorted(series.items()):
         name, info = names.get(channel, (f"channel {channel}", {}))

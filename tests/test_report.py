@@ -49,7 +49,9 @@ def _record_run(directory: Path, seconds: float = 3.0, seed: int = 7) -> RunLog:
         t += 0.05 + rng.uniform(-0.003, 0.003)
     log.on_lost("bus0", "left", t)
     log.on_reject("bus0", "bad_end_marker", b"\xaa\xc8\x00", t)
-    log.close({"scheduler": {"missed_command_slots": 0}})
+    log.close({"bus0": {"servos": {"left": {
+        "latency_s": {"n": 3, "mean": 0.001, "sigma": 0.0002, "p99": 0.0015},
+        "frames": {"sent": 10, "received": 9, "lost": 1, "late_replies": 0}}}}})
     return log
 
 
@@ -75,6 +77,9 @@ def test_report_writes_every_figure_and_lists_it(recorded_run, tmp_path):
     assert f"| CAN frames TX / RX | {tx} / {len(frames) - tx} |" in markdown
     assert "| Decoder rejections | 1 |" in markdown
     assert "| Replies lost (timeouts) | 1 |" in markdown
+    assert "| Scheduler left: frames sent / received / lost / late | 10 / 9 / 1 / 0 |" in markdown
+    assert "| Scheduler left: L every request (mean / sigma / p99) [ms] | 1.00 / 0.20 / 1.50" \
+        in markdown
 
 
 def test_summary_latency_matches_the_latency_log(recorded_run):
