@@ -385,3 +385,37 @@ def test_resolved_mapping_shows_reverse_and_clamping():
     rows = {line.split()[1]: line for line in text.splitlines() if line.startswith("  servo ")}
     assert "+30.0 / +0.0 / -30.0" in rows["1"]
     assert "-180.0* / +0.0 / +180.0*" in rows["2"]
+
+
+# ------------------------------------------------------------------------------- parser fuzzing
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from mavservo.config.schema import ServoConfig  # noqa: E402
+
+SERVO_FIELDS = set(ServoConfig.model_fields)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.text(max_size=300))
+def test_any_text_gives_a_config_or_a_config_error(text: str):
+    try:
+        load_config_text(text, "fuzz.yaml")
+    except ConfigError as exc:
+        assert str(exc).startswith("fuzz.yaml")
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.from_regex(r"[a-z][a-z_]{0,15}", fullmatch=True).filter(lambda k: k not in SERVO_FIELDS),
+       st.integers(0, 8), st.integers(0, 3))
+def test_an_unknown_key_anywhere_in_a_servo_is_reported_on_its_line(key, servo_index, position):
+    lines = default_config_path().read_text().splitlines()
+    starts = [n for n, line in enumerate(lines) if line.startswith("  - name:")
+              and n < next(i for i, x in enumerate(lines) if x.startswith("channels:"))]
+    start = starts[servo_index]
+    insert_at = start + 1 + position
+    lines.insert(insert_at, f"    {key}: 1")
+    errors = _errors("\n".join(lines) + "\n", "sim.yaml")
+    assert [(e["line"], e["path"]) for e in errors] == [
+        (str(insert_at + 1), f"servos[{servo_index}].{key}")]

@@ -12,8 +12,8 @@ from mavservo.config import default_config_path, load_config
 from mavservo.mapping import (
     PWM_VALID_US,
     ChannelMap,
-    RejectReason,
     Rejected,
+    RejectReason,
     Target,
     channel_maps,
     clamp,

@@ -50,7 +50,7 @@ def servo_flows(servo: ServoConfig, timing: SchedulerConfig) -> list[FrameFlow]:
 
     profile_class = get_profile(servo.profile)
     profile = profile_class(servo.can_id)
-    command = profile.position_command(0.0, servo.max_speed_dps)
+    command = profile.position_command(0.0)  # the frame's shape does not depend on the values
     requests = profile.telemetry_requests()
     poll_hz = telemetry_rate_hz(servo, timing)
     traffic = ServoTraffic(

@@ -49,9 +49,9 @@ _HEX_KEY = re.compile(r"^[0-9a-fA-F]{64}$")
 
 
 class StrictModel(BaseModel):
-    """Base for every section: unknown keys are errors, and models are immutable once loaded."""
+    """Base for every section: unknown keys are errors, numbers are finite, models immutable."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 def _ordered_pair(value: tuple[float, float], what: str = "range") -> tuple[float, float]:

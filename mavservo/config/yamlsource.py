@@ -82,7 +82,11 @@ class YamlDocument:
 
 def parse_yaml(text: str) -> YamlDocument:
     """Parse one YAML document; raises :class:`YamlSyntaxError` with the line on bad syntax."""
-    loader = yaml.SafeLoader(text)
+    try:
+        loader = yaml.SafeLoader(text)
+    except yaml.reader.ReaderError as exc:  # a control character: rejected before any parsing
+        raise YamlSyntaxError(text[: exc.position].count("\n") + 1,
+                              f"invalid YAML: character {exc.character!r} is not allowed") from None
     try:
         root = loader.get_single_node()
         problems: list[Problem] = []
@@ -97,6 +101,9 @@ def parse_yaml(text: str) -> YamlDocument:
         line = mark.line + 1 if mark is not None else None
         what = " ".join(part for part in (exc.context, exc.problem) if part)
         raise YamlSyntaxError(line, f"invalid YAML: {what}") from None
+    except yaml.reader.ReaderError as exc:
+        raise YamlSyntaxError(text[: exc.position].count("\n") + 1,
+                              f"invalid YAML: character {exc.character!r} is not allowed") from None
     except yaml.YAMLError as exc:
         raise YamlSyntaxError(None, f"invalid YAML: {exc}") from None
     finally:
