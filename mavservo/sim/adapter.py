@@ -270,12 +270,22 @@ class AdapterEmulator:
     def _from_host(self, data: bytes, now: float) -> None:
         if self.line.applies_to("to_adapter"):
             data = self.line.corrupt(data)
-        self._handle_items(self.decoder.feed(data, now), now)
+        self._handle_items(self.decoder.feed(data, now), now, data)
 
-    def _handle_items(self, items: list[Any], now: float) -> None:
+    def _handle_items(self, items: list[Any], now: float, chunk: bytes = b"") -> None:
         for item in items:
             if isinstance(item, aa55.AdapterSettings):
+                switched = item.protocol != self.protocol
                 self._apply_settings(item)
+                if switched:
+                    # The rest of this chunk was decoded in the old protocol: decode it again
+                    # in the new one (a host sends its first frame right after the settings).
+                    at = chunk.find(item.raw)
+                    self.decoder = aa55.Decoder(self.protocol)
+                    if at >= 0:
+                        rest = chunk[at + len(item.raw):]
+                        self._handle_items(self.decoder.feed(rest, now), now, rest)
+                    return
             elif isinstance(item, aa55.Frame):
                 self.frames_from_host += 1
                 msg = item.to_message(is_rx=False)
@@ -293,9 +303,7 @@ class AdapterEmulator:
         self.mode = settings.mode if settings.mode in aa55.MODES else "normal"
         self.filter_id = settings.filter_id
         self.mask = settings.mask
-        if settings.protocol != self.protocol:
-            self.protocol = settings.protocol
-            self.decoder.set_protocol(settings.protocol)
+        self.protocol = settings.protocol
 
     def _to_host(self, msg: can.Message) -> None:
         if self.mode in ("loopback", "loopback_silent"):
