@@ -1,0 +1,257 @@
+"""Scheduler timing and CPU cost on a simulated bus (issue 4's benchmark), run by hand.
+
+    PYTHONPATH=. python bench/bench_scheduler.py --seconds 60            # idle, real pty path
+    PYTHONPATH=. python bench/bench_scheduler.py --seconds 60 --hog      # a busy loop per core
+    PYTHONPATH=. python bench/bench_scheduler.py --transport virtual     # in-process bus
+    PYTHONPATH=. python bench/bench_scheduler.py --cpu-only --seconds 20 # CPU %, 8 and 32 servos
+
+"pty" runs the full host path: the project's ``aa55`` python-can bus over pyserial on a pty,
+with the USB-CAN adapter emulator and simulated RMD-X servos on the other end. Setpoints change
+every command period (a slow sine per servo), so every slot carries new commands.
+
+Reports: command period sigma and p99 |deviation|, missed slots, telemetry interval
+distribution (and the share in 70-100 ms, the paper's figure), L and sigma_L (eqs. 3, 5),
+measured R (eq. 4) and the CPU the scheduler's two threads used, as % of one core.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import statistics
+import subprocess
+import sys
+import time
+from typing import Any
+
+import can
+
+from mavservo.scheduler import Scheduler, ServoSpec, TimingConfig
+from mavservo.servos import RmdX
+from mavservo.sim.servo import SimServo
+
+
+def start_hogs() -> list[subprocess.Popen]:
+    """One busy-looping process per core (killed by pid at the end)."""
+    count = os.cpu_count() or 1
+    return [
+        subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(count)
+    ]
+
+
+def stop_hogs(hogs: list[subprocess.Popen]) -> None:
+    for hog in hogs:
+        hog.kill()
+        hog.wait(5)
+
+
+def serve_simulator(n_servos: int, bitrate: int) -> None:
+    """Child-process mode: run the adapter emulator, print its port, live until stdin closes.
+
+    Real servos are not inside the bridge's process; keeping the simulator out of it keeps its
+    work from competing with the scheduler for the interpreter lock.
+    """
+    from mavservo.sim.adapter import AdapterEmulator
+
+    sims = [SimServo("rmd-x", i) for i in range(1, n_servos + 1)]
+    emulator = AdapterEmulator(sims, bitrate=bitrate).start()
+    print(emulator.path, flush=True)
+    sys.stdin.read()
+    emulator.stop()
+
+
+class _ChildSimulator:
+    def __init__(self, n_servos: int, bitrate: int) -> None:
+        self.process = subprocess.Popen(
+            [sys.executable, __file__, "--serve-sim", str(n_servos),
+             "--bitrate", str(bitrate)],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+            env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)},
+        )
+        assert self.process.stdout is not None
+        self.path = self.process.stdout.readline().strip()
+
+    def stop(self) -> None:
+        assert self.process.stdin is not None
+        self.process.stdin.close()
+        self.process.wait(10)
+
+
+class Transport:
+    """Opens the host-side bus and the simulated servos behind it."""
+
+    def __init__(self, kind: str, n_servos: int, bitrate: int, in_process: bool) -> None:
+        self.kind = kind
+        self.sims = [SimServo("rmd-x", i) for i in range(1, n_servos + 1)]
+        if kind == "pty":
+            from mavservo.sim.adapter import AdapterEmulator
+            from mavservo.usbcan import AA55Bus
+
+            if in_process:
+                self.device = AdapterEmulator(self.sims, bitrate=bitrate).start()
+            else:
+                self.device = _ChildSimulator(n_servos, bitrate)
+            self.bus: can.BusABC = AA55Bus(self.device.path, bitrate=bitrate)
+        else:
+            from mavservo.sim.virtual import VirtualServoBus
+
+            channel = f"bench-{os.getpid()}"
+            self.device = VirtualServoBus(self.sims, channel=channel, bitrate=bitrate).start()
+            self.bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+
+    def close(self) -> None:
+        self.bus.shutdown()
+        self.device.stop()
+
+
+def run_once(args: argparse.Namespace, n_servos: int, seconds: float) -> dict[str, Any]:
+    timing = TimingConfig(
+        command_period_s=args.command_period,
+        telemetry_period_s=args.telemetry_period,
+        bitrate=args.bitrate,
+        max_load=0.8,
+        realtime=args.realtime,
+        spin_s=args.spin,
+    )
+    transport = Transport(args.transport, n_servos, args.bitrate, args.sim_in_process)
+    specs = [ServoSpec(f"s{i}", RmdX(i)) for i in range(1, n_servos + 1)]
+    scheduler = Scheduler(transport.bus, specs, timing, name=args.transport)
+    cpu_before = time.process_time()
+    try:
+        scheduler.start()
+        started = time.monotonic()
+        next_update = started
+        # drive setpoints from this thread like the MAVLink layer would: bounded by time
+        while (now := time.monotonic()) - started < seconds:
+            for i, spec in enumerate(specs):
+                angle = 30.0 * math.sin(2 * math.pi * 0.2 * (now - started) + i)
+                scheduler.set_setpoint(spec.name, angle, "bench")
+            next_update += timing.command_period_s
+            time.sleep(max(0.0, next_update - time.monotonic()))
+        elapsed = time.monotonic() - started
+    finally:
+        scheduler.stop()
+        transport.close()
+    cpu_process = time.process_time() - cpu_before
+    snapshot = scheduler.metrics()
+    store = scheduler.metrics_store
+    tick = snapshot["command_tick"]
+    latencies = [s["latency_s"] for s in snapshot["servos"].values()]
+    intervals = [store.servos[s.name].telemetry_intervals for s in specs]
+    window_intervals = [v for period in intervals for v in period.intervals.recent]
+    window_dev = [v for period in intervals for v in period.deviations.recent]
+    ordered_dev = sorted(window_dev) or [math.nan]
+    cpu = snapshot["info"]["cpu"]
+    lost = sum(s["frames"]["lost"] for s in snapshot["servos"].values())
+    received = sum(s["frames"]["received"] for s in snapshot["servos"].values())
+    ms = 1e3
+    return {
+        "servos": n_servos,
+        "seconds": round(elapsed, 1),
+        "hog": args.hog,
+        "transport": args.transport,
+        "realtime": snapshot["info"]["realtime"],
+        "cmd_period_mean_ms": tick["interval"]["mean"] * ms,
+        "cmd_period_sigma_ms": tick["interval"]["sigma"] * ms,
+        "cmd_p99_dev_ms": tick["abs_deviation"]["p99"] * ms,
+        "cmd_max_dev_ms": tick["abs_deviation"]["max"] * ms,
+        "missed_slots": snapshot["missed_command_slots"],
+        "wake_late_p99_ms": snapshot["command_lateness_s"]["p99"] * ms,
+        "tlm_interval_mean_ms": statistics.fmean(window_intervals) * ms,
+        "tlm_interval_p1_ms": min(window_intervals) * ms if window_intervals else None,
+        "tlm_in_70_100ms": sum(0.07 <= v <= 0.1 for v in window_intervals)
+        / max(1, len(window_intervals)),
+        "tlm_p99_dev_ms": ordered_dev[min(len(ordered_dev) - 1, int(0.99 * len(ordered_dev)))]
+        * ms,
+        "L_mean_ms": statistics.fmean(s["mean"] for s in latencies if s["mean"]) * ms,
+        "sigma_L_ms": statistics.fmean(s["sigma"] for s in latencies if s["sigma"]) * ms,
+        "L_p99_ms": max(s["p99"] for s in latencies if s["p99"]) * ms,
+        "R_mean": snapshot["load"]["total_bits"] / (elapsed * args.bitrate),
+        "R_peak": snapshot["load"]["peak"],
+        "R_worst_case": snapshot["info"]["worst_case_load"],
+        "lost": lost,
+        "received": received,
+        "cpu_sched_pct": (cpu["runner_s"] + cpu["receiver_s"]) / elapsed * 100,
+        "cpu_process_pct": cpu_process / elapsed * 100,
+    }
+
+
+def bare_loop(seconds: float, period: float, spin: float) -> dict[str, Any]:
+    """The yardstick: the same sleep-then-spin wait with nothing else in the process.
+
+    What the machine itself allows right now; the scheduler's figures are read against it.
+    """
+    import threading
+
+    never = threading.Event()
+    deadline = start = time.monotonic()
+    marks: list[float] = []
+    while deadline - start < seconds:
+        deadline += period
+        remaining = deadline - time.monotonic()
+        if remaining > spin:
+            never.wait(remaining - spin)
+        while time.monotonic() < deadline:
+            time.sleep(0)
+        marks.append(time.monotonic())
+    intervals = [b - a for a, b in zip(marks, marks[1:], strict=False)]
+    deviations = sorted(abs(i - period) for i in intervals)
+    return {
+        "baseline": "bare sleep+spin loop",
+        "seconds": seconds,
+        "cmd_period_sigma_ms": statistics.pstdev(intervals) * 1e3,
+        "cmd_p99_dev_ms": deviations[int(0.99 * (len(deviations) - 1))] * 1e3,
+        "cmd_max_dev_ms": deviations[-1] * 1e3,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=60.0)
+    parser.add_argument("--servos", type=int, default=8)
+    parser.add_argument("--hog", action="store_true", help="busy-loop process on every core")
+    parser.add_argument("--transport", choices=("pty", "virtual"), default="pty")
+    parser.add_argument("--bitrate", type=int, default=1_000_000)
+    parser.add_argument("--command-period", type=float, default=0.05)
+    parser.add_argument("--telemetry-period", type=float, default=0.09)
+    parser.add_argument("--spin", type=float, default=0.001)
+    parser.add_argument("--realtime", action="store_true", help="ask for SCHED_FIFO")
+    parser.add_argument("--runs", type=int, default=1)
+    parser.add_argument("--cpu-only", action="store_true",
+                        help="CPU cost with 8 and 32 servos instead of the timing run")
+    parser.add_argument("--json", help="append result lines to this file")
+    parser.add_argument("--sim-in-process", action="store_true",
+                        help="pty: run the adapter emulator in this process (shares the GIL)")
+    parser.add_argument("--baseline", action="store_true",
+                        help="also time a bare sleep+spin loop for the same duration first")
+    parser.add_argument("--serve-sim", type=int, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.serve_sim:
+        serve_simulator(args.serve_sim, args.bitrate)
+        return
+
+    counts = [8, 32] if args.cpu_only else [args.servos]
+    hogs = start_hogs() if args.hog else []
+    try:
+        if args.baseline:
+            base = bare_loop(args.seconds, args.command_period, args.spin)
+            base["hog"] = args.hog
+            print(json.dumps({k: round(v, 3) if isinstance(v, float) else v
+                              for k, v in base.items()}), flush=True)
+        for n in counts:
+            for _ in range(args.runs):
+                result = run_once(args, n, args.seconds)
+                line = json.dumps({k: round(v, 3) if isinstance(v, float) else v
+                                   for k, v in result.items()})
+                print(line, flush=True)
+                if args.json:
+                    with open(args.json, "a") as out:
+                        out.write(line + "\n")
+    finally:
+        stop_hogs(hogs)
+
+
+if __name__ == "__main__":
+    main()
