@@ -545,3 +545,15 @@ def test_settings_from_a_gimbal_config():
     assert gimbal_settings.component_id == 154 and gimbal_settings.act_as_manager
     assert gimbal_settings.model_name == "AK gimbal"
     assert gimbal_settings.status_rate_hz == 20.0
+
+
+def test_repeated_target_is_not_resent_but_a_refused_one_is():
+    device, backend = make_device()
+    for step in range(5):  # ArduPilot repeats the same target at 50 Hz
+        device.handle_message(set_attitude(0.0, -30.0, 0.0), now=1.0 + step * 0.02)
+    assert len(backend.calls) == 1
+    backend.outcome = Outcome.TEMPORARILY_REJECTED
+    device.handle_message(set_attitude(0.0, -40.0, 0.0), now=2.0)
+    device.handle_message(set_attitude(0.0, -40.0, 0.0), now=2.02)
+    assert len(backend.calls) == 3
+    assert device.counters.rejected == 2

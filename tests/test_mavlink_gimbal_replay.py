@@ -175,3 +175,12 @@ def test_earth_frame_segments_follow_the_vehicle_heading(replay):
 def test_status_streamed_throughout(replay):
     _, _, statuses = replay
     assert statuses >= 5 * 59  # >= 5 Hz over the 60 s recording (default is 10 Hz)
+
+
+def test_segments_are_applied_in_order_without_repeats_of_the_50hz_stream(replay):
+    _, calls, _ = replay
+    visited = [segment_of(c[0]) for c in calls]
+    collapsed = [s for i, s in enumerate(visited) if i == 0 or visited[i - 1] != s]
+    assert collapsed == list(range(len(TIMELINE)))
+    # 2,708 SET_ATTITUDE messages; an unchanged target is not re-sent (the scheduler refreshes)
+    assert len(calls) < 3 * len(TIMELINE)

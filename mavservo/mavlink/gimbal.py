@@ -494,8 +494,14 @@ class GimbalDevice:
         return int(self._set_demand(demand, now).outcome)
 
     def _set_demand(self, demand: Demand, now: float) -> ApplyResult:
+        """Make ``demand`` the one in effect and drive it.
+
+        Not forced: ArduPilot repeats the same target at 50 Hz, and the scheduler already
+        refreshes the last setpoint, so an unchanged target is not sent to the backend again
+        (unless the previous request was refused).
+        """
         self.demand = demand
-        return self._drive(now, force=True)
+        return self._drive(now)
 
     def _on_vehicle_yaw(self, yaw_deg: float, now: float) -> None:
         """Remember the vehicle heading; an earth-frame yaw target must follow it."""
