@@ -18,7 +18,8 @@ Rules (paper section 3.3):
 * ``periodic`` servos: a new setpoint goes out on the next command slot (latency 0..T_c, mean
   T_c/2 plus the loop's wake-up error). ``immediate`` servos: a new setpoint goes out at once
   (the runner is woken), but never sooner than ``immediate_min_spacing_s`` after the previous
-  command to that servo (latency ~ wake-up error, at most the spacing); slots still refresh.
+  command to that servo, slots included (latency ~ wake-up error, at most the spacing); slots
+  still refresh. Worst-case rate: max(1 / T_c, 1 / spacing).
 * Keep-alive: a servo with a setpoint and no newer one for ``refresh_interval_s`` gets its
   last setpoint re-sent on a slot. Frames only ever carry the newest accepted setpoint, and
   setpoints carry per-servo sequence numbers, so a stale setpoint can never follow a newer one.
@@ -284,9 +285,11 @@ class ScheduleCore:
         return cost
 
     def _command_hz(self, spec: ServoSpec) -> float:
+        """Worst-case commands per second: every slot, or back to back at the minimum spacing
+        for ``immediate`` servos (slots honour that spacing too, so it is a true ceiling)."""
         hz = 1 / self.timing.command_period_s
         if spec.command_mode == "immediate":
-            hz += 1 / self.timing.immediate_min_spacing_s
+            hz = max(hz, 1 / self.timing.immediate_min_spacing_s)
         return hz
 
     def _traffic(self, spec: ServoSpec) -> ServoTraffic:
@@ -432,22 +435,29 @@ class ScheduleCore:
             if slot.released or slot.latest is None:
                 continue
             if slot.has_unsent_setpoint:
+                if slot.spec.command_mode == "immediate" and not self._spacing_elapsed(slot, now):
+                    continue  # the immediate path sends it when the spacing ends
                 decision.frames.append(self._command_frame(slot, "command", now))
-                slot.last_command_time = slot_time
+                if slot.spec.command_mode == "periodic":
+                    slot.last_command_time = slot_time
             elif (
                 slot.last_command_time is None
                 or slot_time - slot.last_command_time >= refresh_due
-            ):
+            ) and (slot.spec.command_mode == "periodic" or self._spacing_elapsed(slot, now)):
                 decision.frames.append(self._command_frame(slot, "refresh", now))
-                slot.last_command_time = slot_time
+                if slot.spec.command_mode == "periodic":
+                    slot.last_command_time = slot_time
+
+    def _spacing_elapsed(self, slot: _ServoSlot, now: float) -> bool:
+        last = slot.last_command_time
+        return last is None or now - last >= self.timing.immediate_min_spacing_s - 1e-9
 
     def _serve_immediate(self, now: float, decision: Decision) -> None:
         for name in self._order:
             slot = self._slots[name]
             if slot.spec.command_mode != "immediate" or not slot.has_unsent_setpoint:
                 continue
-            last = slot.last_command_time
-            if last is None or now - last >= self.timing.immediate_min_spacing_s:
+            if self._spacing_elapsed(slot, now):
                 decision.frames.append(self._command_frame(slot, "command", now))
 
     def _serve_telemetry(self, now: float, decision: Decision) -> None:

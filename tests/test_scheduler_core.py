@@ -148,9 +148,11 @@ def test_profile_refusal_becomes_a_rejection_with_its_reason():
     )
 )
 def test_frames_never_carry_an_older_setpoint_than_one_already_sent(events):
-    core = core_with(rmd(2, command_mode="immediate") + rmd(1)[:0], immediate_min_spacing_s=0.02)
+    specs = [ServoSpec("s1", RmdX(1), command_mode="immediate"), ServoSpec("s2", RmdX(2))]
+    core = core_with(specs, immediate_min_spacing_s=0.02)
     now = 100.0
     highest_sent = {"s1": 0, "s2": 0}
+    last_immediate_send = -math.inf
     for dt, submit_first, angle in events:
         now += dt
         if submit_first:
@@ -160,6 +162,10 @@ def test_frames_never_carry_an_older_setpoint_than_one_already_sent(events):
                 assert out.seq >= highest_sent[out.servo]
                 assert out.seq == core.latest(out.servo).seq
                 highest_sent[out.servo] = out.seq
+            if out.servo == "s1" and out.kind != "request":
+                # the minimum spacing holds for every frame to an immediate servo, slots too
+                assert now - last_immediate_send >= 0.02 - 1e-9
+                last_immediate_send = now
 
 
 def test_immediate_mode_sends_at_once_but_respects_minimum_spacing():
@@ -329,7 +335,8 @@ def test_immediate_mode_counts_its_worst_case_in_the_budget():
     periodic = core_with(rmd(4), max_load=1.0).worst_case_load
     immediate = core_with(rmd(4, command_mode="immediate"), max_load=1.0,
                           immediate_min_spacing_s=0.01).worst_case_load
-    assert immediate == pytest.approx(periodic + 4 * 100 * 270 / 1_000_000)
+    # 100 commands/s at 10 ms spacing replace the 20/s of the slots (270 bits with the reply)
+    assert immediate == pytest.approx(periodic + 4 * (100 - 20) * 270 / 1_000_000)
 
 
 @pytest.mark.parametrize(
