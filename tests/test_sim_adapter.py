@@ -241,3 +241,23 @@ def test_sim_command_reads_servos_and_faults_from_yaml(tmp_path):
     from mavservo.sim.cli import main
 
     assert main(["--config", str(bad)]) == 2
+
+
+def test_sim_command_accepts_a_full_mavservo_config(tmp_path):
+    config = tmp_path / "mavservo.yaml"
+    config.write_text(
+        "servos:\n"
+        "  - {name: pan, profile: rmd-x, can_id: 1}\n"
+        "  - {name: tilt, profile: cubemars-ak, can_id: 2, telemetry_hz: 20}\n"
+        "simulation:\n"
+        "  servos:\n"
+        "    tilt: {faults: {drop_reply_prob: 0.5}}\n"
+        "    default: {physics: {relax_after_s: 3}}\n"
+    )
+    from mavservo.sim.cli import build_emulator, build_parser
+
+    emulator = build_emulator(build_parser().parse_args(["--config", str(config)]))
+    pan, tilt = emulator.servos
+    assert (pan.profile, pan.can_id, pan.physics.relax_after_s) == ("rmd-x", 1, 3)
+    assert (tilt.profile, tilt.can_id, tilt.faults.drop_reply_prob) == ("cubemars-ak", 2, 0.5)
+    assert tilt.status_rate_hz == 20

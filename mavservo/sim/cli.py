@@ -14,6 +14,7 @@ from the ``simulation`` section of a YAML file (options given explicitly win)::
       servos:
         - id: 1
           profile: rmd-x        # rmd-x | lk | cubemars-ak
+          status_rate_hz: 50    # optional, per servo
           physics: {max_speed_dps: 720, max_accel_dps2: 3600, relax_after_s: 2.0, ...}
           faults: {drop_reply_prob: 0.0, reply_delay_s: 0.0, silent: false,
                    over_current: false, over_temperature: false}
@@ -67,14 +68,30 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def load_simulation_section(path: str) -> dict[str, Any]:
-    """The ``simulation`` mapping of a YAML file (empty if absent)."""
+    """The ``simulation`` mapping of a YAML file (empty if absent), in the standalone shape.
+
+    A full mavservo config (top-level ``servos:`` list with ``name``, ``profile``, ``can_id``,
+    ``telemetry_hz``; ``simulation.servos`` mapping a servo name or ``default`` to
+    ``{physics, faults}``) is translated into the standalone list shape, so ``mavservo sim
+    --config`` accepts the same file as ``mavservo run``.
+    """
     import yaml
 
     with open(path, encoding="utf-8") as handle:
         document = yaml.safe_load(handle) or {}
-    section = document.get("simulation") or {}
-    if not isinstance(section, dict):
-        raise ValueError(f"{path}: 'simulation' must be a mapping")
+    section = dict(document.get("simulation") or {})
+    overrides = section.get("servos")
+    if isinstance(overrides, dict):
+        specs = []
+        for servo in document.get("servos") or []:
+            tuning = overrides.get(servo.get("name")) or overrides.get("default") or {}
+            spec = {"id": servo["can_id"], "profile": servo["profile"], **tuning}
+            if "telemetry_hz" in servo:
+                spec["status_rate_hz"] = servo["telemetry_hz"]
+            specs.append(spec)
+        section["servos"] = specs
+    elif overrides is not None and not isinstance(overrides, list):
+        raise ValueError(f"{path}: 'simulation.servos' must be a list or a mapping")
     return section
 
 
@@ -94,7 +111,7 @@ def build_emulator(args: argparse.Namespace) -> AdapterEmulator:
 
     servos = []
     for index, spec in enumerate(specs):
-        unknown = set(spec) - {"id", "profile", "physics", "faults"}
+        unknown = set(spec) - {"id", "profile", "physics", "faults", "status_rate_hz"}
         if unknown:
             raise ValueError(f"simulation.servos[{index}]: unknown key(s) {sorted(unknown)}")
         physics = Physics.from_dict(spec.get("physics"))
@@ -110,7 +127,8 @@ def build_emulator(args: argparse.Namespace) -> AdapterEmulator:
         faults.over_current |= can_id in (args.over_current_ids or [])
         faults.over_temperature |= can_id in (args.over_temperature_ids or [])
         servos.append(SimServo(spec.get("profile", "rmd-x"), can_id, physics, faults,
-                               seed=seed + index, status_rate_hz=rate))
+                               seed=seed + index,
+                               status_rate_hz=float(spec.get("status_rate_hz", rate))))
 
     line = LineFaults.from_dict(section.get("line_faults"))
     for option, field in (("flip_prob", "flip_prob"), ("drop_byte_prob", "drop_byte_prob"),
