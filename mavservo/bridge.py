@@ -22,7 +22,7 @@ from typing import Any
 import can
 
 from mavservo.config import Config
-from mavservo.mavlink.gimbal import GimbalDevice, GimbalSettings
+from mavservo.mavlink.gimbal import GimbalDevice, settings_from_config
 from mavservo.mavlink.settings import MavlinkSettings, SigningSettings
 from mavservo.mavlink.side import MavlinkSide
 from mavservo.resilient_bus import ResilientBus
@@ -89,7 +89,17 @@ def simulated_servos(config: Config, bus_name: str) -> list[SimServo]:
         if tuning is None or "initial_position_deg" not in tuning.physics:
             low, high = servo.limits_deg
             physics = dataclasses.replace(physics, initial_position_deg=min(high, max(low, 0.0)))
-        out.append(SimServo(servo.profile, servo.can_id, physics, faults, seed=index))
+        # push-style servos (CubeMars) report at the rate the config budgets for them
+        out.append(
+            SimServo(
+                servo.profile,
+                servo.can_id,
+                physics,
+                faults,
+                seed=index,
+                status_rate_hz=servo.telemetry_hz,
+            )
+        )
     return out
 
 
@@ -305,23 +315,13 @@ class Bridge:
                 cfg.simulation.autopilot, f"udpout:127.0.0.1:{port}"
             )
         assert self.backend is not None
+        servo_limits = {s.name: tuple(s.limits_deg) for s in cfg.servos}
+        status_hz = cfg.mavlink.telemetry.gimbal_attitude_status_hz
+        fixed_sysid = None if cfg.mavlink.system_id == "follow" else cfg.mavlink.system_id
         gimbals = [
             GimbalDevice(
-                GimbalSettings(
-                    name=g.name,
-                    axis_servos=g.axes(),
-                    limits_deg={
-                        axis: tuple(limits)
-                        for axis, limits in g.limits_deg.model_dump().items()
-                        if limits is not None
-                    },
-                    component_id=g.component_id,
-                    act_as_manager=g.act_as_manager,
-                    vendor_name=g.vendor_name,
-                    model_name=g.model_name,
-                    status_rate_hz=max(5.0, cfg.mavlink.telemetry.gimbal_attitude_status_hz),
-                    retract_pose_deg=g.retract_pose_deg,
-                    neutral_pose_deg=g.neutral_pose_deg,
+                settings_from_config(
+                    g, servo_limits, status_rate_hz=status_hz, system_id=fixed_sysid
                 ),
                 self.backend,
             )

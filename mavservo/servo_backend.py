@@ -18,7 +18,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 from mavservo.config import Config
-from mavservo.mapping import ChannelMap, Rejected, clamp
+from mavservo.mapping import ChannelMap, Rejected, clamp, slew_limit
 from mavservo.mavlink.backend import ACCEPTED, ApplyResult, Outcome, ServoStatus
 from mavservo.servos.base import ServoState
 
@@ -81,17 +81,21 @@ class ServoBackend:
                 failsafe_action=servo.failsafe.action,
                 failsafe_position_deg=servo.failsafe.position_deg,
             )
-        self._by_channel: dict[int, _Servo] = {}
-        self._by_actuator: dict[int, _Servo] = {}
+        # A servo may be mapped from both sources, each with its own input range: keep the
+        # map with the source, and the first map on the servo for reporting measured positions.
+        self._by_channel: dict[int, tuple[_Servo, ChannelMap]] = {}
+        self._by_actuator: dict[int, tuple[_Servo, ChannelMap]] = {}
         for entry in config.channels:
             servo = self._servos[entry.servo]
-            servo.channel_map = ChannelMap.from_config(entry, config)
-            servo.max_slew_dps = entry.max_slew_dps
+            channel_map = ChannelMap.from_config(entry, config)
+            servo.channel_map = servo.channel_map or channel_map
+            if entry.max_slew_dps is not None:
+                servo.max_slew_dps = entry.max_slew_dps
             if entry.source == "servo_output":
-                self._by_channel[entry.channel] = servo
+                self._by_channel[entry.channel] = (servo, channel_map)
                 servo.servo_channel = entry.channel
             else:
-                self._by_actuator[entry.index] = servo
+                self._by_actuator[entry.index] = (servo, channel_map)
                 servo.actuator_index = entry.index
         self._gimbals = {g.name: g.axes() for g in config.gimbals}
         self.in_failsafe = False
@@ -108,16 +112,16 @@ class ServoBackend:
     def apply_servo_output(
         self, channel: int, pwm_us: float, source: str, now: float
     ) -> ApplyResult:
-        servo = self._by_channel.get(channel)
-        if servo is None:
+        mapped = self._by_channel.get(channel)
+        if mapped is None:
             return ApplyResult(Outcome.DENIED, f"servo channel {channel} is not mapped")
-        return self._apply_input(servo, pwm_us, source, now)
+        return self._apply_input(*mapped, pwm_us, source, now)
 
     def apply_actuator(self, index: int, value: float, source: str, now: float) -> ApplyResult:
-        servo = self._by_actuator.get(index)
-        if servo is None:
+        mapped = self._by_actuator.get(index)
+        if mapped is None:
             return ApplyResult(Outcome.DENIED, f"actuator {index} is not mapped")
-        return self._apply_input(servo, value, source, now)
+        return self._apply_input(*mapped, value, source, now)
 
     def apply_gimbal(
         self,
@@ -193,9 +197,10 @@ class ServoBackend:
 
     # ------------------------------------------------------------------ internals
 
-    def _apply_input(self, servo: _Servo, value: float, source: str, now: float) -> ApplyResult:
-        assert servo.channel_map is not None
-        target = servo.channel_map.to_angle(value)
+    def _apply_input(
+        self, servo: _Servo, channel_map: ChannelMap, value: float, source: str, now: float
+    ) -> ApplyResult:
+        target = channel_map.to_angle(value)
         if isinstance(target, Rejected):
             with self._lock:
                 self.counters["rejected"] += 1
@@ -225,11 +230,13 @@ class ServoBackend:
             and servo.sent_deg is not None
             and servo.sent_at is not None
         ):
-            assert servo.channel_map is not None
-            step = servo.channel_map.slew(servo.sent_deg, servo.goal_deg, now - servo.sent_at)
+            dt = now - servo.sent_at
+            step = slew_limit(servo.sent_deg, servo.goal_deg, dt, servo.max_slew_dps)
             if step == servo.sent_deg:
                 return ACCEPTED  # no time has passed yet; the next tick moves it
-        result = servo.sink.set_setpoint(servo.name, step, servo.source, now)
+        # t=None: the scheduler stamps it on arrival. Calls come in under this backend's lock, so
+        # arrival order is command order even when threads read their clocks out of order.
+        result = servo.sink.set_setpoint(servo.name, step, servo.source)
         if getattr(result, "accepted", True):
             servo.sent_deg = step
             servo.sent_at = now
