@@ -185,10 +185,17 @@ class Bridge:
             self.schedulers[bus_cfg.name] = scheduler
             for spec in specs:
                 sinks[spec.name] = scheduler
-        self.backend = ServoBackend(cfg, sinks, on_event=self._event)
+        self.backend = ServoBackend(
+            cfg,
+            sinks,
+            on_event=self._event,
+            on_command=self.runlog.mavlink_received if self.runlog is not None else None,
+        )
         for scheduler in self.schedulers.values():
             scheduler.start()
         self.mavlink = self._make_mavlink()
+        if self.runlog is not None:
+            self._tap_mavlink(self.mavlink, self.runlog)
         self.mavlink.start()
         if self.autopilot_sim is not None:
             self.autopilot_sim.start()
@@ -328,6 +335,22 @@ class Bridge:
             for g in cfg.gimbals
         ]
         return MavlinkSide(settings, self.backend, gimbals)
+
+    def _tap_mavlink(self, side: MavlinkSide, runlog: RunLog) -> None:
+        """MAVLink frames into the run's .tlog; telemetry sends close the latency traces."""
+        servo_names = [s.name for s in self.config.servos]
+
+        def tap(direction: str, raw: bytes, t: float) -> None:
+            (runlog.mavlink_in if direction == "in" else runlog.mavlink_out)(raw, t)
+
+        def sent(msg: Any, t: float) -> None:
+            # ACTUATOR_OUTPUT_STATUS carries every servo's measured position at once
+            if msg.get_type() == "ACTUATOR_OUTPUT_STATUS":
+                for name in servo_names:
+                    runlog.telemetry_sent(name, t)
+
+        side.link.tap = tap
+        side.on_sent = sent
 
     def _tick(self) -> None:
         period = self.config.scheduler.command_period_s

@@ -67,8 +67,11 @@ class ServoBackend:
         config: Config,
         sinks: Mapping[str, SetpointSink],
         on_event: Callable[[str], None] | None = None,
+        on_command: Callable[[str, float], None] | None = None,
     ) -> None:
         self._lock = threading.RLock()
+        #: ``on_command(servo, t_received)`` for each accepted MAVLink request (latency stage 1)
+        self._on_command = on_command
         self._on_event = on_event or (lambda line: log.info("%s", line))
         self._servos: dict[str, _Servo] = {}
         for index, servo in enumerate(config.servos):
@@ -220,6 +223,8 @@ class ServoBackend:
             servo.goal_deg = angle
             servo.source = source
             self.counters["accepted"] += 1
+            if self._on_command is not None:
+                self._on_command(servo.name, now)
             return self._send_step(servo, now)
 
     def _send_step(self, servo: _Servo, now: float) -> ApplyResult:

@@ -67,6 +67,9 @@ class MavlinkLink:
     ) -> None:
         self.url = url
         self.baud = baud
+        #: ``tap(direction, raw_frame, t)`` sees every frame in ("in") and out ("out"), for the
+        #: run log's .tlog; it runs on the I/O threads and must not block.
+        self.tap: Callable[[str, bytes, float], None] | None = None
         self._signing = signing
         self._on_message = on_message
         self._on_event = on_event or (lambda text: None)
@@ -143,6 +146,8 @@ class MavlinkLink:
         if conn is None:
             self.counters["send_dropped_link_down"] += 1
             return
+        if self.tap is not None:
+            self.tap("out", bytes(buf), self._clock())
         try:
             conn.write(buf)
         except OSError as exc:
@@ -197,6 +202,8 @@ class MavlinkLink:
                 self.counters[key] += 1
                 continue
             self.counters["received"] += 1
+            if self.tap is not None:
+                self.tap("in", bytes(msg.get_msgbuf()), now)
             try:
                 self._on_message(msg, now)
             except Exception:  # a handler bug must not kill the link

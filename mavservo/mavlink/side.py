@@ -48,6 +48,8 @@ class MavlinkSide:
             self.link.add_component(cid, self.core.system_id)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        #: ``on_sent(msg, t)`` after each message went out (latency tracing); must not block.
+        self.on_sent: Callable[[Any, float], None] | None = None
 
     def start(self) -> None:
         self.link.start()
@@ -102,3 +104,5 @@ class MavlinkSide:
         system_id = self.core.system_id
         for component_id, msg in out:
             self.link.send(component_id, msg, system_id)
+            if self.on_sent is not None:
+                self.on_sent(msg, self._clock())
