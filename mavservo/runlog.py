@@ -29,13 +29,12 @@ import enum
 import json
 import os
 import platform
-import queue
 import re
 import struct
 import sys
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Iterable, Mapping
 from datetime import datetime, timezone
 from pathlib import Path
@@ -67,7 +66,7 @@ TRACE_COLUMNS: tuple[str, ...] = (
     "faults",
 )
 
-_STOP = object()
+_POLL_S = 0.05  # the writer wakes on its own; callers never signal it
 _FLUSH_EVERY_S = 1.0
 
 # Event codes on the queue (small ints keep the tuples cheap to build on the caller's thread).
@@ -182,7 +181,11 @@ class RunLog:
         self._tlog_enabled = tlog
         self._extra_header = dict(header or {})
 
-        self._queue: queue.Queue[Any] = queue.Queue(maxsize=queue_size)
+        # A deque, not a queue.Queue: append is atomic and wakes nobody, so a caller never
+        # waits on a lock or hands the GIL to the writer; the writer polls every _POLL_S.
+        self._queue: deque[tuple[Any, ...]] = deque()
+        self._queue_size = int(queue_size)
+        self._stopping = threading.Event()
         self._drop_lock = threading.Lock()
         self.dropped: Counter[str] = Counter()
         self.written: Counter[str] = Counter()
@@ -222,7 +225,7 @@ class RunLog:
         self.latency.close_open()
         self.start()
         assert self._thread is not None
-        self._queue.put(_STOP)  # blocking on purpose: close must come after the last event
+        self._stopping.set()  # the writer drains what is queued, then returns
         self._thread.join(timeout)
         self._close_files()
         self._write_header(end_wall=time.time())
@@ -240,7 +243,7 @@ class RunLog:
             "written": dict(self.written),
             "dropped": dict(self.dropped),
             "dropped_total": sum(self.dropped.values()),
-            "queue_size": self._queue.maxsize,
+            "queue_size": self._queue_size,
             "write_errors": self.write_errors,
             "last_error": self.last_error,
         }
@@ -248,9 +251,9 @@ class RunLog:
     # -- observer interface (called from scheduler / link threads; never blocks) -------------
 
     def _put(self, item: tuple[Any, ...]) -> None:
-        try:
-            self._queue.put_nowait(item)
-        except queue.Full:
+        if len(self._queue) < self._queue_size:
+            self._queue.append(item)
+        else:
             with self._drop_lock:
                 self.dropped[_CATEGORY[item[0]]] += 1
 
@@ -296,7 +299,7 @@ class RunLog:
             self._put((_MAV_OUT, bytes(raw), t))
 
     def _latency_record(self, trace: CommandTrace) -> None:
-        self._put((_LATENCY, trace.csv_row()))
+        self._put((_LATENCY, trace))  # formatted by the writer, not on the caller's thread
 
     # -- writer thread -------------------------------------------------------------------------
 
@@ -337,19 +340,18 @@ class RunLog:
     def _run(self) -> None:
         last_flush = time.monotonic()
         while True:
-            try:
-                item = self._queue.get(timeout=_FLUSH_EVERY_S)
-            except queue.Empty:
-                item = None
-            if item is _STOP:
-                return
-            if item is not None:
+            stopping = self._stopping.is_set()  # read before draining: nothing is left behind
+            while self._queue:
+                item = self._queue.popleft()
                 try:
                     self._write(item)
                     self.written[_CATEGORY[item[0]]] += 1
                 except Exception as exc:  # a full disk must not kill the bridge
                     self.write_errors += 1
                     self.last_error = f"{type(exc).__name__}: {exc}"
+            if stopping:
+                return
+            self._stopping.wait(_POLL_S)
             now = time.monotonic()
             if now - last_flush >= _FLUSH_EVERY_S:
                 last_flush = now
@@ -379,7 +381,7 @@ class RunLog:
             usec = int((t + self._offset) * 1e6)
             self._files["tlog"].write(struct.pack(">Q", usec) + raw)
         elif code == _LATENCY:
-            self._csv["latency"].writerow(item[1])
+            self._csv["latency"].writerow(item[1].csv_row())
 
     def _write_frame(self, item: tuple[Any, ...]) -> None:
         code, bus, arb_id, extended, remote, dlc, data, t = item[:8]
