@@ -15,7 +15,7 @@ import logging
 import socket
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -108,6 +108,7 @@ class Bridge:
 
     ``log_dir``: base directory for run logs (None: the config's ``logging.dir``; False: none).
     ``status``: called with one-line events (link lost, adapter back, failsafe) for the console.
+    ``observers``: more :class:`SchedulerObserver` hooks on every bus (non-blocking, see there).
     """
 
     def __init__(
@@ -117,8 +118,11 @@ class Bridge:
         config_path: str | Path | None = None,
         log_dir: str | Path | None | bool = None,
         status: Callable[[str], None] | None = None,
+        observers: Sequence[SchedulerObserver] = (),
     ) -> None:
         self.config = config
+        #: extra scheduler observers (tests, live tools) next to the run log's
+        self._observers = tuple(observers)
         self.config_path = config_path
         self._status = status or (lambda line: log.info("%s", line))
         self.emulators: dict[str, AdapterEmulator] = {}
@@ -150,7 +154,7 @@ class Bridge:
     def _start(self) -> None:
         cfg = self.config
         self._open_runlog()
-        observer = _FanOut(self.runlog)
+        observer = _FanOut(self.runlog, *self._observers)
         for bus_cfg in cfg.can.buses:
             self.buses[bus_cfg.name] = self._open_bus(bus_cfg)
         sinks: dict[str, Scheduler] = {}

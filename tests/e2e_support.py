@@ -1,0 +1,280 @@
+"""Helpers for the end-to-end tests: a real bridge, a real MAVLink peer over UDP, recorders.
+
+Everything here is a real part: the bridge listens on ``udpin:127.0.0.1:PORT``, the test-side
+peer is a pymavlink connection that sends to it and collects what comes back on a bounded
+thread, and the CAN side is the ``aa55`` interface talking to the adapter emulator over a pty.
+Recorders only watch (scheduler observer hooks, wrapped simulated-servo methods); they never
+change what the bridge does.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from mavservo.bridge import Bridge, free_udp_port
+from mavservo.config import Config, load_config_text
+from mavservo.scheduler import SchedulerObserver
+from mavservo.sim.servo import SimServo
+from sitl.link import mavlink2, open_link
+
+MAV_CMD_DO_SET_SERVO = 183
+MAV_CMD_DO_SET_ACTUATOR = 187
+MAV_RESULT_ACCEPTED = 0
+MAV_RESULT_TEMPORARILY_REJECTED = 1
+
+
+def wait_until(predicate: Callable[[], Any], timeout: float, interval: float = 0.02) -> bool:
+    """Poll ``predicate`` until it is truthy or ``timeout`` passes (bounded in time and count)."""
+    deadline = time.monotonic() + timeout
+    for _ in range(int(timeout / interval) + 2):
+        if predicate():
+            return True
+        if time.monotonic() >= deadline:
+            break
+        time.sleep(interval)
+    return bool(predicate())
+
+
+def bridge_config(body: str, port: int, *, extra_mavlink: str = "") -> Config:
+    """A config from YAML ``body`` (servos, channels, ...) with MAVLink on a UDP port.
+
+    ``body`` must not contain a ``mavlink:`` section; ``extra_mavlink`` adds keys to it
+    (indented by four spaces). The CAN side defaults to one aa55 bus on the emulator.
+    """
+    head = f"mavlink:\n  url: udpin:127.0.0.1:{port}\n{extra_mavlink}"
+    return load_config_text(head + body, "<e2e>")
+
+
+@dataclass
+class Recorder(SchedulerObserver):
+    """Scheduler observer: setpoints accepted and frames written, per servo, in order."""
+
+    setpoints: dict[str, list[tuple[float, str]]] = field(default_factory=dict)
+    tx: dict[str, list[tuple[str, int, bytes]]] = field(default_factory=dict)
+    rx_count: dict[str, int] = field(default_factory=dict)
+    lost: dict[str, int] = field(default_factory=dict)
+    _lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def on_setpoint(self, servo: str, seq: int, angle_deg: float, source: str, t: float) -> None:
+        with self._lock:
+            self.setpoints.setdefault(servo, []).append((angle_deg, source))
+
+    def on_tx(self, bus: str, msg: Any, t: float, kind: str, servo: str, seq: int | None) -> None:
+        with self._lock:
+            self.tx.setdefault(servo, []).append((kind, msg.arbitration_id, bytes(msg.data)))
+
+    def on_rx(self, bus: str, msg: Any, t: float, servo: str, state: Any) -> None:
+        with self._lock:
+            self.rx_count[servo] = self.rx_count.get(servo, 0) + 1
+
+    def on_lost(self, bus: str, servo: str, t: float) -> None:
+        with self._lock:
+            self.lost[servo] = self.lost.get(servo, 0) + 1
+
+    def angles(self, servo: str) -> list[float]:
+        with self._lock:
+            return [a for a, _ in self.setpoints.get(servo, [])]
+
+    def frames(self, servo: str) -> list[tuple[str, int, bytes]]:
+        with self._lock:
+            return list(self.tx.get(servo, []))
+
+
+class ServoSpy:
+    """Wraps one simulated servo's ``receive`` and ``command_position`` to record what it got.
+
+    ``frames``: (arbitration id, data) of every frame the servo's device accepted;
+    ``targets``: every angle it was commanded to. Instance attributes shadow the methods, so the
+    servo behaves exactly as before.
+    """
+
+    def __init__(self, servo: SimServo) -> None:
+        self.servo = servo
+        self.frames: list[tuple[int, bytes, int]] = []
+        self.targets: list[float] = []
+        self.malformed: list[Any] = []
+        receive, command = servo.receive, servo.command_position
+        device = servo._device  # noqa: SLF001 - the spy needs the device's own accept test
+
+        def spy_receive(msg: Any, now: float) -> Any:
+            if not msg.is_remote_frame and device.accepts(msg):
+                if len(msg.data) > 8 or msg.dlc != len(msg.data) or (
+                    not msg.is_extended_id and msg.arbitration_id > 0x7FF
+                ):
+                    self.malformed.append(msg)
+                self.frames.append((msg.arbitration_id, bytes(msg.data), len(msg.data)))
+            return receive(msg, now)
+
+        def spy_command(angle_deg: float, *args: Any, **kwargs: Any) -> None:
+            self.targets.append(angle_deg)
+            command(angle_deg, *args, **kwargs)
+
+        servo.receive = spy_receive  # type: ignore[method-assign]
+        servo.command_position = spy_command  # type: ignore[method-assign]
+
+
+def sim_servo(bridge: Bridge, name: str) -> SimServo:
+    """The simulated device behind servo ``name`` (matched by bus, profile and CAN id)."""
+    cfg = bridge.config.servo(name)
+    bus = bridge.config.bus_of(cfg).name
+    for servo in bridge.emulators[bus].servos:
+        if servo.profile == cfg.profile and servo.can_id == cfg.can_id:
+            return servo
+    raise KeyError(name)
+
+
+class Peer:
+    """A MAVLink peer of the bridge on UDP: sends as any (system, component), collects replies.
+
+    One socket for every identity, because the bridge's ``udpin`` answers the last sender's
+    address. The receive thread runs until :meth:`close` (each wait is bounded).
+    """
+
+    def __init__(self, port: int, system: int = 255, component: int = 190) -> None:
+        self.conn = open_link(f"udpout:127.0.0.1:{port}", system, component)
+        self.received: list[Any] = []
+        self._lock = threading.Lock()
+        self._send_lock = threading.Lock()
+        self._stop = threading.Event()
+        self._heartbeat: threading.Thread | None = None
+        self._heartbeat_stop = threading.Event()
+        self._reader = threading.Thread(target=self._read, name="e2e-peer", daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        while not self._stop.is_set():
+            try:
+                msg = self.conn.recv_match(blocking=True, timeout=0.05)
+            except OSError:  # no one listening yet: ICMP refusals on an unconnected port
+                self._stop.wait(0.05)
+                continue
+            if msg is not None and msg.get_type() != "BAD_DATA":
+                with self._lock:
+                    self.received.append(msg)
+
+    def send(self, msg: Any, system: int = 255, component: int = 190) -> None:
+        with self._send_lock:
+            mav = self.conn.mav
+            mav.srcSystem, mav.srcComponent = system, component
+            with contextlib.suppress(OSError):
+                self.conn.write(msg.pack(mav))
+
+    def autopilot_heartbeat(self) -> None:
+        self.send(mavlink2.MAVLink_heartbeat_message(1, 3, 81, 0, 3, 3), 1, 1)
+
+    def start_heartbeats(self, period_s: float = 0.2) -> None:
+        """Act as the autopilot (1/1): HEARTBEAT every ``period_s`` until stopped."""
+        self._heartbeat_stop.clear()
+
+        def beat() -> None:
+            while not self._heartbeat_stop.is_set() and not self._stop.is_set():
+                self.autopilot_heartbeat()
+                self._heartbeat_stop.wait(period_s)
+
+        self._heartbeat = threading.Thread(target=beat, name="e2e-heartbeat", daemon=True)
+        self._heartbeat.start()
+
+    def stop_heartbeats(self) -> None:
+        self._heartbeat_stop.set()
+        if self._heartbeat is not None:
+            self._heartbeat.join(2.0)
+            self._heartbeat = None
+
+    def messages(self, kind: str | None = None) -> list[Any]:
+        with self._lock:
+            return [m for m in self.received if kind is None or m.get_type() == kind]
+
+    def count(self) -> int:
+        with self._lock:
+            return len(self.received)
+
+    def since(self, start: int, kind: str | None = None) -> list[Any]:
+        with self._lock:
+            return [m for m in self.received[start:] if kind is None or m.get_type() == kind]
+
+    def statustexts(self, start: int = 0) -> list[str]:
+        return [m.text for m in self.since(start, "STATUSTEXT")]
+
+    def command(
+        self,
+        command: int,
+        params: Sequence[float],
+        *,
+        target: tuple[int, int] = (1, 140),
+        timeout: float = 3.0,
+        retry_s: float = 0.5,
+    ) -> int | None:
+        """COMMAND_LONG as a GCS would send it, retried until ACKed; the ACK result or None."""
+        padded = list(params) + [0.0] * (7 - len(params))
+        msg = mavlink2.MAVLink_command_long_message(target[0], target[1], command, 0, *padded)
+        deadline = time.monotonic() + timeout
+        start = self.count()
+        while time.monotonic() < deadline:
+            self.send(msg)
+            ack = None
+
+            def got_ack(start: int = start) -> bool:
+                nonlocal ack
+                for m in self.since(start, "COMMAND_ACK"):
+                    if m.command == command and m.get_srcComponent() == target[1]:
+                        ack = m
+                        return True
+                return False
+
+            if wait_until(got_ack, min(retry_s, max(0.0, deadline - time.monotonic()))):
+                return int(ack.result)
+        return None
+
+    def close(self) -> None:
+        self.stop_heartbeats()
+        self._stop.set()
+        self._reader.join(2.0)
+        self.conn.close()
+
+
+@contextlib.contextmanager
+def running(
+    body: str, *, extra_mavlink: str = "", observers: Sequence[Any] = ()
+) -> Iterator[tuple[Bridge, int]]:
+    """A started bridge for ``body`` on a fresh UDP port; stopped (and summarised) on exit."""
+    port = free_udp_port()
+    config = bridge_config(body, port, extra_mavlink=extra_mavlink)
+    bridge = Bridge(config, log_dir=False, observers=observers).start()
+    try:
+        yield bridge, port
+    finally:
+        bridge.stop()
+
+
+def named_values(messages: Sequence[Any], name: str) -> list[float]:
+    """Values of NAMED_VALUE_FLOAT ``name`` in arrival order."""
+    return [m.value for m in messages if m.get_type() == "NAMED_VALUE_FLOAT" and m.name == name]
+
+
+def pwm_to_angle(pwm: float, low_us: float, high_us: float, out: tuple[float, float]) -> float:
+    """Linear map of a PWM range onto an angle range (trim in the middle), computed here, not
+    with the project's mapping, so the tests check it."""
+    fraction = (pwm - low_us) / (high_us - low_us)
+    return out[0] + fraction * (out[1] - out[0])
+
+
+__all__ = [
+    "MAV_CMD_DO_SET_ACTUATOR",
+    "MAV_CMD_DO_SET_SERVO",
+    "MAV_RESULT_ACCEPTED",
+    "MAV_RESULT_TEMPORARILY_REJECTED",
+    "Peer",
+    "Recorder",
+    "ServoSpy",
+    "bridge_config",
+    "named_values",
+    "pwm_to_angle",
+    "running",
+    "sim_servo",
+    "wait_until",
+]
