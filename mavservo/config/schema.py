@@ -179,6 +179,8 @@ class MavlinkConfig(StrictModel):
     command_hold_s: float = Field(2.0, ge=0)
     mirror: MirrorConfig = MirrorConfig()
     telemetry: TelemetryRates = TelemetryRates()
+    #: Output-only endpoints that get a copy of everything the bridge sends (mavservo monitor).
+    monitor_outputs: list[str] = []
 
     @field_validator("url")
     @classmethod

@@ -82,7 +82,7 @@ class ActuatorBackend(Protocol):
         """Drive the servo mapped to servo output ``channel`` to the angle ``pwm_us`` maps to."""
 
     def apply_actuator(self, index: int, value: float, source: str, now: float) -> ApplyResult:
-        """Drive the servo mapped to actuator ``index`` to the angle normalized ``value`` maps to."""
+        """Drive the servo mapped to actuator ``index`` to the angle normalized ``value`` gives."""
 
     def apply_gimbal(
         self,

@@ -22,7 +22,7 @@ import logging
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from pymavlink import mavutil
@@ -64,9 +64,12 @@ class MavlinkLink:
         signing: SigningSettings | None = None,
         on_event: Callable[[str], None] | None = None,
         clock: Callable[[], float] = time.monotonic,
+        monitor_outputs: Sequence[str] = (),
     ) -> None:
         self.url = url
         self.baud = baud
+        self._monitor_urls = tuple(monitor_outputs)
+        self._monitors: list[Any] = []
         #: ``tap(direction, raw_frame, t)`` sees every frame in ("in") and out ("out"), for the
         #: run log's .tlog; it runs on the I/O threads and must not block.
         self.tap: Callable[[str, bytes, float], None] | None = None
@@ -113,6 +116,11 @@ class MavlinkLink:
     def start(self) -> None:
         if self._conn is None:
             self.open()
+        for url in self._monitor_urls:  # output-only copies; a failure there is not fatal
+            try:
+                self._monitors.append(mavutil.mavlink_connection(url, dialect="ardupilotmega"))
+            except Exception as exc:  # noqa: BLE001 - any pymavlink open failure
+                log.warning("monitor output %s unavailable: %s", url, exc)
         self._stop.clear()
         self._thread = threading.Thread(target=self._receive_loop, name="mavlink-rx",
                                         daemon=True)
@@ -148,6 +156,9 @@ class MavlinkLink:
             return
         if self.tap is not None:
             self.tap("out", bytes(buf), self._clock())
+        for monitor in self._monitors:
+            with contextlib.suppress(OSError):
+                monitor.write(buf)
         try:
             conn.write(buf)
         except OSError as exc:

@@ -82,6 +82,8 @@ class MavlinkSettings:
     servo_component_id: int = DEFAULT_SERVO_COMPONENT
     channel_trims_us: Mapping[int, float] = field(default_factory=dict)
     retry_window_s: float = 2.0
+    #: Extra endpoints that get a copy of every frame the bridge sends (``mavservo monitor``).
+    monitor_outputs: tuple[str, ...] = ()
 
     @classmethod
     def from_mapping(
@@ -113,6 +115,7 @@ class MavlinkSettings:
             actuator_output_status_units=mirror.get("actuator_output_status_units", "pwm"),
             servo_output_port_width=int(raw.get("servo_output_port_width", 16)),
             telemetry=TelemetryRates(**{k: float(v) for k, v in telemetry.items()}),
+            monitor_outputs=tuple(str(u) for u in raw.get("monitor_outputs") or ()),
             servo_component_id=int(raw.get("servo_component_id", DEFAULT_SERVO_COMPONENT)),
             channel_trims_us=dict(channel_trims_us or {}),
         )
