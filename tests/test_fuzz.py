@@ -5,8 +5,8 @@ are the short, always-run versions of the same properties:
 
 * AA-55 ``Decoder``: any bytes, any chunking -> no exception, at most one pending candidate
   (< 20 bytes) between calls, bounded rejection log;
-* fixed (checksummed) protocol under line corruption (bit flips, dropped bytes, garbage bursts,
-  the simulator's own :class:`LineCorrupter`): every frame out was on the wire;
+* fixed (checksummed) protocol: any single corrupted byte per frame is caught (every frame out
+  was on the wire); its byte-sum checksum cannot catch every multi-byte error, see below;
 * variable protocol under the same corruption: every frame out is structurally valid (re-encodes
   to exactly the bytes it was decoded from, DLC <= 8, ID in range), whatever was flipped;
 * every servo profile's ``decode`` and every simulated servo device's ``receive``: any CAN frame
@@ -74,14 +74,34 @@ def test_any_bytes_any_chunking_never_raise_and_stay_bounded(
     decode_all(protocol, chunked(junk, cuts))
 
 
+def _no_false_start(frame: Frame) -> bool:
+    body = encode(frame, "fixed")[2:]
+    return aa55.START not in body and aa55.END not in body
+
+
+frames_without_false_starts = frames().filter(_no_false_start)
+
+
 @settings(suppress_health_check=[HealthCheck.too_slow], max_examples=150)
-@given(st.lists(frames(), min_size=1, max_size=40), line_faults, st.integers(0, 2**32),
-       st.lists(st.integers(0, 2000), max_size=10))
-def test_fixed_protocol_under_line_corruption_emits_only_frames_that_were_sent(
-    sent: list[Frame], faults: LineFaults, seed: int, cuts: list[int]
+@given(st.lists(frames_without_false_starts, min_size=1, max_size=40), st.data())
+def test_fixed_protocol_catches_every_single_byte_error_per_frame(
+    sent: list[Frame], data: st.DataObject
 ) -> None:
-    wire = LineCorrupter(faults, seed).corrupt(b"".join(encode(f, "fixed") for f in sent))
-    out, _ = decode_all("fixed", chunked(wire, cuts))
+    """The fixed protocol's checksum is a byte sum: any ONE changed byte in a frame changes it.
+
+    Two compensating errors in one frame (+1 here, -1 there) or a false 0xAA 0x55 start inside a
+    corrupted frame can pass it (1 in 256 when it happens; bench/fuzz_aa55.py found the first
+    within seconds, docs/reliability.md has the measured rates), so this pins the guarantee that
+    does hold: one corrupted byte per frame, no 0xAA / 0x55 inside the frames (so no false start can
+    form), nothing invented.
+    """
+    wire = bytearray()
+    for frame in sent:
+        raw = bytearray(encode(frame, "fixed"))
+        if data.draw(st.booleans()):
+            raw[data.draw(st.integers(0, 19))] ^= data.draw(st.integers(1, 255))
+        wire += raw
+    out, _ = decode_all("fixed", [bytes(wire)])
     got = [item for item in out if isinstance(item, Frame)]
     assert set(got) <= set(sent)
 
