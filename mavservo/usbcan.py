@@ -199,7 +199,10 @@ class AA55Bus(can.BusABC):
                 now = time.monotonic()
                 idle = now - self._last_byte_time
                 if self.decoder.pending and idle >= IDLE_FLUSH_S:
-                    self._absorb(self.decoder.flush())
+                    # The rest of the candidate may be waiting in the port (the caller was
+                    # slow to come back): read it before declaring the line idle.
+                    if not self._read_available(0):
+                        self._absorb(self.decoder.flush())
                     continue
                 if deadline is not None and now >= deadline:
                     if self._read_available(0):

@@ -86,11 +86,7 @@ def test_pty_run_delivers_every_frame(bench: ModuleType, kind: str) -> None:
     frames = bench.throughput_frames(2000, seed=2)
     result = bench.run_pty(kind, bench.encode_stream(frames), len(frames), keep_keys=True)
     sent = [f.key() for f in frames]
-    # Known aa55 issue (docs/benchmarks.md): a partial frame pending when recv() comes > 5 ms
-    # after the previous read is flushed before the waiting bytes are read, so a descheduled
-    # reader can lose one frame. Tolerate that here (in order, nothing invented) to stay unflaky.
-    allowed = 1 if kind == "aa55" else 0
-    assert len(sent) - len(result.keys) <= allowed
+    assert result.keys == sent  # every frame, in order, nothing invented
     it = iter(sent)
     assert all(any(k == s for s in it) for k in result.keys)
     assert result.init_bytes == 20  # the settings / init frame was drained from the master

@@ -163,3 +163,17 @@ def test_send_of_impossible_frame_is_a_clear_error(adapter: AdapterEnd) -> None:
         bad = can.Message(arbitration_id=0x800, is_extended_id=False, check=False)
         with pytest.raises(can.CanOperationError, match="out of range"):
             bus.send(bad)
+
+
+def test_half_frame_completed_while_the_caller_was_away_is_not_lost(adapter: AdapterEnd) -> None:
+    """A slow caller must not turn a frame split across reads into a 'truncated' rejection."""
+    frame = aa55.encode(Frame(0x141, False, False, 8, bytes(range(8))))
+    with can.Bus(interface="aa55", channel=adapter.path) as bus:
+        adapter.read(20)
+        adapter.write(frame[:6])
+        assert bus.recv(0.001) is None  # reads the first half
+        adapter.write(frame[6:])
+        time.sleep(0.02)  # longer than the idle flush: the rest is already in the port
+        msg = bus.recv(1.0)
+        assert msg is not None and msg.arbitration_id == 0x141
+        assert bus.stats()["rejected"] == {}
