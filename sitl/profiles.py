@@ -173,6 +173,7 @@ PROFILES: dict[str, Callable[..., Profile]] = {
     "hold": HoldProfile,
     "sweep": SweepProfile,
     "staircase": StaircaseProfile,
+    "steps": StaircaseProfile,  # the name mavservo/config.py uses for the same experiment
     "random-walk": RandomWalkProfile,
 }
 

@@ -1,0 +1,136 @@
+"""``python -m sitl stream|replay``: the simulator and the tlog replayer from a shell.
+
+``main(argv) -> int`` is also what ``mavservo sitl ...`` calls. Ctrl-C ends either command cleanly
+with exit status 0 after printing what was sent and received.
+"""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+
+import yaml
+
+from sitl.profiles import PROFILES, RandomWalkProfile, get_profile
+from sitl.replay import BRIDGE_TYPES, TlogError, replay
+from sitl.script import parse_script
+from sitl.stream import AutopilotStream, gimbal_demo_script
+
+
+def _target(text: str) -> tuple[int, int]:
+    try:
+        system, component = (int(part) for part in text.split("/"))
+    except ValueError:
+        raise argparse.ArgumentTypeError("expected SYSTEM/COMPONENT, e.g. 1/0") from None
+    return system, component
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="sitl", description=__doc__.splitlines()[0])
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    s = sub.add_parser("stream", help="run the simulated ArduPilot autopilot stream")
+    s.add_argument("--url", default="udpout:127.0.0.1:14551",
+                   help="pymavlink connection string (default: %(default)s)")
+    s.add_argument("--profile", default="sweep", choices=sorted(PROFILES))
+    s.add_argument("--seed", type=int, default=0, help="random-walk seed")
+    s.add_argument("--duration", type=float, default=None, help="seconds (default: until Ctrl-C)")
+    s.add_argument("--servo-rate", type=float, default=20.0, help="SERVO_OUTPUT_RAW Hz")
+    s.add_argument("--gimbal", action="store_true",
+                   help="act as a gimbal manager (MNT1_TYPE 6) with a demo target sequence")
+    s.add_argument("--script", type=Path, help="YAML list of events (see sitl/script.py)")
+    s.add_argument("--command-target", type=_target, default=(1, 0),
+                   help="SYSTEM/COMPONENT the mission commands go to (default: 1/0)")
+    s.add_argument("--repeat-cycle-ms", action="store_true",
+                   help="send DO_REPEAT_SERVO param4 in ms (ArduPilot) instead of s (spec)")
+
+    r = sub.add_parser("replay", help="replay a .tlog into a MAVLink link")
+    r.add_argument("file", type=Path)
+    r.add_argument("--url", default="udpout:127.0.0.1:14551")
+    r.add_argument("--speed", type=float, default=1.0, help="time factor (4 = 4x faster)")
+    r.add_argument("--as-fast", action="store_true", help="ignore timestamps, send at once")
+    r.add_argument("--types", default=None,
+                   help="comma-separated message types, or 'all' "
+                        f"(default: {','.join(sorted(BRIDGE_TYPES))})")
+    r.add_argument("--start", type=float, default=0.0, help="skip the first seconds of the file")
+    r.add_argument("--end", type=float, default=None, help="stop at this file time")
+    r.add_argument("--max-duration", type=float, default=None, help="wall-clock bound, seconds")
+    return parser
+
+
+def _run_stream(args: argparse.Namespace) -> int:
+    profile = (RandomWalkProfile(seed=args.seed) if args.profile == "random-walk"
+               else get_profile(args.profile))
+    events = []
+    if args.script is not None:
+        events += parse_script(yaml.safe_load(args.script.read_text()) or []).events
+    if args.gimbal:
+        events += gimbal_demo_script()
+    stream = AutopilotStream(
+        args.url, profile, events, servo_output_rate_hz=args.servo_rate, gimbal=args.gimbal,
+        command_target=args.command_target, duration_s=args.duration,
+        repeat_servo_cycle="milliseconds" if args.repeat_cycle_ms else "seconds",
+    )
+    stream.start()
+    print(f"sitl: streaming profile {profile.name!r} to {args.url} (Ctrl-C to stop)")
+    try:
+        while not stream.wait(0.2):
+            pass
+    except KeyboardInterrupt:
+        pass
+    finally:
+        stream.stop()
+    print(f"sitl: sent {dict(stream.sent)}")
+    print(f"sitl: received {stream.received.counts()}")
+    for record in stream.commands.commands:
+        print(f"sitl: command {record.command} {record.params[:3]} attempts={record.attempts} "
+              f"result={record.result}")
+    return 1 if stream.error else 0
+
+
+def _run_replay(args: argparse.Namespace) -> int:
+    if args.types is None:
+        types = BRIDGE_TYPES
+    elif args.types == "all":
+        types = None
+    else:
+        types = frozenset(t.strip().upper() for t in args.types.split(",") if t.strip())
+    started = time.monotonic()
+    try:
+        result = replay(args.file, args.url, speed=args.speed, as_fast=args.as_fast, types=types,
+                        start_s=args.start, end_s=args.end, max_duration_s=args.max_duration)
+    except KeyboardInterrupt:
+        print(f"sitl: replay interrupted after {time.monotonic() - started:.1f} s")
+        return 0
+    except (OSError, TlogError) as exc:
+        print(f"sitl: {exc}", file=sys.stderr)
+        return 2
+    print(f"sitl: replayed {result.sent} messages in {result.duration_s:.2f} s: {result.per_type}")
+    return 0
+
+
+def _interrupt(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
+def _stop_on_signals() -> None:
+    """SIGINT and SIGTERM both end a run cleanly (exit 0), even where the shell ignored SIGINT."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, _interrupt)
+        signal.signal(signal.SIGTERM, _interrupt)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    _stop_on_signals()
+    if args.command == "stream":
+        return _run_stream(args)
+    return _run_replay(args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
