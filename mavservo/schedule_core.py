@@ -570,9 +570,10 @@ class ScheduleCore:
             latency = t - expectation.t_tx if expectation.kind != "request" else None
             return ReplyMatch(expectation.kind, expectation.t_tx, latency, back_online)
         if slot.poll_period is not None or int(
-            getattr(slot.spec.profile, "replies_per_command", 1)
+            getattr(slot.spec.profile, "replies_per_request", 1)
         ):
-            # this servo only speaks when asked: an unmatched reply came after its timeout
+            # this servo only speaks when asked: an unmatched reply came after its timeout.
+            # (A push-style servo, no requests, also pushes between commands: not late.)
             return ReplyMatch("late", None, None, back_online)
         if slot.awaiting_first_reply_since is not None:
             since = slot.awaiting_first_reply_since
