@@ -122,7 +122,19 @@ def test_variable_protocol_emits_only_structurally_valid_frames_present_on_the_w
         assert item.arbitration_id <= (aa55.MAX_EXT_ID if item.is_extended_id
                                        else aa55.MAX_STD_ID)
         assert len(item.data) == (0 if item.is_remote_frame else item.dlc)
-        assert encode(item, "variable") in wire
+        assert encode(item, "variable") in wire or item in fixed_frames_in(wire)
+
+
+def fixed_frames_in(data: bytes) -> set[Frame]:
+    """Frames of every checksum-valid 20-byte window in ``data`` (the variable decoder takes
+    those too, so corruption can, rarely, forge one)."""
+    out = set()
+    start = data.find(b"\xaa\x55")
+    while start >= 0:
+        window = data[start:start + aa55.FIXED_LENGTH]
+        out.update(i for i in Decoder("fixed").feed(window) if isinstance(i, Frame))
+        start = data.find(b"\xaa\x55", start + 1)
+    return out
 
 
 @given(st.lists(frames(), max_size=30))
