@@ -47,7 +47,7 @@ def stop_hogs(hogs: list[subprocess.Popen]) -> None:
         hog.wait(5)
 
 
-def serve_simulator(n_servos: int, bitrate: int) -> None:
+def serve_simulator(n_servos: int, bitrate: int, realtime: bool) -> None:
     """Child-process mode: run the adapter emulator, print its port, live until stdin closes.
 
     Real servos are not inside the bridge's process; keeping the simulator out of it keeps its
@@ -55,6 +55,8 @@ def serve_simulator(n_servos: int, bitrate: int) -> None:
     """
     from mavservo.sim.adapter import AdapterEmulator
 
+    if realtime:  # hardware does not share our CPU: keep the hog from starving the servos
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(30))
     sims = [SimServo("rmd-x", i) for i in range(1, n_servos + 1)]
     emulator = AdapterEmulator(sims, bitrate=bitrate).start()
     print(emulator.path, flush=True)
@@ -63,10 +65,10 @@ def serve_simulator(n_servos: int, bitrate: int) -> None:
 
 
 class _ChildSimulator:
-    def __init__(self, n_servos: int, bitrate: int) -> None:
+    def __init__(self, n_servos: int, bitrate: int, realtime: bool) -> None:
         self.process = subprocess.Popen(
             [sys.executable, __file__, "--serve-sim", str(n_servos),
-             "--bitrate", str(bitrate)],
+             "--bitrate", str(bitrate), *(["--realtime"] if realtime else [])],
             stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
             env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)},
         )
@@ -82,7 +84,9 @@ class _ChildSimulator:
 class Transport:
     """Opens the host-side bus and the simulated servos behind it."""
 
-    def __init__(self, kind: str, n_servos: int, bitrate: int, in_process: bool) -> None:
+    def __init__(
+        self, kind: str, n_servos: int, bitrate: int, in_process: bool, realtime: bool
+    ) -> None:
         self.kind = kind
         self.sims = [SimServo("rmd-x", i) for i in range(1, n_servos + 1)]
         if kind == "pty":
@@ -92,7 +96,7 @@ class Transport:
             if in_process:
                 self.device = AdapterEmulator(self.sims, bitrate=bitrate).start()
             else:
-                self.device = _ChildSimulator(n_servos, bitrate)
+                self.device = _ChildSimulator(n_servos, bitrate, realtime)
             self.bus: can.BusABC = AA55Bus(self.device.path, bitrate=bitrate)
         else:
             from mavservo.sim.virtual import VirtualServoBus
@@ -115,9 +119,20 @@ def run_once(args: argparse.Namespace, n_servos: int, seconds: float) -> dict[st
         realtime=args.realtime,
         spin_s=args.spin,
     )
-    transport = Transport(args.transport, n_servos, args.bitrate, args.sim_in_process)
+    transport = Transport(
+        args.transport, n_servos, args.bitrate, args.sim_in_process, args.realtime
+    )
     specs = [ServoSpec(f"s{i}", RmdX(i)) for i in range(1, n_servos + 1)]
     scheduler = Scheduler(transport.bus, specs, timing, name=args.transport)
+    if args.realtime:
+        # The setpoint driver shares the interpreter lock with the scheduler: left at normal
+        # priority, a hog can preempt it while it holds the GIL and stall the command loop
+        # (priority inversion), so with --realtime the whole process runs SCHED_FIFO, as
+        # `chrt -f` would do for the bridge.
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(40))
+        except OSError as exc:
+            print(f"driver thread stays at normal priority: {exc!r}", file=sys.stderr)
     cpu_before = time.process_time()
     try:
         scheduler.start()
@@ -229,7 +244,7 @@ def main() -> None:
     parser.add_argument("--serve-sim", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.serve_sim:
-        serve_simulator(args.serve_sim, args.bitrate)
+        serve_simulator(args.serve_sim, args.bitrate, args.realtime)
         return
 
     counts = [8, 32] if args.cpu_only else [args.servos]

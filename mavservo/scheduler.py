@@ -289,15 +289,22 @@ class Scheduler:
             except Exception:
                 log.exception("scheduler subscriber failed for %s", servo)
 
-    def _apply_realtime(self) -> None:
+    def _apply_realtime(self, priority: int, role: str) -> None:
+        """SCHED_FIFO for the calling thread, if asked; a refusal is reported, never raised.
+
+        Both threads get it (the receive thread one step lower): a receive thread preempted by
+        ordinary load while it holds the scheduler's lock would otherwise stall the command
+        loop behind it (priority inversion).
+        """
         if not self.timing.realtime:
             return
         try:
-            param = os.sched_param(self.timing.realtime_priority)
-            os.sched_setscheduler(0, os.SCHED_FIFO, param)  # 0: the calling thread on Linux
-            self.realtime_status = f"SCHED_FIFO priority {self.timing.realtime_priority}"
+            # pid 0 is the calling thread on Linux
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+            if role == "runner":
+                self.realtime_status = f"SCHED_FIFO priority {priority}"
         except (AttributeError, OSError) as exc:
-            self.realtime_status = f"refused: {exc!r}"
+            self.realtime_status = f"refused ({role}): {exc!r}"
             log.warning("scheduler %s: real-time priority refused: %r", self.name, exc)
 
     def _wait_until(self, deadline: float) -> None:
@@ -320,7 +327,7 @@ class Scheduler:
             return
 
     def _run(self) -> None:
-        self._apply_realtime()
+        self._apply_realtime(self.timing.realtime_priority, "runner")
         while not self._stop.is_set():
             decision = self._step()
             self._send_all(decision)
@@ -390,6 +397,7 @@ class Scheduler:
         self._metrics.load.add(t, message_bits(out.msg))
 
     def _receive(self) -> None:
+        self._apply_realtime(max(1, self.timing.realtime_priority - 1), "receiver")
         while not self._stop.is_set():
             try:
                 msg = self._bus.recv(timeout=_RECV_TIMEOUT_S)
