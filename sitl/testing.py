@@ -1,0 +1,43 @@
+"""Helpers for tests that talk to the simulator: free UDP ports and bounded receive loops."""
+
+from __future__ import annotations
+
+import socket
+import time
+from collections.abc import Callable
+from typing import Any
+
+from sitl.link import open_link
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def peer(port: int, component: int = 191) -> Any:
+    """A companion-side pymavlink endpoint listening on 127.0.0.1:``port`` (MAVLink 2)."""
+    return open_link(f"udpin:127.0.0.1:{port}", 1, component)
+
+
+def collect(conn: Any, seconds: float, until: Callable[[Any], bool] | None = None,
+            limit: int = 20_000, on_message: Callable[[Any], None] | None = None
+            ) -> list[tuple[float, Any]]:
+    """(t_monotonic, msg) received within ``seconds`` (at most ``limit``), or until ``until``."""
+    out: list[tuple[float, Any]] = []
+    end = time.monotonic() + seconds
+    while time.monotonic() < end and len(out) < limit:
+        msg = conn.recv_match(blocking=True, timeout=0.05)
+        if msg is None or msg.get_type() == "BAD_DATA":
+            continue
+        out.append((time.monotonic(), msg))
+        if on_message is not None:
+            on_message(msg)
+        if until is not None and until(msg):
+            break
+    return out
+
+
+def of_type(messages: list[tuple[float, Any]], name: str) -> list[Any]:
+    return [m for _, m in messages if m.get_type() == name]
