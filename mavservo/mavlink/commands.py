@@ -192,7 +192,11 @@ class CommandHandler:
         else:
             log.info("command %d from %s accepted by component %d", cmd.command, cmd.source,
                      component)
-        self._recent[key] = _Recent(result.outcome, now, component if ack else None)
+        if result.outcome is Outcome.TEMPORARILY_REJECTED:
+            # "try again later" must be tried again: a retry of it is a fresh attempt
+            self._recent.pop(key, None)
+        else:
+            self._recent[key] = _Recent(result.outcome, now, component if ack else None)
         if not ack:
             return []
         out: list[Outgoing] = [(component, self._ack(cmd, result.outcome))]
