@@ -76,7 +76,7 @@ def _run_stream(args: argparse.Namespace) -> int:
         repeat_servo_cycle="milliseconds" if args.repeat_cycle_ms else "seconds",
     )
     stream.start()
-    print(f"sitl: streaming profile {profile.name!r} to {args.url} (Ctrl-C to stop)")
+    print(f"sitl: streaming profile {profile.name!r} to {args.url} (Ctrl-C to stop)", flush=True)
     try:
         while not stream.wait(0.2):
             pass
@@ -100,6 +100,8 @@ def _run_replay(args: argparse.Namespace) -> int:
     else:
         types = frozenset(t.strip().upper() for t in args.types.split(",") if t.strip())
     started = time.monotonic()
+    pace = "as fast as possible" if args.as_fast else f"at {args.speed:g}x"
+    print(f"sitl: replaying {args.file} to {args.url} {pace} (Ctrl-C to stop)", flush=True)
     try:
         result = replay(args.file, args.url, speed=args.speed, as_fast=args.as_fast, types=types,
                         start_s=args.start, end_s=args.end, max_duration_s=args.max_duration)

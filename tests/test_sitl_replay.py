@@ -1,0 +1,226 @@
+"""tlog reading and replay, against the real ArduPlane SITL recordings in tests/data."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+from collections import Counter
+from functools import cache
+from pathlib import Path
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from sitl.cli import main
+from sitl.replay import BRIDGE_TYPES, TlogError, iter_tlog, iter_tlog_records, replay
+from sitl.testing import collect, free_udp_port, of_type, peer
+
+DATA = Path(__file__).parent / "data"
+SERVOS = DATA / "plane-servos.tlog"
+GIMBAL = DATA / "plane-gimbal.tlog"
+REPO = Path(__file__).resolve().parent.parent
+CHANNELS = [f"servo{i}_raw" for i in range(1, 17)]
+
+
+def _channels(msg) -> tuple[int, ...]:
+    return tuple(getattr(msg, name) for name in CHANNELS)
+
+
+def test_iter_tlog_reads_every_message_of_both_recordings() -> None:
+    servos = Counter(m.get_type() for _, m in iter_tlog(SERVOS, None))
+    gimbal = Counter(m.get_type() for _, m in iter_tlog(GIMBAL, None))
+    assert sum(servos.values()) == 4462 and servos["SERVO_OUTPUT_RAW"] == 1785
+    assert sum(gimbal.values()) == 7164 and gimbal["GIMBAL_DEVICE_SET_ATTITUDE"] == 2708
+    assert gimbal["AUTOPILOT_STATE_FOR_GIMBAL_DEVICE"] == 2548
+    times = [t for t, _ in iter_tlog(SERVOS, None)]
+    assert times[0] == 0.0 and times == sorted(times)
+    assert times[-1] == pytest.approx(89.96, abs=0.01)
+
+
+def test_iter_tlog_filters_types_and_keeps_original_bytes() -> None:
+    default = Counter(m.get_type() for _, m in iter_tlog(SERVOS))
+    assert set(default) <= BRIDGE_TYPES and default["SERVO_OUTPUT_RAW"] == 1785
+    records = [frame for _, frame in iter_tlog_records(SERVOS.read_bytes())]
+    sent = {bytes(m.get_msgbuf()) for _, m in iter_tlog(SERVOS, {"SERVO_OUTPUT_RAW"})}
+    assert len(sent) == 1785 and sent <= set(records)
+
+
+def _reference_servo_outputs(path: Path) -> list[list[int]]:
+    """SERVO_OUTPUT_RAW channels as pymavlink's own tlog reader sees them (a separate process,
+    because mavutil's tlog reader flips pymavlink's process-wide MAVLink 1/2 switch)."""
+    code = (
+        "import json, sys\n"
+        "from pymavlink import mavutil\n"
+        "log = mavutil.mavlink_connection(sys.argv[1], dialect='ardupilotmega')\n"
+        "out = []\n"
+        "while True:\n"
+        "    m = log.recv_match(type='SERVO_OUTPUT_RAW')\n"
+        "    if m is None: break\n"
+        f"    out.append([getattr(m, n) for n in {CHANNELS!r}])\n"
+        "print(json.dumps(out))\n"
+    )
+    env = {**os.environ, "MAVLINK20": "1"}
+    done = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True,
+                          timeout=60, env=env, check=True)
+    return json.loads(done.stdout)
+
+
+def test_iter_tlog_agrees_with_pymavlinks_own_reader() -> None:
+    ours = [list(_channels(m)) for _, m in iter_tlog(SERVOS, {"SERVO_OUTPUT_RAW"})]
+    assert ours == _reference_servo_outputs(SERVOS)
+
+
+def test_replay_delivers_every_servo_output_in_order_with_identical_values() -> None:
+    port = free_udp_port()
+    conn = peer(port)
+    expected = [(m.time_usec, _channels(m)) for _, m in iter_tlog(SERVOS, {"SERVO_OUTPUT_RAW"})]
+    results = {}
+    worker = threading.Thread(target=lambda: results.setdefault(
+        "r", replay(SERVOS, f"udpout:127.0.0.1:{port}", speed=40.0, max_duration_s=20.0)))
+    try:
+        worker.start()
+        messages = collect(conn, 20.0, until=lambda m: m.get_type() == "SERVO_OUTPUT_RAW"
+                           and m.time_usec == expected[-1][0])
+        worker.join(20.0)
+    finally:
+        conn.close()
+    outputs = of_type(messages, "SERVO_OUTPUT_RAW")
+    assert [(m.time_usec, _channels(m)) for m in outputs] == expected
+    assert {(m.get_srcSystem(), m.get_srcComponent()) for m in outputs} == {(1, 1)}
+    assert {m.get_type() for _, m in messages} <= BRIDGE_TYPES
+    result = results["r"]
+    assert result.per_type["SERVO_OUTPUT_RAW"] == 1785 and not result.stopped
+
+
+def test_replay_of_the_gimbal_session_delivers_every_set_attitude() -> None:
+    port = free_udp_port()
+    conn = peer(port, component=154)
+    wanted = {"GIMBAL_DEVICE_SET_ATTITUDE"}
+    expected = [bytes(m.get_msgbuf()) for _, m in iter_tlog(GIMBAL, wanted)]
+    worker = threading.Thread(target=replay, args=(GIMBAL, f"udpout:127.0.0.1:{port}"),
+                              kwargs={"speed": 40.0, "types": wanted, "max_duration_s": 20.0})
+    try:
+        worker.start()
+        messages = collect(conn, 20.0, limit=len(expected))
+        worker.join(20.0)
+    finally:
+        conn.close()
+    assert [bytes(m.get_msgbuf()) for _, m in messages] == expected
+
+
+class _FakeClock:
+    """Time that only moves when the replay sleeps: pacing becomes exact and instant."""
+
+    def __init__(self) -> None:
+        self.now = 100.0
+
+    def __call__(self) -> float:
+        return self.now
+
+    def sleep(self, seconds: float) -> None:
+        self.now += seconds
+
+
+class _Sink:
+    def __init__(self, clock: _FakeClock) -> None:
+        self.clock = clock
+        self.writes: list[tuple[float, bytes]] = []
+
+    def write(self, data: bytes) -> None:
+        self.writes.append((self.clock(), bytes(data)))
+
+
+@pytest.mark.parametrize("speed", [1.0, 4.0, 25.0])
+def test_replay_paces_messages_by_their_recorded_times_over_speed(speed: float) -> None:
+    clock = _FakeClock()
+    sink = _Sink(clock)
+    wanted = {"HEARTBEAT"}
+    result = replay(SERVOS, sink, speed=speed, types=wanted, start_s=10.0, end_s=40.0,
+                    clock=clock, sleep=clock.sleep)
+    recorded = [t for t, _ in iter_tlog(SERVOS, wanted) if 10.0 <= t <= 40.0]
+    assert result.sent == len(recorded) == len(sink.writes)
+    for (sent_at, _), t_rel in zip(sink.writes, recorded, strict=True):
+        assert sent_at - 100.0 == pytest.approx((t_rel - recorded[0]) / speed, abs=1e-6)
+
+
+def test_replay_is_bounded_by_max_duration_and_by_stop() -> None:
+    clock = _FakeClock()
+    sink = _Sink(clock)
+    result = replay(SERVOS, sink, speed=1.0, max_duration_s=5.0, clock=clock, sleep=clock.sleep)
+    assert result.stopped and 0 < result.sent < 1785
+    assert all(t - 100.0 <= 5.0 for t, _ in sink.writes)
+    stop = threading.Event()
+    stop.set()
+    stopped = replay(SERVOS, _Sink(clock), stop=stop, clock=clock, sleep=clock.sleep)
+    assert stopped.stopped and stopped.sent == 0
+
+
+def test_as_fast_sends_everything_without_sleeping() -> None:
+    clock = _FakeClock()
+    sink = _Sink(clock)
+    result = replay(SERVOS, sink, as_fast=True, clock=clock, sleep=clock.sleep)
+    assert clock.now == 100.0 and result.sent == sum(1 for _ in iter_tlog(SERVOS))
+
+
+@cache
+def _all_frames() -> list[bytes]:
+    return [bytes(m.get_msgbuf()) for _, m in iter_tlog(SERVOS, None)]
+
+
+@settings(max_examples=60, deadline=None)
+@given(cut=st.integers(min_value=1, max_value=4000), garbage=st.binary(max_size=30))
+def test_damaged_tlog_raises_tlog_error_or_yields_a_clean_prefix(cut: int, garbage: bytes,
+                                                                 tmp_path_factory) -> None:
+    data = SERVOS.read_bytes()[:4000]
+    path = tmp_path_factory.mktemp("tlog") / "damaged.tlog"
+    path.write_bytes(data[:cut] + garbage)
+    full = _all_frames()
+    got: list[bytes] = []
+    try:
+        for _, msg in iter_tlog(path, None):
+            got.append(bytes(msg.get_msgbuf()))
+    except TlogError:
+        pass
+    assert got == full[: len(got)] or got[:-1] == full[: len(got) - 1]
+
+
+def test_cli_replay_reports_a_bad_file_with_status_2(tmp_path, capsys) -> None:
+    bad = tmp_path / "bad.tlog"
+    bad.write_bytes(b"\x00" * 8 + b"\x42" * 20)
+    assert main(["replay", str(bad), "--url", "udpout:127.0.0.1:9", "--as-fast"]) == 2
+    assert "offset" in capsys.readouterr().err
+
+
+def test_cli_replay_as_fast_sends_the_selected_types(capsys) -> None:
+    port = free_udp_port()
+    assert main(["replay", str(SERVOS), "--url", f"udpout:127.0.0.1:{port}", "--as-fast",
+                 "--types", "heartbeat", "--end", "10"]) == 0
+    assert "'HEARTBEAT'" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("command", [
+    ["stream", "--profile", "staircase"],
+    ["replay", str(SERVOS)],
+])
+def test_cli_exits_zero_on_sigint(command: list[str]) -> None:
+    port = free_udp_port()
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    proc = subprocess.Popen([sys.executable, "-m", "sitl", *command, "--url",
+                             f"udpout:127.0.0.1:{port}"], cwd=REPO, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        banner = proc.stdout.readline()  # printed once the signal handlers are in place
+        assert banner.startswith("sitl: ")
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=15)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(5)
+    assert proc.returncode == 0, err
+    assert "Traceback" not in err
