@@ -78,10 +78,8 @@ def _run_stream(args: argparse.Namespace) -> int:
     stream.start()
     print(f"sitl: streaming profile {profile.name!r} to {args.url} (Ctrl-C to stop)", flush=True)
     try:
-        while not stream.wait(0.2):
+        while not stream.wait(0.2) and not _STOP.is_set():
             pass
-    except KeyboardInterrupt:
-        pass
     finally:
         stream.stop()
     print(f"sitl: sent {dict(stream.sent)}")
@@ -104,34 +102,46 @@ def _run_replay(args: argparse.Namespace) -> int:
     print(f"sitl: replaying {args.file} to {args.url} {pace} (Ctrl-C to stop)", flush=True)
     try:
         result = replay(args.file, args.url, speed=args.speed, as_fast=args.as_fast, types=types,
-                        start_s=args.start, end_s=args.end, max_duration_s=args.max_duration)
-    except KeyboardInterrupt:
-        print(f"sitl: replay interrupted after {time.monotonic() - started:.1f} s")
-        return 0
+                        start_s=args.start, end_s=args.end, max_duration_s=args.max_duration,
+                        stop=_STOP)
     except (OSError, TlogError) as exc:
         print(f"sitl: {exc}", file=sys.stderr)
         return 2
+    if _STOP.is_set():
+        print(f"sitl: replay interrupted after {time.monotonic() - started:.1f} s")
     print(f"sitl: replayed {result.sent} messages in {result.duration_s:.2f} s: {result.per_type}")
     return 0
 
 
-def _interrupt(signum: int, frame: object) -> None:
-    raise KeyboardInterrupt
+_STOP = threading.Event()
 
 
-def _stop_on_signals() -> None:
-    """SIGINT and SIGTERM both end a run cleanly (exit 0), even where the shell ignored SIGINT."""
+def _request_stop(signum: int, frame: object) -> None:
+    _STOP.set()
+
+
+def _stop_on_signals() -> dict[int, object]:
+    """SIGINT and SIGTERM both end a run cleanly (exit 0), even where the shell ignored SIGINT.
+
+    The handler only sets an event that the loops poll, so a signal can never land as an
+    exception in the middle of closing the link or printing the summary.
+    """
+    _STOP.clear()
+    previous: dict[int, object] = {}
     if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGINT, _interrupt)
-        signal.signal(signal.SIGTERM, _interrupt)
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            previous[signum] = signal.signal(signum, _request_stop)
+    return previous
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    _stop_on_signals()
-    if args.command == "stream":
-        return _run_stream(args)
-    return _run_replay(args)
+    previous = _stop_on_signals()
+    try:
+        return _run_stream(args) if args.command == "stream" else _run_replay(args)
+    finally:  # when called in-process (``mavservo sitl``, tests) give the caller its handlers back
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)  # type: ignore[arg-type]
 
 
 if __name__ == "__main__":

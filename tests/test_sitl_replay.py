@@ -198,9 +198,11 @@ def test_cli_replay_reports_a_bad_file_with_status_2(tmp_path, capsys) -> None:
 
 def test_cli_replay_as_fast_sends_the_selected_types(capsys) -> None:
     port = free_udp_port()
+    before = signal.getsignal(signal.SIGINT)
     assert main(["replay", str(SERVOS), "--url", f"udpout:127.0.0.1:{port}", "--as-fast",
                  "--types", "heartbeat", "--end", "10"]) == 0
     assert "'HEARTBEAT'" in capsys.readouterr().out
+    assert signal.getsignal(signal.SIGINT) is before  # the caller's handler is restored
 
 
 @pytest.mark.parametrize("command", [
