@@ -1,0 +1,84 @@
+#!/usr/bin/env bash
+# Run ArduPlane SITL with its SERIAL1 MAVLink 2 link sent to the mavservo bridge.
+#
+#   sitl/run-arduplane.sh [--gimbal] [--port 14551] [--host 127.0.0.1] [--speedup 1]
+#                         [--no-wipe] [--dry-run] [-- extra args for sim_vehicle.py/arduplane]
+#
+# Uses sim_vehicle.py if it is on PATH (MAVProxy on SERIAL0 as usual, for a GCS), otherwise the
+# arduplane binary (PATH, or $ARDUPILOT_HOME/build/sitl/bin/arduplane) with the autotest plane
+# defaults from $ARDUPILOT_HOME when present. Never downloads or builds anything: when ArduPilot
+# is not installed it says so and exits with status 3. --dry-run prints the command instead.
+# Then run the bridge with:  mavservo run --config config/ardupilot-sitl.yaml
+set -euo pipefail
+
+here="$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)"
+port=14551
+host=127.0.0.1
+speedup=1
+gimbal=0
+wipe=1
+dry_run=0
+extra=()
+
+while [[ $# -gt 0 ]]; do
+  case "$1" in
+    --gimbal) gimbal=1 ;;
+    --port) port="$2"; shift ;;
+    --host) host="$2"; shift ;;
+    --speedup) speedup="$2"; shift ;;
+    --no-wipe) wipe=0 ;;
+    --dry-run) dry_run=1 ;;
+    --) shift; extra=("$@"); break ;;
+    -h|--help) sed -n '2,12p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    *) echo "run-arduplane.sh: unknown option $1 (try --help)" >&2; exit 2 ;;
+  esac
+  shift
+done
+
+parms=("$here/arduplane-companion.parm")
+if [[ $gimbal -eq 1 ]]; then
+  parms+=("$here/arduplane-gimbal.parm")
+fi
+serial1="udpclient:${host}:${port}"
+
+binary=""
+if [[ -n "${ARDUPILOT_HOME:-}" && -x "${ARDUPILOT_HOME}/build/sitl/bin/arduplane" ]]; then
+  binary="${ARDUPILOT_HOME}/build/sitl/bin/arduplane"
+fi
+if command -v arduplane >/dev/null 2>&1; then
+  binary="$(command -v arduplane)"
+fi
+
+if command -v sim_vehicle.py >/dev/null 2>&1; then
+  cmd=(sim_vehicle.py -v ArduPlane --speedup "$speedup" -A "--serial1=${serial1}")
+  for p in "${parms[@]}"; do cmd+=("--add-param-file=${p}"); done
+  [[ $wipe -eq 1 ]] && cmd+=(-w)
+elif [[ -n "$binary" ]]; then
+  defaults=""
+  if [[ -n "${ARDUPILOT_HOME:-}" && -f "${ARDUPILOT_HOME}/Tools/autotest/default_params/plane.parm" ]]; then
+    defaults="${ARDUPILOT_HOME}/Tools/autotest/default_params/plane.parm,"
+  fi
+  defaults+="$(IFS=,; echo "${parms[*]}")"
+  cmd=("$binary" --model plane --speedup "$speedup" --defaults "$defaults"
+       --serial1 "$serial1" -I0)
+  [[ $wipe -eq 1 ]] && cmd+=(-w)
+else
+  cat >&2 <<MSG
+run-arduplane.sh: ArduPilot SITL is not installed (neither sim_vehicle.py nor arduplane on PATH,
+and no \$ARDUPILOT_HOME/build/sitl/bin/arduplane). Build it yourself, for example:
+  git clone --recursive https://github.com/ArduPilot/ardupilot && cd ardupilot
+  Tools/environment_install/install-prereqs-ubuntu.sh -y && ./waf configure --board sitl && ./waf plane
+then put Tools/autotest on PATH (for sim_vehicle.py) or set ARDUPILOT_HOME. This script never
+downloads anything. See docs/sitl.md.
+MSG
+  exit 3
+fi
+cmd+=("${extra[@]}")
+
+if [[ $dry_run -eq 1 ]]; then
+  printf '%q ' "${cmd[@]}"
+  echo
+  exit 0
+fi
+echo "run-arduplane.sh: SERIAL1 -> ${serial1} (bridge: mavlink.url udpin:${host}:${port})" >&2
+exec "${cmd[@]}"
