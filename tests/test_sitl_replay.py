@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -29,6 +31,16 @@ CHANNELS = [f"servo{i}_raw" for i in range(1, 17)]
 
 def _channels(msg) -> tuple[int, ...]:
     return tuple(getattr(msg, name) for name in CHANNELS)
+
+
+def test_fixtures_match_the_sizes_and_hashes_documented_in_their_readme() -> None:
+    readme = (DATA / "README.md").read_text()
+    rows = re.findall(r"`([\w-]+\.tlog)` \| (\d+) \| `([0-9a-f]{64})`", readme)
+    assert {name for name, _, _ in rows} == {SERVOS.name, GIMBAL.name}
+    for name, size, digest in rows:
+        data = (DATA / name).read_bytes()
+        assert len(data) == int(size)
+        assert hashlib.sha256(data).hexdigest() == digest
 
 
 def test_iter_tlog_reads_every_message_of_both_recordings() -> None:
