@@ -27,6 +27,7 @@ from typing import Any
 
 import pytest
 from pymavlink import mavutil
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mavservo.bridge import Bridge
 from mavservo.config.loader import load_config_text
@@ -103,13 +104,13 @@ class Rig:
         self.bridge.start()
         self.peers: list[Any] = []
 
-    def peer(self, source: tuple[int, int], key: bytes | None = None) -> Any:
+    def peer(self, source: tuple[int, int], key: bytes | None = None, link_id: int = 0) -> Any:
         conn = mavutil.mavlink_connection(
             f"udpout:127.0.0.1:{self.port}", source_system=source[0],
             source_component=source[1], dialect="ardupilotmega",
         )
         if key is not None:
-            conn.setup_signing(key, sign_outgoing=True)
+            conn.setup_signing(key, sign_outgoing=True, link_id=link_id)
         conn.mav.heartbeat_send(6, 8, 0, 0, 4)  # the udpin side answers peers that spoke
         self.peers.append(conn)
         return conn
@@ -196,6 +197,32 @@ def test_signed_command_from_a_source_not_allowed_is_never_applied(signed_rig: R
     [ack] = acks(gcs, DO_SET_SERVO, 1.0)
     assert ack.result == 0
     assert wait_until(lambda: rig.sim_target(2) == pytest.approx(-15.0))
+
+
+def forged(source: tuple[int, int], link_id: int, timestamp: int) -> bytes:
+    """A signed-looking COMMAND_LONG made without the key, with a far-future timestamp."""
+    encoder = mavlink2.MAVLink(None, srcSystem=source[0], srcComponent=source[1])
+    encoder.signing.secret_key = bytes(32)
+    encoder.signing.sign_outgoing = True
+    encoder.signing.link_id = link_id
+    encoder.signing.timestamp = timestamp
+    msg = encoder.command_long_encode(1, 140, DO_SET_SERVO, 0, 1, 2000, 0, 0, 0, 0, 0)
+    return bytes(msg.pack(encoder))
+
+
+def test_a_forged_frame_cannot_lock_a_genuine_signed_stream_out(signed_rig: Rig) -> None:
+    """pymavlink stores a stream's timestamp before verifying the signature; without the fix in
+    mavservo.mavlink.link one forged far-future frame made every later genuine one "old"."""
+    rig = signed_rig
+    gcs = rig.peer(GCS, key=KEY, link_id=7)
+    set_servo(gcs, 1, 1600)
+    assert [a.result for a in acks(gcs, DO_SET_SERVO, 1.0)] == [0]
+    attacker = rig.peer(ROGUE)
+    attacker.write(forged(GCS, 7, gcs.mav.signing.timestamp + 10**12))
+    assert wait_until(lambda: rig.stats()["link"].get("signing_rejected", 0) >= 2)
+    set_servo(gcs, 1, 1400)  # -6 deg
+    assert [a.result for a in acks(gcs, DO_SET_SERVO, 1.0)] == [0]
+    assert wait_until(lambda: rig.sim_target(1) == pytest.approx(-6.0))
 
 
 def malformed_frames(conn: Any, rng: random.Random) -> list[bytes]:

@@ -42,6 +42,32 @@ def signing_timestamp(wall_time: float) -> int:
     return int(max(0.0, wall_time - SIGNING_EPOCH) * 100_000)
 
 
+def _keep_stream_timestamps_on_bad_signature(decoder: mavlink2.MAVLink) -> None:
+    """Undo pymavlink's stream-timestamp update when the signature then fails to verify.
+
+    pymavlink 2.4 records a frame's timestamp for its (link, system, component) stream *before*
+    checking the signature, so one forged frame with a far-future timestamp, made without the
+    key, makes every genuine frame of that stream "old" and locks the autopilot out (found by
+    tests/test_security.py). The MAVLink reference implementation only accepts the timestamp of
+    a frame whose signature verified; this wrapper restores that order.
+    """
+    check = decoder.check_signature
+    streams = decoder.signing.stream_timestamps
+
+    def check_signature(msgbuf: bytearray, src_system: int, src_component: int) -> bool:
+        stream = (msgbuf[-13], src_system, src_component)
+        before = streams.get(stream)
+        if check(msgbuf, src_system, src_component):
+            return True
+        if before is None:
+            streams.pop(stream, None)
+        else:
+            streams[stream] = before
+        return False
+
+    decoder.check_signature = check_signature  # type: ignore[method-assign]
+
+
 class _TransportWriter:
     """File-like object the per-component encoders write into."""
 
@@ -96,6 +122,7 @@ class MavlinkLink:
             decoder.signing.timestamp = signing_timestamp(time.time())
             if self._signing.accept_unsigned:
                 decoder.signing.allow_unsigned_callback = lambda mav, msg_id: True
+            _keep_stream_timestamps_on_bad_signature(decoder)
         return decoder
 
     def add_component(self, component_id: int, system_id: int, link_id: int = 0) -> None:
