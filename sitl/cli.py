@@ -40,6 +40,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--seed", type=int, default=0, help="random-walk seed")
     s.add_argument("--duration", type=float, default=None, help="seconds (default: until Ctrl-C)")
     s.add_argument("--servo-rate", type=float, default=20.0, help="SERVO_OUTPUT_RAW Hz")
+    s.add_argument("--actuator-rate", type=float, default=0.0,
+                   help="ACTUATOR_OUTPUT_STATUS Hz, PX4-style normalized outputs (default: off)")
     s.add_argument("--gimbal", action="store_true",
                    help="act as a gimbal manager (MNT1_TYPE 6) with a demo target sequence")
     s.add_argument("--script", type=Path, help="YAML list of events (see sitl/script.py)")
@@ -71,7 +73,8 @@ def _run_stream(args: argparse.Namespace) -> int:
     if args.gimbal:
         events += gimbal_demo_script()
     stream = AutopilotStream(
-        args.url, profile, events, servo_output_rate_hz=args.servo_rate, gimbal=args.gimbal,
+        args.url, profile, events, servo_output_rate_hz=args.servo_rate,
+        actuator_output_status_hz=args.actuator_rate, gimbal=args.gimbal,
         command_target=args.command_target, duration_s=args.duration,
         repeat_servo_cycle="milliseconds" if args.repeat_cycle_ms else "seconds",
     )

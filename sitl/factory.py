@@ -4,6 +4,7 @@ The bridge (``mavlink.url: sim``) calls :func:`simulator_from_config` with the v
 ``simulation.autopilot`` section (a pydantic model or a plain mapping) and the connection string
 the simulator should use to reach the bridge; it gets back an object with ``start()``/``stop()``.
 Keys understood: ``profile`` (a :mod:`sitl.profiles` name or ``replay``), ``servo_output_rate_hz``,
+``actuator_output_status_hz`` (PX4-style, 0 = off),
 ``replay_file``, ``speed``, ``seed``, ``script`` (list of events, see :mod:`sitl.script`),
 ``gimbal``, ``command_target``, ``repeat_servo_cycle``. Unknown keys are ignored so the config
 may grow ahead of the simulator.
@@ -52,6 +53,7 @@ def simulator_from_config(section: Any, url: str) -> AutopilotStream | ReplayRun
         profile,
         events,
         servo_output_rate_hz=float(cfg.get("servo_output_rate_hz", 20.0)),
+        actuator_output_status_hz=float(cfg.get("actuator_output_status_hz", 0.0)),
         gimbal=gimbal,
         command_target=(int(target[0]), int(target[1])),
         repeat_servo_cycle=str(cfg.get("repeat_servo_cycle", "seconds")),

@@ -38,7 +38,16 @@ from sitl.commands import CommandRecord, CommandTracker
 from sitl.gimbal import FLAG_RETRACT, euler_to_quaternion
 from sitl.link import mavlink2 as mav
 from sitl.link import open_link
-from sitl.profiles import Profile, get_profile
+from sitl.profiles import (
+    SURFACE_MAX,
+    SURFACE_MIN,
+    SURFACE_TRIM,
+    THROTTLE_CHANNEL,
+    THROTTLE_MAX,
+    THROTTLE_MIN,
+    Profile,
+    get_profile,
+)
 from sitl.recorder import Received
 from sitl.script import (
     Action,
@@ -80,6 +89,7 @@ class AutopilotStream:
         system_id: int = 1,
         component_id: int = 1,
         servo_output_rate_hz: float = 20.0,
+        actuator_output_status_hz: float = 0.0,
         heartbeat_hz: float = 1.0,
         sys_status_hz: float = 2.0,
         attitude_hz: float = 10.0,
@@ -120,6 +130,7 @@ class AutopilotStream:
             "SYS_STATUS": _interval(sys_status_hz),
             "ATTITUDE": _interval(attitude_hz),
             "SERVO_OUTPUT_RAW": _interval(servo_output_rate_hz),
+            "ACTUATOR_OUTPUT_STATUS": _interval(actuator_output_status_hz),
             "GIMBAL_DEVICE_SET_ATTITUDE": _interval(gimbal_rate_hz) if gimbal else None,
             "AUTOPILOT_STATE_FOR_GIMBAL_DEVICE": _interval(gimbal_rate_hz) if gimbal else None,
         }
@@ -368,6 +379,9 @@ class AutopilotStream:
                 if previous is None or previous[channel - 1] != pwm:
                     self._record("servo", Commanded(now, channel, pwm, "servo_output_raw"))
             self._last_output = frame
+        elif name == "ACTUATOR_OUTPUT_STATUS":
+            values, active = normalized_outputs(self._output_frame(now))
+            self._send(name, now, m.actuator_output_status_send, int(boot_s * 1e6), active, values)
         elif name == "GIMBAL_DEVICE_SET_ATTITUDE":
             if self._gimbal_ready():
                 self._send_gimbal_target(now)
@@ -466,6 +480,26 @@ class AutopilotStream:
             return  # a silent link does not answer either
         self._send("COMMAND_ACK", now, self._conn.mav.command_ack_send, msg.command, result, 0, 0,
                    msg.get_srcSystem(), msg.get_srcComponent())
+
+
+def normalized_outputs(frame: tuple[int, ...]) -> tuple[list[float], int]:
+    """PX4-style ACTUATOR_OUTPUT_STATUS content for a PWM frame: values in [-1, 1], active mask.
+
+    Surfaces map 1100..1900 to -1..1 around 1500 and throttle 1000..2000 to -1..1 (the config's
+    ``source: actuator`` input is normalized); channels reading 0 (no pulse) are inactive and NaN.
+    """
+    values = [math.nan] * 32
+    active = 0
+    for index, pwm in enumerate(frame):
+        if pwm == 0:
+            continue
+        if index == THROTTLE_CHANNEL - 1:
+            value = (pwm - THROTTLE_MIN) / (THROTTLE_MAX - THROTTLE_MIN) * 2.0 - 1.0
+        else:
+            value = (pwm - SURFACE_TRIM) / ((SURFACE_MAX - SURFACE_MIN) / 2.0)
+        values[index] = max(-1.0, min(1.0, value))
+        active |= 1 << index
+    return values, active
 
 
 def _interval(rate_hz: float | None) -> float | None:

@@ -14,7 +14,7 @@ from sitl.link import open_link
 from sitl.profiles import HoldProfile, StaircaseProfile, SweepProfile
 from sitl.replay import ReplayRunner
 from sitl.script import Event, RepeatServo, SetActuator, SetServo
-from sitl.stream import AutopilotStream
+from sitl.stream import AutopilotStream, normalized_outputs
 from sitl.testing import collect, free_udp_port, of_type, peer
 
 
@@ -242,3 +242,24 @@ def test_factory_builds_what_the_config_asks_for(tmp_path) -> None:
     assert isinstance(runner, ReplayRunner)
     with pytest.raises(ValueError):
         simulator_from_config({"profile": "replay"}, "udpout:127.0.0.1:9")
+
+
+def test_normalized_outputs_map_ardupilot_ranges_to_unit_interval() -> None:
+    frame = (1100, 1500, 2000, 1900) + (0,) * 12
+    values, active = normalized_outputs(frame)
+    assert values[:4] == [-1.0, 0.0, 1.0, 1.0] and active == 0b1111
+    assert all(math.isnan(v) for v in values[4:])
+
+
+def test_px4_style_actuator_output_status_when_asked_for(link) -> None:
+    port, conn = link
+    stream = AutopilotStream(f"udpout:127.0.0.1:{port}", StaircaseProfile(),
+                             actuator_output_status_hz=10.0)
+    with stream.start():
+        messages = collect(conn, 1.0)
+    statuses = of_type(messages, "ACTUATOR_OUTPUT_STATUS")
+    assert statuses
+    for status in statuses:
+        assert status.active == 0b1111
+        assert status.actuator[0] == pytest.approx(-1.0)  # first stair: 1100 us
+        assert status.actuator[2] == pytest.approx(-1.0)  # throttle at 1000 us
