@@ -10,10 +10,14 @@ beyond 0x7FF) may ever reach a servo, and the bridge keeps running.
 
 from __future__ import annotations
 
+import pytest
 from e2e_support import Recorder, ServoSpy, running, sim_servo, wait_until
 
 from mavservo.sim.adapter import LineCorrupter, LineFaults
 from sitl.stream import AutopilotStream
+
+# a bridge thread dying (an exception nobody catches) fails the test, not just warns
+pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")
 
 RUN_S = 4.0
 FLIP_PROB = 5e-3  # per byte, both directions: several percent of frames hit

@@ -28,6 +28,9 @@ from e2e_support import (
     wait_until,
 )
 
+# a bridge thread dying (an exception nobody catches) fails the test, not just warns
+pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")
+
 CONFIG = """
   telemetry: {actuator_output_status_hz: 20, named_value_float_hz: 20, esc_telemetry_hz: 0}
 servos:

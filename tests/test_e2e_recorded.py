@@ -17,6 +17,9 @@ from e2e_support import Recorder, pwm_to_angle, running, sim_servo, wait_until
 
 from sitl.replay import iter_tlog, replay
 
+# a bridge thread dying (an exception nobody catches) fails the test, not just warns
+pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")
+
 DATA = Path(__file__).parent / "data"
 SERVOS_TLOG = DATA / "plane-servos.tlog"
 GIMBAL_TLOG = DATA / "plane-gimbal.tlog"

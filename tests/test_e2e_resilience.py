@@ -21,6 +21,9 @@ from e2e_support import (
     wait_until,
 )
 
+# a bridge thread dying (an exception nobody catches) fails the test, not just warns
+pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")
+
 
 def pwm_for(angle: float, span: float = 90.0) -> float:
     """PWM (1100..1900 onto -span..span) for ``angle``."""

@@ -14,10 +14,14 @@ from __future__ import annotations
 import math
 import threading
 
+import pytest
 from e2e_support import running, wait_until
 
 from sitl.profiles import StaircaseProfile
 from sitl.stream import AutopilotStream
+
+# a bridge thread dying (an exception nobody catches) fails the test, not just warns
+pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")
 
 STEPS = 6
 HOLD_S = 0.6

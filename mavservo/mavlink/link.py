@@ -227,7 +227,10 @@ class MavlinkLink:
     def _read(self, conn: Any) -> bytes:
         if not conn.select(POLL_S):
             return b""
-        data = conn.recv(4096)
+        # pymavlink's udpin adds each sender to the client set its write() iterates: a new
+        # sender arriving mid-write raised "Set changed size" in the tick thread and killed it
+        with self._write_lock:
+            data = conn.recv(4096)
         return bytes(data) if data else b""
 
     def _feed(self, data: bytes) -> None:
