@@ -17,7 +17,7 @@ import yaml
 
 from sitl.profiles import PROFILES, RandomWalkProfile, get_profile
 from sitl.replay import BRIDGE_TYPES, TlogError, replay
-from sitl.script import parse_script
+from sitl.script import Dropout, Event, parse_script
 from sitl.stream import AutopilotStream, gimbal_demo_script
 
 
@@ -45,6 +45,10 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--gimbal", action="store_true",
                    help="act as a gimbal manager (MNT1_TYPE 6) with a demo target sequence")
     s.add_argument("--script", type=Path, help="YAML list of events (see sitl/script.py)")
+    s.add_argument("--dropout", action="append", default=[], metavar="AT:SECONDS",
+                   help="go silent at AT s for SECONDS (repeatable); SIGUSR1 also starts one")
+    s.add_argument("--dropout-seconds", type=float, default=3.0,
+                   help="length of a drop-out started by SIGUSR1 (default: %(default)s)")
     s.add_argument("--command-target", type=_target, default=(1, 0),
                    help="SYSTEM/COMPONENT the mission commands go to (default: 1/0)")
     s.add_argument("--repeat-cycle-ms", action="store_true",
@@ -70,6 +74,13 @@ def _run_stream(args: argparse.Namespace) -> int:
     events = []
     if args.script is not None:
         events += parse_script(yaml.safe_load(args.script.read_text()) or []).events
+    for spec in args.dropout:
+        at, _, seconds = spec.partition(":")
+        try:
+            events.append(Event(float(at), Dropout(float(seconds))))
+        except ValueError:
+            print(f"sitl: bad --dropout {spec!r}, expected AT:SECONDS", file=sys.stderr)
+            return 2
     if args.gimbal:
         events += gimbal_demo_script()
     stream = AutopilotStream(
@@ -79,14 +90,23 @@ def _run_stream(args: argparse.Namespace) -> int:
         repeat_servo_cycle="milliseconds" if args.repeat_cycle_ms else "seconds",
     )
     stream.start()
+    if hasattr(signal, "SIGUSR1") and threading.current_thread() is threading.main_thread():
+        previous_usr1 = signal.signal(
+            signal.SIGUSR1, lambda signum, frame: stream.dropout(args.dropout_seconds))
+    else:
+        previous_usr1 = None
     print(f"sitl: streaming profile {profile.name!r} to {args.url} (Ctrl-C to stop)", flush=True)
     try:
         while not stream.wait(0.2) and not _STOP.is_set():
             pass
     finally:
         stream.stop()
+        if previous_usr1 is not None:
+            signal.signal(signal.SIGUSR1, previous_usr1)
     print(f"sitl: sent {dict(stream.sent)}")
     print(f"sitl: received {stream.received.counts()}")
+    for start, end in stream.dropouts:
+        print(f"sitl: drop-out {start - stream.t0:.1f}..{end - stream.t0:.1f} s")
     for record in stream.commands.commands:
         print(f"sitl: command {record.command} {record.params[:3]} attempts={record.attempts} "
               f"result={record.result}")

@@ -145,6 +145,7 @@ class AutopilotStream:
 
         self._lock = threading.Lock()
         self._commanded: dict[tuple[str, int], list[Commanded]] = {}
+        self._commanded_times: dict[tuple[str, int], list[float]] = {}  # for bisect
         self._actions: queue.Queue[Action] = queue.Queue()
         self._overrides: dict[int, int] = {}
         self._repeats: dict[int, tuple[RepeatServo, float]] = {}
@@ -249,12 +250,13 @@ class AutopilotStream:
     def _lookup(self, kind: str, key: int, t: float) -> Commanded | None:
         with self._lock:
             log = self._commanded.get((kind, key), [])
-            i = bisect_right([c.t for c in log], t)
+            i = bisect_right(self._commanded_times.get((kind, key), []), t)
             return log[i - 1] if i else None
 
     def _record(self, kind: str, entry: Commanded) -> None:
         with self._lock:
             self._commanded.setdefault((kind, entry.key), []).append(entry)
+            self._commanded_times.setdefault((kind, entry.key), []).append(entry.t)
 
     # ------------------------------------------------------------------ the thread
 

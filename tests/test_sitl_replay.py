@@ -238,3 +238,33 @@ def test_cli_exits_zero_on_sigint(command: list[str]) -> None:
             proc.wait(5)
     assert proc.returncode == 0, err
     assert "Traceback" not in err
+
+
+def test_cli_stream_scripted_and_on_demand_dropouts() -> None:
+    port = free_udp_port()
+    conn = peer(port)
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    proc = subprocess.Popen([sys.executable, "-m", "sitl", "stream", "--profile", "hold",
+                             "--url", f"udpout:127.0.0.1:{port}", "--duration", "4",
+                             "--dropout", "0.5:0.6", "--dropout-seconds", "1.0"],
+                            cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        assert proc.stdout.readline().startswith("sitl: streaming")
+        messages = collect(conn, 2.0)
+        proc.send_signal(signal.SIGUSR1)
+        for _ in range(60):  # until the stream ends by itself (--duration 4), at most ~12 s
+            messages += collect(conn, 0.2)
+            if proc.poll() is not None:
+                break
+        out, err = proc.communicate(timeout=15)
+    finally:
+        conn.close()
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(5)
+    assert proc.returncode == 0, err
+    assert out.count("drop-out") == 2
+    stamps = [m.time_usec for m in of_type(messages, "SERVO_OUTPUT_RAW")]
+    gaps = sorted((b - a for a, b in zip(stamps, stamps[1:], strict=False)), reverse=True)
+    assert gaps[0] >= 1.0e6 and gaps[1] >= 0.6e6  # both silences show in the autopilot's clock
