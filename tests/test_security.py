@@ -225,6 +225,25 @@ def test_a_forged_frame_cannot_lock_a_genuine_signed_stream_out(signed_rig: Rig)
     assert wait_until(lambda: rig.sim_target(1) == pytest.approx(-6.0))
 
 
+def test_garbage_from_a_stranger_does_not_redirect_the_bridge_output(signed_rig: Rig) -> None:
+    """pymavlink's udpin sends to every address it ever heard from; a refused datagram must not
+    make the bridge send its heartbeats, ACKs and telemetry to the stranger too."""
+    rig = signed_rig
+    gcs = rig.peer(GCS, key=KEY)
+    assert gcs.recv_match(type="HEARTBEAT", blocking=True, timeout=WAIT_S) is not None
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as stranger:
+        stranger.settimeout(0.5)
+        unsigned = mavutil.mavlink_connection(f"udpout:127.0.0.1:{rig.port}").mav
+        stranger.sendto(b"garbage", ("127.0.0.1", rig.port))
+        stranger.sendto(bytes(unsigned.heartbeat_encode(6, 8, 0, 0, 4).pack(unsigned)),
+                        ("127.0.0.1", rig.port))
+        assert wait_until(lambda: rig.stats()["link"].get("strangers_ignored", 0) >= 1)
+        with pytest.raises(TimeoutError):
+            stranger.recv(4096)
+    set_servo(gcs, 1, 1600)
+    assert [a.result for a in acks(gcs, DO_SET_SERVO, 1.0)] == [0]
+
+
 def malformed_frames(conn: Any, rng: random.Random) -> list[bytes]:
     """Broken MAVLink on the wire: random bytes, bad CRC, truncated and oversized frames."""
     good = conn.mav.command_long_encode(1, 140, DO_SET_SERVO, 0, 1, 2000, 0, 0, 0, 0, 0)

@@ -110,6 +110,7 @@ class MavlinkLink:
         self._writer = _TransportWriter(self)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._clients_before_read: set[Any] = set()
         self.counters: Counter[str] = Counter()
 
     # ------------------------------------------------------------------ set-up
@@ -221,8 +222,8 @@ class MavlinkLink:
                 self._close()
                 self._on_event("MAVLink link lost")
                 continue
-            if data:
-                self._feed(data)
+            if data and not self._feed(data):
+                self._forget_new_clients(conn)
 
     def _read(self, conn: Any) -> bytes:
         if not conn.select(POLL_S):
@@ -230,11 +231,29 @@ class MavlinkLink:
         # pymavlink's udpin adds each sender to the client set its write() iterates: a new
         # sender arriving mid-write raised "Set changed size" in the tick thread and killed it
         with self._write_lock:
+            self._clients_before_read = set(getattr(conn, "clients", ()))
             data = conn.recv(4096)
         return bytes(data) if data else b""
 
-    def _feed(self, data: bytes) -> None:
+    def _forget_new_clients(self, conn: Any) -> None:
+        """pymavlink's udpin sends everything to every address a datagram ever came from: an
+        address whose first datagram held nothing acceptable (garbage, unsigned or forged
+        frames) must not start receiving our heartbeats, ACKs and telemetry, nor be able to
+        multiply our output by spoofing many source addresses (a send racing the parse of that
+        first datagram may still reach it once)."""
+        clients = getattr(conn, "clients", None)
+        if clients is None:
+            return
+        with self._write_lock:
+            for address in clients - self._clients_before_read:
+                clients.discard(address)
+                getattr(conn, "clients_last_alive", {}).pop(address, None)
+                self.counters["strangers_ignored"] += 1
+
+    def _feed(self, data: bytes) -> int:
+        """Parse ``data``; returns how many messages were accepted (signature-checked)."""
         now = self._clock()
+        accepted = 0
         messages = self._decoder.parse_buffer(data) or []
         for msg in messages:
             if msg.get_type() == "BAD_DATA":
@@ -243,6 +262,7 @@ class MavlinkLink:
                 self.counters[key] += 1
                 continue
             self.counters["received"] += 1
+            accepted += 1
             if self.tap is not None:
                 self.tap("in", bytes(msg.get_msgbuf()), now)
             try:
@@ -250,6 +270,7 @@ class MavlinkLink:
             except Exception:  # a handler bug must not kill the link
                 self.counters["handler_errors"] += 1
                 log.exception("error handling %s", msg.get_type())
+        return accepted
 
     def stats(self) -> dict[str, Any]:
         signing = self._decoder.signing
