@@ -322,9 +322,10 @@ class Bridge:
 
             port = free_udp_port()
             settings = dataclasses.replace(settings, url=f"udpin:127.0.0.1:{port}")
-            self.autopilot_sim = simulator_from_config(
-                cfg.simulation.autopilot, f"udpout:127.0.0.1:{port}"
-            )
+            section = cfg.simulation.autopilot.model_dump()
+            # the simulated autopilot reads DO_REPEAT_SERVO's cycle the way the bridge is told to
+            section["repeat_servo_cycle"] = cfg.mavlink.repeat_servo_cycle
+            self.autopilot_sim = simulator_from_config(section, f"udpout:127.0.0.1:{port}")
         assert self.backend is not None
         servo_limits = {s.name: tuple(s.limits_deg) for s in cfg.servos}
         status_hz = cfg.mavlink.telemetry.gimbal_attitude_status_hz

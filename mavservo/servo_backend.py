@@ -45,6 +45,7 @@ class _Servo:
     neutral_deg: float
     failsafe_action: str
     failsafe_position_deg: float | None
+    failsafe_delay_s: float = 0.0
     max_slew_dps: float | None = None
     goal_deg: float | None = None
     sent_deg: float | None = None
@@ -83,6 +84,7 @@ class ServoBackend:
                 neutral_deg=servo.neutral_deg,
                 failsafe_action=servo.failsafe.action,
                 failsafe_position_deg=servo.failsafe.position_deg,
+                failsafe_delay_s=servo.failsafe.timeout_s,
             )
         # A servo may be mapped from both sources, each with its own input range: keep the
         # map with the source, and the first map on the servo for reporting measured positions.
@@ -102,6 +104,8 @@ class ServoBackend:
                 servo.actuator_index = entry.index
         self._gimbals = {g.name: g.axes() for g in config.gimbals}
         self.in_failsafe = False
+        #: servo name -> when its failsafe action is due (link lost, waiting out its timeout_s)
+        self._failsafe_due: dict[str, float] = {}
         self.counters: dict[str, int] = {"accepted": 0, "rejected": 0, "clamped": 0}
 
     # ------------------------------------------------------------------ ActuatorBackend
@@ -174,29 +178,47 @@ class ServoBackend:
         return out
 
     def enter_failsafe(self, reason: str, now: float) -> None:
+        """The link is lost: each servo acts after its own ``failsafe.timeout_s``.
+
+        Staggered on purpose: a throttle can go to idle at once while control surfaces hold a
+        little longer in case the link comes back. :meth:`tick` carries the actions out.
+        """
         with self._lock:
             self.in_failsafe = True
-            for servo in self._servos.values():
-                self._apply_failsafe(servo, now)
+            self._failsafe_due = {
+                name: now + servo.failsafe_delay_s for name, servo in self._servos.items()
+            }
         self._on_event(f"failsafe: {reason}")
+        self.tick(now)
 
     def leave_failsafe(self, now: float) -> None:
         with self._lock:
             self.in_failsafe = False
+            self._failsafe_due.clear()  # actions not yet due are cancelled
         self._on_event("failsafe cleared: servos move again on fresh commands")
 
     # ------------------------------------------------------------------ bridge API
 
     def tick(self, now: float) -> None:
-        """Advance slew-limited servos one step toward their goals (call every command period)."""
+        """Carry out failsafe actions that fell due, and advance slew-limited servos one step
+        toward their goals (call every command period)."""
         with self._lock:
+            for name, due in list(self._failsafe_due.items()):
+                if due <= now:
+                    del self._failsafe_due[name]
+                    self._apply_failsafe(self._servos[name], now)
             for servo in self._servos.values():
                 if servo.goal_deg is not None and servo.sent_deg != servo.goal_deg:
                     self._send_step(servo, now)
 
     def failsafe_all(self, reason: str, now: float) -> None:
-        """Shutdown path: every servo to its failsafe action (same as a lost link)."""
-        self.enter_failsafe(reason, now)
+        """Shutdown path: every servo to its failsafe action at once (no per-servo delay)."""
+        with self._lock:
+            self.in_failsafe = True
+            self._failsafe_due.clear()
+            for servo in self._servos.values():
+                self._apply_failsafe(servo, now)
+        self._on_event(f"failsafe: {reason}")
 
     # ------------------------------------------------------------------ internals
 

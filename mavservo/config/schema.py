@@ -238,6 +238,9 @@ class FailsafeConfig(StrictModel):
 
     ``hold`` keeps the last target, ``neutral`` goes to the servo's ``neutral_deg``, ``position``
     goes to ``position_deg``, ``release`` stops commanding (motor off, if the profile can).
+    ``timeout_s`` is how long after the autopilot link is declared lost (``mavlink.
+    heartbeat_timeout_s``) this servo waits before acting, so a throttle can idle at once while
+    surfaces hold a moment longer; on shutdown every action is immediate.
     """
 
     action: Literal["hold", "neutral", "position", "release"] = "hold"
