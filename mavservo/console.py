@@ -27,7 +27,8 @@ def status_line(row: dict[str, Any]) -> str:
     state = "online " if row["online"] else "OFFLINE"
     return (
         f"{row['servo']:<16} {state} set {_num(row['setpoint_deg'], '7.1f')} deg  "
-        f"pos {_num(row['position_deg'], '7.1f')} deg  vel {_num(row['velocity_dps'], '7.1f')} dps  "
+        f"pos {_num(row['position_deg'], '7.1f')} deg  "
+        f"vel {_num(row['velocity_dps'], '7.1f')} dps  "
         f"I {_num(row['current_a'], '5.2f')} A  T {_num(row['temperature_c'], '5.1f')} C  "
         f"age {_num(None if row['age_s'] is None else row['age_s'] * 1000, '5.0f')} ms"
         + (f"  faults {row['faults']}" if row["faults"] else "")
