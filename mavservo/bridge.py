@@ -339,7 +339,7 @@ class Bridge:
             )
             for g in cfg.gimbals
         ]
-        return MavlinkSide(settings, self.backend, gimbals)
+        return MavlinkSide(settings, self.backend, gimbals, on_event=self._note)
 
     def _tap_mavlink(self, side: MavlinkSide, runlog: RunLog) -> None:
         """MAVLink frames into the run's .tlog; telemetry sends close the latency traces."""
@@ -367,10 +367,15 @@ class Bridge:
             self._stop.wait(max(0.0, next_t - time.monotonic()))
 
     def _event(self, text: str) -> None:
+        """An event of the servo side: console, event list, and STATUSTEXT to the autopilot."""
+        self._note(text)
+        if self.mavlink is not None:
+            _quietly(lambda: self.mavlink.announce(text[:50], MAV_SEVERITY_WARNING))
+
+    def _note(self, text: str) -> None:
+        """Console and event list only (the MAVLink side announces its own link events)."""
         self.events.append((time.monotonic(), text))
         self._status(text)
-        if self.mavlink is not None:
-            _quietly(lambda: self.mavlink.core.announce(MAV_SEVERITY_WARNING, text[:50]))
 
     # ------------------------------------------------------------------ views
 

@@ -36,9 +36,13 @@ class MavlinkSide:
         backend: ActuatorBackend,
         gimbals: Sequence[HostedComponent] = (),
         clock: Callable[[], float] = time.monotonic,
+        on_event: Callable[[str], None] | None = None,
     ) -> None:
         self._clock = clock
-        self._lock = threading.Lock()
+        #: also told about link loss / recovery (the bridge's console and event list)
+        self._on_event = on_event
+        # re-entrant: the core calls the backend under this lock, and the backend may announce
+        self._lock = threading.RLock()
         self.core = MavlinkCore(settings, backend, gimbals, boot_time=clock())
         self.link = MavlinkLink(
             settings.url, self._on_message, baud=settings.baud, signing=settings.signing,
@@ -82,9 +86,15 @@ class MavlinkSide:
             out = self.core.on_message(msg, now)
         self._send(out)
 
-    def _on_link_event(self, text: str) -> None:
+    def announce(self, text: str, severity: int = MAV_SEVERITY_WARNING) -> None:
+        """Queue a STATUSTEXT from the servo component (thread-safe, for the other layers)."""
         with self._lock:
-            self.core.announce(MAV_SEVERITY_WARNING, f"servo bridge: {text}")
+            self.core.announce(severity, text)
+
+    def _on_link_event(self, text: str) -> None:
+        self.announce(f"servo bridge: {text}")
+        if self._on_event is not None:
+            self._on_event(text)
 
     def _tick_loop(self) -> None:
         next_tick = self._clock()
