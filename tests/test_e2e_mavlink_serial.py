@@ -17,9 +17,9 @@ import time
 import tty
 from pathlib import Path
 
+from e2e_support import sim_servo, wait_until
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from e2e_support import sim_servo, wait_until
 from mavservo.bridge import Bridge
 from mavservo.config import load_config_text
 
