@@ -119,7 +119,7 @@ can:
   buses: [{{name: bus0, interface: aa55, channel: sim}}]
 servos:
   - {{name: s1, profile: rmd-x, can_id: 1, limits_deg: [-30, 30], neutral_deg: 5,
-     failsafe: {{action: neutral, timeout_s: 30}}}}
+     failsafe: {{action: neutral, timeout_s: 0.2}}}}
 channels:
   - {{servo: s1, source: servo_output, channel: 1, input: {{min: 1000, max: 2000}},
      output_deg: [-30, 30]}}
