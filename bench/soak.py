@@ -53,7 +53,7 @@ def counters(bridge: Bridge, recorder: Recorder) -> dict[str, int]:
         "late": sum(f["late_replies"] for f in frames),
         "rejected_bytes": int(bus["transport"].get("bytes_discarded", 0)),
         "commands_arrived": recorder.arrived,
-        "wrong_commands": len(recorder.wrong),
+        "wrong_commands": recorder.wrong_count,
     }
 
 
@@ -80,6 +80,7 @@ def main() -> None:
     windows: list[dict[str, Any]] = []
     memory: list[tuple[float, int, int]] = []
     index = 0
+    baseline: tracemalloc.Snapshot | None = None
     try:
         time.sleep(2.0)  # servos come online
         while time.monotonic() + args.window_s <= end:
@@ -102,7 +103,13 @@ def main() -> None:
                             **delta(counters(bridge, recorder), before)})
             heap = tracemalloc.get_traced_memory()[0] if args.tracemalloc else 0
             memory.append((round(time.monotonic() - started, 1), rss_kib(), heap))
+            if args.tracemalloc and index == len(PHASES) - 1:
+                baseline = tracemalloc.take_snapshot()  # after one full cycle of phases
             index += 1
+        growth = []
+        if baseline is not None:
+            diff = tracemalloc.take_snapshot().compare_to(baseline, "lineno")
+            growth = [str(stat) for stat in diff[:8]]
     finally:
         summary = bridge.stop()
     clean = [w for w in windows if w["phase"] == "clean"]
@@ -123,8 +130,9 @@ def main() -> None:
             "missed_command_slots": sum(w["missed_command_slots"] for w in clean),
             "frames_sent": sum(w["sent"] for w in clean),
         },
-        "wrong_commands_total": len(recorder.wrong),
+        "wrong_commands_total": recorder.wrong_count,
         "missed_command_slots_total": summary["buses"]["bus0"]["missed_command_slots"],
+        "heap_growth_top": growth,
         "events": summary.get("events", []),
     }
     print(json.dumps(out, indent=1, default=str))
