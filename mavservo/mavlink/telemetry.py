@@ -8,7 +8,8 @@ carriers ground stations already understand (DESIGN.md, "MAVLink facts"):
 * ESC_TELEMETRY_1_TO_4 .. 29_TO_32 (11030..): temperature, voltage, current and "rpm" (|velocity|
   in deg/s / 6), four servos per message in config order; ground stations already show it;
 * NAMED_VALUE_FLOAT (251): ``s<n>_pos`` (deg), ``s<n>_vel`` (deg/s), ``s<n>_cur`` (A),
-  ``s<n>_tmp`` (degC), n = config position + 1 (all within the 10-character limit);
+  ``s<n>_tmp`` (degC), ``s<n>_sp`` (setpoint, deg, once there is one), n = config position + 1
+  (all within the 10-character limit);
 * STATUSTEXT (253): fault onset and clearance, servo offline / back online, link events; at most
   ``STATUSTEXT_BURST`` per second so a flapping servo cannot flood the link.
 
@@ -200,7 +201,7 @@ class Telemetry:
         self._esc_count = (self._esc_count + 1) % (UINT16_MAX + 1)
         out = []
         for group in range(min(len(ESC_MESSAGES), max(by_index) // 4 + 1)):
-            temps, volts, amps, rpms = [0] * 4, [0] * 4, [0] * 4, [0] * 4
+            temps, volts, amps, rpms, counts = [0] * 4, [0] * 4, [0] * 4, [0] * 4, [0] * 4
             for slot in range(4):
                 status = by_index.get(group * 4 + slot)
                 state = status.state if status is not None else None
@@ -210,8 +211,8 @@ class Telemetry:
                 volts[slot] = _clamp_u16((state.voltage_v or 0.0) * 100)
                 amps[slot] = _clamp_u16(abs(state.current_a) * 100)
                 rpms[slot] = _clamp_u16(abs(state.velocity_dps) / 6.0)
-            out.append(ESC_MESSAGES[group](temps, volts, amps, [0] * 4, rpms,
-                                           [self._esc_count] * 4))
+                counts[slot] = self._esc_count  # 0 stays in slots no servo fills
+            out.append(ESC_MESSAGES[group](temps, volts, amps, [0] * 4, rpms, counts))
         return out
 
     def _named_values(self, statuses: list[ServoStatus], now: float) -> list[Any]:
@@ -222,8 +223,11 @@ class Telemetry:
             if state is None:
                 continue
             n = status.index + 1
-            for suffix, value in (("pos", state.position_deg), ("vel", state.velocity_dps),
-                                  ("cur", state.current_a), ("tmp", state.temperature_c)):
+            values = [("pos", state.position_deg), ("vel", state.velocity_dps),
+                      ("cur", state.current_a), ("tmp", state.temperature_c)]
+            if status.setpoint_deg is not None:
+                values.append(("sp", status.setpoint_deg))
+            for suffix, value in values:
                 out.append(mavlink2.MAVLink_named_value_float_message(
                     boot_ms, f"s{n}_{suffix}".encode(), float(value)))
         return out
