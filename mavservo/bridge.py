@@ -194,6 +194,7 @@ class Bridge:
             sinks,
             on_event=self._event,
             on_command=self.runlog.mavlink_received if self.runlog is not None else None,
+            health=self._health,
         )
         for scheduler in self.schedulers.values():
             scheduler.start()
@@ -340,6 +341,18 @@ class Bridge:
             for g in cfg.gimbals
         ]
         return MavlinkSide(settings, self.backend, gimbals, on_event=self._note)
+
+    def _health(self) -> dict[str, float]:
+        """Measured bus load per bus and the round-trip latency percentiles, for telemetry."""
+        out: dict[str, float] = {}
+        for k, scheduler in enumerate(self.schedulers.values()):
+            out[f"bus{k}_load"] = scheduler.load_ratio()
+        if self.runlog is not None:
+            total = self.runlog.latency.summary().get("total", {})
+            for p in ("p50", "p95", "p99"):
+                if total.get(p) is not None:
+                    out[f"lat_{p}"] = total[p] * 1000.0
+        return out
 
     def _tap_mavlink(self, side: MavlinkSide, runlog: RunLog) -> None:
         """MAVLink frames into the run's .tlog; telemetry sends close the latency traces."""

@@ -242,6 +242,12 @@ class Scheduler:
             self._metrics.bus_rejected += 1
         self._notify_observer("on_reject", self.name, text, bytes(raw_bytes), when)
 
+    def load_ratio(self) -> float:
+        """Measured bus load R over the last window (cheap: for live telemetry)."""
+        now = self._clock()
+        with self._lock:
+            return self._metrics.load.ratio(now)
+
     @property
     def metrics_store(self) -> SchedulerMetrics:
         """The live accumulators (for benches and reports after ``stop()``; while running,

@@ -69,10 +69,12 @@ class ServoBackend:
         sinks: Mapping[str, SetpointSink],
         on_event: Callable[[str], None] | None = None,
         on_command: Callable[[str, float], None] | None = None,
+        health: Callable[[], dict[str, float]] | None = None,
     ) -> None:
         self._lock = threading.RLock()
         #: ``on_command(servo, t_received)`` for each accepted MAVLink request (latency stage 1)
         self._on_command = on_command
+        self._health = health
         self._on_event = on_event or (lambda line: log.info("%s", line))
         self._servos: dict[str, _Servo] = {}
         for index, servo in enumerate(config.servos):
@@ -196,6 +198,10 @@ class ServoBackend:
             self.in_failsafe = False
             self._failsafe_due.clear()  # actions not yet due are cancelled
         self._on_event("failsafe cleared: servos move again on fresh commands")
+
+    def health(self) -> dict[str, float]:
+        """Transport figures worth publishing (``bus0_load``, ``lat_p50``.. in ms); may be empty."""
+        return self._health() if self._health is not None else {}
 
     # ------------------------------------------------------------------ bridge API
 
