@@ -346,8 +346,12 @@ class AutopilotStream:
         self.sent[name] += 1
         self.sent_log.append((now, name))
 
-    def _output_frame(self, now: float) -> tuple[int, ...]:
-        frame = list(self.profile.pwm(now - self.t0))  # type: ignore[operator]
+    def _output_frame(self, now: float, profile_t: float | None = None) -> tuple[int, ...]:
+        """The 16 outputs at ``now``; ``profile_t`` (stream seconds) overrides the profile's
+        time so it can be the exact time stamped into the message."""
+        if profile_t is None:
+            profile_t = now - self.t0  # type: ignore[operator]
+        frame = list(self.profile.pwm(profile_t))
         for channel, pwm in self._overrides.items():
             frame[channel - 1] = pwm
         for channel, (action, started) in list(self._repeats.items()):
@@ -373,9 +377,11 @@ class AutopilotStream:
             self._send(name, now, m.attitude_send, int(boot_s * 1000) & 0xFFFFFFFF, wobble,
                        -wobble / 2, -0.12, 0.0, 0.0, 0.0)
         elif name == "SERVO_OUTPUT_RAW":
-            frame = self._output_frame(now)
-            self._send(name, now, m.servo_output_raw_send, int(boot_s * 1e6) & 0xFFFFFFFF, 0,
-                       *frame)
+            usec = int(boot_s * 1e6)
+            # the profile is evaluated at the microsecond stamped into time_usec, so a receiver
+            # can recompute exactly what was sent from the message alone
+            frame = self._output_frame(now, profile_t=usec / 1e6 - BOOT_OFFSET_S)
+            self._send(name, now, m.servo_output_raw_send, usec & 0xFFFFFFFF, 0, *frame)
             previous = self._last_output
             for channel, pwm in enumerate(frame, start=1):
                 if previous is None or previous[channel - 1] != pwm:
