@@ -77,6 +77,11 @@ class Commanded:
     source: str  # "servo_output_raw", "do_set_servo", "do_repeat_servo", "do_set_actuator", ...
 
 
+#: Commanded values kept per channel for :meth:`AutopilotStream.commanded_pwm` lookups: hours at
+#: 20 Hz of changes; older entries are dropped in halves (amortised O(1)).
+COMMANDED_KEEP = 200_000
+
+
 class AutopilotStream:
     """The simulated autopilot. ``start()`` launches the thread, ``stop()`` ends it (bounded)."""
 
@@ -255,8 +260,13 @@ class AutopilotStream:
 
     def _record(self, kind: str, entry: Commanded) -> None:
         with self._lock:
-            self._commanded.setdefault((kind, entry.key), []).append(entry)
-            self._commanded_times.setdefault((kind, entry.key), []).append(entry.t)
+            log = self._commanded.setdefault((kind, entry.key), [])
+            times = self._commanded_times.setdefault((kind, entry.key), [])
+            log.append(entry)
+            times.append(entry.t)
+            if len(log) > COMMANDED_KEEP:  # long runs (soak, `url: sim`) stay bounded
+                drop = len(log) - COMMANDED_KEEP // 2
+                del log[:drop], times[:drop]
 
     # ------------------------------------------------------------------ the thread
 

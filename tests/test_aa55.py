@@ -158,10 +158,14 @@ def test_garbage_between_frames_loses_no_intact_frame(pieces: list[tuple[bytes, 
 def test_fixed_protocol_never_emits_a_frame_that_was_not_sent(
     sent: list[Frame], data: st.DataObject
 ) -> None:
-    """The checksum catches a flipped byte: every frame out is one that went in."""
+    """The checksum catches one corrupted byte per frame: every frame out is one that went in.
+
+    (Two compensating errors in one frame can pass a byte-sum checksum; see docs/reliability.md.)
+    """
     stream = bytearray(b"".join(encode(f, "fixed") for f in sent))
-    for _ in range(data.draw(st.integers(1, 4))):
-        i = data.draw(st.integers(0, len(stream) - 1))
+    frames_hit = data.draw(st.sets(st.integers(0, len(sent) - 1), min_size=1, max_size=4))
+    for index in frames_hit:
+        i = index * aa55.FIXED_LENGTH + data.draw(st.integers(0, aa55.FIXED_LENGTH - 1))
         stream[i] ^= data.draw(st.integers(1, 255))
     dec = Decoder("fixed")
     got = data_frames_only(dec.feed(bytes(stream)) + dec.flush())
