@@ -77,9 +77,9 @@ class Commanded:
     source: str  # "servo_output_raw", "do_set_servo", "do_repeat_servo", "do_set_actuator", ...
 
 
-#: Commanded values kept per channel for :meth:`AutopilotStream.commanded_pwm` lookups: hours at
-#: 20 Hz of changes; older entries are dropped in halves (amortised O(1)).
-COMMANDED_KEEP = 200_000
+#: Commanded values kept per channel for :meth:`AutopilotStream.commanded_pwm` lookups (about
+#: 17 minutes of changes at 20 Hz); older entries are dropped in halves (amortised O(1)).
+COMMANDED_KEEP = 20_000
 
 
 class AutopilotStream:
@@ -144,7 +144,7 @@ class AutopilotStream:
         self.commands = CommandTracker(retry_interval_s, max_attempts)
         self.received = Received()
         self.sent: Counter[str] = Counter()
-        self.sent_log: deque[tuple[float, str]] = deque(maxlen=100_000)
+        self.sent_log: deque[tuple[float, str]] = deque(maxlen=20_000)
         self.dropouts: list[tuple[float, float]] = []
         self.gimbal_device_info: Any | None = None
 
