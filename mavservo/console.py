@@ -156,14 +156,15 @@ def format_summary(summary: dict[str, Any]) -> str:
     mav = summary.get("mavlink") or {}
     if mav:
         link = mav.get("link", {})
-        lines.append(
-            "  mavlink: "
-            + ", ".join(
-                f"{k} {v}"
-                for k, v in {**_flat(mav, exclude=("link",)), **_flat(link)}.items()
-                if isinstance(v, int | float)
-            )[:600]
-        )
+        counters = {**_flat(mav, exclude=("link",)), **_flat(link)}
+        shown = [
+            f"{k} {v}"
+            for k, v in counters.items()
+            # counts that happened; booleans and ids are state, not counters
+            if isinstance(v, int | float) and not isinstance(v, bool) and v and k != "system_id"
+            and not k.startswith("mirror_")  # a flat duplicate of mirror.*
+        ]
+        lines.append("  mavlink: " + ", ".join(shown))
     for text in summary.get("events", []):
         lines.append(f"  event: {text}")
     if summary.get("run_dir"):
