@@ -218,7 +218,7 @@ class Bridge:
         if self.autopilot_sim is not None:
             _quietly(self.autopilot_sim.stop)
         if self.backend is not None and self._started:
-            self.backend.failsafe_all("bridge shutting down", time.monotonic())
+            self.backend.failsafe_all("shutdown, servos to their failsafe", time.monotonic())
             time.sleep(2 * self.config.scheduler.command_period_s)  # let the failsafe go out
         if self._tick_thread is not None:
             self._tick_thread.join(1.0)

@@ -8,6 +8,7 @@ file only dispatches, so ``mavservo --help`` stays fast and a broken optional ex
 from __future__ import annotations
 
 import importlib
+import os
 import sys
 from collections.abc import Sequence
 
@@ -51,7 +52,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ImportError as exc:
         print(f"mavservo {name}: unavailable ({exc})", file=sys.stderr)
         return 2
-    result = getattr(module, func_name)(rest)
+    try:
+        result = getattr(module, func_name)(rest)
+    except BrokenPipeError:  # `mavservo check x.yaml | head`: the reader left, not an error
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     return int(result or 0)
 
 

@@ -53,7 +53,9 @@ class ServoTrace:
     fault_samples: int = 0
 
     def intervals_s(self) -> list[float]:
-        """Telemetry reception intervals (successive decoded states)."""
+        """Reception intervals of successive decoded states: every reply (telemetry polls,
+        command replies and pushes), so shorter than the poll period; the scheduler's poll-only
+        intervals are in metrics.json (telemetry_interval_s) and the run summary."""
         return [b - a for a, b in zip(self.state_t, self.state_t[1:], strict=False)]
 
 
@@ -296,7 +298,7 @@ def plot_interval_histogram(run: Run, path: Path) -> None:
         _empty(ax, "fewer than two telemetry samples per servo")
     ax.set_xlabel("reception interval [ms]")
     ax.set_ylabel("count")
-    ax.set_title("Telemetry reception intervals (paper Fig. 4)")
+    ax.set_title("Reception intervals of every decoded reply (paper Fig. 4)")
     ax.grid(True, alpha=0.3)
     fig.savefig(path, dpi=100)
 
@@ -426,7 +428,7 @@ def summary_rows(run: Run, series: LoadSeries) -> list[tuple[str, str]]:
                      + f" (n={s['n']})"))
     intervals = [v for trace in run.servos.values() for v in trace.intervals_s()]
     iv = summarize(intervals)
-    rows.append(("Telemetry interval (mean / sigma / p99) [ms]",
+    rows.append(("Reply reception interval, all replies (mean / sigma / p99) [ms]",
                  " / ".join(_ms(iv.get(k)) for k in ("mean", "sigma", "p99"))))
     outcomes: dict[str, int] = defaultdict(int)
     for row in run.latency_rows:
@@ -530,6 +532,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     from rich.console import Console
 
     console = Console(stderr=True)
+    try:
+        import matplotlib  # noqa: F401 - the figures need it; it is an optional extra
+    except ImportError:
+        console.print("mavservo report needs matplotlib: pip install 'mavservo[report]' "
+                      "(from a clone: pip install '.[report]')", highlight=False, soft_wrap=True)
+        return 2
     try:
         paths = generate(args.logdir, args.out)
     except ReportError as exc:
