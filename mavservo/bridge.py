@@ -326,6 +326,8 @@ class Bridge:
             section = cfg.simulation.autopilot.model_dump()
             # the simulated autopilot reads DO_REPEAT_SERVO's cycle the way the bridge is told to
             section["repeat_servo_cycle"] = cfg.mavlink.repeat_servo_cycle
+            if settings.signing is not None:  # the simulated autopilot shares the key
+                section["signing_key"] = settings.signing.key
             self.autopilot_sim = simulator_from_config(section, f"udpout:127.0.0.1:{port}")
         assert self.backend is not None
         servo_limits = {s.name: tuple(s.limits_deg) for s in cfg.servos}

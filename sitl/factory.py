@@ -57,4 +57,5 @@ def simulator_from_config(section: Any, url: str) -> AutopilotStream | ReplayRun
         gimbal=gimbal,
         command_target=(int(target[0]), int(target[1])),
         repeat_servo_cycle=str(cfg.get("repeat_servo_cycle", "seconds")),
+        signing_key=cfg.get("signing_key"),
     )

@@ -111,6 +111,7 @@ class AutopilotStream:
         max_attempts: int = 4,
         duration_s: float | None = None,
         connection_kwargs: dict[str, Any] | None = None,
+        signing_key: bytes | None = None,
     ) -> None:
         if repeat_servo_cycle not in ("seconds", "milliseconds"):
             raise ValueError("repeat_servo_cycle must be 'seconds' or 'milliseconds'")
@@ -128,6 +129,9 @@ class AutopilotStream:
         self.servo_trim = servo_trim
         self.duration_s = duration_s
         self._connection_kwargs = connection_kwargs or {}
+        #: MAVLink 2 signing key (32 bytes): sign everything, as an autopilot set up with
+        #: the same key as a signed bridge does, so a signed config can be rehearsed
+        self.signing_key = signing_key
 
         # message name -> interval in seconds (None = off); changed by SET_MESSAGE_INTERVAL
         self._defaults: dict[str, float | None] = {
@@ -173,6 +177,10 @@ class AutopilotStream:
             raise RuntimeError("stream already started")
         self._conn = open_link(self.url, self.system_id, self.component_id,
                                **self._connection_kwargs)
+        if self.signing_key is not None:
+            # accept the bridge's unsigned replies too: this side only plays the autopilot
+            self._conn.setup_signing(self.signing_key, sign_outgoing=True,
+                                     allow_unsigned_callback=lambda *_: True)
         self.t0 = time.monotonic()
         self._thread = threading.Thread(target=self._run, name="sitl-autopilot", daemon=True)
         self._thread.start()
