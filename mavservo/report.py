@@ -15,7 +15,7 @@ import json
 import math
 import sys
 from collections import defaultdict
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -278,52 +278,56 @@ def plot_response(run: Run, path: Path) -> None:
     fig.savefig(path, dpi=100)
 
 
-def plot_interval_histogram(run: Run, path: Path) -> None:
-    """Fig. 4: distribution of telemetry reception intervals."""
+def _plot_intervals(
+    run: Run,
+    path: Path,
+    draw: Callable[[Any, str, str, list[float]], None],
+    xlabel: str,
+    ylabel: str,
+    title: str,
+) -> None:
+    """One axes, one colour per servo, ``draw(ax, colour, name, intervals_ms)`` per servo."""
     fig, axes = _figure()
     ax = axes[0][0]
     any_data = False
     for index, (name, trace) in enumerate(sorted(run.servos.items())):
         intervals_ms = [v * 1e3 for v in trace.intervals_s()]
-        if not intervals_ms:
-            continue
-        any_data = True
-        mean = sum(intervals_ms) / len(intervals_ms)
-        ax.hist(intervals_ms, bins=40, alpha=0.6, color=f"C{index % 10}",
-                label=f"{name} (mean {mean:.1f} ms)")
-        ax.axvline(mean, color=f"C{index % 10}", linestyle="--", linewidth=1.0)
+        if intervals_ms:
+            any_data = True
+            draw(ax, f"C{index % 10}", name, intervals_ms)
     if any_data:
         ax.legend(fontsize="small")
     else:
         _empty(ax, "fewer than two telemetry samples per servo")
-    ax.set_xlabel("reception interval [ms]")
-    ax.set_ylabel("count")
-    ax.set_title("Reception intervals of every decoded reply (paper Fig. 4)")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
     ax.grid(True, alpha=0.3)
     fig.savefig(path, dpi=100)
+
+
+def plot_interval_histogram(run: Run, path: Path) -> None:
+    """Fig. 4: distribution of reply reception intervals."""
+
+    def draw(ax: Any, colour: str, name: str, intervals_ms: list[float]) -> None:
+        mean = sum(intervals_ms) / len(intervals_ms)
+        ax.hist(intervals_ms, bins=40, alpha=0.6, color=colour,
+                label=f"{name} (mean {mean:.1f} ms)")
+        ax.axvline(mean, color=colour, linestyle="--", linewidth=1.0)
+
+    _plot_intervals(run, path, draw, "reception interval [ms]", "count",
+                    "Reception intervals of every decoded reply (paper Fig. 4)")
 
 
 def plot_interval_sequence(run: Run, path: Path) -> None:
     """Fig. 5: reception interval over successive samples."""
-    fig, axes = _figure()
-    ax = axes[0][0]
-    any_data = False
-    for index, (name, trace) in enumerate(sorted(run.servos.items())):
-        intervals_ms = [v * 1e3 for v in trace.intervals_s()]
-        if not intervals_ms:
-            continue
-        any_data = True
+
+    def draw(ax: Any, colour: str, name: str, intervals_ms: list[float]) -> None:
         ax.plot(range(1, len(intervals_ms) + 1), intervals_ms, ".", markersize=3,
-                color=f"C{index % 10}", label=name)
-    if any_data:
-        ax.legend(fontsize="small")
-    else:
-        _empty(ax, "fewer than two telemetry samples per servo")
-    ax.set_xlabel("sample")
-    ax.set_ylabel("reception interval [ms]")
-    ax.set_title("Reception intervals over successive samples (paper Fig. 5)")
-    ax.grid(True, alpha=0.3)
-    fig.savefig(path, dpi=100)
+                color=colour, label=name)
+
+    _plot_intervals(run, path, draw, "sample", "reception interval [ms]",
+                    "Reception intervals over successive samples (paper Fig. 5)")
 
 
 def plot_latency_stages(run: Run, path: Path) -> None:
