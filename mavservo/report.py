@@ -274,7 +274,8 @@ def plot_response(run: Run, path: Path) -> None:
     for ax in (ax_pos, ax_vel, ax_cur):
         ax.grid(True, alpha=0.3)
     if plotted:
-        ax_pos.legend(fontsize="small", ncol=2)
+        # outside the axes: with many servos an inside legend hides the traces
+        ax_pos.legend(fontsize="x-small", loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.savefig(path, dpi=100)
 
 
