@@ -38,7 +38,6 @@ log = logging.getLogger(__name__)
 
 SIM = "sim"
 MAV_SEVERITY_WARNING = 4
-MAV_SEVERITY_INFO = 6
 
 
 def free_udp_port() -> int:

@@ -28,7 +28,6 @@ log = logging.getLogger(__name__)
 #: When the line has been idle this long with a partial candidate pending, the candidate was a
 #: false start or a truncated frame: the decoder rescans it (a real frame takes ~65 us at 2 Mbaud).
 IDLE_FLUSH_S = 0.005
-_READ_CHUNK = 4096
 
 
 def _descriptor(port: serial.SerialBase) -> int | None:
