@@ -343,27 +343,16 @@ class Decoder:
                         item.timestamp = timestamp
                         frames += 1
                     append(item)
-                elif type_byte & 0x20:
-                    frames += 1
-                    append(
-                        Frame(
-                            from_bytes(raw[2:6], "little"),
-                            True,
-                            bool(type_byte & 0x10),
-                            type_byte & 0x0F,
-                            raw[6:-1],
-                            timestamp,
-                        )
-                    )
                 else:
                     frames += 1
+                    id_end = 6 if type_byte & 0x20 else 4  # extended IDs take 4 bytes
                     append(
                         Frame(
-                            from_bytes(raw[2:4], "little"),
-                            False,
+                            from_bytes(raw[2:id_end], "little"),
+                            id_end == 6,
                             bool(type_byte & 0x10),
                             type_byte & 0x0F,
-                            raw[4:-1],
+                            raw[id_end:-1],
                             timestamp,
                         )
                     )
