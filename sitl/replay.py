@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from sitl.background import Background
 from sitl.link import mavlink2, open_link
 
 # What the bridge consumes (docs/architecture.md, mavservo/mavlink/).
@@ -168,7 +169,7 @@ def replay(
     return result
 
 
-class ReplayRunner:
+class ReplayRunner(Background):
     """:func:`replay` on a bounded background thread, with the same start()/stop() as the stream.
 
     This is what a ``sim`` endpoint with ``profile: replay`` runs inside the bridge process.
@@ -204,18 +205,6 @@ class ReplayRunner:
         if self._thread is not None:
             self._thread.join(timeout)
 
-    def wait(self, timeout: float) -> bool:
-        if self._thread is None:
-            return True
-        self._thread.join(timeout)
-        return not self._thread.is_alive()
 
-    @property
-    def running(self) -> bool:
-        return self._thread is not None and self._thread.is_alive()
 
-    def __enter__(self) -> ReplayRunner:
-        return self if self._thread is not None else self.start()
 
-    def __exit__(self, *exc: object) -> None:
-        self.stop()

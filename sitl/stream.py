@@ -34,6 +34,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
+from sitl.background import Background
 from sitl.commands import CommandRecord, CommandTracker
 from sitl.gimbal import FLAG_RETRACT, euler_to_quaternion
 from sitl.link import mavlink2 as mav
@@ -82,7 +83,7 @@ class Commanded:
 COMMANDED_KEEP = 20_000
 
 
-class AutopilotStream:
+class AutopilotStream(Background):
     """The simulated autopilot. ``start()`` launches the thread, ``stop()`` ends it (bounded)."""
 
     def __init__(
@@ -195,22 +196,9 @@ class AutopilotStream:
             self._conn.close()
             self._conn = None
 
-    def wait(self, timeout: float) -> bool:
-        """Wait for the thread to end by itself (``duration_s``); True when it has."""
-        if self._thread is None:
-            return True
-        self._thread.join(timeout)
-        return not self._thread.is_alive()
 
-    @property
-    def running(self) -> bool:
-        return self._thread is not None and self._thread.is_alive()
 
-    def __enter__(self) -> AutopilotStream:
-        return self if self._thread is not None else self.start()
 
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
 
     def elapsed(self, now: float | None = None) -> float:
         """Seconds since start (the profile's time axis)."""
