@@ -206,5 +206,3 @@ class ReplayRunner(Background):
             self._thread.join(timeout)
 
 
-
-

@@ -197,9 +197,6 @@ class AutopilotStream(Background):
             self._conn = None
 
 
-
-
-
     def elapsed(self, now: float | None = None) -> float:
         """Seconds since start (the profile's time axis)."""
         if self.t0 is None:
