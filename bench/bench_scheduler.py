@@ -28,17 +28,144 @@ from typing import Any
 
 import can
 
-from mavservo.scheduler import Scheduler, ServoSpec, TimingConfig
+from mavservo.scheduler import Scheduler, SchedulerObserver, ServoSpec, TimingConfig
 from mavservo.servos import RmdX
 from mavservo.sim.servo import SimServo
+
+_POLL_REPLIES = (0x9C, 0x9A, 0x92)  # RMD-X status 2, faults, multi-turn angle: answers to polls
+_BURST_GAP_S = 0.0005  # frames written closer together than this came from one scheduler step
+
+
+class IntervalTracer(SchedulerObserver):
+    """Records every write and every decoded reply, to take telemetry intervals apart.
+
+    A reception interval is the poll schedule's interval plus the change in reply latency:
+    ``rx_k - rx_(k-1) = (tx_k - tx_(k-1)) + (lat_k - lat_(k-1))``. Knowing what else went out in
+    the same step as each request (commands ahead of it, its place in the poll round) says which
+    of the two moved, and why. Appends only (non-blocking, as the observer contract asks).
+    """
+
+    def __init__(self) -> None:
+        self.tx: list[tuple[float, str, str]] = []
+        self.rx: list[tuple[float, str, int, float]] = []
+
+    def on_tx(self, bus, msg, t, kind, servo, seq) -> None:  # noqa: ANN001
+        self.tx.append((t, kind, servo))
+
+    def on_rx(self, bus, msg, t, servo, state) -> None:  # noqa: ANN001
+        self.rx.append((t, servo, msg.data[0] if msg.data else -1, msg.timestamp))
+
+
+def _p99(values: list[float]) -> float:
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(0.99 * len(ordered)))] if ordered else math.nan
+
+
+def interval_breakdown(
+    tracer: IntervalTracer, nominal: float, threshold: float = 0.002
+) -> dict[str, Any]:
+    """Split telemetry reception intervals into schedule (tx) and reply path (latency) parts.
+
+    For each request: how many command frames the same step wrote before it (a telemetry tick
+    that fell on a command slot) and its position among the step's requests (the poll round
+    order). Intervals whose deviation exceeds ``threshold`` are attributed to the first cause
+    that explains them: one of the two requests queued behind a slot's commands
+    (``slot_collision``), its place in the round changed (``round_order``), the request's send
+    time moved for another reason (``schedule``: a late wake-up), else the reply path
+    (``reply_path``: pty, simulator, receive thread). ``outlier_rounds`` counts the poll rounds
+    the outliers fell in: a stall of the whole machine shows as few rounds with every servo.
+    """
+    polls: dict[str, list[dict[str, float]]] = {}
+    burst_commands = burst_requests = 0
+    last_t = -math.inf
+    for t, kind, servo in tracer.tx:
+        if t - last_t > _BURST_GAP_S:
+            burst_commands = burst_requests = 0
+        last_t = t
+        if kind == "request":
+            polls.setdefault(servo, []).append(
+                {"tx": t, "commands_ahead": burst_commands, "position": burst_requests}
+            )
+            burst_requests += 1
+        else:
+            burst_commands += 1
+    # wall-clock stamp of the bus read vs monotonic stamp of the decode: the receive hand-over
+    offsets = [t - wall for t, _servo, _cmd, wall in tracer.rx]
+    base = min(offsets) if offsets else 0.0
+    handover = [o - base for o in offsets]
+    replies: dict[str, list[float]] = {}
+    for t, servo, cmd, _wall in tracer.rx:
+        if cmd in _POLL_REPLIES:
+            replies.setdefault(servo, []).append(t)
+    causes = {"schedule": 0, "slot_collision": 0, "round_order": 0, "reply_path": 0}
+    tx_dev: list[float] = []
+    lat_delta: list[float] = []
+    rx_dev: list[float] = []
+    lat_by_commands: dict[str, list[float]] = {"0": [], ">0": []}
+    outlier_ticks: set[int] = set()  # which poll rounds the outliers came from
+    for servo, reqs in polls.items():
+        got = replies.get(servo, [])
+        paired = []
+        j = 0
+        for i, req in enumerate(reqs):  # one request outstanding at a time: match in order
+            next_tx = reqs[i + 1]["tx"] if i + 1 < len(reqs) else math.inf
+            while j < len(got) and got[j] < req["tx"]:
+                j += 1
+            if j < len(got) and got[j] < next_tx:
+                paired.append({**req, "rx": got[j], "lat": got[j] - req["tx"]})
+                lat_by_commands["0" if not req["commands_ahead"] else ">0"].append(
+                    got[j] - req["tx"]
+                )
+                j += 1
+            else:
+                paired.append({})  # lost: breaks the chain
+        for a, b in zip(paired, paired[1:], strict=False):
+            if not a or not b:
+                continue
+            d_tx = b["tx"] - a["tx"] - nominal
+            d_lat = b["lat"] - a["lat"]
+            dev = b["rx"] - a["rx"] - nominal
+            tx_dev.append(abs(d_tx))
+            lat_delta.append(abs(d_lat))
+            rx_dev.append(abs(dev))
+            if abs(dev) <= threshold:
+                continue
+            outlier_ticks.add(round((b["tx"] - b["position"] * 1e-4) / nominal))
+            if a["commands_ahead"] or b["commands_ahead"]:
+                causes["slot_collision"] += 1
+            elif a["position"] != b["position"]:
+                causes["round_order"] += 1
+            elif abs(d_tx) > threshold / 2:
+                causes["schedule"] += 1
+            else:
+                causes["reply_path"] += 1
+    ms = 1e3
+    return {
+        "intervals": len(rx_dev),
+        "rx_p99_dev_ms": _p99(rx_dev) * ms,
+        "tx_p99_dev_ms": _p99(tx_dev) * ms,
+        "latency_change_p99_ms": _p99(lat_delta) * ms,
+        "poll_latency_p50_ms_no_cmds_ahead": _p99_or(lat_by_commands["0"], 0.5) * ms,
+        "poll_latency_p50_ms_cmds_ahead": _p99_or(lat_by_commands[">0"], 0.5) * ms,
+        "share_polls_behind_commands": len(lat_by_commands[">0"])
+        / max(1, len(lat_by_commands["0"]) + len(lat_by_commands[">0"])),
+        "rx_handover_p99_ms": _p99(handover) * ms,
+        f"over_{threshold * ms:g}ms": sum(causes.values()),
+        "causes": causes,
+        "outlier_rounds": len(outlier_ticks),
+        "outlier_servos_per_round": sum(causes.values()) / max(1, len(outlier_ticks)),
+    }
+
+
+def _p99_or(values: list[float], q: float) -> float:
+    ordered = sorted(values)
+    return ordered[int(q * (len(ordered) - 1))] if ordered else math.nan
 
 
 def start_hogs() -> list[subprocess.Popen]:
     """One busy-looping process per core (killed by pid at the end)."""
     count = os.cpu_count() or 1
-    return [
-        subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(count)
-    ]
+    return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(count)]
 
 
 def stop_hogs(hogs: list[subprocess.Popen]) -> None:
@@ -67,9 +194,18 @@ def serve_simulator(n_servos: int, bitrate: int, realtime: bool) -> None:
 class _ChildSimulator:
     def __init__(self, n_servos: int, bitrate: int, realtime: bool) -> None:
         self.process = subprocess.Popen(
-            [sys.executable, __file__, "--serve-sim", str(n_servos),
-             "--bitrate", str(bitrate), *(["--realtime"] if realtime else [])],
-            stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+            [
+                sys.executable,
+                __file__,
+                "--serve-sim",
+                str(n_servos),
+                "--bitrate",
+                str(bitrate),
+                *(["--realtime"] if realtime else []),
+            ],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
             env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)},
         )
         assert self.process.stdout is not None
@@ -123,7 +259,8 @@ def run_once(args: argparse.Namespace, n_servos: int, seconds: float) -> dict[st
         args.transport, n_servos, args.bitrate, args.sim_in_process, args.realtime
     )
     specs = [ServoSpec(f"s{i}", RmdX(i)) for i in range(1, n_servos + 1)]
-    scheduler = Scheduler(transport.bus, specs, timing, name=args.transport)
+    tracer = IntervalTracer() if args.breakdown else None
+    scheduler = Scheduler(transport.bus, specs, timing, name=args.transport, observer=tracer)
     if args.realtime:
         # The setpoint driver shares the interpreter lock with the scheduler: left at normal
         # priority, a hog can preempt it while it holds the GIL and stall the command loop
@@ -162,7 +299,7 @@ def run_once(args: argparse.Namespace, n_servos: int, seconds: float) -> dict[st
     lost = sum(s["frames"]["lost"] for s in snapshot["servos"].values())
     received = sum(s["frames"]["received"] for s in snapshot["servos"].values())
     ms = 1e3
-    return {
+    result: dict[str, Any] = {
         "servos": n_servos,
         "seconds": round(elapsed, 1),
         "hog": args.hog,
@@ -178,8 +315,7 @@ def run_once(args: argparse.Namespace, n_servos: int, seconds: float) -> dict[st
         "tlm_interval_p1_ms": min(window_intervals) * ms if window_intervals else None,
         "tlm_in_70_100ms": sum(0.07 <= v <= 0.1 for v in window_intervals)
         / max(1, len(window_intervals)),
-        "tlm_p99_dev_ms": ordered_dev[min(len(ordered_dev) - 1, int(0.99 * len(ordered_dev)))]
-        * ms,
+        "tlm_p99_dev_ms": ordered_dev[min(len(ordered_dev) - 1, int(0.99 * len(ordered_dev)))] * ms,
         "L_mean_ms": statistics.fmean(s["mean"] for s in latencies if s["mean"]) * ms,
         "sigma_L_ms": statistics.fmean(s["sigma"] for s in latencies if s["sigma"]) * ms,
         "L_p99_ms": max(s["p99"] for s in latencies if s["p99"]) * ms,
@@ -191,6 +327,9 @@ def run_once(args: argparse.Namespace, n_servos: int, seconds: float) -> dict[st
         "cpu_sched_pct": (cpu["runner_s"] + cpu["receiver_s"]) / elapsed * 100,
         "cpu_process_pct": cpu_process / elapsed * 100,
     }
+    if tracer is not None:
+        result["breakdown"] = interval_breakdown(tracer, args.telemetry_period)
+    return result
 
 
 def bare_loop(seconds: float, period: float, spin: float) -> dict[str, Any]:
@@ -222,6 +361,14 @@ def bare_loop(seconds: float, period: float, spin: float) -> dict[str, Any]:
     }
 
 
+def _rounded(value: Any) -> Any:
+    if isinstance(value, float):
+        return round(value, 3)
+    if isinstance(value, dict):
+        return {k: _rounded(v) for k, v in value.items()}
+    return value
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=60.0)
@@ -234,13 +381,27 @@ def main() -> None:
     parser.add_argument("--spin", type=float, default=0.001)
     parser.add_argument("--realtime", action="store_true", help="ask for SCHED_FIFO")
     parser.add_argument("--runs", type=int, default=1)
-    parser.add_argument("--cpu-only", action="store_true",
-                        help="CPU cost with 8 and 32 servos instead of the timing run")
+    parser.add_argument(
+        "--cpu-only",
+        action="store_true",
+        help="CPU cost with 8 and 32 servos instead of the timing run",
+    )
     parser.add_argument("--json", help="append result lines to this file")
-    parser.add_argument("--sim-in-process", action="store_true",
-                        help="pty: run the adapter emulator in this process (shares the GIL)")
-    parser.add_argument("--baseline", action="store_true",
-                        help="also time a bare sleep+spin loop for the same duration first")
+    parser.add_argument(
+        "--sim-in-process",
+        action="store_true",
+        help="pty: run the adapter emulator in this process (shares the GIL)",
+    )
+    parser.add_argument(
+        "--baseline",
+        action="store_true",
+        help="also time a bare sleep+spin loop for the same duration first",
+    )
+    parser.add_argument(
+        "--breakdown",
+        action="store_true",
+        help="trace every frame and split telemetry intervals by cause",
+    )
     parser.add_argument("--serve-sim", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.serve_sim:
@@ -253,13 +414,11 @@ def main() -> None:
         if args.baseline:
             base = bare_loop(args.seconds, args.command_period, args.spin)
             base["hog"] = args.hog
-            print(json.dumps({k: round(v, 3) if isinstance(v, float) else v
-                              for k, v in base.items()}), flush=True)
+            print(json.dumps(_rounded(base)), flush=True)
         for n in counts:
             for _ in range(args.runs):
                 result = run_once(args, n, args.seconds)
-                line = json.dumps({k: round(v, 3) if isinstance(v, float) else v
-                                   for k, v in result.items()})
+                line = json.dumps(_rounded(result))
                 print(line, flush=True)
                 if args.json:
                     with open(args.json, "a") as out:

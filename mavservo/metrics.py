@@ -81,8 +81,16 @@ class SampleStats:
     def summary(self) -> dict[str, Any]:
         """Count, mean, sigma, min, max and p50/p95/p99 of the recent window (None when empty)."""
         if not self.count:
-            return {"n": 0, "mean": None, "sigma": None, "min": None, "max": None,
-                    "p50": None, "p95": None, "p99": None}
+            return {
+                "n": 0,
+                "mean": None,
+                "sigma": None,
+                "min": None,
+                "max": None,
+                "p50": None,
+                "p95": None,
+                "p99": None,
+            }
         ordered = sorted(self.recent)
         return {
             "n": self.count,

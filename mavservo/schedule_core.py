@@ -25,8 +25,19 @@ Rules (paper section 3.3):
   setpoints carry per-servo sequence numbers, so a stale setpoint can never follow a newer one.
 * Telemetry: every servo has its own poll deadline at its own rate (``telemetry_hz``, default
   ``1 / telemetry_period_s``) checked on telemetry ticks every ``telemetry_period_s``; due
-  servos are served oldest-due first (round robin when all are equally late). A servo with a
-  request still unanswered is not polled again until the reply or its timeout.
+  servos are served oldest-due first, equally due ones in configuration order. The order is
+  fixed on purpose: a servo keeps its place in the round, so its reply comes back at the same
+  offset after every tick and its reception intervals stay on the period (a rotating order
+  moved each reply by up to ``n - 1`` polls from tick to tick). Fairness when polls do not fit
+  comes from the oldest-due rule and the deferred polls keeping the front of the next round.
+  A servo with a request still unanswered is not polled again until the reply or its timeout.
+* Telemetry ticks are phased away from command slots (``telemetry_phase_s``, default
+  automatic): ticks fall at ``start + phase + k * T_t``, i.e. at ``phase mod g`` plus
+  multiples of ``g = gcd(T_c, T_t)`` after a slot, and the automatic phase puts them in the
+  middle of the bus time left between a slot's command burst (commands and their replies) and
+  the guard plus the poll burst before the next slot. Without it, every ``T_c / g``-th tick
+  landed on a slot and its polls queued behind the slot's commands: their replies came
+  ~1.5 ms late and two reception intervals in every ``T_c / g`` were off by that much.
 * A reply expected but not received within ``reply_timeout_s`` is lost; after
   ``offline_after_missed`` losses in a row a servo is offline until its next reply.
 """
@@ -70,6 +81,14 @@ class TimingConfig:
     bitrate: int = 1_000_000
     spin_s: float = 0.001
     """The runner sleeps until this long before a deadline, then spins (see scheduler)."""
+    fifo_spin_s: float = 0.0
+    """The spin used instead of ``spin_s`` when the runner thread runs under SCHED_FIFO
+    (``realtime=True``, or inherited, e.g. systemd's ``CPUSchedulingPolicy=fifo``): a FIFO
+    thread's timed wake-up is already within ~0.05 ms, and a spin it runs is never preempted,
+    so it buys little and costs CPU (see docs/benchmarks.md, Scheduler)."""
+    telemetry_phase_s: float | None = None
+    """Offset of the first telemetry tick after the first command slot, in
+    ``[0, telemetry_period_s)``; None: automatic, clear of command bursts (module docstring)."""
     realtime: bool = False
     realtime_priority: int = 50
     load_window_s: float = 1.0
@@ -89,8 +108,16 @@ class TimingConfig:
                 raise ScheduleError(f"timing: {name} must be a positive number, got {value!r}")
         if self.refresh_interval_s is not None and not self.refresh_interval_s > 0:
             raise ScheduleError("timing: refresh_interval_s must be positive or None")
-        if self.command_guard_s < 0 or self.spin_s < 0:
-            raise ScheduleError("timing: command_guard_s and spin_s must be >= 0")
+        if self.command_guard_s < 0 or self.spin_s < 0 or self.fifo_spin_s < 0:
+            raise ScheduleError("timing: command_guard_s, spin_s and fifo_spin_s must be >= 0")
+        if self.telemetry_phase_s is not None and not (
+            math.isfinite(self.telemetry_phase_s)
+            and 0 <= self.telemetry_phase_s < self.telemetry_period_s
+        ):
+            raise ScheduleError(
+                "timing: telemetry_phase_s must be None or in [0, telemetry_period_s), "
+                f"got {self.telemetry_phase_s!r}"
+            )
         if self.offline_after_missed < 1:
             raise ScheduleError("timing: offline_after_missed must be >= 1")
 
@@ -203,9 +230,7 @@ class _ServoSlot:
 
     @property
     def has_unsent_setpoint(self) -> bool:
-        return (
-            not self.released and self.latest is not None and self.latest.seq > self.sent_seq
-        )
+        return not self.released and self.latest is not None and self.latest.seq > self.sent_seq
 
     @property
     def request_outstanding(self) -> bool:
@@ -230,9 +255,8 @@ class ScheduleCore:
         self.warnings: list[str] = []
         self._slots: dict[str, _ServoSlot] = {}
         self._order = names
-        self._rr_offset = 0
+        self._rank = {name: i for i, name in enumerate(names)}
         self._next_command_slot = start
-        self._next_telemetry_tick = start
         self._poll_round: list[str] = []
         self.worst_case_load = self._check_budget(servos)
         for spec in servos:
@@ -244,18 +268,43 @@ class ScheduleCore:
                 poll_period=poll_period,
                 poll_cost_s=self._poll_cost(spec),
                 command_cost_s=self._command_cost(spec),
-                next_poll_due=start if poll_period else math.inf,
+                next_poll_due=math.inf,
             )
+        self.telemetry_phase_s = (
+            self._automatic_phase()
+            if timing.telemetry_phase_s is None
+            else timing.telemetry_phase_s
+        )
+        self.anchor(start)
         self._check_polls_fit()
 
     def anchor(self, start: float) -> None:
         """Move the time origin (the runner anchors the schedule when it actually starts)."""
         self.start = start
         self._next_command_slot = start
-        self._next_telemetry_tick = start
+        self._next_telemetry_tick = start + self.telemetry_phase_s
         for slot in self._slots.values():
             if slot.poll_period:
-                slot.next_poll_due = start
+                slot.next_poll_due = self._next_telemetry_tick
+
+    def _automatic_phase(self) -> float:
+        """The tick phase farthest, in bus time, from both neighbouring command bursts.
+
+        Relative to a slot, ticks only ever fall at ``phase mod g + j * g`` with
+        ``g = gcd(T_c, T_t)`` (computed on whole microseconds), so it is enough to keep
+        ``[phase mod g, + poll burst + guard]`` clear of ``[0, command burst]`` and of the next
+        multiple of ``g``: the phase is the middle of the gap between the end of a slot's
+        command burst and the latest start that lets a full poll round end ``command_guard_s``
+        before the next slot. When the bursts do not fit in ``g`` there is no clear phase; the
+        ticks go right after the command burst, and the suspension rule defers what does not
+        fit to after the next slot's commands.
+        """
+        t = self.timing
+        g = math.gcd(round(t.command_period_s * 1e6), round(t.telemetry_period_s * 1e6)) / 1e6
+        command_burst = self._command_burst_s()
+        poll_burst = sum(slot.poll_cost_s for slot in self._slots.values() if slot.poll_period)
+        latest_start = g - t.command_guard_s - poll_burst
+        return (command_burst + max(0.0, latest_start - command_burst) / 2) % g
 
     # ----------------------------------------------------------------- configuration checks
     def _poll_period(self, spec: ServoSpec) -> float | None:
@@ -376,7 +425,8 @@ class ScheduleCore:
         latest = slot.latest
         if latest is not None and t < latest.t:
             return SetpointResult(
-                False, None,
+                False,
+                None,
                 f"stale: t={t:.6f} is older than accepted setpoint #{latest.seq} "
                 f"(t={latest.t:.6f})",
             )
@@ -441,8 +491,7 @@ class ScheduleCore:
                 if slot.spec.command_mode == "periodic":
                     slot.last_command_time = slot_time
             elif (
-                slot.last_command_time is None
-                or slot_time - slot.last_command_time >= refresh_due
+                slot.last_command_time is None or slot_time - slot.last_command_time >= refresh_due
             ) and (slot.spec.command_mode == "periodic" or self._spacing_elapsed(slot, now)):
                 decision.frames.append(self._command_frame(slot, "refresh", now))
                 if slot.spec.command_mode == "periodic":
@@ -468,13 +517,11 @@ class ScheduleCore:
             self._next_telemetry_tick = decision.telemetry_tick + t.telemetry_period_s
             half_tick = t.telemetry_period_s / 2
             due = [
-                name for name, slot in self._slots.items()
+                name
+                for name, slot in self._slots.items()
                 if slot.poll_period and slot.next_poll_due - now <= half_tick
             ]
-            n = len(self._order)
-            rank = {name: (i - self._rr_offset) % n for i, name in enumerate(self._order)}
-            self._rr_offset = (self._rr_offset + 1) % n
-            due.sort(key=lambda name: (self._slots[name].next_poll_due, rank[name]))
+            due.sort(key=lambda name: (self._slots[name].next_poll_due, self._rank[name]))
             # a new round keeps any leftovers of the previous one in front (they are older)
             self._poll_round = [m for m in self._poll_round if m not in due] + due
         if not self._poll_round:
@@ -482,8 +529,10 @@ class ScheduleCore:
         # suspension: nothing may still occupy the bus at the next command slot
         # (the command frames of this very step go first and take their own bus time)
         bus_free_until = self._next_command_slot - t.command_guard_s
-        budget = bus_free_until - now - sum(
-            self._slots[out.servo].command_cost_s for out in decision.frames
+        budget = (
+            bus_free_until
+            - now
+            - sum(self._slots[out.servo].command_cost_s for out in decision.frames)
         )
         remaining: list[str] = []
         for name in self._poll_round:

@@ -10,6 +10,10 @@ Waiting: sleep until ``spin_s`` before the deadline, then spin (yielding the GIL
 so the receive thread is never starved). On a shared non-real-time machine that is what keeps a
 50 ms loop within a fraction of a millisecond when a core is free; ``realtime=True`` asks for
 SCHED_FIFO, which is what holds under load, and reports (never raises) when the OS refuses.
+A runner that finds itself under SCHED_FIFO or SCHED_RR (asked for, or inherited from the
+process, as under the systemd unit in deploy/) spins ``fifo_spin_s`` instead (default 0): its
+timed wake-up is already late by only a few hundredths of a millisecond, and a spin at
+real-time priority is never preempted, so it cost CPU for no measurable gain.
 """
 
 from __future__ import annotations
@@ -63,13 +67,16 @@ class SchedulerObserver:
     are logged and swallowed; they never stop the loop. ``bus`` is the scheduler's name.
     """
 
-    def on_setpoint(
-        self, servo: str, seq: int, angle_deg: float, source: str, t: float
-    ) -> None:
+    def on_setpoint(self, servo: str, seq: int, angle_deg: float, source: str, t: float) -> None:
         """A setpoint was accepted into the scheduler."""
 
     def on_tx(
-        self, bus: str, msg: can.Message, t: float, kind: FrameKind, servo: str,
+        self,
+        bus: str,
+        msg: can.Message,
+        t: float,
+        kind: FrameKind,
+        servo: str,
         seq: int | None,
     ) -> None:
         """``bus.send`` returned for ``msg``; ``t`` is the monotonic time just after the write."""
@@ -111,8 +118,11 @@ class Scheduler:
         self._core = ScheduleCore(servos, self.timing, start=clock())
         self._specs = {spec.name: spec for spec in servos}
         self._metrics = SchedulerMetrics(
-            self._specs, self.timing.command_period_s, self.timing.telemetry_period_s,
-            self.timing.bitrate, self.timing.load_window_s,
+            self._specs,
+            self.timing.command_period_s,
+            self.timing.telemetry_period_s,
+            self.timing.bitrate,
+            self.timing.load_window_s,
         )
         for spec in servos:  # a servo polled at its own rate is judged against that rate
             if spec.telemetry_hz:
@@ -128,6 +138,8 @@ class Scheduler:
         self._started_at: float | None = None
         self._cpu = {"runner_s": 0.0, "receiver_s": 0.0}
         self.realtime_status = "not requested"
+        self.spin_s = self.timing.spin_s
+        """The spin the runner actually uses (``fifo_spin_s`` once it runs real-time)."""
         for warning in self._core.warnings:
             log.warning("scheduler %s: %s", self.name, warning)
         if getattr(bus, "on_reject", "absent") is None:
@@ -270,6 +282,7 @@ class Scheduler:
             telemetry_period_s=self.timing.telemetry_period_s,
             warnings=self.warnings,
             realtime=self.realtime_status,
+            spin_s=self.spin_s,
             uptime_s=None if self._started_at is None else now - self._started_at,
             cpu=dict(self._cpu),
         )
@@ -313,9 +326,20 @@ class Scheduler:
             self.realtime_status = f"refused ({role}): {exc!r}"
             log.warning("scheduler %s: real-time priority refused: %r", self.name, exc)
 
+    def _choose_spin(self) -> None:
+        """Pick the spin for the calling (runner) thread's actual scheduling policy."""
+        try:
+            policy = os.sched_getscheduler(0)
+        except (AttributeError, OSError):
+            return
+        if policy in (getattr(os, "SCHED_FIFO", -1), getattr(os, "SCHED_RR", -1)):
+            self.spin_s = self.timing.fifo_spin_s
+            if self.realtime_status == "not requested":
+                self.realtime_status = "inherited real-time policy"
+
     def _wait_until(self, deadline: float) -> None:
-        """Sleep to ``spin_s`` before ``deadline``, then spin; return early when woken."""
-        spin = self.timing.spin_s
+        """Sleep to ``spin`` before ``deadline``, then spin; return early when woken."""
+        spin = self.spin_s
         while not self._stop.is_set():
             remaining = deadline - self._clock()
             if remaining <= 0:
@@ -334,6 +358,7 @@ class Scheduler:
 
     def _run(self) -> None:
         self._apply_realtime(self.timing.realtime_priority, "runner")
+        self._choose_spin()
         while not self._stop.is_set():
             decision = self._step()
             self._send_all(decision)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import threading
 import time
 import uuid
@@ -92,17 +93,14 @@ def test_commands_reach_the_servos_and_telemetry_comes_back(sim_bus):
         def settled() -> bool:
             states = {name: scheduler.state(name) for name in targets}
             return all(
-                s is not None and abs(s.position_deg - targets[n]) <= 1.0
-                for n, s in states.items()
+                s is not None and abs(s.position_deg - targets[n]) <= 1.0 for n, s in states.items()
             )
 
         assert wait_for(settled), {n: scheduler.state(n) for n in targets}
 
         def polled_enough() -> bool:
             servos_now = scheduler.metrics()["servos"]
-            return all(
-                servos_now[n]["telemetry_interval_s"]["interval"]["n"] >= 3 for n in targets
-            )
+            return all(servos_now[n]["telemetry_interval_s"]["interval"]["n"] >= 3 for n in targets)
 
         assert wait_for(polled_enough)
     for sim in servos.servos:
@@ -125,8 +123,10 @@ def test_sequence_numbers_on_the_wire_never_go_backwards(sim_bus):
     bus, _ = sim_bus
     recorder = Recorder()
     scheduler = Scheduler(
-        bus, [ServoSpec("s1", RmdX(1), command_mode="immediate"), *specs(4)[1:]],
-        FAST, observer=recorder,
+        bus,
+        [ServoSpec("s1", RmdX(1), command_mode="immediate"), *specs(4)[1:]],
+        FAST,
+        observer=recorder,
     )
     with scheduler:
         for k in range(40):
@@ -205,8 +205,9 @@ def test_decoder_rejections_are_counted_and_observed(sim_bus, tmp_path):
 
 def test_realtime_request_is_reported_not_raised(sim_bus):
     bus, _ = sim_bus
-    scheduler = Scheduler(bus, specs(1), TimingConfig(
-        command_period_s=0.02, telemetry_period_s=0.03, realtime=True))
+    scheduler = Scheduler(
+        bus, specs(1), TimingConfig(command_period_s=0.02, telemetry_period_s=0.03, realtime=True)
+    )
     with scheduler:
         assert wait_for(lambda: scheduler.realtime_status != "not requested")
     status = scheduler.metrics()["info"]["realtime"]
@@ -228,3 +229,54 @@ def test_failing_observer_and_subscriber_do_not_stop_the_loop(sim_bus):
         scheduler.set_setpoint("s1", 1.0, "test")
         assert calls.wait(WAIT_LIMIT_S)
         assert wait_for(lambda: scheduler.metrics()["servos"]["s1"]["frames"]["received"] > 3)
+
+
+def _start_under_fifo(scheduler: Scheduler) -> BaseException | None:
+    """Start ``scheduler`` from a thread running SCHED_FIFO, as under systemd's
+    ``CPUSchedulingPolicy=fifo``: the scheduler's threads inherit the policy. Returns the
+    refusal when the OS does not grant it."""
+    outcome: list[BaseException | None] = []
+
+    def starter() -> None:
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+        except (AttributeError, OSError) as exc:
+            outcome.append(exc)
+            return
+        scheduler.start()
+        outcome.append(None)
+
+    thread = threading.Thread(target=starter)
+    thread.start()
+    thread.join(WAIT_LIMIT_S)
+    return outcome[0] if outcome else RuntimeError("starter thread hung")
+
+
+def test_a_runner_under_an_inherited_fifo_policy_uses_the_fifo_spin(sim_bus):
+    bus, _ = sim_bus
+    timing = TimingConfig(
+        command_period_s=0.02, telemetry_period_s=0.03, spin_s=0.002, fifo_spin_s=0.0
+    )
+    scheduler = Scheduler(bus, specs(1), timing)
+    refused = _start_under_fifo(scheduler)
+    if refused is not None:
+        pytest.skip(f"SCHED_FIFO not granted here: {refused!r}")
+    try:
+        assert wait_for(lambda: scheduler.realtime_status != "not requested")
+        assert scheduler.realtime_status == "inherited real-time policy"
+        assert scheduler.spin_s == 0.0
+        assert scheduler.metrics()["info"]["spin_s"] == 0.0
+        assert wait_for(lambda: scheduler.metrics()["command_tick"]["interval"]["n"] >= 5)
+    finally:
+        scheduler.stop()
+
+
+def test_a_runner_at_normal_priority_keeps_the_configured_spin(sim_bus):
+    bus, _ = sim_bus
+    timing = TimingConfig(
+        command_period_s=0.02, telemetry_period_s=0.03, spin_s=0.002, fifo_spin_s=0.0
+    )
+    with Scheduler(bus, specs(1), timing) as scheduler:
+        assert wait_for(lambda: scheduler.metrics()["command_tick"]["interval"]["n"] >= 3)
+        assert scheduler.spin_s == 0.002
+        assert scheduler.realtime_status == "not requested"

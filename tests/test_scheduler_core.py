@@ -69,7 +69,7 @@ def kinds(decision: Decision) -> list[tuple[str, str]]:
 
 
 def test_periodic_setpoint_waits_for_the_next_slot_and_goes_before_requests():
-    core = core_with(rmd(2))
+    core = core_with(rmd(2), telemetry_phase_s=0.0)
     first = run(core, 100.0)  # slot 0 and telemetry tick 0: nothing to command yet
     assert kinds(first) == [("s1", "request"), ("s2", "request")]
     assert first.next_deadline == pytest.approx(100.0 + T_C)
@@ -85,7 +85,7 @@ def test_periodic_setpoint_waits_for_the_next_slot_and_goes_before_requests():
 
 
 def test_commands_come_first_when_slot_and_telemetry_tick_coincide():
-    core = core_with(rmd(3))
+    core = core_with(rmd(3), telemetry_phase_s=0.0)  # an explicit phase of 0: they coincide
     for name in ("s1", "s2", "s3"):
         core.submit(name, 1.0, "test", t=99.0)
     decision = run(core, 100.0)
@@ -169,7 +169,9 @@ def test_frames_never_carry_an_older_setpoint_than_one_already_sent(events):
 
 
 def test_immediate_mode_sends_at_once_but_respects_minimum_spacing():
-    core = core_with(rmd(1, command_mode="immediate"), immediate_min_spacing_s=0.01)
+    core = core_with(
+        rmd(1, command_mode="immediate"), immediate_min_spacing_s=0.01, telemetry_phase_s=0.0
+    )
     run(core, 100.0)
     core.submit("s1", 1.0, "test", t=100.003)
     assert core.wants_immediate_wake("s1")
@@ -186,7 +188,7 @@ def test_immediate_mode_sends_at_once_but_respects_minimum_spacing():
 
 def test_telemetry_deferred_near_a_command_slot_goes_right_after_its_commands():
     # Tick at +90 ms is 10 ms before the slot at +100 ms; a 15 ms guard suspends polling.
-    core = core_with(rmd(2), command_guard_s=0.015)
+    core = core_with(rmd(2), command_guard_s=0.015, telemetry_phase_s=0.0)
     for name in ("s1", "s2"):
         core.submit(name, 0.0, "test", t=99.0)
     run(core, 100.0)
@@ -264,7 +266,7 @@ def test_polls_that_cannot_fit_degrade_fairly_and_say_so():
 
 
 def test_late_wakeup_serves_the_latest_slot_and_counts_the_missed_ones():
-    core = core_with(rmd(1), telemetry_period_s=10.0)
+    core = core_with(rmd(1), telemetry_period_s=10.0, telemetry_phase_s=0.0)
     core.submit("s1", 1.0, "test", t=99.0)
     run(core, 100.0)
     late = run(core, 100.0 + 3.2 * T_C)
@@ -289,7 +291,7 @@ def test_lost_replies_take_a_servo_offline_and_a_reply_brings_it_back():
 
 
 def test_reply_latency_is_measured_from_the_real_write_time():
-    core = core_with(rmd(1), telemetry_period_s=10.0)
+    core = core_with(rmd(1), telemetry_period_s=10.0, telemetry_phase_s=0.0)
     run(core, 100.0)  # consume the first telemetry tick
     core.on_reply("s1", 100.0005)
     core.submit("s1", 1.0, "test", t=100.01)
@@ -312,7 +314,7 @@ def test_push_servo_latency_is_first_status_after_the_command():
 
 
 def test_release_stops_refresh_until_the_next_setpoint():
-    core = core_with(rmd(1), telemetry_period_s=10.0)
+    core = core_with(rmd(1), telemetry_period_s=10.0, telemetry_phase_s=0.0)
     core.submit("s1", 1.0, "test", t=99.0)
     run(core, 100.0)
     core.release("s1")
@@ -333,16 +335,22 @@ def test_over_budget_schedule_is_refused_with_its_load():
 
 def test_immediate_mode_counts_its_worst_case_in_the_budget():
     periodic = core_with(rmd(4), max_load=1.0).worst_case_load
-    immediate = core_with(rmd(4, command_mode="immediate"), max_load=1.0,
-                          immediate_min_spacing_s=0.01).worst_case_load
+    immediate = core_with(
+        rmd(4, command_mode="immediate"), max_load=1.0, immediate_min_spacing_s=0.01
+    ).worst_case_load
     # 100 commands/s at 10 ms spacing replace the 20/s of the slots (270 bits with the reply)
     assert immediate == pytest.approx(periodic + 4 * (100 - 20) * 270 / 1_000_000)
 
 
 @pytest.mark.parametrize(
     "bad",
-    [{"command_period_s": 0}, {"max_load": -1}, {"offline_after_missed": 0},
-     {"refresh_interval_s": 0}, {"bitrate": math.nan}],
+    [
+        {"command_period_s": 0},
+        {"max_load": -1},
+        {"offline_after_missed": 0},
+        {"refresh_interval_s": 0},
+        {"bitrate": math.nan},
+    ],
 )
 def test_bad_timing_is_refused(bad):
     with pytest.raises(ScheduleError):
@@ -354,3 +362,91 @@ def test_duplicate_names_and_bad_modes_are_refused():
         core_with([ServoSpec("a", RmdX(1)), ServoSpec("a", RmdX(2))])
     with pytest.raises(ScheduleError):
         ServoSpec("a", RmdX(1), command_mode="sometimes")
+
+
+def drive(core: ScheduleCore, until: float, reply_after: float = 0.001) -> list[Decision]:
+    """Step ``core`` from deadline to deadline until ``until``, answering every frame."""
+    decisions = []
+    now = core.start
+    for _ in range(10_000):  # bounded: a few thousand deadlines at most
+        if now >= until - 1e-9:
+            break
+        decision = run(core, now)
+        decisions.append((now, decision))
+        for out in decision.frames:
+            for _ in out.expectations:
+                core.on_reply(out.servo, now + reply_after)
+        now = decision.next_deadline
+    return decisions
+
+
+def test_automatic_phase_keeps_every_poll_round_clear_of_the_command_bursts():
+    # T_c 50 ms, T_t 90 ms: with ticks anchored on a slot, every 5th tick fell on one and its
+    # polls queued behind 8 commands. Phased, no tick shares a step with a slot, every poll
+    # round starts after the slot's command burst and ends before the next slot's guard.
+    servos = rmd(8)
+    core = core_with(servos, start=100.0)
+    timing = core.timing
+    command_burst = 8 * 2 * frame_time(False, 8, timing.bitrate)
+    poll_burst = command_burst  # one 8-byte request and one 8-byte reply per servo
+    for name in core.servo_names:
+        core.submit(name, 0.0, "test", t=99.0)
+    decisions = drive(core, until=100.0 + 45 * T_T)
+    ticks = [(now, d) for now, d in decisions if d.telemetry_tick is not None]
+    assert len(ticks) >= 44
+    for now, decision in ticks:
+        assert decision.command_slot is None
+        assert [o.kind for o in decision.frames] == ["request"] * 8
+        since_slot = (now - 100.0) % T_C
+        assert since_slot >= command_burst - 1e-9
+        assert since_slot + poll_burst <= T_C - timing.command_guard_s + 1e-9
+    # the phase does not disturb the tick period: still exactly T_t apart
+    times = [d.telemetry_tick for _, d in ticks]
+    assert all(b - a == pytest.approx(T_T) for a, b in zip(times, times[1:], strict=False))
+    # the phase is the middle of the free gap: ticks land 4.5 ms + k * 10 ms after a slot
+    gap = 0.010 - timing.command_guard_s - poll_burst - command_burst
+    assert core.telemetry_phase_s == pytest.approx(command_burst + gap / 2)
+
+
+def test_each_servo_keeps_its_place_in_the_poll_round():
+    # A fixed order keeps every reply at the same offset after its tick; the old rotating
+    # order moved each servo by one place per tick (up to 7 polls of reply jitter).
+    core = core_with(rmd(8))
+    places: dict[str, set[int]] = {name: set() for name in core.servo_names}
+    for _, decision in drive(core, until=100.0 + 20 * T_T):
+        requests = [o.servo for o in decision.frames if o.kind == "request"]
+        for place, name in enumerate(requests):
+            places[name].add(place)
+    assert places == {f"s{i}": {i - 1} for i in range(1, 9)}
+
+
+def test_every_servo_is_polled_at_its_own_rate_with_the_phase():
+    # the phase moves the first tick, not the rates: a 5 Hz servo beside 1/T_t ones
+    specs = [ServoSpec("fast", RmdX(1)), ServoSpec("slow", RmdX(2), telemetry_hz=5.0)]
+    core = core_with(specs)
+    polls: dict[str, list[float]] = {"fast": [], "slow": []}
+    for now, decision in drive(core, until=100.0 + 2.0):
+        for out in decision.frames:
+            if out.kind == "request":
+                polls[out.servo].append(now)
+    assert polls["fast"][0] == pytest.approx(100.0 + core.telemetry_phase_s)
+    assert len(polls["fast"]) == pytest.approx(2.0 / T_T, abs=1)
+    slow = polls["slow"]
+    # 5 Hz on a 90 ms tick: polled on the tick nearest each 200 ms due time (2 or 3 ticks
+    # apart), 200 ms on average
+    gaps = [b - a for a, b in zip(slow, slow[1:], strict=False)]
+    assert {round(g / T_T) for g in gaps} == {2, 3}
+    assert all(g == pytest.approx(round(g / T_T) * T_T) for g in gaps)
+    assert (slow[-1] - slow[0]) / len(gaps) == pytest.approx(0.2, abs=0.02)
+
+
+def test_bursts_too_long_for_the_gap_start_polls_right_after_the_commands():
+    # 32 servos at 1 Mbit/s: 8.6 ms of commands leave no clear phase in a 10 ms gap
+    core = core_with(rmd(32), max_load=0.9)
+    assert core.telemetry_phase_s == pytest.approx(32 * 2 * frame_time(False, 8, 1_000_000))
+
+
+@pytest.mark.parametrize("phase", [-0.001, T_T, math.nan])
+def test_a_phase_outside_the_telemetry_period_is_refused(phase):
+    with pytest.raises(ScheduleError, match="telemetry_phase_s"):
+        TimingConfig(telemetry_phase_s=phase)
