@@ -254,6 +254,8 @@ def run_once(args: argparse.Namespace, n_servos: int, seconds: float) -> dict[st
         max_load=0.8,
         realtime=args.realtime,
         spin_s=args.spin,
+        fifo_spin_s=args.fifo_spin,
+        telemetry_phase_s=args.telemetry_phase,
     )
     transport = Transport(
         args.transport, n_servos, args.bitrate, args.sim_in_process, args.realtime
@@ -305,6 +307,7 @@ def run_once(args: argparse.Namespace, n_servos: int, seconds: float) -> dict[st
         "hog": args.hog,
         "transport": args.transport,
         "realtime": snapshot["info"]["realtime"],
+        "spin_ms": snapshot["info"]["spin_s"] * 1e3,
         "cmd_period_mean_ms": tick["interval"]["mean"] * ms,
         "cmd_period_sigma_ms": tick["interval"]["sigma"] * ms,
         "cmd_p99_dev_ms": tick["abs_deviation"]["p99"] * ms,
@@ -379,6 +382,15 @@ def main() -> None:
     parser.add_argument("--command-period", type=float, default=0.05)
     parser.add_argument("--telemetry-period", type=float, default=0.09)
     parser.add_argument("--spin", type=float, default=0.001)
+    parser.add_argument(
+        "--fifo-spin", type=float, default=0.0, help="spin used when the runner is SCHED_FIFO"
+    )
+    parser.add_argument(
+        "--telemetry-phase",
+        type=float,
+        default=None,
+        help="first telemetry tick this long after slot 0 (default: automatic; 0: on a slot)",
+    )
     parser.add_argument("--realtime", action="store_true", help="ask for SCHED_FIFO")
     parser.add_argument("--runs", type=int, default=1)
     parser.add_argument(
