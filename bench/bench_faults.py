@@ -26,13 +26,19 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import random
+import socket
 import struct
+import subprocess
+import sys
+import tempfile
 import threading
 import time
 from collections import Counter, deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 import can
@@ -40,8 +46,9 @@ import can
 from mavservo import aa55
 from mavservo.bridge import Bridge
 from mavservo.config.loader import load_config_text
+from mavservo.scheduler import SchedulerObserver
 from mavservo.sim.adapter import LineCorrupter, LineFaults
-from mavservo.sim.canbus import frame_time
+from mavservo.sim.child import SimulatorProcess, frame_key
 
 RATES = (1e-6, 1e-5, 1e-4, 1e-3, 1e-2)
 
@@ -74,17 +81,19 @@ def codec_run(protocol: str, faults: LineFaults, count: int, seed: int) -> dict[
     wire_total = 0
     block = 64  # frames per serial read, as a USB packet train would deliver them
     for start in range(0, len(sent), block):
-        wire = corrupter.corrupt(b"".join(aa55.encode(f, protocol) for f in sent[start:start
-                                                                                 + block]))
+        wire = corrupter.corrupt(
+            b"".join(aa55.encode(f, protocol) for f in sent[start : start + block])
+        )
         wire_total += len(wire)
         got += decoder.feed(wire)
     got += decoder.flush()
     frames = [f for f in got if isinstance(f, aa55.Frame)]
     wrong = [f for f in frames if f not in sent_set]
     impossible = [
-        f for f in frames
-        if f.dlc > 8 or f.arbitration_id > (aa55.MAX_EXT_ID if f.is_extended_id
-                                             else aa55.MAX_STD_ID)
+        f
+        for f in frames
+        if f.dlc > 8
+        or f.arbitration_id > (aa55.MAX_EXT_ID if f.is_extended_id else aa55.MAX_STD_ID)
         or len(f.data) != (0 if f.is_remote_frame else f.dlc)
     ]
     recovered = sum(1 for f in frames if f in sent_set)
@@ -111,80 +120,116 @@ def codec_section(count: int) -> list[dict[str, Any]]:
     rows = []
     for protocol in ("variable", "fixed"):
         for rate in RATES:
-            rows.append(codec_run(protocol, LineFaults(flip_prob=rate, direction="both"), count,
-                                  seed=1))
-        rows.append(codec_run(protocol, LineFaults(drop_byte_prob=1e-3, direction="both"),
-                              count, seed=2))
-        rows.append(codec_run(protocol, LineFaults(burst_prob=0.05, burst_len=16,
-                                                   direction="both"), count, seed=3))
+            rows.append(
+                codec_run(protocol, LineFaults(flip_prob=rate, direction="both"), count, seed=1)
+            )
+        rows.append(
+            codec_run(protocol, LineFaults(drop_byte_prob=1e-3, direction="both"), count, seed=2)
+        )
+        rows.append(
+            codec_run(
+                protocol, LineFaults(burst_prob=0.05, burst_len=16, direction="both"), count, seed=3
+            )
+        )
     return rows
 
 
 # ------------------------------------------------------------------ end to end
 
 
-def bridge_config(servos: int, protocol: str, command_mode: str = "periodic") -> str:
+def bridge_config(
+    servos: int,
+    protocol: str,
+    command_mode: str = "periodic",
+    *,
+    channel: str = "sim",
+    url: str = "sim",
+    realtime: bool = False,
+) -> str:
+    """16 (``servos``) RMD-X servos mirroring SERVO_OUTPUT_RAW at 50 Hz, polled at 10 Hz.
+
+    ``channel``/``url`` ``sim``: the bridge builds the adapter emulator and the autopilot in its
+    own process; a device path and a MAVLink URL: they run elsewhere (child processes).
+    """
     lines = [
-        "mavlink: {url: sim, heartbeat_timeout_s: 30}",
+        f"mavlink: {{url: '{url}', heartbeat_timeout_s: 30}}",
         "can:",
         "  buses:",
-        f"    - {{name: bus0, interface: aa55, channel: sim, protocol: {protocol},"
+        f"    - {{name: bus0, interface: aa55, channel: '{channel}', protocol: {protocol},"
         " max_load: 0.9}",
         "servos:",
     ]
     for i in range(1, servos + 1):
-        lines.append(f"  - {{name: s{i}, profile: rmd-x, can_id: {i}, limits_deg: [-45, 45],"
-                     f" telemetry_hz: 10, command_mode: {command_mode},"
-                     " failsafe: {action: hold, timeout_s: 5}}")
+        lines.append(
+            f"  - {{name: s{i}, profile: rmd-x, can_id: {i}, limits_deg: [-45, 45],"
+            f" telemetry_hz: 10, command_mode: {command_mode},"
+            " failsafe: {action: hold, timeout_s: 5}}"
+        )
     lines.append("channels:")
     for i in range(1, servos + 1):
-        lines.append(f"  - {{servo: s{i}, source: servo_output, channel: {i},"
-                     " input: {min: 1000, max: 2000}}")
-    lines.append("simulation: {autopilot: {profile: sweep, servo_output_rate_hz: 50,"
-                 " gimbal: false}}")
-    lines.append("scheduler: {command_period_s: 0.02, telemetry_period_s: 0.1}")
+        lines.append(
+            f"  - {{servo: s{i}, source: servo_output, channel: {i},"
+            " input: {min: 1000, max: 2000}}"
+        )
+    lines.append(
+        "simulation: {autopilot: {profile: sweep, servo_output_rate_hz: 50, gimbal: false}}"
+    )
+    lines.append(
+        "scheduler: {command_period_s: 0.02, telemetry_period_s: 0.1,"
+        f" realtime: {str(realtime).lower()}}}"
+    )
     return "\n".join(lines) + "\n"
 
 
 class Recorder:
-    """Frames the host sent (wrapping the bus's ``send``) and frames the servos received
-    (wrapping the simulated CAN bus's ``submit``), to find commands nobody sent.
+    """Frames the host sent (wrapping the bus's ``send``) and frames the servos received, to
+    find commands nobody sent.
+
+    With the adapter emulator in this process (``emulator``), arrivals are seen by wrapping
+    the simulated CAN bus's ``submit``; with it in a child process, :meth:`check` takes the
+    child's ``arrivals`` (frame key -> count) instead.
 
     Only the last ``window`` sent frames are remembered (a frame reaches the adapter within
     milliseconds of being sent), so a soak does not measure the recorder's own growth.
     """
 
-    def __init__(self, bridge: Bridge, window: int = 20_000) -> None:
-        self._recent: deque[tuple] = deque()
+    def __init__(self, bridge: Bridge, emulator: Any = None, window: int = 60_000) -> None:
+        self._recent: deque[str] = deque()
         self._window = window
-        self.sent: Counter[tuple] = Counter()
+        self.sent: Counter[str] = Counter()
         self.arrived = 0
         self.wrong_count = 0
-        self.wrong: deque[tuple] = deque(maxlen=100)  # the last few, for inspection
+        self.wrong: deque[str] = deque(maxlen=100)  # the last few, for inspection
         self.lock = threading.Lock()
         bus = bridge.buses["bus0"]
-        emulator = bridge.emulators["bus0"]
         original_send: Callable[..., Any] = bus.send
-        original_submit: Callable[..., Any] = emulator.canbus.submit
 
         def send(msg: can.Message, timeout: float | None = None) -> None:
             with self.lock:
-                self._remember(key(msg))
+                self._remember(frame_key(msg))
             original_send(msg, timeout)
 
-        def submit(msg: can.Message, ready: float, *rest: Any) -> None:
-            if not rest:  # from the host (servo replies pass the servo as source)
-                with self.lock:
-                    self.arrived += 1
-                    if key(msg) not in self.sent:
-                        self.wrong_count += 1
-                        self.wrong.append(key(msg))
-            original_submit(msg, ready, *rest)
-
         bus.send = send  # type: ignore[method-assign]
-        emulator.canbus.submit = submit  # type: ignore[method-assign]
+        if emulator is not None:
+            original_submit: Callable[..., Any] = emulator.canbus.submit
 
-    def _remember(self, frame: tuple) -> None:
+            def submit(msg: can.Message, ready: float, *rest: Any) -> None:
+                if not rest:  # from the host (servo replies pass the servo as source)
+                    self.check({frame_key(msg): 1})
+                original_submit(msg, ready, *rest)
+
+            emulator.canbus.submit = submit  # type: ignore[method-assign]
+
+    def check(self, arrivals: dict[str, int]) -> None:
+        """Count frames that reached the servos; those the host never sent are wrong."""
+        with self.lock:
+            for frame, count in arrivals.items():
+                self.arrived += count
+                if frame not in self.sent:
+                    self.wrong_count += count
+                    self.wrong.append(frame)
+
+    def _remember(self, frame: str) -> None:
         self._recent.append(frame)
         self.sent[frame] += 1
         if len(self._recent) > self._window:
@@ -194,17 +239,15 @@ class Recorder:
                 del self.sent[old]
 
 
-def key(msg: can.Message) -> tuple:
-    return (msg.arbitration_id, msg.is_extended_id, msg.is_remote_frame, bytes(msg.data))
-
-
 def transport(summary: dict[str, Any]) -> dict[str, Any]:
     bus = summary["buses"]["bus0"]
     return {
         "missed_command_slots": bus["missed_command_slots"],
         "transport": bus["transport"],
-        "servo_frames": {k: sum(s["frames"][k] for s in summary["servos"].values())
-                         for k in ("sent", "received", "lost", "late_replies")},
+        "servo_frames": {
+            k: sum(s["frames"][k] for s in summary["servos"].values())
+            for k in ("sent", "received", "lost", "late_replies")
+        },
     }
 
 
@@ -214,16 +257,23 @@ def line_section(seconds: float, servos: int) -> list[dict[str, Any]]:
         for rate in (0.0, 1e-4, 1e-3, 1e-2):
             bridge = Bridge(load_config_text(bridge_config(servos, protocol)), log_dir=False)
             bridge.start()
-            recorder = Recorder(bridge)
+            recorder = Recorder(bridge, bridge.emulators["bus0"])
             emulator = bridge.emulators["bus0"]
             emulator.line = LineCorrupter(LineFaults(flip_prob=rate, direction="both"), seed=7)
             time.sleep(seconds)
             summary = bridge.stop()
-            rows.append({
-                "protocol": protocol, "flip_prob": rate, "seconds": seconds, "servos": servos,
-                "commands_arrived": recorder.arrived, "wrong_commands": recorder.wrong_count,
-                "bytes_flipped": emulator.line.flipped, **transport(summary),
-            })
+            rows.append(
+                {
+                    "protocol": protocol,
+                    "flip_prob": rate,
+                    "seconds": seconds,
+                    "servos": servos,
+                    "commands_arrived": recorder.arrived,
+                    "wrong_commands": recorder.wrong_count,
+                    "bytes_flipped": emulator.line.flipped,
+                    **transport(summary),
+                }
+            )
     return rows
 
 
@@ -239,7 +289,7 @@ def wait_for(condition: Callable[[], bool], timeout: float) -> float | None:
 def replug_section(cycles: int, unplug_s: float) -> dict[str, Any]:
     bridge = Bridge(load_config_text(bridge_config(4, "variable")), log_dir=False)
     bridge.start()
-    recorder = Recorder(bridge)
+    recorder = Recorder(bridge, bridge.emulators["bus0"])
     emulator = bridge.emulators["bus0"]
     bus = bridge.buses["bus0"]
     time.sleep(1.0)
@@ -253,21 +303,26 @@ def replug_section(cycles: int, unplug_s: float) -> dict[str, Any]:
         to_reconnect.append(reconnected)
         first_reply = wait_for(lambda b=before: bus.stats().get("frames", 0) > b, 10.0)
         # wait_for measures from its own start: the sum is the time since the replug
-        to_reply.append(None if reconnected is None or first_reply is None
-                        else reconnected + first_reply)
+        to_reply.append(
+            None if reconnected is None or first_reply is None else reconnected + first_reply
+        )
         time.sleep(0.5)
     summary = bridge.stop()
     ok_reply = sorted(t for t in to_reply if t is not None)
     ok_reconnect = sorted(t for t in to_reconnect if t is not None)
     return {
-        "cycles": cycles, "unplug_s": unplug_s,
-        "resume_to_first_reply_s": {"median": ok_reply[len(ok_reply) // 2] if ok_reply else None,
-                                    "max": ok_reply[-1] if ok_reply else None,
-                                    "never": to_reply.count(None)},
-        "replug_to_reconnected_s": {"median": ok_reconnect[len(ok_reconnect) // 2]
-                                    if ok_reconnect else None,
-                                    "max": ok_reconnect[-1] if ok_reconnect else None,
-                                    "never": to_reconnect.count(None)},
+        "cycles": cycles,
+        "unplug_s": unplug_s,
+        "resume_to_first_reply_s": {
+            "median": ok_reply[len(ok_reply) // 2] if ok_reply else None,
+            "max": ok_reply[-1] if ok_reply else None,
+            "never": to_reply.count(None),
+        },
+        "replug_to_reconnected_s": {
+            "median": ok_reconnect[len(ok_reconnect) // 2] if ok_reconnect else None,
+            "max": ok_reconnect[-1] if ok_reconnect else None,
+            "never": to_reconnect.count(None),
+        },
         "wrong_commands": recorder.wrong_count,
         **transport(summary),
     }
@@ -291,70 +346,212 @@ def servos_section(seconds: float) -> list[dict[str, Any]]:
         time.sleep(seconds)
         rows_now = {r["servo"]: r for r in bridge.status_rows()}
         summary = bridge.stop()
-        rows.append({
-            "fault": fault, "seconds": seconds,
-            "victim": {"online": rows_now["s2"]["online"], "faults": rows_now["s2"]["faults"],
-                       "frames": summary["servos"]["s2"]["frames"]},
-            "others_online": all(rows_now[f"s{i}"]["online"] for i in (1, 3, 4)),
-            "others_lost": sum(summary["servos"][f"s{i}"]["frames"]["lost"] for i in (1, 3, 4)),
-            **transport(summary),
-        })
+        rows.append(
+            {
+                "fault": fault,
+                "seconds": seconds,
+                "victim": {
+                    "online": rows_now["s2"]["online"],
+                    "faults": rows_now["s2"]["faults"],
+                    "frames": summary["servos"]["s2"]["frames"],
+                },
+                "others_online": all(rows_now[f"s{i}"]["online"] for i in (1, 3, 4)),
+                "others_lost": sum(summary["servos"][f"s{i}"]["frames"]["lost"] for i in (1, 3, 4)),
+                **transport(summary),
+            }
+        )
     return rows
 
 
-class FloodNode:
-    """A foreign CAN node that transmits back to back: one frame always queued."""
-
-    def __init__(self, arbitration_id: int, bitrate: int) -> None:
-        self.msg = can.Message(arbitration_id=arbitration_id, is_extended_id=False,
-                               data=bytes(8))
-        self.period = frame_time(False, 8, bitrate, False)
-        self._next: float | None = None
-        self.sent = 0
-
-    def next_push_time(self) -> float | None:
-        return self._next
-
-    def poll(self, now: float) -> list[tuple[float, can.Message]]:
-        if self._next is None:
-            self._next = now
-            return []
-        due = self._next
-        self._next = max(due + self.period, now - 0.01)  # never a backlog beyond 10 ms
-        self.sent += 1
-        return [(due, can.Message(arbitration_id=self.msg.arbitration_id,
-                                  is_extended_id=False, data=self.msg.data))]
-
-    def receive(self, msg: can.Message, now: float) -> list:
-        return []
+BRIDGE_PRIORITY, SIM_PRIORITY, AUTOPILOT_PRIORITY = 50, 40, 30
+"""SCHED_FIFO priorities of the deployed rig: the bridge as deploy/mavservo.service runs it; the
+simulated hardware and autopilot just below, since on a drone they have CPUs of their own."""
 
 
-def canflood_section(seconds: float) -> list[dict[str, Any]]:
+class DeployedRig:
+    """The bridge alone in this process at SCHED_FIFO (``scheduler.realtime: true`` too), the
+    adapter emulator and its servos in a child process (:class:`SimulatorProcess`) and the
+    simulated autopilot in another (``python -m sitl stream``), both real-time as well.
+
+    Why: real servos, adapter and autopilot do not share the bridge's CPU or interpreter lock;
+    in one process a timing figure measures the simulator as much as the bridge.
+    """
+
+    def __init__(
+        self, servos: int, observers: Sequence[Any] = (), protocol: str = "variable"
+    ) -> None:
+        self._dir = tempfile.TemporaryDirectory(prefix="mavservo-rig-")
+        port = free_udp_port()
+        config_path = os.path.join(self._dir.name, "rig.yaml")
+        Path(config_path).write_text(bridge_config(servos, protocol))
+        self.sim = SimulatorProcess(
+            config=config_path, protocol=protocol, realtime_priority=SIM_PRIORITY
+        )
+        self.autopilot = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "sitl",
+                "stream",
+                "--url",
+                f"udpout:127.0.0.1:{port}",
+                "--profile",
+                "sweep",
+                "--servo-rate",
+                "50",
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            preexec_fn=lambda: os.sched_setscheduler(
+                0, os.SCHED_FIFO, os.sched_param(AUTOPILOT_PRIORITY)
+            ),
+        )
+        # as systemd's CPUSchedulingPolicy=fifo does: every thread started from here inherits it
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(BRIDGE_PRIORITY))
+        text = bridge_config(
+            servos, protocol, channel=self.sim.path, url=f"udpin:127.0.0.1:{port}", realtime=True
+        )
+        self.bridge = Bridge(load_config_text(text), log_dir=False, observers=list(observers))
+        self.recorder: Recorder | None = None
+
+    def start(self) -> Bridge:
+        self.bridge.start()
+        self.recorder = Recorder(self.bridge)
+        return self.bridge
+
+    def stop(self) -> dict[str, Any]:
+        """Stop everything; this thread goes back to normal priority. Returns the summary."""
+        try:
+            return self.bridge.stop()
+        finally:
+            self.autopilot.terminate()
+            try:
+                self.autopilot.wait(5)
+            except subprocess.TimeoutExpired:
+                self.autopilot.kill()
+                self.autopilot.wait(5)
+            self.sim.stop()
+            self._dir.cleanup()
+            os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
+
+
+class LatencyProbe(SchedulerObserver):
+    """Command-to-reply delay per frame (matched in order per servo), for one time window.
+
+    Hooks only append (they run inside the scheduler's loops); :meth:`take` reads and resets.
+    """
+
+    def __init__(self) -> None:
+        self._sent: dict[str, deque[float]] = {}
+        self._delays: list[float] = []
+
+    def on_tx(self, bus: str, msg: Any, t: float, kind: str, servo: str, seq: Any) -> None:
+        self._sent.setdefault(servo, deque(maxlen=64)).append(t)
+
+    def on_rx(self, bus: str, msg: Any, t: float, servo: str, state: Any) -> None:
+        sent = self._sent.get(servo)
+        if sent:
+            self._delays.append(t - sent.popleft())
+
+    def on_lost(self, bus: str, servo: str, t: float) -> None:
+        sent = self._sent.get(servo)
+        if sent:
+            sent.popleft()
+
+    def take(self) -> dict[str, Any]:
+        delays, self._delays = sorted(self._delays), []
+        if not delays:
+            return {"replies": 0}
+
+        def ms(q: float) -> float:
+            return round(delays[min(len(delays) - 1, int(q * len(delays)))] * 1e3, 3)
+
+        return {
+            "replies": len(delays),
+            "p50_ms": ms(0.5),
+            "p99_ms": ms(0.99),
+            "max_ms": round(delays[-1] * 1e3, 3),
+        }
+
+
+def canflood_section(seconds: float, servos: int) -> list[dict[str, Any]]:
+    """A foreign node floods the bus at the lowest (0x7FF) and the highest (0x000) priority,
+    against a baseline without it. The simulated bus plays the flood as back-to-back frames
+    that take part in every arbitration (:meth:`SimCanBus.set_flood`), and the adapter's
+    filter is open as the bridge leaves it: every foreign frame crosses the serial line."""
     rows = []
-    for arbitration_id in (0x000, 0x7FF):
-        bridge = Bridge(load_config_text(bridge_config(4, "variable")), log_dir=False)
-        bridge.start()
-        recorder = Recorder(bridge)
-        emulator = bridge.emulators["bus0"]
-        node = FloodNode(arbitration_id, emulator.bitrate)
-        with emulator._lock:
-            emulator.canbus.attach(node)  # type: ignore[arg-type]
-        time.sleep(seconds)
-        load = emulator.load()
-        summary = bridge.stop()
-        rows.append({
-            "flood_id": hex(arbitration_id), "seconds": seconds, "bus_load": load,
-            "flood_frames": node.sent, "commands_arrived": recorder.arrived,
-            "servos_online": sum(1 for s in summary["servos"].values() if s["online"]),
-            **transport(summary),
-        })
+    for arbitration_id in (None, 0x7FF, 0x000):
+        probe = LatencyProbe()
+        rig = DeployedRig(servos, observers=[probe])
+        bridge = rig.start()
+        scheduler = bridge.schedulers["bus0"]
+        try:
+            time.sleep(2.0)  # servos online
+            before = rig.bridge.summary()
+            rig.sim.request("stats")
+            probe.take()
+            rig.sim.request("flood", arbitration_id=arbitration_id)
+            loads, sim_loads = [], []
+            started = time.monotonic()
+            while time.monotonic() - started < seconds:
+                time.sleep(0.5)
+                loads.append(scheduler.load_ratio())
+                sim_loads.append(rig.sim.request("stats")["load_1s"])
+            during = probe.take()
+            stats = rig.sim.request("stats")
+            rows_now = {r["servo"]: r for r in bridge.status_rows()}
+            after = rig.bridge.summary()
+            rig.sim.request("flood", arbitration_id=None)
+            recovered = wait_for(lambda b=bridge: all(r["online"] for r in b.status_rows()), 10.0)
+            assert rig.recorder is not None
+            rig.recorder.check(rig.sim.request("arrivals")["arrivals"])
+        finally:
+            summary = rig.stop()
+
+        def frames(key: str, a: dict[str, Any] = after, b: dict[str, Any] = before) -> int:
+            return sum(
+                a["servos"][n]["frames"][key] - b["servos"][n]["frames"][key] for n in a["servos"]
+            )
+
+        rows.append(
+            {
+                "flood_id": None if arbitration_id is None else hex(arbitration_id),
+                "seconds": seconds,
+                "servos": servos,
+                "flood_frames": stats["flood_frames"],
+                "bus_load_sim_median": sorted(sim_loads)[len(sim_loads) // 2],
+                "bus_load_bridge_median": sorted(loads)[len(loads) // 2],
+                "frames_to_host": stats["frames_to_host"],
+                "host_frames_dropped_by_adapter": stats["host_dropped"],
+                "bytes_overflowed": stats["bytes_overflowed"],
+                "sim_lag_max_ms": round(stats["lag"]["max_s"] * 1e3, 2),
+                "reply_delay": during,
+                "sent": frames("sent"),
+                "received": frames("received"),
+                "lost": frames("lost"),
+                "servos_online_at_end": sum(1 for r in rows_now.values() if r["online"]),
+                "faults_at_end": sorted({r["faults"] for r in rows_now.values() if r["faults"]}),
+                "back_online_after_flood_s": recovered,
+                "missed_command_slots": after["buses"]["bus0"]["missed_command_slots"]
+                - before["buses"]["bus0"]["missed_command_slots"],
+                "wrong_commands": rig.recorder.wrong_count,
+                "events": summary.get("events", []),
+            }
+        )
     return rows
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--only", nargs="*", default=["codec", "line", "replug", "servos",
-                                                       "canflood"])
+    parser.add_argument(
+        "--only", nargs="*", default=["codec", "line", "replug", "servos", "canflood"]
+    )
     parser.add_argument("--frames", type=int, default=200_000, help="codec: frames per row")
     parser.add_argument("--seconds", type=float, default=10.0, help="end-to-end: per row")
     parser.add_argument("--servos", type=int, default=16)
@@ -362,8 +559,10 @@ def main() -> None:
     parser.add_argument("--unplug-s", type=float, default=1.0)
     args = parser.parse_args()
     started = time.monotonic()
-    out: dict[str, Any] = {"machine": f"{platform.machine()} {platform.processor() or ''} "
-                                      f"python {platform.python_version()}"}
+    out: dict[str, Any] = {
+        "machine": f"{platform.machine()} {platform.processor() or ''} "
+        f"python {platform.python_version()}"
+    }
     if "codec" in args.only:
         out["codec"] = codec_section(args.frames)
     if "line" in args.only:
@@ -373,7 +572,7 @@ def main() -> None:
     if "servos" in args.only:
         out["servos"] = servos_section(args.seconds)
     if "canflood" in args.only:
-        out["canflood"] = canflood_section(args.seconds)
+        out["canflood"] = canflood_section(args.seconds, args.servos)
     out["wall_s"] = time.monotonic() - started
     print(json.dumps(out, indent=1, default=str))
 

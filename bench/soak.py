@@ -1,25 +1,50 @@
 """Soak run: 16 servos, 50 Hz mirroring, 10 Hz telemetry, faults injected, memory watched.
 
-The whole Bridge runs on its simulated autopilot and adapter (``bench_faults.bridge_config``:
-16 RMD-X servos, SERVO_OUTPUT_RAW at 50 Hz, each servo polled at 10 Hz, 20 ms command period).
-The run alternates windows of ``--window-s`` seconds: clean, line corruption (bit flips at
-1e-3 per byte both ways), clean, a USB unplug of 1 s, clean, one servo silent. Every window
-records the deltas of the counters that matter; clean windows are where "no frame loss" and
-"no missed command slots" are judged. Resident memory (VmRSS) and Python heap (tracemalloc,
-optional) are sampled at every window boundary: "memory flat" means the last third of the run
-does not grow beyond the noise of the first third.
+The Bridge drives 16 RMD-X servos (``bench_faults.bridge_config``: SERVO_OUTPUT_RAW at 50 Hz,
+each servo polled at 10 Hz, 20 ms command period). The run alternates windows of
+``--window-s`` seconds: clean, line corruption (bit flips at 1e-3 per byte both ways), clean,
+a USB unplug of 1 s, clean, one servo silent. Every window records the deltas of the counters
+that matter; clean windows are where "no frame loss" and "no missed command slots" are judged.
 
-    python bench/soak.py --minutes 30 > soak.json
+Two set-ups:
+
+* ``--setup deployed`` (default): the bridge as the production unit runs it
+  (deploy/mavservo.service: the whole process SCHED_FIFO 50, ``scheduler.realtime: true``);
+  the adapter emulator and its servos run in a child process
+  (:class:`mavservo.sim.child.SimulatorProcess`) at SCHED_FIFO 40 and the simulated autopilot
+  in another (``python -m sitl stream``) at SCHED_FIFO 30, since real servos, adapter and
+  autopilot do not share the bridge's CPU or interpreter lock.
+* ``--setup in-process``: everything in this process at normal priority (the earlier runs).
+
+Where each missed slot and lost reply comes from (``diagnosis`` in the output): a monitor
+thread records when the process stalled (it woke late), ``gc.callbacks`` record collector
+pauses, an observer records gaps between command slots and every lost reply, the adapter
+records how late it handled bus events (the simulator lagging), and every window records the
+run-queue wait of each thread (CPU taken by others) from ``/proc/<pid>/task/*/schedstat``.
+Each event is then attributed to what overlapped it.
+
+Resident memory (VmRSS) and the Python heap (tracemalloc, optional) are sampled at every
+window boundary: "memory flat" means the last third does not grow beyond the first third.
+
+    flock /tmp/mavservo-bench.lock python bench/soak.py --minutes 30 > soak.json
 """
 
 from __future__ import annotations
 
 import argparse
+import bisect
+import gc
 import json
+import os
 import platform
+import socket
+import subprocess
 import sys
+import tempfile
+import threading
 import time
 import tracemalloc
+from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -29,16 +54,279 @@ from bench_faults import Recorder, bridge_config  # noqa: E402
 
 from mavservo.bridge import Bridge  # noqa: E402
 from mavservo.config.loader import load_config_text  # noqa: E402
+from mavservo.scheduler import SchedulerObserver  # noqa: E402
 from mavservo.sim.adapter import LineCorrupter, LineFaults  # noqa: E402
+from mavservo.sim.child import SimulatorProcess  # noqa: E402
 
 PHASES = ("clean", "line_1e-3", "clean", "unplug", "clean", "servo_silent")
+SILENT_ID = 2
+COMMAND_PERIOD_S = 0.02
+REPLY_TIMEOUT_S = 0.05
+BRIDGE_PRIORITY, SIM_PRIORITY, AUTOPILOT_PRIORITY = 50, 40, 30
 
 
-def rss_kib() -> int:
-    for line in Path("/proc/self/status").read_text().splitlines():
+def rss_kib(pid: int | str = "self") -> int:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
         if line.startswith("VmRSS:"):
             return int(line.split()[1])
     return 0
+
+
+def run_queue_wait_s(pid: int | str = "self") -> dict[str, float]:
+    """Seconds each thread of ``pid`` spent runnable but not running (CPU taken by others)."""
+    names = {t.native_id: t.name for t in threading.enumerate()} if pid == "self" else {}
+    out: dict[str, float] = {}
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            waited = int((task / "schedstat").read_text().split()[1]) / 1e9
+        except (OSError, IndexError, ValueError):
+            continue
+        name = names.get(int(task.name), (task / "comm").read_text().strip())
+        out[name] = out.get(name, 0.0) + waited
+    return out
+
+
+class Diagnostics(SchedulerObserver):
+    """Time-stamped evidence: process stalls, GC pauses, command-slot gaps, lost replies.
+
+    Observer hooks only append to bounded deques (they run inside the scheduler's loops).
+    """
+
+    def __init__(self, stall_s: float = 0.005, keep: int = 20_000) -> None:
+        self.stall_s = stall_s
+        self.stalls: deque[tuple[float, float]] = deque(maxlen=keep)  # (end, duration)
+        self.gc_pauses: deque[tuple[float, float, int]] = deque(maxlen=keep)  # (end, s, gen)
+        self.slot_gaps: deque[tuple[float, float]] = deque(maxlen=keep)  # (end, gap)
+        self.lost: deque[tuple[float, str]] = deque(maxlen=keep)
+        self.sim_lag: deque[tuple[float, float]] = deque(maxlen=keep)  # (t, lag)
+        self._last_command_tx: float | None = None
+        self._gc_start = 0.0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._watch, name="soak-monitor", daemon=True)
+
+    def start(self) -> None:
+        gc.callbacks.append(self._on_gc)
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(2)
+        gc.callbacks.remove(self._on_gc)
+
+    def _on_gc(self, phase: str, info: dict[str, Any]) -> None:
+        now = time.monotonic()
+        if phase == "start":
+            self._gc_start = now
+        elif now - self._gc_start > 0.001:
+            self.gc_pauses.append((now, now - self._gc_start, info["generation"]))
+
+    def _watch(self) -> None:
+        period = 0.002
+        expected = time.monotonic() + period
+        while not self._stop.wait(max(0.0, expected - time.monotonic())):
+            now = time.monotonic()
+            if now - expected > self.stall_s:
+                self.stalls.append((now, now - expected))
+            expected = now + period
+
+    def on_tx(self, bus: str, msg: Any, t: float, kind: str, servo: str, seq: Any) -> None:
+        if kind == "request":
+            return
+        last = self._last_command_tx
+        if last is not None and t - last > 1.5 * COMMAND_PERIOD_S:
+            self.slot_gaps.append((t, t - last))
+        self._last_command_tx = t
+
+    def on_lost(self, bus: str, servo: str, t: float) -> None:
+        self.lost.append((t, servo))
+
+    def attribute(self, start: float, end: float, min_s: float = 0.005) -> str:
+        """What else happened in ``[start, end]``: the first cause found, by weight."""
+
+        def overlaps(events: Any, pad: float = 0.0) -> bool:
+            return any(
+                e_end - dur <= end and e_end + pad >= start and dur >= min_s
+                for e_end, dur, *_ in events
+            )
+
+        if overlaps(self.gc_pauses):
+            return "gc_pause"
+        if overlaps(self.sim_lag):
+            return "simulator_lag"
+        if overlaps(self.stalls):
+            return "process_stall"
+        return "unexplained"
+
+    def report(self, windows: list[dict[str, Any]]) -> dict[str, Any]:
+        """Every slot gap and lost reply with its cause and its window's phase."""
+        starts = [w["t0"] for w in windows]
+
+        def phase(t: float) -> str:
+            i = bisect.bisect_right(starts, t) - 1
+            return windows[i]["phase"] if i >= 0 else "warm-up"
+
+        def into(t: float) -> float:
+            i = bisect.bisect_right(starts, t) - 1
+            return round(t - starts[i], 3) if i >= 0 else 0.0
+
+        gaps = [
+            {
+                "t": round(t, 3),
+                "gap_ms": round(g * 1e3, 1),
+                "phase": phase(t),
+                "into_window_s": into(t),
+                "cause": self.attribute(t - g, t),
+            }
+            for t, g in self.slot_gaps
+        ]
+        lost = [
+            {
+                "t": round(t, 3),
+                "servo": s,
+                "phase": phase(t),
+                "into_window_s": into(t),
+                "cause": self.attribute(t - REPLY_TIMEOUT_S, t),
+            }
+            for t, s in self.lost
+        ]
+        tally: dict[str, dict[str, int]] = {}
+        for kind, events in (("slot_gaps", gaps), ("lost", lost)):
+            for e in events:
+                if e["phase"] in ("clean", "line_1e-3"):
+                    bucket = tally.setdefault(f"{kind}_{e['phase']}", {})
+                    bucket[e["cause"]] = bucket.get(e["cause"], 0) + 1
+        return {
+            "causes_in_clean_and_line_windows": tally,
+            "slot_gaps": gaps[:300],
+            "lost_clean": [e for e in lost if e["phase"] == "clean"][:300],
+            "gc_pauses_over_5ms": sum(1 for _, d, _ in self.gc_pauses if d > 0.005),
+            "gc_pause_max_ms": round(max((d for _, d, _ in self.gc_pauses), default=0) * 1e3, 2),
+            "stalls_over_5ms": len(self.stalls),
+            "stall_max_ms": round(max((d for _, d in self.stalls), default=0) * 1e3, 2),
+            "sim_lag_spikes_over_5ms": len(self.sim_lag),
+        }
+
+
+class InProcess:
+    """The earlier set-up: the bridge builds the emulator and autopilot in this process."""
+
+    name = "in-process"
+
+    def __init__(self, servos: int, observer: SchedulerObserver) -> None:
+        self.bridge = Bridge(
+            load_config_text(bridge_config(servos, "variable")), log_dir=False, observers=[observer]
+        )
+
+    def start(self) -> None:
+        self.emulator = self.bridge.emulators["bus0"]
+        self.clean_line = self.emulator.line
+        self.recorder = Recorder(self.bridge, self.emulator)
+
+    def set_phase(self, phase: str, seed: int) -> None:
+        em = self.emulator
+        with em._lock:
+            if phase == "line_1e-3":
+                em.line = LineCorrupter(LineFaults(flip_prob=1e-3, direction="both"), seed=seed)
+            elif phase == "servo_silent":
+                next(s for s in em.servos if s.can_id == SILENT_ID).faults.silent = True
+        if phase == "unplug":
+            em.unplug()
+            time.sleep(1.0)
+            em.replug()
+
+    def clear_phase(self) -> None:
+        with self.emulator._lock:
+            self.emulator.line = self.clean_line
+            next(s for s in self.emulator.servos if s.can_id == SILENT_ID).faults.silent = False
+
+    def poll(self, diagnostics: Diagnostics) -> dict[str, Any]:
+        with self.emulator._lock:
+            lag = self.emulator.lag.take()
+        diagnostics.sim_lag.extend(lag["spike_times"])
+        return {"sim_lag_max_ms": round(lag["max_s"] * 1e3, 2)}
+
+    def stop(self) -> None:
+        pass
+
+
+class Deployed:
+    """Bridge alone in this process at SCHED_FIFO; simulator and autopilot in child processes."""
+
+    name = "deployed"
+
+    def __init__(self, servos: int, observer: SchedulerObserver) -> None:
+        self._dir = tempfile.TemporaryDirectory(prefix="mavservo-soak-")
+        port = free_udp_port()
+        config_path = os.path.join(self._dir.name, "soak.yaml")
+        Path(config_path).write_text(bridge_config(servos, "variable"))
+        self.sim = SimulatorProcess(config=config_path, realtime_priority=SIM_PRIORITY)
+        self.autopilot = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "sitl",
+                "stream",
+                "--url",
+                f"udpout:127.0.0.1:{port}",
+                "--profile",
+                "sweep",
+                "--servo-rate",
+                "50",
+            ],
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            preexec_fn=lambda: os.sched_setscheduler(
+                0, os.SCHED_FIFO, os.sched_param(AUTOPILOT_PRIORITY)
+            ),
+        )
+        # as systemd's CPUSchedulingPolicy=fifo does: every thread of the bridge inherits it
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(BRIDGE_PRIORITY))
+        text = bridge_config(
+            servos, "variable", channel=self.sim.path, url=f"udpin:127.0.0.1:{port}", realtime=True
+        )
+        self.bridge = Bridge(load_config_text(text), log_dir=False, observers=[observer])
+
+    def start(self) -> None:
+        self.recorder = Recorder(self.bridge)
+
+    def set_phase(self, phase: str, seed: int) -> None:
+        if phase == "line_1e-3":
+            self.sim.request("line", flip_prob=1e-3, direction="both", seed=seed)
+        elif phase == "servo_silent":
+            self.sim.request("servo_faults", can_id=SILENT_ID, silent=True)
+        elif phase == "unplug":
+            self.sim.request("unplug")
+            time.sleep(1.0)
+            self.sim.request("replug")
+
+    def clear_phase(self) -> None:
+        self.sim.request("line")
+        self.sim.request("servo_faults", can_id=SILENT_ID, silent=False)
+
+    def poll(self, diagnostics: Diagnostics) -> dict[str, Any]:
+        self.recorder.check(self.sim.request("arrivals")["arrivals"])
+        stats = self.sim.request("stats")
+        diagnostics.sim_lag.extend(tuple(x) for x in stats["lag"]["spike_times"])
+        return {
+            "sim_lag_max_ms": round(stats["lag"]["max_s"] * 1e3, 2),
+            "sim_run_queue_wait_s": round(sum(run_queue_wait_s(self.sim.process.pid).values()), 3),
+            "sim_rss_kib": rss_kib(self.sim.process.pid),
+        }
+
+    def stop(self) -> None:
+        self.autopilot.terminate()
+        try:
+            self.autopilot.wait(5)
+        except subprocess.TimeoutExpired:
+            self.autopilot.kill()
+        self.sim.stop()
+        self._dir.cleanup()
+
+
+def free_udp_port() -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])
 
 
 def counters(bridge: Bridge, recorder: Recorder) -> dict[str, int]:
@@ -66,15 +354,26 @@ def main() -> None:
     parser.add_argument("--minutes", type=float, default=30.0)
     parser.add_argument("--window-s", type=float, default=20.0)
     parser.add_argument("--servos", type=int, default=16)
+    parser.add_argument("--setup", choices=("deployed", "in-process"), default="deployed")
+    parser.add_argument(
+        "--phases",
+        nargs="+",
+        choices=sorted(set(PHASES)),
+        default=PHASES,
+        help="the cycle of windows (default: %(default)s)",
+    )
     parser.add_argument("--tracemalloc", action="store_true", help="also sample the Python heap")
     args = parser.parse_args()
     if args.tracemalloc:
         tracemalloc.start()
-    bridge = Bridge(load_config_text(bridge_config(args.servos, "variable")), log_dir=False)
+    diagnostics = Diagnostics()
+    kind = Deployed if args.setup == "deployed" else InProcess
+    setup = kind(args.servos, diagnostics)
+    bridge = setup.bridge
+    diagnostics.start()
     bridge.start()
-    recorder = Recorder(bridge)
-    emulator = bridge.emulators["bus0"]
-    clean_line = emulator.line
+    setup.start()
+    recorder = setup.recorder
     started = time.monotonic()
     end = started + args.minutes * 60
     windows: list[dict[str, Any]] = []
@@ -83,27 +382,32 @@ def main() -> None:
     baseline: tracemalloc.Snapshot | None = None
     try:
         time.sleep(2.0)  # servos come online
+        setup.poll(diagnostics)  # start the child's counters afresh
         while time.monotonic() + args.window_s <= end:
-            phase = PHASES[index % len(PHASES)]
+            phase = args.phases[index % len(args.phases)]
             before = counters(bridge, recorder)
+            waited_before = run_queue_wait_s()
             t0 = time.monotonic()
-            if phase == "line_1e-3":
-                emulator.line = LineCorrupter(LineFaults(flip_prob=1e-3, direction="both"),
-                                              seed=index)
-            elif phase == "unplug":
-                emulator.unplug()
-                time.sleep(1.0)
-                emulator.replug()
-            elif phase == "servo_silent":
-                emulator.servos[1].faults.silent = True
+            setup.set_phase(phase, seed=index)
             time.sleep(max(0.0, args.window_s - (time.monotonic() - t0)))
-            emulator.line = clean_line
-            emulator.servos[1].faults.silent = False
-            windows.append({"phase": phase, "t_s": round(t0 - started, 1),
-                            **delta(counters(bridge, recorder), before)})
+            setup.clear_phase()
+            extra = setup.poll(diagnostics)
+            waited = {
+                k: round(v - waited_before.get(k, 0.0), 4) for k, v in run_queue_wait_s().items()
+            }
+            windows.append(
+                {
+                    "phase": phase,
+                    "t_s": round(t0 - started, 1),
+                    "t0": t0,
+                    **delta(counters(bridge, recorder), before),
+                    **extra,
+                    "run_queue_wait_s": {k: v for k, v in waited.items() if v >= 0.001},
+                }
+            )
             heap = tracemalloc.get_traced_memory()[0] if args.tracemalloc else 0
             memory.append((round(time.monotonic() - started, 1), rss_kib(), heap))
-            if args.tracemalloc and index == len(PHASES) - 1:
+            if args.tracemalloc and index == len(args.phases) - 1:
                 baseline = tracemalloc.take_snapshot()  # after one full cycle of phases
             index += 1
         growth = []
@@ -112,15 +416,26 @@ def main() -> None:
             growth = [str(stat) for stat in diff[:8]]
     finally:
         summary = bridge.stop()
+        diagnostics.stop()
+        setup.stop()
     clean = [w for w in windows if w["phase"] == "clean"]
     third = max(1, len(memory) // 3)
     out = {
         "machine": f"{platform.machine()} python {platform.python_version()}",
+        "setup": setup.name,
+        "realtime": summary["buses"]["bus0"].get("realtime")
+        or bridge.schedulers["bus0"].realtime_status,
         "minutes_requested": args.minutes,
         "seconds_run": round(time.monotonic() - started, 1),
         "servos": args.servos,
-        "windows": windows,
-        "memory_samples": memory,
+        "by_phase": {
+            p: {
+                k: sum(w[k] for w in windows if w["phase"] == p)
+                for k in ("sent", "lost", "late", "missed_command_slots", "wrong_commands")
+            }
+            | {"windows": sum(1 for w in windows if w["phase"] == p)}
+            for p in dict.fromkeys(args.phases)
+        },
         "rss_kib_first_third_max": max(m[1] for m in memory[:third]) if memory else None,
         "rss_kib_last_third_max": max(m[1] for m in memory[-third:]) if memory else None,
         "clean_windows": {
@@ -132,6 +447,9 @@ def main() -> None:
         },
         "wrong_commands_total": recorder.wrong_count,
         "missed_command_slots_total": summary["buses"]["bus0"]["missed_command_slots"],
+        "diagnosis": diagnostics.report(windows),
+        "windows": windows,
+        "memory_samples": memory,
         "heap_growth_top": growth,
         "events": summary.get("events", []),
     }

@@ -29,6 +29,7 @@ import tempfile
 import threading
 import time
 import tty
+from collections import deque
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, fields
 from typing import Any
@@ -108,6 +109,41 @@ class LineCorrupter:
         return bytes(out)
 
 
+class LagMeter:
+    """How late the adapter thread handles bus events (a lagging simulator, not the host).
+
+    A servo reply is due on the wire at a known time; if the thread gets there ``lag`` seconds
+    later, the host sees the reply that much later. Spikes above ``spike_s`` are kept (bounded)
+    with their monotonic time so a bench can line them up with the host's lost replies.
+    """
+
+    def __init__(self, spike_s: float = 0.005, keep: int = 1000) -> None:
+        self.spike_s = spike_s
+        self.max_s = 0.0
+        self.samples = 0
+        self.spikes: deque[tuple[float, float]] = deque(maxlen=keep)
+        self.spike_count = 0
+
+    def add(self, now: float, lag: float) -> None:
+        self.samples += 1
+        self.max_s = max(self.max_s, lag)
+        if lag > self.spike_s:
+            self.spike_count += 1
+            self.spikes.append((now, lag))
+
+    def take(self) -> dict[str, Any]:
+        """The figures since the last call, then start again."""
+        out = {
+            "max_s": self.max_s,
+            "samples": self.samples,
+            "spikes": self.spike_count,
+            "spike_times": list(self.spikes),
+        }
+        self.max_s, self.samples, self.spike_count = 0.0, 0, 0
+        self.spikes.clear()
+        return out
+
+
 class AdapterEmulator:
     """An AA-55 USB-CAN adapter on a pty, carrying frames to simulated servos.
 
@@ -153,6 +189,7 @@ class AdapterEmulator:
         self.settings_received = 0
         self.bytes_overflowed = 0
         self.plug_count = 0
+        self.lag = LagMeter()
 
     # -- lifecycle ---------------------------------------------------------------------------
 
@@ -250,8 +287,10 @@ class AdapterEmulator:
                         self._from_host(data, now)
                     elif self.decoder.pending and now - last_rx > _IDLE_FLUSH_S:
                         self._handle_items(self.decoder.flush(), now)
-                    for _, msg in self.canbus.run_until(now):
-                        self._to_host(msg)
+                    due = self.canbus.next_event_time()
+                    if due is not None and due <= now:
+                        self.lag.add(now, now - due)
+                    self._to_host(self.canbus.run_until(now))
         except BaseException as error:  # kept for tests and the CLI to report
             self.error = error
 
@@ -283,7 +322,7 @@ class AdapterEmulator:
                     at = chunk.find(item.raw)
                     self.decoder = aa55.Decoder(self.protocol)
                     if at >= 0:
-                        rest = chunk[at + len(item.raw):]
+                        rest = chunk[at + len(item.raw) :]
                         self._handle_items(self.decoder.feed(rest, now), now, rest)
                     return
             elif isinstance(item, aa55.Frame):
@@ -305,21 +344,35 @@ class AdapterEmulator:
         self.mask = settings.mask
         self.protocol = settings.protocol
 
-    def _to_host(self, msg: can.Message) -> None:
+    def _to_host(self, frames: list[tuple[float, can.Message]]) -> None:
+        """Frames that finished on the bus, through the filter, in one write (a USB packet
+        train). A flood repeats one message object: it is filtered and encoded once."""
         if self.mode in ("loopback", "loopback_silent"):
             return  # a controller in loopback mode ignores its RX pin
-        if (msg.arbitration_id ^ self.filter_id) & self.mask:
-            self.frames_filtered += 1
-            return
-        self._write_frame(msg)
+        chunks: list[bytes] = []
+        last: can.Message | None = None
+        encoded: bytes | None = None
+        for _, msg in frames:
+            if msg is not last:
+                last = msg
+                passes = not (msg.arbitration_id ^ self.filter_id) & self.mask
+                encoded = aa55.encode(msg, self.protocol) if passes else None
+            if encoded is None:
+                self.frames_filtered += 1
+            else:
+                chunks.append(encoded)
+        if chunks:
+            self._write(b"".join(chunks), len(chunks))
 
     def _write_frame(self, msg: can.Message) -> None:
+        self._write(aa55.encode(msg, self.protocol), 1)
+
+    def _write(self, data: bytes, frames: int) -> None:
         if self._master is None:
             return
-        data = aa55.encode(msg, self.protocol)
         if self.line.applies_to("to_host"):
             data = self.line.corrupt(data)
-        self.frames_to_host += 1
+        self.frames_to_host += frames
         try:
             written = os.write(self._master, data)
         except BlockingIOError:

@@ -51,8 +51,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--link", default=None, help="path of the device symlink to publish")
     parser.add_argument("--seed", type=int, default=None)
     parser.add_argument("--status-rate-hz", type=float, default=None)
-    parser.add_argument("--relax-after", type=float, default=None,
-                        help="seconds without command before a servo goes limp")
+    parser.add_argument(
+        "--relax-after",
+        type=float,
+        default=None,
+        help="seconds without command before a servo goes limp",
+    )
     faults = parser.add_argument_group("fault injection (all servos)")
     faults.add_argument("--drop-reply-prob", type=float, default=None)
     faults.add_argument("--reply-delay", type=float, default=None, help="seconds")
@@ -62,8 +66,7 @@ def build_parser() -> argparse.ArgumentParser:
     faults.add_argument("--flip-prob", type=float, default=None, help="per byte, serial line")
     faults.add_argument("--drop-byte-prob", type=float, default=None)
     faults.add_argument("--burst-prob", type=float, default=None)
-    faults.add_argument("--line-direction", choices=("to_host", "to_adapter", "both"),
-                        default=None)
+    faults.add_argument("--line-direction", choices=("to_host", "to_adapter", "both"), default=None)
     return parser
 
 
@@ -126,13 +129,24 @@ def build_emulator(args: argparse.Namespace) -> AdapterEmulator:
         faults.silent |= can_id in (args.silent_ids or [])
         faults.over_current |= can_id in (args.over_current_ids or [])
         faults.over_temperature |= can_id in (args.over_temperature_ids or [])
-        servos.append(SimServo(spec.get("profile", "rmd-x"), can_id, physics, faults,
-                               seed=seed + index,
-                               status_rate_hz=float(spec.get("status_rate_hz", rate))))
+        servos.append(
+            SimServo(
+                spec.get("profile", "rmd-x"),
+                can_id,
+                physics,
+                faults,
+                seed=seed + index,
+                status_rate_hz=float(spec.get("status_rate_hz", rate)),
+            )
+        )
 
     line = LineFaults.from_dict(section.get("line_faults"))
-    for option, field in (("flip_prob", "flip_prob"), ("drop_byte_prob", "drop_byte_prob"),
-                          ("burst_prob", "burst_prob"), ("line_direction", "direction")):
+    for option, field in (
+        ("flip_prob", "flip_prob"),
+        ("drop_byte_prob", "drop_byte_prob"),
+        ("burst_prob", "burst_prob"),
+        ("line_direction", "direction"),
+    ):
         value = getattr(args, option)
         if value is not None:
             setattr(line, field, value)
@@ -156,14 +170,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"mavservo sim: {error}", file=sys.stderr)
         return 2
     stop = threading.Event()
-    previous = {sig: signal.signal(sig, lambda *_: stop.set())
-                for sig in (signal.SIGINT, signal.SIGTERM)}
+    previous = {
+        sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)
+    }
     emulator.start()
     try:
         print(emulator.path, flush=True)
         servo_list = ", ".join(f"{s.profile}:{s.can_id}" for s in emulator.servos)
-        print(f"# {emulator.device} at {emulator.bitrate} bit/s, servos {servo_list}",
-              file=sys.stderr, flush=True)
+        print(
+            f"# {emulator.device} at {emulator.bitrate} bit/s, servos {servo_list}",
+            file=sys.stderr,
+            flush=True,
+        )
         while not stop.wait(0.2):
             if emulator.error is not None:
                 print(f"mavservo sim: adapter failed: {emulator.error!r}", file=sys.stderr)

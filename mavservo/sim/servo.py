@@ -264,9 +264,7 @@ class SimServo:
         ceiling = self.physics.max_speed_dps
         self.speed_limit_dps = ceiling if not speed_dps else min(speed_dps, ceiling)
         accel_ceiling = self.physics.max_accel_dps2
-        self.accel_limit_dps2 = (
-            accel_ceiling if not accel_dps2 else min(accel_dps2, accel_ceiling)
-        )
+        self.accel_limit_dps2 = accel_ceiling if not accel_dps2 else min(accel_dps2, accel_ceiling)
 
     # -- the bus side ------------------------------------------------------------------------
 
@@ -414,8 +412,9 @@ class _CubeMarsDevice:
         else:
             position, speed, accel = struct.unpack(">ihh", data)
             per = servo.erpm_per_dps
-            servo.command_position(position / 10_000, abs(speed) * 10 / per, now,
-                                   abs(accel) * 10 / per)
+            servo.command_position(
+                position / 10_000, abs(speed) * 10 / per, now, abs(accel) * 10 / per
+            )
         return self.status()
 
     def status(self) -> can.Message:

@@ -47,8 +47,7 @@ class VirtualServoBus:
         return self.canbus.servos
 
     def start(self) -> VirtualServoBus:
-        self._bus = can.Bus(interface="virtual", channel=self.channel,
-                            receive_own_messages=False)
+        self._bus = can.Bus(interface="virtual", channel=self.channel, receive_own_messages=False)
         self._stop.clear()
         self._thread = threading.Thread(target=self._run, name="sim-virtual-bus", daemon=True)
         self._thread.start()

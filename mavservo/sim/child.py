@@ -1,0 +1,242 @@
+"""The adapter emulator and its servos in a child process, driven over a pipe.
+
+Why a child: real servos and a real USB-CAN adapter do not share the host's CPU, let alone its
+interpreter lock. In one process the simulator's threads compete with the bridge for the GIL,
+so a timing figure (a missed command slot, a late reply) measures both. :class:`SimulatorProcess`
+starts ``python -m mavservo.sim.child`` (optionally at SCHED_FIFO, as hardware runs beside the
+host rather than on it), reads the device path from its first output line, and then speaks
+one JSON object per line: a request on the child's stdin, one reply on its stdout.
+
+Requests (``op`` and its arguments):
+
+* ``stats``: the adapter's counters, bus load, flood frames, host frames dropped by the full
+  TX queue, and the adapter thread's lag since the last ``stats`` (:class:`LagMeter`);
+* ``line``: replace the line corruption (:class:`LineFaults` fields; none: a clean line);
+* ``unplug`` / ``replug``: the USB cable;
+* ``servo_faults``: ``can_id`` and :class:`Faults` fields to set on that servo;
+* ``flood``: ``arbitration_id`` (None stops it), ``dlc``: a foreign node at 100 % bus load;
+* ``arrivals``: the frames from the host that reached the CAN bus since the last call, as
+  ``"id:ext:rtr:datahex" -> count`` (to find frames the host never sent).
+
+Time in replies is ``time.monotonic()``, the same clock as the parent's on Linux.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+import threading
+from collections import Counter
+from collections.abc import Sequence
+from typing import Any
+
+import can
+
+from .adapter import AdapterEmulator, LineCorrupter, LineFaults
+from .canbus import HOST
+from .servo import SimServo
+
+
+def frame_key(msg: can.Message) -> str:
+    """A frame as text, identical for the same frame on both sides of the pipe."""
+    return (
+        f"{msg.arbitration_id:x}:{int(msg.is_extended_id)}:{int(msg.is_remote_frame)}:"
+        f"{bytes(msg.data).hex()}"
+    )
+
+
+class SimulatorProcess:
+    """A child process running :class:`AdapterEmulator`; ``path`` is the device to open.
+
+    ``servos``: that many RMD-X servos with IDs 1..n, or ``config`` (a mavservo YAML file) and
+    ``bus``: the same simulated servos the bridge would build for ``channel: sim``.
+    ``realtime_priority``: run the child at SCHED_FIFO with that priority (None: normal).
+    """
+
+    def __init__(
+        self,
+        servos: int | None = None,
+        *,
+        bitrate: int = 1_000_000,
+        protocol: str = "variable",
+        realtime_priority: int | None = None,
+        config: str | None = None,
+        bus: str = "bus0",
+        start_timeout_s: float = 20.0,
+    ) -> None:
+        command = [
+            sys.executable,
+            "-m",
+            "mavservo.sim.child",
+            "--bitrate",
+            str(bitrate),
+            "--protocol",
+            protocol,
+        ]
+        if config is not None:
+            command += ["--config", config, "--bus", bus]
+        else:
+            command += ["--servos", str(servos or 1)]
+        if realtime_priority is not None:
+            command += ["--realtime", str(realtime_priority)]
+        self.process = subprocess.Popen(
+            command,
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+            bufsize=1,
+            env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)},
+        )
+        self._lock = threading.Lock()
+        timer = threading.Timer(start_timeout_s, self.process.kill)
+        timer.start()
+        try:
+            assert self.process.stdout is not None
+            self.path = self.process.stdout.readline().strip()
+        finally:
+            timer.cancel()
+        if not self.path:
+            self.process.wait(5)
+            raise RuntimeError(f"simulator child did not start (exit {self.process.returncode})")
+
+    def request(self, op: str, **args: Any) -> dict[str, Any]:
+        """Send one request, return the child's reply (raises if the child reports an error)."""
+        assert self.process.stdin is not None and self.process.stdout is not None
+        with self._lock:
+            self.process.stdin.write(json.dumps({"op": op, **args}) + "\n")
+            self.process.stdin.flush()
+            line = self.process.stdout.readline()
+        if not line:
+            raise RuntimeError("simulator child is gone")
+        reply = json.loads(line)
+        if "error" in reply:
+            raise RuntimeError(f"simulator child: {reply['error']}")
+        return reply
+
+    def stop(self) -> None:
+        """Close the pipe (the child stops its adapter and exits); kill it if it hangs."""
+        if self.process.poll() is None:
+            try:
+                assert self.process.stdin is not None
+                self.process.stdin.close()
+                self.process.wait(10)
+            except (OSError, subprocess.TimeoutExpired):
+                self.process.kill()
+                self.process.wait(5)
+
+    def __enter__(self) -> SimulatorProcess:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+
+class _Arrivals:
+    """Counts host frames as they reach the bus (wraps ``SimCanBus.submit``)."""
+
+    def __init__(self, emulator: AdapterEmulator) -> None:
+        self.counts: Counter[str] = Counter()
+        original = emulator.canbus.submit
+
+        def submit(msg: can.Message, ready: float, source: SimServo | None = HOST) -> None:
+            if source is HOST:
+                self.counts[frame_key(msg)] += 1
+            original(msg, ready, source)
+
+        emulator.canbus.submit = submit  # type: ignore[method-assign]
+
+    def take(self) -> dict[str, int]:
+        out, self.counts = dict(self.counts), Counter()
+        return out
+
+
+def _handle(
+    emulator: AdapterEmulator, arrivals: _Arrivals, request: dict[str, Any]
+) -> dict[str, Any]:
+    op = request.pop("op")
+    now = emulator.clock()
+    with emulator._lock:  # the adapter thread reads all of this
+        if op == "stats":
+            bus = emulator.canbus
+            flood = bus.flood
+            return {
+                "t": now,
+                "frames_from_host": emulator.frames_from_host,
+                "frames_to_host": emulator.frames_to_host,
+                "frames_filtered": emulator.frames_filtered,
+                "bytes_overflowed": emulator.bytes_overflowed,
+                "plug_count": emulator.plug_count,
+                "bus_frames": bus.frames,
+                "load_1s": bus.load(now),
+                "flood_frames": flood.sent if flood else 0,
+                "host_dropped": bus.host_dropped,
+                "flipped": emulator.line.flipped,
+                "lag": emulator.lag.take(),
+                "adapter_error": repr(emulator.error) if emulator.error else None,
+            }
+        if op == "line":
+            seed = int(request.pop("seed", 0))
+            emulator.line = LineCorrupter(LineFaults.from_dict(request), seed)
+        elif op == "unplug":
+            emulator.unplug()
+        elif op == "replug":
+            emulator.replug()
+        elif op == "servo_faults":
+            can_id = int(request.pop("can_id"))
+            servo = next(s for s in emulator.servos if s.can_id == can_id)
+            servo.faults = dataclasses.replace(servo.faults, **request)
+        elif op == "flood":
+            emulator.canbus.set_flood(
+                request.get("arbitration_id"), now, int(request.get("dlc", 8))
+            )
+        elif op == "arrivals":
+            return {"t": now, "arrivals": arrivals.take()}
+        else:
+            raise ValueError(f"unknown op {op!r}")
+    return {"t": now}
+
+
+def _servos(args: argparse.Namespace) -> list[SimServo]:
+    if args.config:
+        from ..bridge import simulated_servos
+        from ..config.loader import load_config
+
+        return simulated_servos(load_config(args.config), args.bus)
+    return [SimServo("rmd-x", i) for i in range(1, args.servos + 1)]
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m mavservo.sim.child", description=__doc__.splitlines()[0]
+    )
+    parser.add_argument("--servos", type=int, default=1)
+    parser.add_argument("--config")
+    parser.add_argument("--bus", default="bus0")
+    parser.add_argument("--bitrate", type=int, default=1_000_000)
+    parser.add_argument("--protocol", choices=("variable", "fixed"), default="variable")
+    parser.add_argument("--realtime", type=int, default=None, metavar="PRIORITY")
+    args = parser.parse_args(argv)
+    if args.realtime is not None:  # before the adapter thread exists: it inherits the policy
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(args.realtime))
+    emulator = AdapterEmulator(_servos(args), bitrate=args.bitrate, protocol=args.protocol)
+    arrivals = _Arrivals(emulator)
+    emulator.start()
+    try:
+        print(emulator.path, flush=True)
+        for line in sys.stdin:
+            try:
+                reply = _handle(emulator, arrivals, json.loads(line))
+            except Exception as error:  # a bad request is answered, the adapter keeps going
+                reply = {"error": repr(error)}
+            print(json.dumps(reply), flush=True)
+    finally:
+        emulator.stop()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,101 @@
+"""The simulator in a child process, driven over its pipe, talked to through the real pty.
+
+A host opens the child's device with the project's ``aa55`` interface, as the bridge does;
+every request of the control protocol must be visible from that host. Waits are bounded in
+count and time and only ever used as upper limits.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+
+import can
+import pytest
+
+from mavservo.servos import RmdX
+from mavservo.sim.child import SimulatorProcess, frame_key
+from mavservo.usbcan import AA55Bus
+
+
+@pytest.fixture
+def child() -> Iterator[tuple[SimulatorProcess, AA55Bus]]:
+    sim = SimulatorProcess(2)
+    bus = AA55Bus(sim.path, bitrate=1_000_000)
+    try:
+        yield sim, bus
+    finally:
+        bus.shutdown()
+        sim.stop()
+    assert sim.process.returncode == 0
+
+
+def _collect(
+    bus: can.BusABC, seconds: float, keep: Callable[[can.Message], bool], want: int = 100_000
+) -> list:
+    """Frames that ``keep`` accepts, for ``seconds`` or until ``want`` of them arrived."""
+    got = []
+    deadline = time.monotonic() + seconds
+    for _ in range(100_000):
+        left = deadline - time.monotonic()
+        if left <= 0:
+            break
+        msg = bus.recv(timeout=min(left, 0.05))
+        if msg is not None and keep(msg):
+            got.append(msg)
+            if len(got) >= want:
+                break
+    return got
+
+
+def _ask(bus: can.BusABC, servo: int, seconds: float = 1.0) -> list[can.Message]:
+    for request in RmdX(servo).telemetry_requests():
+        bus.send(request)
+    reply_id = 0x240 + servo
+    return _collect(bus, seconds, lambda m: m.arbitration_id == reply_id, want=1)
+
+
+def test_servos_answer_and_arrivals_name_the_frames_the_host_sent(child):
+    sim, bus = child
+    assert _ask(bus, 1) and _ask(bus, 2)
+    arrivals = sim.request("arrivals")["arrivals"]
+    assert set(arrivals) == {frame_key(r) for s in (1, 2) for r in RmdX(s).telemetry_requests()}
+    assert sim.request("arrivals")["arrivals"] == {}  # taken: counting starts again
+    stats = sim.request("stats")
+    assert stats["frames_from_host"] == 2 and stats["adapter_error"] is None
+
+
+def test_a_silenced_servo_stops_answering_and_the_other_does_not(child):
+    sim, bus = child
+    sim.request("servo_faults", can_id=2, silent=True)
+    assert _ask(bus, 2, seconds=0.3) == []
+    assert _ask(bus, 1)
+    sim.request("servo_faults", can_id=2, silent=False)
+    assert _ask(bus, 2)
+
+
+def test_lowest_priority_flood_reaches_the_host_and_replies_still_get_through(child):
+    sim, bus = child
+    sim.request("flood", arbitration_id=0x7FF)
+    flood = _collect(bus, 1.1, lambda m: m.arbitration_id == 0x7FF)  # a full 1 s load window
+    assert len(flood) > 1000
+    assert _ask(bus, 1)
+    assert sim.request("stats")["load_1s"] > 0.9
+    sim.request("flood", arbitration_id=None)
+
+
+def test_highest_priority_flood_keeps_the_servos_off_the_bus_until_it_stops(child):
+    sim, bus = child
+    sim.request("flood", arbitration_id=0x000)
+    assert _ask(bus, 1, seconds=0.3) == []
+    sim.request("flood", arbitration_id=None)
+    # the request waited in the adapter's queue and goes out once the bus is free
+    late = _collect(bus, 1.0, lambda m: m.arbitration_id == 0x241, want=1)
+    assert late
+
+
+def test_a_bad_request_is_refused_and_the_child_keeps_running(child):
+    sim, bus = child
+    with pytest.raises(RuntimeError, match="unknown op"):
+        sim.request("explode")
+    assert _ask(bus, 1)
