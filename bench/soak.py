@@ -35,12 +35,8 @@ import argparse
 import bisect
 import gc
 import json
-import os
 import platform
-import socket
-import subprocess
 import sys
-import tempfile
 import threading
 import time
 import tracemalloc
@@ -50,19 +46,17 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_faults import Recorder, bridge_config  # noqa: E402
+from bench_faults import DeployedRig, Recorder, bridge_config  # noqa: E402
 
 from mavservo.bridge import Bridge  # noqa: E402
 from mavservo.config.loader import load_config_text  # noqa: E402
 from mavservo.scheduler import SchedulerObserver  # noqa: E402
 from mavservo.sim.adapter import LineCorrupter, LineFaults  # noqa: E402
-from mavservo.sim.child import SimulatorProcess  # noqa: E402
 
 PHASES = ("clean", "line_1e-3", "clean", "unplug", "clean", "servo_silent")
 SILENT_ID = 2
 COMMAND_PERIOD_S = 0.02
 REPLY_TIMEOUT_S = 0.05
-BRIDGE_PRIORITY, SIM_PRIORITY, AUTOPILOT_PRIORITY = 50, 40, 30
 
 
 def rss_kib(pid: int | str = "self") -> int:
@@ -96,10 +90,11 @@ class Diagnostics(SchedulerObserver):
         self.stall_s = stall_s
         self.stalls: deque[tuple[float, float]] = deque(maxlen=keep)  # (end, duration)
         self.gc_pauses: deque[tuple[float, float, int]] = deque(maxlen=keep)  # (end, s, gen)
-        self.slot_gaps: deque[tuple[float, float]] = deque(maxlen=keep)  # (end, gap)
+        self.missed: deque[tuple[float, int]] = deque(maxlen=keep)  # (seen at, slots)
         self.lost: deque[tuple[float, str]] = deque(maxlen=keep)
         self.sim_lag: deque[tuple[float, float]] = deque(maxlen=keep)  # (t, lag)
-        self._last_command_tx: float | None = None
+        self.scheduler: Any = None
+        """Set to the bridge's scheduler once it exists: its missed-slot count is watched."""
         self._gc_start = 0.0
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._watch, name="soak-monitor", daemon=True)
@@ -121,21 +116,20 @@ class Diagnostics(SchedulerObserver):
             self.gc_pauses.append((now, now - self._gc_start, info["generation"]))
 
     def _watch(self) -> None:
+        """Every 2 ms: did this thread wake late (the process stalled), did a slot go missed?"""
         period = 0.002
         expected = time.monotonic() + period
+        missed = 0
         while not self._stop.wait(max(0.0, expected - time.monotonic())):
             now = time.monotonic()
             if now - expected > self.stall_s:
                 self.stalls.append((now, now - expected))
             expected = now + period
-
-    def on_tx(self, bus: str, msg: Any, t: float, kind: str, servo: str, seq: Any) -> None:
-        if kind == "request":
-            return
-        last = self._last_command_tx
-        if last is not None and t - last > 1.5 * COMMAND_PERIOD_S:
-            self.slot_gaps.append((t, t - last))
-        self._last_command_tx = t
+            if self.scheduler is not None:
+                count = self.scheduler.metrics_store.missed_command_slots
+                if count > missed:
+                    self.missed.append((now, count - missed))
+                missed = count
 
     def on_lost(self, bus: str, servo: str, t: float) -> None:
         self.lost.append((t, servo))
@@ -169,15 +163,17 @@ class Diagnostics(SchedulerObserver):
             i = bisect.bisect_right(starts, t) - 1
             return round(t - starts[i], 3) if i >= 0 else 0.0
 
+        # a missed slot means the command thread woke at least one period late: look at the
+        # (slots + 1) periods before the monitor saw it
         gaps = [
             {
                 "t": round(t, 3),
-                "gap_ms": round(g * 1e3, 1),
+                "slots": n,
                 "phase": phase(t),
                 "into_window_s": into(t),
-                "cause": self.attribute(t - g, t),
+                "cause": self.attribute(t - (n + 1) * COMMAND_PERIOD_S - 0.002, t),
             }
-            for t, g in self.slot_gaps
+            for t, n in self.missed
         ]
         lost = [
             {
@@ -190,14 +186,13 @@ class Diagnostics(SchedulerObserver):
             for t, s in self.lost
         ]
         tally: dict[str, dict[str, int]] = {}
-        for kind, events in (("slot_gaps", gaps), ("lost", lost)):
+        for kind, events in (("missed_slots", gaps), ("lost", lost)):
             for e in events:
-                if e["phase"] in ("clean", "line_1e-3"):
-                    bucket = tally.setdefault(f"{kind}_{e['phase']}", {})
-                    bucket[e["cause"]] = bucket.get(e["cause"], 0) + 1
+                bucket = tally.setdefault(f"{kind}_{e['phase']}", {})
+                bucket[e["cause"]] = bucket.get(e["cause"], 0) + e.get("slots", 1)
         return {
-            "causes_in_clean_and_line_windows": tally,
-            "slot_gaps": gaps[:300],
+            "causes": tally,
+            "missed_slots": gaps[:300],
             "lost_clean": [e for e in lost if e["phase"] == "clean"][:300],
             "gc_pauses_over_5ms": sum(1 for _, d, _ in self.gc_pauses if d > 0.005),
             "gc_pause_max_ms": round(max((d for _, d, _ in self.gc_pauses), default=0) * 1e3, 2),
@@ -217,10 +212,12 @@ class InProcess:
             load_config_text(bridge_config(servos, "variable")), log_dir=False, observers=[observer]
         )
 
-    def start(self) -> None:
+    def start(self) -> Recorder:
+        self.bridge.start()
         self.emulator = self.bridge.emulators["bus0"]
         self.clean_line = self.emulator.line
         self.recorder = Recorder(self.bridge, self.emulator)
+        return self.recorder
 
     def set_phase(self, phase: str, seed: int) -> None:
         em = self.emulator
@@ -245,49 +242,25 @@ class InProcess:
         diagnostics.sim_lag.extend(lag["spike_times"])
         return {"sim_lag_max_ms": round(lag["max_s"] * 1e3, 2)}
 
-    def stop(self) -> None:
-        pass
+    def stop(self) -> dict[str, Any]:
+        return self.bridge.stop()
 
 
 class Deployed:
-    """Bridge alone in this process at SCHED_FIFO; simulator and autopilot in child processes."""
+    """The bridge as deployed (:class:`bench_faults.DeployedRig`) with the soak's faults."""
 
     name = "deployed"
 
     def __init__(self, servos: int, observer: SchedulerObserver) -> None:
-        self._dir = tempfile.TemporaryDirectory(prefix="mavservo-soak-")
-        port = free_udp_port()
-        config_path = os.path.join(self._dir.name, "soak.yaml")
-        Path(config_path).write_text(bridge_config(servos, "variable"))
-        self.sim = SimulatorProcess(config=config_path, realtime_priority=SIM_PRIORITY)
-        self.autopilot = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "sitl",
-                "stream",
-                "--url",
-                f"udpout:127.0.0.1:{port}",
-                "--profile",
-                "sweep",
-                "--servo-rate",
-                "50",
-            ],
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-            preexec_fn=lambda: os.sched_setscheduler(
-                0, os.SCHED_FIFO, os.sched_param(AUTOPILOT_PRIORITY)
-            ),
-        )
-        # as systemd's CPUSchedulingPolicy=fifo does: every thread of the bridge inherits it
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(BRIDGE_PRIORITY))
-        text = bridge_config(
-            servos, "variable", channel=self.sim.path, url=f"udpin:127.0.0.1:{port}", realtime=True
-        )
-        self.bridge = Bridge(load_config_text(text), log_dir=False, observers=[observer])
+        self.rig = DeployedRig(servos, observers=[observer])
+        self.sim = self.rig.sim
+        self.bridge = self.rig.bridge
 
-    def start(self) -> None:
-        self.recorder = Recorder(self.bridge)
+    def start(self) -> Recorder:
+        self.rig.start()
+        assert self.rig.recorder is not None
+        self.recorder = self.rig.recorder
+        return self.recorder
 
     def set_phase(self, phase: str, seed: int) -> None:
         if phase == "line_1e-3":
@@ -313,20 +286,8 @@ class Deployed:
             "sim_rss_kib": rss_kib(self.sim.process.pid),
         }
 
-    def stop(self) -> None:
-        self.autopilot.terminate()
-        try:
-            self.autopilot.wait(5)
-        except subprocess.TimeoutExpired:
-            self.autopilot.kill()
-        self.sim.stop()
-        self._dir.cleanup()
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
+    def stop(self) -> dict[str, Any]:
+        return self.rig.stop()
 
 
 def counters(bridge: Bridge, recorder: Recorder) -> dict[str, int]:
@@ -371,9 +332,8 @@ def main() -> None:
     setup = kind(args.servos, diagnostics)
     bridge = setup.bridge
     diagnostics.start()
-    bridge.start()
-    setup.start()
-    recorder = setup.recorder
+    recorder = setup.start()
+    diagnostics.scheduler = bridge.schedulers["bus0"]
     started = time.monotonic()
     end = started + args.minutes * 60
     windows: list[dict[str, Any]] = []
@@ -415,9 +375,8 @@ def main() -> None:
             diff = tracemalloc.take_snapshot().compare_to(baseline, "lineno")
             growth = [str(stat) for stat in diff[:8]]
     finally:
-        summary = bridge.stop()
+        summary = setup.stop()
         diagnostics.stop()
-        setup.stop()
     clean = [w for w in windows if w["phase"] == "clean"]
     third = max(1, len(memory) // 3)
     out = {
