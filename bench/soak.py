@@ -40,7 +40,7 @@ import sys
 import threading
 import time
 import tracemalloc
-from collections import deque
+from collections import Counter, deque
 from pathlib import Path
 from typing import Any
 
@@ -92,6 +92,8 @@ class Diagnostics(SchedulerObserver):
         self.gc_pauses: deque[tuple[float, float, int]] = deque(maxlen=keep)  # (end, s, gen)
         self.missed: deque[tuple[float, int]] = deque(maxlen=keep)  # (seen at, slots)
         self.lost: deque[tuple[float, str]] = deque(maxlen=keep)
+        self.sent: dict[str, deque[tuple[float, str]]] = {}  # per servo: (t, kind)
+        self.followed: list[dict[str, Any]] = []
         self.sim_lag: deque[tuple[float, float]] = deque(maxlen=keep)  # (t, lag)
         self.scheduler: Any = None
         """Set to the bridge's scheduler once it exists: its missed-slot count is watched."""
@@ -131,8 +133,55 @@ class Diagnostics(SchedulerObserver):
                     self.missed.append((now, count - missed))
                 missed = count
 
+    def on_tx(self, bus: str, msg: Any, t: float, kind: str, servo: str, seq: Any) -> None:
+        self.sent.setdefault(servo, deque(maxlen=400)).append((t, kind))
+
     def on_lost(self, bus: str, servo: str, t: float) -> None:
         self.lost.append((t, servo))
+
+    def follow_losses(
+        self, start: float, end: float, trace: Any, limit: int = 50
+    ) -> list[dict[str, Any]]:
+        """Follow each reply lost in ``[start, end)`` through the simulator's trace: did the
+        frame reach the adapter, did the servo's reply leave it, when? ``trace(t0, t1, ids)``."""
+        out = []
+        for t_lost, servo in [e for e in self.lost if start <= e[0] < end][:limit]:
+            can_id = int(servo.lstrip("s"))
+            # the scheduler declares a loss at its first step after send + timeout
+            sends = [
+                (t, kind)
+                for t, kind in self.sent.get(servo, ())
+                if t_lost - REPLY_TIMEOUT_S - 2 * COMMAND_PERIOD_S <= t <= t_lost - REPLY_TIMEOUT_S
+            ]
+            events = trace(t_lost - 0.15, t_lost + 0.3, [0x140 + can_id, 0x240 + can_id])
+            t_send = sends[-1][0] if sends else None
+            into = [e for e in events if e[1] == "in" and t_send is not None and e[0] >= t_send]
+            outs = [e for e in events if e[1] == "out" and into and e[0] >= into[0][0]]
+            if t_send is None:
+                verdict = "no send found"
+            elif not into or into[0][0] - t_send > REPLY_TIMEOUT_S:
+                verdict = "frame did not reach the adapter in time"
+            elif not outs:
+                verdict = "servo sent no reply"
+            elif outs[0][0] - t_send > REPLY_TIMEOUT_S:
+                verdict = "simulator handed the reply over late"
+            else:
+                verdict = "reply left the adapter in time, the bridge missed its deadline"
+            out.append(
+                {
+                    "t": round(t_lost, 3),
+                    "servo": servo,
+                    "sends": [(round(t - t_lost, 4), k) for t, k in sends],
+                    "to_adapter_ms": None
+                    if not into or t_send is None
+                    else round((into[0][0] - t_send) * 1e3, 2),
+                    "reply_out_ms": None
+                    if not outs or t_send is None
+                    else round((outs[0][0] - t_send) * 1e3, 2),
+                    "verdict": verdict,
+                }
+            )
+        return out
 
     def attribute(self, start: float, end: float, min_s: float = 0.005) -> str:
         """What else happened in ``[start, end]``: the first cause found, by weight."""
@@ -199,6 +248,8 @@ class Diagnostics(SchedulerObserver):
             "stalls_over_5ms": len(self.stalls),
             "stall_max_ms": round(max((d for _, d in self.stalls), default=0) * 1e3, 2),
             "sim_lag_spikes_over_5ms": len(self.sim_lag),
+            "clean_losses_followed": self.followed[:300],
+            "clean_loss_verdicts": dict(Counter(f["verdict"] for f in self.followed)),
         }
 
 
@@ -236,7 +287,7 @@ class InProcess:
             self.emulator.line = self.clean_line
             next(s for s in self.emulator.servos if s.can_id == SILENT_ID).faults.silent = False
 
-    def poll(self, diagnostics: Diagnostics) -> dict[str, Any]:
+    def poll(self, diagnostics: Diagnostics, follow: tuple[float, float] | None) -> dict[str, Any]:
         with self.emulator._lock:
             lag = self.emulator.lag.take()
         diagnostics.sim_lag.extend(lag["spike_times"])
@@ -276,8 +327,14 @@ class Deployed:
         self.sim.request("line")
         self.sim.request("servo_faults", can_id=SILENT_ID, silent=False)
 
-    def poll(self, diagnostics: Diagnostics) -> dict[str, Any]:
+    def poll(self, diagnostics: Diagnostics, follow: tuple[float, float] | None) -> dict[str, Any]:
         self.recorder.check(self.sim.request("arrivals")["arrivals"])
+        if follow is not None:
+
+            def trace(t0: float, t1: float, ids: list[int]) -> list[Any]:
+                return self.sim.request("trace", t0=t0, t1=t1, ids=ids)["trace"]
+
+            diagnostics.followed += diagnostics.follow_losses(*follow, trace)
         stats = self.sim.request("stats")
         diagnostics.sim_lag.extend(tuple(x) for x in stats["lag"]["spike_times"])
         return {
@@ -342,7 +399,8 @@ def main() -> None:
     baseline: tracemalloc.Snapshot | None = None
     try:
         time.sleep(2.0)  # servos come online
-        setup.poll(diagnostics)  # start the child's counters afresh
+        setup.poll(diagnostics, None)  # counters start afresh
+        follow: tuple[float, float] | None = None
         while time.monotonic() + args.window_s <= end:
             phase = args.phases[index % len(args.phases)]
             before = counters(bridge, recorder)
@@ -351,7 +409,9 @@ def main() -> None:
             setup.set_phase(phase, seed=index)
             time.sleep(max(0.0, args.window_s - (time.monotonic() - t0)))
             setup.clear_phase()
-            extra = setup.poll(diagnostics)
+            extra = setup.poll(diagnostics, follow)
+            # a clean window's losses are followed at the next poll, once all are declared
+            follow = (t0, time.monotonic()) if phase == "clean" else None
             waited = {
                 k: round(v - waited_before.get(k, 0.0), 4) for k, v in run_queue_wait_s().items()
             }

@@ -63,6 +63,13 @@ def test_servos_answer_and_arrivals_name_the_frames_the_host_sent(child):
     assert sim.request("arrivals")["arrivals"] == {}  # taken: counting starts again
     stats = sim.request("stats")
     assert stats["frames_from_host"] == 2 and stats["adapter_error"] is None
+    # the trace follows servo 1's request in and its reply out, in that order
+    trace = sim.request("trace", t0=0.0, t1=stats["t"], ids=[0x141, 0x241])["trace"]
+    assert [(direction, frame) for _, direction, frame, _ in trace] == [
+        ("in", 0x141),
+        ("out", 0x241),
+    ]
+    assert trace[0][0] <= trace[1][3] <= trace[1][0]  # reply finished after the request came
 
 
 def test_a_silenced_servo_stops_answering_and_the_other_does_not(child):

@@ -16,7 +16,9 @@ Requests (``op`` and its arguments):
 * ``servo_faults``: ``can_id`` and :class:`Faults` fields to set on that servo;
 * ``flood``: ``arbitration_id`` (None stops it), ``dlc``: a foreign node at 100 % bus load;
 * ``arrivals``: the frames from the host that reached the CAN bus since the last call, as
-  ``"id:ext:rtr:datahex" -> count`` (to find frames the host never sent).
+  ``"id:ext:rtr:datahex" -> count`` (to find frames the host never sent);
+* ``trace``: ``t0``, ``t1``, ``ids``: frames with those IDs that reached the bus from the host
+  or left the adapter for the host in that time (to follow a lost reply).
 
 Time in replies is ``time.monotonic()``, the same clock as the parent's on Linux.
 """
@@ -30,7 +32,7 @@ import os
 import subprocess
 import sys
 import threading
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Sequence
 from typing import Any
 
@@ -136,22 +138,41 @@ class SimulatorProcess:
 
 
 class _Arrivals:
-    """Counts host frames as they reach the bus (wraps ``SimCanBus.submit``)."""
+    """Counts host frames as they reach the bus (wraps ``SimCanBus.submit``) and keeps a
+    bounded trace of frames in both directions, so a lost reply can be followed to where it
+    went missing: ``(t, "in", id, t)`` when a host frame reached the bus, ``(t, "out", id,
+    end)`` when the adapter handed a servo's frame (finished on the wire at ``end``) to the
+    host. Flood frames are not traced."""
 
-    def __init__(self, emulator: AdapterEmulator) -> None:
+    def __init__(self, emulator: AdapterEmulator, keep: int = 150_000) -> None:
         self.counts: Counter[str] = Counter()
-        original = emulator.canbus.submit
+        self.trace: deque[tuple[float, str, int, float]] = deque(maxlen=keep)
+        canbus = emulator.canbus
+        submit_original, run_original = canbus.submit, canbus.run_until
 
         def submit(msg: can.Message, ready: float, source: SimServo | None = HOST) -> None:
             if source is HOST:
                 self.counts[frame_key(msg)] += 1
-            original(msg, ready, source)
+                self.trace.append((ready, "in", msg.arbitration_id, ready))
+            submit_original(msg, ready, source)
 
-        emulator.canbus.submit = submit  # type: ignore[method-assign]
+        def run_until(now: float) -> list[tuple[float, can.Message]]:
+            out = run_original(now)
+            flood = canbus.flood.msg if canbus.flood is not None else None
+            for end, msg in out:
+                if msg is not flood:
+                    self.trace.append((now, "out", msg.arbitration_id, end))
+            return out
+
+        canbus.submit = submit  # type: ignore[method-assign]
+        canbus.run_until = run_until  # type: ignore[method-assign]
 
     def take(self) -> dict[str, int]:
         out, self.counts = dict(self.counts), Counter()
         return out
+
+    def between(self, t0: float, t1: float, ids: set[int]) -> list[tuple[float, str, int, float]]:
+        return [e for e in self.trace if t0 <= e[0] <= t1 and e[2] in ids]
 
 
 def _handle(
@@ -195,6 +216,9 @@ def _handle(
             )
         elif op == "arrivals":
             return {"t": now, "arrivals": arrivals.take()}
+        elif op == "trace":
+            ids = {int(i) for i in request["ids"]}
+            return {"t": now, "trace": arrivals.between(request["t0"], request["t1"], ids)}
         else:
             raise ValueError(f"unknown op {op!r}")
     return {"t": now}
