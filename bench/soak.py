@@ -151,8 +151,8 @@ class Diagnostics(SchedulerObserver):
             sends = [
                 (t, kind)
                 for t, kind in self.sent.get(servo, ())
-                if t_lost - REPLY_TIMEOUT_S - 2 * COMMAND_PERIOD_S <= t <= t_lost - REPLY_TIMEOUT_S
-            ]
+                if t_lost - 0.5 <= t <= t_lost - REPLY_TIMEOUT_S
+            ][-3:]
             events = trace(t_lost - 0.15, t_lost + 0.3, [0x140 + can_id, 0x240 + can_id])
             t_send = sends[-1][0] if sends else None
             into = [e for e in events if e[1] == "in" and t_send is not None and e[0] >= t_send]
@@ -334,7 +334,10 @@ class Deployed:
             def trace(t0: float, t1: float, ids: list[int]) -> list[Any]:
                 return self.sim.request("trace", t0=t0, t1=t1, ids=ids)["trace"]
 
-            diagnostics.followed += diagnostics.follow_losses(*follow, trace)
+            try:
+                diagnostics.followed += diagnostics.follow_losses(*follow, trace)
+            except Exception as error:  # diagnosis must never end a 30-minute run
+                diagnostics.followed.append({"verdict": f"follow failed: {error!r}"})
         stats = self.sim.request("stats")
         diagnostics.sim_lag.extend(tuple(x) for x in stats["lag"]["spike_times"])
         return {
