@@ -134,7 +134,8 @@ class Diagnostics(SchedulerObserver):
                 missed = count
 
     def on_tx(self, bus: str, msg: Any, t: float, kind: str, servo: str, seq: Any) -> None:
-        self.sent.setdefault(servo, deque(maxlen=400)).append((t, kind))
+        # 50 s per servo: a window's losses are followed up to two windows later
+        self.sent.setdefault(servo, deque(maxlen=3000)).append((t, kind))
 
     def on_lost(self, bus: str, servo: str, t: float) -> None:
         self.lost.append((t, servo))
