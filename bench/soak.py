@@ -36,6 +36,7 @@ import bisect
 import gc
 import json
 import platform
+import signal
 import sys
 import threading
 import time
@@ -341,7 +342,10 @@ class Deployed:
                 diagnostics.followed.append({"verdict": f"follow failed: {error!r}"})
         stats = self.sim.request("stats")
         diagnostics.sim_lag.extend(tuple(x) for x in stats["lag"]["spike_times"])
+        keys = ("frames_to_host", "bytes_overflowed", "rejected_from_host", "host_dropped")
+        last, self._last_stats = getattr(self, "_last_stats", {}), stats
         return {
+            **{f"sim_{k}": stats[k] - last.get(k, 0) for k in keys},
             "sim_lag_max_ms": round(stats["lag"]["max_s"] * 1e3, 2),
             "sim_run_queue_wait_s": round(sum(run_queue_wait_s(self.sim.process.pid).values()), 3),
             "sim_rss_kib": rss_kib(self.sim.process.pid),
@@ -361,6 +365,7 @@ def counters(bridge: Bridge, recorder: Recorder) -> dict[str, int]:
         "received": sum(f["received"] for f in frames),
         "lost": sum(f["lost"] for f in frames),
         "late": sum(f["late_replies"] for f in frames),
+        "rejected_replies": sum(f.get("rejected", 0) for f in frames),
         "rejected_bytes": int(bus["transport"].get("bytes_discarded", 0)),
         "commands_arrived": recorder.arrived,
         "wrong_commands": recorder.wrong_count,
@@ -386,6 +391,8 @@ def main() -> None:
     )
     parser.add_argument("--tracemalloc", action="store_true", help="also sample the Python heap")
     args = parser.parse_args()
+    # SIGTERM ends the run through the finally below: children stopped, figures printed
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(1))
     if args.tracemalloc:
         tracemalloc.start()
     diagnostics = Diagnostics()

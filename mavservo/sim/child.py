@@ -190,6 +190,7 @@ def _handle(
                 "frames_to_host": emulator.frames_to_host,
                 "frames_filtered": emulator.frames_filtered,
                 "bytes_overflowed": emulator.bytes_overflowed,
+                "rejected_from_host": sum(emulator.decoder.rejected.values()),
                 "plug_count": emulator.plug_count,
                 "bus_frames": bus.frames,
                 "load_1s": bus.load(now),
