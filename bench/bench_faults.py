@@ -480,6 +480,10 @@ class LatencyProbe(SchedulerObserver):
         }
 
 
+def _ms(seconds: float) -> float:
+    return round(seconds * 1e3, 3)
+
+
 def canflood_section(seconds: float, servos: int) -> list[dict[str, Any]]:
     """A foreign node floods the bus at the lowest (0x7FF) and the highest (0x000) priority,
     against a baseline without it. The simulated bus plays the flood as back-to-back frames
@@ -497,12 +501,14 @@ def canflood_section(seconds: float, servos: int) -> list[dict[str, Any]]:
             rig.sim.request("stats")
             probe.take()
             rig.sim.request("flood", arbitration_id=arbitration_id)
+            cpu_before = time.process_time()
             loads, sim_loads = [], []
             started = time.monotonic()
             while time.monotonic() - started < seconds:
                 time.sleep(0.5)
                 loads.append(scheduler.load_ratio())
                 sim_loads.append(rig.sim.request("stats")["load_1s"])
+            cpu = time.process_time() - cpu_before  # the bridge process (this one)
             during = probe.take()
             stats = rig.sim.request("stats")
             rows_now = {r["servo"]: r for r in bridge.status_rows()}
@@ -535,6 +541,17 @@ def canflood_section(seconds: float, servos: int) -> list[dict[str, Any]]:
                 "sent": frames("sent"),
                 "received": frames("received"),
                 "lost": frames("lost"),
+                "late": frames("late_replies"),
+                # the scheduler's own command-to-reply latency (recent window, all servos)
+                "latency_p50_ms_median": _ms(
+                    sorted(s["latency_s"]["p50"] or 0 for s in after["servos"].values())[
+                        len(after["servos"]) // 2
+                    ]
+                ),
+                "latency_p99_ms_max": _ms(
+                    max(s["latency_s"]["p99"] or 0 for s in after["servos"].values())
+                ),
+                "bridge_cpu_pct": round(100 * cpu / seconds, 1),
                 "servos_online_at_end": sum(1 for r in rows_now.values() if r["online"]),
                 "faults_at_end": sorted({r["faults"] for r in rows_now.values() if r["faults"]}),
                 "back_online_after_flood_s": recovered,
