@@ -20,9 +20,11 @@ from __future__ import annotations
 
 import enum
 import re
+import struct
 from collections import Counter, deque
 from dataclasses import dataclass
-from typing import Any, Literal, Protocol
+from itertools import repeat
+from typing import Any, Literal, NamedTuple, Protocol
 
 import can
 
@@ -94,51 +96,61 @@ class FrameLike(Protocol):
     data: Any
 
 
-class Frame:
+class _FrameFields(NamedTuple):
+    arbitration_id: int
+    is_extended_id: bool
+    is_remote_frame: bool
+    dlc: int
+    data: bytes
+    timestamp: float = 0.0
+
+
+class Frame(_FrameFields):
     """A decoded CAN frame: the light type the decoder emits (a ``can.Message`` costs 4x more).
 
     It has the attributes of ``can.Message`` that matter on this link, and :meth:`to_message`.
+    It is a tuple underneath so that a run of same-layout frames can be built in C
+    (``struct.iter_unpack`` + ``zip``, see :meth:`Decoder.feed`), with no Python call per frame.
+    Equality and hashing ignore the timestamp: two frames are equal when the wire carried the same
+    frame.
     """
 
-    __slots__ = ("arbitration_id", "is_extended_id", "is_remote_frame", "dlc", "data", "timestamp")
-
-    def __init__(
-        self,
-        arbitration_id: int,
-        is_extended_id: bool,
-        is_remote_frame: bool,
-        dlc: int,
-        data: bytes,
-        timestamp: float = 0.0,
-    ) -> None:
-        self.arbitration_id = arbitration_id
-        self.is_extended_id = is_extended_id
-        self.is_remote_frame = is_remote_frame
-        self.dlc = dlc
-        self.data = data
-        self.timestamp = timestamp
+    __slots__ = ()
 
     def to_message(self, channel: Any = None, is_rx: bool = True) -> can.Message:
-        return can.Message(
-            timestamp=self.timestamp,
-            arbitration_id=self.arbitration_id,
-            is_extended_id=self.is_extended_id,
-            is_remote_frame=self.is_remote_frame,
-            dlc=self.dlc,
-            data=self.data,
-            channel=channel,
-            is_rx=is_rx,
-            check=False,
-        )
+        """The ``can.Message`` python-can users expect, built without ``Message.__init__``.
+
+        ``Message.__init__`` costs ~0.9 us (argument handling, data copy, checks we already did);
+        filling its slots directly costs a quarter of that, and the receiving thread pays it for
+        every frame. The result is the same: ``data`` a ``bytearray``, ``dlc`` as on the wire.
+        """
+        msg = _new_message(can.Message)
+        msg.timestamp = self[5]
+        msg.arbitration_id = self[0]
+        msg.is_extended_id = self[1]
+        msg.is_remote_frame = self[2]
+        msg.is_error_frame = False
+        msg.channel = channel
+        msg.dlc = self[3]
+        msg.data = bytearray(self[4])
+        msg.is_fd = False
+        msg.is_rx = is_rx
+        msg.bitrate_switch = False
+        msg.error_state_indicator = False
+        return msg
 
     def key(self) -> tuple[int, bool, bool, int, bytes]:
         """Identity of the frame on the wire, for comparisons in tests and tools."""
-        return (self.arbitration_id, self.is_extended_id, self.is_remote_frame, self.dlc, self.data)
+        return (self[0], self[1], self[2], self[3], self[4])
 
     def __eq__(self, other: object) -> bool:
         if not isinstance(other, Frame):
             return NotImplemented
         return self.key() == other.key()
+
+    def __ne__(self, other: object) -> bool:
+        equal = self.__eq__(other)
+        return equal if equal is NotImplemented else not equal
 
     def __hash__(self) -> int:
         return hash(self.key())
@@ -147,6 +159,10 @@ class Frame:
         kind = "ext" if self.is_extended_id else "std"
         rtr = " rtr" if self.is_remote_frame else ""
         return f"Frame(0x{self.arbitration_id:X} {kind}{rtr} dlc={self.dlc} data={self.data.hex()})"
+
+
+_new_message = can.Message.__new__
+_new_tuple = tuple.__new__
 
 
 @dataclass(frozen=True)
@@ -249,27 +265,53 @@ def settings_frame(
     return bytes(body)
 
 
-def _variable_alternatives() -> bytes:
-    """Regex alternatives matching exactly the structurally valid variable-length frames.
+def _layout_pattern(ext: bool, rtr: bool, dlc: int) -> bytes:
+    """Regex for one valid variable-length frame of one layout (ID kind, remote or not, DLC).
 
-    One alternative per (extended, remote, DLC) so the payload length is tied to the DLC nibble,
-    and the ID's top byte is bounded so out-of-range IDs never match. Searching for the leftmost
-    match from a position is the same as the byte-by-byte state machine that rescans after every
-    rejected 0xAA, but runs in C.
+    The ID's top byte is bounded so out-of-range IDs never match, and the payload length is tied
+    to the DLC nibble (remote frames carry none).
     """
-    alts = []
-    for dlc in range(9):
-        alts.append(re.escape(bytes((0xC0 | dlc,))) + rb".[\x00-\x07]" + b".{%d}" % dlc + rb"\x55")
-        alts.append(
-            re.escape(bytes((0xE0 | dlc,))) + rb"...[\x00-\x1f]" + b".{%d}" % dlc + rb"\x55"
-        )
-        alts.append(re.escape(bytes((0xD0 | dlc,))) + rb".[\x00-\x07]\x55")
-        alts.append(re.escape(bytes((0xF0 | dlc,))) + rb"...[\x00-\x1f]\x55")
-    return b"|".join(alts)
+    type_byte = 0xC0 | (0x20 if ext else 0) | (0x10 if rtr else 0) | dlc
+    ident = rb"...[\x00-\x1f]" if ext else rb".[\x00-\x07]"
+    payload = b"" if rtr else b".{%d}" % dlc
+    return re.escape(bytes((START, type_byte))) + ident + payload + rb"\x55"
 
 
-_VARIABLE_RE = re.compile(rb"\xaa(?:\x55.{18}|" + _variable_alternatives() + rb")", re.DOTALL)
+_LAYOUTS = [(ext, rtr, dlc) for dlc in range(9) for ext in (False, True) for rtr in (False, True)]
+
+# Searching for the leftmost match of any layout from a position is the same as the byte-by-byte
+# state machine that rescans after every rejected 0xAA, but runs in C.
+_VARIABLE_RE = re.compile(
+    rb"\xaa\x55.{18}|" + b"|".join(_layout_pattern(*layout) for layout in _LAYOUTS), re.DOTALL
+)
 _FIXED_RE = re.compile(rb"\xaa\x55.{18}", re.DOTALL)
+
+
+@dataclass(frozen=True)
+class _Run:
+    """How to decode a run of back-to-back frames of one layout in one pass of C code."""
+
+    pattern: re.Pattern[bytes]  # one or more consecutive frames of this layout
+    rows: struct.Struct  # one frame -> (id,) or (id, data)
+    ext: bool
+    rtr: bool
+    dlc: int
+
+
+def _run_table() -> dict[int, _Run]:
+    table = {}
+    for ext, rtr, dlc in _LAYOUTS:
+        type_byte = 0xC0 | (0x20 if ext else 0) | (0x10 if rtr else 0) | dlc
+        payload = 0 if rtr else dlc
+        fmt = "<2x" + ("I" if ext else "H") + (f"{payload}s" if payload else "") + "x"
+        pattern = re.compile(b"(?:" + _layout_pattern(ext, rtr, dlc) + b")+", re.DOTALL)
+        table[type_byte] = _Run(pattern, struct.Struct(fmt), ext, rtr, dlc)
+    return table
+
+
+#: Type byte -> run decoder. Servo traffic is almost all one layout (standard ID, DLC 8), so a
+#: chunk of replies is one run: decoding it costs ~0.2 us a frame instead of ~1.8 us.
+_RUNS = _run_table()
 
 
 class Decoder:
@@ -319,12 +361,18 @@ class Decoder:
         out: list[Frame | AdapterSettings | ControlFrame] = []
         append = out.append
         from_bytes = int.from_bytes
+        variable = self.protocol == "variable"
         pos = 0
         end = len(buf)
         frames = 0
-        rescan = True
-        while rescan:  # leaves the inner loop only to rescan after a failed checksum
-            rescan = False
+        restart = True
+        while restart:  # the inner loop is left only to restart the search at ``pos``
+            restart = False
+            if variable and pos + 1 < end and buf[pos] == START and buf[pos + 1] in _RUNS:
+                # Usually the chunk starts with a frame (or the rest of one held back) and a run
+                # of its layout follows: take it before any search.
+                pos, count = self._take_run(buf, pos, _RUNS[buf[pos + 1]], timestamp, out)
+                frames += count
             for m in self._pattern.finditer(buf, pos):
                 start = m.start()
                 if start != pos:
@@ -333,30 +381,36 @@ class Decoder:
                     self._reject_gap(buf, pos, start)
                 raw = m.group()
                 type_byte = raw[1]
+                pos = m.end()
                 if type_byte == END:
-                    item = self._fixed(raw)
+                    item = self._fixed(raw, timestamp)
                     if item is None:  # bad checksum or impossible field: rescan after the 0xAA
                         pos = start + 1
-                        rescan = True
+                        restart = True
                         break
-                    if isinstance(item, Frame):
-                        item.timestamp = timestamp
+                    if type(item) is Frame:
                         frames += 1
                     append(item)
-                else:
-                    frames += 1
-                    id_end = 6 if type_byte & 0x20 else 4  # extended IDs take 4 bytes
-                    append(
-                        Frame(
-                            from_bytes(raw[2:id_end], "little"),
-                            id_end == 6,
-                            bool(type_byte & 0x10),
-                            type_byte & 0x0F,
-                            raw[id_end:-1],
-                            timestamp,
-                        )
+                    continue
+                frames += 1
+                id_end = 6 if type_byte & 0x20 else 4  # extended IDs take 4 bytes
+                append(
+                    Frame(
+                        from_bytes(raw[2:id_end], "little"),
+                        id_end == 6,
+                        bool(type_byte & 0x10),
+                        type_byte & 0x0F,
+                        raw[id_end:-1],
+                        timestamp,
                     )
-                pos = m.end()
+                )
+                if variable and pos + 1 < end and buf[pos] == START and buf[pos + 1] == type_byte:
+                    # The same layout follows at once: take the whole run in one pass.
+                    pos, count = self._take_run(buf, pos, _RUNS[type_byte], timestamp, out)
+                    if count:
+                        frames += count
+                        restart = True
+                        break
         self.frames += frames
         # Tail: keep the earliest 0xAA that could still begin a valid frame.
         keep = self._incomplete_start(buf, pos, end)
@@ -364,6 +418,31 @@ class Decoder:
             self._reject_gap(buf, pos, keep)
         del buf[:keep]
         return out
+
+    @staticmethod
+    def _take_run(
+        buf: bytearray, pos: int, run: _Run, timestamp: float, out: list[Any]
+    ) -> tuple[int, int]:
+        """Decode the frames of ``run``'s layout back to back from ``pos``; (new pos, count).
+
+        Same result as one regex match per frame, because a run that starts at ``pos`` is exactly
+        the sequence of leftmost matches from ``pos`` (each layout's frames have one length and
+        no other layout matches the same type byte). Everything per frame happens in C:
+        ``iter_unpack`` splits the fields, ``zip`` assembles them, ``tuple.__new__`` makes the
+        :class:`Frame`.
+        """
+        m = run.pattern.match(buf, pos)
+        if m is None:
+            return pos, 0
+        stop = m.end()
+        columns = list(zip(*run.rows.iter_unpack(buf[pos:stop]), strict=True))
+        ids = columns[0]
+        datas = columns[1] if len(columns) > 1 else repeat(b"", len(ids))
+        fields = zip(
+            ids, repeat(run.ext), repeat(run.rtr), repeat(run.dlc), datas, repeat(timestamp)
+        )
+        out.extend(map(_new_tuple, repeat(Frame), fields))
+        return stop, len(ids)
 
     def flush(self) -> list[Frame | AdapterSettings | ControlFrame]:
         """The line went idle: give up on the pending candidate and rescan what follows it."""
@@ -381,7 +460,7 @@ class Decoder:
 
     # -- internals ----------------------------------------------------------------------------
 
-    def _fixed(self, raw: bytes) -> Frame | AdapterSettings | ControlFrame | None:
+    def _fixed(self, raw: bytes, timestamp: float) -> Frame | AdapterSettings | ControlFrame | None:
         if sum(raw[2:19]) & 0xFF != raw[19]:
             self._record(Rejection.BAD_CHECKSUM, raw)
             return None
@@ -408,7 +487,7 @@ class Decoder:
                 self._record(Rejection.BAD_FIXED, raw)
                 return None
             rtr = fmt == 2
-            return Frame(arb_id, ext, rtr, dlc, b"" if rtr else raw[10 : 10 + dlc])
+            return Frame(arb_id, ext, rtr, dlc, b"" if rtr else raw[10 : 10 + dlc], timestamp)
         self.control += 1
         return ControlFrame(command, raw)
 

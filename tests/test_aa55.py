@@ -154,6 +154,67 @@ def test_garbage_between_frames_loses_no_intact_frame(pieces: list[tuple[bytes, 
     assert all(any(x == f for x in it) for _, f in pieces)
 
 
+@st.composite
+def servo_like_stream(draw: st.DrawFn) -> bytes:
+    """Runs of one or two layouts (as servo replies are) with false starts and damage inside."""
+    layouts = draw(st.lists(st.tuples(st.booleans(), st.integers(0, 8)), min_size=1, max_size=2))
+    pieces = []
+    for _ in range(draw(st.integers(1, 40))):
+        ext, dlc = draw(st.sampled_from(layouts))
+        frame = Frame(
+            draw(st.integers(0, aa55.MAX_EXT_ID if ext else aa55.MAX_STD_ID)),
+            ext,
+            False,
+            dlc,
+            draw(st.binary(min_size=dlc, max_size=dlc)),
+        )
+        raw = bytearray(encode(frame))
+        damage = draw(st.sampled_from(["none"] * 6 + ["flip", "cut", "false_start"]))
+        if damage == "flip":
+            raw[draw(st.integers(0, len(raw) - 1))] ^= draw(st.integers(1, 255))
+        elif damage == "cut":
+            del raw[draw(st.integers(1, len(raw) - 1)) :]
+        elif damage == "false_start":
+            raw[:0] = bytes((0xAA, raw[1]))
+        pieces.append(bytes(raw))
+    return b"".join(pieces)
+
+
+@given(servo_like_stream())
+def test_runs_of_one_layout_decode_as_frame_by_frame(stream: bytes) -> None:
+    """The run fast path (whole chunk) gives what one byte at a time (never a run) gives."""
+    whole, bytewise = Decoder(), Decoder()
+    out_whole = whole.feed(stream) + whole.flush()
+    out_bytewise = [f for i in range(len(stream)) for f in bytewise.feed(stream[i : i + 1])]
+    out_bytewise += bytewise.flush()
+    assert out_whole == out_bytewise
+    assert [type(f) for f in out_whole] == [type(f) for f in out_bytewise]
+    assert whole.frames == bytewise.frames
+    assert whole.bytes_discarded == bytewise.bytes_discarded
+    assert whole.rejected == bytewise.rejected
+
+
+def test_run_fast_path_frames_are_complete_frames() -> None:
+    sent = [Frame(0x241 + i, False, False, 8, bytes([i] * 8)) for i in range(50)]
+    sent += [Frame(0x1ABCDEF0 + i, True, True, 3, b"") for i in range(5)]
+    out = Decoder().feed(b"".join(encode(f) for f in sent), timestamp=12.5)
+    assert out == sent
+    assert all(type(f) is Frame and f.timestamp == 12.5 for f in out)
+    msg = out[3].to_message("can0")
+    assert isinstance(msg, can.Message) and msg.equals(
+        can.Message(
+            timestamp=12.5,
+            arbitration_id=0x244,
+            is_extended_id=False,
+            data=bytes([3] * 8),
+            channel="can0",
+            is_rx=True,
+        )
+    )
+    assert isinstance(msg.data, bytearray)
+    assert out[-1].to_message().dlc == 3 and out[-1].to_message().is_remote_frame
+
+
 @given(st.lists(frames(), min_size=1, max_size=10), st.data())
 def test_fixed_protocol_never_emits_a_frame_that_was_not_sent(
     sent: list[Frame], data: st.DataObject

@@ -77,6 +77,7 @@ def test_both_decoders_read_the_clean_stream_in_memory(bench: ModuleType) -> Non
     assert bench.seeed_count(stream) == 2000
     assert bench.ours_on_bytes(stream) == frames
     assert len(bench.ours_messages(stream)) == 2000
+    assert bench.ours_count(stream) == bench.ours_count(stream, to_message=True) == 2000
     rates = bench.bench_memory(stream)
     assert set(rates) == {"seeed", "ours", "ours_msg"} and all(v > 0 for v in rates.values())
 
