@@ -46,6 +46,9 @@ PROTOCOLS: tuple[str, ...] = ("variable", "fixed")
 START = 0xAA
 END = 0x55
 FIXED_LENGTH = 20
+#: The decoder never holds this many bytes between calls: a frame waiting for its follower, with
+#: a candidate starting inside it (15 + 14 bytes at most), or an incomplete candidate (< 20).
+MAX_PENDING = 30
 MAX_STD_ID = 0x7FF
 MAX_EXT_ID = 0x1FFFFFFF
 
@@ -87,6 +90,7 @@ class Rejection(str, enum.Enum):
     BAD_CHECKSUM = "bad_checksum"
     BAD_FIXED = "bad_fixed"  # checksum fine, but a field is impossible (type, format, DLC, ID)
     TRUNCATED = "truncated"  # the line went idle in the middle of a candidate
+    OVERLAP = "overlap"  # valid in itself, but a false start over a better-placed real frame
 
 
 class FrameLike(Protocol):
@@ -309,6 +313,23 @@ def _run_table() -> dict[int, _Run]:
     return table
 
 
+class _Verdict(enum.Enum):
+    ACCEPT = "accept"
+    REJECT = "reject"
+    WAIT = "wait"
+
+
+#: One valid variable-length data frame of any layout (no fixed 20-byte frames).
+_DATA_RE = re.compile(b"|".join(_layout_pattern(*layout) for layout in _LAYOUTS), re.DOTALL)
+
+
+def _followed_by_frame(buf: bytearray, at: int, end: int, idle: bool) -> bool | None:
+    """Does a frame start at ``at`` (or the data end on an idle line)? None: not known yet."""
+    if at < end:
+        return buf[at] == START
+    return True if idle else None
+
+
 #: Type byte -> run decoder. Servo traffic is almost all one layout (standard ID, DLC 8), so a
 #: chunk of replies is one run: decoding it costs ~0.2 us a frame instead of ~1.8 us.
 _RUNS = _run_table()
@@ -319,7 +340,7 @@ class Decoder:
 
     ``feed(data)`` returns, in stream order, :class:`Frame` for data frames and
     :class:`AdapterSettings` / :class:`ControlFrame` for 20-byte control frames. It never raises,
-    and between calls it keeps at most one incomplete candidate (< 20 bytes), so memory is bounded.
+    and between calls it keeps fewer than :data:`MAX_PENDING` bytes, so memory is bounded.
     Call :meth:`flush` when the line has gone idle: a candidate still incomplete then was a false
     start (or a truncated frame) and is rescanned, so a real frame behind it is not held back.
 
@@ -328,9 +349,18 @@ class Decoder:
     their bytes, for logs.
     """
 
-    def __init__(self, protocol: ProtocolName = "variable", keep_rejections: int = 256) -> None:
+    def __init__(
+        self,
+        protocol: ProtocolName = "variable",
+        keep_rejections: int = 256,
+        resolve_overlaps: bool = True,
+    ) -> None:
         if protocol not in PROTOCOLS:
             raise ValueError(f"unknown protocol {protocol!r}; expected one of {PROTOCOLS}")
+        #: Judge a frame that overlaps a better-placed one (see :meth:`_judge`). Off: the first
+        #: structurally valid candidate always wins and nothing waits for a following byte
+        #: (what a simple adapter firmware does; the adapter emulator may want that).
+        self.resolve_overlaps = resolve_overlaps
         self.protocol: ProtocolName = protocol
         self._pattern = _VARIABLE_RE if protocol == "variable" else _FIXED_RE
         self._buf = bytearray()
@@ -338,6 +368,7 @@ class Decoder:
         self.settings = 0
         self.control = 0
         self.bytes_discarded = 0
+        self._gap = False
         self.rejected: Counter[Rejection] = Counter()
         self.rejections: deque[tuple[Rejection, bytes]] = deque(maxlen=keep_rejections)
 
@@ -356,19 +387,48 @@ class Decoder:
     def feed(
         self, data: bytes, timestamp: float = 0.0
     ) -> list[Frame | AdapterSettings | ControlFrame]:
+        self._buf += data
+        return self._scan(timestamp, idle=False)
+
+    def flush(self, timestamp: float = 0.0) -> list[Frame | AdapterSettings | ControlFrame]:
+        """The line went idle: settle what was held back, give up on an incomplete candidate.
+
+        A frame held back for want of the byte after it is judged with the end of data as its
+        follower; a candidate still incomplete was a false start or a truncated frame and is
+        rescanned from the byte after its 0xAA, so a real frame behind it is not lost.
+        """
+        out = self._scan(timestamp, idle=True)
+        for _ in range(len(self._buf)):  # bounded: every turn drops at least one byte
+            if not self._buf:
+                break
+            self._record(Rejection.TRUNCATED, bytes(self._buf))
+            del self._buf[0]
+            self._gap = True
+            out += self._scan(timestamp, idle=True)
+        self._gap = False  # after an idle line the next byte starts afresh
+        return out
+
+    def _scan(self, timestamp: float, idle: bool) -> list[Frame | AdapterSettings | ControlFrame]:
         buf = self._buf
-        buf += data
         out: list[Frame | AdapterSettings | ControlFrame] = []
         append = out.append
         from_bytes = int.from_bytes
         variable = self.protocol == "variable"
+        gap = self._gap  # were the bytes just before ``pos`` garbage?
+        held: int | None = None
         pos = 0
         end = len(buf)
         frames = 0
         restart = True
         while restart:  # the inner loop is left only to restart the search at ``pos``
             restart = False
-            if variable and pos + 1 < end and buf[pos] == START and buf[pos + 1] in _RUNS:
+            if (
+                variable
+                and not gap
+                and pos + 1 < end
+                and buf[pos] == START
+                and buf[pos + 1] in _RUNS
+            ):
                 # Usually the chunk starts with a frame (or the rest of one held back) and a run
                 # of its layout follows: take it before any search.
                 pos, count = self._take_run(buf, pos, _RUNS[buf[pos + 1]], timestamp, out)
@@ -379,19 +439,30 @@ class Decoder:
                     if start > end - FIXED_LENGTH and self._held_back(buf, pos, start, end):
                         break  # an earlier candidate may still complete and swallow this match
                     self._reject_gap(buf, pos, start)
+                    gap = True
                 raw = m.group()
                 type_byte = raw[1]
-                pos = m.end()
+                stop = m.end()
                 if type_byte == END:
                     item = self._fixed(raw, timestamp)
                     if item is None:  # bad checksum or impossible field: rescan after the 0xAA
                         pos = start + 1
-                        restart = True
+                        gap = restart = True
                         break
                     if type(item) is Frame:
                         frames += 1
                     append(item)
+                    pos, gap = stop, False
                     continue
+                verdict = self._judge(buf, start, stop, end, gap, idle)
+                if verdict is not _Verdict.ACCEPT:
+                    if verdict is _Verdict.WAIT:
+                        held = pos = start
+                        break
+                    self._record(Rejection.OVERLAP, raw)
+                    pos = start + 1
+                    gap = restart = True
+                    break
                 frames += 1
                 id_end = 6 if type_byte & 0x20 else 4  # extended IDs take 4 bytes
                 append(
@@ -404,6 +475,7 @@ class Decoder:
                         timestamp,
                     )
                 )
+                pos, gap = stop, False
                 if variable and pos + 1 < end and buf[pos] == START and buf[pos + 1] == type_byte:
                     # The same layout follows at once: take the whole run in one pass.
                     pos, count = self._take_run(buf, pos, _RUNS[type_byte], timestamp, out)
@@ -412,12 +484,64 @@ class Decoder:
                         restart = True
                         break
         self.frames += frames
-        # Tail: keep the earliest 0xAA that could still begin a valid frame.
-        keep = self._incomplete_start(buf, pos, end)
-        if keep > pos:
-            self._reject_gap(buf, pos, keep)
+        if held is not None:
+            keep = held
+        else:  # keep the earliest 0xAA that could still begin a valid frame
+            keep = self._incomplete_start(buf, pos, end)
+            if keep > pos:
+                self._reject_gap(buf, pos, keep)
+                gap = True
+        self._gap = gap
         del buf[:keep]
         return out
+
+    def _judge(
+        self, buf: bytearray, start: int, stop: int, end: int, gap: bool, idle: bool
+    ) -> _Verdict:
+        """Keep the frame matched at ``buf[start:stop]``, or is it a false start over a real one?
+
+        Without a checksum, a truncated frame or a garbage 0xAA can take the following frame's
+        bytes as its own and happen to end on a 0x55: the match is structurally valid and the
+        real frame inside it would be lost. Real frames follow each other back to back (or the
+        line goes idle), garbage and truncation sit *before* a frame, so a match is given up for
+        a valid frame starting inside it when
+
+        * the match came after garbage and the inner frame ends where the match ends or is
+          itself followed by a frame, or
+        * the match is followed by something that is not a frame start while the inner frame is.
+
+        A frame followed at once by another frame, with no garbage before it, is always kept:
+        that is every frame of a clean stream, decided without looking further. Undecided cases
+        wait for more bytes (at most two frames' worth), or for the line to go idle.
+        """
+        inner = buf.find(START, start + 1, stop)
+        if inner < 0 or not self.resolve_overlaps:
+            return _Verdict.ACCEPT
+        followed = _followed_by_frame(buf, stop, end, idle)
+        if followed and not gap:
+            return _Verdict.ACCEPT
+        while inner >= 0:
+            if inner + 1 < end and buf[inner + 1] == END:  # a 20-byte frame has its checksum
+                inner = buf.find(START, inner + 1, stop)
+                continue
+            match = _DATA_RE.match(buf, inner)
+            if match is None:
+                if not idle and self._could_complete(buf, inner, end):
+                    return _Verdict.WAIT
+            else:
+                inner_stop = match.end()
+                inner_followed = _followed_by_frame(buf, inner_stop, end, idle)
+                if gap and (inner_stop == stop or inner_followed):
+                    return _Verdict.REJECT
+                if inner_followed is None:
+                    return _Verdict.WAIT
+                if inner_followed:
+                    if followed is None:
+                        return _Verdict.WAIT
+                    if not followed:
+                        return _Verdict.REJECT
+            inner = buf.find(START, inner + 1, stop)
+        return _Verdict.ACCEPT
 
     @staticmethod
     def _take_run(
@@ -425,16 +549,20 @@ class Decoder:
     ) -> tuple[int, int]:
         """Decode the frames of ``run``'s layout back to back from ``pos``; (new pos, count).
 
-        Same result as one regex match per frame, because a run that starts at ``pos`` is exactly
-        the sequence of leftmost matches from ``pos`` (each layout's frames have one length and
-        no other layout matches the same type byte). Everything per frame happens in C:
-        ``iter_unpack`` splits the fields, ``zip`` assembles them, ``tuple.__new__`` makes the
-        :class:`Frame`.
+        Same result as one regex match and one :meth:`_judge` per frame: a run that starts at
+        ``pos`` is exactly the sequence of leftmost matches from ``pos`` (each layout's frames
+        have one length and no other layout matches the same type byte), it is only taken right
+        after a frame (no garbage before it), and its last frame is left out, so every frame
+        taken is followed by a frame start: the cases :meth:`_judge` accepts without looking.
+        Everything per frame happens in C: ``iter_unpack`` splits the fields, ``zip`` assembles
+        them, ``tuple.__new__`` makes the :class:`Frame`.
         """
         m = run.pattern.match(buf, pos)
         if m is None:
             return pos, 0
-        stop = m.end()
+        stop = m.end() - run.rows.size  # the last frame goes through the judged path
+        if stop <= pos:
+            return pos, 0
         columns = list(zip(*run.rows.iter_unpack(buf[pos:stop]), strict=True))
         ids = columns[0]
         datas = columns[1] if len(columns) > 1 else repeat(b"", len(ids))
@@ -443,20 +571,6 @@ class Decoder:
         )
         out.extend(map(_new_tuple, repeat(Frame), fields))
         return stop, len(ids)
-
-    def flush(self) -> list[Frame | AdapterSettings | ControlFrame]:
-        """The line went idle: give up on the pending candidate and rescan what follows it."""
-        if not self._buf:
-            return []
-        pending = bytes(self._buf)
-        self._buf.clear()
-        self.rejected[Rejection.TRUNCATED] += 1
-        self.rejections.append((Rejection.TRUNCATED, pending))
-        self.bytes_discarded += 1
-        out = self.feed(pending[1:])
-        if self._buf:  # still incomplete after rescanning: truncated for good
-            return out + self.flush()
-        return out
 
     # -- internals ----------------------------------------------------------------------------
 

@@ -259,7 +259,7 @@ class AA55Bus(can.BusABC):
                     # The rest of the candidate may be waiting in the port (the caller was
                     # slow to come back): read it before declaring the line idle.
                     if not self._read_available(0):
-                        self._absorb(self.decoder.flush())
+                        self._absorb(self.decoder.flush(time.time()))
                     continue
                 if deadline is not None and now >= deadline:
                     if self._read_available(0):

@@ -49,7 +49,7 @@ def decode_all(protocol: str, chunks: list[bytes]) -> tuple[list, Decoder]:
     out: list = []
     for chunk in chunks:
         out += decoder.feed(chunk)
-        assert decoder.pending < aa55.FIXED_LENGTH
+        assert decoder.pending < aa55.MAX_PENDING
         assert len(decoder.rejections) <= 16
     out += decoder.flush()
     assert decoder.pending == 0
