@@ -50,6 +50,7 @@ class ResilientBus(can.BusABC):
         self._next_attempt = 0.0
         self.disconnects = 0
         self.reconnects = 0
+        self._retired: dict[str, Any] = {}  # counters of the buses closed so far
         self.down_since: float | None = None
         self.channel_info = f"{getattr(self._bus, 'channel_info', name)} (auto-reconnect)"
         self._protocol = getattr(self._bus, "protocol", can.CanProtocol.CAN_20)
@@ -99,6 +100,8 @@ class ResilientBus(can.BusABC):
             self.down_since = self._clock()
             self._backoff = self._initial_backoff
             self._next_attempt = self.down_since + self._backoff
+        if hasattr(bus, "stats"):
+            _add_counts(self._retired, bus.stats())
         try:
             bus.shutdown()
         except Exception as close_exc:  # a vanished device may fail to close
@@ -129,10 +132,14 @@ class ResilientBus(can.BusABC):
         return bus
 
     def stats(self) -> dict[str, Any]:
+        """The device's counters since start-up, across reconnects (each reopened device starts
+        its own from zero), plus the link's own."""
         inner = self._bus
-        inner_stats = inner.stats() if inner is not None and hasattr(inner, "stats") else {}
+        totals = _add_counts({}, self._retired)
+        if inner is not None and hasattr(inner, "stats"):
+            _add_counts(totals, inner.stats())
         return {
-            **inner_stats,
+            **totals,
             "connected": inner is not None,
             "disconnects": self.disconnects,
             "reconnects": self.reconnects,
@@ -143,3 +150,15 @@ class ResilientBus(can.BusABC):
         bus, self._bus = self._bus, None
         if bus is not None:
             bus.shutdown()
+
+
+def _add_counts(total: dict[str, Any], more: dict[str, Any]) -> dict[str, Any]:
+    """Add the integer counters of ``more`` into ``total`` (nested dicts too); keep the rest."""
+    for key, value in more.items():
+        if isinstance(value, dict):
+            _add_counts(total.setdefault(key, {}), value)
+        elif isinstance(value, int) and not isinstance(value, bool):
+            total[key] = total.get(key, 0) + value
+        else:
+            total[key] = value
+    return total

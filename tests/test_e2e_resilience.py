@@ -53,6 +53,8 @@ def test_usb_unplug_and_replug_mid_run_is_reported_and_recovered() -> None:
             emulator = bridge.emulators["bus0"]
             servo = sim_servo(bridge, "s1")
             mark = peer.count()
+            frames_before = bridge.summary()["buses"]["bus0"]["transport"]["frames"]
+            assert frames_before > 0
             emulator.unplug()
             assert wait_until(lambda: any("lost" in t for _, t in bridge.events), 5), (
                 bridge.events
@@ -64,6 +66,8 @@ def test_usb_unplug_and_replug_mid_run_is_reported_and_recovered() -> None:
             assert wait_until(lambda: any("back" in t for _, t in bridge.events), 8), (
                 bridge.events
             )
+            # the decoder counters carry on across the reconnect (the new device starts at zero)
+            assert bridge.summary()["buses"]["bus0"]["transport"]["frames"] >= frames_before
             # the scheduler's refresh reaches the servo again without any new MAVLink command
             assert wait_until(lambda: servo.commands > 0 and servo.commands + servo.requests
                               > frames_while_away + 3, 5)
@@ -81,6 +85,7 @@ def test_usb_unplug_and_replug_mid_run_is_reported_and_recovered() -> None:
     transport = summary["buses"]["bus0"]["transport"]
     assert transport["disconnects"] == 1 and transport["reconnects"] == 1
     assert transport["connected"] is True
+    assert transport["frames"] > frames_before
 
 
 # -------------------------------------------------------------------- autopilot heartbeat
