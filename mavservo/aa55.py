@@ -552,17 +552,21 @@ class Decoder:
         Same result as one regex match and one :meth:`_judge` per frame: a run that starts at
         ``pos`` is exactly the sequence of leftmost matches from ``pos`` (each layout's frames
         have one length and no other layout matches the same type byte), it is only taken right
-        after a frame (no garbage before it), and its last frame is left out, so every frame
-        taken is followed by a frame start: the cases :meth:`_judge` accepts without looking.
+        after a frame (no garbage before it), and its last frame is left out unless it has no
+        0xAA inside, so every frame taken is followed by a frame start or has nothing inside to
+        judge: the cases :meth:`_judge` accepts without looking further.
         Everything per frame happens in C: ``iter_unpack`` splits the fields, ``zip`` assembles
         them, ``tuple.__new__`` makes the :class:`Frame`.
         """
         m = run.pattern.match(buf, pos)
         if m is None:
             return pos, 0
-        stop = m.end() - run.rows.size  # the last frame goes through the judged path
-        if stop <= pos:
-            return pos, 0
+        stop = m.end()
+        last = stop - run.rows.size
+        if buf.find(START, last + 1, stop) >= 0:  # the last frame may need judging: leave it
+            stop = last
+            if stop <= pos:
+                return pos, 0
         columns = list(zip(*run.rows.iter_unpack(buf[pos:stop]), strict=True))
         ids = columns[0]
         datas = columns[1] if len(columns) > 1 else repeat(b"", len(ids))
