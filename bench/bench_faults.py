@@ -185,15 +185,14 @@ class Recorder:
     """Frames the host sent (wrapping the bus's ``send``) and frames the servos received, to
     find commands nobody sent.
 
-    With the adapter emulator in this process (``emulator``), arrivals are seen by wrapping
-    the simulated CAN bus's ``submit``; with it in a child process, :meth:`check` takes the
-    child's ``arrivals`` (frame key -> count) instead.
+    Arrivals are seen by wrapping the in-process simulated CAN bus's ``submit`` (with the
+    simulator in a child process, :meth:`DeployedRig.commands` asks the child instead).
 
     Only the last ``window`` sent frames are remembered (a frame reaches the adapter within
     milliseconds of being sent), so a soak does not measure the recorder's own growth.
     """
 
-    def __init__(self, bridge: Bridge, emulator: Any = None, window: int = 60_000) -> None:
+    def __init__(self, bridge: Bridge, emulator: Any, window: int = 60_000) -> None:
         self._recent: deque[str] = deque()
         self._window = window
         self.sent: Counter[str] = Counter()
@@ -210,24 +209,19 @@ class Recorder:
             original_send(msg, timeout)
 
         bus.send = send  # type: ignore[method-assign]
-        if emulator is not None:
-            original_submit: Callable[..., Any] = emulator.canbus.submit
+        original_submit: Callable[..., Any] = emulator.canbus.submit
 
-            def submit(msg: can.Message, ready: float, *rest: Any) -> None:
-                if not rest:  # from the host (servo replies pass the servo as source)
-                    self.check({frame_key(msg): 1})
-                original_submit(msg, ready, *rest)
+        def submit(msg: can.Message, ready: float, *rest: Any) -> None:
+            if not rest:  # from the host (servo replies pass the servo as source)
+                frame = frame_key(msg)
+                with self.lock:
+                    self.arrived += 1
+                    if frame not in self.sent:
+                        self.wrong_count += 1
+                        self.wrong.append(frame)
+            original_submit(msg, ready, *rest)
 
-            emulator.canbus.submit = submit  # type: ignore[method-assign]
-
-    def check(self, arrivals: dict[str, int]) -> None:
-        """Count frames that reached the servos; those the host never sent are wrong."""
-        with self.lock:
-            for frame, count in arrivals.items():
-                self.arrived += count
-                if frame not in self.sent:
-                    self.wrong_count += count
-                    self.wrong.append(frame)
+        emulator.canbus.submit = submit  # type: ignore[method-assign]
 
     def _remember(self, frame: str) -> None:
         self._recent.append(frame)
@@ -412,12 +406,17 @@ class DeployedRig:
             servos, protocol, channel=self.sim.path, url=f"udpin:127.0.0.1:{port}", realtime=True
         )
         self.bridge = Bridge(load_config_text(text), log_dir=False, observers=list(observers))
-        self.recorder: Recorder | None = None
 
     def start(self) -> Bridge:
         self.bridge.start()
-        self.recorder = Recorder(self.bridge)
         return self.bridge
+
+    def commands(self) -> tuple[int, int]:
+        """Host frames that reached the CAN bus so far, and how many of them the host never
+        sent: judged inside the child against the host's bytes before the line corrupted
+        them, so the bridge's process does no bookkeeping for it."""
+        counts = self.sim.request("wrong")
+        return counts["arrived"], counts["wrong"]
 
     def stop(self) -> dict[str, Any]:
         """Stop everything; this thread goes back to normal priority. Returns the summary."""
@@ -515,8 +514,7 @@ def canflood_section(seconds: float, servos: int) -> list[dict[str, Any]]:
             after = rig.bridge.summary()
             rig.sim.request("flood", arbitration_id=None)
             recovered = wait_for(lambda b=bridge: all(r["online"] for r in b.status_rows()), 10.0)
-            assert rig.recorder is not None
-            rig.recorder.check(rig.sim.request("arrivals")["arrivals"])
+            _, wrong = rig.commands()
         finally:
             summary = rig.stop()
 
@@ -557,7 +555,7 @@ def canflood_section(seconds: float, servos: int) -> list[dict[str, Any]]:
                 "back_online_after_flood_s": recovered,
                 "missed_command_slots": after["buses"]["bus0"]["missed_command_slots"]
                 - before["buses"]["bus0"]["missed_command_slots"],
-                "wrong_commands": rig.recorder.wrong_count,
+                "wrong_commands": wrong,
                 "events": summary.get("events", []),
             }
         )

@@ -61,6 +61,10 @@ def test_servos_answer_and_arrivals_name_the_frames_the_host_sent(child):
     arrivals = sim.request("arrivals")["arrivals"]
     assert set(arrivals) == {frame_key(r) for s in (1, 2) for r in RmdX(s).telemetry_requests()}
     assert sim.request("arrivals")["arrivals"] == {}  # taken: counting starts again
+    assert {k: v for k, v in sim.request("wrong").items() if k != "t"} == {
+        "arrived": 2,
+        "wrong": 0,
+    }
     stats = sim.request("stats")
     assert stats["frames_from_host"] == 2 and stats["adapter_error"] is None
     # the trace follows servo 1's request in and its reply out, in that order
@@ -106,3 +110,15 @@ def test_a_bad_request_is_refused_and_the_child_keeps_running(child):
     with pytest.raises(RuntimeError, match="unknown op"):
         sim.request("explode")
     assert _ask(bus, 1)
+
+
+def test_frames_the_line_corrupted_into_ones_nobody_sent_are_counted_as_wrong(child):
+    sim, bus = child
+    sim.request("line", flip_prob=0.05, direction="to_adapter", seed=4)
+    command = RmdX(1).position_command(10.0)
+    for _ in range(200):
+        bus.send(command)
+    sim.request("line")
+    _ask(bus, 1)  # a clean frame after the corrupted ones: all of them have been handled
+    counts = sim.request("wrong")
+    assert 0 < counts["wrong"] < counts["arrived"] <= 201

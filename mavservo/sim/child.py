@@ -17,6 +17,8 @@ Requests (``op`` and its arguments):
 * ``flood``: ``arbitration_id`` (None stops it), ``dlc``: a foreign node at 100 % bus load;
 * ``arrivals``: the frames from the host that reached the CAN bus since the last call, as
   ``"id:ext:rtr:datahex" -> count`` (to find frames the host never sent);
+* ``wrong``: host frames that reached the bus so far, and how many of them the host never
+  sent (judged against the host's bytes before the line corrupted them);
 * ``trace``: ``t0``, ``t1``, ``ids``: frames with those IDs that reached the bus from the host
   or left the adapter for the host in that time (to follow a lost reply).
 
@@ -38,12 +40,13 @@ from typing import Any
 
 import can
 
+from .. import aa55
 from .adapter import AdapterEmulator, LineCorrupter, LineFaults
 from .canbus import HOST
 from .servo import SimServo
 
 
-def frame_key(msg: can.Message) -> str:
+def frame_key(msg: can.Message | aa55.Frame) -> str:
     """A frame as text, identical for the same frame on both sides of the pipe."""
     return (
         f"{msg.arbitration_id:x}:{int(msg.is_extended_id)}:{int(msg.is_remote_frame)}:"
@@ -138,21 +141,50 @@ class SimulatorProcess:
 
 
 class _Arrivals:
-    """Counts host frames as they reach the bus (wraps ``SimCanBus.submit``) and keeps a
-    bounded trace of frames in both directions, so a lost reply can be followed to where it
-    went missing: ``(t, "in", id, t)`` when a host frame reached the bus, ``(t, "out", id,
-    end)`` when the adapter handed a servo's frame (finished on the wire at ``end``) to the
-    host. Flood frames are not traced."""
+    """What the host's frames became on the way, all measured inside the child.
 
-    def __init__(self, emulator: AdapterEmulator, keep: int = 150_000) -> None:
+    * ``counts``: host frames as they reach the bus (wraps ``SimCanBus.submit``), by key;
+      cleared when it holds ``max_keys`` distinct frames and nobody took it;
+    * ``arrived`` / ``wrong``: every host frame that reached the bus, and those the host never
+      sent. What was sent is read from the host's bytes *before* the line corrupts them (a
+      second decoder on the clean stream), so the check costs the host nothing;
+    * ``trace``: a bounded record of frames in both directions, so a lost reply can be
+      followed to where it went missing: ``(t, "in", id, t)`` when a host frame reached the
+      bus, ``(t, "out", id, end)`` when the adapter handed a servo's frame (finished on the
+      wire at ``end``) to the host. Flood frames are not traced.
+    """
+
+    def __init__(
+        self, emulator: AdapterEmulator, keep: int = 150_000, max_keys: int = 200_000
+    ) -> None:
         self.counts: Counter[str] = Counter()
+        self.max_keys = max_keys
         self.trace: deque[tuple[float, str, int, float]] = deque(maxlen=keep)
+        self.arrived = 0
+        self.wrong = 0
+        self._sent: Counter[str] = Counter()
+        self._recent: deque[str] = deque()
+        self._window = 60_000
+        self._emulator = emulator
+        self._clean = aa55.Decoder(emulator.protocol)
+        self._clean_protocol = emulator.protocol
         canbus = emulator.canbus
         submit_original, run_original = canbus.submit, canbus.run_until
+        from_host_original = emulator._from_host
+
+        def from_host(data: bytes, now: float) -> None:
+            self._remember_sent(data)
+            from_host_original(data, now)
 
         def submit(msg: can.Message, ready: float, source: SimServo | None = HOST) -> None:
             if source is HOST:
-                self.counts[frame_key(msg)] += 1
+                key = frame_key(msg)
+                self.arrived += 1
+                if key not in self._sent:
+                    self.wrong += 1
+                if len(self.counts) >= self.max_keys:
+                    self.counts.clear()
+                self.counts[key] += 1
                 self.trace.append((ready, "in", msg.arbitration_id, ready))
             submit_original(msg, ready, source)
 
@@ -164,8 +196,28 @@ class _Arrivals:
                     self.trace.append((now, "out", msg.arbitration_id, end))
             return out
 
+        emulator._from_host = from_host  # type: ignore[method-assign]
         canbus.submit = submit  # type: ignore[method-assign]
         canbus.run_until = run_until  # type: ignore[method-assign]
+
+    def _remember_sent(self, data: bytes) -> None:
+        if self._clean_protocol != self._emulator.protocol:
+            self.reset_clean()
+        for item in self._clean.feed(data):
+            if isinstance(item, aa55.Frame):
+                key = frame_key(item)
+                self._recent.append(key)
+                self._sent[key] += 1
+                if len(self._recent) > self._window:
+                    old = self._recent.popleft()
+                    self._sent[old] -= 1
+                    if not self._sent[old]:
+                        del self._sent[old]
+
+    def reset_clean(self) -> None:
+        """A new line (replug, protocol switch): the clean decoder starts afresh too."""
+        self._clean = aa55.Decoder(self._emulator.protocol)
+        self._clean_protocol = self._emulator.protocol
 
     def take(self) -> dict[str, int]:
         out, self.counts = dict(self.counts), Counter()
@@ -207,6 +259,7 @@ def _handle(
             emulator.unplug()
         elif op == "replug":
             emulator.replug()
+            arrivals.reset_clean()
         elif op == "servo_faults":
             can_id = int(request.pop("can_id"))
             servo = next(s for s in emulator.servos if s.can_id == can_id)
@@ -217,6 +270,8 @@ def _handle(
             )
         elif op == "arrivals":
             return {"t": now, "arrivals": arrivals.take()}
+        elif op == "wrong":
+            return {"t": now, "arrived": arrivals.arrived, "wrong": arrivals.wrong}
         elif op == "trace":
             ids = {int(i) for i in request["ids"]}
             return {"t": now, "trace": arrivals.between(request["t0"], request["t1"], ids)}
