@@ -107,3 +107,8 @@ def test_main_prints_a_markdown_table(bench: ModuleType, capsys: pytest.CaptureF
     assert "| measurement | seeedstudio | aa55 (ours) |" in out
     assert "| aa55 (ours), fixed protocol |" in out
     assert "Machine: " in out
+
+
+def test_receive_cost_is_measured_over_every_frame(bench: ModuleType) -> None:
+    stream = bench.encode_stream(bench.throughput_frames(600, seed=4))
+    assert bench.receive_cost_per_frame(stream, pause=0.0) > 0
