@@ -141,7 +141,7 @@ class Diagnostics(SchedulerObserver):
         self.sent.setdefault(servo, deque(maxlen=3000)).append((t, kind))
 
     def on_rx(self, bus: str, msg: Any, t: float, servo: str, state: Any) -> None:
-        self.received.setdefault(servo, deque(maxlen=1000)).append(t)
+        self.received.setdefault(servo, deque(maxlen=3000)).append(t)  # 50 s, like sends
 
     def on_lost(self, bus: str, servo: str, t: float) -> None:
         self.lost.append((t, servo))
