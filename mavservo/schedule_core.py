@@ -37,7 +37,7 @@ Rules (paper section 3.3):
   middle of the bus time left between a slot's command burst (commands and their replies) and
   the guard plus the poll burst before the next slot. Without it, every ``T_c / g``-th tick
   landed on a slot and its polls queued behind the slot's commands: their replies came
-  ~1.5 ms late and two reception intervals in every ``T_c / g`` were off by that much.
+  ~1.6 ms late and two reception intervals in every ``T_c / g`` were off by that much.
 * A reply expected but not received within ``reply_timeout_s`` is lost; after
   ``offline_after_missed`` losses in a row a servo is offline until its next reply.
 """
@@ -84,8 +84,8 @@ class TimingConfig:
     fifo_spin_s: float = 0.0
     """The spin used instead of ``spin_s`` when the runner thread runs under SCHED_FIFO
     (``realtime=True``, or inherited, e.g. systemd's ``CPUSchedulingPolicy=fifo``): a FIFO
-    thread's timed wake-up is already within ~0.05 ms, and a spin it runs is never preempted,
-    so it buys little and costs CPU (see docs/benchmarks.md, Scheduler)."""
+    thread's plain timed wake-up is already within ~0.25 ms at p99, and a spin it runs is never
+    preempted, so it buys little and costs CPU (see docs/benchmarks.md, Scheduler)."""
     telemetry_phase_s: float | None = None
     """Offset of the first telemetry tick after the first command slot, in
     ``[0, telemetry_period_s)``; None: automatic, clear of command bursts (module docstring)."""

@@ -12,8 +12,9 @@ so the receive thread is never starved). On a shared non-real-time machine that 
 SCHED_FIFO, which is what holds under load, and reports (never raises) when the OS refuses.
 A runner that finds itself under SCHED_FIFO or SCHED_RR (asked for, or inherited from the
 process, as under the systemd unit in deploy/) spins ``fifo_spin_s`` instead (default 0): its
-timed wake-up is already late by only a few hundredths of a millisecond, and a spin at
-real-time priority is never preempted, so it cost CPU for no measurable gain.
+plain timed wake-up is late by 0.1-0.25 ms at p99 even with every core busy, a tenth of the
+command goal, while a spin at real-time priority is never preempted and cost a third of the
+scheduler's CPU (docs/benchmarks.md, Scheduler).
 """
 
 from __future__ import annotations
