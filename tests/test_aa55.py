@@ -267,6 +267,12 @@ def test_a_frame_that_could_hide_another_waits_only_for_the_next_byte() -> None:
     assert dec.pending == 1
 
 
+def test_without_overlap_resolution_nothing_waits_and_the_first_candidate_wins() -> None:
+    frame = Frame(0x0AA, False, False, 8, bytes.fromhex("0102AAC8220103AA"))
+    dec = Decoder(resolve_overlaps=False)
+    assert dec.feed(encode(frame)) == [frame] and dec.pending == 0
+
+
 def test_truncated_frame_does_not_swallow_the_next_one() -> None:
     """A cut frame whose length runs into the next frame and happens to end on a 0x55 there."""
     cut = encode(Frame(0x101, False, False, 8, bytes(8)))[:7]  # AA C8 01 01 00 00 00
