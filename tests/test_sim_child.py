@@ -118,6 +118,14 @@ def test_frames_the_line_corrupted_into_ones_nobody_sent_are_counted_as_wrong(ch
     command = RmdX(1).position_command(10.0)
     for _ in range(200):
         bus.send(command)
+    # the adapter reads at its own pace: keep the line dirty until it has taken everything in
+    seen = -1
+    for _ in range(50):
+        time.sleep(0.05)
+        now_seen = sim.request("stats")["frames_from_host"]
+        if now_seen == seen:
+            break
+        seen = now_seen
     sim.request("line")
     _ask(bus, 1)  # a clean frame after the corrupted ones: all of them have been handled
     counts = sim.request("wrong")

@@ -41,7 +41,7 @@ from typing import Any
 import can
 
 from .. import aa55
-from .adapter import AdapterEmulator, LineCorrupter, LineFaults
+from .adapter import AdapterEmulator, LineCorrupter, LineFaults, _host_decoder
 from .canbus import HOST
 from .servo import SimServo
 
@@ -166,7 +166,7 @@ class _Arrivals:
         self._recent: deque[str] = deque()
         self._window = 60_000
         self._emulator = emulator
-        self._clean = aa55.Decoder(emulator.protocol)
+        self._clean = _host_decoder(emulator.protocol)
         self._clean_protocol = emulator.protocol
         canbus = emulator.canbus
         submit_original, run_original = canbus.submit, canbus.run_until
@@ -216,7 +216,7 @@ class _Arrivals:
 
     def reset_clean(self) -> None:
         """A new line (replug, protocol switch): the clean decoder starts afresh too."""
-        self._clean = aa55.Decoder(self._emulator.protocol)
+        self._clean = _host_decoder(self._emulator.protocol)
         self._clean_protocol = self._emulator.protocol
 
     def take(self) -> dict[str, int]:
