@@ -44,7 +44,7 @@ from typing import Any
 import can
 
 from mavservo import aa55
-from mavservo.bridge import Bridge
+from mavservo.bridge import Bridge, settle_heap
 from mavservo.config.loader import load_config_text
 from mavservo.scheduler import SchedulerObserver
 from mavservo.sim.adapter import LineCorrupter, LineFaults
@@ -409,6 +409,7 @@ class DeployedRig:
 
     def start(self) -> Bridge:
         self.bridge.start()
+        settle_heap()  # as `mavservo run` does
         return self.bridge
 
     def commands(self) -> tuple[int, int]:

@@ -11,6 +11,7 @@ the summary.
 from __future__ import annotations
 
 import dataclasses
+import gc
 import logging
 import socket
 import threading
@@ -100,6 +101,19 @@ def simulated_servos(config: Config, bus_name: str) -> list[SimServo]:
             )
         )
     return out
+
+
+def settle_heap() -> None:
+    """Put everything alive after start-up out of the garbage collector's way (``gc.freeze``).
+
+    Why: start-up builds a large, long-lived heap (pymavlink's message classes, the config,
+    profiles, buffers). Every full collection walks all of it, and in the soak such a pass
+    stopped the bridge for 58-106 ms, long enough to miss a 20 ms command slot
+    (docs/reliability.md). Frozen objects are never collected, so call this once, in a process
+    that runs one bridge (``mavservo run``), after :meth:`Bridge.start`.
+    """
+    gc.collect()
+    gc.freeze()
 
 
 class Bridge:

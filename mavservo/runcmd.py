@@ -65,7 +65,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"mavservo: cannot use {path}: {exc}", file=sys.stderr)
         return 2
 
-    from mavservo.bridge import Bridge
+    from mavservo.bridge import Bridge, settle_heap
 
     display = StatusDisplay(enabled=not args.quiet)
     bridge = Bridge(
@@ -87,6 +87,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"mavservo: cannot start: {exc}", file=sys.stderr)
             log.debug("start-up failure", exc_info=True)
             return 1
+        settle_heap()
         display.started(path, bridge)
         deadline = None if args.duration is None else time.monotonic() + args.duration
         with display:
