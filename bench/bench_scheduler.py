@@ -17,13 +17,16 @@ measured R (eq. 4) and the CPU the scheduler's two threads used, as % of one cor
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
 import statistics
 import subprocess
 import sys
+import threading
 import time
+from pathlib import Path
 from typing import Any
 
 import can
@@ -168,6 +171,49 @@ def start_hogs() -> list[subprocess.Popen]:
     return [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(count)]
 
 
+class RealtimeKworkers:
+    """Keep the kernel's worker threads (``kworker/*``) at SCHED_FIFO 1 while it runs.
+
+    Why: bytes written into a tty (a pty here, a USB-serial adapter on the drone) reach the
+    reader through the tty flip-buffer work, which the kernel runs in a normal-priority kworker.
+    Under a CPU hog that worker waits its fair share, and a whole round of replies arrives
+    late together even though the writer and the reader are both SCHED_FIFO. Workers come and
+    go, so the policy is re-applied every half second; it is restored at the end.
+    """
+
+    def __init__(self) -> None:
+        self._stop = threading.Event()
+        self._changed: set[int] = set()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def __enter__(self) -> RealtimeKworkers:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join(5)
+        for pid in self._changed:
+            with contextlib.suppress(OSError):  # the worker may have exited
+                os.sched_setscheduler(pid, os.SCHED_OTHER, os.sched_param(0))
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            for entry in Path("/proc").iterdir():
+                if not entry.name.isdigit():
+                    continue
+                try:
+                    if not (entry / "comm").read_text().startswith("kworker"):
+                        continue
+                    pid = int(entry.name)
+                    if os.sched_getscheduler(pid) != os.SCHED_FIFO:
+                        os.sched_setscheduler(pid, os.SCHED_FIFO, os.sched_param(1))
+                        self._changed.add(pid)
+                except OSError:
+                    continue  # gone, or not ours to change
+            self._stop.wait(0.5)
+
+
 def stop_hogs(hogs: list[subprocess.Popen]) -> None:
     for hog in hogs:
         hog.kill()
@@ -305,6 +351,7 @@ def run_once(args: argparse.Namespace, n_servos: int, seconds: float) -> dict[st
         "servos": n_servos,
         "seconds": round(elapsed, 1),
         "hog": args.hog,
+        "rt_kworkers": args.rt_kworkers,
         "transport": args.transport,
         "realtime": snapshot["info"]["realtime"],
         "spin_ms": snapshot["info"]["spin_s"] * 1e3,
@@ -392,6 +439,11 @@ def main() -> None:
         help="first telemetry tick this long after slot 0 (default: automatic; 0: on a slot)",
     )
     parser.add_argument("--realtime", action="store_true", help="ask for SCHED_FIFO")
+    parser.add_argument(
+        "--rt-kworkers",
+        action="store_true",
+        help="run the kernel's kworker threads (tty flip-buffer work) at SCHED_FIFO 1 (root)",
+    )
     parser.add_argument("--runs", type=int, default=1)
     parser.add_argument(
         "--cpu-only",
@@ -422,6 +474,12 @@ def main() -> None:
 
     counts = [8, 32] if args.cpu_only else [args.servos]
     hogs = start_hogs() if args.hog else []
+    kworkers = RealtimeKworkers() if args.rt_kworkers else contextlib.nullcontext()
+    with kworkers:
+        _run_all(args, counts, hogs)
+
+
+def _run_all(args: argparse.Namespace, counts: list[int], hogs: list[subprocess.Popen]) -> None:
     try:
         if args.baseline:
             base = bare_loop(args.seconds, args.command_period, args.spin)
