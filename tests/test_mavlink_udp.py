@@ -6,10 +6,12 @@ from __future__ import annotations
 import os
 import socket
 import time
+from collections.abc import Callable
 
 os.environ.setdefault("MAVLINK20", "1")
 
 import pytest  # noqa: E402
+from e2e_support import wait_until as poll_until
 from pymavlink import mavutil  # noqa: E402
 from test_mavlink_support import RecordingBackend, state  # noqa: E402
 
@@ -28,8 +30,12 @@ def free_udp_port() -> int:
 
 
 def peer(port: int, system: int, component: int):
-    conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=system,
-                                      source_component=component, dialect="ardupilotmega")
+    conn = mavutil.mavlink_connection(
+        f"udpout:127.0.0.1:{port}",
+        source_system=system,
+        source_component=component,
+        dialect="ardupilotmega",
+    )
     return conn
 
 
@@ -50,13 +56,8 @@ def wait_for(conn, predicate, timeout=WAIT_S, keep=None):
     return None
 
 
-def wait_until(condition, timeout=WAIT_S):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if condition():
-            return True
-        time.sleep(0.01)
-    return condition()
+def wait_until(condition: Callable[[], bool], timeout: float = WAIT_S) -> bool:
+    return poll_until(condition, timeout, interval=0.01)
 
 
 def is_ack(command):
@@ -68,10 +69,19 @@ def bridge(request):
     overrides = getattr(request, "param", {})
     port = free_udp_port()
     backend = RecordingBackend()
-    gimbal = GimbalDevice(GimbalSettings(name="gimbal", axis_servos={"pitch": "aileron"},
-                                         limits_deg={"pitch": (-90.0, 30.0)}), backend)
-    settings = MavlinkSettings(url=f"udpin:127.0.0.1:{port}", system_id="follow",
-                               heartbeat_timeout_s=1.0, channel_trims_us={9: 1500.0}, **overrides)
+    gimbal = GimbalDevice(
+        GimbalSettings(
+            name="gimbal", axis_servos={"pitch": "aileron"}, limits_deg={"pitch": (-90.0, 30.0)}
+        ),
+        backend,
+    )
+    settings = MavlinkSettings(
+        url=f"udpin:127.0.0.1:{port}",
+        system_id="follow",
+        heartbeat_timeout_s=1.0,
+        channel_trims_us={9: 1500.0},
+        **overrides,
+    )
     side = MavlinkSide(settings, backend, gimbals=[gimbal])
     side.start()
     autopilot, gcs = peer(port, 1, 1), peer(port, 255, 190)
@@ -92,8 +102,7 @@ def test_commands_acks_retries_and_mirroring_over_udp(bridge):
     introduce(autopilot, gcs)
     assert wait_until(lambda: side.stats()["system_id"] == 1)
     for pwm in (1500, 1500, 1600):
-        autopilot.mav.servo_output_raw_send(0, 0, pwm, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0,
-                                            0)
+        autopilot.mav.servo_output_raw_send(0, 0, pwm, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0)
     assert wait_until(lambda: len(backend.servo_calls()) == 2)
     assert [c[2] for c in backend.servo_calls()] == [1500.0, 1600.0]
 
@@ -105,10 +114,12 @@ def test_commands_acks_retries_and_mirroring_over_udp(bridge):
     again = wait_for(gcs, is_ack(183))
     assert again is not None and again.result == 0
     assert [c for c in backend.servo_calls() if c[3] == "do_set_servo"] == [
-        ("servo", 9, 1100.0, "do_set_servo")]
+        ("servo", 9, 1100.0, "do_set_servo")
+    ]
 
-    gcs.mav.command_long_send(1, 0, 187, 0, -0.5, float("nan"), float("nan"), float("nan"),
-                              float("nan"), float("nan"), 0)
+    gcs.mav.command_long_send(
+        1, 0, 187, 0, -0.5, float("nan"), float("nan"), float("nan"), float("nan"), float("nan"), 0
+    )
     ack = wait_for(gcs, is_ack(187))
     assert ack is not None and ack.result == 0 and ack.get_srcComponent() == 140
     assert backend.servo_calls("actuator") == [("actuator", 1, -0.5, "do_set_actuator")]
@@ -125,8 +136,11 @@ def test_telemetry_heartbeats_and_components_over_udp(bridge):
     introduce(autopilot, gcs)
     seen: list = []
     wait_for(gcs, lambda m: False, timeout=2.2, keep=seen)
-    beats = {(m.get_srcComponent(), m.type) for m in seen if m.get_type() == "HEARTBEAT"
-             and m.get_srcSystem() == 1 and m.get_srcComponent() != 1}
+    beats = {
+        (m.get_srcComponent(), m.type)
+        for m in seen
+        if m.get_type() == "HEARTBEAT" and m.get_srcSystem() == 1 and m.get_srcComponent() != 1
+    }
     assert beats == {(140, 33), (154, 26)}
     aos = [m for m in seen if m.get_type() == "ACTUATOR_OUTPUT_STATUS"]
     # configured 10 Hz over ~2 s: generous bounds, not a timing threshold
@@ -140,8 +154,7 @@ def test_telemetry_heartbeats_and_components_over_udp(bridge):
     assert status and all(m.get_srcComponent() == 154 for m in status)
     # each component keeps its own sequence numbers: consecutive per component
     for cid in (140, 154):
-        seqs = [m.get_seq() for m in seen if m.get_srcComponent() == cid
-                and m.get_srcSystem() == 1]
+        seqs = [m.get_seq() for m in seen if m.get_srcComponent() == cid and m.get_srcSystem() == 1]
         assert len(seqs) >= 2
         assert all((b - a) % 256 == 1 for a, b in zip(seqs, seqs[1:], strict=False))
 
@@ -167,8 +180,12 @@ def test_failsafe_on_autopilot_heartbeat_loss_and_recovery(bridge):
     side, backend, autopilot, gcs = bridge
     introduce(autopilot, gcs)
     texts: list = []
-    lost = wait_for(gcs, lambda m: m.get_type() == "STATUSTEXT" and "failsafe" in m.text,
-                    timeout=4.0, keep=texts)
+    lost = wait_for(
+        gcs,
+        lambda m: m.get_type() == "STATUSTEXT" and "failsafe" in m.text,
+        timeout=4.0,
+        keep=texts,
+    )
     assert lost is not None and lost.get_srcComponent() == 140
     assert backend.failsafe_events == ["enter"]
     autopilot.mav.heartbeat_send(1, 3, 0, 0, 4)

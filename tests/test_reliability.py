@@ -21,6 +21,7 @@ import time
 from collections.abc import Callable, Iterator
 
 import pytest
+from e2e_support import wait_until as poll_until
 
 from mavservo.bridge import Bridge
 from mavservo.config.loader import load_config_text
@@ -37,25 +38,25 @@ def config(protocol: str, servos: int = 3) -> str:
         f"    - {{name: bus0, interface: aa55, channel: sim, protocol: {protocol}}}",
         "servos:",
     ]
-    lines += [f"  - {{name: s{i}, profile: rmd-x, can_id: {i}, limits_deg: [-45, 45],"
-              " telemetry_hz: 10, failsafe: {action: hold, timeout_s: 5}}"
-              for i in range(1, servos + 1)]
+    lines += [
+        f"  - {{name: s{i}, profile: rmd-x, can_id: {i}, limits_deg: [-45, 45],"
+        " telemetry_hz: 10, failsafe: {action: hold, timeout_s: 5}}"
+        for i in range(1, servos + 1)
+    ]
     lines.append("channels:")
-    lines += [f"  - {{servo: s{i}, source: servo_output, channel: {i},"
-              " input: {min: 1000, max: 2000}}" for i in range(1, servos + 1)]
-    lines.append("simulation: {autopilot: {profile: sweep, servo_output_rate_hz: 50,"
-                 " gimbal: false}}")
+    lines += [
+        f"  - {{servo: s{i}, source: servo_output, channel: {i}, input: {{min: 1000, max: 2000}}}}"
+        for i in range(1, servos + 1)
+    ]
+    lines.append(
+        "simulation: {autopilot: {profile: sweep, servo_output_rate_hz: 50, gimbal: false}}"
+    )
     lines.append("logging: {dir: runs}")
     return "\n".join(lines) + "\n"
 
 
 def wait_until(condition: Callable[[], bool], timeout: float = WAIT_S) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if condition():
-            return True
-        time.sleep(0.01)
-    return condition()
+    return poll_until(condition, timeout, interval=0.01)
 
 
 class OneFlipPerWrite:
@@ -166,8 +167,7 @@ def test_usb_unplug_and_replug_mid_run_resumes_commands(variable_bridge: Bridge)
     assert wait_until(lambda: bus.stats().get("connected", False))
     assert wait_until(lambda: len(log.arrived) > arrived)
     assert bus.stats()["reconnects"] >= 1
-    assert any("reconnect" in text.lower() or "back" in text.lower()
-               for _, text in bridge.events)
+    assert any("reconnect" in text.lower() or "back" in text.lower() for _, text in bridge.events)
     assert wait_until(lambda: all(r["online"] for r in bridge.status_rows()))
 
 

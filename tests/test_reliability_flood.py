@@ -19,6 +19,7 @@ import time
 from collections.abc import Callable, Iterator
 
 import pytest
+from e2e_support import wait_until as poll_until
 
 from mavservo.bridge import Bridge
 from mavservo.config.loader import load_config_text
@@ -54,12 +55,7 @@ def _config(channel: str) -> str:
 
 
 def wait_until(condition: Callable[[], bool], timeout: float = WAIT_S) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if condition():
-            return True
-        time.sleep(0.02)
-    return condition()
+    return poll_until(condition, timeout, interval=0.02)
 
 
 @pytest.fixture

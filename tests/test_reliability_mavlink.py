@@ -13,6 +13,7 @@ import time
 from collections.abc import Callable
 
 import pytest
+from e2e_support import wait_until as poll_until
 from pymavlink import mavutil
 from test_mavlink_support import RecordingBackend, command_long, heartbeat, servo_output_raw, wire
 
@@ -102,12 +103,7 @@ def free_udp_port() -> int:
 
 
 def wait_until(condition: Callable[[], bool], timeout: float = 6.0) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if condition():
-            return True
-        time.sleep(0.02)
-    return condition()
+    return poll_until(condition, timeout, interval=0.02)
 
 
 @pytest.fixture
@@ -126,8 +122,9 @@ channels:
 logging: {{dir: runs}}
 """
     bridge = Bridge(load_config_text(text), log_dir=False).start()
-    autopilot = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=1,
-                                           source_component=1, dialect="ardupilotmega")
+    autopilot = mavutil.mavlink_connection(
+        f"udpout:127.0.0.1:{port}", source_system=1, source_component=1, dialect="ardupilotmega"
+    )
     yield bridge, autopilot
     autopilot.close()
     bridge.stop()

@@ -26,6 +26,7 @@ from collections.abc import Callable, Iterator
 from typing import Any
 
 import pytest
+from e2e_support import wait_until as poll_until
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
@@ -73,12 +74,7 @@ logging: {{dir: runs}}
 
 
 def wait_until(condition: Callable[[], bool], timeout: float = WAIT_S) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if condition():
-            return True
-        time.sleep(0.01)
-    return condition()
+    return poll_until(condition, timeout, interval=0.01)
 
 
 def acks(conn: Any, command: int, timeout: float) -> list[Any]:
@@ -106,8 +102,10 @@ class Rig:
 
     def peer(self, source: tuple[int, int], key: bytes | None = None, link_id: int = 0) -> Any:
         conn = mavutil.mavlink_connection(
-            f"udpout:127.0.0.1:{self.port}", source_system=source[0],
-            source_component=source[1], dialect="ardupilotmega",
+            f"udpout:127.0.0.1:{self.port}",
+            source_system=source[0],
+            source_component=source[1],
+            dialect="ardupilotmega",
         )
         if key is not None:
             conn.setup_signing(key, sign_outgoing=True, link_id=link_id)
@@ -235,8 +233,9 @@ def test_garbage_from_a_stranger_does_not_redirect_the_bridge_output(signed_rig:
         stranger.settimeout(0.5)
         unsigned = mavutil.mavlink_connection(f"udpout:127.0.0.1:{rig.port}").mav
         stranger.sendto(b"garbage", ("127.0.0.1", rig.port))
-        stranger.sendto(bytes(unsigned.heartbeat_encode(6, 8, 0, 0, 4).pack(unsigned)),
-                        ("127.0.0.1", rig.port))
+        stranger.sendto(
+            bytes(unsigned.heartbeat_encode(6, 8, 0, 0, 4).pack(unsigned)), ("127.0.0.1", rig.port)
+        )
         assert wait_until(lambda: rig.stats()["link"].get("strangers_ignored", 0) >= 1)
         with pytest.raises(TimeoutError):
             stranger.recv(4096)
@@ -250,8 +249,9 @@ def malformed_frames(conn: Any, rng: random.Random) -> list[bytes]:
     raw = bytearray(good.pack(conn.mav))
     bad_crc = bytes(raw[:-1]) + bytes([raw[-1] ^ 0xFF])
     truncated = bytes(raw[: len(raw) // 2])
-    oversized = bytes([0xFD, 0xFF, 0, 0, 0, 255, 190, 76, 0, 0]) + bytes(rng.randrange(256)
-                                                                         for _ in range(257))
+    oversized = bytes([0xFD, 0xFF, 0, 0, 0, 255, 190, 76, 0, 0]) + bytes(
+        rng.randrange(256) for _ in range(257)
+    )
     junk = bytes(rng.randrange(256) for _ in range(rng.randrange(1, 300)))
     return [bad_crc, truncated, oversized, junk]
 
