@@ -36,7 +36,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections import Counter, deque
+from collections import deque
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -48,7 +48,7 @@ from mavservo.bridge import Bridge, settle_heap
 from mavservo.config.loader import load_config_text
 from mavservo.scheduler import SchedulerObserver
 from mavservo.sim.adapter import LineCorrupter, LineFaults
-from mavservo.sim.child import SimulatorProcess, frame_key
+from mavservo.sim.child import RecentKeys, SimulatorProcess, frame_key
 
 RATES = (1e-6, 1e-5, 1e-4, 1e-3, 1e-2)
 
@@ -193,9 +193,7 @@ class Recorder:
     """
 
     def __init__(self, bridge: Bridge, emulator: Any, window: int = 60_000) -> None:
-        self._recent: deque[str] = deque()
-        self._window = window
-        self.sent: Counter[str] = Counter()
+        self.sent = RecentKeys(window)
         self.arrived = 0
         self.wrong_count = 0
         self.wrong: deque[str] = deque(maxlen=100)  # the last few, for inspection
@@ -205,7 +203,7 @@ class Recorder:
 
         def send(msg: can.Message, timeout: float | None = None) -> None:
             with self.lock:
-                self._remember(frame_key(msg))
+                self.sent.add(frame_key(msg))
             original_send(msg, timeout)
 
         bus.send = send  # type: ignore[method-assign]
@@ -222,15 +220,6 @@ class Recorder:
             original_submit(msg, ready, *rest)
 
         emulator.canbus.submit = submit  # type: ignore[method-assign]
-
-    def _remember(self, frame: str) -> None:
-        self._recent.append(frame)
-        self.sent[frame] += 1
-        if len(self._recent) > self._window:
-            old = self._recent.popleft()
-            self.sent[old] -= 1
-            if not self.sent[old]:
-                del self.sent[old]
 
 
 def transport(summary: dict[str, Any]) -> dict[str, Any]:

@@ -285,10 +285,10 @@ _LAYOUTS = [(ext, rtr, dlc) for dlc in range(9) for ext in (False, True) for rtr
 
 # Searching for the leftmost match of any layout from a position is the same as the byte-by-byte
 # state machine that rescans after every rejected 0xAA, but runs in C.
-_VARIABLE_RE = re.compile(
-    rb"\xaa\x55.{18}|" + b"|".join(_layout_pattern(*layout) for layout in _LAYOUTS), re.DOTALL
-)
-_FIXED_RE = re.compile(rb"\xaa\x55.{18}", re.DOTALL)
+_DATA_ALTERNATIVES = b"|".join(_layout_pattern(*layout) for layout in _LAYOUTS)
+_FIXED_ALTERNATIVE = rb"\xaa\x55.{18}"
+_VARIABLE_RE = re.compile(_FIXED_ALTERNATIVE + b"|" + _DATA_ALTERNATIVES, re.DOTALL)
+_FIXED_RE = re.compile(_FIXED_ALTERNATIVE, re.DOTALL)
 
 
 @dataclass(frozen=True)
@@ -320,7 +320,7 @@ class _Verdict(enum.Enum):
 
 
 #: One valid variable-length data frame of any layout (no fixed 20-byte frames).
-_DATA_RE = re.compile(b"|".join(_layout_pattern(*layout) for layout in _LAYOUTS), re.DOTALL)
+_DATA_RE = re.compile(_DATA_ALTERNATIVES, re.DOTALL)
 
 
 def _followed_by_frame(buf: bytearray, at: int, end: int, idle: bool) -> bool | None:

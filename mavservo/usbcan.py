@@ -153,9 +153,7 @@ class AA55Bus(can.BusABC):
             except serial.SerialTimeoutException as exc:
                 raise can.CanTimeoutError(f"aa55: write timed out on {self.channel}") from exc
             except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
-                raise can.CanOperationError(
-                    f"aa55: the adapter on {self.channel} is gone ({exc})"
-                ) from exc
+                raise self._gone(exc) from exc
 
     # -- receiving ----------------------------------------------------------------------------
 
@@ -178,13 +176,9 @@ class AA55Bus(can.BusABC):
         except (BlockingIOError, InterruptedError):
             return False
         except (OSError, ValueError, TypeError) as exc:
-            raise can.CanOperationError(
-                f"aa55: the adapter on {self.channel} is gone ({exc})"
-            ) from exc
+            raise self._gone(exc) from exc
         if not chunk:  # readable but empty: what a vanished USB device looks like on Linux
-            raise can.CanOperationError(
-                f"aa55: the adapter on {self.channel} is gone (readable but no data)"
-            )
+            raise self._gone("readable but no data")
         self._absorb_chunk(chunk)
         return True
 
@@ -197,13 +191,15 @@ class AA55Bus(can.BusABC):
             waiting = ser.in_waiting
             chunk = ser.read(waiting) if waiting else b""
         except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
-            raise can.CanOperationError(
-                f"aa55: the adapter on {self.channel} is gone ({exc})"
-            ) from exc
+            raise self._gone(exc) from exc
         if not chunk:
             return False
         self._absorb_chunk(chunk)
         return True
+
+    def _gone(self, why: object) -> can.CanOperationError:
+        """The error every failed read or write turns into: the device went away."""
+        return can.CanOperationError(f"aa55: the adapter on {self.channel} is gone ({why})")
 
     def _absorb_chunk(self, chunk: bytes) -> None:
         self._last_byte_time = time.monotonic()

@@ -144,7 +144,7 @@ class LagMeter:
         return out
 
 
-def _host_decoder(protocol: aa55.ProtocolName) -> aa55.Decoder:
+def host_decoder(protocol: aa55.ProtocolName) -> aa55.Decoder:
     """The decoder for the host's bytes, as an adapter's firmware would read them.
 
     First structurally valid candidate wins, and nothing waits for the byte after a frame
@@ -175,7 +175,7 @@ class AdapterEmulator:
     ) -> None:
         self.canbus = SimCanBus(servos, bitrate)
         self.clock = clock
-        self.decoder = _host_decoder(protocol)
+        self.decoder = host_decoder(protocol)
         self.protocol: aa55.ProtocolName = protocol
         self.mode = "normal"
         self.filter_id = 0
@@ -266,7 +266,7 @@ class AdapterEmulator:
                 os.unlink(temporary)
             os.symlink(self.device, temporary)
             os.replace(temporary, self.path)
-            self.decoder = _host_decoder(self.protocol)
+            self.decoder = host_decoder(self.protocol)
             self.plug_count += 1
 
     # -- the adapter ---------------------------------------------------------------------------
@@ -330,7 +330,7 @@ class AdapterEmulator:
                     # The rest of this chunk was decoded in the old protocol: decode it again
                     # in the new one (a host sends its first frame right after the settings).
                     at = chunk.find(item.raw)
-                    self.decoder = _host_decoder(self.protocol)
+                    self.decoder = host_decoder(self.protocol)
                     if at >= 0:
                         rest = chunk[at + len(item.raw) :]
                         self._handle_items(self.decoder.feed(rest, now), now, rest)

@@ -41,7 +41,7 @@ from typing import Any
 import can
 
 from .. import aa55
-from .adapter import AdapterEmulator, LineCorrupter, LineFaults, _host_decoder
+from .adapter import AdapterEmulator, LineCorrupter, LineFaults, host_decoder
 from .canbus import HOST
 from .servo import SimServo
 
@@ -52,6 +52,31 @@ def frame_key(msg: can.Message | aa55.Frame) -> str:
         f"{msg.arbitration_id:x}:{int(msg.is_extended_id)}:{int(msg.is_remote_frame)}:"
         f"{bytes(msg.data).hex()}"
     )
+
+
+class RecentKeys:
+    """The last ``window`` frame keys sent, as a multiset: "was this frame sent lately?"
+
+    Why bounded: a frame reaches the adapter within milliseconds of being sent, and a soak must
+    not measure the checker's own growth.
+    """
+
+    def __init__(self, window: int) -> None:
+        self._window = window
+        self._order: deque[str] = deque()
+        self._counts: Counter[str] = Counter()
+
+    def add(self, key: str) -> None:
+        self._order.append(key)
+        self._counts[key] += 1
+        if len(self._order) > self._window:
+            old = self._order.popleft()
+            self._counts[old] -= 1
+            if not self._counts[old]:
+                del self._counts[old]
+
+    def __contains__(self, key: object) -> bool:
+        return key in self._counts
 
 
 class SimulatorProcess:
@@ -162,11 +187,9 @@ class _Arrivals:
         self.trace: deque[tuple[float, str, int, float]] = deque(maxlen=keep)
         self.arrived = 0
         self.wrong = 0
-        self._sent: Counter[str] = Counter()
-        self._recent: deque[str] = deque()
-        self._window = 60_000
+        self._sent = RecentKeys(60_000)
         self._emulator = emulator
-        self._clean = _host_decoder(emulator.protocol)
+        self._clean = host_decoder(emulator.protocol)
         self._clean_protocol = emulator.protocol
         canbus = emulator.canbus
         submit_original, run_original = canbus.submit, canbus.run_until
@@ -205,18 +228,11 @@ class _Arrivals:
             self.reset_clean()
         for item in self._clean.feed(data):
             if isinstance(item, aa55.Frame):
-                key = frame_key(item)
-                self._recent.append(key)
-                self._sent[key] += 1
-                if len(self._recent) > self._window:
-                    old = self._recent.popleft()
-                    self._sent[old] -= 1
-                    if not self._sent[old]:
-                        del self._sent[old]
+                self._sent.add(frame_key(item))
 
     def reset_clean(self) -> None:
         """A new line (replug, protocol switch): the clean decoder starts afresh too."""
-        self._clean = _host_decoder(self._emulator.protocol)
+        self._clean = host_decoder(self._emulator.protocol)
         self._clean_protocol = self._emulator.protocol
 
     def take(self) -> dict[str, int]:
