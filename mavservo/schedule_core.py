@@ -39,19 +39,23 @@ Rules (paper section 3.3):
   landed on a slot and its polls queued behind the slot's commands: their replies came
   ~1.6 ms late and two reception intervals in every ``T_c / g`` were off by that much.
 * A reply expected but not received within ``reply_timeout_s`` is lost; after
-  ``offline_after_missed`` losses in a row a servo is offline until its next reply.
+  ``offline_after_missed`` losses in a row a servo is offline until its next reply. A reply
+  is matched to an expectation of its own kind and plausible latency
+  (:mod:`mavservo.reply_matching`), so one lost reply is declared lost where it happened and
+  not carried along by the replies after it.
 """
 
 from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Hashable, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
 import can
 
+from . import reply_matching
 from .busload import ServoTraffic, frame_time, message_bits, worst_case_load
 
 CommandMode = Literal["periodic", "immediate"]
@@ -169,11 +173,16 @@ class SetpointResult:
 
 @dataclass
 class Expectation:
-    """A reply the bus owes us: ``kind`` of frame that provoked it, when, and until when."""
+    """A reply the bus owes us: ``kind`` of frame that provoked it, when, and until when.
+
+    ``key`` is the profile's ``exchange_key`` of the request (None: the profile cannot tell
+    its replies apart), which the reply must carry to answer it.
+    """
 
     kind: FrameKind
     t_tx: float
     deadline: float
+    key: Hashable | None = None
 
 
 @dataclass(frozen=True)
@@ -227,6 +236,7 @@ class _ServoSlot:
     expected: deque[Expectation] = field(default_factory=deque)
     missed_in_a_row: int = 0
     awaiting_first_reply_since: float | None = None
+    replies: reply_matching.ReplyMatcher = field(default_factory=reply_matching.ReplyMatcher)
 
     @property
     def has_unsent_setpoint(self) -> bool:
@@ -235,6 +245,13 @@ class _ServoSlot:
     @property
     def request_outstanding(self) -> bool:
         return any(e.kind == "request" for e in self.expected)
+
+
+def exchange_key(profile: object, msg: can.Message) -> Hashable | None:
+    """The profile's ``exchange_key`` of ``msg``, or None for profiles that do not define one
+    (their replies then match any outstanding expectation, oldest plausible first)."""
+    key_of = getattr(profile, "exchange_key", None)
+    return key_of(msg) if key_of is not None else None
 
 
 def _msg_shape(msg: can.Message) -> tuple[bool, int]:
@@ -451,8 +468,10 @@ class ScheduleCore:
     def _command_frame(self, slot: _ServoSlot, kind: FrameKind, now: float) -> Outgoing:
         assert slot.latest is not None
         replies = int(getattr(slot.spec.profile, "replies_per_command", 1))
+        key = exchange_key(slot.spec.profile, slot.latest.msg)
         expectations = tuple(
-            Expectation("command", now, now + self.timing.reply_timeout_s) for _ in range(replies)
+            Expectation("command", now, now + self.timing.reply_timeout_s, key)
+            for _ in range(replies)
         )
         slot.expected.extend(expectations)
         slot.sent_seq = slot.latest.seq
@@ -462,6 +481,8 @@ class ScheduleCore:
         return Outgoing(slot.spec.name, kind, slot.latest.msg, slot.latest.seq, expectations)
 
     def _expire(self, now: float, decision: Decision) -> None:
+        # Deadlines grow with position (send order, one timeout), so expired ones lead the
+        # deque even after replies have taken expectations out of its middle.
         for name, slot in self._slots.items():
             while slot.expected and slot.expected[0].deadline <= now:
                 slot.expected.popleft()
@@ -548,8 +569,10 @@ class ScheduleCore:
                 decision.late_polls.append(name)
             replies = int(getattr(slot.spec.profile, "replies_per_request", 1))
             for req in slot.spec.profile.telemetry_requests():
+                key = exchange_key(slot.spec.profile, req)
                 expectations = tuple(
-                    Expectation("request", now, now + t.reply_timeout_s) for _ in range(replies)
+                    Expectation("request", now, now + t.reply_timeout_s, key)
+                    for _ in range(replies)
                 )
                 slot.expected.extend(expectations)
                 decision.frames.append(Outgoing(name, "request", req, None, expectations))
@@ -609,15 +632,20 @@ class ScheduleCore:
         if out.seq is not None and slot.sent_seq == out.seq:
             slot.sent_seq = out.seq - 1
 
-    def on_reply(self, name: str, t: float) -> ReplyMatch:
-        """A reply from ``name`` was decoded at ``t``: match it to the oldest expectation."""
+    def on_reply(self, name: str, t: float, key: Hashable | None = None) -> ReplyMatch:
+        """A reply from ``name`` with exchange key ``key`` was decoded at ``t``: match it to
+        the expectation it answers (its kind, the oldest of plausible latency)."""
         slot = self._slots[name]
         back_online = slot.missed_in_a_row >= self.timing.offline_after_missed
         slot.missed_in_a_row = 0
-        if slot.expected:
-            expectation = slot.expected.popleft()
+        index = slot.replies.pick(slot.expected, t, key)
+        if index is not None:
+            expectation = slot.expected[index]
+            del slot.expected[index]
             latency = t - expectation.t_tx if expectation.kind != "request" else None
             return ReplyMatch(expectation.kind, expectation.t_tx, latency, back_online)
+        if slot.expected:
+            return ReplyMatch("late", None, None, back_online)  # none of its kind outstanding
         if slot.poll_period is not None or int(
             getattr(slot.spec.profile, "replies_per_request", 1)
         ):

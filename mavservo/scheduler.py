@@ -41,6 +41,7 @@ from .schedule_core import (
     ServoSpec,
     SetpointResult,
     TimingConfig,
+    exchange_key,
 )
 from .servos.base import Fault, ServoState
 
@@ -452,13 +453,14 @@ class Scheduler:
         )
         if servo is None:
             return None
-        state = self._specs[servo].profile.decode(msg, t)
+        profile = self._specs[servo].profile
+        state = profile.decode(msg, t)
         with self._lock:
             servo_metrics = self._metrics.servos[servo]
             if state is None:
                 servo_metrics.rejected += 1
                 return None
-            match = self._core.on_reply(servo, t)
+            match = self._core.on_reply(servo, t, exchange_key(profile, msg))
             servo_metrics.received += 1
             if match.kind == "late":
                 servo_metrics.late_replies += 1

@@ -11,6 +11,7 @@ from __future__ import annotations
 import enum
 import math
 from abc import ABC, abstractmethod
+from collections.abc import Hashable
 from dataclasses import dataclass, replace
 
 import can
@@ -123,6 +124,15 @@ class ServoProfile(ABC):
     @abstractmethod
     def decode(self, msg: can.Message, timestamp: float) -> ServoState | None:
         """State after reply ``msg`` received at ``timestamp``; None if not this servo's reply."""
+
+    def exchange_key(self, msg: can.Message) -> Hashable | None:
+        """What a request and the reply that answers it have in common, or None.
+
+        The scheduler matches a reply only to an outstanding request with the same key, so a
+        lost reply is not credited to the next request of another kind. None (the default)
+        means this protocol's replies do not say what they answer.
+        """
+        return None
 
     def _check_angle(self, angle_deg: float) -> None:
         """Reject non-finite or unrepresentable angles: silently clamping one would move the

@@ -129,6 +129,10 @@ class RmdX(ServoProfile):
             and len(msg.data) == 8
         )
 
+    def exchange_key(self, msg: can.Message) -> int | None:
+        """The command byte: every reply echoes the command byte of the request it answers."""
+        return msg.data[0] if msg.data else None
+
     def decode(self, msg: can.Message, timestamp: float) -> ServoState | None:
         if not self.is_reply(msg):
             return None
