@@ -389,6 +389,15 @@ class DeployedRig:
                 0, os.SCHED_FIFO, os.sched_param(AUTOPILOT_PRIORITY)
             ),
         )
+        # A deployed bridge starts beside an autopilot that is already running. The child takes
+        # ~0.5 s of CPU at SCHED_FIFO to import; started under the bridge's first slots, it held
+        # the simulator child off the CPU (docs/reliability.md, "Start-up"): wait until it talks.
+        if not wait_for_datagram(port, AUTOPILOT_START_TIMEOUT_S):
+            self.autopilot.kill()
+            self.autopilot.wait(5)
+            self.sim.stop()
+            self._dir.cleanup()
+            raise RuntimeError(f"simulated autopilot sent nothing in {AUTOPILOT_START_TIMEOUT_S} s")
         # as systemd's CPUSchedulingPolicy=fifo does: every thread started from here inherits it
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(BRIDGE_PRIORITY))
         text = bridge_config(
@@ -424,10 +433,31 @@ class DeployedRig:
             os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
 
 
+AUTOPILOT_START_TIMEOUT_S = 30.0
+
+
 def free_udp_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
         sock.bind(("127.0.0.1", 0))
         return int(sock.getsockname()[1])
+
+
+def wait_for_datagram(port: int, timeout_s: float) -> bool:
+    """Hold ``127.0.0.1:port`` until a first datagram arrives (True) or ``timeout_s`` ends.
+
+    Why: the simulated autopilot sends with ``udpout`` as soon as it has started, so its first
+    datagram says it is up. The port is free again on return, for the bridge to bind; what the
+    autopilot sends in between is lost, as it would be to a bridge not yet listening.
+    """
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind(("127.0.0.1", port))
+        sock.settimeout(timeout_s)
+        try:
+            sock.recv(65536)
+        except TimeoutError:
+            return False
+    return True
 
 
 class LatencyProbe(SchedulerObserver):

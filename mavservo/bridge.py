@@ -1,11 +1,12 @@
 """Wiring and lifecycle: config -> buses -> schedulers -> servo backend -> MAVLink side.
 
 :class:`Bridge` builds every piece from a validated :class:`~mavservo.config.Config`, starts them
-in dependency order (simulators, buses, schedulers, MAVLink) and stops them in reverse, leaving
-each servo in its configured failsafe state and flushing the run log. Each piece it wires is
-usable alone (tests start a scheduler on a ``virtual`` bus, the MAVLink side with a test backend);
-the bridge adds only what needs all of them: the ``sim`` endpoints, reconnects, the run log and
-the summary.
+in dependency order (simulators, buses, MAVLink, then the schedulers' command clocks, last so
+that no start-up work delays their first slots) and stops them with the schedulers last,
+leaving each servo in its configured failsafe state and flushing the run log. Each piece it
+wires is usable alone (tests start a scheduler on a ``virtual`` bus, the MAVLink side with a
+test backend); the bridge adds only what needs all of them: the ``sim`` endpoints, reconnects,
+the run log and the summary.
 """
 
 from __future__ import annotations
@@ -211,8 +212,6 @@ class Bridge:
             on_command=self.runlog.mavlink_received if self.runlog is not None else None,
             health=self._health,
         )
-        for scheduler in self.schedulers.values():
-            scheduler.start()
         self.mavlink = self._make_mavlink()
         if self.runlog is not None:
             self._tap_mavlink(self.mavlink, self.runlog)
@@ -221,6 +220,13 @@ class Bridge:
             self.autopilot_sim.start()
         self._tick_thread = threading.Thread(target=self._tick, name="bridge-tick", daemon=True)
         self._tick_thread.start()
+        # The command clock starts last, once the rest of start-up is done: each scheduler
+        # anchors its first slot when it starts, and start-up work after that anchor (opening
+        # the MAVLink link imports pymavlink's 2.4 MB dialect module while holding the
+        # interpreter lock) delayed the first slots by 5-10 ms in the soak. Setpoints that
+        # arrive meanwhile are queued by the scheduler and go out in its first slot.
+        for scheduler in self.schedulers.values():
+            scheduler.start()
         self._started = True
         self.started_at = time.monotonic()
 
