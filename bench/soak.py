@@ -21,7 +21,10 @@ thread records when the process stalled (it woke late), ``gc.callbacks`` record 
 pauses, an observer records gaps between command slots and every lost reply, the adapter
 records how late it handled bus events (the simulator lagging), and every window records the
 run-queue wait of each thread (CPU taken by others) from ``/proc/<pid>/task/*/schedstat``.
-Each event is then attributed to what overlapped it.
+Each event is then attributed to what overlapped it. ``start_up`` reports the first seconds
+apart: slots missed while ``start()`` ran and in the warm-up before the first window, when the
+first command went out (a slot missed before it had nothing to send), and the run-queue wait
+of the bridge's threads and of each child over that time.
 
 Resident memory (VmRSS) and the Python heap (tracemalloc, optional) are sampled at every
 window boundary: "memory flat" means the last third does not grow beyond the first third.
@@ -100,6 +103,8 @@ class Diagnostics(SchedulerObserver):
         self.sim_lag: deque[tuple[float, float]] = deque(maxlen=keep)  # (t, lag)
         self.scheduler: Any = None
         """Set to the bridge's scheduler once it exists: its missed-slot count is watched."""
+        self.first_command: float | None = None
+        """When the first command frame went out: slots missed before it had nothing due."""
         self._gc_start = 0.0
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._watch, name="soak-monitor", daemon=True)
@@ -139,6 +144,8 @@ class Diagnostics(SchedulerObserver):
     def on_tx(self, bus: str, msg: Any, t: float, kind: str, servo: str, seq: Any) -> None:
         # 50 s per servo: a window's losses are followed up to two windows later
         self.sent.setdefault(servo, deque(maxlen=3000)).append((t, kind))
+        if self.first_command is None and kind == "command":
+            self.first_command = t
 
     def on_rx(self, bus: str, msg: Any, t: float, servo: str, state: Any) -> None:
         self.received.setdefault(servo, deque(maxlen=3000)).append(t)  # 50 s, like sends
@@ -213,6 +220,30 @@ class Diagnostics(SchedulerObserver):
         if overlaps(self.stalls):
             return "process_stall"
         return "unexplained"
+
+    def start_up(
+        self, t_start: float, t_started: float, warm_up_end: float, missed_at_start: int
+    ) -> dict[str, Any]:
+        """The start-up figures, in seconds from the call of ``start()`` (``t_start``): how long
+        it took, the slots missed meanwhile and in the warm-up after it, when the first command
+        went out (slots missed before it had nothing to send), stalls and collector pauses."""
+
+        def worst(events: Any) -> float:
+            durations = [e[1] for e in events if t_start <= e[0] - e[1] and e[0] <= warm_up_end]
+            return round(max(durations, default=0.0) * 1e3, 2)
+
+        return {
+            "start_call_s": round(t_started - t_start, 4),
+            "missed_slots_during_start": missed_at_start,
+            "missed_slots_warm_up": [
+                (round(t - t_start, 4), n) for t, n in self.missed if t < warm_up_end
+            ],
+            "first_command_s": None
+            if self.first_command is None
+            else round(self.first_command - t_start, 4),
+            "stall_max_ms": worst(self.stalls),
+            "gc_pause_max_ms": worst(self.gc_pauses),
+        }
 
     def report(self, windows: list[dict[str, Any]]) -> dict[str, Any]:
         """Every slot gap and lost reply with its cause and its window's phase."""
@@ -312,6 +343,9 @@ class InProcess:
     def stop(self) -> dict[str, Any]:
         return self.bridge.stop()
 
+    def child_pids(self) -> dict[str, int]:
+        return {}
+
 
 class Deployed:
     """The bridge as deployed (:class:`bench_faults.DeployedRig`) with the soak's faults."""
@@ -371,6 +405,10 @@ class Deployed:
     def stop(self) -> dict[str, Any]:
         return self.rig.stop()
 
+    def child_pids(self) -> dict[str, int]:
+        """The simulator and autopilot children, whose run-queue waits the start-up report shows."""
+        return {"simulator": self.sim.process.pid, "autopilot": self.rig.autopilot.pid}
+
 
 def counters(bridge: Bridge, setup: InProcess | Deployed) -> dict[str, int]:
     """The figures a window is judged by. Read from the scheduler's counters directly, not
@@ -420,16 +458,36 @@ def main() -> None:
     setup = kind(args.servos, diagnostics)
     bridge = setup.bridge
     diagnostics.start()
+    pids = {"bridge": 0, **setup.child_pids()}  # 0: this process
+
+    def waits() -> dict[str, dict[str, float]]:
+        return {name: run_queue_wait_s(pid or "self") for name, pid in pids.items()}
+
+    waited_at = waits()
+    t_start = time.monotonic()
     setup.start()
-    diagnostics.scheduler = bridge.schedulers["bus0"]
     started = time.monotonic()
+    diagnostics.scheduler = bridge.schedulers["bus0"]
+    missed_at_start = int(diagnostics.scheduler.metrics_store.missed_command_slots)
     end = started + args.minutes * 60
     windows: list[dict[str, Any]] = []
     memory: list[tuple[float, int, int]] = []
     index = 0
     baseline: tracemalloc.Snapshot | None = None
+    start_up: dict[str, Any] = {}
     try:
         time.sleep(2.0)  # servos come online
+        warm_up_end = time.monotonic()
+        start_up = diagnostics.start_up(t_start, started, warm_up_end, missed_at_start)
+        # CPU taken from each thread by others (run-queue wait), from before start() to here
+        start_up["run_queue_wait_s"] = {
+            name: {
+                thread: round(s - waited_at[name].get(thread, 0.0), 4)
+                for thread, s in now.items()
+                if s - waited_at[name].get(thread, 0.0) >= 0.001
+            }
+            for name, now in waits().items()
+        }
         setup.poll(diagnostics, None)  # counters start afresh
         follow: tuple[float, float] | None = None
         while time.monotonic() + args.window_s <= end:
@@ -497,6 +555,7 @@ def main() -> None:
         },
         "wrong_commands_total": sum(w["wrong_commands"] for w in windows),
         "missed_command_slots_total": summary["buses"]["bus0"]["missed_command_slots"],
+        "start_up": start_up,
         "diagnosis": diagnostics.report(windows),
         "windows": windows,
         "memory_samples": memory,

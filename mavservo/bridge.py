@@ -221,10 +221,11 @@ class Bridge:
         self._tick_thread = threading.Thread(target=self._tick, name="bridge-tick", daemon=True)
         self._tick_thread.start()
         # The command clock starts last, once the rest of start-up is done: each scheduler
-        # anchors its first slot when it starts, and start-up work after that anchor (opening
-        # the MAVLink link imports pymavlink's 2.4 MB dialect module while holding the
-        # interpreter lock) delayed the first slots by 5-10 ms in the soak. Setpoints that
-        # arrive meanwhile are queued by the scheduler and go out in its first slot.
+        # anchors its first slot when it starts, and start-up work after that anchor ran while
+        # the first slots were due (opening the MAVLink link imports pymavlink's 2.4 MB dialect
+        # module, holding the interpreter lock: 5-10 ms stalls of the whole process, see
+        # docs/reliability.md, "Start-up"). Setpoints that arrive meanwhile are queued by the
+        # scheduler and go out in its first slot.
         for scheduler in self.schedulers.values():
             scheduler.start()
         self._started = True
