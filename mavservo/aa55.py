@@ -323,7 +323,7 @@ class _Verdict(enum.Enum):
 _DATA_RE = re.compile(_DATA_ALTERNATIVES, re.DOTALL)
 
 
-def _followed_by_frame(buf: bytearray, at: int, end: int, idle: bool) -> bool | None:
+def _followed_by_frame(buf: bytes | bytearray, at: int, end: int, idle: bool) -> bool | None:
     """Does a frame start at ``at`` (or the data end on an idle line)? None: not known yet."""
     if at < end:
         return buf[at] == START
@@ -387,8 +387,13 @@ class Decoder:
     def feed(
         self, data: bytes, timestamp: float = 0.0
     ) -> list[Frame | AdapterSettings | ControlFrame]:
+        if not self._buf and type(data) is bytes:
+            # Nothing held back: scan the caller's bytes where they are and keep only the tail.
+            # Copying a whole read into the buffer first costs little on a warm CPU but ~15 us
+            # on one that has just woken up, when the bus calls this (docs/benchmarks.md).
+            return self._scan(data, timestamp, idle=False)
         self._buf += data
-        return self._scan(timestamp, idle=False)
+        return self._scan(self._buf, timestamp, idle=False)
 
     def flush(self, timestamp: float = 0.0) -> list[Frame | AdapterSettings | ControlFrame]:
         """The line went idle: settle what was held back, give up on an incomplete candidate.
@@ -397,19 +402,22 @@ class Decoder:
         follower; a candidate still incomplete was a false start or a truncated frame and is
         rescanned from the byte after its 0xAA, so a real frame behind it is not lost.
         """
-        out = self._scan(timestamp, idle=True)
+        out = self._scan(self._buf, timestamp, idle=True)
         for _ in range(len(self._buf)):  # bounded: every turn drops at least one byte
             if not self._buf:
                 break
             self._record(Rejection.TRUNCATED, bytes(self._buf))
             del self._buf[0]
             self._gap = True
-            out += self._scan(timestamp, idle=True)
+            out += self._scan(self._buf, timestamp, idle=True)
         self._gap = False  # after an idle line the next byte starts afresh
         return out
 
-    def _scan(self, timestamp: float, idle: bool) -> list[Frame | AdapterSettings | ControlFrame]:
-        buf = self._buf
+    def _scan(
+        self, buf: bytes | bytearray, timestamp: float, idle: bool
+    ) -> list[Frame | AdapterSettings | ControlFrame]:
+        """Decode ``buf`` (the held-back bytes, or a fresh chunk when nothing was held back);
+        what may still begin a frame ends up in ``self._buf``."""
         out: list[Frame | AdapterSettings | ControlFrame] = []
         append = out.append
         from_bytes = int.from_bytes
@@ -433,6 +441,8 @@ class Decoder:
                 # of its layout follows: take it before any search.
                 pos, count = self._take_run(buf, pos, _RUNS[buf[pos + 1]], timestamp, out)
                 frames += count
+                if pos == end:  # the usual end of a read: one run, nothing left to search
+                    break
             for m in self._pattern.finditer(buf, pos):
                 start = m.start()
                 if start != pos:
@@ -486,17 +496,22 @@ class Decoder:
         self.frames += frames
         if held is not None:
             keep = held
+        elif pos == end:
+            keep = end
         else:  # keep the earliest 0xAA that could still begin a valid frame
             keep = self._incomplete_start(buf, pos, end)
             if keep > pos:
                 self._reject_gap(buf, pos, keep)
                 gap = True
         self._gap = gap
-        del buf[:keep]
+        if buf is self._buf:
+            del buf[:keep]
+        elif keep < end:  # scanned in place: hold back the tail (fewer than MAX_PENDING bytes)
+            self._buf += buf[keep:]
         return out
 
     def _judge(
-        self, buf: bytearray, start: int, stop: int, end: int, gap: bool, idle: bool
+        self, buf: bytes | bytearray, start: int, stop: int, end: int, gap: bool, idle: bool
     ) -> _Verdict:
         """Keep the frame matched at ``buf[start:stop]``, or is it a false start over a real one?
 
@@ -545,7 +560,7 @@ class Decoder:
 
     @staticmethod
     def _take_run(
-        buf: bytearray, pos: int, run: _Run, timestamp: float, out: list[Any]
+        buf: bytes | bytearray, pos: int, run: _Run, timestamp: float, out: list[Any]
     ) -> tuple[int, int]:
         """Decode the frames of ``run``'s layout back to back from ``pos``; (new pos, count).
 
@@ -614,7 +629,7 @@ class Decoder:
         self.rejections.append((reason, raw))
         self.bytes_discarded += 1
 
-    def _reject_gap(self, buf: bytearray, pos: int, stop: int) -> None:
+    def _reject_gap(self, buf: bytes | bytearray, pos: int, stop: int) -> None:
         """Account for the bytes in ``buf[pos:stop]``, none of which starts a valid frame."""
         start = buf.find(START, pos, stop)
         if start < 0:
@@ -628,7 +643,7 @@ class Decoder:
             self.bytes_discarded += (nxt if nxt >= 0 else stop) - start - 1
             start = nxt
 
-    def _why_not(self, buf: bytearray, start: int) -> Rejection:
+    def _why_not(self, buf: bytes | bytearray, start: int) -> Rejection:
         """The reason the candidate at ``start`` (known not to be a valid frame) fails."""
         n = len(buf)
         if start + 1 >= n:
@@ -655,7 +670,7 @@ class Decoder:
             return Rejection.TRUNCATED
         return Rejection.BAD_END
 
-    def _held_back(self, buf: bytearray, pos: int, stop: int, end: int) -> bool:
+    def _held_back(self, buf: bytes | bytearray, pos: int, stop: int, end: int) -> bool:
         """True when a 0xAA in ``buf[pos:stop]`` may still grow into a frame covering ``stop``.
 
         Emitting the later match now would make the output depend on how the stream was chunked.
@@ -667,7 +682,7 @@ class Decoder:
             start = buf.find(START, start + 1, stop)
         return False
 
-    def _incomplete_start(self, buf: bytearray, pos: int, end: int) -> int:
+    def _incomplete_start(self, buf: bytes | bytearray, pos: int, end: int) -> int:
         """Index of the first 0xAA at or after ``pos`` that may still grow into a valid frame."""
         start = buf.find(START, max(pos, end - FIXED_LENGTH + 1))
         while start >= 0:
@@ -676,7 +691,7 @@ class Decoder:
             start = buf.find(START, start + 1)
         return end
 
-    def _could_complete(self, buf: bytearray, start: int, end: int) -> bool:
+    def _could_complete(self, buf: bytes | bytearray, start: int, end: int) -> bool:
         avail = end - start
         if avail < 2:
             return True

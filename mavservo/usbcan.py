@@ -102,6 +102,7 @@ class AA55Bus(can.BusABC):
         self._write_lock = threading.Lock()
         self._last_byte_time = 0.0
         self._seen_rejections = 0
+        self._others_seen = 0
         self._hw_filter: tuple[int, int] | None = None
         self.channel_info = f"AA-55 USB-CAN on {channel}"
         try:
@@ -206,10 +207,15 @@ class AA55Bus(can.BusABC):
         self._absorb(self.decoder.feed(chunk, time.time()))
 
     def _absorb(self, items: list[aa55.Frame | aa55.AdapterSettings | aa55.ControlFrame]) -> None:
-        frame = aa55.Frame
-        if all(type(item) is frame for item in items):  # the usual case: convert in one pass
-            self._rx.extend(map(frame.to_message, items, repeat(self.channel)))
+        # Only settings and control frames are not data frames, and the decoder counts them: an
+        # unchanged count means every item is a Frame, known without looking at each one.
+        decoder = self.decoder
+        others = decoder.settings + decoder.control
+        if others == self._others_seen:  # the usual case: convert in one pass
+            self._rx.extend(map(aa55.Frame.to_message, items, repeat(self.channel)))
         else:
+            self._others_seen = others
+            frame = aa55.Frame
             for item in items:
                 if type(item) is frame:
                     self._rx.append(item.to_message(self.channel))
@@ -229,26 +235,40 @@ class AA55Bus(can.BusABC):
             self.on_reject(reason, raw)
 
     def recv(self, timeout: float | None = None) -> can.Message | None:
-        """``BusABC.recv``, with a short way out when a decoded message is already waiting.
+        """``BusABC.recv``: the next message that passes the filters, or None after ``timeout``.
 
         One read brings ~15 frames at a saturated line; the 2nd to 15th need no clock, lock or
-        loop, only the filter check. Everything else (waiting, timeouts, filters) is python-can's
-        own ``recv`` over :meth:`_recv_internal`.
+        loop, only the filter check. The 1st is read on a thread that has just slept, when every
+        instruction and object it touches is out of the caches (~50 us per wake-up after 1 ms
+        of sleep on a shared VM, see docs/benchmarks.md), so the wait is one loop of our own
+        instead of ``BusABC.recv`` (its clock, logging and filter layers) over
+        :meth:`_recv_internal`. Same contract: ``timeout`` None waits for ever, 0 does not
+        block, and a message the filters drop does not end the wait.
         """
-        try:
-            msg = self._rx.popleft()  # deque.popleft is atomic: safe beside a reading thread
-        except IndexError:
-            return super().recv(timeout)
-        if self._filters is None or self._matches_filters(msg):
-            return msg
-        return super().recv(timeout)
+        if self._rx:  # checked first: raising IndexError is costly on a cold CPU
+            try:
+                msg = self._rx.popleft()  # deque.popleft is atomic: safe beside a reading thread
+            except IndexError:  # another thread took the last one
+                pass
+            else:
+                if self._filters is None or self._matches_filters(msg):
+                    return msg
+        deadline = None if timeout is None else time.monotonic() + timeout
+        while True:  # ends on a message that passes the filters, or at the deadline
+            msg = self._receive(deadline)
+            if msg is None or self._filters is None or self._matches_filters(msg):
+                return msg
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         deadline = None if timeout is None else time.monotonic() + timeout
+        return self._receive(deadline), False
+
+    def _receive(self, deadline: float | None) -> can.Message | None:
+        """The next decoded message, reading the port until ``deadline`` (None: no limit)."""
         with self._read_lock:
             while True:
                 if self._rx:
-                    return self._rx.popleft(), False
+                    return self._rx.popleft()
                 now = time.monotonic()
                 idle = now - self._last_byte_time
                 if self.decoder.pending and idle >= IDLE_FLUSH_S:
@@ -260,7 +280,7 @@ class AA55Bus(can.BusABC):
                 if deadline is not None and now >= deadline:
                     if self._read_available(0):
                         continue
-                    return None, False
+                    return None
                 wait = 0.1 if deadline is None else deadline - now
                 if self.decoder.pending:
                     wait = min(wait, IDLE_FLUSH_S - idle)
