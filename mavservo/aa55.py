@@ -22,6 +22,7 @@ import enum
 import re
 import struct
 from collections import Counter, deque
+from collections.abc import Iterator
 from dataclasses import dataclass
 from itertools import repeat
 from typing import Any, Literal, NamedTuple, Protocol
@@ -330,6 +331,39 @@ def _followed_by_frame(buf: bytes | bytearray, at: int, end: int, idle: bool) ->
     return True if idle else None
 
 
+def _run_messages(
+    rows: Iterator[tuple[Any, ...]], run: _Run, timestamp: float, channel: Any, out: list[Any]
+) -> int:
+    """Append a ``can.Message`` per unpacked row of ``run``'s layout to ``out``; how many.
+
+    The same objects as :meth:`Frame.to_message` makes, without the :class:`Frame` in between
+    nor a function call per frame: on the bus's receiving thread this loop is most of the
+    Python work per frame (0.27 us against 0.6 us for Frame + ``to_message``).
+    """
+    new, message = _new_message, can.Message
+    ext, rtr, dlc = run.ext, run.rtr, run.dlc
+    if run.rtr or not run.dlc:  # rows are (id,): no payload on the wire
+        rows = ((row[0], b"") for row in rows)
+    before = len(out)
+    append = out.append
+    for ident, data in rows:
+        msg = new(message)
+        msg.timestamp = timestamp
+        msg.arbitration_id = ident
+        msg.is_extended_id = ext
+        msg.is_remote_frame = rtr
+        msg.is_error_frame = False
+        msg.channel = channel
+        msg.dlc = dlc
+        msg.data = bytearray(data)
+        msg.is_fd = False
+        msg.is_rx = True
+        msg.bitrate_switch = False
+        msg.error_state_indicator = False
+        append(msg)
+    return len(out) - before
+
+
 #: Type byte -> run decoder. Servo traffic is almost all one layout (standard ID, DLC 8), so a
 #: chunk of replies is one run: decoding it costs ~0.2 us a frame instead of ~1.8 us.
 _RUNS = _run_table()
@@ -347,6 +381,11 @@ class Decoder:
     Counters: ``frames``, ``settings``, ``control``, ``bytes_discarded``, ``rejected`` (per
     :class:`Rejection`), and ``rejections``, the last ``keep_rejections`` rejected candidates with
     their bytes, for logs.
+
+    With ``messages=True`` data frames come out as ``can.Message`` (``channel`` set, as
+    :meth:`Frame.to_message` makes them) instead of :class:`Frame`: what a python-can bus hands
+    its users, built in the same pass over a run as the fields are split, at less than half the
+    cost of a :class:`Frame` converted afterwards.
     """
 
     def __init__(
@@ -354,6 +393,8 @@ class Decoder:
         protocol: ProtocolName = "variable",
         keep_rejections: int = 256,
         resolve_overlaps: bool = True,
+        messages: bool = False,
+        channel: Any = None,
     ) -> None:
         if protocol not in PROTOCOLS:
             raise ValueError(f"unknown protocol {protocol!r}; expected one of {PROTOCOLS}")
@@ -361,6 +402,8 @@ class Decoder:
         #: structurally valid candidate always wins and nothing waits for a following byte
         #: (what a simple adapter firmware does; the adapter emulator may want that).
         self.resolve_overlaps = resolve_overlaps
+        self.messages = messages
+        self.channel = channel
         self.protocol: ProtocolName = protocol
         self._pattern = _VARIABLE_RE if protocol == "variable" else _FIXED_RE
         self._buf = bytearray()
@@ -461,6 +504,8 @@ class Decoder:
                         break
                     if type(item) is Frame:
                         frames += 1
+                        if self.messages:
+                            item = item.to_message(self.channel)  # type: ignore[assignment]
                     append(item)
                     pos, gap = stop, False
                     continue
@@ -475,16 +520,15 @@ class Decoder:
                     break
                 frames += 1
                 id_end = 6 if type_byte & 0x20 else 4  # extended IDs take 4 bytes
-                append(
-                    Frame(
-                        from_bytes(raw[2:id_end], "little"),
-                        id_end == 6,
-                        bool(type_byte & 0x10),
-                        type_byte & 0x0F,
-                        raw[id_end:-1],
-                        timestamp,
-                    )
+                frame = Frame(
+                    from_bytes(raw[2:id_end], "little"),
+                    id_end == 6,
+                    bool(type_byte & 0x10),
+                    type_byte & 0x0F,
+                    raw[id_end:-1],
+                    timestamp,
                 )
+                append(frame.to_message(self.channel) if self.messages else frame)
                 pos, gap = stop, False
                 if variable and pos + 1 < end and buf[pos] == START and buf[pos + 1] == type_byte:
                     # The same layout follows at once: take the whole run in one pass.
@@ -558,9 +602,8 @@ class Decoder:
             inner = buf.find(START, inner + 1, stop)
         return _Verdict.ACCEPT
 
-    @staticmethod
     def _take_run(
-        buf: bytes | bytearray, pos: int, run: _Run, timestamp: float, out: list[Any]
+        self, buf: bytes | bytearray, pos: int, run: _Run, timestamp: float, out: list[Any]
     ) -> tuple[int, int]:
         """Decode the frames of ``run``'s layout back to back from ``pos``; (new pos, count).
 
@@ -571,7 +614,8 @@ class Decoder:
         0xAA inside, so every frame taken is followed by a frame start or has nothing inside to
         judge: the cases :meth:`_judge` accepts without looking further.
         Everything per frame happens in C: ``iter_unpack`` splits the fields, ``zip`` assembles
-        them, ``tuple.__new__`` makes the :class:`Frame`.
+        them, ``tuple.__new__`` makes the :class:`Frame`. In ``messages`` mode one Python loop
+        over ``iter_unpack`` fills each ``can.Message`` (:func:`_run_messages`).
         """
         m = run.pattern.match(buf, pos)
         if m is None:
@@ -582,7 +626,10 @@ class Decoder:
             stop = last
             if stop <= pos:
                 return pos, 0
-        columns = list(zip(*run.rows.iter_unpack(buf[pos:stop]), strict=True))
+        rows = run.rows.iter_unpack(buf[pos:stop])
+        if self.messages:
+            return stop, _run_messages(rows, run, timestamp, self.channel, out)
+        columns = list(zip(*rows, strict=True))
         ids = columns[0]
         datas = columns[1] if len(columns) > 1 else repeat(b"", len(ids))
         fields = zip(

@@ -17,7 +17,6 @@ import select
 import threading
 import time
 from collections.abc import Callable
-from itertools import repeat
 from typing import Any
 
 import can
@@ -96,7 +95,7 @@ class AA55Bus(can.BusABC):
                 f"aa55: read_interval_s={read_interval_s} is outside 0..{MAX_READ_INTERVAL_S} s"
             )
         self.read_interval_s = float(read_interval_s)
-        self.decoder = aa55.Decoder(protocol)
+        self.decoder = aa55.Decoder(protocol, messages=True, channel=channel)
         self._rx: collections.deque[can.Message] = collections.deque()
         self._read_lock = threading.Lock()
         self._write_lock = threading.Lock()
@@ -206,19 +205,21 @@ class AA55Bus(can.BusABC):
         self._last_byte_time = time.monotonic()
         self._absorb(self.decoder.feed(chunk, time.time()))
 
-    def _absorb(self, items: list[aa55.Frame | aa55.AdapterSettings | aa55.ControlFrame]) -> None:
-        # Only settings and control frames are not data frames, and the decoder counts them: an
-        # unchanged count means every item is a Frame, known without looking at each one.
+    def _absorb(self, items: list[Any]) -> None:
+        """Queue the decoder's messages (it makes ``can.Message``s, see ``Decoder(messages=)``).
+
+        Only settings and control frames are not messages, and the decoder counts them: an
+        unchanged count means every item is a message, known without looking at each one.
+        """
         decoder = self.decoder
         others = decoder.settings + decoder.control
-        if others == self._others_seen:  # the usual case: convert in one pass
-            self._rx.extend(map(aa55.Frame.to_message, items, repeat(self.channel)))
+        if others == self._others_seen:  # the usual case
+            self._rx.extend(items)
         else:
             self._others_seen = others
-            frame = aa55.Frame
             for item in items:
-                if type(item) is frame:
-                    self._rx.append(item.to_message(self.channel))
+                if type(item) is can.Message:
+                    self._rx.append(item)
                 else:
                     log.debug("aa55: control frame from adapter: %s", item)
         if self.on_reject is not None:

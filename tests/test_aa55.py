@@ -418,3 +418,82 @@ def test_output_does_not_depend_on_chunking_even_for_noisy_streams(
     got += dec.flush()
     assert got == expected
     assert dec.rejected == whole.rejected
+
+
+# -- can.Message output (what the aa55 bus asks for) ----------------------------------------------
+
+
+def _message_fields(item: object) -> tuple:
+    """Every slot of a ``can.Message`` (data with its type), or the item itself otherwise."""
+    if not isinstance(item, can.Message):
+        return ("other", item)
+    return (
+        type(item),
+        item.timestamp,
+        item.arbitration_id,
+        item.is_extended_id,
+        item.is_remote_frame,
+        item.is_error_frame,
+        item.channel,
+        item.dlc,
+        type(item.data),
+        bytes(item.data),
+        item.is_fd,
+        item.is_rx,
+        item.bitrate_switch,
+        item.error_state_indicator,
+    )
+
+
+@settings(max_examples=200)
+@given(st.one_of(servo_like_stream(), noisy_streams()), st.data())
+def test_message_mode_emits_what_to_message_makes_of_each_frame(
+    stream: bytes, data: st.DataObject
+) -> None:
+    """``messages=True`` is the Frame output converted, item for item, for any chunking."""
+    frames_dec = Decoder()
+    messages_dec = Decoder(messages=True, channel="can7")
+    cuts = sorted(data.draw(st.lists(st.integers(0, len(stream)), max_size=20)))
+    expected: list = []
+    got: list = []
+    prev = 0
+    for k, cut in enumerate([*cuts, len(stream)]):
+        expected += frames_dec.feed(stream[prev:cut], float(k))
+        got += messages_dec.feed(stream[prev:cut], float(k))
+        prev = cut
+    expected += frames_dec.flush(99.0)
+    got += messages_dec.flush(99.0)
+    converted = [f.to_message("can7") if type(f) is Frame else f for f in expected]
+    assert [_message_fields(m) for m in got] == [_message_fields(m) for m in converted]
+    assert messages_dec.frames == frames_dec.frames
+    assert messages_dec.rejected == frames_dec.rejected
+
+
+@given(st.lists(frames(), min_size=1, max_size=20))
+def test_message_mode_covers_fixed_frames_remote_frames_and_empty_payloads(
+    sent: list[Frame],
+) -> None:
+    for protocol in ("variable", "fixed"):
+        stream = b"".join(encode(f, protocol) for f in sent)  # type: ignore[arg-type]
+        dec = Decoder(protocol, messages=True)  # type: ignore[arg-type]
+        got = dec.feed(stream) + dec.flush()
+        assert all(type(m) is can.Message for m in got)
+        keys = [(m.arbitration_id, m.is_extended_id, m.is_remote_frame, m.dlc) for m in got]
+        assert keys == [
+            (f.arbitration_id, f.is_extended_id, f.is_remote_frame, f.dlc) for f in sent
+        ]
+        assert [bytes(m.data) for m in got] == [f.data for f in sent]
+
+
+def test_feed_accepts_any_bytes_like_and_keeps_no_reference_to_it() -> None:
+    """A fresh ``bytes`` chunk is scanned in place; other types are copied. Either way the tail
+    held back is the decoder's own copy, so a caller reusing its buffer changes nothing."""
+    raw = encode(Frame(0x141, False, False, 8, bytes(range(8))))
+    for kind in (bytes, bytearray, memoryview):
+        dec = Decoder()
+        head = bytearray(raw[:7])
+        assert dec.feed(kind(head)) == []  # type: ignore[arg-type]
+        assert dec.pending == 7
+        head[:] = b"\x00" * 7  # the caller reuses its buffer
+        assert dec.feed(raw[7:]) == [Frame(0x141, False, False, 8, bytes(range(8)))]
+        assert dec.pending == 0

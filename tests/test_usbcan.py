@@ -177,3 +177,51 @@ def test_half_frame_completed_while_the_caller_was_away_is_not_lost(adapter: Ada
         msg = bus.recv(1.0)
         assert msg is not None and msg.arbitration_id == 0x141
         assert bus.stats()["rejected"] == {}
+
+
+def test_received_messages_are_plain_messages_and_control_frames_are_not_queued(
+    adapter: AdapterEnd,
+) -> None:
+    """The decoder builds the bus's ``can.Message``s itself; a status reply from the adapter
+    between data frames is recognised and dropped, and the frames around it still arrive."""
+    status = bytearray(20)
+    status[0:3] = bytes((0xAA, 0x55, aa55.CMD_STATUS))
+    status[19] = sum(status[2:19]) & 0xFF
+    first = Frame(0x241, False, False, 8, bytes(range(8)))
+    second = Frame(0x1ABCDE, True, True, 3, b"")
+    with can.Bus(interface="aa55", channel=adapter.path) as bus:
+        adapter.read(20)
+        adapter.write(aa55.encode(first) + bytes(status) + aa55.encode(second))
+        got = [bus.recv(1.0) for _ in range(2)]
+        assert bus.recv(0.05) is None
+    for msg, frame in zip(got, (first, second), strict=True):
+        assert type(msg) is can.Message
+        assert (msg.arbitration_id, msg.is_extended_id, msg.is_remote_frame, msg.dlc) == (
+            frame.arbitration_id,
+            frame.is_extended_id,
+            frame.is_remote_frame,
+            frame.dlc,
+        )
+        assert type(msg.data) is bytearray and bytes(msg.data) == frame.data
+        assert msg.channel == adapter.path and msg.is_rx and not msg.is_error_frame
+        assert msg.timestamp > 0
+    assert bus.stats()["control_frames"] == 1
+
+
+def test_a_filtered_out_message_does_not_end_the_wait(adapter: AdapterEnd) -> None:
+    """Two software filters (none goes to the hardware): a frame they drop is read and skipped,
+    and ``recv(timeout)`` goes on waiting for one that passes, until its deadline."""
+    filters = [{"can_id": 0x241, "can_mask": 0x7FF}, {"can_id": 0x242, "can_mask": 0x7FF}]
+    with can.Bus(interface="aa55", channel=adapter.path, can_filters=filters) as bus:
+        adapter.read(20)
+        adapter.write(aa55.encode(Frame(0x300, False, False, 0, b"")))
+        t0 = time.monotonic()
+        assert bus.recv(0.1) is None
+        assert time.monotonic() - t0 >= 0.1
+        adapter.write(
+            aa55.encode(Frame(0x300, False, False, 0, b""))
+            + aa55.encode(Frame(0x242, False, False, 0, b""))
+        )
+        msg = bus.recv(1.0)
+        assert msg is not None and msg.arbitration_id == 0x242
+        assert bus.stats()["frames"] == 3
