@@ -157,22 +157,34 @@ class AA55Bus(can.BusABC):
 
     # -- receiving ----------------------------------------------------------------------------
 
-    def _read_available(self, wait: float) -> bool:
+    def _read_available(self, wait: float, expect: bool = False) -> bool:
         """Read what the port has, waiting up to ``wait`` s for the first byte. False on timeout.
 
         On a port with a descriptor this is one ``select`` and one ``read`` of up to
         :data:`READ_SIZE` bytes, straight on the descriptor (pyserial opened it non-blocking).
         Going through ``Serial.in_waiting`` + ``Serial.read`` instead costs two more system calls
         and ~10 us of Python per wake-up, and a USB adapter wakes us ~1,000 times a second.
+        ``expect``: bytes are probably waiting (the caller slept ``read_interval_s`` to let them
+        gather), so read first and ``select`` only if there were none: one system call, and
+        one piece of code less to fetch into a cold cache, per wake-up.
         """
         fd = self._fd
         if fd is None:
             return self._read_available_url(wait)
         try:
-            ready, _, _ = select.select([fd], [], [], max(wait, 0.0))
-            if not ready:
-                return False
-            chunk = os.read(fd, READ_SIZE)
+            chunk = b""
+            if expect:
+                try:
+                    # Empty (VMIN=0) or EAGAIN: nothing yet, wait for it as usual; only an empty
+                    # read of a port select calls readable means the device is gone.
+                    chunk = os.read(fd, READ_SIZE)
+                except BlockingIOError:
+                    chunk = b""
+            if not chunk:
+                ready, _, _ = select.select([fd], [], [], max(wait, 0.0))
+                if not ready:
+                    return False
+                chunk = os.read(fd, READ_SIZE)
         except (BlockingIOError, InterruptedError):
             return False
         except (OSError, ValueError, TypeError) as exc:
@@ -266,6 +278,7 @@ class AA55Bus(can.BusABC):
 
     def _receive(self, deadline: float | None) -> can.Message | None:
         """The next decoded message, reading the port until ``deadline`` (None: no limit)."""
+        slept = False
         with self._read_lock:
             while True:
                 if self._rx:
@@ -288,8 +301,10 @@ class AA55Bus(can.BusABC):
                 hold = self._last_byte_time + self.read_interval_s - now
                 if hold > 0.0:  # let more bursts gather before the next read
                     time.sleep(min(hold, wait))
+                    slept = True
                     continue
-                self._read_available(wait)
+                self._read_available(wait, expect=slept)
+                slept = False
 
     # -- lifecycle ----------------------------------------------------------------------------
 

@@ -225,3 +225,35 @@ def test_a_filtered_out_message_does_not_end_the_wait(adapter: AdapterEnd) -> No
         msg = bus.recv(1.0)
         assert msg is not None and msg.arbitration_id == 0x242
         assert bus.stats()["frames"] == 3
+
+
+def test_read_interval_keeps_the_bus_away_from_the_port_that_long(adapter: AdapterEnd) -> None:
+    """With ``read_interval_s`` the next read comes that long after the last one, even when
+    bytes are already waiting (so bursts gather); the read's time stamps its frames."""
+    frames = [aa55.encode(Frame(0x240 + i, False, False, 2, bytes((i, i)))) for i in range(2)]
+    with can.Bus(interface="aa55", channel=adapter.path, read_interval_s=0.05) as bus:
+        adapter.read(20)
+        adapter.write(frames[0])
+        first = bus.recv(1.0)
+        adapter.write(frames[1])  # waiting in the port before the bus looks again
+        second = bus.recv(1.0)
+    assert first is not None and second is not None
+    assert [first.arbitration_id, second.arbitration_id] == [0x240, 0x241]
+    assert second.timestamp - first.timestamp >= 0.05 - 0.002  # wall vs monotonic clock slack
+
+
+def test_read_interval_keeps_timeouts_and_device_errors(adapter: AdapterEnd) -> None:
+    with can.Bus(interface="aa55", channel=adapter.path, read_interval_s=0.05) as bus:
+        adapter.read(20)
+        adapter.write(aa55.encode(Frame(0x100, False, False, 0, b"")))
+        assert bus.recv(1.0) is not None
+        assert bus.recv(0) is None  # inside the interval: still does not block
+        t0 = time.monotonic()
+        assert bus.recv(0.08) is None
+        assert time.monotonic() - t0 >= 0.08
+        adapter.unplug()
+        with pytest.raises(can.CanOperationError, match="gone"):
+            for _ in range(3):  # bounded: the first read after the hang-up must fail
+                bus.recv(0.2)
+    with pytest.raises(can.CanInitializationError, match="read_interval_s"):
+        can.Bus(interface="aa55", channel=adapter.path, read_interval_s=1.0)
