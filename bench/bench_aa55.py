@@ -649,23 +649,25 @@ def run(args: argparse.Namespace) -> str:
 
 def cpu_rows(args: argparse.Namespace) -> list[str]:
     """Receiving-thread CPU at a saturated 2 Mbaud line: seeedstudio, ours (default and with
-    ``read_interval_s``), and the floor: a bare ``select`` + ``read`` loop on the same pty with no
-    decoding at all (what ~1,000 wake-ups a second cost on this machine by themselves)."""
+    each ``read_interval_s``), and the floor: a bare ``select`` + ``read`` loop on the same pty
+    with no decoding at all (what ~1,000 wake-ups a second cost on this machine by themselves);
+    then what a wake-up costs by itself (:func:`wake_up_cost`)."""
     n = int(SATURATED_FPS * args.cpu_seconds)
     stream = encode_stream(throughput_frames(n, args.seed + 2))
     period = args.pace_ms / 1000
-    interval = args.read_interval_ms / 1000
-    cpu: dict[str, list[float]] = {"seeed": [], "ours": [], "ours_interval": [], "floor": []}
+    intervals = [ms / 1000 for ms in args.read_interval_ms]
+    cpu: dict[str, list[float]] = {"seeed": [], "ours": [], "floor": []}
     for _ in range(args.repeat):
         cpu["seeed"].append(
             run_pty("seeedstudio", stream, n, fps=SATURATED_FPS, period=period).cpu_percent
         )
         cpu["ours"].append(run_pty("aa55", stream, n, fps=SATURATED_FPS, period=period).cpu_percent)
-        cpu["ours_interval"].append(
-            run_pty(
-                "aa55", stream, n, fps=SATURATED_FPS, period=period, read_interval_s=interval
-            ).cpu_percent
-        )
+        for interval in intervals:
+            cpu.setdefault(f"ours_{interval:g}", []).append(
+                run_pty(
+                    "aa55", stream, n, fps=SATURATED_FPS, period=period, read_interval_s=interval
+                ).cpu_percent
+            )
         cpu["floor"].append(bare_reader_cpu(stream, period))
     what = (
         f"receiving thread CPU at {SATURATED_FPS:,} frames/s (2 Mbaud, {args.cpu_seconds:g} s, "
@@ -675,7 +677,7 @@ def cpu_rows(args: argparse.Namespace) -> list[str]:
     rows = []
     for key, label in (
         ("ours", "default (read as bytes arrive)"),
-        ("ours_interval", f"`read_interval_s={interval:g}`"),
+        *((f"ours_{i:g}", f"`read_interval_s={i:g}`") for i in intervals),
     ):
         ours = _med(cpu[key])
         less = _med([s / o for s, o in zip(cpu["seeed"], cpu[key], strict=True)])
@@ -694,7 +696,20 @@ def cpu_rows(args: argparse.Namespace) -> list[str]:
         f"back to back / with a 4 ms sleep before each chunk | | {warm:.2f} us / {cold:.2f} us | "
         f"| (info) | |"
     )
+    per_wake = []
+    for pause, chunk_frames in ((0.004, 15), (0.004, 60), (0.004, 240), (0.001, 15)):
+        extra = _med([wake_up_cost(stream, pause, chunk_frames) for _ in range(args.repeat)])
+        per_wake.append(f"{extra:.0f} us ({chunk_frames} frames, {pause * 1000:g} ms)")
+    rows.append(
+        "| CPU a wake-up adds: a chunk's cost after a sleep minus back to back, per chunk "
+        f"(frames per chunk, sleep) | | {' / '.join(per_wake)} | | (info) | |"
+    )
     return rows
+
+
+#: Most chunks one :func:`receive_cost_per_frame` run feeds: with a sleep before each, 500
+#: chunks of 4 ms take 2 s.
+MAX_CHUNKS = 500
 
 
 def receive_cost_per_frame(stream: bytes, pause: float, chunk_frames: int = 60) -> float:
@@ -704,8 +719,25 @@ def receive_cost_per_frame(stream: bytes, pause: float, chunk_frames: int = 60) 
     ``pause`` the thread sleeps before each chunk as it does between USB bursts; the difference
     to ``pause=0`` is what a cold cache costs after each sleep on this machine.
     """
+    return receive_cost(stream, pause, chunk_frames)[1]
+
+
+def wake_up_cost(stream: bytes, pause: float, chunk_frames: int) -> float:
+    """CPU (us) a sleep of ``pause`` adds to the next chunk of ``chunk_frames`` frames.
+
+    If it stays about the same whatever the chunk size, the cost is per wake-up (caches and
+    TLBs refilled after the idle vCPU was halted), not per frame.
+    """
+    warm = receive_cost(stream, 0.0, chunk_frames)[0]
+    return receive_cost(stream, pause, chunk_frames)[0] - warm
+
+
+def receive_cost(stream: bytes, pause: float, chunk_frames: int = 60) -> tuple[float, float]:
+    """Thread CPU (us) per chunk and per frame of receiving ``stream`` in ``chunk_frames``
+    chunks fed from memory, sleeping ``pause`` before each (see :func:`receive_cost_per_frame`).
+    """
     size = 13 * chunk_frames
-    chunks = [stream[i : i + size] for i in range(0, len(stream), size)]
+    chunks = [stream[i : i + size] for i in range(0, len(stream), size)][:MAX_CHUNKS]
     with pty_pair() as (master, path):
         bus = open_bus("aa55", path)
         try:
@@ -724,7 +756,7 @@ def receive_cost_per_frame(stream: bytes, pause: float, chunk_frames: int = 60) 
                 cpu += time.thread_time() - c0
         finally:
             bus.shutdown()
-    return 1e6 * cpu / got if got else 0.0
+    return (1e6 * cpu / len(chunks), 1e6 * cpu / got) if got else (0.0, 0.0)
 
 
 def bare_reader_cpu(stream: bytes, period: float) -> float:
@@ -765,7 +797,11 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
         "--pace-ms", type=float, default=1.0, help="paced writer: one batch every PACE_MS ms"
     )
     p.add_argument(
-        "--read-interval-ms", type=float, default=4.0, help="aa55 read_interval_s for the CPU row"
+        "--read-interval-ms",
+        type=float,
+        nargs="+",
+        default=[4.0, 10.0],
+        help="aa55 read_interval_s values for the CPU rows",
     )
     p.add_argument("--robust-frames", type=int, default=100_000, help="corrupted-stream frames")
     p.add_argument("--seed", type=int, default=1)
