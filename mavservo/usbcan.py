@@ -59,7 +59,9 @@ class AA55Bus(can.BusABC):
     :param read_interval_s: least time between two reads of the port. 0 (default) reads as soon
         as bytes arrive: lowest latency, one wake-up per USB burst (~1,000/s on a busy line).
         A few milliseconds batches several bursts per wake-up, for sniffing and logging a
-        saturated bus at a fraction of the CPU; every frame then waits up to that long.
+        saturated bus at a fraction of the CPU; every frame then waits up to that long. (A
+        wake-up is what costs: on the shared dev VM a saturated line takes 6.5% of a core by
+        default, 4.8% at 4 ms, 3.2% at 10 ms; see docs/benchmarks.md.)
     :param on_reject: called with ``(reason, raw_bytes)`` for each rejected candidate, from the
         receiving thread; must not block (it is how run logs record garbage on the line).
     """
@@ -252,7 +254,7 @@ class AA55Bus(can.BusABC):
 
         One read brings ~15 frames at a saturated line; the 2nd to 15th need no clock, lock or
         loop, only the filter check. The 1st is read on a thread that has just slept, when every
-        instruction and object it touches is out of the caches (~50 us per wake-up after 1 ms
+        instruction and object it touches is out of the caches (20-60 us per wake-up after 1 ms
         of sleep on a shared VM, see docs/benchmarks.md), so the wait is one loop of our own
         instead of ``BusABC.recv`` (its clock, logging and filter layers) over
         :meth:`_recv_internal`. Same contract: ``timeout`` None waits for ever, 0 does not
