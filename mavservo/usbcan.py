@@ -12,12 +12,13 @@ from __future__ import annotations
 
 import collections
 import logging
+import math
 import os
 import select
 import threading
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Literal
 
 import can
 import serial
@@ -35,6 +36,49 @@ READ_SIZE = 65536
 
 #: Upper bound of ``read_interval_s``: beyond it the added latency is no longer a trade-off.
 MAX_READ_INTERVAL_S = 0.05
+
+#: ``read_interval_s="auto"``: reads are spaced by :data:`AUTO_HOLD_S` while the bytes read over
+#: the last :data:`LOAD_WINDOW_S` exceed this fraction of what the serial line can carry (a
+#: quarter of 2 Mbaud is ~3,800 frames/s, more than a 1 Mbit/s CAN bus at 40 % load), and
+#: follow every USB burst at once below it: a servo bus's replies never wait, a saturated
+#: line costs a fraction of the CPU (the way a network driver switches to polling under load).
+AUTO_BUSY_FRACTION = 0.25
+AUTO_HOLD_S = 0.008
+LOAD_WINDOW_S = 0.05
+
+
+def _read_interval(value: float | str) -> float | Literal["auto"]:
+    """``read_interval_s`` as given in code or as a string from a python-can config file."""
+    if value == "auto":
+        return "auto"
+    try:
+        seconds = float(value)
+    except (TypeError, ValueError):
+        seconds = math.nan
+    if not 0.0 <= seconds <= MAX_READ_INTERVAL_S:
+        raise can.CanInitializationError(
+            f"aa55: read_interval_s={value!r} is neither 'auto' nor 0..{MAX_READ_INTERVAL_S} s"
+        )
+    return seconds
+
+
+class LineLoad:
+    """Bytes per second read lately: a byte count that decays with time constant ``window_s``.
+
+    One multiply and one ``exp`` per read, no history kept; after a silence it has decayed to
+    nothing, so the first burst after idle is read at once.
+    """
+
+    def __init__(self, window_s: float) -> None:
+        self.window_s = window_s
+        self._count = 0.0
+        self._t = -math.inf
+
+    def add(self, n: int, now: float) -> float:
+        """Count ``n`` bytes read at ``now`` (monotonic s); the rate in bytes per second."""
+        self._count = self._count * math.exp(min(0.0, self._t - now) / self.window_s) + n
+        self._t = now
+        return self._count / self.window_s
 
 
 def _descriptor(port: serial.SerialBase) -> int | None:
@@ -56,12 +100,14 @@ class AA55Bus(can.BusABC):
     :param extended: configure the adapter for extended frames (its hardware filter works on one
         kind only; sending either kind works regardless).
     :param can_filters: with exactly one filter, it is also programmed into the adapter.
-    :param read_interval_s: least time between two reads of the port. 0 (default) reads as soon
-        as bytes arrive: lowest latency, one wake-up per USB burst (~1,000/s on a busy line).
-        A few milliseconds batches several bursts per wake-up, for sniffing and logging a
-        saturated bus at a fraction of the CPU; every frame then waits up to that long. (A
-        wake-up is what costs: on the shared dev VM a saturated line takes 6.5% of a core by
-        default, 4.8% at 4 ms, 3.2% at 10 ms; see docs/benchmarks.md.)
+    :param read_interval_s: least time between two reads of the port. 0 reads as soon as
+        bytes arrive: lowest latency, one wake-up per USB burst (~1,000/s on a busy line). A few
+        milliseconds batches several bursts per wake-up, at a fraction of the CPU; every frame
+        then waits up to that long. ``"auto"`` (default) reads at once while the line is
+        lightly used and spaces reads by :data:`AUTO_HOLD_S` while it carries more than
+        :data:`AUTO_BUSY_FRACTION` of its capacity. (A wake-up is what costs: on the shared dev
+        VM a saturated line takes 6.5% of a core at 0, 4.8% at 4 ms, 3.2% at 10 ms; see
+        docs/benchmarks.md.)
     :param on_reject: called with ``(reason, raw_bytes)`` for each rejected candidate, from the
         receiving thread; must not block (it is how run logs record garbage on the line).
     """
@@ -76,7 +122,7 @@ class AA55Bus(can.BusABC):
         extended: bool = False,
         can_filters: can.typechecking.CanFilters | None = None,
         on_reject: Callable[[aa55.Rejection, bytes], None] | None = None,
-        read_interval_s: float = 0.0,
+        read_interval_s: float | str = "auto",
         **kwargs: Any,
     ) -> None:
         if not channel:
@@ -92,11 +138,10 @@ class AA55Bus(can.BusABC):
         self.bitrate = bitrate
         self.serial_baud = serial_baud
         self.on_reject = on_reject
-        if not 0.0 <= float(read_interval_s) <= MAX_READ_INTERVAL_S:
-            raise can.CanInitializationError(
-                f"aa55: read_interval_s={read_interval_s} is outside 0..{MAX_READ_INTERVAL_S} s"
-            )
-        self.read_interval_s = float(read_interval_s)
+        self.read_interval_s = _read_interval(read_interval_s)
+        self._hold_s = 0.0 if self.read_interval_s == "auto" else self.read_interval_s
+        self._load = LineLoad(LOAD_WINDOW_S)
+        self._busy_bytes_per_s = AUTO_BUSY_FRACTION * serial_baud / 10  # 8N1: 10 bits a byte
         self.decoder = aa55.Decoder(protocol, messages=True, channel=channel)
         self._rx: collections.deque[can.Message] = collections.deque()
         self._read_lock = threading.Lock()
@@ -216,7 +261,11 @@ class AA55Bus(can.BusABC):
         return can.CanOperationError(f"aa55: the adapter on {self.channel} is gone ({why})")
 
     def _absorb_chunk(self, chunk: bytes) -> None:
-        self._last_byte_time = time.monotonic()
+        now = time.monotonic()
+        if self.read_interval_s == "auto":
+            busy = self._load.add(len(chunk), now) >= self._busy_bytes_per_s
+            self._hold_s = AUTO_HOLD_S if busy else 0.0
+        self._last_byte_time = now
         self._absorb(self.decoder.feed(chunk, time.time()))
 
     def _absorb(self, items: list[Any]) -> None:
@@ -300,7 +349,7 @@ class AA55Bus(can.BusABC):
                 wait = 0.1 if deadline is None else deadline - now
                 if self.decoder.pending:
                     wait = min(wait, IDLE_FLUSH_S - idle)
-                hold = self._last_byte_time + self.read_interval_s - now
+                hold = self._last_byte_time + self._hold_s - now
                 if hold > 0.0:  # let more bursts gather before the next read
                     time.sleep(min(hold, wait))
                     slept = True
@@ -324,6 +373,7 @@ class AA55Bus(can.BusABC):
             "bytes_discarded": d.bytes_discarded,
             "rejected": {r.value: n for r, n in d.rejected.items()},
             "control_frames": d.control + d.settings,
+            "read_interval_s": self._hold_s,
         }
 
     def shutdown(self) -> None:

@@ -14,6 +14,7 @@ import pytest
 
 from mavservo import aa55
 from mavservo.aa55 import Frame
+from mavservo.usbcan import AUTO_HOLD_S, LOAD_WINDOW_S, LineLoad
 
 
 class AdapterEnd:
@@ -257,3 +258,49 @@ def test_read_interval_keeps_timeouts_and_device_errors(adapter: AdapterEnd) -> 
                 bus.recv(0.2)
     with pytest.raises(can.CanInitializationError, match="read_interval_s"):
         can.Bus(interface="aa55", channel=adapter.path, read_interval_s=1.0)
+    for bad in ("fast", "nan", -0.001):
+        with pytest.raises(can.CanInitializationError, match="read_interval_s"):
+            can.Bus(interface="aa55", channel=adapter.path, read_interval_s=bad)
+
+
+def test_read_interval_from_a_config_file_string(adapter: AdapterEnd) -> None:
+    with can.Bus(interface="aa55", channel=adapter.path, read_interval_s="0.004") as bus:
+        assert bus.stats()["read_interval_s"] == 0.004
+
+
+def test_line_load_follows_the_byte_rate_and_forgets_a_silence() -> None:
+    load = LineLoad(0.05)
+    rate = 0.0
+    for k in range(500):  # 200 bytes every ms: 200,000 bytes/s
+        rate = load.add(200, k * 0.001)
+    assert rate == pytest.approx(200_000, rel=0.02)
+    assert load.add(13, 0.499 + 0.25) < 0.01 * 200_000  # after 5 windows of silence
+
+
+def test_auto_read_interval_holds_only_while_the_line_is_busy(adapter: AdapterEnd) -> None:
+    """Default ``"auto"``: reads follow every burst on a quiet line; on a line carrying more
+    than a quarter of 2 Mbaud they are spaced by AUTO_HOLD_S; quiet again, at once again."""
+    frame = aa55.encode(Frame(0x241, False, False, 8, bytes(8)))
+    burst = frame * 150  # ~2 KB every 10 ms: ~195,000 bytes/s, near a saturated line
+    with can.Bus(interface="aa55", channel=adapter.path) as bus:
+        adapter.read(20)
+        assert bus.read_interval_s == "auto"
+        adapter.write(frame)
+        assert bus.recv(1.0) is not None
+        assert bus.stats()["read_interval_s"] == 0.0  # one frame: quiet
+        holds = set()
+        got = 0
+        for _ in range(20):  # bounded: 20 bursts, each drained before the next
+            adapter.write(burst)
+            for _ in range(150):
+                if bus.recv(1.0) is None:
+                    break
+                got += 1
+            holds.add(bus.stats()["read_interval_s"])
+            time.sleep(0.01)
+        assert got == 20 * 150  # nothing lost while holding
+        assert AUTO_HOLD_S in holds
+        time.sleep(5 * LOAD_WINDOW_S)
+        adapter.write(frame)
+        assert bus.recv(1.0) is not None
+        assert bus.stats()["read_interval_s"] == 0.0
