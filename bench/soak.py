@@ -46,6 +46,7 @@ import threading
 import time
 import tracemalloc
 from collections import Counter, deque
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -434,6 +435,27 @@ def delta(after: dict[str, int], before: dict[str, int]) -> dict[str, int]:
     return {k: after[k] - before[k] for k in after}
 
 
+def lost_by_request_time(
+    windows: list[dict[str, Any]], lost: Iterable[tuple[float, str]], window_s: float
+) -> None:
+    """Add ``lost_by_request`` to each window: its losses counted where the request went out.
+
+    The scheduler declares a loss at its deadline, ``REPLY_TIMEOUT_S`` after the request (plus
+    up to one step), so the counter puts the last ~50 ms of a faulty window's losses (a silent
+    servo's last polls) into the next window. The window a loss belongs to is the one its
+    request was sent in.
+    """
+    starts = [w["t0"] for w in windows]
+    ends = starts[1:] + [starts[-1] + window_s] if starts else []
+    for w in windows:
+        w["lost_by_request"] = 0
+    for t, _servo in lost:
+        sent = t - REPLY_TIMEOUT_S
+        i = bisect.bisect_right(starts, sent) - 1
+        if i >= 0 and sent < ends[i]:
+            windows[i]["lost_by_request"] += 1
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--minutes", type=float, default=30.0)
@@ -526,6 +548,7 @@ def main() -> None:
     finally:
         summary = setup.stop()
         diagnostics.stop()
+    lost_by_request_time(windows, diagnostics.lost, args.window_s)
     clean = [w for w in windows if w["phase"] == "clean"]
     third = max(1, len(memory) // 3)
     out = {
@@ -539,7 +562,14 @@ def main() -> None:
         "by_phase": {
             p: {
                 k: sum(w[k] for w in windows if w["phase"] == p)
-                for k in ("sent", "lost", "late", "missed_command_slots", "wrong_commands")
+                for k in (
+                    "sent",
+                    "lost",
+                    "lost_by_request",
+                    "late",
+                    "missed_command_slots",
+                    "wrong_commands",
+                )
             }
             | {"windows": sum(1 for w in windows if w["phase"] == p)}
             for p in dict.fromkeys(args.phases)
@@ -549,6 +579,7 @@ def main() -> None:
         "clean_windows": {
             "count": len(clean),
             "lost": sum(w["lost"] for w in clean),
+            "lost_by_request": sum(w["lost_by_request"] for w in clean),
             "late": sum(w["late"] for w in clean),
             "missed_command_slots": sum(w["missed_command_slots"] for w in clean),
             "frames_sent": sum(w["sent"] for w in clean),
