@@ -37,13 +37,18 @@ READ_SIZE = 65536
 #: Upper bound of ``read_interval_s``: beyond it the added latency is no longer a trade-off.
 MAX_READ_INTERVAL_S = 0.05
 
-#: ``read_interval_s="auto"``: reads are spaced by :data:`AUTO_HOLD_S` while the bytes read over
-#: the last :data:`LOAD_WINDOW_S` exceed this fraction of what the serial line can carry (a
-#: quarter of 2 Mbaud is ~3,800 frames/s, more than a 1 Mbit/s CAN bus at 40 % load), and
-#: follow every USB burst at once below it: a servo bus's replies never wait, a saturated
+#: ``read_interval_s="auto"``: reads are spaced by up to :data:`AUTO_HOLD_S` while the bytes
+#: read over the last :data:`LOAD_WINDOW_S` exceed this fraction of what the serial line can
+#: carry (a quarter of 2 Mbaud is ~3,800 frames/s, more than a 1 Mbit/s CAN bus at 40 % load),
+#: and follow every USB burst at once below it: a servo bus's replies never wait, a saturated
 #: line costs a fraction of the CPU (the way a network driver switches to polling under load).
 AUTO_BUSY_FRACTION = 0.25
 AUTO_HOLD_S = 0.008
+#: A hold never lets more than this gather in the kernel: half of Linux's 4 KiB tty read
+#: buffer, beyond which a tty throttles its device. So a hold is at most this / the byte rate
+#: (8 ms at 2 Mbaud, shorter for a faster device), and a read that brought this much (the
+#: reader is behind, or the device is faster than any serial line) is followed at once.
+AUTO_HOLD_BYTES = 2048
 LOAD_WINDOW_S = 0.05
 
 
@@ -81,6 +86,14 @@ class LineLoad:
         return self._count / self.window_s
 
 
+def auto_hold_s(rate: float, chunk_bytes: int, busy_bytes_per_s: float) -> float:
+    """How long ``read_interval_s="auto"`` waits before the next read, after a read of
+    ``chunk_bytes`` with the line carrying ``rate`` bytes per second (see :data:`AUTO_HOLD_S`)."""
+    if rate < busy_bytes_per_s or chunk_bytes >= AUTO_HOLD_BYTES:
+        return 0.0
+    return min(AUTO_HOLD_S, AUTO_HOLD_BYTES / rate)
+
+
 def _descriptor(port: serial.SerialBase) -> int | None:
     """The port's file descriptor, or None for pyserial URL ports that have none."""
     try:
@@ -104,8 +117,9 @@ class AA55Bus(can.BusABC):
         bytes arrive: lowest latency, one wake-up per USB burst (~1,000/s on a busy line). A few
         milliseconds batches several bursts per wake-up, at a fraction of the CPU; every frame
         then waits up to that long. ``"auto"`` (default) reads at once while the line is
-        lightly used and spaces reads by :data:`AUTO_HOLD_S` while it carries more than
-        :data:`AUTO_BUSY_FRACTION` of its capacity. (A wake-up is what costs: on the shared dev
+        lightly used and spaces reads by up to :data:`AUTO_HOLD_S` while it carries more than
+        :data:`AUTO_BUSY_FRACTION` of its capacity, never letting more than
+        :data:`AUTO_HOLD_BYTES` gather. (A wake-up is what costs: on the shared dev
         VM a saturated line takes 6.5% of a core at 0, 4.8% at 4 ms, 3.2% at 10 ms; see
         docs/benchmarks.md.)
     :param on_reject: called with ``(reason, raw_bytes)`` for each rejected candidate, from the
@@ -263,8 +277,8 @@ class AA55Bus(can.BusABC):
     def _absorb_chunk(self, chunk: bytes) -> None:
         now = time.monotonic()
         if self.read_interval_s == "auto":
-            busy = self._load.add(len(chunk), now) >= self._busy_bytes_per_s
-            self._hold_s = AUTO_HOLD_S if busy else 0.0
+            rate = self._load.add(len(chunk), now)
+            self._hold_s = auto_hold_s(rate, len(chunk), self._busy_bytes_per_s)
         self._last_byte_time = now
         self._absorb(self.decoder.feed(chunk, time.time()))
 

@@ -14,7 +14,7 @@ import pytest
 
 from mavservo import aa55
 from mavservo.aa55 import Frame
-from mavservo.usbcan import AUTO_HOLD_S, LOAD_WINDOW_S, LineLoad
+from mavservo.usbcan import AUTO_HOLD_BYTES, AUTO_HOLD_S, LOAD_WINDOW_S, LineLoad, auto_hold_s
 
 
 class AdapterEnd:
@@ -277,6 +277,16 @@ def test_line_load_follows_the_byte_rate_and_forgets_a_silence() -> None:
     assert load.add(13, 0.499 + 0.25) < 0.01 * 200_000  # after 5 windows of silence
 
 
+def test_auto_hold_waits_only_on_a_busy_line_and_never_lets_too_much_gather() -> None:
+    busy = 50_000.0  # a quarter of 2 Mbaud, bytes/s
+    assert auto_hold_s(20_000.0, 26, busy) == 0.0  # servo traffic: every burst at once
+    assert auto_hold_s(200_000.0, 200, busy) == AUTO_HOLD_S  # saturated 2 Mbaud line
+    assert auto_hold_s(1_000_000.0, 1000, busy) == pytest.approx(AUTO_HOLD_BYTES / 1e6)
+    assert auto_hold_s(1_000_000.0, AUTO_HOLD_BYTES, busy) == 0.0  # behind: read again now
+    for rate in (60_000.0, 200_000.0, 1e6, 1e8):  # a hold never lets more than the budget in
+        assert rate * auto_hold_s(rate, 100, busy) <= AUTO_HOLD_BYTES + 1e-6
+
+
 def test_auto_read_interval_holds_only_while_the_line_is_busy(adapter: AdapterEnd) -> None:
     """Default ``"auto"``: reads follow every burst on a quiet line; on a line carrying more
     than a quarter of 2 Mbaud they are spaced by AUTO_HOLD_S; quiet again, at once again."""
@@ -299,7 +309,12 @@ def test_auto_read_interval_holds_only_while_the_line_is_busy(adapter: AdapterEn
             holds.add(bus.stats()["read_interval_s"])
             time.sleep(0.01)
         assert got == 20 * 150  # nothing lost while holding
-        assert AUTO_HOLD_S in holds
+        assert max(holds) > 0.0 and max(holds) <= AUTO_HOLD_S
+        adapter.write(frame * 300)  # 3,900 bytes at once: more than a hold may let gather
+        assert bus.recv(1.0) is not None
+        assert bus.stats()["read_interval_s"] == 0.0  # behind: the next read follows at once
+        for _ in range(299):  # bounded: drain the block
+            assert bus.recv(1.0) is not None
         time.sleep(5 * LOAD_WINDOW_S)
         adapter.write(frame)
         assert bus.recv(1.0) is not None
