@@ -309,6 +309,7 @@ class Bridge:
                     bitrate=bus_cfg.bitrate,
                     serial_baud=bus_cfg.serial_baud,
                     protocol=bus_cfg.protocol,
+                    read_interval_s=bus_cfg.read_interval_s,
                     on_reject=lambda reason, raw: self._rejected(name, reason, raw),
                 )
 

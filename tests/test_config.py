@@ -216,6 +216,12 @@ can:
     - name: bus0
       max_load: 0.01   # <-
 """ + BASE),
+    "read interval too long": ("less than or equal to 0.05", "can.buses[0].read_interval_s", """\
+can:
+  buses:
+    - name: bus0
+      read_interval_s: 0.5   # <-
+""" + BASE),
     "bad signing key": ("64 hexadecimal", "mavlink.signing.key", """\
 mavlink:
   signing:

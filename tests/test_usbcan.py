@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import os
 import select
+import socket
 import time
 import tty
 from collections.abc import Iterator
@@ -319,3 +320,28 @@ def test_auto_read_interval_holds_only_while_the_line_is_busy(adapter: AdapterEn
         adapter.write(frame)
         assert bus.recv(1.0) is not None
         assert bus.stats()["read_interval_s"] == 0.0
+
+
+def test_the_bridge_passes_the_configured_read_interval_to_its_adapter() -> None:
+    from mavservo.bridge import Bridge
+    from mavservo.config.loader import load_config_text
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    config = load_config_text(f"""
+mavlink: {{url: "udpin:127.0.0.1:{port}", system_id: 1}}
+can:
+  buses: [{{name: bus0, channel: sim, read_interval_s: 0.004}}]
+servos:
+  - {{name: s1, profile: rmd-x, can_id: 1}}
+""")
+    bridge = Bridge(config, log_dir=False, status=lambda line: None)
+    bridge.start()
+    try:
+        inner = bridge.buses["bus0"].inner
+        assert inner is not None and inner.read_interval_s == 0.004
+    finally:
+        bridge.stop()
+    default = load_config_text("servos: [{name: s1, profile: rmd-x, can_id: 1}]")
+    assert default.can.buses[0].read_interval_s == "auto"

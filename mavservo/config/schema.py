@@ -216,6 +216,9 @@ class BusConfig(StrictModel):
     bitrate: int = Field(1_000_000, gt=0)
     serial_baud: int = Field(2_000_000, gt=0)
     protocol: Literal["variable", "fixed"] = "variable"
+    read_interval_s: Literal["auto"] | Annotated[float, Field(ge=0, le=0.05)] = "auto"
+    """aa55 only: least time between two reads of the adapter ("auto": none while the line is
+    lightly used, up to 8 ms while it is busy, e.g. under a foreign node's flood)."""
     max_load: float = Field(0.35, gt=0, le=1)
 
     @model_validator(mode="after")
