@@ -125,8 +125,10 @@ def main() -> None:
     args = parser.parse_args()
     machine = f"{platform.machine()}, {os.cpu_count()} cpus"
     print(f"machine: {machine}, python {platform.python_version()}")
-    print("| mode | socket -> bytes on port p50 [ms] | p99 [ms] | max [ms] | matched | "
-          "L mean [ms] | sigma_L [ms] | stage round trip p50 [ms] | stage publish p50 [ms] |")
+    print(
+        "| mode | socket -> bytes on port p50 [ms] | p99 [ms] | max [ms] | matched | "
+        "L mean [ms] | sigma_L [ms] | stage round trip p50 [ms] | stage publish p50 [ms] |"
+    )
     print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
     for mode in ("immediate", "periodic"):
         runs = [one_run(args.samples, args.period, mode) for _ in range(args.runs)]

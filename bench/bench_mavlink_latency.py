@@ -78,11 +78,11 @@ def one_run(samples: int, period_s: float) -> list[float]:
         time.sleep(0.2)
         for k in range(samples):
             pwm = 1000 + k  # every sample is a new value (samples <= 999 keeps PWM <= 1999)
-            buf = mavlink2.MAVLink_servo_output_raw_message(
-                0, 0, pwm, *([0] * 15)).pack(encoder)
+            buf = mavlink2.MAVLink_servo_output_raw_message(0, 0, pwm, *([0] * 15)).pack(encoder)
             if k % 100 == 0:
-                sock.sendto(mavlink2.MAVLink_heartbeat_message(1, 3, 0, 0, 4, 3).pack(encoder),
-                            target)
+                sock.sendto(
+                    mavlink2.MAVLink_heartbeat_message(1, 3, 0, 0, 4, 3).pack(encoder), target
+                )
             sent[pwm] = time.monotonic_ns()
             sock.sendto(buf, target)
             time.sleep(period_s)
@@ -122,10 +122,14 @@ def main(argv: list[str] | None = None) -> int:
             return 1
         p50s.append(percentile(lat, 0.50))
         p99s.append(percentile(lat, 0.99))
-        print(f"run {run}: n={len(lat)} p50={p50s[-1]:.3f} ms p99={p99s[-1]:.3f} ms "
-              f"max={max(lat):.3f} ms")
-    print(f"median over {args.runs} runs: p50={statistics.median(p50s):.3f} ms "
-          f"p99={statistics.median(p99s):.3f} ms")
+        print(
+            f"run {run}: n={len(lat)} p50={p50s[-1]:.3f} ms p99={p99s[-1]:.3f} ms "
+            f"max={max(lat):.3f} ms"
+        )
+    print(
+        f"median over {args.runs} runs: p50={statistics.median(p50s):.3f} ms "
+        f"p99={statistics.median(p99s):.3f} ms"
+    )
     return 0
 
 

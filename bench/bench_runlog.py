@@ -22,20 +22,21 @@ import can
 
 from mavservo.runlog import RunLog
 
-CMD = can.Message(arbitration_id=0x141, is_extended_id=False,
-                  data=b"\xa4\x00\x68\x01\x10\x27\x00\x00")
-REPLY = can.Message(arbitration_id=0x241, is_extended_id=False,
-                    data=b"\xa4\x1e\x10\x00\x00\x00\x0a\x00")
-STATE = SimpleNamespace(position_deg=1.0, velocity_dps=0.0, current_a=0.1, temperature_c=30.0,
-                        faults=None)
+CMD = can.Message(
+    arbitration_id=0x141, is_extended_id=False, data=b"\xa4\x00\x68\x01\x10\x27\x00\x00"
+)
+REPLY = can.Message(
+    arbitration_id=0x241, is_extended_id=False, data=b"\xa4\x1e\x10\x00\x00\x00\x0a\x00"
+)
+STATE = SimpleNamespace(
+    position_deg=1.0, velocity_dps=0.0, current_a=0.1, temperature_c=30.0, faults=None
+)
 
 
 class NoOp:
     def on_setpoint(self, *a): ...
     def on_tx(self, *a): ...
     def on_rx(self, *a): ...
-
-
 
 
 def pair(observer, seq: int, t: float) -> None:
@@ -98,8 +99,10 @@ def main() -> None:
     drops = []
     for _ in range(args.runs):
         rows["no-op observer"].append(paced(NoOp(), args.rate, args.seconds))
-        for label, make in (("RunLog", lambda d: RunLog(d)),
-                            ("RunLog, slow writer", lambda d: slowed(RunLog(d, queue_size=500)))):
+        for label, make in (
+            ("RunLog", lambda d: RunLog(d)),
+            ("RunLog, slow writer", lambda d: slowed(RunLog(d, queue_size=500))),
+        ):
             with tempfile.TemporaryDirectory() as tmp:
                 log = make(tmp)
                 rows[label].append(paced(log, args.rate, args.seconds))
@@ -111,13 +114,19 @@ def main() -> None:
         p50 = statistics.median(q(c, 50) for c in runs)
         p99 = statistics.median(q(c, 99) for c in runs)
         worst = statistics.median(max(c) for c in runs)
-        print(f"{label:22s} per pair p50 {p50 * 1e6:7.1f} us  p99 {p99 * 1e6:7.1f} us  "
-              f"max {worst * 1e6:8.1f} us  (p50 ratio {p50 / base:5.1f}x)")
-    print(f"slow writer: dropped events median {statistics.median(drops):.0f} "
-          f"of {int(4 * args.rate * args.seconds)} per run")
+        print(
+            f"{label:22s} per pair p50 {p50 * 1e6:7.1f} us  p99 {p99 * 1e6:7.1f} us  "
+            f"max {worst * 1e6:8.1f} us  (p50 ratio {p50 / base:5.1f}x)"
+        )
+    print(
+        f"slow writer: dropped events median {statistics.median(drops):.0f} "
+        f"of {int(4 * args.rate * args.seconds)} per run"
+    )
     rates = [drain_rate() for _ in range(args.runs)]
-    print(f"writer drain: median {statistics.median(rates):.0f} CAN frames/s "
-          f"(ASC + BLF + trace + latency CSV)")
+    print(
+        f"writer drain: median {statistics.median(rates):.0f} CAN frames/s "
+        f"(ASC + BLF + trace + latency CSV)"
+    )
 
 
 if __name__ == "__main__":

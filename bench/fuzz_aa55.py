@@ -67,7 +67,7 @@ def fixed_frames_in(data: bytes) -> set[aa55.Frame]:
     out = set()
     start = data.find(b"\xaa\x55")
     while start >= 0:
-        for item in aa55.Decoder("fixed").feed(data[start:start + aa55.FIXED_LENGTH]):
+        for item in aa55.Decoder("fixed").feed(data[start : start + aa55.FIXED_LENGTH]):
             if isinstance(item, aa55.Frame):
                 out.add(item)
         start = data.find(b"\xaa\x55", start + 1)
@@ -91,9 +91,12 @@ def target_aa55_fixed(raw: bytes) -> None:
     """
     fdp = atheris.FuzzedDataProvider(raw)
     sent = [_frame(fdp) for _ in range(fdp.ConsumeIntInRange(1, 6))]
-    sent = [f for f in sent
-            if aa55.START not in aa55.encode(f, "fixed")[2:]
-            and aa55.END not in aa55.encode(f, "fixed")[2:]]
+    sent = [
+        f
+        for f in sent
+        if aa55.START not in aa55.encode(f, "fixed")[2:]
+        and aa55.END not in aa55.encode(f, "fixed")[2:]
+    ]
     wire = bytearray()
     for frame in sent:
         encoded = bytearray(aa55.encode(frame, "fixed"))
@@ -121,11 +124,15 @@ def target_profiles(raw: bytes) -> None:
         ext = fdp.ConsumeBool()
         arb_id = fdp.ConsumeIntInRange(0, aa55.MAX_EXT_ID if ext else aa55.MAX_STD_ID)
         if fdp.ConsumeBool():  # steer towards this servo's own IDs
-            arb_id = (0x240 if fdp.ConsumeBool() else 0x140) + can_id if not ext else (
-                (fdp.ConsumeIntInRange(0, 0x30) << 8) | can_id)
+            arb_id = (
+                (0x240 if fdp.ConsumeBool() else 0x140) + can_id
+                if not ext
+                else ((fdp.ConsumeIntInRange(0, 0x30) << 8) | can_id)
+            )
         data = fdp.ConsumeBytes(fdp.ConsumeIntInRange(0, 8))
-        msg = can.Message(arbitration_id=arb_id, is_extended_id=ext, data=data, dlc=len(data),
-                          check=False)
+        msg = can.Message(
+            arbitration_id=arb_id, is_extended_id=ext, data=data, dlc=len(data), check=False
+        )
         state = profile.decode(msg, t)
         assert state is None or profile.is_reply(msg)
         servo.receive(msg, t)

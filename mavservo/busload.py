@@ -57,9 +57,7 @@ def worst_case_stuff_bits(extended: bool, dlc: int, remote: bool = False) -> int
     return (stuffable_bits(extended, dlc, remote) - 1) // 4
 
 
-def frame_bits(
-    extended: bool, dlc: int, remote: bool = False, stuffing: Stuffing = "worst"
-) -> int:
+def frame_bits(extended: bool, dlc: int, remote: bool = False, stuffing: Stuffing = "worst") -> int:
     """Bits a frame occupies on the wire, interframe space included.
 
     ``stuffing="worst"`` (the default) adds the maximum possible number of stuff bits, which is
@@ -91,9 +89,7 @@ def message_bits(msg: _FrameLike, stuffing: Stuffing = "worst") -> int:
 
     CAN FD frames are out of scope: the servo buses this project drives are classic CAN.
     """
-    return frame_bits(
-        bool(msg.is_extended_id), int(msg.dlc), bool(msg.is_remote_frame), stuffing
-    )
+    return frame_bits(bool(msg.is_extended_id), int(msg.dlc), bool(msg.is_remote_frame), stuffing)
 
 
 @dataclass(frozen=True)

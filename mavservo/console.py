@@ -161,7 +161,10 @@ def format_summary(summary: dict[str, Any]) -> str:
             f"{k} {v}"
             for k, v in counters.items()
             # counts that happened; booleans and ids are state, not counters
-            if isinstance(v, int | float) and not isinstance(v, bool) and v and k != "system_id"
+            if isinstance(v, int | float)
+            and not isinstance(v, bool)
+            and v
+            and k != "system_id"
             and not k.startswith("mirror_")  # a flat duplicate of mirror.*
         ]
         lines.append("  mavlink: " + ", ".join(shown))

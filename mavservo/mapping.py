@@ -119,8 +119,9 @@ class ChannelMap:
                 return Rejected(RejectReason.NO_PULSE, "PWM 0 (no pulse) is not a position")
             low, high = PWM_VALID_US
             if not low <= value <= high:
-                return Rejected(RejectReason.OUT_OF_RANGE,
-                                f"PWM {value:g} us is outside {low:g}..{high:g} us")
+                return Rejected(
+                    RejectReason.OUT_OF_RANGE, f"PWM {value:g} us is outside {low:g}..{high:g} us"
+                )
         elif not -1.0 - _NORMALIZED_EPSILON <= value <= 1.0 + _NORMALIZED_EPSILON:
             return Rejected(RejectReason.OUT_OF_RANGE, f"value {value:g} is outside [-1, 1]")
         return None

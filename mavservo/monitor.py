@@ -147,8 +147,13 @@ class MonitorState:
         value = float(msg.value)
         if match := _NVF_SERVO.match(name):
             view = self._servo(int(match.group(1)))
-            attr = {"pos": "position_deg", "vel": "velocity_dps", "cur": "current_a",
-                    "tmp": "temperature_c", "sp": "setpoint_deg"}[match.group(2)]
+            attr = {
+                "pos": "position_deg",
+                "vel": "velocity_dps",
+                "cur": "current_a",
+                "tmp": "temperature_c",
+                "sp": "setpoint_deg",
+            }[match.group(2)]
             setattr(view, attr, value)
             if attr != "setpoint_deg":
                 view.updated = now
@@ -192,8 +197,14 @@ class MonitorState:
         from mavservo.mavlink.quaternion import quaternion_to_euler
 
         roll, pitch, yaw = quaternion_to_euler(list(msg.q))
-        self.gimbal = {"component": msg.get_srcComponent(), "roll": roll, "pitch": pitch,
-                       "yaw": yaw, "failure_flags": int(msg.failure_flags), "updated": now}
+        self.gimbal = {
+            "component": msg.get_srcComponent(),
+            "roll": roll,
+            "pitch": pitch,
+            "yaw": yaw,
+            "failure_flags": int(msg.failure_flags),
+            "updated": now,
+        }
 
     # -- rows out ------------------------------------------------------------------------------
 
@@ -209,32 +220,36 @@ class MonitorState:
                 status = "FAULT"
             else:
                 status = "ok" if age is not None else "-"
-            rows.append({
-                "servo": str(number) if number > 0 else "?",
-                "name": view.name or "",
-                "setpoint": _fmt(view.setpoint_deg, "{:+.1f}"),
-                "position": _fmt(view.position_deg, "{:+.2f}"),
-                "normalized": _fmt(view.normalized, "{:+.3f}"),
-                "velocity": _fmt(view.velocity_dps, "{:+.1f}"),
-                "current": _fmt(view.current_a, "{:.2f}"),
-                "temperature": _fmt(view.temperature_c, "{:.0f}"),
-                "faults": "|".join(sorted(view.faults)) or "-",
-                "age": _fmt(age, "{:.2f}s"),
-                "status": status,
-            })
+            rows.append(
+                {
+                    "servo": str(number) if number > 0 else "?",
+                    "name": view.name or "",
+                    "setpoint": _fmt(view.setpoint_deg, "{:+.1f}"),
+                    "position": _fmt(view.position_deg, "{:+.2f}"),
+                    "normalized": _fmt(view.normalized, "{:+.3f}"),
+                    "velocity": _fmt(view.velocity_dps, "{:+.1f}"),
+                    "current": _fmt(view.current_a, "{:.2f}"),
+                    "temperature": _fmt(view.temperature_c, "{:.0f}"),
+                    "faults": "|".join(sorted(view.faults)) or "-",
+                    "age": _fmt(age, "{:.2f}s"),
+                    "status": status,
+                }
+            )
         return rows
 
     def component_rows(self, now: float) -> list[dict[str, str]]:
         rows = []
         for (system, component), view in sorted(self.components.items()):
             age = now - view.last
-            rows.append({
-                "component": f"{system}/{component}",
-                "type": MAV_TYPE_NAMES.get(view.mav_type, str(view.mav_type)),
-                "heartbeats": str(view.count),
-                "age": f"{age:.1f}s",
-                "status": "ok" if age <= STALE_AFTER_S else "LOST",
-            })
+            rows.append(
+                {
+                    "component": f"{system}/{component}",
+                    "type": MAV_TYPE_NAMES.get(view.mav_type, str(view.mav_type)),
+                    "heartbeats": str(view.count),
+                    "age": f"{age:.1f}s",
+                    "status": "ok" if age <= STALE_AFTER_S else "LOST",
+                }
+            )
         return rows
 
     def health_line(self, now: float) -> str:
@@ -244,15 +259,20 @@ class MonitorState:
             parts.append(f"{self.messages / (self.last - self.first):.0f} msg/s")
         parts.append(f"{self.messages} msgs, {self.bad_messages} bad")
         if self.bus_load:
-            parts.append("load " + ", ".join(
-                f"bus{k} {100 * v:.1f}%" for k, v in sorted(self.bus_load.items())))
+            parts.append(
+                "load "
+                + ", ".join(f"bus{k} {100 * v:.1f}%" for k, v in sorted(self.bus_load.items()))
+            )
         if self.latency_ms:
-            parts.append("latency " + " ".join(
-                f"{k} {v:.1f}ms" for k, v in sorted(self.latency_ms.items())))
+            parts.append(
+                "latency " + " ".join(f"{k} {v:.1f}ms" for k, v in sorted(self.latency_ms.items()))
+            )
         if self.gimbal:
             g = self.gimbal
-            parts.append(f"gimbal r{g['roll']:+.1f} p{g['pitch']:+.1f} y{g['yaw']:+.1f}"
-                         f" flags 0x{g['failure_flags']:x}")
+            parts.append(
+                f"gimbal r{g['roll']:+.1f} p{g['pitch']:+.1f} y{g['yaw']:+.1f}"
+                f" flags 0x{g['failure_flags']:x}"
+            )
         return " | ".join(parts)
 
 
@@ -262,10 +282,32 @@ def _fmt(value: float | None, pattern: str) -> str:
     return pattern.format(value)
 
 
-SERVO_COLUMNS = ("servo", "name", "setpoint", "position", "normalized", "velocity", "current",
-                 "temperature", "faults", "age", "status")
-SERVO_HEADERS = ("#", "name", "set [deg]", "pos [deg]", "norm", "vel [dps]", "cur [A]",
-                 "temp [C]", "faults", "age", "status")
+SERVO_COLUMNS = (
+    "servo",
+    "name",
+    "setpoint",
+    "position",
+    "normalized",
+    "velocity",
+    "current",
+    "temperature",
+    "faults",
+    "age",
+    "status",
+)
+SERVO_HEADERS = (
+    "#",
+    "name",
+    "set [deg]",
+    "pos [deg]",
+    "norm",
+    "vel [dps]",
+    "cur [A]",
+    "temp [C]",
+    "faults",
+    "age",
+    "status",
+)
 
 
 def render(state: MonitorState, now: float, title: str = "mavservo monitor") -> Any:
@@ -308,14 +350,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         prog="mavservo monitor",
         description="Live dashboard of a running mavservo bridge, as an ordinary MAVLink client.",
     )
-    parser.add_argument("url", nargs="?", default=DEFAULT_URL,
-                        help=f"pymavlink connection string (default {DEFAULT_URL})")
+    parser.add_argument(
+        "url",
+        nargs="?",
+        default=DEFAULT_URL,
+        help=f"pymavlink connection string (default {DEFAULT_URL})",
+    )
     parser.add_argument("--duration", type=float, default=None, help="stop after this many s")
     parser.add_argument("--rate", type=float, default=10.0, help="dashboard refresh rate (Hz)")
     parser.add_argument("--config", help="bridge YAML config, to show servo names")
     parser.add_argument("--plain", action="store_true", help="plain lines even on a terminal")
-    parser.add_argument("--no-heartbeat", action="store_true",
-                        help="do not announce the monitor with a GCS heartbeat")
+    parser.add_argument(
+        "--no-heartbeat",
+        action="store_true",
+        help="do not announce the monitor with a GCS heartbeat",
+    )
     args = parser.parse_args(argv)
 
     os.environ.setdefault("MAVLINK20", "1")  # ESC_TELEMETRY_* and friends are MAVLink 2 only
@@ -327,8 +376,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     console = Console()
     plain = args.plain or not console.is_terminal
-    conn = mavutil.mavlink_connection(args.url, source_system=MONITOR_SYSTEM_ID,
-                                      source_component=MONITOR_COMPONENT_ID)
+    conn = mavutil.mavlink_connection(
+        args.url, source_system=MONITOR_SYSTEM_ID, source_component=MONITOR_COMPONENT_ID
+    )
     names: list[str] = []
     if args.config:
         from mavservo.config.loader import ConfigError, load_config
@@ -344,8 +394,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     refresh_period = 1.0 / max(args.rate, 1.0)
     plain_period = 1.0
     next_heartbeat = start
-    live = None if plain else Live(render(state, start), console=console, auto_refresh=False,
-                                   transient=False)
+    live = (
+        None
+        if plain
+        else Live(render(state, start), console=console, auto_refresh=False, transient=False)
+    )
     try:
         if live is not None:
             live.start(refresh=True)
@@ -374,8 +427,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         pass
     finally:
         if live is not None:
-            live.update(render(state, time.monotonic(), f"mavservo monitor  {args.url}"),
-                        refresh=True)
+            live.update(
+                render(state, time.monotonic(), f"mavservo monitor  {args.url}"), refresh=True
+            )
             live.stop()
         conn.close()
     return 0
@@ -384,8 +438,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _send_heartbeat(conn: Any, mavutil: Any) -> None:
     """Announce the monitor as a GCS-type client; udpin links can only answer once heard."""
     with contextlib.suppress(OSError):  # udpin before the first packet has no peer yet
-        conn.mav.heartbeat_send(mavutil.mavlink.MAV_TYPE_GCS,
-                                mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0)
+        conn.mav.heartbeat_send(
+            mavutil.mavlink.MAV_TYPE_GCS, mavutil.mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0
+        )
 
 
 if __name__ == "__main__":

@@ -168,8 +168,9 @@ def load_run(directory: str | Path) -> Run:
         with rejections_path.open(encoding="utf-8") as handle:
             rejections = sum(1 for line in handle if line.strip())
 
-    return Run(directory, header, dict(servos), latency_rows, frames, frames_format, metrics,
-               rejections)
+    return Run(
+        directory, header, dict(servos), latency_rows, frames, frames_format, metrics, rejections
+    )
 
 
 # -- derived series (pure) -----------------------------------------------------------------
@@ -255,12 +256,24 @@ def plot_response(run: Run, path: Path) -> None:
     for index, (name, trace) in enumerate(sorted(run.servos.items())):
         color = f"C{index % 10}"
         if trace.setpoint_t:
-            ax_pos.step(trace.setpoint_t, trace.setpoint_deg, where="post", color=color,
-                        linestyle="--", linewidth=1.0, label=f"{name} commanded")
+            ax_pos.step(
+                trace.setpoint_t,
+                trace.setpoint_deg,
+                where="post",
+                color=color,
+                linestyle="--",
+                linewidth=1.0,
+                label=f"{name} commanded",
+            )
             plotted = True
         if trace.state_t:
-            ax_pos.plot(trace.state_t, trace.position_deg, color=color, linewidth=1.2,
-                        label=f"{name} measured")
+            ax_pos.plot(
+                trace.state_t,
+                trace.position_deg,
+                color=color,
+                linewidth=1.2,
+                label=f"{name} measured",
+            )
             ax_vel.plot(trace.state_t, trace.velocity_dps, color=color, linewidth=1.0, label=name)
             ax_cur.plot(trace.state_t, trace.current_a, color=color, linewidth=1.0, label=name)
             plotted = True
@@ -312,23 +325,42 @@ def plot_interval_histogram(run: Run, path: Path) -> None:
 
     def draw(ax: Any, colour: str, name: str, intervals_ms: list[float]) -> None:
         mean = sum(intervals_ms) / len(intervals_ms)
-        ax.hist(intervals_ms, bins=40, alpha=0.6, color=colour,
-                label=f"{name} (mean {mean:.1f} ms)")
+        ax.hist(
+            intervals_ms, bins=40, alpha=0.6, color=colour, label=f"{name} (mean {mean:.1f} ms)"
+        )
         ax.axvline(mean, color=colour, linestyle="--", linewidth=1.0)
 
-    _plot_intervals(run, path, draw, "reception interval [ms]", "count",
-                    "Reception intervals of every decoded reply (paper Fig. 4)")
+    _plot_intervals(
+        run,
+        path,
+        draw,
+        "reception interval [ms]",
+        "count",
+        "Reception intervals of every decoded reply (paper Fig. 4)",
+    )
 
 
 def plot_interval_sequence(run: Run, path: Path) -> None:
     """Fig. 5: reception interval over successive samples."""
 
     def draw(ax: Any, colour: str, name: str, intervals_ms: list[float]) -> None:
-        ax.plot(range(1, len(intervals_ms) + 1), intervals_ms, ".", markersize=3,
-                color=colour, label=name)
+        ax.plot(
+            range(1, len(intervals_ms) + 1),
+            intervals_ms,
+            ".",
+            markersize=3,
+            color=colour,
+            label=name,
+        )
 
-    _plot_intervals(run, path, draw, "sample", "reception interval [ms]",
-                    "Reception intervals over successive samples (paper Fig. 5)")
+    _plot_intervals(
+        run,
+        path,
+        draw,
+        "sample",
+        "reception interval [ms]",
+        "Reception intervals over successive samples (paper Fig. 5)",
+    )
 
 
 def plot_latency_stages(run: Run, path: Path) -> None:
@@ -342,16 +374,24 @@ def plot_latency_stages(run: Run, path: Path) -> None:
         bottom = [0.0] * len(commands)
         for index, stage in enumerate(STAGES):
             heights = [c[stage] * 1e3 for c in commands]
-            ax_stack.bar(xs, heights, bottom=bottom, width=1.0, color=f"C{index}",
-                         label=STAGE_DESCRIPTIONS[stage], linewidth=0)
+            ax_stack.bar(
+                xs,
+                heights,
+                bottom=bottom,
+                width=1.0,
+                color=f"C{index}",
+                label=STAGE_DESCRIPTIONS[stage],
+                linewidth=0,
+            )
             bottom = [b + h for b, h in zip(bottom, heights, strict=True)]
         ax_stack.legend(fontsize="x-small", loc="upper left")
         round_trip_ms = [c["round_trip"] * 1e3 for c in commands]
         ax_hist.hist(round_trip_ms, bins=40, color="C2", alpha=0.8)
         stats = summarize(round_trip_ms)
         for q, style in (("p50", "-"), ("p95", "--"), ("p99", ":")):
-            ax_hist.axvline(stats[q], color="k", linestyle=style, linewidth=1.0,
-                            label=f"{q} {stats[q]:.2f} ms")
+            ax_hist.axvline(
+                stats[q], color="k", linestyle=style, linewidth=1.0, label=f"{q} {stats[q]:.2f} ms"
+            )
         ax_hist.legend(fontsize="small")
     else:
         _empty(ax_stack, "no command reached a decoded reply")
@@ -377,11 +417,21 @@ def plot_bus_load(run: Run, path: Path, series: dict[int, tuple[list[float], lis
             name, info = names.get(channel, (f"channel {channel}", {}))
             bitrate = int(info.get("bitrate") or DEFAULT_BITRATE)
             load_pct = [100.0 * b / (LOAD_WINDOW_S * bitrate) for b in bits]
-            ax.step(times, load_pct, where="post", color=f"C{channel % 10}",
-                    label=f"{name} @ {bitrate / 1000:.0f} kbit/s")
+            ax.step(
+                times,
+                load_pct,
+                where="post",
+                color=f"C{channel % 10}",
+                label=f"{name} @ {bitrate / 1000:.0f} kbit/s",
+            )
             if info.get("max_load"):
-                ax.axhline(100.0 * float(info["max_load"]), color=f"C{channel % 10}",
-                           linestyle="--", linewidth=1.0, label=f"{name} budget R_max")
+                ax.axhline(
+                    100.0 * float(info["max_load"]),
+                    color=f"C{channel % 10}",
+                    linestyle="--",
+                    linewidth=1.0,
+                    label=f"{name} budget R_max",
+                )
         ax.legend(fontsize="small")
     else:
         _empty(ax, "no CAN frames recorded")
@@ -423,30 +473,48 @@ def summary_rows(run: Run, series: LoadSeries) -> list[tuple[str, str]]:
     rows: list[tuple[str, str]] = []
     stages = stage_samples(run.latency_rows)
     round_trip = summarize(stages["round_trip"])
-    rows.append(("Latency L, round trip (mean / p50 / p95 / p99) [ms]",
-                 " / ".join(_ms(round_trip.get(k)) for k in ("mean", "p50", "p95", "p99"))))
+    rows.append(
+        (
+            "Latency L, round trip (mean / p50 / p95 / p99) [ms]",
+            " / ".join(_ms(round_trip.get(k)) for k in ("mean", "p50", "p95", "p99")),
+        )
+    )
     rows.append(("Jitter sigma_L [ms]", _ms(round_trip.get("sigma"))))
     for stage in STAGES:
         s = summarize(stages[stage])
-        rows.append((f"Stage {stage}: {STAGE_DESCRIPTIONS[stage]} (p50 / p95 / p99) [ms]",
-                     " / ".join(_ms(s.get(k)) for k in ("p50", "p95", "p99"))
-                     + f" (n={s['n']})"))
+        rows.append(
+            (
+                f"Stage {stage}: {STAGE_DESCRIPTIONS[stage]} (p50 / p95 / p99) [ms]",
+                " / ".join(_ms(s.get(k)) for k in ("p50", "p95", "p99")) + f" (n={s['n']})",
+            )
+        )
     intervals = [v for trace in run.servos.values() for v in trace.intervals_s()]
     iv = summarize(intervals)
-    rows.append(("Reply reception interval, all replies (mean / sigma / p99) [ms]",
-                 " / ".join(_ms(iv.get(k)) for k in ("mean", "sigma", "p99"))))
+    rows.append(
+        (
+            "Reply reception interval, all replies (mean / sigma / p99) [ms]",
+            " / ".join(_ms(iv.get(k)) for k in ("mean", "sigma", "p99")),
+        )
+    )
     outcomes: dict[str, int] = defaultdict(int)
     for row in run.latency_rows:
         outcomes[row.get("outcome", "?")] += 1
-    rows.append(("Commands traced (complete / superseded / lost / open)",
-                 " / ".join(str(outcomes.get(k, 0))
-                            for k in ("complete", "superseded", "lost", "open"))))
+    rows.append(
+        (
+            "Commands traced (complete / superseded / lost / open)",
+            " / ".join(str(outcomes.get(k, 0)) for k in ("complete", "superseded", "lost", "open")),
+        )
+    )
     tx = sum(1 for m in run.frames if not m.is_rx)
     rx = sum(1 for m in run.frames if m.is_rx)
     rows.append(("CAN frames TX / RX", f"{tx} / {rx}"))
     rows.append(("Replies lost (timeouts)", str(sum(t.lost for t in run.servos.values()))))
-    rows.append(("Telemetry samples with a fault flag",
-                 str(sum(t.fault_samples for t in run.servos.values()))))
+    rows.append(
+        (
+            "Telemetry samples with a fault flag",
+            str(sum(t.fault_samples for t in run.servos.values())),
+        )
+    )
     rows.append(("Decoder rejections", str(run.rejections)))
     dropped = run.metrics.get("runlog", {}).get("dropped_total")
     rows.append(("Log lines dropped (slow disk)", "n/a" if dropped is None else str(dropped)))
@@ -454,27 +522,41 @@ def summary_rows(run: Run, series: LoadSeries) -> list[tuple[str, str]]:
         lat = data.get("latency_s") or {}
         frames = data.get("frames") or {}
         if lat.get("n"):
-            rows.append((f"Scheduler {servo}: L every request (mean / sigma / p99) [ms]",
-                         " / ".join(_ms(lat.get(k)) for k in ("mean", "sigma", "p99"))
-                         + f" (n={lat['n']})"))
+            rows.append(
+                (
+                    f"Scheduler {servo}: L every request (mean / sigma / p99) [ms]",
+                    " / ".join(_ms(lat.get(k)) for k in ("mean", "sigma", "p99"))
+                    + f" (n={lat['n']})",
+                )
+            )
         if frames:
-            rows.append((f"Scheduler {servo}: frames sent / received / lost / late",
-                         " / ".join(str(frames.get(k, 0))
-                                    for k in ("sent", "received", "lost", "late_replies"))))
+            rows.append(
+                (
+                    f"Scheduler {servo}: frames sent / received / lost / late",
+                    " / ".join(
+                        str(frames.get(k, 0)) for k in ("sent", "received", "lost", "late_replies")
+                    ),
+                )
+            )
     names = bus_names_by_channel(run.header)
     for channel, (_, bits) in sorted(series.items()):
         name, info = names.get(channel, (f"channel {channel}", {}))
         bitrate = int(info.get("bitrate") or DEFAULT_BITRATE)
         loads = [b / (LOAD_WINDOW_S * bitrate) for b in bits]
         budget = info.get("max_load")
-        rows.append((f"Bus utilization {name} (mean / peak) [%]",
-                     f"{100 * sum(loads) / len(loads):.2f} / {100 * max(loads):.2f}"
-                     + ("" if budget is None else f" (budget {100 * float(budget):.0f})")))
+        rows.append(
+            (
+                f"Bus utilization {name} (mean / peak) [%]",
+                f"{100 * sum(loads) / len(loads):.2f} / {100 * max(loads):.2f}"
+                + ("" if budget is None else f" (budget {100 * float(budget):.0f})"),
+            )
+        )
     return rows
 
 
-def write_markdown(run: Run, out_dir: Path, rows: list[tuple[str, str]],
-                   figures: dict[str, Path]) -> Path:
+def write_markdown(
+    run: Run, out_dir: Path, rows: list[tuple[str, str]], figures: dict[str, Path]
+) -> Path:
     header = run.header
     lines = [
         f"# mavservo run report: {run.directory.name}",
@@ -540,8 +622,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         import matplotlib  # noqa: F401 - the figures need it; it is an optional extra
     except ImportError:
-        console.print("mavservo report needs matplotlib: pip install 'mavservo[report]' "
-                      "(from a clone: pip install '.[report]')", highlight=False, soft_wrap=True)
+        console.print(
+            "mavservo report needs matplotlib: pip install 'mavservo[report]' "
+            "(from a clone: pip install '.[report]')",
+            highlight=False,
+            soft_wrap=True,
+        )
         return 2
     try:
         paths = generate(args.logdir, args.out)

@@ -265,13 +265,35 @@ class RunLog:
         self, bus: str, msg: can.Message, t: float, kind: str, servo: str | None, seq: int | None
     ) -> None:
         self.latency.on_tx(bus, msg, t, kind, servo, seq)
-        self._put((_TX, bus, msg.arbitration_id, msg.is_extended_id, msg.is_remote_frame,
-                   msg.dlc, bytes(msg.data), t))
+        self._put(
+            (
+                _TX,
+                bus,
+                msg.arbitration_id,
+                msg.is_extended_id,
+                msg.is_remote_frame,
+                msg.dlc,
+                bytes(msg.data),
+                t,
+            )
+        )
 
     def on_rx(self, bus: str, msg: can.Message, t: float, servo: str | None, state: Any) -> None:
         self.latency.on_rx(bus, msg, t, servo, state)
-        self._put((_RX, bus, msg.arbitration_id, msg.is_extended_id, msg.is_remote_frame,
-                   msg.dlc, bytes(msg.data), t, servo, state))
+        self._put(
+            (
+                _RX,
+                bus,
+                msg.arbitration_id,
+                msg.is_extended_id,
+                msg.is_remote_frame,
+                msg.dlc,
+                bytes(msg.data),
+                t,
+                servo,
+                state,
+            )
+        )
 
     def on_lost(self, bus: str, servo: str | None, t: float) -> None:
         self.latency.on_lost(bus, servo, t)

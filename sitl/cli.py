@@ -34,34 +34,62 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     s = sub.add_parser("stream", help="run the simulated ArduPilot autopilot stream")
-    s.add_argument("--url", default="udpout:127.0.0.1:14551",
-                   help="pymavlink connection string (default: %(default)s)")
+    s.add_argument(
+        "--url",
+        default="udpout:127.0.0.1:14551",
+        help="pymavlink connection string (default: %(default)s)",
+    )
     s.add_argument("--profile", default="sweep", choices=sorted(PROFILES))
     s.add_argument("--seed", type=int, default=0, help="random-walk seed")
     s.add_argument("--duration", type=float, default=None, help="seconds (default: until Ctrl-C)")
     s.add_argument("--servo-rate", type=float, default=20.0, help="SERVO_OUTPUT_RAW Hz")
-    s.add_argument("--actuator-rate", type=float, default=0.0,
-                   help="ACTUATOR_OUTPUT_STATUS Hz, PX4-style normalized outputs (default: off)")
-    s.add_argument("--gimbal", action="store_true",
-                   help="act as a gimbal manager (MNT1_TYPE 6) with a demo target sequence")
+    s.add_argument(
+        "--actuator-rate",
+        type=float,
+        default=0.0,
+        help="ACTUATOR_OUTPUT_STATUS Hz, PX4-style normalized outputs (default: off)",
+    )
+    s.add_argument(
+        "--gimbal",
+        action="store_true",
+        help="act as a gimbal manager (MNT1_TYPE 6) with a demo target sequence",
+    )
     s.add_argument("--script", type=Path, help="YAML list of events (see sitl/script.py)")
-    s.add_argument("--dropout", action="append", default=[], metavar="AT:SECONDS",
-                   help="go silent at AT s for SECONDS (repeatable); SIGUSR1 also starts one")
-    s.add_argument("--dropout-seconds", type=float, default=3.0,
-                   help="length of a drop-out started by SIGUSR1 (default: %(default)s)")
-    s.add_argument("--command-target", type=_target, default=(1, 0),
-                   help="SYSTEM/COMPONENT the mission commands go to (default: 1/0)")
-    s.add_argument("--repeat-cycle-ms", action="store_true",
-                   help="send DO_REPEAT_SERVO param4 in ms (ArduPilot) instead of s (spec)")
+    s.add_argument(
+        "--dropout",
+        action="append",
+        default=[],
+        metavar="AT:SECONDS",
+        help="go silent at AT s for SECONDS (repeatable); SIGUSR1 also starts one",
+    )
+    s.add_argument(
+        "--dropout-seconds",
+        type=float,
+        default=3.0,
+        help="length of a drop-out started by SIGUSR1 (default: %(default)s)",
+    )
+    s.add_argument(
+        "--command-target",
+        type=_target,
+        default=(1, 0),
+        help="SYSTEM/COMPONENT the mission commands go to (default: 1/0)",
+    )
+    s.add_argument(
+        "--repeat-cycle-ms",
+        action="store_true",
+        help="send DO_REPEAT_SERVO param4 in ms (ArduPilot) instead of s (spec)",
+    )
 
     r = sub.add_parser("replay", help="replay a .tlog into a MAVLink link")
     r.add_argument("file", type=Path)
     r.add_argument("--url", default="udpout:127.0.0.1:14551")
     r.add_argument("--speed", type=float, default=1.0, help="time factor (4 = 4x faster)")
     r.add_argument("--as-fast", action="store_true", help="ignore timestamps, send at once")
-    r.add_argument("--types", default=None,
-                   help="comma-separated message types, or 'all' "
-                        f"(default: {','.join(sorted(BRIDGE_TYPES))})")
+    r.add_argument(
+        "--types",
+        default=None,
+        help=f"comma-separated message types, or 'all' (default: {','.join(sorted(BRIDGE_TYPES))})",
+    )
     r.add_argument("--start", type=float, default=0.0, help="skip the first seconds of the file")
     r.add_argument("--end", type=float, default=None, help="stop at this file time")
     r.add_argument("--max-duration", type=float, default=None, help="wall-clock bound, seconds")
@@ -69,8 +97,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run_stream(args: argparse.Namespace) -> int:
-    profile = (RandomWalkProfile(seed=args.seed) if args.profile == "random-walk"
-               else get_profile(args.profile))
+    profile = (
+        RandomWalkProfile(seed=args.seed)
+        if args.profile == "random-walk"
+        else get_profile(args.profile)
+    )
     events = []
     if args.script is not None:
         events += parse_script(yaml.safe_load(args.script.read_text()) or []).events
@@ -84,15 +115,21 @@ def _run_stream(args: argparse.Namespace) -> int:
     if args.gimbal:
         events += gimbal_demo_script()
     stream = AutopilotStream(
-        args.url, profile, events, servo_output_rate_hz=args.servo_rate,
-        actuator_output_status_hz=args.actuator_rate, gimbal=args.gimbal,
-        command_target=args.command_target, duration_s=args.duration,
+        args.url,
+        profile,
+        events,
+        servo_output_rate_hz=args.servo_rate,
+        actuator_output_status_hz=args.actuator_rate,
+        gimbal=args.gimbal,
+        command_target=args.command_target,
+        duration_s=args.duration,
         repeat_servo_cycle="milliseconds" if args.repeat_cycle_ms else "seconds",
     )
     stream.start()
     if hasattr(signal, "SIGUSR1") and threading.current_thread() is threading.main_thread():
         previous_usr1 = signal.signal(
-            signal.SIGUSR1, lambda signum, frame: stream.dropout(args.dropout_seconds))
+            signal.SIGUSR1, lambda signum, frame: stream.dropout(args.dropout_seconds)
+        )
     else:
         previous_usr1 = None
     print(f"sitl: streaming profile {profile.name!r} to {args.url} (Ctrl-C to stop)", flush=True)
@@ -108,8 +145,10 @@ def _run_stream(args: argparse.Namespace) -> int:
     for start, end in stream.dropouts:
         print(f"sitl: drop-out {start - stream.t0:.1f}..{end - stream.t0:.1f} s")
     for record in stream.commands.commands:
-        print(f"sitl: command {record.command} {record.params[:3]} attempts={record.attempts} "
-              f"result={record.result}")
+        print(
+            f"sitl: command {record.command} {record.params[:3]} attempts={record.attempts} "
+            f"result={record.result}"
+        )
     return 1 if stream.error else 0
 
 
@@ -124,9 +163,17 @@ def _run_replay(args: argparse.Namespace) -> int:
     pace = "as fast as possible" if args.as_fast else f"at {args.speed:g}x"
     print(f"sitl: replaying {args.file} to {args.url} {pace} (Ctrl-C to stop)", flush=True)
     try:
-        result = replay(args.file, args.url, speed=args.speed, as_fast=args.as_fast, types=types,
-                        start_s=args.start, end_s=args.end, max_duration_s=args.max_duration,
-                        stop=_STOP)
+        result = replay(
+            args.file,
+            args.url,
+            speed=args.speed,
+            as_fast=args.as_fast,
+            types=types,
+            start_s=args.start,
+            end_s=args.end,
+            max_duration_s=args.max_duration,
+            stop=_STOP,
+        )
     except (OSError, TlogError) as exc:
         print(f"sitl: {exc}", file=sys.stderr)
         return 2

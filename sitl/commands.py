@@ -60,8 +60,14 @@ class CommandTracker:
         self.commands: list[CommandRecord] = []
         self.acks: list[AckRecord] = []
 
-    def submit(self, command: int, params: tuple[float, ...], target_system: int,
-               target_component: int, now: float) -> CommandRecord:
+    def submit(
+        self,
+        command: int,
+        params: tuple[float, ...],
+        target_system: int,
+        target_component: int,
+        now: float,
+    ) -> CommandRecord:
         """Queue a command; it is due for its first send at ``now``."""
         if len(params) != 7:
             raise ValueError("COMMAND_LONG has exactly 7 params")
@@ -84,8 +90,14 @@ class CommandTracker:
             out.append(record)
         return out
 
-    def on_ack(self, command: int, result: int, source: tuple[int, int],
-               target: tuple[int, int], now: float) -> CommandRecord | None:
+    def on_ack(
+        self,
+        command: int,
+        result: int,
+        source: tuple[int, int],
+        target: tuple[int, int],
+        now: float,
+    ) -> CommandRecord | None:
         """Record an ACK and settle the oldest matching pending command (None if none matched).
 
         A command addressed to component 0 (broadcast) is settled by an ACK from any component

@@ -55,7 +55,10 @@ class HoldProfile(Profile):
     """Neutral outputs forever: surfaces at trim, throttle idle. The baseline for command tests."""
 
     values: tuple[tuple[int, int], ...] = (
-        (1, SURFACE_TRIM), (2, SURFACE_TRIM), (3, THROTTLE_MIN), (4, SURFACE_TRIM),
+        (1, SURFACE_TRIM),
+        (2, SURFACE_TRIM),
+        (3, THROTTLE_MIN),
+        (4, SURFACE_TRIM),
     )
     name = "hold"
 
@@ -91,13 +94,15 @@ class SweepProfile(Profile):
         phi = self._phase(tau)
         half = (SURFACE_MAX - SURFACE_MIN) / 2.0
         throttle_half = (THROTTLE_MAX - THROTTLE_MIN) / 2.0
-        return _frame({
-            1: SURFACE_TRIM + half * math.sin(phi),
-            2: SURFACE_TRIM + half * math.sin(phi / 2.0),
-            3: THROTTLE_MIN
-            + throttle_half * (1.0 - math.cos(2.0 * math.pi * self.throttle_hz * tau)),
-            4: SURFACE_TRIM - half * math.sin(phi),
-        })
+        return _frame(
+            {
+                1: SURFACE_TRIM + half * math.sin(phi),
+                2: SURFACE_TRIM + half * math.sin(phi / 2.0),
+                3: THROTTLE_MIN
+                + throttle_half * (1.0 - math.cos(2.0 * math.pi * self.throttle_hz * tau)),
+                4: SURFACE_TRIM - half * math.sin(phi),
+            }
+        )
 
 
 @dataclass(frozen=True)
@@ -157,8 +162,11 @@ class RandomWalkProfile(Profile):
         while len(self._walk) <= index:
             last = list(self._walk[-1])
             for channel in (*SURFACE_CHANNELS, THROTTLE_CHANNEL):
-                lo, hi = ((THROTTLE_MIN, THROTTLE_MAX) if channel == THROTTLE_CHANNEL
-                          else (SURFACE_MIN, SURFACE_MAX))
+                lo, hi = (
+                    (THROTTLE_MIN, THROTTLE_MAX)
+                    if channel == THROTTLE_CHANNEL
+                    else (SURFACE_MIN, SURFACE_MAX)
+                )
                 step = self._rng.randint(-self.max_step_us, self.max_step_us)
                 last[channel - 1] = min(hi, max(lo, last[channel - 1] + step))
             self._walk.append(tuple(last))

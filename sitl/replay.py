@@ -22,16 +22,18 @@ from sitl.background import Background
 from sitl.link import mavlink2, open_link
 
 # What the bridge consumes (docs/architecture.md, mavservo/mavlink/).
-BRIDGE_TYPES: frozenset[str] = frozenset({
-    "HEARTBEAT",
-    "SERVO_OUTPUT_RAW",
-    "ACTUATOR_OUTPUT_STATUS",
-    "GIMBAL_DEVICE_SET_ATTITUDE",
-    "AUTOPILOT_STATE_FOR_GIMBAL_DEVICE",
-    "COMMAND_LONG",
-    "COMMAND_INT",
-    "ATTITUDE",
-})
+BRIDGE_TYPES: frozenset[str] = frozenset(
+    {
+        "HEARTBEAT",
+        "SERVO_OUTPUT_RAW",
+        "ACTUATOR_OUTPUT_STATUS",
+        "GIMBAL_DEVICE_SET_ATTITUDE",
+        "AUTOPILOT_STATE_FOR_GIMBAL_DEVICE",
+        "COMMAND_LONG",
+        "COMMAND_INT",
+        "ATTITUDE",
+    }
+)
 
 _STX_V1, _STX_V2 = 0xFE, 0xFD
 _SIGNED = 0x01
@@ -67,12 +69,13 @@ def iter_tlog_records(data: bytes) -> Iterator[tuple[int, bytes]]:
         end = pos + 8 + length
         if end > len(data):
             raise TlogError(f"truncated frame at offset {pos + 8}")
-        yield stamp, data[pos + 8:end]
+        yield stamp, data[pos + 8 : end]
         pos = end
 
 
-def iter_tlog(path: str | Path, types: Collection[str] | None = BRIDGE_TYPES
-              ) -> Iterator[tuple[float, Any]]:
+def iter_tlog(
+    path: str | Path, types: Collection[str] | None = BRIDGE_TYPES
+) -> Iterator[tuple[float, Any]]:
     """Yield ``(t_rel, msg)`` for the messages of ``types`` (None = all) in file order.
 
     ``t_rel`` is seconds since the file's first record (whatever its type), which matches the
@@ -153,7 +156,8 @@ def replay(
                     sleep(min(remaining, 0.05))
             elapsed = clock() - began
             if (stop is not None and stop.is_set()) or (
-                    max_duration_s is not None and elapsed > max_duration_s):
+                max_duration_s is not None and elapsed > max_duration_s
+            ):
                 result.stopped = True
                 break
             conn.write(msg.get_msgbuf())
@@ -204,5 +208,3 @@ class ReplayRunner(Background):
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout)
-
-

@@ -133,14 +133,19 @@ def parse_event(item: Mapping[str, object]) -> Event:
         if kind == "do_set_servo":
             action: Action = SetServo(int(args["channel"]), int(args["pwm"]))
         elif kind == "do_repeat_servo":
-            action = RepeatServo(int(args["channel"]), int(args["pwm"]), int(args["count"]),
-                                 float(args["cycle_s"]))
+            action = RepeatServo(
+                int(args["channel"]), int(args["pwm"]), int(args["count"]), float(args["cycle_s"])
+            )
         elif kind == "do_set_actuator":
             values = tuple(_float_or_nan(v) for v in args["values"])
             action = SetActuator(values, int(args.get("group", 1)))
         elif kind == "gimbal":
-            action = GimbalTarget(float(args.get("roll", 0.0)), float(args.get("pitch", 0.0)),
-                                  float(args.get("yaw", 0.0)), int(args.get("flags", 0)))
+            action = GimbalTarget(
+                float(args.get("roll", 0.0)),
+                float(args.get("pitch", 0.0)),
+                float(args.get("yaw", 0.0)),
+                int(args.get("flags", 0)),
+            )
         elif kind == "dropout":
             action = Dropout(float(args["seconds"]))
         else:

@@ -176,12 +176,14 @@ class AutopilotStream(Background):
         """Open the link and start the thread; returns self so ``with ... .start()`` reads well."""
         if self._thread is not None:
             raise RuntimeError("stream already started")
-        self._conn = open_link(self.url, self.system_id, self.component_id,
-                               **self._connection_kwargs)
+        self._conn = open_link(
+            self.url, self.system_id, self.component_id, **self._connection_kwargs
+        )
         if self.signing_key is not None:
             # accept the bridge's unsigned replies too: this side only plays the autopilot
-            self._conn.setup_signing(self.signing_key, sign_outgoing=True,
-                                     allow_unsigned_callback=lambda *_: True)
+            self._conn.setup_signing(
+                self.signing_key, sign_outgoing=True, allow_unsigned_callback=lambda *_: True
+            )
         self.t0 = time.monotonic()
         self._thread = threading.Thread(target=self._run, name="sitl-autopilot", daemon=True)
         self._thread.start()
@@ -195,7 +197,6 @@ class AutopilotStream(Background):
         if self._conn is not None:
             self._conn.close()
             self._conn = None
-
 
     def elapsed(self, now: float | None = None) -> float:
         """Seconds since start (the profile's time axis)."""
@@ -219,8 +220,9 @@ class AutopilotStream(Background):
         vals = tuple(math.nan if v is None else float(v) for v in values)
         self._actions.put(SetActuator(vals, group))
 
-    def set_gimbal(self, roll: float = 0.0, pitch: float = 0.0, yaw: float = 0.0,
-                   flags: int = 0) -> None:
+    def set_gimbal(
+        self, roll: float = 0.0, pitch: float = 0.0, yaw: float = 0.0, flags: int = 0
+    ) -> None:
         self._actions.put(GimbalTarget(roll, pitch, yaw, flags))
 
     # ------------------------------------------------------------------ what was commanded
@@ -228,8 +230,10 @@ class AutopilotStream(Background):
     def commanded_log(self, kind: str = "servo") -> list[Commanded]:
         """Changes in order; ``kind`` is "servo" (channels), "actuator" or "gimbal"."""
         with self._lock:
-            return sorted((c for (k, _), log in self._commanded.items() if k == kind
-                           for c in log), key=lambda c: c.t)
+            return sorted(
+                (c for (k, _), log in self._commanded.items() if k == kind for c in log),
+                key=lambda c: c.t,
+            )
 
     def commanded_pwm(self, channel: int, t: float) -> int | None:
         """PWM the autopilot was asking for on servo ``channel`` at monotonic time ``t``."""
@@ -319,22 +323,34 @@ class AutopilotStream(Background):
             self._repeats.pop(action.channel, None)
             if self.mirror_commands_in_output:
                 self._overrides[action.channel] = action.pwm
-            self.commands.submit(mav.MAV_CMD_DO_SET_SERVO,
-                                 (action.channel, action.pwm, 0, 0, 0, 0, 0),
-                                 target_sys, target_comp, now)
+            self.commands.submit(
+                mav.MAV_CMD_DO_SET_SERVO,
+                (action.channel, action.pwm, 0, 0, 0, 0, 0),
+                target_sys,
+                target_comp,
+                now,
+            )
             self._record("servo", Commanded(now, action.channel, action.pwm, "do_set_servo"))
         elif isinstance(action, RepeatServo):
             if self.mirror_commands_in_output:
                 self._repeats[action.channel] = (action, now)
             cycle = action.cycle_s * (1000.0 if self.repeat_servo_cycle == "milliseconds" else 1.0)
-            self.commands.submit(mav.MAV_CMD_DO_REPEAT_SERVO,
-                                 (action.channel, action.pwm, action.count, cycle, 0, 0, 0),
-                                 target_sys, target_comp, now)
+            self.commands.submit(
+                mav.MAV_CMD_DO_REPEAT_SERVO,
+                (action.channel, action.pwm, action.count, cycle, 0, 0, 0),
+                target_sys,
+                target_comp,
+                now,
+            )
             self._record("servo", Commanded(now, action.channel, action.pwm, "do_repeat_servo"))
         elif isinstance(action, SetActuator):
-            self.commands.submit(mav.MAV_CMD_DO_SET_ACTUATOR,
-                                 (*action.values, float(action.group)),
-                                 target_sys, target_comp, now)
+            self.commands.submit(
+                mav.MAV_CMD_DO_SET_ACTUATOR,
+                (*action.values, float(action.group)),
+                target_sys,
+                target_comp,
+                now,
+            )
             for offset, value in enumerate(action.values):
                 if not math.isnan(value):
                     index = (action.group - 1) * 6 + offset + 1
@@ -369,16 +385,51 @@ class AutopilotStream(Background):
         m = self._conn.mav
         boot_s = now - self.t0 + BOOT_OFFSET_S  # type: ignore[operator]
         if name == "HEARTBEAT":
-            self._send(name, now, m.heartbeat_send, mav.MAV_TYPE_FIXED_WING,
-                       mav.MAV_AUTOPILOT_ARDUPILOTMEGA, 81, 0, mav.MAV_STATE_STANDBY, 3)
+            self._send(
+                name,
+                now,
+                m.heartbeat_send,
+                mav.MAV_TYPE_FIXED_WING,
+                mav.MAV_AUTOPILOT_ARDUPILOTMEGA,
+                81,
+                0,
+                mav.MAV_STATE_STANDBY,
+                3,
+            )
         elif name == "SYS_STATUS":
             sensors = 0x0020FC2F
-            self._send(name, now, m.sys_status_send, sensors, sensors, sensors, 120, 12600, 150,
-                       95, 0, 0, 0, 0, 0, 0)
+            self._send(
+                name,
+                now,
+                m.sys_status_send,
+                sensors,
+                sensors,
+                sensors,
+                120,
+                12600,
+                150,
+                95,
+                0,
+                0,
+                0,
+                0,
+                0,
+                0,
+            )
         elif name == "ATTITUDE":
             wobble = 0.02 * math.sin(0.5 * boot_s)
-            self._send(name, now, m.attitude_send, int(boot_s * 1000) & 0xFFFFFFFF, wobble,
-                       -wobble / 2, -0.12, 0.0, 0.0, 0.0)
+            self._send(
+                name,
+                now,
+                m.attitude_send,
+                int(boot_s * 1000) & 0xFFFFFFFF,
+                wobble,
+                -wobble / 2,
+                -0.12,
+                0.0,
+                0.0,
+                0.0,
+            )
         elif name == "SERVO_OUTPUT_RAW":
             usec = int(boot_s * 1e6)
             # the profile is evaluated at the microsecond stamped into time_usec, so a receiver
@@ -398,8 +449,24 @@ class AutopilotStream(Background):
                 self._send_gimbal_target(now)
         elif name == "AUTOPILOT_STATE_FOR_GIMBAL_DEVICE" and self._gimbal_ready():
             q = euler_to_quaternion(0.0, 0.0, -7.0)
-            self._send(name, now, m.autopilot_state_for_gimbal_device_send, self.system_id, 0,
-                       int(boot_s * 1e6), q, 0, 0.0, 0.0, 0.0, 0, 0.0, 41791, 0, 0.0)
+            self._send(
+                name,
+                now,
+                m.autopilot_state_for_gimbal_device_send,
+                self.system_id,
+                0,
+                int(boot_s * 1e6),
+                q,
+                0,
+                0.0,
+                0.0,
+                0.0,
+                0,
+                0.0,
+                41791,
+                0,
+                0.0,
+            )
         elif name not in ("GIMBAL_DEVICE_SET_ATTITUDE", "AUTOPILOT_STATE_FOR_GIMBAL_DEVICE"):
             raise AssertionError(f"no sender for {name}")
 
@@ -414,8 +481,16 @@ class AutopilotStream(Background):
         else:
             q, rates = euler_to_quaternion(target.roll, target.pitch, target.yaw), (nan, nan, nan)
         send = self._conn.mav.gimbal_device_set_attitude_send
-        self._send("GIMBAL_DEVICE_SET_ATTITUDE", now, send, self.system_id,
-                   self.gimbal_component, target.flags, q, *rates)
+        self._send(
+            "GIMBAL_DEVICE_SET_ATTITUDE",
+            now,
+            send,
+            self.system_id,
+            self.gimbal_component,
+            target.flags,
+            q,
+            *rates,
+        )
         if target != self._gimbal_logged:
             value = (target.roll, target.pitch, target.yaw, target.flags)
             self._record("gimbal", Commanded(now, 0, value, "gimbal"))
@@ -427,14 +502,34 @@ class AutopilotStream(Background):
         if now < self._next_request:
             return
         self._next_request = now + REQUEST_INTERVAL_S
-        self._send("COMMAND_LONG", now, self._conn.mav.command_long_send, self.system_id,
-                   self.gimbal_component, mav.MAV_CMD_REQUEST_MESSAGE, 0,
-                   GIMBAL_DEVICE_INFORMATION_ID, 0, 0, 0, 0, 0, 0)
+        self._send(
+            "COMMAND_LONG",
+            now,
+            self._conn.mav.command_long_send,
+            self.system_id,
+            self.gimbal_component,
+            mav.MAV_CMD_REQUEST_MESSAGE,
+            0,
+            GIMBAL_DEVICE_INFORMATION_ID,
+            0,
+            0,
+            0,
+            0,
+            0,
+            0,
+        )
 
     def _send_command(self, record: CommandRecord) -> None:
-        self._send("COMMAND_LONG", record.sends[-1], self._conn.mav.command_long_send,
-                   record.target_system, record.target_component, record.command, 0,
-                   *record.params)
+        self._send(
+            "COMMAND_LONG",
+            record.sends[-1],
+            self._conn.mav.command_long_send,
+            record.target_system,
+            record.target_component,
+            record.command,
+            0,
+            *record.params,
+        )
 
     # ------------------------------------------------------------------ receiving
 
@@ -449,19 +544,27 @@ class AutopilotStream(Background):
             self.received.add(now, msg)
             if name == "COMMAND_ACK":
                 if self._addressed_to_me(msg):
-                    self.commands.on_ack(msg.command, msg.result,
-                                         (msg.get_srcSystem(), msg.get_srcComponent()),
-                                         (msg.target_system, msg.target_component), now)
+                    self.commands.on_ack(
+                        msg.command,
+                        msg.result,
+                        (msg.get_srcSystem(), msg.get_srcComponent()),
+                        (msg.target_system, msg.target_component),
+                        now,
+                    )
             elif name == "COMMAND_LONG":
                 if self._addressed_to_me(msg):
                     self._handle_command(msg, now)
-            elif (name == "GIMBAL_DEVICE_INFORMATION"
-                  and msg.get_srcComponent() == self.gimbal_component):
+            elif (
+                name == "GIMBAL_DEVICE_INFORMATION"
+                and msg.get_srcComponent() == self.gimbal_component
+            ):
                 self.gimbal_device_info = msg
 
     def _addressed_to_me(self, msg: Any) -> bool:
-        return (msg.target_system in (0, self.system_id)
-                and msg.target_component in (0, self.component_id))
+        return msg.target_system in (0, self.system_id) and msg.target_component in (
+            0,
+            self.component_id,
+        )
 
     def _handle_command(self, msg: Any, now: float) -> None:
         """The few commands a companion sends an autopilot: message intervals and requests."""
@@ -482,15 +585,26 @@ class AutopilotStream(Background):
         elif msg.command == mav.MAV_CMD_REQUEST_MESSAGE:
             name = _message_name(int(msg.param1))
             if name in self._intervals and name not in (
-                    "GIMBAL_DEVICE_SET_ATTITUDE", "AUTOPILOT_STATE_FOR_GIMBAL_DEVICE"):
+                "GIMBAL_DEVICE_SET_ATTITUDE",
+                "AUTOPILOT_STATE_FOR_GIMBAL_DEVICE",
+            ):
                 self._send_periodic(name, now)
                 result = mav.MAV_RESULT_ACCEPTED
             else:
                 result = mav.MAV_RESULT_DENIED
         if now < self._dropout_until:
             return  # a silent link does not answer either
-        self._send("COMMAND_ACK", now, self._conn.mav.command_ack_send, msg.command, result, 0, 0,
-                   msg.get_srcSystem(), msg.get_srcComponent())
+        self._send(
+            "COMMAND_ACK",
+            now,
+            self._conn.mav.command_ack_send,
+            msg.command,
+            result,
+            0,
+            0,
+            msg.get_srcSystem(),
+            msg.get_srcComponent(),
+        )
 
 
 def normalized_outputs(frame: tuple[int, ...]) -> tuple[list[float], int]:
@@ -524,7 +638,18 @@ def _message_name(msg_id: int) -> str | None:
 
 def gimbal_demo_script(start_s: float = 1.0, hold_s: float = 3.0) -> list[Event]:
     """Gimbal targets like the recorded ArduPlane session: pitch steps, yaw both ways, yaw lock."""
-    steps = [(0, 0, 0, 0), (0, -30, 0, 0), (0, -60, 0, 0), (0, -90, 0, 0), (0, -30, -45, 0),
-             (0, -30, 45, 0), (0, -30, -45, 28), (0, -30, 45, 28), (0, 0, 0, 0)]
-    return [Event(start_s + i * hold_s, GimbalTarget(float(r), float(p), float(y), f))
-            for i, (r, p, y, f) in enumerate(steps)]
+    steps = [
+        (0, 0, 0, 0),
+        (0, -30, 0, 0),
+        (0, -60, 0, 0),
+        (0, -90, 0, 0),
+        (0, -30, -45, 0),
+        (0, -30, 45, 0),
+        (0, -30, -45, 28),
+        (0, -30, 45, 28),
+        (0, 0, 0, 0),
+    ]
+    return [
+        Event(start_s + i * hold_s, GimbalTarget(float(r), float(p), float(y), f))
+        for i, (r, p, y, f) in enumerate(steps)
+    ]

@@ -21,9 +21,13 @@ def peer(port: int, component: int = 191) -> Any:
     return open_link(f"udpin:127.0.0.1:{port}", 1, component)
 
 
-def collect(conn: Any, seconds: float, until: Callable[[Any], bool] | None = None,
-            limit: int = 20_000, on_message: Callable[[Any], None] | None = None
-            ) -> list[tuple[float, Any]]:
+def collect(
+    conn: Any,
+    seconds: float,
+    until: Callable[[Any], bool] | None = None,
+    limit: int = 20_000,
+    on_message: Callable[[Any], None] | None = None,
+) -> list[tuple[float, Any]]:
     """(t_monotonic, msg) received within ``seconds`` (at most ``limit``), or until ``until``."""
     out: list[tuple[float, Any]] = []
     end = time.monotonic() + seconds

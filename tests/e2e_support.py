@@ -103,8 +103,10 @@ class ServoSpy:
 
         def spy_receive(msg: Any, now: float) -> Any:
             if not msg.is_remote_frame and device.accepts(msg):
-                if len(msg.data) > 8 or msg.dlc != len(msg.data) or (
-                    not msg.is_extended_id and msg.arbitration_id > 0x7FF
+                if (
+                    len(msg.data) > 8
+                    or msg.dlc != len(msg.data)
+                    or (not msg.is_extended_id and msg.arbitration_id > 0x7FF)
                 ):
                     self.malformed.append(msg)
                 self.frames.append((msg.arbitration_id, bytes(msg.data), len(msg.data)))

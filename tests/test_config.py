@@ -23,8 +23,7 @@ from mavservo.config import (
 REPO = Path(__file__).resolve().parent.parent
 SHIPPED = sorted((REPO / "config").glob("*.yaml"))
 MARK = "# <-"  # the line a test expects its error on carries this marker
-LINE_FORMAT = re.compile(
-    r"^(?P<file>[^:]+):(?P<line>\d+): (?:(?P<path>[\w.\[\]]+): )?(?P<msg>.+)$")
+LINE_FORMAT = re.compile(r"^(?P<file>[^:]+):(?P<line>\d+): (?:(?P<path>[\w.\[\]]+): )?(?P<msg>.+)$")
 
 
 def _marked_line(text: str) -> int:
@@ -52,7 +51,11 @@ def _with_key(tmp_path: Path) -> Path:
 
 def test_the_expected_examples_are_shipped():
     assert {p.name for p in SHIPPED} >= {
-        "sim.yaml", "ardupilot-sitl.yaml", "plane-surfaces.yaml", "gimbal.yaml"}
+        "sim.yaml",
+        "ardupilot-sitl.yaml",
+        "plane-surfaces.yaml",
+        "gimbal.yaml",
+    }
 
 
 @pytest.mark.parametrize("path", SHIPPED, ids=lambda p: p.name)
@@ -94,18 +97,23 @@ def test_signing_configs_refuse_to_load_without_their_key_file(tmp_path: Path):
     text = (REPO / "config" / "plane-surfaces.yaml").read_text()
     errors = _errors(text, "plane-surfaces.yaml", base_dir=tmp_path)
     assert [e["path"] for e in errors] == ["mavlink.signing.key_file"]
-    key_line = next(n for n, line in enumerate(text.splitlines(), 1) if "key_file:" in line
-                    and not line.lstrip().startswith("#"))
+    key_line = next(
+        n
+        for n, line in enumerate(text.splitlines(), 1)
+        if "key_file:" in line and not line.lstrip().startswith("#")
+    )
     assert int(errors[0]["line"]) == key_line
 
 
 def test_minimal_config_is_short_and_gets_defaults():
-    config = load_config_text(textwrap.dedent("""
+    config = load_config_text(
+        textwrap.dedent("""
         servos:
           - {name: a, profile: rmd-x, can_id: 1}
         channels:
           - {servo: a, source: servo_output, channel: 1}
-    """))
+    """)
+    )
     assert config.mavlink.url == "sim"
     assert config.bus_of(config.servos[0]).name == "bus0"
     assert config.channel_output_deg(config.channels[0]) == config.servos[0].limits_deg
@@ -121,120 +129,221 @@ servos:
 """
 
 BAD_CASES = {
-    "typo key": ("unknown key 'limts_deg'", "servos[2].limts_deg", BASE + """\
+    "typo key": (
+        "unknown key 'limts_deg'",
+        "servos[2].limts_deg",
+        BASE
+        + """\
   - name: third
     profile: rmd-x
     can_id: 3
     limts_deg: [-10, 10]   # <-
-"""),
-    "typo section": ("unknown key 'chanels'", "chanels", BASE + """\
+""",
+    ),
+    "typo section": (
+        "unknown key 'chanels'",
+        "chanels",
+        BASE
+        + """\
 chanels: []   # <-
-"""),
-    "wrong type": ("valid integer", "channels[0].channel", BASE + """\
+""",
+    ),
+    "wrong type": (
+        "valid integer",
+        "channels[0].channel",
+        BASE
+        + """\
 channels:
   - servo: left
     source: servo_output
     channel: one   # <-
-"""),
-    "missing required key": ("required", "servos[2].can_id", BASE + """\
+""",
+    ),
+    "missing required key": (
+        "required",
+        "servos[2].can_id",
+        BASE
+        + """\
   - {name: third, profile: rmd-x}   # <-
-"""),
-    "unknown source": ("servo_output", "channels[0].source", BASE + """\
+""",
+    ),
+    "unknown source": (
+        "servo_output",
+        "channels[0].source",
+        BASE
+        + """\
 channels:
   - servo: left
     source: servo_out   # <-
     channel: 1
-"""),
-    "unknown profile": ("cubemars-ak", "servos[1].profile", """\
+""",
+    ),
+    "unknown profile": (
+        "cubemars-ak",
+        "servos[1].profile",
+        """\
 servos:
   - {name: a, profile: rmd-x, can_id: 1}
   - name: b
     profile: rmdx   # <-
     can_id: 2
-"""),
-    "bad yaml syntax": ("invalid YAML", None, BASE + """\
+""",
+    ),
+    "bad yaml syntax": (
+        "invalid YAML",
+        None,
+        BASE
+        + """\
 channels:
   - {servo: left, source: servo_output, channel: 1   # <-
-"""),
-    "duplicate yaml key": ("duplicate key", "scheduler.command_period_s", BASE + """\
+""",
+    ),
+    "duplicate yaml key": (
+        "duplicate key",
+        "scheduler.command_period_s",
+        BASE
+        + """\
 scheduler:
   command_period_s: 0.05
   command_period_s: 0.02   # <-
-"""),
-    "overlapping channel": ("already mapped", "channels[1].channel", BASE + """\
+""",
+    ),
+    "overlapping channel": (
+        "already mapped",
+        "channels[1].channel",
+        BASE
+        + """\
 channels:
   - {servo: left, source: servo_output, channel: 1}
   - servo: right
     source: servo_output
     channel: 1   # <-
-"""),
-    "servo driven twice by one source": ("already driven", "channels[1].servo", BASE + """\
+""",
+    ),
+    "servo driven twice by one source": (
+        "already driven",
+        "channels[1].servo",
+        BASE
+        + """\
 channels:
   - {servo: left, source: actuator, index: 1}
   - source: actuator
     index: 2
     servo: left   # <-
-"""),
-    "duplicate can id": ("collides", "servos[2].can_id", BASE + """\
+""",
+    ),
+    "duplicate can id": (
+        "collides",
+        "servos[2].can_id",
+        BASE
+        + """\
   - name: third
     profile: rmd-x
     can_id: 2   # <-
-"""),
-    "rmd-x and lk share an id layout": ("0x141", "servos[2].can_id", BASE + """\
+""",
+    ),
+    "rmd-x and lk share an id layout": (
+        "0x141",
+        "servos[2].can_id",
+        BASE
+        + """\
   - name: lk_one
     profile: lk
     can_id: 1   # <-
-"""),
-    "cubemars ids collide among themselves": ("collides", "servos[1].can_id", """\
+""",
+    ),
+    "cubemars ids collide among themselves": (
+        "collides",
+        "servos[1].can_id",
+        """\
 servos:
   - {name: a, profile: cubemars-ak, can_id: 7}
   - name: b
     profile: cubemars-ak
     can_id: 7   # <-
-"""),
-    "unknown servo in channel": ("expected the name of a servo", "channels[0].servo", BASE + """\
+""",
+    ),
+    "unknown servo in channel": (
+        "expected the name of a servo",
+        "channels[0].servo",
+        BASE
+        + """\
 channels:
   - source: servo_output
     channel: 1
     servo: lefty   # <-
-"""),
-    "unknown servo in gimbal": ("expected the name of a servo", "gimbals[0].pitch", BASE + """\
+""",
+    ),
+    "unknown servo in gimbal": (
+        "expected the name of a servo",
+        "gimbals[0].pitch",
+        BASE
+        + """\
 gimbals:
   - name: g
     roll: left
     pitch: nobody   # <-
-"""),
-    "unknown bus": ("expected one of the buses", "servos[2].bus", BASE + """\
+""",
+    ),
+    "unknown bus": (
+        "expected one of the buses",
+        "servos[2].bus",
+        BASE
+        + """\
   - name: third
     profile: rmd-x
     can_id: 3
     bus: bus9   # <-
-"""),
-    "over budget": ("exceeds max_load", "can.buses[0].max_load", """\
+""",
+    ),
+    "over budget": (
+        "exceeds max_load",
+        "can.buses[0].max_load",
+        """\
 can:
   buses:
     - name: bus0
       max_load: 0.01   # <-
-""" + BASE),
-    "read interval too long": ("less than or equal to 0.05", "can.buses[0].read_interval_s", """\
+"""
+        + BASE,
+    ),
+    "read interval too long": (
+        "less than or equal to 0.05",
+        "can.buses[0].read_interval_s",
+        """\
 can:
   buses:
     - name: bus0
       read_interval_s: 0.5   # <-
-""" + BASE),
-    "bad signing key": ("64 hexadecimal", "mavlink.signing.key", """\
+"""
+        + BASE,
+    ),
+    "bad signing key": (
+        "64 hexadecimal",
+        "mavlink.signing.key",
+        """\
 mavlink:
   signing:
     key: "abc123"   # <-
-""" + BASE),
-    "unordered limits": ("low < high", "servos[2].limits_deg", BASE + """\
+"""
+        + BASE,
+    ),
+    "unordered limits": (
+        "low < high",
+        "servos[2].limits_deg",
+        BASE
+        + """\
   - name: third
     profile: rmd-x
     can_id: 3
     limits_deg: [30, -30]   # <-
-"""),
-    "failsafe position outside limits": ("inside limits_deg", "servos[2].failsafe.position_deg",
-                                         BASE + """\
+""",
+    ),
+    "failsafe position outside limits": (
+        "inside limits_deg",
+        "servos[2].failsafe.position_deg",
+        BASE
+        + """\
   - name: third
     profile: rmd-x
     can_id: 3
@@ -242,30 +351,51 @@ mavlink:
     failsafe:
       action: position
       position_deg: 45   # <-
-"""),
-    "gimbal component id": ("171..175", "gimbals[0].component_id", BASE + """\
+""",
+    ),
+    "gimbal component id": (
+        "171..175",
+        "gimbals[0].component_id",
+        BASE
+        + """\
 gimbals:
   - name: g
     component_id: 160   # <-
     roll: left
-"""),
-    "servo component id": ("140..153", "mavlink.servo_component_id", """\
+""",
+    ),
+    "servo component id": (
+        "140..153",
+        "mavlink.servo_component_id",
+        """\
 mavlink:
   servo_component_id: 1   # <-
-""" + BASE),
-    "telemetry rate not positive": ("greater than 0", "servos[2].telemetry_hz", BASE + """\
+"""
+        + BASE,
+    ),
+    "telemetry rate not positive": (
+        "greater than 0",
+        "servos[2].telemetry_hz",
+        BASE
+        + """\
   - name: third
     profile: rmd-x
     can_id: 3
     telemetry_hz: 0   # <-
-"""),
-    "pwm trim outside input range": ("min < trim < max", "channels[0].input", BASE + """\
+""",
+    ),
+    "pwm trim outside input range": (
+        "min < trim < max",
+        "channels[0].input",
+        BASE
+        + """\
 channels:
   - servo: left
     source: servo_output
     channel: 1
     input: {min: 1100, max: 1900, trim: 2000}   # <-
-"""),
+""",
+    ),
 }
 
 
@@ -345,12 +475,22 @@ def test_reported_over_budget_load_is_the_computed_worst_case():
 
 def test_budget_follows_rates_and_bitrate():
     base = bus_loads(load_config_text(_sim_text()))[0].load
-    slower_bus = bus_loads(load_config_text(_sim_text(**{
-        "bitrate: 1000000": "bitrate: 500000", "max_load: 0.35": "max_load: 1.0"})))[0].load
+    slower_bus = bus_loads(
+        load_config_text(
+            _sim_text(**{"bitrate: 1000000": "bitrate: 500000", "max_load: 0.35": "max_load: 1.0"})
+        )
+    )[0].load
     assert slower_bus == pytest.approx(2 * base)
-    immediate = bus_loads(load_config_text(_sim_text(**{
-        "command_mode: periodic": "command_mode: immediate", "max_load: 0.35": "max_load: 1.0"
-    })))[0].load
+    immediate = bus_loads(
+        load_config_text(
+            _sim_text(
+                **{
+                    "command_mode: periodic": "command_mode: immediate",
+                    "max_load: 0.35": "max_load: 1.0",
+                }
+            )
+        )
+    )[0].load
     assert immediate > base
 
 
@@ -372,8 +512,9 @@ def test_check_main_returns_two_and_reports_every_bad_file(tmp_path: Path):
     bad = tmp_path / "bad.yaml"
     bad.write_text(BAD_CASES["typo key"][2])
     out, err = io.StringIO(), io.StringIO()
-    status = check_main([str(default_config_path()), str(bad), str(tmp_path / "nope.yaml")],
-                        out=out, err=err)
+    status = check_main(
+        [str(default_config_path()), str(bad), str(tmp_path / "nope.yaml")], out=out, err=err
+    )
     assert status == 2
     assert f"{bad}:{_marked_line(bad.read_text())}: servos[2].limts_deg" in err.getvalue()
     assert "nope.yaml" in err.getvalue()
@@ -382,12 +523,17 @@ def test_check_main_returns_two_and_reports_every_bad_file(tmp_path: Path):
 
 
 def test_resolved_mapping_shows_reverse_and_clamping():
-    text = resolved_mapping(load_config_text(BASE + textwrap.dedent("""\
+    text = resolved_mapping(
+        load_config_text(
+            BASE
+            + textwrap.dedent("""\
         channels:
           - {servo: left, source: servo_output, channel: 1, reverse: true,
              output_deg: [-30, 30]}
           - {servo: right, source: servo_output, channel: 2, output_deg: [-300, 300]}
-    """)))
+    """)
+        )
+    )
     rows = {line.split()[1]: line for line in text.splitlines() if line.startswith("  servo ")}
     assert "+30.0 / +0.0 / -30.0" in rows["1"]
     assert "-180.0* / +0.0 / +180.0*" in rows["2"]
@@ -413,15 +559,23 @@ def test_any_text_gives_a_config_or_a_config_error(text: str):
 
 
 @settings(max_examples=40, deadline=None)
-@given(st.from_regex(r"[a-z][a-z_]{0,15}", fullmatch=True).filter(lambda k: k not in SERVO_FIELDS),
-       st.integers(0, 8), st.integers(0, 3))
+@given(
+    st.from_regex(r"[a-z][a-z_]{0,15}", fullmatch=True).filter(lambda k: k not in SERVO_FIELDS),
+    st.integers(0, 8),
+    st.integers(0, 3),
+)
 def test_an_unknown_key_anywhere_in_a_servo_is_reported_on_its_line(key, servo_index, position):
     lines = default_config_path().read_text().splitlines()
-    starts = [n for n, line in enumerate(lines) if line.startswith("  - name:")
-              and n < next(i for i, x in enumerate(lines) if x.startswith("channels:"))]
+    starts = [
+        n
+        for n, line in enumerate(lines)
+        if line.startswith("  - name:")
+        and n < next(i for i, x in enumerate(lines) if x.startswith("channels:"))
+    ]
     start = starts[servo_index]
     insert_at = start + 1 + position
     lines.insert(insert_at, f"    {key}: 1")
     errors = _errors("\n".join(lines) + "\n", "sim.yaml")
     assert [(e["line"], e["path"]) for e in errors] == [
-        (str(insert_at + 1), f"servos[{servo_index}].{key}")]
+        (str(insert_at + 1), f"servos[{servo_index}].{key}")
+    ]

@@ -88,9 +88,7 @@ class SerialAutopilot:
         parser.robust_parsing = True
         messages = parser.parse_buffer(bytes(self.received)) or []
         return sum(
-            1
-            for m in messages
-            if m.get_type() == "HEARTBEAT" and m.get_srcComponent() == component
+            1 for m in messages if m.get_type() == "HEARTBEAT" and m.get_srcComponent() == component
         )
 
 
@@ -114,9 +112,9 @@ def test_autopilot_serial_unplug_and_replug() -> None:
 
             autopilot.received.clear()
             autopilot.plug()
-            assert wait_until(
-                lambda: any("recovered" in t for _, t in bridge.events), 8
-            ), bridge.events
+            assert wait_until(lambda: any("recovered" in t for _, t in bridge.events), 8), (
+                bridge.events
+            )
             assert wait_until(lambda: (autopilot.send_state(1100), servo.position_deg < -29)[1], 8)
             assert wait_until(lambda: autopilot.heartbeats_from(140) >= 1, 3)
         finally:

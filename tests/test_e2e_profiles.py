@@ -101,8 +101,9 @@ def test_every_profile_round_trip_with_acks_and_telemetry_resolution() -> None:
                     for name, (n, resolution) in SERVOS.items():
                         assert status.active >> (n - 1) & 1, name
                         angle = pwm_to_angle(status.actuator[n - 1], -1, 1, (-90, 90))
-                        assert angle == pytest.approx(servos[name].position_deg,
-                                                      abs=resolution / 2 + 1e-3)
+                        assert angle == pytest.approx(
+                            servos[name].position_deg, abs=resolution / 2 + 1e-3
+                        )
                         normalized_checked += 1
         finally:
             peer.close()

@@ -56,21 +56,21 @@ def test_usb_unplug_and_replug_mid_run_is_reported_and_recovered() -> None:
             frames_before = bridge.summary()["buses"]["bus0"]["transport"]["frames"]
             assert frames_before > 0
             emulator.unplug()
-            assert wait_until(lambda: any("lost" in t for _, t in bridge.events), 5), (
-                bridge.events
-            )
+            assert wait_until(lambda: any("lost" in t for _, t in bridge.events), 5), bridge.events
             frames_while_away = servo.commands + servo.requests
             time.sleep(0.3)  # the bridge keeps trying to send into the void
             assert servo.commands + servo.requests == frames_while_away
             emulator.replug()
-            assert wait_until(lambda: any("back" in t for _, t in bridge.events), 8), (
-                bridge.events
-            )
+            assert wait_until(lambda: any("back" in t for _, t in bridge.events), 8), bridge.events
             # the decoder counters carry on across the reconnect (the new device starts at zero)
             assert bridge.summary()["buses"]["bus0"]["transport"]["frames"] >= frames_before
             # the scheduler's refresh reaches the servo again without any new MAVLink command
-            assert wait_until(lambda: servo.commands > 0 and servo.commands + servo.requests
-                              > frames_while_away + 3, 5)
+            assert wait_until(
+                lambda: (
+                    servo.commands > 0 and servo.commands + servo.requests > frames_while_away + 3
+                ),
+                5,
+            )
             assert peer.command(MAV_CMD_DO_SET_SERVO, [1, pwm_for(-45)]) == MAV_RESULT_ACCEPTED
             assert wait_until(near(bridge, "s1", -45), 5)
             texts = " | ".join(peer.statustexts(mark))
@@ -125,9 +125,9 @@ def test_silent_autopilot_puts_each_servo_in_its_failsafe_and_recovery_waits_for
                 lambda: any("autopilot lost" in t for t in peer.statustexts(mark)), 5
             ), peer.statustexts(mark)
             expected = {"held": 40.0, "centred": -5.0, "parked": 12.0, "limp": 40.0}
-            assert wait_until(
-                lambda: all(near(bridge, n, a)() for n, a in expected.items()), 5
-            ), {n: sim_servo(bridge, n).position_deg for n in NAMES}
+            assert wait_until(lambda: all(near(bridge, n, a)() for n, a in expected.items()), 5), {
+                n: sim_servo(bridge, n).position_deg for n in NAMES
+            }
             # release: nothing more goes to that servo; hold: the last command keeps refreshing
             limp, held = sim_servo(bridge, "limp"), sim_servo(bridge, "held")
             limp_before, held_before = limp.commands, held.commands

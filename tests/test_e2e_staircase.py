@@ -61,8 +61,7 @@ def test_staircase_levels_reached_in_order_with_clean_timing_structure() -> None
 
     with running(CONFIG) as (bridge, port):
         bridge.schedulers["bus0"].subscribe(on_state)
-        stream = AutopilotStream(f"udpout:127.0.0.1:{port}", profile,
-                                 duration_s=profile.period_s)
+        stream = AutopilotStream(f"udpout:127.0.0.1:{port}", profile, duration_s=profile.period_s)
         stream.start()
         try:
             assert wait_until(lambda: not stream.running, profile.period_s + 10)

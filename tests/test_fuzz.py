@@ -66,8 +66,11 @@ line_faults = st.builds(
 
 
 @settings(suppress_health_check=[HealthCheck.too_slow], max_examples=150)
-@given(st.binary(max_size=3000), st.lists(st.integers(0, 3000), max_size=20),
-       st.sampled_from(["variable", "fixed"]))
+@given(
+    st.binary(max_size=3000),
+    st.lists(st.integers(0, 3000), max_size=20),
+    st.sampled_from(["variable", "fixed"]),
+)
 def test_any_bytes_any_chunking_never_raise_and_stay_bounded(
     junk: bytes, cuts: list[int], protocol: str
 ) -> None:
@@ -119,8 +122,7 @@ def test_variable_protocol_emits_only_structurally_valid_frames_present_on_the_w
         if not isinstance(item, Frame):
             continue
         assert 0 <= item.dlc <= 8
-        assert item.arbitration_id <= (aa55.MAX_EXT_ID if item.is_extended_id
-                                       else aa55.MAX_STD_ID)
+        assert item.arbitration_id <= (aa55.MAX_EXT_ID if item.is_extended_id else aa55.MAX_STD_ID)
         assert len(item.data) == (0 if item.is_remote_frame else item.dlc)
         assert encode(item, "variable") in wire or item in fixed_frames_in(wire)
 
@@ -131,7 +133,7 @@ def fixed_frames_in(data: bytes) -> set[Frame]:
     out = set()
     start = data.find(b"\xaa\x55")
     while start >= 0:
-        window = data[start:start + aa55.FIXED_LENGTH]
+        window = data[start : start + aa55.FIXED_LENGTH]
         out.update(i for i in Decoder("fixed").feed(window) if isinstance(i, Frame))
         start = data.find(b"\xaa\x55", start + 1)
     return out
@@ -147,6 +149,7 @@ def test_a_clean_line_loses_nothing_in_either_protocol(sent: list[Frame]) -> Non
 
 # -- servo profiles and simulated devices ---------------------------------------------------------
 
+
 @st.composite
 def can_messages(draw: st.DrawFn) -> can.Message:
     ext = draw(st.booleans())
@@ -161,8 +164,14 @@ def can_messages(draw: st.DrawFn) -> can.Message:
     data = b"" if rtr else draw(st.binary(max_size=8))
     if draw(st.booleans()) and not rtr:
         data = bytes([draw(st.sampled_from([0xA4, 0x9C, 0x92, 0x9A, 0x00]))]) + data[1:]
-    return can.Message(arbitration_id=arb_id, is_extended_id=ext, is_remote_frame=rtr,
-                       data=data, dlc=len(data), check=False)
+    return can.Message(
+        arbitration_id=arb_id,
+        is_extended_id=ext,
+        is_remote_frame=rtr,
+        data=data,
+        dlc=len(data),
+        check=False,
+    )
 
 
 def _finite_or_nan(value: float | None) -> bool:
@@ -170,8 +179,7 @@ def _finite_or_nan(value: float | None) -> bool:
 
 
 @settings(max_examples=300)
-@given(st.sampled_from(sorted(PROFILES)), st.integers(1, 32), st.lists(can_messages(),
-                                                                          max_size=20))
+@given(st.sampled_from(sorted(PROFILES)), st.integers(1, 32), st.lists(can_messages(), max_size=20))
 def test_profile_decoders_never_raise_and_ignore_frames_not_from_their_servo(
     name: str, can_id: int, messages: list[can.Message]
 ) -> None:
@@ -182,14 +190,18 @@ def test_profile_decoders_never_raise_and_ignore_frames_not_from_their_servo(
             assert state is None
         if state is not None:
             assert state.timestamp == float(index)
-            for value in (state.position_deg, state.velocity_dps, state.current_a,
-                          state.temperature_c, state.voltage_v):
+            for value in (
+                state.position_deg,
+                state.velocity_dps,
+                state.current_a,
+                state.temperature_c,
+                state.voltage_v,
+            ):
                 assert _finite_or_nan(value)
 
 
 @settings(max_examples=200)
-@given(st.sampled_from(sorted(PROFILES)), st.integers(1, 32), st.lists(can_messages(),
-                                                                          max_size=20))
+@given(st.sampled_from(sorted(PROFILES)), st.integers(1, 32), st.lists(can_messages(), max_size=20))
 def test_simulated_servos_never_raise_on_any_frame(
     name: str, can_id: int, messages: list[can.Message]
 ) -> None:

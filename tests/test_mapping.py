@@ -22,8 +22,14 @@ from mavservo.mapping import (
 
 
 def pwm_map(**overrides) -> ChannelMap:
-    values = dict(kind="pwm", input_min=1100.0, input_trim=1500.0, input_max=1900.0,
-                  output_deg=(-30.0, 30.0), limits_deg=(-180.0, 180.0))
+    values = dict(
+        kind="pwm",
+        input_min=1100.0,
+        input_trim=1500.0,
+        input_max=1900.0,
+        output_deg=(-30.0, 30.0),
+        limits_deg=(-180.0, 180.0),
+    )
     values.update(overrides)
     return ChannelMap(**values)
 
@@ -81,22 +87,31 @@ def test_soft_limits_clamp_and_say_so():
 
 
 def test_normalized_input_maps_the_actuator_range():
-    channel_map = ChannelMap(kind="normalized", input_min=-1.0, input_trim=0.0, input_max=1.0,
-                             output_deg=(0.0, 40.0), limits_deg=(0.0, 40.0))
+    channel_map = ChannelMap(
+        kind="normalized",
+        input_min=-1.0,
+        input_trim=0.0,
+        input_max=1.0,
+        output_deg=(0.0, 40.0),
+        limits_deg=(0.0, 40.0),
+    )
     assert angle(channel_map, -1.0) == 0.0
     assert angle(channel_map, 0.0) == 20.0
     assert angle(channel_map, 1.0) == 40.0
 
 
-@pytest.mark.parametrize(("value", "reason"), [
-    (math.nan, RejectReason.NOT_FINITE),
-    (math.inf, RejectReason.NOT_FINITE),
-    (-math.inf, RejectReason.NOT_FINITE),
-    (0.0, RejectReason.NO_PULSE),
-    (PWM_VALID_US[0] - 1, RejectReason.OUT_OF_RANGE),
-    (PWM_VALID_US[1] + 1, RejectReason.OUT_OF_RANGE),
-    (65535.0, RejectReason.OUT_OF_RANGE),
-])
+@pytest.mark.parametrize(
+    ("value", "reason"),
+    [
+        (math.nan, RejectReason.NOT_FINITE),
+        (math.inf, RejectReason.NOT_FINITE),
+        (-math.inf, RejectReason.NOT_FINITE),
+        (0.0, RejectReason.NO_PULSE),
+        (PWM_VALID_US[0] - 1, RejectReason.OUT_OF_RANGE),
+        (PWM_VALID_US[1] + 1, RejectReason.OUT_OF_RANGE),
+        (65535.0, RejectReason.OUT_OF_RANGE),
+    ],
+)
 def test_bad_pwm_is_a_typed_rejection_not_a_position(value: float, reason: RejectReason):
     result = pwm_map().to_angle(value)
     assert isinstance(result, Rejected)
@@ -107,8 +122,14 @@ def test_bad_pwm_is_a_typed_rejection_not_a_position(value: float, reason: Rejec
 
 @pytest.mark.parametrize("value", [math.nan, 1.5, -1.01])
 def test_bad_normalized_values_are_rejected(value: float):
-    channel_map = ChannelMap(kind="normalized", input_min=-1.0, input_trim=0.0, input_max=1.0,
-                             output_deg=(-10.0, 10.0), limits_deg=(-10.0, 10.0))
+    channel_map = ChannelMap(
+        kind="normalized",
+        input_min=-1.0,
+        input_trim=0.0,
+        input_max=1.0,
+        output_deg=(-10.0, 10.0),
+        limits_deg=(-10.0, 10.0),
+    )
     assert isinstance(channel_map.to_angle(value), Rejected)
 
 
@@ -163,8 +184,7 @@ finite = st.floats(min_value=-1e3, max_value=1e3, allow_nan=False, allow_infinit
 def channel_maps_strategy(draw) -> ChannelMap:
     kind = draw(st.sampled_from(["pwm", "normalized"]))
     if kind == "pwm":
-        points = sorted(draw(st.lists(st.integers(800, 2200), min_size=3, max_size=3,
-                                      unique=True)))
+        points = sorted(draw(st.lists(st.integers(800, 2200), min_size=3, max_size=3, unique=True)))
     else:
         points = sorted(draw(st.lists(st.floats(-1, 1), min_size=3, max_size=3, unique=True)))
         assume(points[1] - points[0] > 1e-3 and points[2] - points[1] > 1e-3)
@@ -174,10 +194,17 @@ def channel_maps_strategy(draw) -> ChannelMap:
     trim_deg = draw(st.floats(-0.45, 0.45)) * span
     lim_low = draw(st.floats(-400, 400))
     lim_high = lim_low + draw(st.floats(1, 400))
-    return ChannelMap(kind=kind, input_min=float(points[0]), input_trim=float(points[1]),
-                      input_max=float(points[2]), output_deg=(low, high),
-                      limits_deg=(lim_low, lim_high), reverse=draw(st.booleans()),
-                      trim_deg=trim_deg, max_slew_dps=draw(st.none() | st.floats(1, 1000)))
+    return ChannelMap(
+        kind=kind,
+        input_min=float(points[0]),
+        input_trim=float(points[1]),
+        input_max=float(points[2]),
+        output_deg=(low, high),
+        limits_deg=(lim_low, lim_high),
+        reverse=draw(st.booleans()),
+        trim_deg=trim_deg,
+        max_slew_dps=draw(st.none() | st.floats(1, 1000)),
+    )
 
 
 def _valid_input(channel_map: ChannelMap, fraction: float) -> float:

@@ -61,10 +61,16 @@ def test_command_int_do_set_servo_works_like_command_long():
     assert backend.servo_calls() == [("servo", 9, 1100.0, "do_set_servo")]
 
 
-@pytest.mark.parametrize("params, reason", [
-    ((1, 3000), "bad_param"), ((1, NAN), "bad_param"), ((1.5, 1500), "bad_param"),
-    ((5, 1500), "unmapped"), ((0, 1500), "bad_param"),
-])
+@pytest.mark.parametrize(
+    "params, reason",
+    [
+        ((1, 3000), "bad_param"),
+        ((1, NAN), "bad_param"),
+        ((1.5, 1500), "bad_param"),
+        ((5, 1500), "unmapped"),
+        ((0, 1500), "bad_param"),
+    ],
+)
 def test_bad_direct_do_set_servo_is_denied_counted_and_never_applied(params, reason):
     core, backend = make_core()
     out = send(core, command_long(SERVO, 183, *params))
@@ -171,7 +177,8 @@ def test_set_actuator_nan_leaves_and_group_index_offsets():
     # group 1 covers indices 7..12: none mapped -> broadcast ignored, direct denied
     assert send(core, command_long((1, 0), 187, 0.5, 0, 0, 0, 0, 0, 1), now=3) == []
     assert acks(send(core, command_long(SERVO, 187, 0.5, 0, 0, 0, 0, 0, 1), now=3)) == [
-        (140, 187, DENIED)]
+        (140, 187, DENIED)
+    ]
 
 
 def test_set_actuator_out_of_range_denied_before_anything_moves():
@@ -189,9 +196,17 @@ def test_set_actuator_command_int_int32_max_means_leave():
 
 
 @settings(max_examples=60, deadline=None)
-@given(st.lists(st.one_of(st.floats(width=32, allow_nan=True, allow_infinity=True),
-                          st.integers(-3000, 3000).map(float)), min_size=7, max_size=7),
-       st.sampled_from([183, 184, 187]))
+@given(
+    st.lists(
+        st.one_of(
+            st.floats(width=32, allow_nan=True, allow_infinity=True),
+            st.integers(-3000, 3000).map(float),
+        ),
+        min_size=7,
+        max_size=7,
+    ),
+    st.sampled_from([183, 184, 187]),
+)
 def test_any_params_yield_exactly_one_ack_and_only_valid_values_reach_backend(params, command):
     core, backend = make_core()
     out = send(core, command_long(SERVO, command, *params))
@@ -210,9 +225,11 @@ def test_mirror_applies_changes_on_mapped_channels_ignores_zero_and_other_source
     send(core, servo_output_raw(servo1=1500, servo9=0), src=AUTOPILOT, now=0.05)
     send(core, servo_output_raw(servo1=1600, servo9=1200), src=AUTOPILOT, now=0.1)
     send(core, servo_output_raw(servo1=1900), src=GCS, now=0.15)
-    assert backend.servo_calls() == [("servo", 1, 1500.0, "servo_output_raw"),
-                                     ("servo", 1, 1600.0, "servo_output_raw"),
-                                     ("servo", 9, 1200.0, "servo_output_raw")]
+    assert backend.servo_calls() == [
+        ("servo", 1, 1500.0, "servo_output_raw"),
+        ("servo", 1, 1600.0, "servo_output_raw"),
+        ("servo", 9, 1200.0, "servo_output_raw"),
+    ]
 
 
 def test_mirror_port_offset():
@@ -234,6 +251,7 @@ def test_explicit_command_holds_off_mirroring_then_mirroring_resumes():
 def test_actuator_output_status_mirror_pwm_units():
     core, backend = make_core(mirror_actuator_output_status=True)
     from pymavlink.dialects.v20 import ardupilotmega as m
+
     values = [1750.0] + [0.0] * 31
     send(core, m.MAVLink_actuator_output_status_message(0, 0b1, values), src=AUTOPILOT)
     assert backend.servo_calls("actuator") == [("actuator", 1, 0.5, "actuator_output_status")]
@@ -285,8 +303,9 @@ def test_heartbeats_once_per_second_per_component_with_servo_type():
 
 def test_telemetry_content_matches_servo_state():
     core, backend = make_core()
-    backend.states["aileron"] = state(15.0, velocity=-120.0, current=1.25, temperature=41,
-                                      voltage=24.2)
+    backend.states["aileron"] = state(
+        15.0, velocity=-120.0, current=1.25, temperature=41, voltage=24.2
+    )
     backend.states["flap"] = state(-6.0)
     out = [m for _, m in core.tick(0.0)]
     aos = next(m for m in out if m.get_type() == "ACTUATOR_OUTPUT_STATUS")
@@ -312,7 +331,8 @@ def test_set_message_interval_and_request_message():
     assert [m.get_type() for _, m in out][1:] == ["ACTUATOR_OUTPUT_STATUS"]
     assert acks(send(core, command_long(SERVO, 512, 283), now=1.0)) == [(140, 512, UNSUPPORTED)]
     assert acks(send(core, command_long(SERVO, 511, 283, 1000), now=1.0)) == [
-        (140, 511, UNSUPPORTED)]
+        (140, 511, UNSUPPORTED)
+    ]
 
 
 def test_statustext_on_fault_onset_clearance_and_offline():

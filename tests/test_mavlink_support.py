@@ -68,8 +68,18 @@ class RecordingBackend:
                 normalized = None if state is None else state.position_deg / HALF_RANGE_DEG
                 channel = next((c for c, n in SERVO_CHANNELS.items() if n == name), None)
                 actuator = next((i for i, n in ACTUATOR_INDICES.items() if n == name), None)
-                out.append(ServoStatus(name, index, state, name not in self.offline,
-                                       self.setpoints.get(name), normalized, channel, actuator))
+                out.append(
+                    ServoStatus(
+                        name,
+                        index,
+                        state,
+                        name not in self.offline,
+                        self.setpoints.get(name),
+                        normalized,
+                        channel,
+                        actuator,
+                    )
+                )
             return out
 
     def enter_failsafe(self, reason: str, now: float) -> None:
@@ -85,11 +95,23 @@ class RecordingBackend:
             return [c for c in self.calls if c[0] == kind]
 
 
-def state(position: float, velocity: float = 0.0, current: float = 0.0, temperature: float = 30.0,
-          faults: Fault | None = None, voltage: float | None = None) -> ServoState:
-    return ServoState(position_deg=position, velocity_dps=velocity, current_a=current,
-                      temperature_c=temperature, faults=faults if faults is not None else Fault(0),
-                      timestamp=0.0, voltage_v=voltage)
+def state(
+    position: float,
+    velocity: float = 0.0,
+    current: float = 0.0,
+    temperature: float = 30.0,
+    faults: Fault | None = None,
+    voltage: float | None = None,
+) -> ServoState:
+    return ServoState(
+        position_deg=position,
+        velocity_dps=velocity,
+        current_a=current,
+        temperature_c=temperature,
+        faults=faults if faults is not None else Fault(0),
+        timestamp=0.0,
+        voltage_v=voltage,
+    )
 
 
 def wire(msg: Any, src: tuple[int, int]) -> Any:
@@ -106,10 +128,12 @@ def command_long(target: tuple[int, int], command: int, *params: float, confirma
     return mavlink2.MAVLink_command_long_message(target[0], target[1], command, confirmation, *p)
 
 
-def command_int(target: tuple[int, int], command: int, p1=0.0, p2=0.0, p3=0.0, p4=0.0, x=0, y=0,
-                z=0.0):
-    return mavlink2.MAVLink_command_int_message(target[0], target[1], 0, command, 0, 0,
-                                                p1, p2, p3, p4, x, y, z)
+def command_int(
+    target: tuple[int, int], command: int, p1=0.0, p2=0.0, p3=0.0, p4=0.0, x=0, y=0, z=0.0
+):
+    return mavlink2.MAVLink_command_int_message(
+        target[0], target[1], 0, command, 0, 0, p1, p2, p3, p4, x, y, z
+    )
 
 
 def heartbeat(mav_type: int = 1, autopilot: int = 3):

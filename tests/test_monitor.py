@@ -43,8 +43,9 @@ def _servo_messages():
         m.MAVLink_named_value_float_message(0, b"s2_pos", -7.25),
         m.MAVLink_named_value_float_message(0, b"bus0_load", 0.123),
         m.MAVLink_named_value_float_message(0, b"lat_p95", 4.5),
-        m.MAVLink_esc_telemetry_1_to_4_message([41, 39, 0, 0], [1200, 1210, 0, 0],
-                                                [42, 10, 0, 0], [0] * 4, [0] * 4, [5, 5, 0, 0]),
+        m.MAVLink_esc_telemetry_1_to_4_message(
+            [41, 39, 0, 0], [1200, 1210, 0, 0], [42, 10, 0, 0], [0] * 4, [0] * 4, [5, 5, 0, 0]
+        ),
         m.MAVLink_actuator_output_status_message(0, 0b11, [0.25, -0.5] + [float("nan")] * 30),
         m.MAVLink_statustext_message(2, b"servo right fault stall|over_current", 0, 0),
     ]
@@ -70,15 +71,23 @@ def test_state_model_rows_from_real_messages():
 
 def test_state_model_marks_silence_and_recovery():
     state = MonitorState(names=["left"])
-    msgs = _wire([mavlink2.MAVLink_named_value_float_message(0, b"s1_pos", 1.0),
-                  mavlink2.MAVLink_statustext_message(2, b"servo left not responding", 0, 0)])
+    msgs = _wire(
+        [
+            mavlink2.MAVLink_named_value_float_message(0, b"s1_pos", 1.0),
+            mavlink2.MAVLink_statustext_message(2, b"servo left not responding", 0, 0),
+        ]
+    )
     state.update(msgs[0], now=10.0)
     assert state.servo_rows(now=10.1)[0]["status"] == "ok"
     assert state.servo_rows(now=15.0)[0]["status"] == "STALE"
     state.update(msgs[1], now=15.0)
     assert state.servo_rows(now=15.0)[0]["status"] == "NO REPLY"
-    back = _wire([mavlink2.MAVLink_statustext_message(5, b"servo left responding again", 0, 0),
-                  mavlink2.MAVLink_named_value_float_message(0, b"s1_pos", 2.0)])
+    back = _wire(
+        [
+            mavlink2.MAVLink_statustext_message(5, b"servo left responding again", 0, 0),
+            mavlink2.MAVLink_named_value_float_message(0, b"s1_pos", 2.0),
+        ]
+    )
     for msg in back:
         state.update(msg, now=16.0)
     assert state.servo_rows(now=16.0)[0]["status"] == "ok"
@@ -106,8 +115,9 @@ def _free_udp_port() -> int:
 
 
 def _send_until(port: int, stop: threading.Event, limit_s: float = 15.0) -> None:
-    conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=1,
-                                      source_component=140, dialect="ardupilotmega")
+    conn = mavutil.mavlink_connection(
+        f"udpout:127.0.0.1:{port}", source_system=1, source_component=140, dialect="ardupilotmega"
+    )
     deadline = time.monotonic() + limit_s
     try:
         while not stop.is_set() and time.monotonic() < deadline:
@@ -121,9 +131,19 @@ def _send_until(port: int, stop: threading.Event, limit_s: float = 15.0) -> None
 def _run_monitor(port: int, stdout, extra=()) -> subprocess.Popen:
     env = dict(os.environ, PYTHONPATH=str(REPO), COLUMNS="160", LINES="40", TERM="xterm-256color")
     return subprocess.Popen(
-        [sys.executable, "-m", "mavservo.monitor", f"udpin:127.0.0.1:{port}", "--duration", "3",
-         *extra],
-        stdout=stdout, stderr=subprocess.PIPE, env=env, cwd=REPO,
+        [
+            sys.executable,
+            "-m",
+            "mavservo.monitor",
+            f"udpin:127.0.0.1:{port}",
+            "--duration",
+            "3",
+            *extra,
+        ],
+        stdout=stdout,
+        stderr=subprocess.PIPE,
+        env=env,
+        cwd=REPO,
     )
 
 

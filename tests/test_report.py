@@ -21,9 +21,14 @@ PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 def _record_run(directory: Path, seconds: float = 3.0, seed: int = 7) -> RunLog:
     """A recorded run as the bridge would write it: two servos, step setpoints, jittery replies."""
     rng = random.Random(seed)
-    log = RunLog(directory, buses={"bus0": {"bitrate": 1_000_000, "max_load": 0.35}},
-                 servos={"left": {"profile": "rmd-x", "can_id": 1},
-                         "right": {"profile": "rmd-x", "can_id": 2}})
+    log = RunLog(
+        directory,
+        buses={"bus0": {"bitrate": 1_000_000, "max_load": 0.35}},
+        servos={
+            "left": {"profile": "rmd-x", "can_id": 1},
+            "right": {"profile": "rmd-x", "can_id": 2},
+        },
+    )
     t0 = time.monotonic()
     position = {"left": 0.0, "right": 0.0}
     seq = 0
@@ -34,24 +39,42 @@ def _record_run(directory: Path, seconds: float = 3.0, seed: int = 7) -> RunLog:
             seq += 1
             log.mavlink_received(servo, t)
             log.on_setpoint(servo, seq, target, "servo_output_raw", t + 0.0002)
-            cmd = can.Message(arbitration_id=0x140 + can_id, is_extended_id=False,
-                              data=b"\xa4\x00\x68\x01" + bytes(4))
+            cmd = can.Message(
+                arbitration_id=0x140 + can_id,
+                is_extended_id=False,
+                data=b"\xa4\x00\x68\x01" + bytes(4),
+            )
             written = t + 0.0004 + rng.uniform(0, 0.0005)
             log.on_tx("bus0", cmd, written, "command", servo, seq)
             position[servo] += (target - position[servo]) * 0.3
-            reply = can.Message(arbitration_id=0x240 + can_id, is_extended_id=False,
-                                data=b"\xa4\x1e" + bytes(6))
+            reply = can.Message(
+                arbitration_id=0x240 + can_id, is_extended_id=False, data=b"\xa4\x1e" + bytes(6)
+            )
             decoded = written + 0.002 + rng.uniform(0, 0.002)
-            state = SimpleNamespace(position_deg=position[servo], velocity_dps=50.0,
-                                    current_a=0.4, temperature_c=35.0, faults=None)
+            state = SimpleNamespace(
+                position_deg=position[servo],
+                velocity_dps=50.0,
+                current_a=0.4,
+                temperature_c=35.0,
+                faults=None,
+            )
             log.on_rx("bus0", reply, decoded, servo, state)
             log.telemetry_sent(servo, decoded + rng.uniform(0, 0.05))
         t += 0.05 + rng.uniform(-0.003, 0.003)
     log.on_lost("bus0", "left", t)
     log.on_reject("bus0", "bad_end_marker", b"\xaa\xc8\x00", t)
-    log.close({"bus0": {"servos": {"left": {
-        "latency_s": {"n": 3, "mean": 0.001, "sigma": 0.0002, "p99": 0.0015},
-        "frames": {"sent": 10, "received": 9, "lost": 1, "late_replies": 0}}}}})
+    log.close(
+        {
+            "bus0": {
+                "servos": {
+                    "left": {
+                        "latency_s": {"n": 3, "mean": 0.001, "sigma": 0.0002, "p99": 0.0015},
+                        "frames": {"sent": 10, "received": 9, "lost": 1, "late_replies": 0},
+                    }
+                }
+            }
+        }
+    )
     return log
 
 
@@ -78,8 +101,10 @@ def test_report_writes_every_figure_and_lists_it(recorded_run, tmp_path):
     assert "| Decoder rejections | 1 |" in markdown
     assert "| Replies lost (timeouts) | 1 |" in markdown
     assert "| Scheduler left: frames sent / received / lost / late | 10 / 9 / 1 / 0 |" in markdown
-    assert "| Scheduler left: L every request (mean / sigma / p99) [ms] | 1.00 / 0.20 / 1.50" \
+    assert (
+        "| Scheduler left: L every request (mean / sigma / p99) [ms] | 1.00 / 0.20 / 1.50"
         in markdown
+    )
 
 
 def test_summary_latency_matches_the_latency_log(recorded_run):

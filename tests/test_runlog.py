@@ -30,8 +30,9 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2  # noqa: E402
 
 
 def _state(position: float) -> SimpleNamespace:
-    return SimpleNamespace(position_deg=position, velocity_dps=12.5, current_a=0.25,
-                           temperature_c=35.0, faults=None)
+    return SimpleNamespace(
+        position_deg=position, velocity_dps=12.5, current_a=0.25, temperature_c=35.0, faults=None
+    )
 
 
 frames_strategy = st.lists(
@@ -48,8 +49,11 @@ frames_strategy = st.lists(
 
 
 def _write_frames(directory: Path, frames, rotate_bytes: int = 0) -> RunLog:
-    log = RunLog(directory, rotate_bytes=rotate_bytes,
-                 buses={"bus0": {"bitrate": 1_000_000}, "bus1": {"bitrate": 500_000}})
+    log = RunLog(
+        directory,
+        rotate_bytes=rotate_bytes,
+        buses={"bus0": {"bitrate": 1_000_000}, "bus1": {"bitrate": 500_000}},
+    )
     t0 = time.monotonic()
     for i, (extended, arb_id, data, rx, bus) in enumerate(frames):
         arb_id = arb_id if extended else arb_id & 0x7FF
@@ -222,8 +226,13 @@ def test_short_scheduler_run_on_a_virtual_bus_reads_back_frame_for_frame(tmp_pat
     with VirtualServoBus([SimServo("rmd-x", 1), SimServo("rmd-x", 2)], channel=channel):
         bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
         try:
-            scheduler = Scheduler(bus, [ServoSpec("s1", RmdX(1)), ServoSpec("s2", RmdX(2))],
-                                  timing, observer=tee, name="bus0")
+            scheduler = Scheduler(
+                bus,
+                [ServoSpec("s1", RmdX(1)), ServoSpec("s2", RmdX(2))],
+                timing,
+                observer=tee,
+                name="bus0",
+            )
             with scheduler:
                 for i in range(3):
                     scheduler.set_setpoint("s1", 5.0 * i, "test")

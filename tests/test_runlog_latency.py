@@ -9,8 +9,9 @@ from mavservo.latency import STAGES, LatencyTracer
 STATE = object()
 
 
-def _command(tracer: LatencyTracer, servo: str, seq: int, t: float,
-             gaps=(0.001, 0.002, 0.003, 0.004)) -> None:
+def _command(
+    tracer: LatencyTracer, servo: str, seq: int, t: float, gaps=(0.001, 0.002, 0.003, 0.004)
+) -> None:
     received = t
     tracer.mavlink_received(servo, received)
     accepted = received + gaps[0]
@@ -75,7 +76,8 @@ def test_servos_are_traced_independently():
     tracer.telemetry_sent("b", 0.01)
     summary = tracer.summary()
     assert sorted([0.008, 0.001]) == pytest.approx(
-        [summary["stages"]["round_trip"]["min"], summary["stages"]["round_trip"]["max"]])
+        [summary["stages"]["round_trip"]["min"], summary["stages"]["round_trip"]["max"]]
+    )
 
 
 def test_memory_is_bounded_by_the_window():

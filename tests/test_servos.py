@@ -74,9 +74,15 @@ def test_rmd_status_1_reports_named_faults_and_voltage():
 
 @pytest.mark.parametrize(
     ("word", "fault"),
-    [(0x0002, Fault.STALL), (0x0004, Fault.LOW_VOLTAGE), (0x0008, Fault.OVER_VOLTAGE),
-     (0x0040, Fault.POWER), (0x0100, Fault.OVERSPEED), (0x2000, Fault.ENCODER),
-     (0x0001, Fault.OTHER)],
+    [
+        (0x0002, Fault.STALL),
+        (0x0004, Fault.LOW_VOLTAGE),
+        (0x0008, Fault.OVER_VOLTAGE),
+        (0x0040, Fault.POWER),
+        (0x0100, Fault.OVERSPEED),
+        (0x2000, Fault.ENCODER),
+        (0x0001, Fault.OTHER),
+    ],
 )
 def test_rmd_each_error_bit_has_its_name(word, fault):
     data = bytes([0x9A, 0, 0, 0, 0, 0]) + word.to_bytes(2, "little")
@@ -107,9 +113,7 @@ def test_rmd_every_nth_poll_reads_faults():
     profile = RmdX(2, fault_poll_every=4, multi_turn_poll_every=3)
     commands = [profile.telemetry_requests()[0].data[0] for _ in range(12)]
     assert commands == [0x9C, 0x9C, 0x92, 0x9A, 0x9C, 0x92, 0x9C, 0x9A, 0x92, 0x9C, 0x9C, 0x9A]
-    assert all(
-        m.arbitration_id == 0x142 and len(m.data) == 8 for m in profile.telemetry_requests()
-    )
+    assert all(m.arbitration_id == 0x142 and len(m.data) == 8 for m in profile.telemetry_requests())
 
 
 def test_lk_replies_on_the_request_id_and_ignores_v4_replies():
@@ -165,8 +169,14 @@ def test_cubemars_status_decodes_with_named_error_code():
 
 @pytest.mark.parametrize(
     ("code", "fault"),
-    [(1, Fault.OVER_TEMPERATURE), (3, Fault.OVER_VOLTAGE), (4, Fault.LOW_VOLTAGE),
-     (5, Fault.ENCODER), (6, Fault.PHASE_IMBALANCE), (9, Fault.OTHER)],
+    [
+        (1, Fault.OVER_TEMPERATURE),
+        (3, Fault.OVER_VOLTAGE),
+        (4, Fault.LOW_VOLTAGE),
+        (5, Fault.ENCODER),
+        (6, Fault.PHASE_IMBALANCE),
+        (9, Fault.OTHER),
+    ],
 )
 def test_cubemars_error_codes(code, fault):
     data = bytes(7) + bytes([code])
@@ -212,8 +222,11 @@ def test_rmd_command_round_trips_through_the_simulated_device(angle, speed, can_
     assert profile.decode(replies[0][1], replies[0][0]) is not None
 
 
-@given(angle=st.floats(min_value=-36_000, max_value=36_000, allow_nan=False),
-       speed=st.one_of(st.none(), speeds), can_id=st.integers(0, 255))
+@given(
+    angle=st.floats(min_value=-36_000, max_value=36_000, allow_nan=False),
+    speed=st.one_of(st.none(), speeds),
+    can_id=st.integers(0, 255),
+)
 def test_cubemars_command_round_trips_through_the_simulated_device(angle, speed, can_id):
     profile = CubeMarsAK(can_id)
     servo = SimServo("cubemars-ak", can_id)
@@ -224,8 +237,10 @@ def test_cubemars_command_round_trips_through_the_simulated_device(angle, speed,
         assert servo.speed_limit_dps == pytest.approx(max(speed, step), abs=step)
 
 
-@given(position=st.floats(min_value=-3000, max_value=3000, allow_nan=False),
-       name=st.sampled_from(sorted(PROFILES)))
+@given(
+    position=st.floats(min_value=-3000, max_value=3000, allow_nan=False),
+    name=st.sampled_from(sorted(PROFILES)),
+)
 def test_reported_position_is_within_the_profile_resolution(position, name):
     cls = get_profile(name)
     profile = cls(7)
@@ -242,8 +257,12 @@ def test_reported_position_is_within_the_profile_resolution(position, name):
     assert abs(state.position_deg - position) <= profile.resolution_deg / 2 + 1e-9
 
 
-@given(arb_id=st.integers(0, 0x7FF), extended=st.booleans(),
-       data=st.binary(min_size=0, max_size=8), name=st.sampled_from(sorted(PROFILES)))
+@given(
+    arb_id=st.integers(0, 0x7FF),
+    extended=st.booleans(),
+    data=st.binary(min_size=0, max_size=8),
+    name=st.sampled_from(sorted(PROFILES)),
+)
 def test_decode_returns_none_for_frames_of_other_servos(arb_id, extended, data, name):
     profile = get_profile(name)(9)
     own = {0x249, 0x149} if name != "cubemars-ak" else {0x2909}

@@ -61,8 +61,9 @@ def emulator_factory():
 
 def test_python_can_seeedstudio_driver_commands_a_simulated_servo(emulator_factory):
     emulator = emulator_factory([SimServo("rmd-x", 1)])
-    bus = can.Bus(interface="seeedstudio", channel=emulator.path, baudrate=2_000_000,
-                  bitrate=1_000_000)
+    bus = can.Bus(
+        interface="seeedstudio", channel=emulator.path, baudrate=2_000_000, bitrate=1_000_000
+    )
     try:
         profile = RmdX(1)
         bus.send(profile.position_command(45.0, 720))
@@ -91,15 +92,18 @@ def test_servos_driven_through_the_aa55_interface_converge(emulator_factory):
                 rmd_state = _ask(bus, rmd)
                 cube_state = _reply(bus, cube)  # pushes at 50 Hz
                 if (
-                    rmd_state and cube_state
+                    rmd_state
+                    and cube_state
                     and abs(rmd_state.position_deg - target) <= 0.05
                     and abs(cube_state.position_deg - target) <= 0.05
                 ):
                     break
             assert rmd_state is not None and rmd_state.position_deg == pytest.approx(
-                target, abs=0.05)
+                target, abs=0.05
+            )
             assert cube_state is not None and cube_state.position_deg == pytest.approx(
-                target, abs=0.05)
+                target, abs=0.05
+            )
     assert emulator.canbus.frames > 0 and emulator.load(window=5.0) > 0
 
 
@@ -122,10 +126,12 @@ def test_dropped_delayed_and_silent_servos_are_seen_from_the_host(emulator_facto
 
 
 def test_fault_flags_reach_the_host(emulator_factory):
-    emulator = emulator_factory([
-        SimServo("rmd-x", 1, faults=Faults(over_current=True)),
-        SimServo("cubemars-ak", 2, faults=Faults(over_temperature=True)),
-    ])
+    emulator = emulator_factory(
+        [
+            SimServo("rmd-x", 1, faults=Faults(over_current=True)),
+            SimServo("cubemars-ak", 2, faults=Faults(over_temperature=True)),
+        ]
+    )
     rmd = RmdX(1, fault_poll_every=1)
     with AA55Bus(channel=emulator.path) as bus:
         rmd_state = _ask(bus, rmd, timeout=2.0)
@@ -209,7 +215,11 @@ def test_sim_command_prints_the_path_first_and_exits_cleanly_on_sigterm():
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     process = subprocess.Popen(
         [sys.executable, "-m", "mavservo.sim.cli", "--servos", "2", "--profile", "rmd-x"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        cwd=ROOT,
     )
     try:
         path = process.stdout.readline().strip()
@@ -235,7 +245,9 @@ def test_sim_command_reads_servos_and_faults_from_yaml(tmp_path):
 
     emulator = build_emulator(build_parser().parse_args(["--config", str(config)]))
     assert [(s.profile, s.can_id, s.faults.silent) for s in emulator.servos] == [
-        ("lk", 4, True), ("cubemars-ak", 5, False)]
+        ("lk", 4, True),
+        ("cubemars-ak", 5, False),
+    ]
     bad = tmp_path / "bad.yaml"
     bad.write_text("simulation:\n  servos:\n    - {id: 1, profile: nope}\n")
     from mavservo.sim.cli import main

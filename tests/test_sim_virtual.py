@@ -17,8 +17,10 @@ def test_servos_on_a_virtual_channel_answer_and_converge():
     channel = f"sim-{uuid.uuid4().hex}"
     servos = [SimServo("rmd-x", 1), SimServo("cubemars-ak", 2)]
     rmd, cube = RmdX(1, multi_turn_poll_every=1), CubeMarsAK(2)
-    with VirtualServoBus(servos, channel=channel) as sim, \
-            can.Bus(interface="virtual", channel=channel) as bus:
+    with (
+        VirtualServoBus(servos, channel=channel) as sim,
+        can.Bus(interface="virtual", channel=channel) as bus,
+    ):
         bus.send(rmd.position_command(-25.0, 720))
         bus.send(cube.position_command(-25.0, 720))
         for _ in range(100):

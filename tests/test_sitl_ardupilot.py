@@ -58,16 +58,25 @@ def _bare_env(tmp_path: Path, with_binary: bool) -> dict[str, str]:
 
 
 def test_launcher_says_clearly_when_ardupilot_is_missing(tmp_path: Path) -> None:
-    done = subprocess.run(["bash", str(SCRIPT), "--dry-run"], env=_bare_env(tmp_path, False),
-                          capture_output=True, text=True, timeout=30)
+    done = subprocess.run(
+        ["bash", str(SCRIPT), "--dry-run"],
+        env=_bare_env(tmp_path, False),
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
     assert done.returncode == 3
     assert "not installed" in done.stderr and "never" in done.stderr
 
 
 def test_launcher_command_line_for_the_arduplane_binary(tmp_path: Path) -> None:
-    done = subprocess.run(["bash", str(SCRIPT), "--dry-run", "--gimbal", "--port", "14600"],
-                          env=_bare_env(tmp_path, True), capture_output=True, text=True,
-                          timeout=30)
+    done = subprocess.run(
+        ["bash", str(SCRIPT), "--dry-run", "--gimbal", "--port", "14600"],
+        env=_bare_env(tmp_path, True),
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
     assert done.returncode == 0, done.stderr
     words = done.stdout.split()
     assert words[0].endswith("arduplane")
@@ -84,24 +93,31 @@ def _find_ardupilot() -> str | None:
     return shutil.which("arduplane") or shutil.which("sim_vehicle.py")
 
 
-@pytest.mark.skipif(_find_ardupilot() is None,
-                    reason="ArduPilot SITL not installed (no arduplane / sim_vehicle.py on PATH, "
-                           "no $ARDUPILOT_HOME build); tests never download it")
+@pytest.mark.skipif(
+    _find_ardupilot() is None,
+    reason="ArduPilot SITL not installed (no arduplane / sim_vehicle.py on PATH, "
+    "no $ARDUPILOT_HOME build); tests never download it",
+)
 @pytest.mark.timeout(180)
 def test_real_arduplane_streams_servo_outputs_and_obeys_do_set_servo(tmp_path: Path) -> None:
     port = free_udp_port()
     conn = peer(port)
-    proc = subprocess.Popen(["bash", str(SCRIPT), "--port", str(port)], cwd=tmp_path,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-                            start_new_session=True)
+    proc = subprocess.Popen(
+        ["bash", str(SCRIPT), "--port", str(port)],
+        cwd=tmp_path,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        start_new_session=True,
+    )
     try:
         boot = collect(conn, 90.0, until=lambda m: m.get_type() == "SERVO_OUTPUT_RAW")
         assert of_type(boot, "SERVO_OUTPUT_RAW"), "no SERVO_OUTPUT_RAW from SITL within 90 s"
         hb = of_type(boot, "HEARTBEAT")[0]
         assert hb.autopilot == mav.MAV_AUTOPILOT_ARDUPILOTMEGA
         conn.mav.command_long_send(1, 1, mav.MAV_CMD_DO_SET_SERVO, 0, 9, 1234, 0, 0, 0, 0, 0)
-        after = collect(conn, 10.0, until=lambda m: m.get_type() == "SERVO_OUTPUT_RAW"
-                        and m.servo9_raw == 1234)
+        after = collect(
+            conn, 10.0, until=lambda m: m.get_type() == "SERVO_OUTPUT_RAW" and m.servo9_raw == 1234
+        )
         assert of_type(after, "SERVO_OUTPUT_RAW")[-1].servo9_raw == 1234
     finally:
         conn.close()

@@ -96,13 +96,15 @@ def test_repeat_servo_follows_ardupilot_timeline_from_the_recording() -> None:
 
 
 def test_script_parses_yaml_shape_and_hands_out_each_event_once() -> None:
-    script = parse_script([
-        {"at": 3.0, "dropout": {"seconds": 1.5}},
-        {"at": 1.0, "do_set_servo": {"channel": 9, "pwm": 1100}},
-        {"at": 2.0, "do_repeat_servo": {"channel": 9, "pwm": 1900, "count": 2, "cycle_s": 1}},
-        {"at": 2.5, "do_set_actuator": {"values": [0.5, None], "group": 2}},
-        {"at": 4.0, "gimbal": {"pitch": -30, "yaw": 45, "flags": 16}},
-    ])
+    script = parse_script(
+        [
+            {"at": 3.0, "dropout": {"seconds": 1.5}},
+            {"at": 1.0, "do_set_servo": {"channel": 9, "pwm": 1100}},
+            {"at": 2.0, "do_repeat_servo": {"channel": 9, "pwm": 1900, "count": 2, "cycle_s": 1}},
+            {"at": 2.5, "do_set_actuator": {"values": [0.5, None], "group": 2}},
+            {"at": 4.0, "gimbal": {"pitch": -30, "yaw": 45, "flags": 16}},
+        ]
+    )
     assert script.due(0.5) == []
     first = script.due(2.0)
     assert [e.action for e in first] == [SetServo(9, 1100), RepeatServo(9, 1900, 2, 1.0)]
@@ -114,12 +116,15 @@ def test_script_parses_yaml_shape_and_hands_out_each_event_once() -> None:
     assert script.finished
 
 
-@pytest.mark.parametrize("bad", [
-    {"do_set_servo": {"channel": 1, "pwm": 1500}},
-    {"at": 1, "do_set_servo": {"channel": 1}},
-    {"at": 1, "teleport": {}},
-    {"at": 1, "dropout": {"seconds": 1}, "gimbal": {}},
-])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        {"do_set_servo": {"channel": 1, "pwm": 1500}},
+        {"at": 1, "do_set_servo": {"channel": 1}},
+        {"at": 1, "teleport": {}},
+        {"at": 1, "dropout": {"seconds": 1}, "gimbal": {}},
+    ],
+)
 def test_bad_script_events_raise_value_error(bad: dict) -> None:
     with pytest.raises(ValueError):
         parse_event(bad)

@@ -77,8 +77,14 @@ def _reference_servo_outputs(path: Path) -> list[list[int]]:
         "print(json.dumps(out))\n"
     )
     env = {**os.environ, "MAVLINK20": "1"}
-    done = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True, text=True,
-                          timeout=60, env=env, check=True)
+    done = subprocess.run(
+        [sys.executable, "-c", code, str(path)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env=env,
+        check=True,
+    )
     return json.loads(done.stdout)
 
 
@@ -92,12 +98,18 @@ def test_replay_delivers_every_servo_output_in_order_with_identical_values() -> 
     conn = peer(port)
     expected = [(m.time_usec, _channels(m)) for _, m in iter_tlog(SERVOS, {"SERVO_OUTPUT_RAW"})]
     results = {}
-    worker = threading.Thread(target=lambda: results.setdefault(
-        "r", replay(SERVOS, f"udpout:127.0.0.1:{port}", speed=40.0, max_duration_s=20.0)))
+    worker = threading.Thread(
+        target=lambda: results.setdefault(
+            "r", replay(SERVOS, f"udpout:127.0.0.1:{port}", speed=40.0, max_duration_s=20.0)
+        )
+    )
     try:
         worker.start()
-        messages = collect(conn, 20.0, until=lambda m: m.get_type() == "SERVO_OUTPUT_RAW"
-                           and m.time_usec == expected[-1][0])
+        messages = collect(
+            conn,
+            20.0,
+            until=lambda m: m.get_type() == "SERVO_OUTPUT_RAW" and m.time_usec == expected[-1][0],
+        )
         worker.join(20.0)
     finally:
         conn.close()
@@ -114,8 +126,11 @@ def test_replay_of_the_gimbal_session_delivers_every_set_attitude() -> None:
     conn = peer(port, component=154)
     wanted = {"GIMBAL_DEVICE_SET_ATTITUDE"}
     expected = [bytes(m.get_msgbuf()) for _, m in iter_tlog(GIMBAL, wanted)]
-    worker = threading.Thread(target=replay, args=(GIMBAL, f"udpout:127.0.0.1:{port}"),
-                              kwargs={"speed": 40.0, "types": wanted, "max_duration_s": 20.0})
+    worker = threading.Thread(
+        target=replay,
+        args=(GIMBAL, f"udpout:127.0.0.1:{port}"),
+        kwargs={"speed": 40.0, "types": wanted, "max_duration_s": 20.0},
+    )
     try:
         worker.start()
         messages = collect(conn, 20.0, limit=len(expected))
@@ -152,8 +167,16 @@ def test_replay_paces_messages_by_their_recorded_times_over_speed(speed: float) 
     clock = _FakeClock()
     sink = _Sink(clock)
     wanted = {"HEARTBEAT"}
-    result = replay(SERVOS, sink, speed=speed, types=wanted, start_s=10.0, end_s=40.0,
-                    clock=clock, sleep=clock.sleep)
+    result = replay(
+        SERVOS,
+        sink,
+        speed=speed,
+        types=wanted,
+        start_s=10.0,
+        end_s=40.0,
+        clock=clock,
+        sleep=clock.sleep,
+    )
     recorded = [t for t, _ in iter_tlog(SERVOS, wanted) if 10.0 <= t <= 40.0]
     assert result.sent == len(recorded) == len(sink.writes)
     for (sent_at, _), t_rel in zip(sink.writes, recorded, strict=True):
@@ -186,8 +209,9 @@ def _all_frames() -> list[bytes]:
 
 @settings(max_examples=60, deadline=None)
 @given(cut=st.integers(min_value=1, max_value=4000), garbage=st.binary(max_size=30))
-def test_damaged_tlog_raises_tlog_error_or_yields_a_clean_prefix(cut: int, garbage: bytes,
-                                                                 tmp_path_factory) -> None:
+def test_damaged_tlog_raises_tlog_error_or_yields_a_clean_prefix(
+    cut: int, garbage: bytes, tmp_path_factory
+) -> None:
     data = SERVOS.read_bytes()[:4000]
     path = tmp_path_factory.mktemp("tlog") / "damaged.tlog"
     path.write_bytes(data[:cut] + garbage)
@@ -211,22 +235,44 @@ def test_cli_replay_reports_a_bad_file_with_status_2(tmp_path, capsys) -> None:
 def test_cli_replay_as_fast_sends_the_selected_types(capsys) -> None:
     port = free_udp_port()
     before = signal.getsignal(signal.SIGINT)
-    assert main(["replay", str(SERVOS), "--url", f"udpout:127.0.0.1:{port}", "--as-fast",
-                 "--types", "heartbeat", "--end", "10"]) == 0
+    assert (
+        main(
+            [
+                "replay",
+                str(SERVOS),
+                "--url",
+                f"udpout:127.0.0.1:{port}",
+                "--as-fast",
+                "--types",
+                "heartbeat",
+                "--end",
+                "10",
+            ]
+        )
+        == 0
+    )
     assert "'HEARTBEAT'" in capsys.readouterr().out
     assert signal.getsignal(signal.SIGINT) is before  # the caller's handler is restored
 
 
-@pytest.mark.parametrize("command", [
-    ["stream", "--profile", "staircase"],
-    ["replay", str(SERVOS)],
-])
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["stream", "--profile", "staircase"],
+        ["replay", str(SERVOS)],
+    ],
+)
 def test_cli_exits_zero_on_sigint(command: list[str]) -> None:
     port = free_udp_port()
     env = {**os.environ, "PYTHONPATH": str(REPO)}
-    proc = subprocess.Popen([sys.executable, "-m", "sitl", *command, "--url",
-                             f"udpout:127.0.0.1:{port}"], cwd=REPO, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sitl", *command, "--url", f"udpout:127.0.0.1:{port}"],
+        cwd=REPO,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         banner = proc.stdout.readline()  # printed once the signal handlers are in place
         assert banner.startswith("sitl: ")
@@ -244,11 +290,29 @@ def test_cli_stream_scripted_and_on_demand_dropouts() -> None:
     port = free_udp_port()
     conn = peer(port)
     env = {**os.environ, "PYTHONPATH": str(REPO)}
-    proc = subprocess.Popen([sys.executable, "-m", "sitl", "stream", "--profile", "hold",
-                             "--url", f"udpout:127.0.0.1:{port}", "--duration", "4",
-                             "--dropout", "0.5:0.6", "--dropout-seconds", "1.0"],
-                            cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "sitl",
+            "stream",
+            "--profile",
+            "hold",
+            "--url",
+            f"udpout:127.0.0.1:{port}",
+            "--duration",
+            "4",
+            "--dropout",
+            "0.5:0.6",
+            "--dropout-seconds",
+            "1.0",
+        ],
+        cwd=REPO,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         assert proc.stdout.readline().startswith("sitl: streaming")
         messages = collect(conn, 2.0)
@@ -274,8 +338,13 @@ pwm = st.integers(min_value=0, max_value=65535)
 
 
 @settings(max_examples=40, deadline=None)
-@given(frames=st.lists(st.tuples(st.integers(0, 10**6), st.lists(pwm, min_size=16, max_size=16),
-                                 st.booleans()), min_size=1, max_size=30))
+@given(
+    frames=st.lists(
+        st.tuples(st.integers(0, 10**6), st.lists(pwm, min_size=16, max_size=16), st.booleans()),
+        min_size=1,
+        max_size=30,
+    )
+)
 def test_written_tlog_reads_back_exactly(frames, tmp_path_factory) -> None:
     """Round trip: messages packed as MAVLink 2 (or 1) into tlog records come back unchanged."""
     from sitl.link import mavlink2

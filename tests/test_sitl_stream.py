@@ -76,12 +76,34 @@ def test_set_message_interval_is_acked_and_honoured(link) -> None:
     port, conn = link
     with AutopilotStream(f"udpout:127.0.0.1:{port}", HoldProfile()).start():
         collect(conn, 2.0, until=lambda m: m.get_type() == "HEARTBEAT")
-        conn.mav.command_long_send(1, 1, mav.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
-                                   mav.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW, -1, 0, 0, 0, 0, 0)
+        conn.mav.command_long_send(
+            1,
+            1,
+            mav.MAV_CMD_SET_MESSAGE_INTERVAL,
+            0,
+            mav.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW,
+            -1,
+            0,
+            0,
+            0,
+            0,
+            0,
+        )
         before = collect(conn, 2.0, until=lambda m: m.get_type() == "COMMAND_ACK")
         after = collect(conn, 1.2)
-        conn.mav.command_long_send(1, 1, mav.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
-                                   mav.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW, 0, 0, 0, 0, 0, 0)
+        conn.mav.command_long_send(
+            1,
+            1,
+            mav.MAV_CMD_SET_MESSAGE_INTERVAL,
+            0,
+            mav.MAVLINK_MSG_ID_SERVO_OUTPUT_RAW,
+            0,
+            0,
+            0,
+            0,
+            0,
+            0,
+        )
         restored = collect(conn, 1.2)
     ack = before[-1][1]
     assert ack.get_type() == "COMMAND_ACK"
@@ -103,8 +125,9 @@ def test_command_retried_with_same_content_until_the_third_try_is_acked(link) ->
                 conn.mav.command_ack_send(msg.command, mav.MAV_RESULT_ACCEPTED, 0, 0, 1, 1)
 
     script = [Event(0.2, SetServo(9, 1100))]
-    stream = AutopilotStream(f"udpout:127.0.0.1:{port}", HoldProfile(), script,
-                             command_target=(1, 191))
+    stream = AutopilotStream(
+        f"udpout:127.0.0.1:{port}", HoldProfile(), script, command_target=(1, 191)
+    )
     with stream.start():
         record = None
         for _ in range(60):  # bounded: at most ~6 s
@@ -115,8 +138,9 @@ def test_command_retried_with_same_content_until_the_third_try_is_acked(link) ->
         collect(conn, 0.8, on_message=ack_third)  # anything after the ACK would be a bug
     assert record is not None
     assert len(tries) == 3 and record.attempts == 3
-    assert {(m.target_system, m.target_component, m.param1, m.param2, m.confirmation)
-            for m in tries} == {(1, 191, 9.0, 1100.0, 0)}
+    assert {
+        (m.target_system, m.target_component, m.param1, m.param2, m.confirmation) for m in tries
+    } == {(1, 191, 9.0, 1100.0, 0)}
     assert record.result == mav.MAV_RESULT_ACCEPTED and record.ack_from == (1, 191)
     assert [a.source for a in stream.commands.acks] == [(1, 191)]
 
@@ -135,13 +159,17 @@ def test_mission_commands_content_and_output_mirroring(link) -> None:
         Event(0.1, SetActuator((0.25, math.nan, -1.0), group=2)),
         Event(0.3, RepeatServo(10, 1900, count=1, cycle_s=0.4)),
     ]
-    stream = AutopilotStream(f"udpout:127.0.0.1:{port}", HoldProfile(), script,
-                             repeat_servo_cycle="milliseconds")
+    stream = AutopilotStream(
+        f"udpout:127.0.0.1:{port}", HoldProfile(), script, repeat_servo_cycle="milliseconds"
+    )
     with stream.start():
         messages = collect(conn, 1.5, on_message=ack_all)
     by_cmd = {m.command: m for m in seen}
-    assert set(by_cmd) == {mav.MAV_CMD_DO_SET_SERVO, mav.MAV_CMD_DO_SET_ACTUATOR,
-                           mav.MAV_CMD_DO_REPEAT_SERVO}
+    assert set(by_cmd) == {
+        mav.MAV_CMD_DO_SET_SERVO,
+        mav.MAV_CMD_DO_SET_ACTUATOR,
+        mav.MAV_CMD_DO_REPEAT_SERVO,
+    }
     assert all((m.target_system, m.target_component) == (1, 0) for m in seen)  # broadcast
     act = by_cmd[mav.MAV_CMD_DO_SET_ACTUATOR]
     assert act.param1 == 0.25 and act.param3 == -1.0 and act.param7 == 2.0
@@ -166,14 +194,16 @@ def test_gimbal_manager_discovers_device_then_streams_targets() -> None:
         with stream.start():
             waiting = collect(device, 1.5)
             device.mav.gimbal_device_information_send(
-                0, b"Test", b"Gimbal", b"", 0, 0, 0, 0, 0, -0.5, 0.5, -1.5, 0.5, -2.7, 2.7)
+                0, b"Test", b"Gimbal", b"", 0, 0, 0, 0, 0, -0.5, 0.5, -1.5, 0.5, -2.7, 2.7
+            )
             streaming = collect(device, 1.0)
             stream.set_gimbal(0.0, -30.0, 45.0, 16)
             retargeted = collect(device, 1.0)
     finally:
         device.close()
-    requests = [m for m in of_type(waiting, "COMMAND_LONG")
-                if m.command == mav.MAV_CMD_REQUEST_MESSAGE]
+    requests = [
+        m for m in of_type(waiting, "COMMAND_LONG") if m.command == mav.MAV_CMD_REQUEST_MESSAGE
+    ]
     assert requests and all(m.param1 == 283 and m.target_component == 154 for m in requests)
     assert of_type(waiting, "GIMBAL_DEVICE_SET_ATTITUDE") == []
     sets = of_type(streaming, "GIMBAL_DEVICE_SET_ATTITUDE")
@@ -181,9 +211,12 @@ def test_gimbal_manager_discovers_device_then_streams_targets() -> None:
     assert len(sets) >= 10 and len(states) >= 10  # ~50 Hz nominal
     assert all((m.target_system, m.target_component) == (1, 154) for m in sets)
     assert all((m.target_system, m.target_component) == (1, 0) for m in states)
-    after_first_set = streaming[[m for _, m in streaming].index(sets[0]):]
-    assert not [m for m in of_type(after_first_set, "COMMAND_LONG")
-                if m.command == mav.MAV_CMD_REQUEST_MESSAGE]
+    after_first_set = streaming[[m for _, m in streaming].index(sets[0]) :]
+    assert not [
+        m
+        for m in of_type(after_first_set, "COMMAND_LONG")
+        if m.command == mav.MAV_CMD_REQUEST_MESSAGE
+    ]
     assert quaternion_to_euler(tuple(sets[0].q)) == pytest.approx((0, 0, 0), abs=1e-4)
     last = of_type(retargeted, "GIMBAL_DEVICE_SET_ATTITUDE")[-1]
     assert last.flags == 16
@@ -219,8 +252,9 @@ def test_udpin_mode_waits_for_the_bridge_then_streams() -> None:
     with stream.start():
         bridge = open_link(f"udpout:127.0.0.1:{port}", 1, 191)
         try:
-            bridge.mav.heartbeat_send(mav.MAV_TYPE_ONBOARD_CONTROLLER, mav.MAV_AUTOPILOT_INVALID,
-                                      0, 0, 0)
+            bridge.mav.heartbeat_send(
+                mav.MAV_TYPE_ONBOARD_CONTROLLER, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0
+            )
             messages = collect(bridge, 1.0)
         finally:
             bridge.close()
@@ -231,14 +265,19 @@ def test_udpin_mode_waits_for_the_bridge_then_streams() -> None:
 
 def test_factory_builds_what_the_config_asks_for(tmp_path) -> None:
     stream = simulator_from_config(
-        {"profile": "steps", "servo_output_rate_hz": 10,
-         "script": [{"at": 1, "do_set_servo": {"channel": 9, "pwm": 1100}}]},
-        "udpout:127.0.0.1:9")
+        {
+            "profile": "steps",
+            "servo_output_rate_hz": 10,
+            "script": [{"at": 1, "do_set_servo": {"channel": 9, "pwm": 1100}}],
+        },
+        "udpout:127.0.0.1:9",
+    )
     assert isinstance(stream, AutopilotStream) and isinstance(stream.profile, StaircaseProfile)
     assert stream._intervals["SERVO_OUTPUT_RAW"] == pytest.approx(0.1)
     assert [e.action for e in stream.script.events] == [SetServo(9, 1100)]
-    runner = simulator_from_config({"profile": "replay", "replay_file": str(tmp_path / "x.tlog")},
-                                   "udpout:127.0.0.1:9")
+    runner = simulator_from_config(
+        {"profile": "replay", "replay_file": str(tmp_path / "x.tlog")}, "udpout:127.0.0.1:9"
+    )
     assert isinstance(runner, ReplayRunner)
     with pytest.raises(ValueError):
         simulator_from_config({"profile": "replay"}, "udpout:127.0.0.1:9")
@@ -253,8 +292,9 @@ def test_normalized_outputs_map_ardupilot_ranges_to_unit_interval() -> None:
 
 def test_px4_style_actuator_output_status_when_asked_for(link) -> None:
     port, conn = link
-    stream = AutopilotStream(f"udpout:127.0.0.1:{port}", StaircaseProfile(),
-                             actuator_output_status_hz=10.0)
+    stream = AutopilotStream(
+        f"udpout:127.0.0.1:{port}", StaircaseProfile(), actuator_output_status_hz=10.0
+    )
     with stream.start():
         messages = collect(conn, 1.0)
     statuses = of_type(messages, "ACTUATOR_OUTPUT_STATUS")

@@ -81,8 +81,7 @@ def bus_loads(config: Config) -> list[BusLoad]:
 
 def _bus_load(bus: BusConfig, servos: list[ServoConfig], timing: SchedulerConfig) -> BusLoad:
     flows = [flow for servo in servos for flow in servo_flows(servo, timing)]
-    return BusLoad(bus.name, bus.bitrate, load_ratio(flows, bus.bitrate), bus.max_load,
-                   len(servos))
+    return BusLoad(bus.name, bus.bitrate, load_ratio(flows, bus.bitrate), bus.max_load, len(servos))
 
 
 def _bus_name(config: Config, servo: ServoConfig) -> str:

@@ -70,8 +70,9 @@ def load_config_text(text: str, filename: str = "<config>", base_dir: Path | Non
     if document.problems:
         raise ConfigError(filename, document.problems)
     if document.data is None:
-        raise ConfigError(filename, [Problem((), 1, "the file is empty; expected at least a "
-                                                    "'servos' section")])
+        raise ConfigError(
+            filename, [Problem((), 1, "the file is empty; expected at least a 'servos' section")]
+        )
     try:
         config = Config.model_validate(document.data, context={"base_dir": base_dir})
     except ValidationError as exc:
@@ -119,8 +120,10 @@ def _describe(error: dict[str, Any], loc: tuple[str | int, ...]) -> str:
     if kind == "missing":
         return "required key is missing"
     if not loc:
-        return "expected a mapping of sections (mavlink, can, servos, channels, ...), " \
-               f"found {type(error['input']).__name__}"
+        return (
+            "expected a mapping of sections (mavlink, can, servos, channels, ...), "
+            f"found {type(error['input']).__name__}"
+        )
     message = error["msg"]
     for prefix in ("Value error, ", "Assertion failed, "):
         message = message.removeprefix(prefix)

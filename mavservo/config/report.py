@@ -25,6 +25,7 @@ def _table(headers: list[str], rows: list[list[str]]) -> list[str]:
     def line(cells: list[str]) -> str:
         padded = (cell.ljust(width) for cell, width in zip(cells, widths, strict=True))
         return "  ".join(padded).rstrip()
+
     return [line(headers), line(["-" * width for width in widths])] + [line(row) for row in rows]
 
 
@@ -38,33 +39,62 @@ def _angle_text(channel_map: ChannelMap, value: float) -> str:
 def resolved_mapping(config: Config) -> str:
     """A human-readable description of what a validated config does."""
     lines = ["servos:"]
-    lines += ["  " + row for row in _table(
-        ["name", "profile", "id", "bus", "limits deg", "mode", "telemetry", "failsafe"],
-        [[s.name, s.profile, str(s.can_id), config.bus_of(s).name,
-          f"[{s.limits_deg[0]:g}, {s.limits_deg[1]:g}]", s.command_mode, f"{s.telemetry_hz:g} Hz",
-          s.failsafe.action + (f" {s.failsafe.position_deg:g}"
-                               if s.failsafe.action == "position" else "")
-          + f" after {s.failsafe.timeout_s:g} s"]
-         for s in config.servos])]
+    lines += [
+        "  " + row
+        for row in _table(
+            ["name", "profile", "id", "bus", "limits deg", "mode", "telemetry", "failsafe"],
+            [
+                [
+                    s.name,
+                    s.profile,
+                    str(s.can_id),
+                    config.bus_of(s).name,
+                    f"[{s.limits_deg[0]:g}, {s.limits_deg[1]:g}]",
+                    s.command_mode,
+                    f"{s.telemetry_hz:g} Hz",
+                    s.failsafe.action
+                    + (f" {s.failsafe.position_deg:g}" if s.failsafe.action == "position" else "")
+                    + f" after {s.failsafe.timeout_s:g} s",
+                ]
+                for s in config.servos
+            ],
+        )
+    ]
     if config.channels:
         rows = []
         for channel in config.channels:
             channel_map = ChannelMap.from_config(channel, config)
-            name = (f"servo {channel.channel}" if isinstance(channel, ServoOutputChannel)
-                    else f"actuator {channel.index}")
+            name = (
+                f"servo {channel.channel}"
+                if isinstance(channel, ServoOutputChannel)
+                else f"actuator {channel.index}"
+            )
             unit = " us" if channel_map.kind == "pwm" else ""
-            rows.append([
-                name, channel.servo,
-                f"{channel_map.input_min:g}/{channel_map.input_trim:g}/{channel_map.input_max:g}"
-                + unit,
-                " / ".join(_angle_text(channel_map, v) for v in
-                           (channel_map.input_min, channel_map.input_trim, channel_map.input_max)),
-                "yes" if channel.reverse else "no",
-                f"{channel.max_slew_dps:g} deg/s" if channel.max_slew_dps else "-",
-            ])
+            rows.append(
+                [
+                    name,
+                    channel.servo,
+                    f"{channel_map.input_min:g}/{channel_map.input_trim:g}/{channel_map.input_max:g}"
+                    + unit,
+                    " / ".join(
+                        _angle_text(channel_map, v)
+                        for v in (
+                            channel_map.input_min,
+                            channel_map.input_trim,
+                            channel_map.input_max,
+                        )
+                    ),
+                    "yes" if channel.reverse else "no",
+                    f"{channel.max_slew_dps:g} deg/s" if channel.max_slew_dps else "-",
+                ]
+            )
         lines += ["", "channels (angles for input min / trim / max; * = clamped by limits):"]
-        lines += ["  " + row for row in _table(
-            ["input", "servo", "min/trim/max", "angle deg", "reverse", "slew"], rows)]
+        lines += [
+            "  " + row
+            for row in _table(
+                ["input", "servo", "min/trim/max", "angle deg", "reverse", "slew"], rows
+            )
+        ]
     if config.gimbals:
         lines += ["", "gimbals:"]
         for gimbal in config.gimbals:
@@ -77,8 +107,10 @@ def resolved_mapping(config: Config) -> str:
 
 def _load_line(load: BusLoad) -> str:
     verdict = "OVER BUDGET" if load.over_budget else "ok"
-    return (f"{load.bus}: R = {load.load:.3f} of max {load.max_load:g} "
-            f"({load.servo_count} servos, {load.bitrate} bit/s) {verdict}")
+    return (
+        f"{load.bus}: R = {load.load:.3f} of max {load.max_load:g} "
+        f"({load.servo_count} servos, {load.bitrate} bit/s) {verdict}"
+    )
 
 
 def check_main(paths: list[str], out: TextIO | None = None, err: TextIO | None = None) -> int:

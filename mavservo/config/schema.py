@@ -34,8 +34,18 @@ GIMBAL_COMPONENT_IDS = (154, *range(171, 176))
 
 #: Bitrates the AA-55 adapters can be set to (the settings frame only has codes for these).
 AA55_BITRATES = (
-    1_000_000, 800_000, 500_000, 400_000, 250_000, 200_000,
-    125_000, 100_000, 50_000, 20_000, 10_000, 5_000,
+    1_000_000,
+    800_000,
+    500_000,
+    400_000,
+    250_000,
+    200_000,
+    125_000,
+    100_000,
+    50_000,
+    20_000,
+    10_000,
+    5_000,
 )
 
 #: Prefixes pymavlink's ``mavlink_connection`` understands as network endpoints.
@@ -105,8 +115,9 @@ class SigningConfig(StrictModel):
         try:
             raw = resolved.read_bytes()
         except OSError as exc:
-            raise ValueError(f"expected a readable key file, cannot read {resolved}: "
-                             f"{exc.strerror or exc}") from None
+            raise ValueError(
+                f"expected a readable key file, cannot read {resolved}: {exc.strerror or exc}"
+            ) from None
         if _parse_key_bytes(raw) is None:
             raise ValueError(
                 f"key file {resolved} must hold 64 hex characters, found {len(raw.strip())} bytes"
@@ -442,9 +453,7 @@ class GimbalConfig(StrictModel):
     @classmethod
     def _gimbal_component_range(cls, value: int) -> int:
         if value not in GIMBAL_COMPONENT_IDS:
-            raise ValueError(
-                f"expected a gimbal component id, 154 or 171..175, got {value}"
-            )
+            raise ValueError(f"expected a gimbal component id, 154 or 171..175, got {value}")
         return value
 
     @model_validator(mode="after")

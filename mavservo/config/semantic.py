@@ -42,8 +42,16 @@ def can_identifiers(servo: ServoConfig) -> frozenset[tuple[bool, int]]:
 def cross_checks(config: Config) -> list[Finding]:
     """All cross-section problems, in file order of the sections."""
     findings: list[Finding] = []
-    for check in (_bus_names, _servo_names, _servo_buses, _can_id_collisions, _failsafe_positions,
-                  _channels, _gimbals, _simulation_names):
+    for check in (
+        _bus_names,
+        _servo_names,
+        _servo_buses,
+        _can_id_collisions,
+        _failsafe_positions,
+        _channels,
+        _gimbals,
+        _simulation_names,
+    ):
         findings.extend(check(config))
     return findings
 
@@ -55,13 +63,15 @@ def budget_checks(config: Config) -> list[Finding]:
     findings: list[Finding] = []
     for index, load in enumerate(bus_loads(config)):
         if load.over_budget:
-            findings.append((
-                ("can", "buses", index, "max_load"),
-                f"worst-case bus load {load.load:.3f} of bus {load.bus!r} ({load.servo_count} "
-                f"servos at {load.bitrate} bit/s) exceeds max_load {load.max_load}; lengthen "
-                "scheduler periods, lower telemetry_hz, raise the bitrate or move servos to "
-                "another bus",
-            ))
+            findings.append(
+                (
+                    ("can", "buses", index, "max_load"),
+                    f"worst-case bus load {load.load:.3f} of bus {load.bus!r} ({load.servo_count} "
+                    f"servos at {load.bitrate} bit/s) exceeds max_load {load.max_load}; lengthen "
+                    "scheduler periods, lower telemetry_hz, raise the bitrate or move servos to "
+                    "another bus",
+                )
+            )
     return findings
 
 
@@ -78,28 +88,35 @@ def _duplicates(names: list[str]) -> Iterator[tuple[int, int]]:
 def _bus_names(config: Config) -> Iterator[Finding]:
     names = [bus.name for bus in config.can.buses]
     for index, earlier in _duplicates(names):
-        yield (("can", "buses", index, "name"),
-               f"bus name {names[index]!r} is already used by can.buses[{earlier}]")
+        yield (
+            ("can", "buses", index, "name"),
+            f"bus name {names[index]!r} is already used by can.buses[{earlier}]",
+        )
 
 
 def _servo_names(config: Config) -> Iterator[Finding]:
     names = [servo.name for servo in config.servos]
     for index, earlier in _duplicates(names):
-        yield (("servos", index, "name"),
-               f"servo name {names[index]!r} is already used by servos[{earlier}]")
+        yield (
+            ("servos", index, "name"),
+            f"servo name {names[index]!r} is already used by servos[{earlier}]",
+        )
 
 
 def _servo_buses(config: Config) -> Iterator[Finding]:
     bus_names = [bus.name for bus in config.can.buses]
     for index, servo in enumerate(config.servos):
         if servo.bus is None and len(bus_names) > 1:
-            yield (("servos", index, "bus"),
-                   f"expected a bus name (one of {', '.join(bus_names)}): there is more than "
-                   "one bus")
+            yield (
+                ("servos", index, "bus"),
+                f"expected a bus name (one of {', '.join(bus_names)}): there is more than one bus",
+            )
         elif servo.bus is not None and servo.bus not in bus_names:
-            yield (("servos", index, "bus"),
-                   f"expected one of the buses in can.buses ({', '.join(bus_names)}), "
-                   f"found {servo.bus!r}")
+            yield (
+                ("servos", index, "bus"),
+                f"expected one of the buses in can.buses ({', '.join(bus_names)}), "
+                f"found {servo.bus!r}",
+            )
 
 
 def _can_id_collisions(config: Config) -> Iterator[Finding]:
@@ -117,10 +134,12 @@ def _can_id_collisions(config: Config) -> Iterator[Finding]:
         if clash is not None:
             owner, ident = clash
             other = config.servos[owner]
-            yield (("servos", index, "can_id"),
-                   f"CAN id {servo.can_id} ({servo.profile}) collides on bus {bus!r} with "
-                   f"servos[{owner}] {other.name!r} ({other.profile} id {other.can_id}): both "
-                   f"use arbitration id 0x{ident:X}")
+            yield (
+                ("servos", index, "can_id"),
+                f"CAN id {servo.can_id} ({servo.profile}) collides on bus {bus!r} with "
+                f"servos[{owner}] {other.name!r} ({other.profile} id {other.can_id}): both "
+                f"use arbitration id 0x{ident:X}",
+            )
             continue
         for extended, ident in can_identifiers(servo):
             claimed[(bus, extended, ident)] = index
@@ -131,8 +150,10 @@ def _failsafe_positions(config: Config) -> Iterator[Finding]:
         position = servo.failsafe.position_deg
         low, high = servo.limits_deg
         if position is not None and not low <= position <= high:
-            yield (("servos", index, "failsafe", "position_deg"),
-                   f"expected an angle inside limits_deg [{low}, {high}], found {position}")
+            yield (
+                ("servos", index, "failsafe", "position_deg"),
+                f"expected an angle inside limits_deg [{low}, {high}], found {position}",
+            )
 
 
 def _channels(config: Config) -> Iterator[Finding]:
@@ -143,19 +164,25 @@ def _channels(config: Config) -> Iterator[Finding]:
         key_name = "channel" if isinstance(channel, ServoOutputChannel) else "index"
         servo = servos.get(channel.servo)
         if servo is None:
-            yield (("channels", index, "servo"),
-                   f"expected the name of a servo in servos ({', '.join(servos)}), "
-                   f"found {channel.servo!r}")
+            yield (
+                ("channels", index, "servo"),
+                f"expected the name of a servo in servos ({', '.join(servos)}), "
+                f"found {channel.servo!r}",
+            )
         earlier = by_input.setdefault((channel.source, channel.key), index)
         if earlier != index:
-            yield (("channels", index, key_name),
-                   f"{channel.source} {key_name} {channel.key} is already mapped by "
-                   f"channels[{earlier}]")
+            yield (
+                ("channels", index, key_name),
+                f"{channel.source} {key_name} {channel.key} is already mapped by "
+                f"channels[{earlier}]",
+            )
         earlier = by_servo.setdefault((channel.source, channel.servo), index)
         if earlier != index:
-            yield (("channels", index, "servo"),
-                   f"servo {channel.servo!r} is already driven by a {channel.source} mapping "
-                   f"(channels[{earlier}]); one servo takes one mapping per source")
+            yield (
+                ("channels", index, "servo"),
+                f"servo {channel.servo!r} is already driven by a {channel.source} mapping "
+                f"(channels[{earlier}]); one servo takes one mapping per source",
+            )
         if servo is not None and channel.output_deg is None:
             yield from _trim_inside_limits(index, channel, servo)
 
@@ -166,32 +193,39 @@ def _trim_inside_limits(
     low, high = servo.limits_deg
     centre = (low + high) / 2 + channel.trim_deg
     if not low < centre < high:
-        yield (("channels", index, "trim_deg"),
-               f"trim_deg {channel.trim_deg} moves the centre ({centre}) outside the servo's "
-               f"limits_deg ({low}, {high})")
+        yield (
+            ("channels", index, "trim_deg"),
+            f"trim_deg {channel.trim_deg} moves the centre ({centre}) outside the servo's "
+            f"limits_deg ({low}, {high})",
+        )
 
 
 def _gimbals(config: Config) -> Iterator[Finding]:
     servo_names = [servo.name for servo in config.servos]
     gimbal_names = [gimbal.name for gimbal in config.gimbals]
     for index, earlier in _duplicates(gimbal_names):
-        yield (("gimbals", index, "name"),
-               f"gimbal name {gimbal_names[index]!r} is already used by gimbals[{earlier}]")
+        yield (
+            ("gimbals", index, "name"),
+            f"gimbal name {gimbal_names[index]!r} is already used by gimbals[{earlier}]",
+        )
     ids = [gimbal.component_id for gimbal in config.gimbals]
     for index, earlier in _duplicates([str(i) for i in ids]):
-        yield (("gimbals", index, "component_id"),
-               f"component id {ids[index]} is already used by gimbals[{earlier}]")
+        yield (
+            ("gimbals", index, "component_id"),
+            f"component id {ids[index]} is already used by gimbals[{earlier}]",
+        )
     used: dict[str, str] = {}
     for index, gimbal in enumerate(config.gimbals):
         for axis, servo in gimbal.axes().items():
             where = f"gimbals[{index}].{axis}"
             if servo not in servo_names:
-                yield (("gimbals", index, axis),
-                       f"expected the name of a servo in servos ({', '.join(servo_names)}), "
-                       f"found {servo!r}")
+                yield (
+                    ("gimbals", index, axis),
+                    f"expected the name of a servo in servos ({', '.join(servo_names)}), "
+                    f"found {servo!r}",
+                )
             elif servo in used:
-                yield (("gimbals", index, axis),
-                       f"servo {servo!r} already drives {used[servo]}")
+                yield (("gimbals", index, axis), f"servo {servo!r} already drives {used[servo]}")
             else:
                 used[servo] = where
 
@@ -200,5 +234,7 @@ def _simulation_names(config: Config) -> Iterator[Finding]:
     servo_names = {servo.name for servo in config.servos}
     for name in config.simulation.servos:
         if name != "default" and name not in servo_names:
-            yield (("simulation", "servos", name),
-                   f"expected 'default' or the name of a configured servo, found {name!r}")
+            yield (
+                ("simulation", "servos", name),
+                f"expected 'default' or the name of a configured servo, found {name!r}",
+            )

@@ -85,8 +85,10 @@ def parse_yaml(text: str) -> YamlDocument:
     try:
         loader = yaml.SafeLoader(text)
     except yaml.reader.ReaderError as exc:  # a control character: rejected before any parsing
-        raise YamlSyntaxError(text[: exc.position].count("\n") + 1,
-                              f"invalid YAML: character {exc.character!r} is not allowed") from None
+        raise YamlSyntaxError(
+            text[: exc.position].count("\n") + 1,
+            f"invalid YAML: character {exc.character!r} is not allowed",
+        ) from None
     try:
         root = loader.get_single_node()
         problems: list[Problem] = []
@@ -102,8 +104,10 @@ def parse_yaml(text: str) -> YamlDocument:
         what = " ".join(part for part in (exc.context, exc.problem) if part)
         raise YamlSyntaxError(line, f"invalid YAML: {what}") from None
     except yaml.reader.ReaderError as exc:
-        raise YamlSyntaxError(text[: exc.position].count("\n") + 1,
-                              f"invalid YAML: character {exc.character!r} is not allowed") from None
+        raise YamlSyntaxError(
+            text[: exc.position].count("\n") + 1,
+            f"invalid YAML: character {exc.character!r} is not allowed",
+        ) from None
     except yaml.YAMLError as exc:
         raise YamlSyntaxError(None, f"invalid YAML: {exc}") from None
     finally:
@@ -133,8 +137,13 @@ def _find_duplicate_keys(node: Node, path: tuple[str | int, ...], out: list[Prob
             key = key_node.value if isinstance(key_node, ScalarNode) else None
             if key is not None:
                 if key in seen:
-                    out.append(Problem(path + (key,), _line(key_node),
-                                       f"duplicate key (first given on line {seen[key]})"))
+                    out.append(
+                        Problem(
+                            path + (key,),
+                            _line(key_node),
+                            f"duplicate key (first given on line {seen[key]})",
+                        )
+                    )
                 else:
                     seen[key] = _line(key_node) or 0
             _find_duplicate_keys(value_node, path + ((key,) if key is not None else ()), out)

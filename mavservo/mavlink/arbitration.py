@@ -31,8 +31,9 @@ class CommandHold:
     def note_command(self, key: ChannelKey, now: float) -> None:
         """An explicit command just drove ``key``: mirroring stays off it for ``hold_s``."""
         self._held_until[key] = now + self.hold_s
-        log.debug("arbitration: %s %d claimed by command until %.3f", key[0], key[1],
-                  now + self.hold_s)
+        log.debug(
+            "arbitration: %s %d claimed by command until %.3f", key[0], key[1], now + self.hold_s
+        )
 
     def mirror_allowed(self, key: ChannelKey, now: float) -> bool:
         """True when the autopilot stream may drive ``key`` at ``now``."""

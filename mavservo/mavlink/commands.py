@@ -75,14 +75,29 @@ class Command:
         if msg.get_type() == "COMMAND_INT":
             params = (msg.param1, msg.param2, msg.param3, msg.param4, msg.x, msg.y, msg.z)
             return cls(
-                source, msg.target_system, msg.target_component, msg.command,
-                tuple(float(p) for p in params), is_int=True,
+                source,
+                msg.target_system,
+                msg.target_component,
+                msg.command,
+                tuple(float(p) for p in params),
+                is_int=True,
             )
-        params = (msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6,
-                  msg.param7)
+        params = (
+            msg.param1,
+            msg.param2,
+            msg.param3,
+            msg.param4,
+            msg.param5,
+            msg.param6,
+            msg.param7,
+        )
         return cls(
-            source, msg.target_system, msg.target_component, msg.command,
-            tuple(float(p) for p in params), confirmation=int(msg.confirmation),
+            source,
+            msg.target_system,
+            msg.target_component,
+            msg.command,
+            tuple(float(p) for p in params),
+            confirmation=int(msg.confirmation),
         )
 
     def retry_key(self) -> tuple:
@@ -169,11 +184,16 @@ class CommandHandler:
         self._forget_old(now)
         key = cmd.retry_key()
         recent = self._recent.get(key)
-        if recent is not None and (now - recent.when <= self.settings.retry_window_s
-                                   or cmd.confirmation > 0):
+        if recent is not None and (
+            now - recent.when <= self.settings.retry_window_s or cmd.confirmation > 0
+        ):
             self.counters["retry_not_reapplied"] += 1
-            log.info("command %d from %s is a retry: ACK %s again, not applied",
-                     cmd.command, cmd.source, recent.result.name)
+            log.info(
+                "command %d from %s is a retry: ACK %s again, not applied",
+                cmd.command,
+                cmd.source,
+                recent.result.name,
+            )
             recent.when = now
             if not ack or recent.ack_component is None:
                 return []
@@ -187,11 +207,17 @@ class CommandHandler:
         if not result.ok:
             kind = result.reason.split(":")[0] if ":" in result.reason else "backend"
             self.counters[f"reason_{kind}"] += 1
-            log.warning("command %d from %s -> %s: %s", cmd.command, cmd.source,
-                        result.outcome.name, result.reason)
+            log.warning(
+                "command %d from %s -> %s: %s",
+                cmd.command,
+                cmd.source,
+                result.outcome.name,
+                result.reason,
+            )
         else:
-            log.info("command %d from %s accepted by component %d", cmd.command, cmd.source,
-                     component)
+            log.info(
+                "command %d from %s accepted by component %d", cmd.command, cmd.source, component
+            )
         if result.outcome is Outcome.TEMPORARILY_REJECTED:
             # "try again later" must be tried again: a retry of it is a fresh attempt
             self._recent.pop(key, None)
@@ -227,8 +253,9 @@ class CommandHandler:
                     return answer
         return None
 
-    def _gimbal_command(self, device: HostedComponent, cmd: Command, now: float,
-                        broadcast: bool) -> tuple[int, ApplyResult, list] | None:
+    def _gimbal_command(
+        self, device: HostedComponent, cmd: Command, now: float, broadcast: bool
+    ) -> tuple[int, ApplyResult, list] | None:
         comp = device.component_id
         if cmd.command == MAV_CMD_REQUEST_MESSAGE and _is_int(cmd.params[0]):
             message = device.requested_message(int(cmd.params[0]), now)
@@ -244,8 +271,9 @@ class CommandHandler:
             return comp, ApplyResult(Outcome.UNSUPPORTED, "unsupported:command"), []
         return comp, ApplyResult(Outcome(int(raw)), "" if raw == 0 else "gimbal:refused"), []
 
-    def _servo_command(self, cmd: Command, now: float,
-                       broadcast: bool) -> tuple[ApplyResult, list] | None:
+    def _servo_command(
+        self, cmd: Command, now: float, broadcast: bool
+    ) -> tuple[ApplyResult, list] | None:
         """None = not for us (only possible for broadcast / autopilot-addressed commands)."""
         handlers = {
             MAV_CMD_DO_SET_SERVO: self._do_set_servo,
@@ -345,8 +373,9 @@ class CommandHandler:
 
     # ------------------------------------------------------------------ message services
 
-    def _request_message(self, cmd: Command, now: float,
-                         broadcast: bool) -> tuple[ApplyResult, list] | None:
+    def _request_message(
+        self, cmd: Command, now: float, broadcast: bool
+    ) -> tuple[ApplyResult, list] | None:
         msg_id = cmd.params[0]
         if not _is_int(msg_id) or msg_id < 0:
             return None if broadcast else (_denied("bad_param", f"message id {msg_id!r}"), [])
@@ -357,8 +386,9 @@ class CommandHandler:
             return ApplyResult(Outcome.UNSUPPORTED, f"unsupported:message {int(msg_id)}"), []
         return ApplyResult(Outcome.ACCEPTED), list(messages)
 
-    def _set_message_interval(self, cmd: Command,
-                              broadcast: bool) -> tuple[ApplyResult, list] | None:
+    def _set_message_interval(
+        self, cmd: Command, broadcast: bool
+    ) -> tuple[ApplyResult, list] | None:
         msg_id, interval = cmd.params[0], cmd.params[1]
         if not _is_int(msg_id) or msg_id < 0 or not math.isfinite(interval) or interval < -1:
             return None if broadcast else (_denied("bad_param", "message interval"), [])
@@ -373,8 +403,12 @@ class CommandHandler:
     @staticmethod
     def _ack(cmd: Command, result: Outcome) -> Any:
         return mavlink2.MAVLink_command_ack_message(
-            command=cmd.command, result=int(result), progress=0, result_param2=0,
-            target_system=cmd.source[0], target_component=cmd.source[1],
+            command=cmd.command,
+            result=int(result),
+            progress=0,
+            result_param2=0,
+            target_system=cmd.source[0],
+            target_component=cmd.source[1],
         )
 
 
@@ -388,4 +422,3 @@ def _valid_pwm(value: float) -> bool:
 
 def _denied(kind: str, detail: str) -> ApplyResult:
     return ApplyResult(Outcome.DENIED, f"{kind}:{detail}")
-

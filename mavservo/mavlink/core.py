@@ -122,8 +122,12 @@ class MavlinkCore:
         return not allowed or source in allowed
 
     def _heartbeat(self, msg: Any, source: tuple[int, int], now: float) -> list[Outgoing]:
-        if (not self._system_id_known and source[1] == self.settings.autopilot_component
-                and msg.type != MAV_TYPE_GCS and msg.autopilot != MAV_AUTOPILOT_INVALID):
+        if (
+            not self._system_id_known
+            and source[1] == self.settings.autopilot_component
+            and msg.type != MAV_TYPE_GCS
+            and msg.autopilot != MAV_AUTOPILOT_INVALID
+        ):
             self._system_id = source[0]
             self._system_id_known = True
             self.watched = source
@@ -132,8 +136,9 @@ class MavlinkCore:
             self.backend.leave_failsafe(now)
             self.mirror.reset()
             self.hold.release_all()
-            self.telemetry.announce(MAV_SEVERITY_NOTICE,
-                                    "servo bridge: autopilot back, waiting for commands")
+            self.telemetry.announce(
+                MAV_SEVERITY_NOTICE, "servo bridge: autopilot back, waiting for commands"
+            )
         self._to_gimbals(msg, now)
         return []
 
@@ -157,14 +162,14 @@ class MavlinkCore:
             self.counters["failsafe_entered"] += 1
             self.commands.cancel_all()
             self.backend.enter_failsafe("autopilot heartbeat lost", now)
-            self.telemetry.announce(MAV_SEVERITY_CRITICAL,
-                                    "servo bridge: autopilot lost, servos in failsafe")
+            self.telemetry.announce(
+                MAV_SEVERITY_CRITICAL, "servo bridge: autopilot lost, servos in failsafe"
+            )
         if not self.watchdog.in_failsafe:
             self.commands.tick(now)
         for cid, mav_type in self.components.items():
             if now >= self._next_heartbeat[cid]:
-                self._next_heartbeat[cid] = max(self._next_heartbeat[cid] + HEARTBEAT_PERIOD_S,
-                                                now)
+                self._next_heartbeat[cid] = max(self._next_heartbeat[cid] + HEARTBEAT_PERIOD_S, now)
                 out.append((cid, self._heartbeat_message(mav_type)))
         servo = self.settings.servo_component_id
         out.extend((servo, m) for m in self.telemetry.periodic(now))

@@ -150,8 +150,7 @@ class MavlinkLink:
             except Exception as exc:  # noqa: BLE001 - any pymavlink open failure
                 log.warning("monitor output %s unavailable: %s", url, exc)
         self._stop.clear()
-        self._thread = threading.Thread(target=self._receive_loop, name="mavlink-rx",
-                                        daemon=True)
+        self._thread = threading.Thread(target=self._receive_loop, name="mavlink-rx", daemon=True)
         self._thread.start()
 
     def stop(self) -> None:

@@ -45,8 +45,13 @@ class MavlinkSide:
         self._lock = threading.RLock()
         self.core = MavlinkCore(settings, backend, gimbals, boot_time=clock())
         self.link = MavlinkLink(
-            settings.url, self._on_message, baud=settings.baud, signing=settings.signing,
-            on_event=self._on_link_event, clock=clock, monitor_outputs=settings.monitor_outputs,
+            settings.url,
+            self._on_message,
+            baud=settings.baud,
+            signing=settings.signing,
+            on_event=self._on_link_event,
+            clock=clock,
+            monitor_outputs=settings.monitor_outputs,
         )
         for cid in self.core.components:
             self.link.add_component(cid, self.core.system_id)

@@ -171,8 +171,11 @@ class Telemetry:
         while self._texts and len(self._text_sent_at) < STATUSTEXT_BURST:
             severity, text = self._texts.popleft()
             self._text_sent_at.append(now)
-            out.append(mavlink2.MAVLink_statustext_message(
-                severity, text[:STATUSTEXT_LENGTH].encode("ascii", "replace"), 0, 0))
+            out.append(
+                mavlink2.MAVLink_statustext_message(
+                    severity, text[:STATUSTEXT_LENGTH].encode("ascii", "replace"), 0, 0
+                )
+            )
         return out
 
     # ------------------------------------------------------------------ builders
@@ -192,7 +195,8 @@ class Telemetry:
                 values[status.index] = float(status.normalized)
                 active |= 1 << status.index
         return mavlink2.MAVLink_actuator_output_status_message(
-            int((now - self._boot) * 1e6), active, values)
+            int((now - self._boot) * 1e6), active, values
+        )
 
     def _esc_telemetry(self, statuses: list[ServoStatus]) -> list[Any]:
         by_index = {s.index: s for s in statuses}
@@ -223,18 +227,28 @@ class Telemetry:
             if state is None:
                 continue
             n = status.index + 1
-            values = [("pos", state.position_deg), ("vel", state.velocity_dps),
-                      ("cur", state.current_a), ("tmp", state.temperature_c)]
+            values = [
+                ("pos", state.position_deg),
+                ("vel", state.velocity_dps),
+                ("cur", state.current_a),
+                ("tmp", state.temperature_c),
+            ]
             if status.setpoint_deg is not None:
                 values.append(("sp", status.setpoint_deg))
             for suffix, value in values:
-                out.append(mavlink2.MAVLink_named_value_float_message(
-                    boot_ms, f"s{n}_{suffix}".encode(), float(value)))
+                out.append(
+                    mavlink2.MAVLink_named_value_float_message(
+                        boot_ms, f"s{n}_{suffix}".encode(), float(value)
+                    )
+                )
         # bus load and latency figures, when the backend offers them (``bus0_load``, ``lat_p99``)
         health = getattr(self._backend, "health", None)
         for name, value in (health() if health is not None else {}).items():
-            out.append(mavlink2.MAVLink_named_value_float_message(
-                boot_ms, name[:10].encode(), float(value)))
+            out.append(
+                mavlink2.MAVLink_named_value_float_message(
+                    boot_ms, name[:10].encode(), float(value)
+                )
+            )
         return out
 
 

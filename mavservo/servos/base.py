@@ -96,9 +96,7 @@ class ServoProfile(ABC):
 
     def __init__(self, can_id: int) -> None:
         if not self.min_id <= can_id <= self.max_id:
-            raise ValueError(
-                f"{self.name}: servo id {can_id} outside {self.min_id}..{self.max_id}"
-            )
+            raise ValueError(f"{self.name}: servo id {can_id} outside {self.min_id}..{self.max_id}")
         self.can_id = can_id
         self.last_state: ServoState | None = None
         """The last decoded state, or None before the first reply."""
@@ -155,4 +153,3 @@ class ServoProfile(ABC):
         if math.isnan(speed) or speed < 0:
             raise ValueError(f"{self.name}: speed limit must be >= 0, got {speed!r}")
         return min(speed, self.max_speed_dps)
-
