@@ -251,11 +251,11 @@ class Diagnostics(SchedulerObserver):
         starts = [w["t0"] for w in windows]
 
         def phase(t: float) -> str:
-            i = bisect.bisect_right(starts, t) - 1
+            i = window_at(starts, t)
             return windows[i]["phase"] if i >= 0 else "warm-up"
 
         def into(t: float) -> float:
-            i = bisect.bisect_right(starts, t) - 1
+            i = window_at(starts, t)
             return round(t - starts[i], 3) if i >= 0 else 0.0
 
         # a missed slot means the command thread woke at least one period late: look at the
@@ -431,6 +431,11 @@ def counters(bridge: Bridge, setup: InProcess | Deployed) -> dict[str, int]:
     }
 
 
+def window_at(starts: list[float], t: float) -> int:
+    """Index of the window (by start times, ascending) that ``t`` falls in; -1 before the first."""
+    return bisect.bisect_right(starts, t) - 1
+
+
 def delta(after: dict[str, int], before: dict[str, int]) -> dict[str, int]:
     return {k: after[k] - before[k] for k in after}
 
@@ -451,7 +456,7 @@ def lost_by_request_time(
         w["lost_by_request"] = 0
     for t, _servo in lost:
         sent = t - REPLY_TIMEOUT_S
-        i = bisect.bisect_right(starts, sent) - 1
+        i = window_at(starts, sent)
         if i >= 0 and sent < ends[i]:
             windows[i]["lost_by_request"] += 1
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import heapq
 import random
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import pytest
@@ -33,7 +34,7 @@ class Sent:
 class Wire:
     """One servo's replies: latency per frame, dropped frames, first-in first-out delivery."""
 
-    latency: object  # callable(index) -> seconds
+    latency: Callable[[int], float]  # frame index -> seconds
     drop: set[int] = field(default_factory=set)
     pending: list[tuple[float, int, int | None]] = field(default_factory=list)
     sent: list[tuple[float, int | None]] = field(default_factory=list)

@@ -15,6 +15,8 @@ import pytest
 
 from mavservo import aa55
 from mavservo.aa55 import Frame
+from mavservo.bridge import Bridge
+from mavservo.config.loader import load_config_text
 from mavservo.usbcan import AUTO_HOLD_BYTES, AUTO_HOLD_S, LOAD_WINDOW_S, LineLoad, auto_hold_s
 
 
@@ -323,9 +325,6 @@ def test_auto_read_interval_holds_only_while_the_line_is_busy(adapter: AdapterEn
 
 
 def test_the_bridge_passes_the_configured_read_interval_to_its_adapter() -> None:
-    from mavservo.bridge import Bridge
-    from mavservo.config.loader import load_config_text
-
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
         sock.bind(("127.0.0.1", 0))
         port = sock.getsockname()[1]
