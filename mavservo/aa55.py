@@ -48,8 +48,9 @@ START = 0xAA
 END = 0x55
 FIXED_LENGTH = 20
 #: The decoder never holds this many bytes between calls: a frame waiting for its follower, with
-#: a candidate starting inside it (15 + 14 bytes at most), or an incomplete candidate (< 20).
-MAX_PENDING = 30
+#: a candidate starting inside it (15 + 14 bytes at most; 19 + 20 and the first byte of the
+#: next for two 20-byte frames), or an incomplete candidate (< 20).
+MAX_PENDING = 41
 MAX_STD_ID = 0x7FF
 MAX_EXT_ID = 0x1FFFFFFF
 
@@ -290,6 +291,12 @@ _DATA_ALTERNATIVES = b"|".join(_layout_pattern(*layout) for layout in _LAYOUTS)
 _FIXED_ALTERNATIVE = rb"\xaa\x55.{18}"
 _VARIABLE_RE = re.compile(_FIXED_ALTERNATIVE + b"|" + _DATA_ALTERNATIVES, re.DOTALL)
 _FIXED_RE = re.compile(_FIXED_ALTERNATIVE, re.DOTALL)
+_FIXED_START = b"\xaa\x55"
+
+
+def _checksum_ok(buf: bytes | bytearray, start: int) -> bool:
+    """Does the 20-byte frame at ``start`` carry the low byte of the sum of its bytes 2..18?"""
+    return sum(buf[start + 2 : start + 19]) & 0xFF == buf[start + 19]
 
 
 @dataclass(frozen=True)
@@ -324,10 +331,21 @@ class _Verdict(enum.Enum):
 _DATA_RE = re.compile(_DATA_ALTERNATIVES, re.DOTALL)
 
 
-def _followed_by_frame(buf: bytes | bytearray, at: int, end: int, idle: bool) -> bool | None:
-    """Does a frame start at ``at`` (or the data end on an idle line)? None: not known yet."""
+def _followed_by_frame(
+    buf: bytes | bytearray, at: int, end: int, idle: bool, fixed: bool = False
+) -> bool | None:
+    """Does a frame start at ``at`` (or the data end on an idle line)? None: not known yet.
+
+    A 20-byte frame starts with two known bytes (``AA 55``), and both are asked for: a false
+    start that ran into a real 20-byte frame ends on one of its bytes, a 0xAA now and then.
+    """
     if at < end:
-        return buf[at] == START
+        if buf[at] != START:
+            return False
+        if not fixed:
+            return True
+        if at + 1 < end:
+            return buf[at + 1] == END
     return True if idle else None
 
 
@@ -496,7 +514,20 @@ class Decoder:
                 raw = m.group()
                 type_byte = raw[1]
                 stop = m.end()
-                if type_byte == END:
+                fixed = type_byte == END
+                if fixed and not _checksum_ok(raw, 0):
+                    verdict = _Verdict.ACCEPT  # nothing to judge: _fixed rejects it below
+                else:
+                    verdict = self._judge(buf, start, stop, end, gap, idle, fixed)
+                if verdict is not _Verdict.ACCEPT:
+                    if verdict is _Verdict.WAIT:
+                        held = pos = start
+                        break
+                    self._record(Rejection.OVERLAP, raw)
+                    pos = start + 1
+                    gap = restart = True
+                    break
+                if fixed:
                     item = self._fixed(raw, timestamp)
                     if item is None:  # bad checksum or impossible field: rescan after the 0xAA
                         pos = start + 1
@@ -509,15 +540,6 @@ class Decoder:
                     append(item)
                     pos, gap = stop, False
                     continue
-                verdict = self._judge(buf, start, stop, end, gap, idle)
-                if verdict is not _Verdict.ACCEPT:
-                    if verdict is _Verdict.WAIT:
-                        held = pos = start
-                        break
-                    self._record(Rejection.OVERLAP, raw)
-                    pos = start + 1
-                    gap = restart = True
-                    break
                 frames += 1
                 id_end = 6 if type_byte & 0x20 else 4  # extended IDs take 4 bytes
                 frame = Frame(
@@ -555,7 +577,14 @@ class Decoder:
         return out
 
     def _judge(
-        self, buf: bytes | bytearray, start: int, stop: int, end: int, gap: bool, idle: bool
+        self,
+        buf: bytes | bytearray,
+        start: int,
+        stop: int,
+        end: int,
+        gap: bool,
+        idle: bool,
+        fixed: bool = False,
     ) -> _Verdict:
         """Keep the frame matched at ``buf[start:stop]``, or is it a false start over a real one?
 
@@ -572,35 +601,62 @@ class Decoder:
         A frame followed at once by another frame, with no garbage before it, is always kept:
         that is every frame of a clean stream, decided without looking further. Undecided cases
         wait for more bytes (at most two frames' worth), or for the line to go idle.
+
+        ``fixed``: the match is a checksummed 20-byte frame. Its checksum passes by chance for
+        one false start in 256 (a frame cut short takes the next frame's first bytes as its
+        last), so the same rule runs with 20-byte ``AA 55`` frames inside it, up to one starting
+        on its last byte, and one more: when neither is followed by a frame start (garbage after
+        the inner one), the inner frame, whose checksum passed too, wins. A real frame loses
+        that way only if garbage follows it, it contains ``AA 55`` (~1 in 4,000 random frames)
+        and the 20 bytes from there pass the checksum by chance (1 in 256).
         """
-        inner = buf.find(START, start + 1, stop)
-        if inner < 0 or not self.resolve_overlaps:
+        if not self.resolve_overlaps:
             return _Verdict.ACCEPT
-        followed = _followed_by_frame(buf, stop, end, idle)
+        marker, limit = (_FIXED_START, min(stop + 1, end)) if fixed else (START, stop)
+        inner = buf.find(marker, start + 1, limit)
+        if inner < 0:
+            return _Verdict.ACCEPT
+        followed = _followed_by_frame(buf, stop, end, idle, fixed)
         if followed and not gap:
             return _Verdict.ACCEPT
         while inner >= 0:
-            if inner + 1 < end and buf[inner + 1] == END:  # a 20-byte frame has its checksum
-                inner = buf.find(START, inner + 1, stop)
-                continue
-            match = _DATA_RE.match(buf, inner)
-            if match is None:
-                if not idle and self._could_complete(buf, inner, end):
-                    return _Verdict.WAIT
-            else:
-                inner_stop = match.end()
-                inner_followed = _followed_by_frame(buf, inner_stop, end, idle)
+            inner_stop = self._inner_frame_end(buf, inner, end, idle, fixed)
+            if inner_stop is None:
+                return _Verdict.WAIT
+            if inner_stop >= 0:
+                inner_followed = _followed_by_frame(buf, inner_stop, end, idle, fixed)
                 if gap and (inner_stop == stop or inner_followed):
                     return _Verdict.REJECT
                 if inner_followed is None:
                     return _Verdict.WAIT
-                if inner_followed:
+                if inner_followed or fixed:  # a checksum-passing inner frame wins a tie
                     if followed is None:
                         return _Verdict.WAIT
                     if not followed:
                         return _Verdict.REJECT
-            inner = buf.find(START, inner + 1, stop)
+            inner = buf.find(marker, inner + 1, limit)
         return _Verdict.ACCEPT
+
+    def _inner_frame_end(
+        self, buf: bytes | bytearray, inner: int, end: int, idle: bool, fixed: bool
+    ) -> int | None:
+        """Where a frame of the judged kind starting at ``inner`` ends; -1: none does there;
+        None: not known until more bytes come.
+
+        Inside a variable-protocol frame only variable frames count (a 20-byte frame has its
+        own checksum to settle it); inside a 20-byte frame only 20-byte frames with a valid
+        checksum do.
+        """
+        if fixed:
+            if inner + FIXED_LENGTH > end:
+                return -1 if idle else None
+            return inner + FIXED_LENGTH if _checksum_ok(buf, inner) else -1
+        if inner + 1 < end and buf[inner + 1] == END:
+            return -1
+        match = _DATA_RE.match(buf, inner)
+        if match is not None:
+            return match.end()
+        return None if not idle and self._could_complete(buf, inner, end) else -1
 
     def _take_run(
         self, buf: bytes | bytearray, pos: int, run: _Run, timestamp: float, out: list[Any]
@@ -641,7 +697,7 @@ class Decoder:
     # -- internals ----------------------------------------------------------------------------
 
     def _fixed(self, raw: bytes, timestamp: float) -> Frame | AdapterSettings | ControlFrame | None:
-        if sum(raw[2:19]) & 0xFF != raw[19]:
+        if not _checksum_ok(raw, 0):
             self._record(Rejection.BAD_CHECKSUM, raw)
             return None
         command = raw[2]

@@ -294,6 +294,72 @@ def test_garbage_start_does_not_swallow_the_frame_it_covers() -> None:
     assert got == [real]
 
 
+def _with_checksum(frame: Frame, checksum: int) -> Frame:
+    """``frame`` with its first data byte set so that its 20-byte encoding ends in ``checksum``."""
+    data = bytearray(frame.data)
+    data[0] = 0
+    data[0] = (checksum - encode(frame._replace(data=bytes(data)), "fixed")[19]) & 0xFF
+    out = frame._replace(data=bytes(data))
+    assert encode(out, "fixed")[19] == checksum
+    return out
+
+
+@pytest.mark.parametrize("garbage", [b"", b"\x05\xd6", b"\xaa\x04"])
+def test_fixed_frame_cut_before_its_checksum_does_not_swallow_the_next_one(
+    garbage: bytes,
+) -> None:
+    """Cut just before a checksum of 0xAA, a frame takes the next frame's 0xAA as its checksum.
+
+    The 20 bytes pass the check; what gives them away is that ``55 01 ...`` follows them, not a
+    frame start, while the frame beginning on their last byte has a valid checksum too (and is
+    followed by a frame, or by garbage: then neither is, and the inner one still wins).
+    """
+    cut = _with_checksum(Frame(0x101, False, False, 2, b"\x00\x07"), 0xAA)
+    real = Frame(0x202, False, False, 8, bytes(range(8)))
+    after = Frame(0x1ABCDE, True, False, 1, b"\x09")
+    stream = encode(cut, "fixed")[:19] + encode(real, "fixed") + garbage + encode(after, "fixed")
+    dec = Decoder("fixed")
+    assert data_frames_only(dec.feed(stream) + dec.flush()) == [real, after]
+    assert dec.rejected[Rejection.OVERLAP] == 1
+    # the same frame whole, followed by a frame, is a frame like any other
+    clean = Decoder("fixed")
+    whole = encode(cut, "fixed") + encode(real, "fixed")
+    assert clean.feed(whole) == [cut, real] and not clean.rejected
+
+
+@given(
+    st.lists(frames(), min_size=1, max_size=6),
+    st.integers(0, 5),
+    st.integers(3, 19),
+    st.binary(min_size=17, max_size=17),
+    st.binary(max_size=3),
+)
+def test_fixed_false_start_passing_its_checksum_never_swallows_a_frame(
+    sent: list[Frame], where: int, cut: int, junk: bytes, garbage_after: bytes
+) -> None:
+    """The worst case of a cut 20-byte frame: its bytes and the next frame's pass the checksum.
+
+    ``cut`` bytes of a false ``AA 55`` start sit before frame ``where`` (and ``garbage_after``
+    after it); one of them is chosen so that the 20-byte candidate they make with that frame's
+    first bytes checks out (by chance one false start in 256 does). Excluded: that frame's own
+    bytes continue with ``AA 55`` right after the candidate, which makes the candidate a frame
+    followed by a frame.
+    """
+    where = min(where, len(sent) - 1)
+    before = b"".join(encode(f, "fixed") for f in sent[:where])
+    rest = encode(sent[where], "fixed") + garbage_after
+    rest += b"".join(encode(f, "fixed") for f in sent[where + 1 :])
+    false = bytearray(b"\xaa\x55" + junk[: cut - 2])
+    candidate = false + rest[: aa55.FIXED_LENGTH - cut]
+    false[2] = (candidate[19] - sum(candidate[3:19])) & 0xFF
+    stream = before + bytes(false) + rest
+    assume(stream[len(before) + 20 : len(before) + 22] != b"\xaa\x55")
+    dec = Decoder("fixed")
+    got = iter(data_frames_only(dec.feed(stream) + dec.flush()))
+    assert all(any(g == f for g in got) for f in sent)  # every frame, in order
+    assert dec.rejected[Rejection.OVERLAP] >= 1
+
+
 def test_each_rejection_reason_is_counted() -> None:
     good = encode(Frame(0x100, False, False, 1, b"\x01"))
     bad_dlc = b"\xaa\xc9\x00\x01" + bytes(9) + b"\x55"
