@@ -24,6 +24,7 @@ their median is taken, so a slow moment of the shared machine hits both sides of
 from __future__ import annotations
 
 import argparse
+import bisect
 import io
 import multiprocessing
 import os
@@ -94,6 +95,8 @@ class Corrupted:
     stream: bytes
     frames: list[Frame]
     status: list[str]
+    #: Where each frame's (possibly damaged) bytes begin in ``stream``, after any garbage.
+    offsets: list[int] = field(default_factory=list)
 
 
 def corrupted_stream(
@@ -117,6 +120,7 @@ def corrupted_stream(
     out = bytearray()
     frames: list[Frame] = []
     status: list[str] = []
+    offsets: list[int] = []
     recent: list[Key] = []
     for _ in range(n):
         frame = _random_frame(rng)
@@ -142,10 +146,11 @@ def corrupted_stream(
             state = FLIPPED
         else:
             state = INTACT
+        offsets.append(len(out))
         out += raw
         frames.append(frame)
         status.append(state)
-    return Corrupted(bytes(out), frames, status)
+    return Corrupted(bytes(out), frames, status, offsets)
 
 
 def _random_frame(rng: random.Random) -> Frame:
@@ -449,10 +454,20 @@ class Robustness:
     damaged_emitted_as_sent: int
     wrong_undetectable: int
     wrong_impossible: int
+    #: Indices (into the truth) of the intact frames no output matched.
+    lost: list[int] = field(default_factory=list)
+    #: Of those, the losses a clean stream forces (see :func:`forced_losses`).
+    lost_forced: int = 0
 
     @property
     def intact_lost(self) -> int:
         return self.intact - self.intact_recovered
+
+    @property
+    def recoverable_percent(self) -> float:
+        """Recovered intact frames out of those no clean stream carries as part of another."""
+        recoverable = self.intact - self.lost_forced
+        return 100.0 * self.intact_recovered / recoverable if recoverable else 100.0
 
     @property
     def recovered_percent(self) -> float:
@@ -492,6 +507,7 @@ def classify(
     outputs: Sequence[Key],
     raws: Sequence[bytes] | None,
     stream: bytes | None,
+    protocol: str = "variable",
 ) -> Robustness:
     """Match outputs, in order, to the truth frames (searching ``MATCH_WINDOW`` ahead).
 
@@ -503,6 +519,7 @@ def classify(
     """
     keys = [f.key() for f in truth.frames]
     pos = 0
+    matched: set[int] = set()
     recovered = damaged_ok = undetectable = impossible = 0
     for i, out in enumerate(outputs):
         hit = -1
@@ -511,6 +528,7 @@ def classify(
                 hit = j
                 break
         if hit >= 0:
+            matched.add(hit)
             if truth.status[hit] == INTACT:
                 recovered += 1
             else:
@@ -521,7 +539,67 @@ def classify(
         else:
             undetectable += 1
     intact = truth.status.count(INTACT)
-    return Robustness(name, intact, recovered, damaged_ok, undetectable, impossible)
+    lost = [i for i, state in enumerate(truth.status) if state == INTACT and i not in matched]
+    result = Robustness(name, intact, recovered, damaged_ok, undetectable, impossible, lost)
+    if truth.offsets:
+        result.lost_forced = len(forced_losses(truth, outputs, lost, protocol))
+    return result
+
+
+def output_spans(stream: bytes, outputs: Sequence[Key], protocol: str) -> list[tuple[int, int]]:
+    """Where each output's wire bytes sit in ``stream``: (start, end), or (-1, -1) when the
+    output has no valid encoding (an impossible frame) or its bytes are not found.
+
+    Outputs come in stream order and never share bytes, so each is searched for from where the
+    previous one ended.
+    """
+    spans = []
+    at = 0
+    for key in outputs:
+        try:
+            raw = encode(Frame(*key), protocol)  # type: ignore[arg-type]
+        except ValueError:
+            spans.append((-1, -1))
+            continue
+        start = stream.find(raw, at)
+        if start < 0:
+            spans.append((-1, -1))
+            continue
+        at = start + len(raw)
+        spans.append((start, at))
+    return spans
+
+
+def forced_losses(
+    truth: Corrupted, outputs: Sequence[Key], lost: Sequence[int], protocol: str = "variable"
+) -> list[int]:
+    """The lost intact frames that no decoder correct on clean streams could have recovered.
+
+    A lost frame is certified when the decoder emitted a valid frame X whose bytes cover it and
+    X is flanked by the frames emitted before and after it, back to back: then the bytes from
+    the frame before to the frame after are, byte for byte, the clean stream ``P X N``, which
+    must decode to X. A decoder that decides from the frames around a candidate (as any
+    streaming decoder with bounded look-ahead does) cannot tell the corrupted stream from that
+    clean one, so it must lose the frame inside X. (A truncated frame whose length runs exactly
+    to the next frame's end, or a garbage 0xAA right after a frame, makes such an X.)
+    """
+    spans = output_spans(truth.stream, outputs, protocol)
+    starts = [s for s, _ in spans]
+    forced = []
+    for j in lost:
+        first = truth.offsets[j]
+        last = first + len(encode(truth.frames[j], protocol))  # type: ignore[arg-type]
+        i = bisect.bisect_left(starts, first) - 1  # the last output starting before the frame
+        while i >= 0 and starts[i] < 0:
+            i -= 1
+        if i < 0 or spans[i][1] < last:
+            continue
+        start, stop = spans[i]
+        before_ok = i == 0 or spans[i - 1][1] == start
+        after_ok = i + 1 == len(spans) or spans[i + 1][0] == stop
+        if before_ok and after_ok:
+            forced.append(j)
+    return forced
 
 
 def bench_robustness(n: int, seed: int) -> list[Robustness]:
@@ -548,6 +626,7 @@ def bench_robustness(n: int, seed: int) -> list[Robustness]:
             [f.key() for f in ours_on_bytes(fixed.stream, "fixed")],
             None,
             None,
+            "fixed",
         )
     )
     return results

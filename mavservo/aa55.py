@@ -332,17 +332,18 @@ _DATA_RE = re.compile(_DATA_ALTERNATIVES, re.DOTALL)
 
 
 def _followed_by_frame(
-    buf: bytes | bytearray, at: int, end: int, idle: bool, fixed: bool = False
+    buf: bytes | bytearray, at: int, end: int, idle: bool, two_byte_start: bool = False
 ) -> bool | None:
     """Does a frame start at ``at`` (or the data end on an idle line)? None: not known yet.
 
-    A 20-byte frame starts with two known bytes (``AA 55``), and both are asked for: a false
-    start that ran into a real 20-byte frame ends on one of its bytes, a 0xAA now and then.
+    ``two_byte_start``: frames start with ``AA 55`` (the fixed protocol), and both bytes are
+    asked for: a false start that ran into a real 20-byte frame ends on one of its bytes, a
+    0xAA now and then.
     """
     if at < end:
         if buf[at] != START:
             return False
-        if not fixed:
+        if not two_byte_start:
             return True
         if at + 1 < end:
             return buf[at + 1] == END
@@ -604,32 +605,43 @@ class Decoder:
 
         ``fixed``: the match is a checksummed 20-byte frame. Its checksum passes by chance for
         one false start in 256 (a frame cut short takes the next frame's first bytes as its
-        last), so the same rule runs with 20-byte ``AA 55`` frames inside it, up to one starting
-        on its last byte, and one more: when neither is followed by a frame start (garbage after
-        the inner one), the inner frame, whose checksum passed too, wins. A real frame loses
-        that way only if garbage follows it, it contains ``AA 55`` (~1 in 4,000 random frames)
-        and the 20 bytes from there pass the checksum by chance (1 in 256).
+        last; in the variable protocol, a payload ending in 0xAA before its 0x55 end marker
+        starts one), so the same rule runs with the frames inside it (20-byte frames, up to one
+        starting on its last byte, and variable ones in the variable protocol), and one more:
+        when neither is followed by a frame start (garbage after the inner one), the inner
+        frame wins. A real 20-byte frame loses that way only if garbage follows it and it holds
+        a valid frame: in the fixed protocol one with ``AA 55`` (~1 in 4,000 random frames)
+        whose 20 bytes pass the checksum by chance (1 in 256); in the variable one, where
+        20-byte frames are the adapter's rare replies, a structurally valid variable frame.
         """
         if not self.resolve_overlaps:
             return _Verdict.ACCEPT
-        marker, limit = (_FIXED_START, min(stop + 1, end)) if fixed else (START, stop)
+        if fixed and self.protocol == "fixed":
+            marker, limit = _FIXED_START, min(stop + 1, end)
+        else:
+            marker, limit = START, stop
         inner = buf.find(marker, start + 1, limit)
         if inner < 0:
             return _Verdict.ACCEPT
-        followed = _followed_by_frame(buf, stop, end, idle, fixed)
-        if followed and not gap:
+        two_byte_start = self.protocol == "fixed"  # frames there start with AA 55
+        # A 20-byte frame on a variable-protocol line is one of the adapter's rare replies: one
+        # that holds a frame followed by a frame is taken for a false start even when it is
+        # followed by a frame start itself (20 bytes of short frames often end on one).
+        weak = fixed and not two_byte_start
+        followed = _followed_by_frame(buf, stop, end, idle, two_byte_start)
+        if followed and not gap and not weak:
             return _Verdict.ACCEPT
         while inner >= 0:
             inner_stop = self._inner_frame_end(buf, inner, end, idle, fixed)
             if inner_stop is None:
                 return _Verdict.WAIT
             if inner_stop >= 0:
-                inner_followed = _followed_by_frame(buf, inner_stop, end, idle, fixed)
-                if gap and (inner_stop == stop or inner_followed):
+                inner_followed = _followed_by_frame(buf, inner_stop, end, idle, two_byte_start)
+                if (gap or weak) and (inner_stop == stop or inner_followed):
                     return _Verdict.REJECT
                 if inner_followed is None:
                     return _Verdict.WAIT
-                if inner_followed or fixed:  # a checksum-passing inner frame wins a tie
+                if inner_followed or fixed:  # a frame inside a 20-byte one wins a tie
                     if followed is None:
                         return _Verdict.WAIT
                     if not followed:
@@ -640,19 +652,21 @@ class Decoder:
     def _inner_frame_end(
         self, buf: bytes | bytearray, inner: int, end: int, idle: bool, fixed: bool
     ) -> int | None:
-        """Where a frame of the judged kind starting at ``inner`` ends; -1: none does there;
-        None: not known until more bytes come.
+        """Where a frame that counts starts at ``inner`` ends (-1: none does; None: not known
+        until more bytes come).
 
-        Inside a variable-protocol frame only variable frames count (a 20-byte frame has its
-        own checksum to settle it); inside a 20-byte frame only 20-byte frames with a valid
-        checksum do.
+        Inside a variable-protocol frame only variable frames count: a 20-byte frame there (a
+        payload byte 0xAA before the 0x55 end marker starts one in 1 frame in 256) has its own
+        checksum to settle it when the scan reaches it.
         """
-        if fixed:
+        if inner + 1 >= end:
+            return -1 if idle else None
+        if buf[inner + 1] == END:
+            if not fixed:
+                return -1
             if inner + FIXED_LENGTH > end:
                 return -1 if idle else None
             return inner + FIXED_LENGTH if _checksum_ok(buf, inner) else -1
-        if inner + 1 < end and buf[inner + 1] == END:
-            return -1
         match = _DATA_RE.match(buf, inner)
         if match is not None:
             return match.end()

@@ -360,6 +360,63 @@ def test_fixed_false_start_passing_its_checksum_never_swallows_a_frame(
     assert dec.rejected[Rejection.OVERLAP] >= 1
 
 
+def test_a_false_20_byte_start_does_not_swallow_variable_frames() -> None:
+    """From the bench's corrupted stream: a frame with a bad type byte (B0) ends in ``AA 55``
+    (payload byte 0xAA, end marker), and the 20 bytes from there pass the checksum by chance.
+
+    Taken as an adapter reply they would swallow three intact frames; the first of them is
+    followed by a frame start, so the 20-byte candidate gives way.
+    """
+    stream = bytes.fromhex(
+        "aac1fc052a55"  # 0x5FC
+        "aab03d06d5d88c6cc8f1aa55"  # bad type byte; payload ends in AA, then the end marker
+        "aae2dae13304c85655"  # 0x433E1DA, extended
+        "aac03a0455"  # 0x43A
+        "aac2aa04f37d55"  # 0x4AA
+        "aae2cc353a06a62355"  # 0x63A35CC, extended
+    )
+    candidate = stream[16:36]
+    assert candidate[:2] == b"\xaa\x55" and aa55._checksum_ok(candidate, 0)
+    dec = Decoder()
+    got = dec.feed(stream) + dec.flush()
+    assert [(f.arbitration_id, f.is_extended_id) for f in got] == [
+        (0x5FC, False),
+        (0x433E1DA, True),
+        (0x43A, False),
+        (0x4AA, False),
+        (0x63A35CC, True),
+    ]
+    assert dec.rejected[Rejection.OVERLAP] == 1 and dec.control == 0
+
+
+@given(
+    st.lists(frames(), min_size=1, max_size=8),
+    st.integers(0, 7),
+    st.integers(2, 19),
+    st.binary(min_size=17, max_size=17),
+)
+def test_variable_line_false_20_byte_start_passing_its_checksum_swallows_nothing(
+    sent: list[Frame], where: int, cut: int, junk: bytes
+) -> None:
+    """``cut`` bytes of a false ``AA 55`` start before frame ``where`` of a variable-protocol
+    stream, one of them chosen so that the 20 bytes from there pass the checksum (when ``cut``
+    is 2, the following frames' bytes are left as drawn and the case is skipped unless they
+    pass)."""
+    where = min(where, len(sent) - 1)
+    before = b"".join(encode(f) for f in sent[:where])
+    rest = b"".join(encode(f) for f in sent[where:])
+    false = bytearray(b"\xaa\x55" + junk[: cut - 2])
+    candidate = bytearray(false + rest)[: aa55.FIXED_LENGTH]
+    assume(len(candidate) == aa55.FIXED_LENGTH)
+    if cut > 2:
+        false[2] = (candidate[19] - sum(candidate[3:19])) & 0xFF
+        candidate[2] = false[2]
+    assume(aa55._checksum_ok(candidate, 0))
+    dec = Decoder()
+    got = iter(data_frames_only(dec.feed(before + bytes(false) + rest) + dec.flush()))
+    assert all(any(g == f for g in got) for f in sent)  # every frame, in order
+
+
 def test_each_rejection_reason_is_counted() -> None:
     good = encode(Frame(0x100, False, False, 1, b"\x01"))
     bad_dlc = b"\xaa\xc9\x00\x01" + bytes(9) + b"\x55"
