@@ -597,7 +597,10 @@ class Decoder:
 
         * the match came after garbage and the inner frame ends where the match ends or is
           itself followed by a frame, or
-        * the match is followed by something that is not a frame start while the inner frame is.
+        * the match is followed by something that is not a frame start while the inner frame is,
+          or ends there too (then the line is damaged right after both, and a real frame whose
+          last bytes read as a frame, ~3 in 100,000, is rarer than a cut one or a garbage 0xAA
+          that runs exactly to the end of the next frame).
 
         A frame followed at once by another frame, with no garbage before it, is always kept:
         that is every frame of a clean stream, decided without looking further. Undecided cases
@@ -637,7 +640,9 @@ class Decoder:
                 return _Verdict.WAIT
             if inner_stop >= 0:
                 inner_followed = _followed_by_frame(buf, inner_stop, end, idle, two_byte_start)
-                if (gap or weak) and (inner_stop == stop or inner_followed):
+                if inner_stop == stop and (gap or weak or followed is False):
+                    return _Verdict.REJECT  # same end, and garbage before it or after it
+                if (gap or weak) and inner_followed:
                     return _Verdict.REJECT
                 if inner_followed is None:
                     return _Verdict.WAIT

@@ -286,6 +286,37 @@ def test_truncated_frame_does_not_swallow_the_next_one() -> None:
     assert dec.rejected[Rejection.OVERLAP] == 1
 
 
+def test_cut_frame_ending_with_the_next_one_gives_way_when_garbage_follows() -> None:
+    """A cut frame runs exactly to the end of the next one: alone, that reads as a clean frame
+    (the decoder must keep it, see test_a_clean_stream_can_hold_a_cut_frame_and_its_follower);
+    followed by garbage instead of a frame start, the inner frame is the likelier one."""
+    cut = encode(Frame(0x101, False, False, 8, bytes(8)))[:5]  # AA C8 01 01 00
+    real = Frame(0x202, False, False, 3, b"\x01\x02\x03")  # 8 bytes: 5 + 8 = 13, C8's length
+    after = Frame(0x303, False, False, 1, b"\x01")
+    dec = Decoder()
+    got = dec.feed(cut + encode(real) + b"\x07" + encode(after)) + dec.flush()
+    assert got == [real, after]
+    assert dec.rejected[Rejection.OVERLAP] == 1
+
+
+def test_a_clean_stream_can_hold_a_cut_frame_and_its_follower() -> None:
+    """Why 100% recovery is out of reach without a checksum: the same bytes are a clean stream.
+
+    A frame cut after 5 bytes, then an intact 8-byte frame, then a frame: these 26 bytes are,
+    byte for byte, a 13-byte frame whose payload ends like a frame, then that frame. Decoding
+    every clean stream exactly means emitting the 13-byte frame, so the intact one inside is
+    lost. The bench counts such losses apart (``forced_losses`` in bench/bench_aa55.py).
+    """
+    cut = encode(Frame(0x101, False, False, 8, bytes(8)))[:5]
+    real = Frame(0x202, False, False, 3, b"\x01\x02\x03")
+    after = Frame(0x303, False, False, 1, b"\x01")
+    corrupted = cut + encode(real) + encode(after)
+    clean_outer = Frame(0x101, False, False, 8, b"\x00" + encode(real)[:-1])
+    assert corrupted == encode(clean_outer) + encode(after)
+    dec = Decoder()
+    assert dec.feed(corrupted) + dec.flush() == [clean_outer, after]
+
+
 def test_garbage_start_does_not_swallow_the_frame_it_covers() -> None:
     """Garbage AA E8 (extended, DLC 8: 15 bytes) ends exactly on a following 13-byte frame."""
     real = Frame(0x123, False, False, 8, bytes(range(8)))
