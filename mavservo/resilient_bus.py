@@ -4,8 +4,9 @@ The scheduler owns the only writer to the bus and should not have to know about 
 wrapper opens the real bus through a factory; when the device fails (``CanOperationError``,
 ``OSError``), it closes it, reports the loss once, and reopens it with exponential backoff from the
 receive path, reporting the recovery. While the device is gone ``send`` fails fast with
-``CanOperationError`` (the scheduler counts the lost slot) and ``recv`` waits out its timeout, so
-no thread ever blocks on a dead port.
+``CanOperationError`` (the scheduler counts every refused send and logs the outage once:
+:class:`~mavservo.scheduler.FailureRun`) and ``recv`` waits out its timeout, so no thread
+ever blocks on a dead port.
 """
 
 from __future__ import annotations

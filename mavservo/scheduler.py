@@ -93,6 +93,56 @@ class SchedulerObserver:
         """The bus's frame decoder rejected bytes (forwarded through ``report_reject``)."""
 
 
+class FailureRun:
+    """Counts every failure of one repeating operation and says what to log, once per outage.
+
+    Why: when the adapter is unplugged every send fails, 20-80 times a second for as long as
+    it is away. One warning per failure buried the log (``--quiet`` does not hide warnings)
+    and said nothing the first one had not. So an outage is logged when it starts (the
+    caller logs ``failed`` returning True, with the reason) and when the operation works
+    again (``succeeded`` returns how many failed and for how long); in between failures are
+    only counted. ``total`` and ``outages`` count every failure and every outage. Not
+    thread-safe: the caller serialises (the scheduler calls it under its lock).
+    """
+
+    def __init__(self) -> None:
+        self.total = 0
+        self.outages = 0
+        self._since: float | None = None
+        self._in_outage = 0
+
+    @property
+    def failing_since(self) -> float | None:
+        """When the current outage began (None while the operation works)."""
+        return self._since
+
+    def failed(self, t: float) -> bool:
+        """Count a failure at ``t``; True if it starts an outage (the one to log)."""
+        self.total += 1
+        self._in_outage += 1
+        if self._since is not None:
+            return False
+        self._since = t
+        self.outages += 1
+        return True
+
+    def succeeded(self, t: float) -> tuple[int, float] | None:
+        """The operation worked at ``t``: ``(failures, seconds)`` of the outage it ends, if any."""
+        if self._since is None:
+            return None
+        ended = (self._in_outage, t - self._since)
+        self._since = None
+        self._in_outage = 0
+        return ended
+
+    def to_dict(self, now: float) -> dict[str, Any]:
+        return {
+            "total": self.total,
+            "outages": self.outages,
+            "failing_for_s": None if self._since is None else now - self._since,
+        }
+
+
 class Scheduler:
     """One bus, its servos and the two loops. Refuses an over-budget schedule at construction.
 
@@ -139,6 +189,9 @@ class Scheduler:
         self._threads: list[threading.Thread] = []
         self._started_at: float | None = None
         self._cpu = {"runner_s": 0.0, "receiver_s": 0.0}
+        self._send_failures = FailureRun()
+        self._send_failed_by_servo = dict.fromkeys(self._specs, 0)
+        self._receive_failures = FailureRun()
         self.realtime_status = "not requested"
         self.spin_s = self.timing.spin_s
         """The spin the runner actually uses (``fifo_spin_s`` once it runs real-time)."""
@@ -171,6 +224,18 @@ class Scheduler:
         for thread in self._threads:
             thread.join(timeout)
         self._threads = []
+        now = self._clock()
+        with self._lock:
+            runs = [("sends", self._send_failures), ("receives", self._receive_failures)]
+            unfinished = [(what, run.succeeded(now)) for what, run in runs]
+        for what, ended in unfinished:
+            if ended is not None:  # an outage that lasted to the end still gets its count
+                log.info(
+                    "scheduler %s: stopped while %s were failing: %d failed over %.1f s",
+                    self.name,
+                    what,
+                    *ended,
+                )
 
     def __enter__(self) -> Scheduler:
         self.start()
@@ -275,6 +340,9 @@ class Scheduler:
             snapshot = self._metrics.to_dict(now)
             for name in self._specs:
                 snapshot["servos"][name]["online"] = self._core.is_online(name)
+                snapshot["servos"][name]["frames"]["send_failed"] = self._send_failed_by_servo[name]
+            snapshot["send_failures"] = self._send_failures.to_dict(now)
+            snapshot["receive_failures"] = self._receive_failures.to_dict(now)
         snapshot["info"].update(
             bus=self.name,
             worst_case_load=self.worst_case_load,
@@ -404,17 +472,29 @@ class Scheduler:
             try:
                 self._bus.send(out.msg)
             except can.CanError as exc:
-                log.warning("scheduler %s: send to %s failed: %s", self.name, out.servo, exc)
                 with self._lock:
                     self._core.send_failed(out)
+                    self._send_failed_by_servo[out.servo] += 1
+                    first = self._send_failures.failed(self._clock())
+                if first:
+                    log.warning(
+                        "scheduler %s: send to %s failed: %s (further failed sends are "
+                        "counted, not logged, until one works again)",
+                        self.name,
+                        out.servo,
+                        exc,
+                    )
                 continue
             t = self._clock()
             with self._lock:
+                ended = self._send_failures.succeeded(t)
                 self._core.sent(out, t)
                 self._account_tx(out, t)
                 if not slot_marked and out.kind != "request":
                     self._metrics.command_ticks.mark(t)
                     slot_marked = True
+            if ended is not None:
+                log.info("scheduler %s: sends work again: %d failed over %.1f s", self.name, *ended)
             self._notify_observer("on_tx", self.name, out.msg, t, out.kind, out.servo, out.seq)
 
     def _account_tx(self, out: Outgoing, t: float) -> None:
@@ -435,9 +515,27 @@ class Scheduler:
             try:
                 msg = self._bus.recv(timeout=_RECV_TIMEOUT_S)
             except can.CanError as exc:
-                log.warning("scheduler %s: receive failed: %s", self.name, exc)
+                with self._lock:
+                    first = self._receive_failures.failed(self._clock())
+                if first:
+                    log.warning(
+                        "scheduler %s: receive failed: %s (further failures are counted, "
+                        "not logged, until a receive works again)",
+                        self.name,
+                        exc,
+                    )
                 self._stop.wait(_RECV_TIMEOUT_S)
                 continue
+            if self._receive_failures.failing_since is not None:
+                now = self._clock()
+                with self._lock:
+                    ended = self._receive_failures.succeeded(now)
+                if ended is not None:
+                    log.info(
+                        "scheduler %s: receives work again: %d failed over %.1f s",
+                        self.name,
+                        *ended,
+                    )
             if msg is not None:
                 self.handle_frame(msg, self._clock())
             self._cpu["receiver_s"] = time.thread_time()

@@ -1,0 +1,201 @@
+"""A bus that keeps failing is logged once per outage, and every failure is still counted.
+
+The new-user trial unplugged the adapter for 5 s and got ~400 ``send to aileron failed``
+warnings (~80 a second, even with ``--quiet``). Real buses throughout: the project's
+:class:`ResilientBus` over python-can ``virtual`` buses that the test closes under it (the
+device vanishing) and lets it reopen (the replug), and a plain ``virtual`` bus closed for good.
+A thin subclass counts what the bus refused, the truth the scheduler's counters are held to.
+"""
+
+from __future__ import annotations
+
+import errno
+import logging
+import time
+import uuid
+
+import can
+import pytest
+from can.interfaces.virtual import VirtualBus
+
+from mavservo.resilient_bus import ResilientBus
+from mavservo.scheduler import FailureRun, Scheduler, ServoSpec, TimingConfig
+from mavservo.servos import RmdX
+from mavservo.sim.servo import SimServo
+from mavservo.sim.virtual import VirtualServoBus
+
+FAST = TimingConfig(command_period_s=0.02, telemetry_period_s=0.03, reply_timeout_s=0.05)
+WAIT_LIMIT_S = 5.0
+SCHEDULER_LOG = "mavservo.scheduler"
+
+
+def wait_for(condition, limit_s: float = WAIT_LIMIT_S) -> bool:
+    """Poll ``condition`` a bounded number of times within ``limit_s``."""
+    for _ in range(int(limit_s / 0.01)):
+        if condition():
+            return True
+        time.sleep(0.01)
+    return condition()
+
+
+def specs(n: int = 2) -> list[ServoSpec]:
+    return [ServoSpec(f"s{i}", RmdX(i)) for i in range(1, n + 1)]
+
+
+class Adapter:
+    """The device behind the factory: opens a virtual bus while plugged in."""
+
+    def __init__(self, channel: str) -> None:
+        self.channel = channel
+        self.plugged = True
+        self.opened: list[can.BusABC] = []
+
+    def open(self) -> can.BusABC:
+        if not self.plugged:
+            raise OSError(errno.ENOENT, "No such file or directory", "/dev/ttyUSB0")
+        bus = can.Bus(interface="virtual", channel=self.channel, receive_own_messages=False)
+        self.opened.append(bus)
+        return bus
+
+    def unplug(self) -> None:
+        self.plugged = False
+        self.opened[-1].shutdown()  # the open bus now fails every send and receive
+
+    def close_all(self) -> None:
+        for bus in self.opened:
+            bus.shutdown()
+
+
+class CountingResilientBus(ResilientBus):
+    """The project's reconnecting bus, counting the sends it refused."""
+
+    refused = 0
+    sent = 0
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        try:
+            super().send(msg, timeout)
+        except can.CanError:
+            self.refused += 1
+            raise
+        self.sent += 1
+
+
+class CountingVirtualBus(VirtualBus):
+    """python-can's virtual bus, counting the sends and receives that raised."""
+
+    refused_sends = 0
+    refused_receives = 0
+
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        try:
+            super().send(msg, timeout)
+        except can.CanError:
+            self.refused_sends += 1
+            raise
+
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        try:
+            return super().recv(timeout)
+        except can.CanError:
+            self.refused_receives += 1
+            raise
+
+
+def records(caplog: pytest.LogCaptureFixture, level: int, *words: str) -> list[str]:
+    return [
+        r.getMessage()
+        for r in caplog.records
+        if r.name == SCHEDULER_LOG
+        and r.levelno == level
+        and all(w in r.getMessage() for w in words)
+    ]
+
+
+def test_an_unplugged_adapter_logs_one_warning_and_one_recovery_and_counts_every_failed_send(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    caplog.set_level(logging.INFO)
+    channel = f"outage-{uuid.uuid4().hex}"
+    adapter = Adapter(channel)
+    sims = [SimServo("rmd-x", i) for i in (1, 2)]
+    with VirtualServoBus(sims, channel=channel):
+        bus = CountingResilientBus(
+            adapter.open, name="bus0", initial_backoff_s=0.01, max_backoff_s=0.05
+        )
+        scheduler = Scheduler(bus, specs(), FAST, name="bus0")
+        try:
+            with scheduler:
+                for spec in specs():
+                    assert scheduler.set_setpoint(spec.name, 10.0, "test").accepted
+                assert wait_for(lambda: bus.sent >= 10)
+                adapter.unplug()
+                assert wait_for(lambda: bus.refused >= 20)  # many slots fail while it is away
+                sent_while_away = bus.sent
+                adapter.plugged = True
+                assert wait_for(lambda: bus.reconnects == 1 and bus.sent > sent_while_away + 5)
+            metrics = scheduler.metrics()
+        finally:
+            bus.shutdown()
+            adapter.close_all()
+
+    failed = bus.refused
+    warnings = records(caplog, logging.WARNING, "send to")
+    assert len(warnings) == 1, warnings[:5]
+    assert "failed: bus0: device" in warnings[0]  # with the reason (lost or disconnected)
+    recovered = records(caplog, logging.INFO, "sends work again")
+    assert len(recovered) == 1
+    assert f"{failed} failed over" in recovered[0]
+    assert records(caplog, logging.INFO, "stopped while") == []  # the outage had ended
+    assert metrics["send_failures"]["total"] == failed
+    assert metrics["send_failures"]["outages"] == 1
+    assert metrics["send_failures"]["failing_for_s"] is None
+    assert sum(s["frames"]["send_failed"] for s in metrics["servos"].values()) == failed
+    # a refused frame never counts as sent
+    assert sum(s["frames"]["sent"] for s in metrics["servos"].values()) == bus.sent
+
+
+def test_a_bus_gone_for_good_logs_one_send_and_one_receive_warning_and_the_totals_at_stop(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    caplog.set_level(logging.INFO)
+    channel = f"gone-{uuid.uuid4().hex}"
+    bus = CountingVirtualBus(channel=channel, receive_own_messages=False)
+    scheduler = Scheduler(bus, specs(), FAST, name="bus0")
+    try:
+        with scheduler:
+            for spec in specs():
+                assert scheduler.set_setpoint(spec.name, 5.0, "test").accepted
+            assert wait_for(lambda: scheduler.metrics()["servos"]["s1"]["frames"]["sent"] > 3)
+            bus.shutdown()
+            assert wait_for(lambda: bus.refused_sends >= 20 and bus.refused_receives >= 5)
+            failing = scheduler.metrics()
+        metrics = scheduler.metrics()
+    finally:
+        bus.shutdown()
+
+    assert failing["send_failures"]["failing_for_s"] > 0  # shown while it lasts
+    assert len(records(caplog, logging.WARNING, "send to", "failed")) == 1
+    assert len(records(caplog, logging.WARNING, "receive failed")) == 1
+    assert records(caplog, logging.INFO, "work again") == []
+    stopped = records(caplog, logging.INFO, "stopped while")
+    assert len(stopped) == 2
+    assert any(f"sends were failing: {bus.refused_sends} failed" in line for line in stopped)
+    assert any(f"receives were failing: {bus.refused_receives} failed" in line for line in stopped)
+    assert metrics["send_failures"]["total"] == bus.refused_sends
+    assert metrics["receive_failures"]["total"] == bus.refused_receives
+    assert metrics["send_failures"]["outages"] == metrics["receive_failures"]["outages"] == 1
+
+
+def test_failure_run_reports_each_outage_once_with_its_count_and_length() -> None:
+    run = FailureRun()
+    assert run.succeeded(0.5) is None  # working all along: nothing to report
+    assert run.failed(1.0) is True
+    assert [run.failed(1.0 + i / 10) for i in range(1, 4)] == [False, False, False]
+    assert run.failing_since == 1.0
+    assert run.to_dict(2.0) == {"total": 4, "outages": 1, "failing_for_s": 1.0}
+    assert run.succeeded(3.5) == (4, 2.5)
+    assert run.succeeded(3.6) is None
+    assert run.failed(5.0) is True  # a new outage is logged again
+    assert run.succeeded(5.25) == (1, 0.25)
+    assert run.to_dict(6.0) == {"total": 5, "outages": 2, "failing_for_s": None}
