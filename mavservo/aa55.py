@@ -80,6 +80,10 @@ CMD_FIXED_DATA = 0x01
 CMD_SETTINGS_FIXED = 0x02  # settings, then use the fixed 20-byte protocol
 CMD_SETTINGS_VARIABLE = 0x12  # settings, then use the variable-length protocol
 CMD_STATUS = 0x04
+#: The commands the adapter's own 20-byte frames carry (data, settings echoes, status).
+_ADAPTER_COMMANDS = frozenset(
+    (CMD_FIXED_DATA, CMD_SETTINGS_FIXED, CMD_SETTINGS_VARIABLE, CMD_STATUS)
+)
 
 
 class Rejection(str, enum.Enum):
@@ -626,12 +630,12 @@ class Decoder:
         inner = buf.find(marker, start + 1, limit)
         if inner < 0:
             return _Verdict.ACCEPT
-        two_byte_start = self.protocol == "fixed"  # frames there start with AA 55
         # A 20-byte frame on a variable-protocol line is one of the adapter's rare replies: one
-        # that holds a frame followed by a frame is taken for a false start even when it is
-        # followed by a frame start itself (20 bytes of short frames often end on one).
-        weak = fixed and not two_byte_start
-        followed = _followed_by_frame(buf, stop, end, idle, two_byte_start)
+        # that holds a frame followed by a frame, or holds a frame and carries a command the
+        # adapter never sends, is taken for a false start even when it is followed by a frame
+        # start itself (20 bytes of short frames often end on one).
+        weak = fixed and self.protocol == "variable"
+        followed = self._follows(buf, stop, end, idle, fixed)
         if followed and not gap and not weak:
             return _Verdict.ACCEPT
         while inner >= 0:
@@ -639,11 +643,13 @@ class Decoder:
             if inner_stop is None:
                 return _Verdict.WAIT
             if inner_stop >= 0:
-                inner_followed = _followed_by_frame(buf, inner_stop, end, idle, two_byte_start)
+                inner_followed = self._follows(buf, inner_stop, end, idle, fixed)
                 if inner_stop == stop and (gap or weak or followed is False):
                     return _Verdict.REJECT  # same end, and garbage before it or after it
                 if (gap or weak) and inner_followed:
                     return _Verdict.REJECT
+                if weak and buf[start + 2] not in _ADAPTER_COMMANDS:
+                    return _Verdict.REJECT  # no reply the adapter sends, and a frame inside
                 if inner_followed is None:
                     return _Verdict.WAIT
                 if inner_followed or fixed:  # a frame inside a 20-byte one wins a tie
@@ -653,6 +659,31 @@ class Decoder:
                         return _Verdict.REJECT
             inner = buf.find(marker, inner + 1, limit)
         return _Verdict.ACCEPT
+
+    def _follows(
+        self, buf: bytes | bytearray, at: int, end: int, idle: bool, fixed: bool
+    ) -> bool | None:
+        """Does a frame start at ``at``, right after a judged frame (``fixed``: a 20-byte one)?
+        True also when the data ends there on an idle line; None: not known yet.
+
+        After a variable frame the whole follower is checked, not just its 0xAA: a garbage
+        0xAA or a cut frame there is what a damaged line looks like, and a cut frame running
+        exactly to the next frame's end is followed by one. That waits for at most one more
+        frame (15 bytes), only for the frames with a 0xAA inside that get judged at all. After
+        a 20-byte frame the first bytes do (the 20 bytes of a follower would be too many to
+        hold back).
+        """
+        if fixed:
+            return _followed_by_frame(buf, at, end, idle, self.protocol == "fixed")
+        if at >= end:
+            return True if idle else None
+        if buf[at] != START:
+            return False
+        if at + 1 < end and buf[at + 1] == END:
+            return True  # a 20-byte adapter reply: its checksum settles it when it is reached
+        if _DATA_RE.match(buf, at) is not None:
+            return True
+        return None if not idle and self._could_complete(buf, at, end) else False
 
     def _inner_frame_end(
         self, buf: bytes | bytearray, inner: int, end: int, idle: bool, fixed: bool

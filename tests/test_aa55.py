@@ -6,7 +6,7 @@ import io
 
 import can
 import pytest
-from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import HealthCheck, assume, example, given, settings
 from hypothesis import strategies as st
 
 from mavservo import aa55
@@ -146,6 +146,15 @@ def test_arbitrary_bytes_never_raise_and_memory_is_bounded(junk: bytes, protocol
 
 
 @given(st.lists(st.tuples(st.binary(max_size=6), frames()), min_size=1, max_size=15))
+@example(  # garbage AA 55 starts a 20-byte candidate whose checksum passes over three frames
+    [
+        (b"", Frame(0x28F, False, True, 3, b"")),
+        (b"\x8d", Frame(0x7FF, True, True, 2, b"")),
+        (b"\xaaU", Frame(0x70A, True, False, 1, b"\x45")),
+        (b"NV", Frame(0x7FF, False, False, 0, b"")),
+        (b"\xe8\xf8\x7f", Frame(0x100, False, True, 8, b"")),
+    ]
+)
 def test_garbage_between_frames_loses_no_intact_frame(pieces: list[tuple[bytes, Frame]]) -> None:
     """Whatever precedes a frame, the frame comes out (the decoder rescans every false start)."""
     stream = b"".join(g + encode(f) for g, f in pieces)
@@ -257,14 +266,20 @@ def test_payload_containing_aa_and_55_is_not_split() -> None:
     assert dec.feed(encode(frame) + encode(nxt)) == [frame, nxt] and not dec.rejected
 
 
-def test_a_frame_that_could_hide_another_waits_only_for_the_next_byte() -> None:
-    """A payload that begins a plausible frame running past the end is held for one byte."""
+def test_a_frame_that_could_hide_another_waits_only_for_the_next_frame() -> None:
+    """A payload that begins a plausible frame running past the end is held until the frame
+    after it is whole (a USB read brings it at once) or the line goes idle."""
     frame = Frame(0x0AA, False, False, 8, bytes.fromhex("0102AAC8220103AA"))
+    nxt = encode(Frame(0x0AB, False, False, 2, b"\x01\x02"))
     dec = Decoder()
     assert dec.feed(encode(frame)) == []  # its inner candidate could still be the real frame
     assert dec.pending == 13
-    assert dec.feed(b"\xaa") == [frame]  # a frame starts right after it: it was real
-    assert dec.pending == 1
+    assert dec.feed(nxt[:3]) == []  # a frame start, maybe a garbage 0xAA: not known yet
+    after = Frame(0x0AB, False, False, 2, b"\x01\x02")
+    assert dec.feed(nxt[3:]) == [frame, after]  # a whole frame follows it: it was real
+    assert dec.pending == 0
+    idle = Decoder()
+    assert idle.feed(encode(frame)) == [] and idle.flush() == [frame]
 
 
 def test_without_overlap_resolution_nothing_waits_and_the_first_candidate_wins() -> None:

@@ -45,11 +45,43 @@ def test_robustness_on_2000_frames(bench: ModuleType) -> None:
     # which this small stream does not contain.
     seeed, ours, fixed = bench.bench_robustness(2000, seed=3)
     assert ours.recovered_percent == 100.0 and ours.intact_lost == 0
+    assert ours.recoverable_percent == 100.0
     assert ours.wrong_impossible == 0
     assert fixed.wrong == 0
     assert fixed.intact_lost == 0
     # seeedstudio reads the same stream; it must at least produce output to compare against
     assert 0 < seeed.intact_recovered <= seeed.intact == ours.intact
+
+
+def test_forced_losses_are_certified_only_where_a_clean_stream_has_the_same_bytes(
+    bench: ModuleType,
+) -> None:
+    """A frame cut after 5 bytes, then an intact 8-byte frame: 13 bytes that are a clean frame.
+
+    Flanked by frames, the loss of the 8-byte frame is forced; with garbage after it, it is
+    not (a decoder can see the damage), and our decoder then recovers it.
+    """
+    first = Frame(0x100, False, False, 1, b"\x01")
+    cut = Frame(0x101, False, False, 8, bytes(8))
+    real = Frame(0x202, False, False, 3, b"\x01\x02\x03")
+    after = Frame(0x303, False, False, 1, b"\x01")
+    states = [bench.INTACT, bench.TRUNCATED, bench.INTACT, bench.INTACT]
+    for garbage, forced in ((b"", 1), (b"\x07", 0)):
+        parts = [encode(first), encode(cut)[:5], encode(real) + garbage, encode(after)]
+        offsets = [sum(len(p) for p in parts[:i]) for i in range(4)]
+        truth = bench.Corrupted(b"".join(parts), [first, cut, real, after], states, offsets)
+        outputs = [f.key() for f in bench.ours_on_bytes(truth.stream)]
+        r = bench.classify("t", truth, outputs, None, truth.stream)
+        assert (r.intact_lost, r.lost_forced) == ((1, 1) if forced else (0, 0))
+        assert r.recoverable_percent == 100.0
+    # the certificate itself, on a loss our decoder avoids: the outer frame followed by garbage
+    outer = Frame(0x101, False, False, 8, b"\x00" + encode(real)[:-1])
+    outputs = [first.key(), outer.key(), after.key()]
+    assert bench.forced_losses(truth, outputs, [2]) == []
+    flanked = bench.Corrupted(
+        truth.stream.replace(b"\x07", b""), truth.frames, states, offsets[:3] + [offsets[3] - 1]
+    )
+    assert bench.forced_losses(flanked, outputs, [2]) == [2]
 
 
 def test_classifier_counts_known_cases(bench: ModuleType) -> None:
@@ -106,6 +138,7 @@ def test_main_prints_a_markdown_table(bench: ModuleType, capsys: pytest.CaptureF
     out = capsys.readouterr().out
     assert "| measurement | seeedstudio | aa55 (ours) |" in out
     assert "| aa55 (ours), fixed protocol |" in out
+    assert "of which forced" in out
     assert "Machine: " in out
 
 
