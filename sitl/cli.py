@@ -96,6 +96,14 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _load_script(path: Path) -> list[Event]:
+    """The events of a ``--script`` YAML file; ValueError says which event is wrong and how."""
+    items = yaml.safe_load(path.read_text()) or []
+    if not isinstance(items, list) or not all(isinstance(item, dict) for item in items):
+        raise ValueError("expected a list of events like {at: 2.0, do_set_servo: {...}}")
+    return parse_script(items).events
+
+
 def _run_stream(args: argparse.Namespace) -> int:
     profile = (
         RandomWalkProfile(seed=args.seed)
@@ -104,7 +112,11 @@ def _run_stream(args: argparse.Namespace) -> int:
     )
     events = []
     if args.script is not None:
-        events += parse_script(yaml.safe_load(args.script.read_text()) or []).events
+        try:
+            events += _load_script(args.script)
+        except (OSError, ValueError, yaml.YAMLError) as exc:
+            print(f"sitl: --script {args.script}: {exc}", file=sys.stderr)
+            return 2
     for spec in args.dropout:
         at, _, seconds = spec.partition(":")
         try:

@@ -216,9 +216,10 @@ class AutopilotStream(Background):
     def repeat_servo(self, channel: int, pwm: int, count: int, cycle_s: float) -> None:
         self._actions.put(RepeatServo(channel, pwm, count, cycle_s))
 
-    def set_actuator(self, values: Iterable[float | None], group: int = 1) -> None:
+    def set_actuator(self, values: Iterable[float | None], set_index: int = 0) -> None:
+        """DO_SET_ACTUATOR; ``set_index`` is param 7 (0 = actuators 1..6, see SetActuator)."""
         vals = tuple(math.nan if v is None else float(v) for v in values)
-        self._actions.put(SetActuator(vals, group))
+        self._actions.put(SetActuator(vals, set_index))
 
     def set_gimbal(
         self, roll: float = 0.0, pitch: float = 0.0, yaw: float = 0.0, flags: int = 0
@@ -346,15 +347,13 @@ class AutopilotStream(Background):
         elif isinstance(action, SetActuator):
             self.commands.submit(
                 mav.MAV_CMD_DO_SET_ACTUATOR,
-                (*action.values, float(action.group)),
+                (*action.values, float(action.set_index)),
                 target_sys,
                 target_comp,
                 now,
             )
-            for offset, value in enumerate(action.values):
-                if not math.isnan(value):
-                    index = (action.group - 1) * 6 + offset + 1
-                    self._record("actuator", Commanded(now, index, value, "do_set_actuator"))
+            for index, value in action.actuators().items():
+                self._record("actuator", Commanded(now, index, value, "do_set_actuator"))
         elif isinstance(action, GimbalTarget):
             self._gimbal_target = action
 

@@ -101,7 +101,7 @@ def test_script_parses_yaml_shape_and_hands_out_each_event_once() -> None:
             {"at": 3.0, "dropout": {"seconds": 1.5}},
             {"at": 1.0, "do_set_servo": {"channel": 9, "pwm": 1100}},
             {"at": 2.0, "do_repeat_servo": {"channel": 9, "pwm": 1900, "count": 2, "cycle_s": 1}},
-            {"at": 2.5, "do_set_actuator": {"values": [0.5, None], "group": 2}},
+            {"at": 2.5, "do_set_actuator": {"values": [0.5, None], "set_index": 1}},
             {"at": 4.0, "gimbal": {"pitch": -30, "yaw": 45, "flags": 16}},
         ]
     )
@@ -110,7 +110,7 @@ def test_script_parses_yaml_shape_and_hands_out_each_event_once() -> None:
     assert [e.action for e in first] == [SetServo(9, 1100), RepeatServo(9, 1900, 2, 1.0)]
     assert script.due(2.0) == []
     rest = [e.action for e in script.due(10.0)]
-    assert isinstance(rest[0], SetActuator) and rest[0].group == 2
+    assert isinstance(rest[0], SetActuator) and rest[0].set_index == 1
     assert rest[0].values[0] == 0.5 and all(math.isnan(v) for v in rest[0].values[1:])
     assert rest[1:] == [Dropout(1.5), GimbalTarget(0.0, -30.0, 45.0, 16)]
     assert script.finished

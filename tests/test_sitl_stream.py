@@ -156,7 +156,7 @@ def test_mission_commands_content_and_output_mirroring(link) -> None:
 
     script = [
         Event(0.1, SetServo(9, 1100)),
-        Event(0.1, SetActuator((0.25, math.nan, -1.0), group=2)),
+        Event(0.1, SetActuator((0.25, math.nan, -1.0), set_index=1)),
         Event(0.3, RepeatServo(10, 1900, count=1, cycle_s=0.4)),
     ]
     stream = AutopilotStream(
@@ -172,7 +172,7 @@ def test_mission_commands_content_and_output_mirroring(link) -> None:
     }
     assert all((m.target_system, m.target_component) == (1, 0) for m in seen)  # broadcast
     act = by_cmd[mav.MAV_CMD_DO_SET_ACTUATOR]
-    assert act.param1 == 0.25 and act.param3 == -1.0 and act.param7 == 2.0
+    assert act.param1 == 0.25 and act.param3 == -1.0 and act.param7 == 1.0  # set 1: 7..12
     assert all(math.isnan(v) for v in (act.param2, act.param4, act.param5, act.param6))
     rep = by_cmd[mav.MAV_CMD_DO_REPEAT_SERVO]
     assert (rep.param1, rep.param2, rep.param3, rep.param4) == (10, 1900, 1, 400.0)  # ms
