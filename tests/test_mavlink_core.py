@@ -3,6 +3,7 @@ arbitration with mirroring, failsafe, system-id following and telemetry content.
 
 from __future__ import annotations
 
+import logging
 import math
 
 import pytest
@@ -21,6 +22,7 @@ from test_mavlink_support import (
 
 from mavservo.mavlink.commands import INT32_MAX
 from mavservo.mavlink.core import MavlinkCore
+from mavservo.mavlink.gimbal import GimbalDevice, GimbalSettings
 from mavservo.mavlink.settings import MavlinkSettings
 from mavservo.servos.base import Fault
 
@@ -100,6 +102,22 @@ def test_commands_for_other_components_or_systems_are_ignored():
     assert backend.calls == []
 
 
+def test_ignored_commands_are_counted_and_logged_at_debug_level(caplog):
+    core, _ = make_core()
+    with caplog.at_level(logging.DEBUG, logger="mavservo.mavlink.commands"):
+        send(core, command_long((2, 140), 183, 1, 1900))  # another system
+        send(core, command_long((1, 1), 183, 1, 1900))  # the autopilot
+        send(core, command_long((1, 0), 187, 0.5, 0, 0, 0, 0, 0, 1))  # broadcast, unmapped set
+    assert core.stats()["commands"] == {
+        "ignored_other_system": 1,
+        "ignored_other_component": 1,
+        "ignored_not_ours": 1,
+    }
+    lines = [r.getMessage() for r in caplog.records if r.levelno == logging.DEBUG]
+    assert len(lines) == 3 and all("ignored" in line for line in lines), lines
+    assert "system 2" in lines[0] and "component 1" in lines[1] and "187" in lines[2]
+
+
 def test_autopilot_addressed_do_set_servo_acted_on_without_ack_when_configured():
     core, backend = make_core(act_on_autopilot_commands=True)
     assert send(core, command_long((1, 1), 183, 9, 1100)) == []
@@ -169,12 +187,13 @@ def test_repeat_servo_bad_count_or_cycle_denied():
     assert backend.calls == []
 
 
-def test_set_actuator_nan_leaves_and_group_index_offsets():
+def test_set_actuator_nan_leaves_and_param7_is_the_actuator_set_index():
     core, backend = make_core()
     out = send(core, command_long((1, 0), 187, 0.5, NAN, NAN, NAN, NAN, NAN, 0))
     assert acks(out) == [(140, 187, ACCEPTED)]
     assert backend.servo_calls("actuator") == [("actuator", 1, 0.5, "do_set_actuator")]
-    # group 1 covers indices 7..12: none mapped -> broadcast ignored, direct denied
+    # the spec: "if set to 1, Actuator 1 becomes Actuator 7"; 7..12 are not mapped here, so a
+    # broadcast is left to whoever owns them and a command addressed to us is denied
     assert send(core, command_long((1, 0), 187, 0.5, 0, 0, 0, 0, 0, 1), now=3) == []
     assert acks(send(core, command_long(SERVO, 187, 0.5, 0, 0, 0, 0, 0, 1), now=3)) == [
         (140, 187, DENIED)
@@ -193,6 +212,16 @@ def test_set_actuator_command_int_int32_max_means_leave():
     out = send(core, command_int(SERVO, 187, -0.25, NAN, NAN, NAN, INT32_MAX, INT32_MAX, 0))
     assert acks(out) == [(140, 187, ACCEPTED)]
     assert backend.servo_calls("actuator") == [("actuator", 1, -0.25, "do_set_actuator")]
+
+
+def test_set_actuator_command_int_carries_actuators_5_and_6_scaled_by_1e7():
+    # the spec: "If sent in COMMAND_INT or MISSION_ITEM_INT: value is scaled by 1e7"
+    core, backend = make_core()
+    out = send(core, command_int(SERVO, 187, NAN, NAN, NAN, NAN, 5_000_000, INT32_MAX, 0))
+    assert acks(out) == [(140, 187, ACCEPTED)]
+    assert backend.servo_calls("actuator") == [("actuator", 5, 0.5, "do_set_actuator")]
+    out = send(core, command_int(SERVO, 187, NAN, NAN, NAN, NAN, 20_000_000, INT32_MAX, 0), now=5)
+    assert acks(out) == [(140, 187, DENIED)]  # 2.0: outside [-1, 1]
 
 
 @settings(max_examples=60, deadline=None)
@@ -333,6 +362,20 @@ def test_set_message_interval_and_request_message():
     assert acks(send(core, command_long(SERVO, 511, 283, 1000), now=1.0)) == [
         (140, 511, UNSUPPORTED)
     ]
+
+
+def test_request_message_heartbeat_answers_at_once_from_the_component_asked():
+    gimbal = GimbalDevice(
+        GimbalSettings(name="g", axis_servos={"pitch": "aileron"}, limits_deg={"pitch": (-90, 30)}),
+        RecordingBackend(),
+    )
+    core = MavlinkCore(MavlinkSettings(system_id=1), RecordingBackend(), gimbals=[gimbal])
+    for target, now, expected in (((1, 140), 1.0, 33), ((1, 154), 2.0, 26), ((1, 0), 3.0, 33)):
+        out = send(core, command_long(target, 512, 0), now=now)
+        component = 154 if target[1] == 154 else 140
+        assert acks(out) == [(component, 512, ACCEPTED)], target
+        beats = [(cid, m.type) for cid, m in out if m.get_type() == "HEARTBEAT"]
+        assert beats == [(component, expected)], target
 
 
 def test_statustext_on_fault_onset_clearance_and_offline():

@@ -18,7 +18,7 @@ from mavservo.mavlink.backend import ACCEPTED, ApplyResult, Outcome, ServoStatus
 from mavservo.servos.base import Fault, ServoState
 
 SERVO_CHANNELS = {1: "aileron", 9: "drop"}
-ACTUATOR_INDICES = {1: "flap"}
+ACTUATOR_INDICES = {1: "flap", 5: "flap"}  # 5: DO_SET_ACTUATOR param 5 (COMMAND_INT x)
 NAMES = ["aileron", "drop", "flap"]
 HALF_RANGE_DEG = 30.0
 

@@ -174,6 +174,12 @@ def test_request_message_routed_to_gimbal_and_servo_components(bridge):
     gcs.mav.command_long_send(1, 140, 511, 0, 11030, 100000, 0, 0, 0, 0, 0)
     ack = wait_for(gcs, is_ack(511))
     assert ack is not None and ack.result == 0 and ack.get_srcComponent() == 140
+    gcs.mav.command_long_send(1, 154, 512, 0, 0, 0, 0, 0, 0, 0, 0)  # HEARTBEAT, from the gimbal
+    kept = []
+    ack = wait_for(gcs, is_ack(512), keep=kept)
+    assert ack is not None and ack.result == 0 and ack.get_srcComponent() == 154
+    beat = wait_for(gcs, lambda m: m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 154)
+    assert beat is not None and beat.type == 26
 
 
 def test_failsafe_on_autopilot_heartbeat_loss_and_recovery(bridge):

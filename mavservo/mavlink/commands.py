@@ -43,15 +43,19 @@ MAV_CMD_DO_REPEAT_SERVO = 184
 MAV_CMD_DO_SET_ACTUATOR = 187
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
 MAV_CMD_REQUEST_MESSAGE = 512
+MSG_HEARTBEAT = 0
 
 INT32_MAX = 2**31 - 1
+#: DO_SET_ACTUATOR in COMMAND_INT carries actuators 5 and 6 in x/y, scaled by 1e7 (spec).
+COMMAND_INT_XY_SCALE = 1e7
 #: Widest PWM any hobby servo protocol uses; narrower limits come from the channel mapping.
 PWM_MIN_US = 500.0
 PWM_MAX_US = 2500.0
 #: A repeat longer than this is almost certainly a unit mix-up (ms read as s), so it is refused.
 MAX_REPEAT_COUNT = 1000
 MAX_REPEAT_CYCLE_S = 600.0
-ACTUATORS_PER_GROUP = 6
+#: DO_SET_ACTUATOR carries six values; param 7 is the index of the set of six they belong to.
+ACTUATORS_PER_SET = 6
 
 #: (component id, pymavlink message) to send from that component.
 Outgoing = tuple[int, Any]
@@ -126,7 +130,9 @@ class CommandHandler:
     """Decides, applies and ACKs commands. ``system_id`` is read at every call (it may follow
     the autopilot). ``request_message(msg_id, now)`` returns the servo component's answer to
     REQUEST_MESSAGE (or None when it does not publish it); ``set_interval(msg_id, interval_us)``
-    returns whether the servo component publishes that message."""
+    returns whether the servo component publishes that message; ``heartbeat(component_id)`` is
+    that component's HEARTBEAT, sent at once when REQUEST_MESSAGE asks for message 0 (every
+    hosted component publishes one, so every one answers for it)."""
 
     backend: ActuatorBackend
     settings: MavlinkSettings
@@ -134,6 +140,7 @@ class CommandHandler:
     system_id: Callable[[], int]
     request_message: Callable[[int, float], list[Any] | None]
     set_interval: Callable[[int, float], bool]
+    heartbeat: Callable[[int], Any]
     gimbals: Mapping[int, HostedComponent] = field(default_factory=dict)
     counters: Counter[str] = field(default_factory=Counter)
     _recent: dict[tuple, _Recent] = field(default_factory=dict)
@@ -145,6 +152,12 @@ class CommandHandler:
         """Process one command; returns the ACK (and any requested message) to send."""
         if cmd.target_system not in (0, self.system_id()):
             self.counters["ignored_other_system"] += 1
+            log.debug(
+                "command %d from %s ignored: for system %d, not ours",
+                cmd.command,
+                cmd.source,
+                cmd.target_system,
+            )
             return []
         servo_comp = self.settings.servo_component_id
         target = cmd.target_component
@@ -157,6 +170,12 @@ class CommandHandler:
         ):
             return self._with_retry_check(cmd, now, ack=False)
         self.counters["ignored_other_component"] += 1
+        log.debug(
+            "command %d from %s ignored: for component %d, which the bridge does not host",
+            cmd.command,
+            cmd.source,
+            target,
+        )
         return []
 
     def tick(self, now: float) -> None:
@@ -200,7 +219,15 @@ class CommandHandler:
             return [(recent.ack_component, self._ack(cmd, recent.result))]
         decided = self._dispatch(cmd, now)
         if decided is None:
+            # a broadcast (or autopilot-addressed command) for nothing we map: whoever owns it
+            # answers, so no ACK from here
             self.counters["ignored_not_ours"] += 1
+            log.debug(
+                "command %d from %s to component %d ignored: concerns nothing the bridge maps",
+                cmd.command,
+                cmd.source,
+                cmd.target_component,
+            )
             return []
         component, result, extra = decided
         self.counters[f"result_{result.outcome.name.lower()}"] += 1
@@ -239,9 +266,13 @@ class CommandHandler:
         """Returns (acking component, result, messages to send after the ACK) or None."""
         target = cmd.target_component
         broadcast = target == 0
+        servo_comp = self.settings.servo_component_id
+        if cmd.command == MAV_CMD_REQUEST_MESSAGE and cmd.params[0] == MSG_HEARTBEAT:
+            # from the component asked; a broadcast gets one answer, from the servo component
+            component = target if target in self.gimbals else servo_comp
+            return component, ApplyResult(Outcome.ACCEPTED), [self.heartbeat(component)]
         if target in self.gimbals:
             return self._gimbal_command(self.gimbals[target], cmd, now, broadcast=False)
-        servo_comp = self.settings.servo_component_id
         decided = self._servo_command(cmd, now, broadcast=broadcast or target != servo_comp)
         if decided is not None:
             result, extra = decided
@@ -341,23 +372,36 @@ class CommandHandler:
         return result
 
     def _do_set_actuator(self, cmd: Command, now: float, broadcast: bool) -> ApplyResult | None:
-        group = cmd.params[6]
-        if not _is_int(group) or group < 0:
-            return None if broadcast else _denied("bad_param", f"actuator group {group!r}")
+        """Param 7 is the MAVLink spec's "index of actuator set (i.e. if set to 1, Actuator 1
+        becomes Actuator 7)": set 0 carries actuators 1..6, the 1-based numbers that
+        ``source: actuator`` channels map (PX4 acts on set 0 only)."""
+        set_index = cmd.params[6]
+        if not _is_int(set_index) or set_index < 0:
+            return (
+                None
+                if broadcast
+                else _denied("bad_param", f"actuator set index (param 7) {set_index!r}")
+            )
         values: dict[int, float] = {}
-        for i, raw in enumerate(cmd.params[:ACTUATORS_PER_GROUP]):
+        for i, raw in enumerate(cmd.params[:ACTUATORS_PER_SET]):
             value = raw
-            if cmd.is_int and i >= 4 and raw == INT32_MAX:
-                value = math.nan  # COMMAND_INT x/y cannot carry NaN: INT32_MAX means "leave"
+            if cmd.is_int and i >= 4:
+                # COMMAND_INT x/y are integers: the spec scales actuators 5/6 by 1e7 there and
+                # uses INT32_MAX for "leave alone", since an integer cannot carry NaN
+                value = math.nan if raw == INT32_MAX else raw / COMMAND_INT_XY_SCALE
             if math.isnan(value):
                 continue
-            values[int(group) * ACTUATORS_PER_GROUP + i + 1] = value
+            values[int(set_index) * ACTUATORS_PER_SET + i + 1] = value
         mapped = self.backend.mapped_actuator_indices()
         ours = {index: v for index, v in values.items() if index in mapped}
         if not ours:
             if broadcast:
                 return None
-            what = "no actuator value given" if not values else f"unmapped indices {sorted(values)}"
+            what = (
+                "no actuator value given"
+                if not values
+                else f"unmapped actuators {sorted(values)} (set index {int(set_index)})"
+            )
             return _denied("unmapped" if values else "bad_param", what)
         bad = {index: v for index, v in ours.items() if not -1.0 <= v <= 1.0}
         if bad:

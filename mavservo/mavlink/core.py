@@ -76,6 +76,7 @@ class MavlinkCore:
             system_id=lambda: self._system_id,
             request_message=self.telemetry.request,
             set_interval=lambda msg_id, us: self.telemetry.set_interval(msg_id, us, self._now),
+            heartbeat=lambda cid: self._heartbeat_message(self.components[cid]),
             gimbals=self.gimbals,
         )
         self._now = boot_time
