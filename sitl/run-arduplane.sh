@@ -7,7 +7,9 @@
 # Uses sim_vehicle.py if it is on PATH (MAVProxy on SERIAL0 as usual, for a GCS), otherwise the
 # arduplane binary (PATH, or $ARDUPILOT_HOME/build/sitl/bin/arduplane) with the autotest plane
 # defaults from $ARDUPILOT_HOME when present. Never downloads or builds anything: when ArduPilot
-# is not installed it says so and exits with status 3. --dry-run prints the command instead.
+# is not installed it says so and exits with status 3. --dry-run prints the command instead of
+# running it (status 0); without ArduPilot that is the sim_vehicle.py command to use once it is
+# installed, with a note on stderr that it is not.
 # Then run the bridge with:  mavservo run --config config/ardupilot-sitl.yaml
 set -euo pipefail
 
@@ -29,7 +31,7 @@ while [[ $# -gt 0 ]]; do
     --no-wipe) wipe=0 ;;
     --dry-run) dry_run=1 ;;
     --) shift; extra=("$@"); break ;;
-    -h|--help) sed -n '2,12p' "$0" | sed 's/^# \{0,1\}//'; exit 0 ;;
+    -h|--help) sed -n '2,/^[^#]/{/^#/{s/^# \{0,1\}//;p;};}' "$0"; exit 0 ;;
     *) echo "run-arduplane.sh: unknown option $1 (try --help)" >&2; exit 2 ;;
   esac
   shift
@@ -49,10 +51,14 @@ if command -v arduplane >/dev/null 2>&1; then
   binary="$(command -v arduplane)"
 fi
 
-if command -v sim_vehicle.py >/dev/null 2>&1; then
+sim_vehicle_cmd() {
   cmd=(sim_vehicle.py -v ArduPlane --speedup "$speedup" -A "--serial1=${serial1}")
   for p in "${parms[@]}"; do cmd+=("--add-param-file=${p}"); done
-  [[ $wipe -eq 1 ]] && cmd+=(-w)
+  if [[ $wipe -eq 1 ]]; then cmd+=(-w); fi
+}
+
+if command -v sim_vehicle.py >/dev/null 2>&1; then
+  sim_vehicle_cmd
 elif [[ -n "$binary" ]]; then
   defaults=""
   if [[ -n "${ARDUPILOT_HOME:-}" && -f "${ARDUPILOT_HOME}/Tools/autotest/default_params/plane.parm" ]]; then
@@ -61,7 +67,12 @@ elif [[ -n "$binary" ]]; then
   defaults+="$(IFS=,; echo "${parms[*]}")"
   cmd=("$binary" --model plane --speedup "$speedup" --defaults "$defaults"
        --serial1 "$serial1" -I0)
-  [[ $wipe -eq 1 ]] && cmd+=(-w)
+  if [[ $wipe -eq 1 ]]; then cmd+=(-w); fi
+elif [[ $dry_run -eq 1 ]]; then
+  # show what to run once ArduPilot is built (Tools/autotest on PATH), and say it is not yet
+  sim_vehicle_cmd
+  echo "run-arduplane.sh: ArduPilot SITL is not installed here; once it is (see docs/sitl.md)," \
+    "this is the command:" >&2
 else
   cat >&2 <<MSG
 run-arduplane.sh: ArduPilot SITL is not installed (neither sim_vehicle.py nor arduplane on PATH,

@@ -59,7 +59,7 @@ def _bare_env(tmp_path: Path, with_binary: bool) -> dict[str, str]:
 
 def test_launcher_says_clearly_when_ardupilot_is_missing(tmp_path: Path) -> None:
     done = subprocess.run(
-        ["bash", str(SCRIPT), "--dry-run"],
+        ["bash", str(SCRIPT)],
         env=_bare_env(tmp_path, False),
         capture_output=True,
         text=True,
@@ -67,6 +67,31 @@ def test_launcher_says_clearly_when_ardupilot_is_missing(tmp_path: Path) -> None
     )
     assert done.returncode == 3
     assert "not installed" in done.stderr and "never" in done.stderr
+    assert done.stdout == ""
+
+
+def test_dry_run_without_ardupilot_shows_the_command_to_use_once_it_is_installed(
+    tmp_path: Path,
+) -> None:
+    # docs/sitl.md: "--dry-run  # show the command instead of running it", installed or not
+    done = subprocess.run(
+        ["bash", str(SCRIPT), "--dry-run", "--gimbal", "--port", "14600", "--", "--console"],
+        env=_bare_env(tmp_path, False),
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
+    assert done.returncode == 0, done.stderr
+    assert "not installed" in done.stderr
+    words = done.stdout.split()
+    assert words[:3] == ["sim_vehicle.py", "-v", "ArduPlane"]
+    assert "--serial1=udpclient:127.0.0.1:14600" in words
+    param_files = [w.split("=", 1)[1] for w in words if w.startswith("--add-param-file=")]
+    assert param_files == [
+        str(REPO / "sitl" / "arduplane-companion.parm"),
+        str(REPO / "sitl" / "arduplane-gimbal.parm"),
+    ]
+    assert words[-2:] == ["-w", "--console"]
 
 
 def test_launcher_command_line_for_the_arduplane_binary(tmp_path: Path) -> None:
