@@ -666,12 +666,12 @@ class Decoder:
         """Does a frame start at ``at``, right after a judged frame (``fixed``: a 20-byte one)?
         True also when the data ends there on an idle line; None: not known yet.
 
-        After a variable frame the whole follower is checked, not just its 0xAA: a garbage
-        0xAA or a cut frame there is what a damaged line looks like, and a cut frame running
-        exactly to the next frame's end is followed by one. That waits for at most one more
-        frame (15 bytes), only for the frames with a 0xAA inside that get judged at all. After
-        a 20-byte frame the first bytes do (the 20 bytes of a follower would be too many to
-        hold back).
+        After a variable frame the whole follower must be a valid frame, not just start with
+        0xAA: a garbage 0xAA or a cut frame there means the line is damaged right there, which
+        makes a false start before it likelier. Deciding that waits for at most one more frame
+        (15 bytes), and only frames with a 0xAA inside are judged at all. After a 20-byte frame
+        its first bytes decide (holding back a 20-byte follower as well would double the
+        memory a decoder keeps).
         """
         if fixed:
             return _followed_by_frame(buf, at, end, idle, self.protocol == "fixed")
@@ -717,8 +717,8 @@ class Decoder:
         ``pos`` is exactly the sequence of leftmost matches from ``pos`` (each layout's frames
         have one length and no other layout matches the same type byte), it is only taken right
         after a frame (no garbage before it), and its last frame is left out unless it has no
-        0xAA inside, so every frame taken is followed by a frame start or has nothing inside to
-        judge: the cases :meth:`_judge` accepts without looking further.
+        0xAA inside, so every frame taken is followed by a whole frame (the next of the run) or
+        has nothing inside to judge: the cases :meth:`_judge` accepts without looking further.
         Everything per frame happens in C: ``iter_unpack`` splits the fields, ``zip`` assembles
         them, ``tuple.__new__`` makes the :class:`Frame`. In ``messages`` mode one Python loop
         over ``iter_unpack`` fills each ``can.Message`` (:func:`_run_messages`).
