@@ -14,7 +14,13 @@ Two halves, so the interesting part is testable without a terminal:
 What it understands (all optional; missing ones show as "-"):
 
 * NAMED_VALUE_FLOAT ``s<n>_pos|vel|cur|tmp|sp`` (deg, deg/s, A, degC, setpoint deg) for servo n
-  (1-based config position), ``lat_p50``/``lat_p95``/``lat_p99`` (ms), ``bus<k>_load`` (ratio 0..1);
+  (1-based config position), ``bus<k>_load`` (ratio 0..1), and two latencies in ms that differ
+  by two orders of magnitude on purpose (docs/logs.md, "Which latency is which"):
+  ``lat_p50``/``lat_p95``/``lat_p99``, shown as ``cmd->telemetry``: a MAVLink command's receipt
+  to the first telemetry message carrying its servo's reply, most of it the wait for the command
+  slot and for the next ACTUATOR_OUTPUT_STATUS; ``rtt_p50``/``rtt_p95``/``rtt_p99``, shown as
+  ``round trip L``: a frame written to the adapter to its reply decoded (the paper's L, the
+  run summary's ``L mean``);
 * ESC_TELEMETRY_1_TO_4.. (temperature, current, voltage) and ACTUATOR_OUTPUT_STATUS (normalized
   position) for the same servo numbering;
 * HEARTBEAT of every component (autopilot, servo group 140.., gimbal 154..), with its age;
@@ -46,6 +52,7 @@ STATUSTEXT_TAIL = 8
 _NVF_SERVO = re.compile(r"^s(\d+)_(pos|vel|cur|tmp|sp)$")
 _NVF_BUS = re.compile(r"^bus(\d+)_load$")
 _NVF_LATENCY = re.compile(r"^lat_(p50|p95|p99)$")
+_NVF_ROUND_TRIP = re.compile(r"^rtt_(p50|p95|p99)$")
 _ESC_GROUP = re.compile(r"^ESC_TELEMETRY_(\d+)_TO_\d+$")
 _TEXT_FAULT = re.compile(r"^servo (\S+) (fault|cleared) (.+)$")
 _TEXT_ONLINE = re.compile(r"^servo (\S+) (not responding|responding again)$")
@@ -94,7 +101,10 @@ class MonitorState:
         self.components: dict[tuple[int, int], ComponentView] = {}
         self.texts: deque[tuple[float, int, str]] = deque(maxlen=STATUSTEXT_TAIL)
         self.bus_load: dict[int, float] = {}
+        #: ``lat_p*``: MAVLink command receipt -> telemetry published (every stage, in ms)
         self.latency_ms: dict[str, float] = {}
+        #: ``rtt_p*``: frame written -> reply decoded, the wire round trip L (ms)
+        self.round_trip_ms: dict[str, float] = {}
         self.gimbal: dict[str, Any] = {}
         self.messages = 0
         self.bad_messages = 0
@@ -161,6 +171,8 @@ class MonitorState:
             self.bus_load[int(match.group(1))] = value
         elif match := _NVF_LATENCY.match(name):
             self.latency_ms[match.group(1)] = value
+        elif match := _NVF_ROUND_TRIP.match(name):
+            self.round_trip_ms[match.group(1)] = value
 
     def _on_esc(self, msg: Any, now: float, first_number: int) -> None:
         for slot in range(4):
@@ -263,9 +275,17 @@ class MonitorState:
                 "load "
                 + ", ".join(f"bus{k} {100 * v:.1f}%" for k, v in sorted(self.bus_load.items()))
             )
+        # two latencies, each named for what it spans: the first includes the waits for the
+        # command slot and the next telemetry message (~100 ms), the second is the wire's (~1 ms)
         if self.latency_ms:
             parts.append(
-                "latency " + " ".join(f"{k} {v:.1f}ms" for k, v in sorted(self.latency_ms.items()))
+                "cmd->telemetry "
+                + " ".join(f"{k} {v:.1f}ms" for k, v in sorted(self.latency_ms.items()))
+            )
+        if self.round_trip_ms:
+            parts.append(
+                "round trip L "
+                + " ".join(f"{k} {v:.2f}ms" for k, v in sorted(self.round_trip_ms.items()))
             )
         if self.gimbal:
             g = self.gimbal

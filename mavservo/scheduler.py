@@ -19,6 +19,7 @@ scheduler's CPU (docs/benchmarks.md, Scheduler).
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 import os
@@ -320,6 +321,20 @@ class Scheduler:
         with self._lock:
             self._metrics.bus_rejected += 1
         self._notify_observer("on_reject", self.name, text, bytes(raw_bytes), when)
+
+    def round_trip_samples(self, per_servo: int = 256) -> list[float]:
+        """The latest wire round trips L of every servo (seconds, frame written -> its reply
+        decoded: the summary's L), at most ``per_servo`` each, for live percentiles.
+
+        A bounded tail rather than the whole 4096-sample windows, so a caller that publishes a
+        few times a second sorts a few hundred values, not tens of thousands.
+        """
+        with self._lock:
+            return [
+                value
+                for servo in self._metrics.servos.values()
+                for value in itertools.islice(reversed(servo.latency.recent), per_servo)
+            ]
 
     def load_ratio(self) -> float:
         """Measured bus load R over the last window (cheap: for live telemetry)."""

@@ -42,7 +42,9 @@ def _servo_messages():
         m.MAVLink_named_value_float_message(0, b"s1_tmp", 41.0),
         m.MAVLink_named_value_float_message(0, b"s2_pos", -7.25),
         m.MAVLink_named_value_float_message(0, b"bus0_load", 0.123),
-        m.MAVLink_named_value_float_message(0, b"lat_p95", 4.5),
+        m.MAVLink_named_value_float_message(0, b"lat_p95", 104.5),
+        m.MAVLink_named_value_float_message(0, b"rtt_p50", 0.72),
+        m.MAVLink_named_value_float_message(0, b"rtt_p99", 1.25),
         m.MAVLink_esc_telemetry_1_to_4_message(
             [41, 39, 0, 0], [1200, 1210, 0, 0], [42, 10, 0, 0], [0] * 4, [0] * 4, [5, 5, 0, 0]
         ),
@@ -66,7 +68,10 @@ def test_state_model_rows_from_real_messages():
     (component,) = state.component_rows(now=100.5)
     assert component["component"] == "1/140" and component["type"] == "servo"
     health = state.health_line(now=100.5)
-    assert "bus0 12.3%" in health and "p95 4.5ms" in health
+    assert "bus0 12.3%" in health
+    # each latency named for what it spans, so ~100 ms and ~1 ms do not read as a contradiction
+    assert "cmd->telemetry p95 104.5ms" in health
+    assert "round trip L p50 0.72ms p99 1.25ms" in health
 
 
 def test_state_model_marks_silence_and_recovery():

@@ -119,3 +119,10 @@ def test_monitor_plain_lines_carry_the_bridges_values(tmp_path: Path) -> None:
     ), proc.stdout[-2000:]
     # exactly the configured servos: empty ESC_TELEMETRY slots do not become phantom rows
     assert not any("servo=3 " in ln for ln in lines)
+    # the wire round trip L comes from the bridge's schedulers, labelled as such (this bridge
+    # keeps no run log, so there is no cmd->telemetry figure to show)
+    assert any(
+        re.search(r"round trip L p50 \d+\.\d\dms p95 \d+\.\d\dms p99 \d+\.\d\dms", ln)
+        for ln in lines
+    ), proc.stdout[-2000:]
+    assert not any("cmd->telemetry" in ln for ln in lines)

@@ -280,3 +280,22 @@ def test_a_runner_at_normal_priority_keeps_the_configured_spin(sim_bus):
         assert wait_for(lambda: scheduler.metrics()["command_tick"]["interval"]["n"] >= 3)
         assert scheduler.spin_s == 0.002
         assert scheduler.realtime_status == "not requested"
+
+
+def test_round_trip_samples_are_the_latest_wire_latencies_bounded_per_servo(sim_bus):
+    bus, _ = sim_bus
+    scheduler = Scheduler(bus, specs(2), FAST)
+    assert scheduler.round_trip_samples() == []  # nothing measured yet
+    with scheduler:
+        scheduler.set_setpoint("s1", 4.0, "test")
+        scheduler.set_setpoint("s2", -4.0, "test")
+        assert wait_for(
+            lambda: all(s["latency_s"]["n"] >= 6 for s in scheduler.metrics()["servos"].values())
+        )
+    store = scheduler.metrics_store.servos
+    assert sorted(scheduler.round_trip_samples(per_servo=3)) == sorted(
+        list(store["s1"].latency.recent)[-3:] + list(store["s2"].latency.recent)[-3:]
+    )
+    every = scheduler.round_trip_samples(per_servo=10_000)
+    assert len(every) == store["s1"].latency.count + store["s2"].latency.count
+    assert all(0 < value < FAST.reply_timeout_s for value in every)  # write -> reply, seconds
