@@ -44,6 +44,13 @@ def telemetry_rate_hz(servo: ServoConfig, timing: SchedulerConfig) -> float:
     return min(servo.telemetry_hz, 1.0 / timing.telemetry_period_s)
 
 
+def is_polled(servo: ServoConfig) -> bool:
+    """True when the scheduler polls the servo; False for push-style ones (CubeMars servo mode)."""
+    from mavservo.servos import get_profile
+
+    return bool(get_profile(servo.profile)(servo.can_id).telemetry_requests())
+
+
 def servo_flows(servo: ServoConfig, timing: SchedulerConfig) -> list[FrameFlow]:
     """Every frame flow one servo causes, from its profile's own frames."""
     from mavservo.servos import get_profile  # imported late: the profiles are a separate layer

@@ -16,9 +16,10 @@ from pathlib import Path
 from typing import Any
 
 from pydantic import BaseModel, ValidationError
+from yaml.nodes import ScalarNode
 
 from mavservo.config.schema import Config
-from mavservo.config.semantic import budget_checks, cross_checks
+from mavservo.config.semantic import Finding, advisories, budget_checks, cross_checks
 from mavservo.config.yamlsource import (
     Problem,
     YamlDocument,
@@ -46,6 +47,15 @@ def default_config_path() -> Path:
 
 def load_config(path: str | Path) -> Config:
     """Read and validate a config file; raises :class:`ConfigError` (also for unreadable files)."""
+    return load_config_with_warnings(path)[0]
+
+
+def load_config_with_warnings(path: str | Path) -> tuple[Config, list[Problem]]:
+    """:func:`load_config`, plus the settings that load but will not do what they say.
+
+    The warnings (e.g. a ``telemetry_hz`` above what the telemetry loop polls) carry lines like
+    errors do; ``mavservo check`` prints them, and a config with warnings is still valid.
+    """
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8")
@@ -53,7 +63,8 @@ def load_config(path: str | Path) -> Config:
         reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
         problem = Problem((), None, f"cannot read the file: {reason}")
         raise ConfigError(str(path), [problem]) from None
-    return load_config_text(text, str(path), base_dir=path.resolve().parent)
+    config, document = _validate(text, str(path), path.resolve().parent)
+    return config, _located(advisories(config), document)
 
 
 def load_config_text(text: str, filename: str = "<config>", base_dir: Path | None = None) -> Config:
@@ -63,6 +74,10 @@ def load_config_text(text: str, filename: str = "<config>", base_dir: Path | Non
     """
     if base_dir is None:
         base_dir = Path(filename).resolve().parent if not filename.startswith("<") else Path.cwd()
+    return _validate(text, filename, base_dir)[0]
+
+
+def _validate(text: str, filename: str, base_dir: Path) -> tuple[Config, YamlDocument]:
     try:
         document = parse_yaml(text)
     except YamlSyntaxError as exc:
@@ -80,34 +95,72 @@ def load_config_text(text: str, filename: str = "<config>", base_dir: Path | Non
     for check in (cross_checks, budget_checks):
         findings = check(config)
         if findings:
-            problems = []
-            for loc, message in findings:
-                path, line = document.line_of(loc)
-                problems.append(Problem(tuple(loc), line, message))
-            raise ConfigError(filename, problems)
-    return config
+            raise ConfigError(filename, _located(findings, document))
+    return config, document
+
+
+def _located(findings: list[Finding], document: YamlDocument) -> list[Problem]:
+    problems = []
+    for loc, message in findings:
+        _, line = document.line_of(loc)
+        problems.append(Problem(tuple(loc), line, message))
+    return problems
 
 
 # ------------------------------------------------------------------ pydantic errors -> problems
 
 
 def _pydantic_problems(exc: ValidationError, document: YamlDocument) -> list[Problem]:
+    errors = exc.errors(include_url=False)
+    typos = _unknown_keys(errors, document)
     merged: dict[tuple[tuple[str | int, ...], int | None], list[str]] = {}
-    for error in exc.errors(include_url=False):
+    for error in errors:
         loc = tuple(error["loc"])
         if error["type"] == "union_tag_invalid":
             loc = loc + ("source",)
         path, line = document.line_of(loc)
         if error["type"] == "missing":
             path = path + (loc[-1],)
-        message = _describe(error, loc)
+            message, line = _describe_missing(loc, line, typos)
+        else:
+            message = _describe(error, loc, document.scalar_at(loc))
         messages = merged.setdefault((path, line), [])
         if message not in messages:
             messages.append(message)
     return [Problem(path, line, " or ".join(messages)) for (path, line), messages in merged.items()]
 
 
-def _describe(error: dict[str, Any], loc: tuple[str | int, ...]) -> str:
+def _unknown_keys(
+    errors: list[Any], document: YamlDocument
+) -> dict[tuple[str | int, ...], list[tuple[str, int | None]]]:
+    """Unknown keys by the mapping they sit in: a missing key may be one of them misspelt."""
+    typos: dict[tuple[str | int, ...], list[tuple[str, int | None]]] = {}
+    for error in errors:
+        if error["type"] == "extra_forbidden":
+            loc = tuple(error["loc"])
+            typos.setdefault(loc[:-1], []).append((str(loc[-1]), document.line_of(loc)[1]))
+    return typos
+
+
+def _describe_missing(
+    loc: tuple[str | int, ...],
+    line: int | None,
+    typos: dict[tuple[str | int, ...], list[tuple[str, int | None]]],
+) -> tuple[str, int | None]:
+    """ "required key is missing", on the line of an unknown key that looks like its misspelling.
+
+    Without this, a top-level ``servo:`` typo is first reported on line 1 or 2 (the mapping the
+    key is missing from), far from the line that has to change.
+    """
+    unknown = dict(typos.get(loc[:-1], []))
+    close = difflib.get_close_matches(str(loc[-1]), list(unknown), n=1)
+    if not close:
+        return "required key is missing", line
+    typo = close[0]
+    return f"required key is missing ({typo!r} here looks like a misspelling of it)", unknown[typo]
+
+
+def _describe(error: dict[str, Any], loc: tuple[str | int, ...], scalar: ScalarNode | None) -> str:
     kind = error["type"]
     if kind == "extra_forbidden":
         allowed = _allowed_keys(loc[:-1])
@@ -117,8 +170,6 @@ def _describe(error: dict[str, Any], loc: tuple[str | int, ...]) -> str:
             hint = f" (did you mean {close[0]!r}?)" if close else ""
             hint += f"; expected one of: {', '.join(allowed)}"
         return f"unknown key {loc[-1]!r}{hint}"
-    if kind == "missing":
-        return "required key is missing"
     if not loc:
         return (
             "expected a mapping of sections (mavlink, can, servos, channels, ...), "
@@ -130,7 +181,35 @@ def _describe(error: dict[str, Any], loc: tuple[str | int, ...]) -> str:
     value = error.get("input")
     if isinstance(value, (dict, list)) or kind in ("value_error", "assertion_error"):
         return message
-    return f"{message}, found {_short(value)}"
+    return f"{message}, found {_found(value, scalar, kind)}"
+
+
+#: Strict-type errors (schema.Float/Int/Bool) that a YAML boolean or a quoted value can cause.
+_NUMBER_ERRORS = ("float_type", "int_type", "int_from_float", "float_parsing", "int_parsing")
+_BOOL_ERRORS = ("bool_type", "bool_parsing")
+
+
+def _found(value: Any, scalar: ScalarNode | None, kind: str) -> str:
+    """The offending value as the user wrote it, with a hint when YAML changed its type."""
+    written = scalar.value if scalar is not None else None
+    if isinstance(value, bool) and kind in _NUMBER_ERRORS:
+        shown = written if written is not None else str(value).lower()
+        return f"{shown} (YAML reads yes/no/on/off/true/false as booleans, not numbers)"
+    if isinstance(value, str) and kind in _NUMBER_ERRORS + _BOOL_ERRORS:
+        if kind in _BOOL_ERRORS:
+            return f"the string {_short(value)} (write true or false, without quotes)"
+        if _is_number(value):
+            return f"the string {_short(value)} (write the number without quotes)"
+        return f"the string {_short(value)}"
+    return _short(value)
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 def _short(value: Any) -> str:

@@ -18,10 +18,22 @@ from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
+    Strict,
     ValidationInfo,
     field_validator,
     model_validator,
 )
+
+from mavservo.config.urls import url_problem
+
+#: YAML reads ``yes``/``no``/``on``/``off`` as booleans and a quoted ``"3.0"`` as a string, and
+#: pydantic's lax mode would quietly turn them into 1, 1.0 and 3.0 (and ``"no"`` into False), so
+#: a slip such as ``max_speed_dps: yes`` would run a servo at 1 deg/s. Scalars are strict: a
+#: number must be a YAML number (an integer is fine where a float is expected), a flag a YAML
+#: boolean. Containers stay lax, so YAML lists still fill the tuple fields.
+Float = Annotated[float, Strict()]
+Int = Annotated[int, Strict()]
+Bool = Annotated[bool, Strict()]
 
 #: Names are used as dictionary keys, in log lines and in MAVLink NAMED_VALUE_FLOAT labels.
 NAME_PATTERN = r"^[A-Za-z_][A-Za-z0-9_\-]*$"
@@ -48,9 +60,6 @@ AA55_BITRATES = (
     5_000,
 )
 
-#: Prefixes pymavlink's ``mavlink_connection`` understands as network endpoints.
-_MAVLINK_URL_PREFIXES = ("udpin:", "udpout:", "udp:", "udpbcast:", "tcp:", "tcpin:")
-
 #: Absolute PWM bounds a channel's input range must stay within (DO_SET_SERVO sanity range).
 PWM_MIN_US = 800
 PWM_MAX_US = 2200
@@ -71,7 +80,7 @@ def _ordered_pair(value: tuple[float, float], what: str = "range") -> tuple[floa
     return value
 
 
-AngleRange = tuple[float, float]
+AngleRange = tuple[Float, Float]
 
 
 # --------------------------------------------------------------------------------------- mavlink
@@ -80,8 +89,8 @@ AngleRange = tuple[float, float]
 class ComponentAddress(StrictModel):
     """A MAVLink (system, component) pair."""
 
-    system: int = Field(1, ge=1, le=255)
-    component: int = Field(1, ge=0, le=255)
+    system: Int = Field(1, ge=1, le=255)
+    component: Int = Field(1, ge=0, le=255)
 
 
 class SigningConfig(StrictModel):
@@ -94,7 +103,7 @@ class SigningConfig(StrictModel):
 
     key: str | None = None
     key_file: Path | None = None
-    accept_unsigned: bool = False
+    accept_unsigned: Bool = False
 
     @field_validator("key")
     @classmethod
@@ -154,8 +163,8 @@ def _parse_key_bytes(raw: bytes) -> bytes | None:
 class MirrorConfig(StrictModel):
     """Which autopilot output streams the bridge follows without an explicit command."""
 
-    servo_output_raw: bool = True
-    actuator_output_status: bool = False
+    servo_output_raw: Bool = True
+    actuator_output_status: Bool = False
     #: What ACTUATOR_OUTPUT_STATUS ``actuator[]`` values the autopilot sends: PWM us or [-1, 1].
     actuator_output_status_units: Literal["pwm", "normalized"] = "pwm"
 
@@ -166,28 +175,28 @@ class TelemetryRates(StrictModel):
     (0 rather than null, because that is what SET_MESSAGE_INTERVAL's -1/0 map onto at run time.)
     """
 
-    actuator_output_status_hz: float = Field(10.0, ge=0, le=100)
-    esc_telemetry_hz: float = Field(4.0, ge=0, le=100)
-    named_value_float_hz: float = Field(2.0, ge=0, le=100)
-    gimbal_attitude_status_hz: float = Field(10.0, ge=0, le=100)
+    actuator_output_status_hz: Float = Field(10.0, ge=0, le=100)
+    esc_telemetry_hz: Float = Field(4.0, ge=0, le=100)
+    named_value_float_hz: Float = Field(2.0, ge=0, le=100)
+    gimbal_attitude_status_hz: Float = Field(10.0, ge=0, le=100)
 
 
 class MavlinkConfig(StrictModel):
     """The MAVLink side: where the autopilot is and how the bridge presents itself."""
 
     url: str = "sim"
-    baud: int = Field(115200, gt=0)
-    system_id: Literal["follow"] | Annotated[int, Field(ge=1, le=255)] = "follow"
-    servo_component_id: int = Field(140, description="MAV_COMP_ID_SERVO1..14 the servos use")
+    baud: Int = Field(115200, gt=0)
+    system_id: Literal["follow"] | Annotated[Int, Field(ge=1, le=255)] = "follow"
+    servo_component_id: Int = Field(140, description="MAV_COMP_ID_SERVO1..14 the servos use")
     #: Channels per SERVO_OUTPUT_RAW ``port``: 16 is what ArduPilot sends in MAVLink 2.
     servo_output_port_width: Literal[8, 16] = 16
     autopilot: ComponentAddress = ComponentAddress()
-    heartbeat_timeout_s: float = Field(2.0, gt=0)
+    heartbeat_timeout_s: Float = Field(2.0, gt=0)
     signing: SigningConfig | None = None
     allowed_sources: list[ComponentAddress] = []
-    act_on_autopilot_commands: bool = False
+    act_on_autopilot_commands: Bool = False
     repeat_servo_cycle: Literal["seconds", "milliseconds"] = "seconds"
-    command_hold_s: float = Field(2.0, ge=0)
+    command_hold_s: Float = Field(2.0, ge=0)
     mirror: MirrorConfig = MirrorConfig()
     telemetry: TelemetryRates = TelemetryRates()
     #: Output-only endpoints that get a copy of everything the bridge sends (mavservo monitor).
@@ -196,14 +205,19 @@ class MavlinkConfig(StrictModel):
     @field_validator("url")
     @classmethod
     def _url_is_a_connection_string(cls, url: str) -> str:
-        if url == "sim" or url.startswith(_MAVLINK_URL_PREFIXES):
-            return url
-        if url.startswith("/") or re.match(r"^COM\d+", url):  # serial device, maybe "dev,baud"
-            return url
-        raise ValueError(
-            "expected 'sim', a pymavlink connection string (udpin:HOST:PORT, udpout:, tcp:, "
-            f"tcpin:) or a serial device path, got {url!r}"
-        )
+        problem = url_problem(url)
+        if problem is not None:
+            raise ValueError(problem)
+        return url
+
+    @field_validator("monitor_outputs")
+    @classmethod
+    def _monitor_outputs_are_endpoints(cls, urls: list[str]) -> list[str]:
+        for url in urls:
+            problem = url_problem(url, allow_sim=False)
+            if problem is not None:
+                raise ValueError(problem)
+        return urls
 
     @field_validator("servo_component_id")
     @classmethod
@@ -223,14 +237,14 @@ class BusConfig(StrictModel):
 
     name: Name = "bus0"
     interface: str = "aa55"
-    channel: str | int = "sim"
-    bitrate: int = Field(1_000_000, gt=0)
-    serial_baud: int = Field(2_000_000, gt=0)
+    channel: str | Int = "sim"
+    bitrate: Int = Field(1_000_000, gt=0)
+    serial_baud: Int = Field(2_000_000, gt=0)
     protocol: Literal["variable", "fixed"] = "variable"
-    read_interval_s: Literal["auto"] | Annotated[float, Field(ge=0, le=0.05)] = "auto"
+    read_interval_s: Literal["auto"] | Annotated[Float, Field(ge=0, le=0.05)] = "auto"
     """aa55 only: least time between two reads of the adapter ("auto": none while the line is
     lightly used, up to 8 ms while it is busy, e.g. under a foreign node's flood)."""
-    max_load: float = Field(0.35, gt=0, le=1)
+    max_load: Float = Field(0.35, gt=0, le=1)
 
     @model_validator(mode="after")
     def _aa55_bitrate_has_a_code(self) -> BusConfig:
@@ -258,8 +272,8 @@ class FailsafeConfig(StrictModel):
     """
 
     action: Literal["hold", "neutral", "position", "release"] = "hold"
-    position_deg: float | None = None
-    timeout_s: float = Field(1.0, gt=0)
+    position_deg: Float | None = None
+    timeout_s: Float = Field(1.0, gt=0)
 
     @model_validator(mode="after")
     def _position_needs_an_angle(self) -> FailsafeConfig:
@@ -276,13 +290,13 @@ class ServoConfig(StrictModel):
 
     name: Name
     profile: ProfileName
-    can_id: int = Field(ge=0, le=0x7FF)
+    can_id: Int = Field(ge=0, le=0x7FF)
     bus: Name | None = None
-    max_speed_dps: float = Field(360.0, gt=0)
+    max_speed_dps: Float = Field(360.0, gt=0)
     limits_deg: AngleRange = (-180.0, 180.0)
-    neutral_deg: float = 0.0
+    neutral_deg: Float = 0.0
     command_mode: Literal["periodic", "immediate"] = "periodic"
-    telemetry_hz: float = Field(10.0, gt=0)
+    telemetry_hz: Float = Field(10.0, gt=0)
     failsafe: FailsafeConfig = FailsafeConfig()
 
     @field_validator("limits_deg")
@@ -320,9 +334,9 @@ PROFILE_MAX_CAN_ID: dict[str, int] = {"rmd-x": 32, "lk": 32, "cubemars-ak": 255}
 class PwmInput(StrictModel):
     """A PWM input range in microseconds; ``trim`` defaults to the middle."""
 
-    min: float = 1100
-    max: float = 1900
-    trim: float | None = None
+    min: Float = 1100
+    max: Float = 1900
+    trim: Float | None = None
 
     @model_validator(mode="after")
     def _ordered(self) -> PwmInput:
@@ -342,9 +356,9 @@ class PwmInput(StrictModel):
 class NormalizedInput(StrictModel):
     """A normalized input range (DO_SET_ACTUATOR values); defaults are the full [-1, 1]."""
 
-    min: float = -1.0
-    max: float = 1.0
-    trim: float | None = None
+    min: Float = -1.0
+    max: Float = 1.0
+    trim: Float | None = None
 
     @model_validator(mode="after")
     def _ordered(self) -> NormalizedInput:
@@ -364,9 +378,9 @@ class NormalizedInput(StrictModel):
 class _ChannelCommon(StrictModel):
     servo: Name
     output_deg: AngleRange | None = None  # None: the servo's limits_deg
-    reverse: bool = False
-    trim_deg: float = 0.0
-    max_slew_dps: float | None = Field(None, gt=0)
+    reverse: Bool = False
+    trim_deg: Float = 0.0
+    max_slew_dps: Float | None = Field(None, gt=0)
 
     @field_validator("output_deg")
     @classmethod
@@ -393,7 +407,7 @@ class ServoOutputChannel(_ChannelCommon):
     """
 
     source: Literal["servo_output"]
-    channel: int = Field(ge=1, le=32)
+    channel: Int = Field(ge=1, le=32)
     input: PwmInput = PwmInput()
 
     @property
@@ -405,7 +419,7 @@ class ActuatorChannel(_ChannelCommon):
     """A DO_SET_ACTUATOR / ACTUATOR_OUTPUT_STATUS index (1-based), normalized input."""
 
     source: Literal["actuator"]
-    index: int = Field(ge=1, le=32)
+    index: Int = Field(ge=1, le=32)
     input: NormalizedInput = NormalizedInput()
 
     @property
@@ -436,15 +450,15 @@ class GimbalConfig(StrictModel):
     """A gimbal device (protocol v2) made of up to three servos."""
 
     name: Name
-    component_id: int = 154
+    component_id: Int = 154
     roll: Name | None = None
     pitch: Name | None = None
     yaw: Name | None = None
     limits_deg: GimbalLimits = GimbalLimits()
-    act_as_manager: bool = False
+    act_as_manager: Bool = False
     #: (roll, pitch, yaw) for RETRACT (None: the MAVLink layer's default stowed pose) and NEUTRAL.
-    retract_pose_deg: tuple[float, float, float] | None = None
-    neutral_pose_deg: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    retract_pose_deg: tuple[Float, Float, Float] | None = None
+    neutral_pose_deg: tuple[Float, Float, Float] = (0.0, 0.0, 0.0)
     #: Reported in GIMBAL_DEVICE_INFORMATION (32 characters at most there).
     vendor_name: str = Field("mavservo", max_length=32)
     model_name: str = Field("CAN servo gimbal", max_length=32)
@@ -474,12 +488,12 @@ class GimbalConfig(StrictModel):
 class SchedulerConfig(StrictModel):
     """Timing of the dual-loop scheduler (paper: T_c = 50 ms, telemetry 80-100 ms)."""
 
-    command_period_s: float = Field(0.05, gt=0)
-    telemetry_period_s: float = Field(0.09, gt=0)
-    refresh_interval_s: float = Field(0.2, gt=0)
-    immediate_min_spacing_s: float = Field(0.005, gt=0)
-    reply_timeout_s: float = Field(0.05, gt=0)
-    realtime: bool = False
+    command_period_s: Float = Field(0.05, gt=0)
+    telemetry_period_s: Float = Field(0.09, gt=0)
+    refresh_interval_s: Float = Field(0.2, gt=0)
+    immediate_min_spacing_s: Float = Field(0.005, gt=0)
+    reply_timeout_s: Float = Field(0.05, gt=0)
+    realtime: Bool = False
 
     @model_validator(mode="after")
     def _refresh_not_faster_than_commands(self) -> SchedulerConfig:
@@ -502,12 +516,12 @@ class SimAutopilotConfig(StrictModel):
     """
 
     profile: Literal["sweep", "steps", "staircase", "hold", "random-walk", "replay"] = "sweep"
-    servo_output_rate_hz: float = Field(20.0, gt=0)
+    servo_output_rate_hz: Float = Field(20.0, gt=0)
     replay_file: Path | None = None  # a .tlog, for profile "replay"
-    speed: float = Field(1.0, gt=0)  # replay speed factor
-    seed: int = 0  # random-walk seed
-    gimbal: bool = False  # also act as a gimbal manager sending SET_ATTITUDE
-    command_target: tuple[int, int] = (1, 0)  # (system, component) commands are addressed to
+    speed: Float = Field(1.0, gt=0)  # replay speed factor
+    seed: Int = 0  # random-walk seed
+    gimbal: Bool = False  # also act as a gimbal manager sending SET_ATTITUDE
+    command_target: tuple[Int, Int] = (1, 0)  # (system, component) commands are addressed to
     script: list[dict[str, Any]] = []
 
     @field_validator("script")
@@ -573,8 +587,8 @@ class LoggingConfig(StrictModel):
 
     dir: Path = Path("runs")
     can_formats: list[Literal["asc", "blf", "csv", "log", "trc"]] = ["asc"]
-    rotate_mb: float | None = Field(50.0, gt=0)
-    tlog: bool = True
+    rotate_mb: Float | None = Field(50.0, gt=0)
+    tlog: Bool = True
     level: Literal["debug", "info", "warning", "error"] = "info"
 
 

@@ -75,6 +75,32 @@ def budget_checks(config: Config) -> list[Finding]:
     return findings
 
 
+def advisories(config: Config) -> list[Finding]:
+    """Settings that load and run but do not do what they say; ``check`` prints them as warnings.
+
+    A polled servo is never polled faster than the telemetry loop ticks (``1 /
+    scheduler.telemetry_period_s``, the scheduler's documented cap); the scheduler says so in
+    its log at start-up, ``check`` says it with the line. Push-style servos report on their own
+    and are not capped.
+    """
+    from mavservo.config.budget import is_polled
+
+    findings: list[Finding] = []
+    cap_hz = 1.0 / config.scheduler.telemetry_period_s
+    for index, servo in enumerate(config.servos):
+        if is_polled(servo) and servo.telemetry_hz > cap_hz * (1 + 1e-9):
+            findings.append(
+                (
+                    ("servos", index, "telemetry_hz"),
+                    f"{servo.telemetry_hz:g} Hz is faster than the telemetry loop polls "
+                    f"(1 / scheduler.telemetry_period_s = {cap_hz:.3g} Hz): servo "
+                    f"{servo.name!r} will be polled at {cap_hz:.3g} Hz; lower telemetry_hz or "
+                    "shorten scheduler.telemetry_period_s",
+                )
+            )
+    return findings
+
+
 def _duplicates(names: list[str]) -> Iterator[tuple[int, int]]:
     """(index, index of the first occurrence) for every repeated name."""
     first: dict[str, int] = {}

@@ -79,6 +79,21 @@ class YamlDocument:
             line = _line(key_node) if key_node is not None else _line(child)
         return tuple(path), line
 
+    def scalar_at(self, loc: Sequence[str | int]) -> ScalarNode | None:
+        """The scalar node ``loc`` names exactly (None when it is absent or not a scalar).
+
+        Error messages quote it as written: ``yes``, where the constructed data holds ``True``.
+        """
+        node = self.root
+        for part in loc:
+            child, _ = _child(node, part)
+            if child is None:
+                continue  # pydantic's union tags name no node (see line_of)
+            node = child
+        if node is self.root or not isinstance(node, ScalarNode):
+            return None
+        return node
+
 
 def parse_yaml(text: str) -> YamlDocument:
     """Parse one YAML document; raises :class:`YamlSyntaxError` with the line on bad syntax."""
@@ -102,7 +117,7 @@ def parse_yaml(text: str) -> YamlDocument:
             mark = exc.context_mark
         line = mark.line + 1 if mark is not None else None
         what = " ".join(part for part in (exc.context, exc.problem) if part)
-        raise YamlSyntaxError(line, f"invalid YAML: {what}") from None
+        raise YamlSyntaxError(line, f"invalid YAML: {what}{_syntax_hint(what)}") from None
     except yaml.reader.ReaderError as exc:
         raise YamlSyntaxError(
             text[: exc.position].count("\n") + 1,
@@ -113,6 +128,25 @@ def parse_yaml(text: str) -> YamlDocument:
     finally:
         loader.dispose()
     return YamlDocument(data, root, problems)
+
+
+#: PyYAML's wording for the usual cause, a line indented more or less than its siblings.
+_INDENTATION_SYMPTOMS = (
+    "expected <block end>",
+    "mapping values are not allowed here",
+    "could not find expected ':'",
+)
+
+
+def _syntax_hint(what: str) -> str:
+    """A plain-words hint for the errors a mis-indented line produces (PyYAML's text is terse)."""
+    if not any(symptom in what for symptom in _INDENTATION_SYMPTOMS):
+        return ""
+    quoting = "; quote a value that contains ': '" if "mapping values" in what else ""
+    return (
+        " (check the indentation of this line and the lines above: the keys of one mapping,"
+        f" and the '-' items of one list, must start in the same column{quoting})"
+    )
 
 
 def _line(node: Node | None) -> int | None:
