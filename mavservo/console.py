@@ -50,10 +50,14 @@ class StatusDisplay:
         return self.enabled and self.console.is_terminal
 
     def started(self, config_path: Path, bridge: Any) -> None:
+        """Say what runs and where it connects, so hardware and simulation cannot be confused."""
+        from mavservo.config.endpoints import endpoint_lines
+
         line = f"mavservo: running {config_path}"
         if bridge.run_dir is not None:
             line += f"; logging to {bridge.run_dir}"
-        print(line, file=self.stream, flush=True)
+        lines = [line, *(f"  {text}" for text in endpoint_lines(bridge.config))]
+        print("\n".join(lines), file=self.stream, flush=True)
 
     def event(self, text: str) -> None:
         stamp = time.strftime("%H:%M:%S")

@@ -617,14 +617,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--out", help="output directory (default: LOGDIR/report)")
     args = parser.parse_args(argv)
     from rich.console import Console
+    from rich.markup import escape
 
     console = Console(stderr=True)
     try:
         import matplotlib  # noqa: F401 - the figures need it; it is an optional extra
     except ImportError:
         console.print(
-            "mavservo report needs matplotlib: pip install 'mavservo[report]' "
-            "(from a clone: pip install '.[report]')",
+            # escaped: rich would take "[report]" for markup and print pip install 'mavservo'
+            escape(
+                "mavservo report needs matplotlib: pip install 'mavservo[report]' "
+                "(from a clone: pip install '.[report]')"
+            ),
             highlight=False,
             soft_wrap=True,
         )

@@ -3,15 +3,26 @@
 Public API::
 
     load_config(path) -> Config              # raises ConfigError
+    load_config_with_warnings(path) -> (Config, [Problem])  # + settings that will not do as said
     load_config_text(text, filename) -> Config
     default_config_path() -> Path            # the built-in sim.yaml
     resolved_mapping(config) -> str          # human-readable table for `mavservo check`
     bus_loads(config) -> list[BusLoad]       # worst-case R per bus
-    check_main(paths) -> int                 # `mavservo check CONFIG...`: 0 valid, 2 invalid
+    check_main(argv) -> int                  # `mavservo check CONFIG...`: 0 valid, 2 invalid
+    endpoint_lines(config) -> list[str]      # MAVLink URL and bus interfaces, in words
+    apply_overrides(config, mavlink, port)   # --mavlink / --port; OverrideError names the option
 """
 
 from mavservo.config.budget import BusLoad, bus_loads
-from mavservo.config.loader import ConfigError, default_config_path, load_config, load_config_text
+from mavservo.config.endpoints import endpoint_lines
+from mavservo.config.loader import (
+    ConfigError,
+    default_config_path,
+    load_config,
+    load_config_text,
+    load_config_with_warnings,
+)
+from mavservo.config.overrides import OverrideError, apply_overrides
 from mavservo.config.report import check_main, resolved_mapping
 from mavservo.config.schema import (
     ActuatorChannel,
@@ -41,16 +52,20 @@ __all__ = [
     "GimbalConfig",
     "LoggingConfig",
     "MavlinkConfig",
+    "OverrideError",
     "Problem",
     "SchedulerConfig",
     "ServoConfig",
     "ServoOutputChannel",
     "SigningConfig",
     "SimulationConfig",
+    "apply_overrides",
     "bus_loads",
     "check_main",
     "default_config_path",
+    "endpoint_lines",
     "load_config",
     "load_config_text",
+    "load_config_with_warnings",
     "resolved_mapping",
 ]

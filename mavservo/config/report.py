@@ -1,17 +1,22 @@
 """``mavservo check``: validate config files and show what they resolve to.
 
-Prints, for each valid file, the servos, the channel mapping with the angles the input's
+Prints, for each valid file, where it connects (the MAVLink endpoint and each bus's interface,
+saying when a left-out key means the built-in simulation), warnings for settings that will not
+do what they say, the servos, the channel mapping with the angles the input's
 min/trim/max land on (after reverse, trim and soft limits), the gimbal groups, and the
 worst-case bus load per bus. Touches no hardware: the bus load comes from arithmetic only.
 """
 
 from __future__ import annotations
 
+import argparse
 import sys
+from collections.abc import Sequence
 from typing import TextIO
 
 from mavservo.config.budget import BusLoad, bus_loads
-from mavservo.config.loader import ConfigError, load_config
+from mavservo.config.endpoints import endpoint_lines
+from mavservo.config.loader import ConfigError, load_config_with_warnings
 from mavservo.config.schema import Config, ServoOutputChannel
 from mavservo.mapping import ChannelMap, Rejected
 
@@ -38,7 +43,9 @@ def _angle_text(channel_map: ChannelMap, value: float) -> str:
 
 def resolved_mapping(config: Config) -> str:
     """A human-readable description of what a validated config does."""
-    lines = ["servos:"]
+    lines = ["connections:"]
+    lines += ["  " + line for line in endpoint_lines(config)]
+    lines += ["", "servos:"]
     lines += [
         "  " + row
         for row in _table(
@@ -109,26 +116,52 @@ def _load_line(load: BusLoad) -> str:
     verdict = "OVER BUDGET" if load.over_budget else "ok"
     return (
         f"{load.bus}: R = {load.load:.3f} of max {load.max_load:g} "
-        f"({load.servo_count} servos, {load.bitrate} bit/s) {verdict}"
+        f"({_count(load.servo_count, 'servo')}, {load.bitrate} bit/s) {verdict}"
     )
 
 
-def check_main(paths: list[str], out: TextIO | None = None, err: TextIO | None = None) -> int:
-    """Validate every file in ``paths``; 0 when all are valid, 2 otherwise. Never raises."""
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    return argparse.ArgumentParser(
+        prog="mavservo check",
+        description=(
+            "Validate mavservo config files without touching any hardware. For each valid file, "
+            "print where it connects (MAVLink endpoint, CAN interface and channel per bus, or "
+            "the built-in simulation), warnings, the servos, the channel mapping (angles at "
+            "input min/trim/max) and the worst-case bus load. Errors go to stderr as "
+            "FILE:LINE: key: message."
+        ),
+        epilog="exit status: 0 when every file is valid, 2 otherwise",
+    )
+
+
+def check_main(argv: Sequence[str], out: TextIO | None = None, err: TextIO | None = None) -> int:
+    """``mavservo check CONFIG...``: 0 when all files are valid, 2 otherwise. Never raises."""
     out = out if out is not None else sys.stdout
     err = err if err is not None else sys.stderr
-    if not paths:
-        print("mavservo check: no config file given", file=err)
-        return EXIT_INVALID
+    parser = build_parser()
+    parser.add_argument("configs", nargs="+", metavar="CONFIG", help="YAML config file(s)")
+    try:
+        args = parser.parse_args(list(argv))
+    except SystemExit as exc:  # --help (0) or a usage error (2), already printed by argparse
+        return EXIT_OK if exc.code == 0 else EXIT_INVALID
     status = EXIT_OK
-    for path in paths:
+    for path in args.configs:
         try:
-            config = load_config(path)
+            config, warnings = load_config_with_warnings(path)
         except ConfigError as exc:
             print(str(exc), file=err)
             status = EXIT_INVALID
             continue
         print(f"{path}: valid\n", file=out)
+        if warnings:
+            print("warnings:", file=out)
+            for warning in warnings:
+                print("  " + warning.format(path), file=out)
+            print(file=out)
         print(resolved_mapping(config), file=out)
         print(file=out)
     return status
