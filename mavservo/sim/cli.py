@@ -18,6 +18,12 @@ from the ``simulation`` section of a YAML file (options given explicitly win)::
           physics: {max_speed_dps: 720, max_accel_dps2: 3600, relax_after_s: 2.0, ...}
           faults: {drop_reply_prob: 0.0, reply_delay_s: 0.0, silent: false,
                    over_current: false, over_temperature: false}
+
+A full ``mavservo run`` config (one with a top-level ``servos:`` list) is accepted too: it is
+validated like ``mavservo run`` does, and the adapter carries the servos the config puts on one
+of its buses (``--bus``, default the first) with their profiles, CAN ids and telemetry rates,
+at the bus's bitrate and protocol, tuned by ``simulation.servos`` where that names them. So a
+bridge run against the printed device finds every servo it expects.
 """
 
 from __future__ import annotations
@@ -42,7 +48,14 @@ def build_parser() -> argparse.ArgumentParser:
         prog="mavservo sim",
         description="Emulate an AA-55 USB-CAN adapter with simulated CAN servos on a pty.",
     )
-    parser.add_argument("--config", help="YAML file with a 'simulation' section")
+    parser.add_argument(
+        "--config",
+        help="a mavservo config (simulates the servos of one of its buses) or a YAML file with "
+        "a standalone 'simulation' section",
+    )
+    parser.add_argument(
+        "--bus", default=None, help="with a mavservo config: the bus to simulate (default: first)"
+    )
     parser.add_argument("--servos", type=int, default=None, help="number of servos (default 1)")
     parser.add_argument("--ids", type=_ids, default=None, help="servo IDs, e.g. 1,2,3")
     parser.add_argument("--profile", default=None, help="rmd-x | lk | cubemars-ak")
@@ -70,37 +83,88 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def load_simulation_section(path: str) -> dict[str, Any]:
-    """The ``simulation`` mapping of a YAML file (empty if absent), in the standalone shape.
+def load_simulation_section(path: str, bus: str | None = None) -> dict[str, Any]:
+    """The simulation settings of a YAML file, in the standalone shape of the module docstring.
 
-    A full mavservo config (top-level ``servos:`` list with ``name``, ``profile``, ``can_id``,
-    ``telemetry_hz``; ``simulation.servos`` mapping a servo name or ``default`` to
-    ``{physics, faults}``) is translated into the standalone list shape, so ``mavservo sim
-    --config`` accepts the same file as ``mavservo run``.
+    A full mavservo config (top-level ``servos:``) is handed to :func:`config_section`; any
+    other file is read for its ``simulation`` mapping (empty if absent).
     """
     import yaml
 
-    with open(path, encoding="utf-8") as handle:
-        document = yaml.safe_load(handle) or {}
+    try:
+        with open(path, encoding="utf-8") as handle:
+            document = yaml.safe_load(handle) or {}
+    except yaml.YAMLError as exc:
+        raise ValueError(f"{path}: invalid YAML: {exc}") from None
+    if not isinstance(document, dict):
+        raise ValueError(f"{path}: expected a mapping with a 'simulation' or 'servos' section")
+    if "servos" in document:
+        return config_section(path, bus)
+    if bus is not None:
+        raise ValueError(f"--bus {bus}: {path} is not a mavservo config (it has no 'servos')")
     section = dict(document.get("simulation") or {})
-    overrides = section.get("servos")
-    if isinstance(overrides, dict):
-        specs = []
-        for servo in document.get("servos") or []:
-            tuning = overrides.get(servo.get("name")) or overrides.get("default") or {}
-            spec = {"id": servo["can_id"], "profile": servo["profile"], **tuning}
-            if "telemetry_hz" in servo:
-                spec["status_rate_hz"] = servo["telemetry_hz"]
-            specs.append(spec)
-        section["servos"] = specs
-    elif overrides is not None and not isinstance(overrides, list):
-        raise ValueError(f"{path}: 'simulation.servos' must be a list or a mapping")
+    servos = section.get("servos")
+    if servos is not None and not isinstance(servos, list):
+        raise ValueError(f"{path}: 'simulation.servos' must be a list")
     return section
 
 
-def build_emulator(args: argparse.Namespace) -> AdapterEmulator:
+def config_section(path: str, bus: str | None = None) -> dict[str, Any]:
+    """The standalone shape for the servos a mavservo config puts on ``bus`` (default: first).
+
+    The config is validated exactly as ``mavservo run`` validates it (a bad file raises
+    :class:`~mavservo.config.ConfigError` with its lines), and each servo is simulated as the
+    bridge's own simulation does it: its profile, CAN id and ``telemetry_hz`` as the push rate,
+    ``simulation.servos[name]`` (or ``default``) for physics and faults, and a start position
+    inside its limits.
+    """
+    from mavservo.config import load_config
+
+    config = load_config(path)
+    buses = {b.name: b for b in config.can.buses}
+    name = bus if bus is not None else config.can.buses[0].name
+    if name not in buses:
+        raise ValueError(f"--bus {name}: {path} has no such bus; its buses: {', '.join(buses)}")
+    overrides = config.simulation.servos
+    specs = []
+    for servo in config.servos:
+        if config.bus_of(servo).name != name:
+            continue
+        tuning = overrides.get(servo.name) or overrides.get("default")
+        physics = dict(tuning.physics) if tuning else {}
+        low, high = servo.limits_deg
+        physics.setdefault("initial_position_deg", min(high, max(low, 0.0)))
+        specs.append(
+            {
+                "id": servo.can_id,
+                "profile": servo.profile,
+                "physics": physics,
+                "faults": dict(tuning.faults) if tuning else {},
+                "status_rate_hz": servo.telemetry_hz,
+            }
+        )
+    return {
+        "bus": name,
+        "bus_count": len(buses),
+        "bitrate": buses[name].bitrate,
+        "protocol": buses[name].protocol,
+        "servos": specs,
+    }
+
+
+def read_section(args: argparse.Namespace) -> dict[str, Any]:
+    """The ``--config`` file's simulation settings (empty without one)."""
+    if args.bus is not None and not args.config:
+        raise ValueError("--bus needs --config FILE (a mavservo config)")
+    return load_simulation_section(args.config, args.bus) if args.config else {}
+
+
+def build_emulator(
+    args: argparse.Namespace, section: dict[str, Any] | None = None
+) -> AdapterEmulator:
     """Servos and adapter from the YAML section, with command-line options on top."""
-    section = load_simulation_section(args.config) if args.config else {}
+    if section is None:
+        section = read_section(args)
     seed = args.seed if args.seed is not None else int(section.get("seed", 0))
     rate = args.status_rate_hz or float(section.get("status_rate_hz", 50.0))
     specs: list[dict[str, Any]] = [dict(s) for s in section.get("servos") or []]
@@ -164,9 +228,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Run until SIGINT or SIGTERM; exit 0 on a clean stop, 2 on a configuration error."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    from mavservo.config import ConfigError
+
     try:
-        emulator = build_emulator(args)
-    except (OSError, ValueError, KeyError) as error:
+        section = read_section(args)
+        emulator = build_emulator(args, section)
+    except (OSError, ValueError, KeyError, ConfigError) as error:
         print(f"mavservo sim: {error}", file=sys.stderr)
         return 2
     stop = threading.Event()
@@ -177,8 +244,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         print(emulator.path, flush=True)
         servo_list = ", ".join(f"{s.profile}:{s.can_id}" for s in emulator.servos)
+        source = ""
+        if "bus" in section:
+            source = f", bus {section['bus']} of {args.config}"
+            if section["bus_count"] > 1:
+                source += f" (1 of {section['bus_count']} buses; --bus NAME for another)"
         print(
-            f"# {emulator.device} at {emulator.bitrate} bit/s, servos {servo_list}",
+            f"# {emulator.device} at {emulator.bitrate} bit/s{source}, servos {servo_list}",
             file=sys.stderr,
             flush=True,
         )

@@ -1,0 +1,87 @@
+"""``mavservo sim --config`` with a full ``mavservo run`` config: the servos it declares.
+
+Before, a config without a ``simulation.servos`` mapping got one ``rmd-x:1`` servo, so a bridge
+run against the pty reported every other servo offline.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import can
+import pytest
+
+from mavservo.servos import get_profile
+from mavservo.sim.cli import build_emulator, build_parser, main
+from mavservo.usbcan import AA55Bus
+
+TWO_BUSES = """\
+can:
+  buses:
+    - {name: surfaces, channel: /dev/ttyUSB0, bitrate: 500000, protocol: fixed}
+    - {name: gimbal, channel: /dev/ttyUSB1}
+servos:
+  - {name: aileron, profile: rmd-x, can_id: 1, bus: surfaces, limits_deg: [10, 30],
+     neutral_deg: 20}
+  - {name: hook, profile: lk, can_id: 9, bus: surfaces}
+  - {name: pan, profile: cubemars-ak, can_id: 3, bus: gimbal, telemetry_hz: 25}
+"""
+
+
+def _emulator(path: Path, *options: str):
+    return build_emulator(build_parser().parse_args(["--config", str(path), *options]))
+
+
+def test_the_servos_of_the_first_bus_are_simulated_without_a_simulation_section(
+    tmp_path: Path,
+):
+    config = tmp_path / "rig.yaml"
+    config.write_text(TWO_BUSES)
+    emulator = _emulator(config)
+    assert [(s.profile, s.can_id) for s in emulator.servos] == [("rmd-x", 1), ("lk", 9)]
+    assert (emulator.bitrate, emulator.protocol) == (500_000, "fixed")
+    aileron = emulator.servos[0]
+    assert aileron.position_deg == 10  # starts inside its limits, as the bridge's simulation
+
+
+def test_bus_chooses_which_buses_servos_are_simulated(tmp_path: Path):
+    config = tmp_path / "rig.yaml"
+    config.write_text(TWO_BUSES)
+    (pan,) = _emulator(config, "--bus", "gimbal").servos
+    assert (pan.profile, pan.can_id, pan.status_rate_hz) == ("cubemars-ak", 3, 25)
+
+
+def test_an_unknown_bus_or_a_bad_config_exits_two_with_the_reason(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+):
+    config = tmp_path / "rig.yaml"
+    config.write_text(TWO_BUSES)
+    assert main(["--config", str(config), "--bus", "nope"]) == 2
+    assert "surfaces, gimbal" in capsys.readouterr().err
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("servos:\n  - {name: a, profile: rmd-x, can_id: yes}\n")
+    assert main(["--config", str(bad)]) == 2
+    assert f"{bad}:2: servos[0].can_id" in capsys.readouterr().err
+
+
+def test_every_declared_servo_answers_on_the_emulated_adapter(tmp_path: Path):
+    config = tmp_path / "rig.yaml"
+    config.write_text(
+        "servos:\n"
+        "  - {name: a, profile: rmd-x, can_id: 1}\n"
+        "  - {name: b, profile: rmd-x, can_id: 2}\n"
+        "  - {name: c, profile: lk, can_id: 7}\n"
+    )
+    with _emulator(config).start() as emulator, AA55Bus(channel=emulator.path) as bus:
+        for profile_name, can_id in (("rmd-x", 1), ("rmd-x", 2), ("lk", 7)):
+            profile = get_profile(profile_name)(can_id)
+            for request in profile.telemetry_requests():
+                bus.send(request)
+            deadline = time.monotonic() + 2.0
+            state = None
+            while state is None and time.monotonic() < deadline:
+                message: can.Message | None = bus.recv(0.1)
+                if message is not None:
+                    state = profile.decode(message, time.monotonic())
+            assert state is not None, f"{profile_name}:{can_id} did not answer"
