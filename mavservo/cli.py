@@ -8,9 +8,11 @@ file only dispatches, so ``mavservo --help`` stays fast and a broken optional ex
 from __future__ import annotations
 
 import importlib
+import inspect
 import os
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 #: subcommand -> (module, function, one-line help)
 COMMANDS: dict[str, tuple[str, str, str]] = {
@@ -28,6 +30,14 @@ def _usage() -> str:
     lines += [f"  {name:<8} {help_}" for name, (_, _, help_) in COMMANDS.items()]
     lines += ["", "With no command, `mavservo` is `mavservo run` on the built-in simulation."]
     return "\n".join(lines)
+
+
+def _call(func: Callable[..., Any], argv: list[str], name: str) -> Any:
+    """Run a subcommand; one that also runs on its own (``python -m sitl``) and takes ``prog``
+    is told its name here, so its usage reads ``mavservo sitl ...``, not ``sitl ...``."""
+    if "prog" in inspect.signature(func).parameters:
+        return func(argv, prog=f"mavservo {name}")
+    return func(argv)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -53,7 +63,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"mavservo {name}: unavailable ({exc})", file=sys.stderr)
         return 2
     try:
-        result = getattr(module, func_name)(rest)
+        result = _call(getattr(module, func_name), rest, name)
     except BrokenPipeError:  # `mavservo check x.yaml | head`: the reader left, not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0

@@ -1,0 +1,46 @@
+"""The ``mavservo`` dispatcher: a subcommand that also runs on its own learns its name."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import types
+
+import pytest
+
+from mavservo import cli
+
+
+def _module(monkeypatch: pytest.MonkeyPatch, name: str, main) -> None:
+    module = types.ModuleType(name)
+    module.main = main
+    monkeypatch.setitem(sys.modules, name, module)
+    monkeypatch.setitem(cli.COMMANDS, "tool", (name, "main", "a standalone tool"))
+
+
+def test_a_subcommand_that_takes_prog_prints_its_mavservo_usage(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+):
+    def main(argv: list[str], prog: str = "tool") -> int:
+        argparse.ArgumentParser(prog=prog).parse_args(argv)
+        return 0
+
+    _module(monkeypatch, "standalone_tool", main)
+    with pytest.raises(SystemExit) as info:
+        cli.main(["tool", "--help"])
+    assert info.value.code == 0
+    assert capsys.readouterr().out.startswith("usage: mavservo tool ")
+
+
+def test_a_subcommand_without_prog_is_called_with_its_arguments_only(
+    monkeypatch: pytest.MonkeyPatch,
+):
+    seen: list[list[str]] = []
+
+    def main(argv: list[str]) -> int:
+        seen.append(argv)
+        return 3
+
+    _module(monkeypatch, "plain_tool", main)
+    assert cli.main(["tool", "a", "-b"]) == 3
+    assert seen == [["a", "-b"]]
