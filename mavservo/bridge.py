@@ -368,7 +368,9 @@ class Bridge:
         return MavlinkSide(settings, self.backend, gimbals, on_event=self._note)
 
     def _health(self) -> dict[str, float]:
-        """Measured bus load per bus and the round-trip latency percentiles, for telemetry."""
+        """Measured bus load per bus and, with a run log, the MAVLink command receipt ->
+        telemetry published percentiles (``lat_p*``, every stage), for telemetry; the wire round
+        trip ``rtt_p*`` is added by ``ServoBackend.health``."""
         out: dict[str, float] = {}
         for k, scheduler in enumerate(self.schedulers.values()):
             out[f"bus{k}_load"] = scheduler.load_ratio()
