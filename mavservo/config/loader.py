@@ -147,7 +147,7 @@ def _describe_missing(
     line: int | None,
     typos: dict[tuple[str | int, ...], list[tuple[str, int | None]]],
 ) -> tuple[str, int | None]:
-    """ "required key is missing", on the line of an unknown key that looks like its misspelling.
+    """Put "required key is missing" on the line of an unknown key that looks like its misspelling.
 
     Without this, a top-level ``servo:`` typo is first reported on line 1 or 2 (the mapping the
     key is missing from), far from the line that has to change.
