@@ -17,7 +17,13 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from mavservo.config import Config, ConfigError, default_config_path, load_config
+from mavservo.config import (
+    ConfigError,
+    OverrideError,
+    apply_overrides,
+    default_config_path,
+    load_config,
+)
 from mavservo.console import StatusDisplay, format_summary
 
 log = logging.getLogger("mavservo")
@@ -39,16 +45,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def apply_overrides(config: Config, mavlink: str | None, port: str | None) -> Config:
-    """The command-line overrides, applied to a validated config (re-validated as a whole)."""
-    data = config.model_dump(mode="python")
-    if mavlink:
-        data["mavlink"]["url"] = mavlink
-    if port:
-        data["can"]["buses"][0]["channel"] = port
-    return Config.model_validate(data)
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     logging.basicConfig(
@@ -60,6 +56,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         config = apply_overrides(load_config(path), args.mavlink, args.port)
     except ConfigError as exc:
         print(f"mavservo: invalid configuration\n{exc}", file=sys.stderr)
+        return 2
+    except OverrideError as exc:  # names the option: "--mavlink udpin:...:bad: port 'bad' ..."
+        print(f"mavservo: {exc}", file=sys.stderr)
         return 2
     except (OSError, ValueError) as exc:
         print(f"mavservo: cannot use {path}: {exc}", file=sys.stderr)

@@ -29,8 +29,8 @@ def _target(text: str) -> tuple[int, int]:
     return system, component
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="sitl", description=__doc__.splitlines()[0])
+def build_parser(prog: str = "sitl") -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
 
     s = sub.add_parser("stream", help="run the simulated ArduPilot autopilot stream")
@@ -216,8 +216,9 @@ def _stop_on_signals() -> dict[int, object]:
     return previous
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+def main(argv: list[str] | None = None, prog: str = "sitl") -> int:
+    """``prog``: the name in usage texts (``mavservo sitl`` when run through ``mavservo``)."""
+    args = build_parser(prog).parse_args(argv)
     previous = _stop_on_signals()
     try:
         return _run_stream(args) if args.command == "stream" else _run_replay(args)

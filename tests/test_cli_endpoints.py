@@ -161,3 +161,30 @@ def test_report_names_the_report_extra_when_matplotlib_is_missing(
     err = " ".join(capsys.readouterr().err.split())  # undo rich's line wrapping
     assert "pip install 'mavservo[report]'" in err
     assert "pip install '.[report]'" in err
+
+
+def test_run_reports_what_the_file_left_out_and_a_bad_mavlink_option(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+):
+    """``mavservo run`` applies its options without hiding which keys the file left out, and a
+    bad ``--mavlink`` is named as the option, in one line, before anything starts."""
+    from mavservo import runcmd
+
+    config = tmp_path / "min.yaml"
+    config.write_text(SERVO)
+    assert runcmd.main(["-c", str(config), "--mavlink", "udpin:127.0.0.1:bad"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("mavservo: --mavlink udpin:127.0.0.1:bad: port 'bad'")
+    assert "\n" not in err
+    proc = subprocess.run(
+        [sys.executable, "-m", "mavservo", "run", "-c", str(config), "--duration", "0.5"]
+        + ["--no-log", "--quiet", "--mavlink", "udpin:127.0.0.1:0"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=REPO,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "  can: not set, using the built-in simulation" in proc.stdout
+    assert "  mavlink: udpin:127.0.0.1:0 (listening)" in proc.stdout
+    assert "mavlink.url: not set" not in proc.stdout
