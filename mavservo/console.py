@@ -141,7 +141,8 @@ def format_summary(summary: dict[str, Any]) -> str:
             f"missed command slots {bus.get('missed_command_slots', 0)}, "
             f"decoder rejections {sum(rejected.values()) if rejected else 0}, "
             f"bytes discarded {transport.get('bytes_discarded', 0)}, "
-            f"reconnects {transport.get('reconnects', 0)}"
+            f"reconnects {transport.get('reconnects', 0)}, "
+            f"failed sends {bus.get('send_failures', {}).get('total', 0)}"
         )
     lines.append(
         f"  {'servo':<16} {'sent':>6} {'recv':>6} {'lost':>5} {'rej':>4} "

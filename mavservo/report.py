@@ -524,7 +524,8 @@ def summary_rows(run: Run, series: LoadSeries) -> list[tuple[str, str]]:
         if lat.get("n"):
             rows.append(
                 (
-                    f"Scheduler {servo}: L every request (mean / sigma / p99) [ms]",
+                    f"Scheduler {servo}: L, commands and refreshes (written -> reply decoded) "
+                    "(mean / sigma / p99) [ms]",
                     " / ".join(_ms(lat.get(k)) for k in ("mean", "sigma", "p99"))
                     + f" (n={lat['n']})",
                 )
