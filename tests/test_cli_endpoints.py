@@ -108,17 +108,22 @@ def test_mavservo_run_prints_the_interface_and_mavlink_url(tmp_path: Path):
         "mavlink: {url: 'udpin:127.0.0.1:0'}\n"
         "can: {buses: [{name: bench, interface: virtual, channel: mavservo-test-banner}]}\n" + SERVO
     )
-    proc = subprocess.run(
+    proc = run_briefly(config)
+    assert proc.returncode == 0, proc.stderr
+    assert "  mavlink: udpin:127.0.0.1:0 (listening)" in proc.stdout
+    assert "  bench: virtual mavservo-test-banner @ 1 Mbit/s" in proc.stdout
+
+
+def run_briefly(config: Path, *options: str) -> subprocess.CompletedProcess[str]:
+    """``mavservo run`` for half a second, no run log, plain output."""
+    return subprocess.run(
         [sys.executable, "-m", "mavservo", "run", "-c", str(config), "--duration", "0.5"]
-        + ["--no-log", "--quiet"],
+        + ["--no-log", "--quiet", *options],
         capture_output=True,
         text=True,
         timeout=60,
         cwd=REPO,
     )
-    assert proc.returncode == 0, proc.stderr
-    assert "  mavlink: udpin:127.0.0.1:0 (listening)" in proc.stdout
-    assert "  bench: virtual mavservo-test-banner @ 1 Mbit/s" in proc.stdout
 
 
 @pytest.mark.parametrize(("bitrate", "text"), [(1_000_000, "1 Mbit/s"), (125_000, "125 kbit/s")])
@@ -176,14 +181,7 @@ def test_run_reports_what_the_file_left_out_and_a_bad_mavlink_option(
     err = capsys.readouterr().err.strip()
     assert err.startswith("mavservo: --mavlink udpin:127.0.0.1:bad: port 'bad'")
     assert "\n" not in err
-    proc = subprocess.run(
-        [sys.executable, "-m", "mavservo", "run", "-c", str(config), "--duration", "0.5"]
-        + ["--no-log", "--quiet", "--mavlink", "udpin:127.0.0.1:0"],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        cwd=REPO,
-    )
+    proc = run_briefly(config, "--mavlink", "udpin:127.0.0.1:0")
     assert proc.returncode == 0, proc.stderr
     assert "  can: not set, using the built-in simulation" in proc.stdout
     assert "  mavlink: udpin:127.0.0.1:0 (listening)" in proc.stdout

@@ -11,12 +11,12 @@ from __future__ import annotations
 
 import errno
 import logging
-import time
 import uuid
 
 import can
 import pytest
 from can.interfaces.virtual import VirtualBus
+from e2e_support import wait_until
 
 from mavservo.resilient_bus import ResilientBus
 from mavservo.scheduler import FailureRun, Scheduler, ServoSpec, TimingConfig
@@ -29,13 +29,8 @@ WAIT_LIMIT_S = 5.0
 SCHEDULER_LOG = "mavservo.scheduler"
 
 
-def wait_for(condition, limit_s: float = WAIT_LIMIT_S) -> bool:
-    """Poll ``condition`` a bounded number of times within ``limit_s``."""
-    for _ in range(int(limit_s / 0.01)):
-        if condition():
-            return True
-        time.sleep(0.01)
-    return condition()
+def wait_for(condition) -> bool:
+    return wait_until(condition, WAIT_LIMIT_S, interval=0.01)
 
 
 def specs(n: int = 2) -> list[ServoSpec]:
