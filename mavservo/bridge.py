@@ -80,23 +80,17 @@ class _FanOut(SchedulerObserver):
 def simulated_servos(config: Config, bus_name: str) -> list[SimServo]:
     """The simulated devices for the servos on ``bus_name`` (``simulation.servos`` tunes them)."""
     out = []
-    overrides = config.simulation.servos
     for index, servo in enumerate(config.servos):
         if config.bus_of(servo).name != bus_name:
             continue
-        tuning = overrides.get(servo.name) or overrides.get("default")
-        physics = Physics.from_dict(tuning.physics if tuning else None)
-        faults = Faults.from_dict(tuning.faults if tuning else None)
-        if tuning is None or "initial_position_deg" not in tuning.physics:
-            low, high = servo.limits_deg
-            physics = dataclasses.replace(physics, initial_position_deg=min(high, max(low, 0.0)))
+        physics, faults = config.simulated_settings(servo)
         # push-style servos (CubeMars) report at the rate the config budgets for them
         out.append(
             SimServo(
                 servo.profile,
                 servo.can_id,
-                physics,
-                faults,
+                Physics.from_dict(physics),
+                Faults.from_dict(faults),
                 seed=index,
                 status_rate_hz=servo.telemetry_hz,
             )

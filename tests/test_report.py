@@ -102,8 +102,8 @@ def test_report_writes_every_figure_and_lists_it(recorded_run, tmp_path):
     assert "| Replies lost (timeouts) | 1 |" in markdown
     assert "| Scheduler left: frames sent / received / lost / late | 10 / 9 / 1 / 0 |" in markdown
     assert (
-        "| Scheduler left: L, commands and refreshes (written -> reply decoded) (mean / sigma / p99) [ms] | 1.00 / 0.20 / 1.50"
-        in markdown
+        "| Scheduler left: L, commands and refreshes (written -> reply decoded) "
+        "(mean / sigma / p99) [ms] | 1.00 / 0.20 / 1.50" in markdown
     )
 
 

@@ -622,6 +622,16 @@ class Config(StrictModel):
                 return bus
         raise KeyError(name)
 
+    def simulated_settings(self, servo: ServoConfig) -> tuple[dict[str, Any], dict[str, Any]]:
+        """(physics, faults) of ``servo``'s simulated device: ``simulation.servos[name]`` or
+        its ``default``, and a start position inside its limits unless one is given (the
+        bridge's built-in simulation and ``mavservo sim --config`` build the same servo)."""
+        tuning = self.simulation.servos.get(servo.name) or self.simulation.servos.get("default")
+        physics: dict[str, Any] = dict(tuning.physics) if tuning else {}
+        low, high = servo.limits_deg
+        physics.setdefault("initial_position_deg", min(high, max(low, 0.0)))
+        return physics, dict(tuning.faults) if tuning else {}
+
     def channel_output_deg(self, channel: ServoOutputChannel | ActuatorChannel) -> AngleRange:
         """A channel's output range, defaulting to its servo's soft limits."""
         return channel.output_deg or self.servo(channel.servo).limits_deg

@@ -125,21 +125,17 @@ def config_section(path: str, bus: str | None = None) -> dict[str, Any]:
     name = bus if bus is not None else config.can.buses[0].name
     if name not in buses:
         raise ValueError(f"--bus {name}: {path} has no such bus; its buses: {', '.join(buses)}")
-    overrides = config.simulation.servos
     specs = []
     for servo in config.servos:
         if config.bus_of(servo).name != name:
             continue
-        tuning = overrides.get(servo.name) or overrides.get("default")
-        physics = dict(tuning.physics) if tuning else {}
-        low, high = servo.limits_deg
-        physics.setdefault("initial_position_deg", min(high, max(low, 0.0)))
+        physics, faults = config.simulated_settings(servo)
         specs.append(
             {
                 "id": servo.can_id,
                 "profile": servo.profile,
                 "physics": physics,
-                "faults": dict(tuning.faults) if tuning else {},
+                "faults": faults,
                 "status_rate_hz": servo.telemetry_hz,
             }
         )
