@@ -168,17 +168,17 @@ def test_report_names_the_report_extra_when_matplotlib_is_missing(
     assert "pip install '.[report]'" in err
 
 
-def test_run_reports_what_the_file_left_out_and_a_bad_mavlink_option(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
-):
+def test_run_reports_what_the_file_left_out_and_a_bad_mavlink_option(tmp_path: Path):
     """``mavservo run`` applies its options without hiding which keys the file left out, and a
-    bad ``--mavlink`` is named as the option, in one line, before anything starts."""
-    from mavservo import runcmd
+    bad ``--mavlink`` is named as the option, in one line, before anything starts.
 
+    (In a subprocess: ``run`` sets up the process's logging, which must not outlive the test.)
+    """
     config = tmp_path / "min.yaml"
     config.write_text(SERVO)
-    assert runcmd.main(["-c", str(config), "--mavlink", "udpin:127.0.0.1:bad"]) == 2
-    err = capsys.readouterr().err.strip()
+    bad = run_briefly(config, "--mavlink", "udpin:127.0.0.1:bad")
+    assert bad.returncode == 2
+    err = bad.stderr.strip()
     assert err.startswith("mavservo: --mavlink udpin:127.0.0.1:bad: port 'bad'")
     assert "\n" not in err
     proc = run_briefly(config, "--mavlink", "udpin:127.0.0.1:0")
