@@ -71,9 +71,9 @@ def servo_flows(servo: ServoConfig, timing: SchedulerConfig) -> list[FrameFlow]:
     )
     flows = traffic.flows()
     if not requests:
-        # A push-style servo (CubeMars servo mode) reports on its own; count those frames at
-        # the rate the config asks for, in the command's identifier format.
-        flows.append(FrameFlow(poll_hz, bool(command.is_extended_id), 8))
+        # A push-style servo (CubeMars servo mode) reports on its own, at the rate the config
+        # asks for (the telemetry loop does not pace it), in the command's identifier format.
+        flows.append(FrameFlow(servo.telemetry_hz, bool(command.is_extended_id), 8))
     return flows
 
 
