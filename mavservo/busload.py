@@ -124,7 +124,8 @@ class ServoTraffic:
     ``command_hz`` must already be the worst case for the servo's mode (an ``immediate`` servo
     can send up to ``1 / immediate_min_spacing_s`` commands per second, not just ``1 / T_c``).
     Replies are assumed to be full 8-byte frames of the same identifier format as the request,
-    which is how every profile in this project answers.
+    which is how every profile in this project answers. ``push_hz``: status frames a push-style
+    servo (CubeMars servo mode) sends on its own, unpolled, in the command's identifier format.
     """
 
     command_hz: float
@@ -135,6 +136,7 @@ class ServoTraffic:
     request_shapes: tuple[tuple[bool, int], ...]  # (extended, dlc) per request frame
     replies_per_request: int
     reply_dlc: int = 8
+    push_hz: float = 0.0
 
     def flows(self) -> list[FrameFlow]:
         flows = [FrameFlow(self.command_hz, self.command_extended, self.command_dlc)]
@@ -152,6 +154,8 @@ class ServoTraffic:
                 flows.append(
                     FrameFlow(self.request_hz * self.replies_per_request, extended, self.reply_dlc)
                 )
+        if self.push_hz:
+            flows.append(FrameFlow(self.push_hz, self.command_extended, self.reply_dlc))
         return flows
 
 

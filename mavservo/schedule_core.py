@@ -371,7 +371,14 @@ class ScheduleCore:
             request_shapes=tuple(_msg_shape(r) for r in requests),
             replies_per_request=int(getattr(spec.profile, "replies_per_request", 1)),
             reply_dlc=_REPLY_DLC,
+            push_hz=0.0 if requests else self._push_hz(spec),
         )
+
+    def _push_hz(self, spec: ServoSpec) -> float:
+        """Status frames per second a push-style servo sends unpolled (its ``telemetry_hz``)."""
+        if spec.telemetry_hz is None:
+            return 1 / self.timing.telemetry_period_s
+        return spec.telemetry_hz
 
     def _check_budget(self, servos: Sequence[ServoSpec]) -> float:
         warnings_before = len(self.warnings)

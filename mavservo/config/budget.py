@@ -57,7 +57,9 @@ def servo_flows(servo: ServoConfig, timing: SchedulerConfig) -> list[FrameFlow]:
 
     profile_class = get_profile(servo.profile)
     profile = profile_class(servo.can_id)
-    command = profile.position_command(0.0)  # the frame's shape does not depend on the values
+    # the frame's shape depends on whether a speed limit is sent (CubeMars: 4 or 8 bytes), as
+    # the scheduler sends it, not on the values
+    command = profile.position_command(0.0, servo.max_speed_dps)
     requests = profile.telemetry_requests()
     poll_hz = telemetry_rate_hz(servo, timing)
     traffic = ServoTraffic(
@@ -68,13 +70,11 @@ def servo_flows(servo: ServoConfig, timing: SchedulerConfig) -> list[FrameFlow]:
         request_hz=poll_hz,
         request_shapes=tuple((bool(r.is_extended_id), int(r.dlc)) for r in requests),
         replies_per_request=int(profile_class.replies_per_request),
+        # a push-style servo (CubeMars servo mode) reports on its own, at the rate the config
+        # asks for: the telemetry loop paces polls only
+        push_hz=0.0 if requests else servo.telemetry_hz,
     )
-    flows = traffic.flows()
-    if not requests:
-        # A push-style servo (CubeMars servo mode) reports on its own, at the rate the config
-        # asks for (the telemetry loop does not pace it), in the command's identifier format.
-        flows.append(FrameFlow(servo.telemetry_hz, bool(command.is_extended_id), 8))
-    return flows
+    return traffic.flows()
 
 
 def bus_loads(config: Config) -> list[BusLoad]:
