@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Literal, Protocol
+from typing import Any, Literal, Protocol
 
 Stuffing = Literal["worst", "none"]
 
@@ -157,6 +157,36 @@ class ServoTraffic:
         if self.push_hz:
             flows.append(FrameFlow(self.push_hz, self.command_extended, self.reply_dlc))
         return flows
+
+
+def servo_traffic(
+    profile: Any,
+    *,
+    command_hz: float,
+    poll_hz: float,
+    status_hz: float,
+    max_speed_dps: float | None,
+) -> ServoTraffic:
+    """One servo's worst-case traffic, from its profile's own frames: what the scheduler's
+    start-up budget and ``mavservo check`` both count, so that they agree.
+
+    ``profile`` is a servo profile instance (``position_command``, ``telemetry_requests``,
+    ``replies_per_*``). The command is shaped as the scheduler sends it, with the speed limit
+    (a CubeMars command is 4 bytes without one, 8 with). A polled servo answers ``poll_hz``
+    requests; a push-style one (no requests) sends ``status_hz`` status frames on its own.
+    """
+    command = profile.position_command(0.0, max_speed_dps)
+    requests = profile.telemetry_requests()
+    return ServoTraffic(
+        command_hz=command_hz,
+        command_extended=bool(command.is_extended_id),
+        command_dlc=int(command.dlc),
+        replies_per_command=int(getattr(profile, "replies_per_command", 1)),
+        request_hz=poll_hz if requests else 0.0,
+        request_shapes=tuple((bool(r.is_extended_id), int(r.dlc)) for r in requests),
+        replies_per_request=int(getattr(profile, "replies_per_request", 1)),
+        push_hz=0.0 if requests else status_hz,
+    )
 
 
 def worst_case_load(servos: Iterable[ServoTraffic], bitrate: int) -> float:

@@ -56,7 +56,7 @@ from typing import Literal
 import can
 
 from . import reply_matching
-from .busload import ServoTraffic, frame_time, message_bits, worst_case_load
+from .busload import ServoTraffic, frame_time, message_bits, servo_traffic, worst_case_load
 
 CommandMode = Literal["periodic", "immediate"]
 FrameKind = Literal["command", "refresh", "request"]
@@ -359,26 +359,19 @@ class ScheduleCore:
         return hz
 
     def _traffic(self, spec: ServoSpec) -> ServoTraffic:
-        command = spec.profile.position_command(0.0, spec.max_speed_dps)
-        requests = spec.profile.telemetry_requests()
-        period = self._poll_period(spec) if requests else None
-        return ServoTraffic(
+        period = self._poll_period(spec)  # None: not polled
+        return servo_traffic(
+            spec.profile,
             command_hz=self._command_hz(spec),
-            command_extended=bool(command.is_extended_id),
-            command_dlc=int(command.dlc),
-            replies_per_command=int(getattr(spec.profile, "replies_per_command", 1)),
-            request_hz=0.0 if period is None else 1 / period,
-            request_shapes=tuple(_msg_shape(r) for r in requests),
-            replies_per_request=int(getattr(spec.profile, "replies_per_request", 1)),
-            reply_dlc=_REPLY_DLC,
-            push_hz=0.0 if requests else self._push_hz(spec),
+            poll_hz=0.0 if period is None else 1 / period,
+            # a push-style servo sends status on its own at its telemetry_hz
+            status_hz=(
+                1 / self.timing.telemetry_period_s
+                if spec.telemetry_hz is None
+                else spec.telemetry_hz
+            ),
+            max_speed_dps=spec.max_speed_dps,
         )
-
-    def _push_hz(self, spec: ServoSpec) -> float:
-        """Status frames per second a push-style servo sends unpolled (its ``telemetry_hz``)."""
-        if spec.telemetry_hz is None:
-            return 1 / self.timing.telemetry_period_s
-        return spec.telemetry_hz
 
     def _check_budget(self, servos: Sequence[ServoSpec]) -> float:
         warnings_before = len(self.warnings)

@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from mavservo.busload import FrameFlow, ServoTraffic, load_ratio
+from mavservo.busload import FrameFlow, load_ratio, servo_traffic
 
 if TYPE_CHECKING:
     from mavservo.config.schema import BusConfig, Config, SchedulerConfig, ServoConfig
@@ -55,24 +55,14 @@ def servo_flows(servo: ServoConfig, timing: SchedulerConfig) -> list[FrameFlow]:
     """Every frame flow one servo causes, from its profile's own frames."""
     from mavservo.servos import get_profile  # imported late: the profiles are a separate layer
 
-    profile_class = get_profile(servo.profile)
-    profile = profile_class(servo.can_id)
-    # the frame's shape depends on whether a speed limit is sent (CubeMars: 4 or 8 bytes), as
-    # the scheduler sends it, not on the values
-    command = profile.position_command(0.0, servo.max_speed_dps)
-    requests = profile.telemetry_requests()
-    poll_hz = telemetry_rate_hz(servo, timing)
-    traffic = ServoTraffic(
+    traffic = servo_traffic(
+        get_profile(servo.profile)(servo.can_id),
         command_hz=command_rate_hz(servo, timing),
-        command_extended=bool(command.is_extended_id),
-        command_dlc=int(command.dlc),
-        replies_per_command=int(profile_class.replies_per_command),
-        request_hz=poll_hz,
-        request_shapes=tuple((bool(r.is_extended_id), int(r.dlc)) for r in requests),
-        replies_per_request=int(profile_class.replies_per_request),
-        # a push-style servo (CubeMars servo mode) reports on its own, at the rate the config
-        # asks for: the telemetry loop paces polls only
-        push_hz=0.0 if requests else servo.telemetry_hz,
+        poll_hz=telemetry_rate_hz(servo, timing),
+        # a push-style servo reports at the rate the config asks for: the telemetry loop
+        # paces polls only
+        status_hz=servo.telemetry_hz,
+        max_speed_dps=servo.max_speed_dps,
     )
     return traffic.flows()
 
