@@ -584,17 +584,19 @@ def forced_losses(
     to the next frame's end, or a garbage 0xAA right after a frame, makes such an X.)
     """
     spans = output_spans(truth.stream, outputs, protocol)
-    starts = [s for s, _ in spans]
+    found = [(s, i) for i, (s, _) in enumerate(spans) if s >= 0]  # sorted: outputs in order
+    starts = [s for s, _ in found]
     forced = []
     for j in lost:
         first = truth.offsets[j]
         last = first + len(encode(truth.frames[j], protocol))  # type: ignore[arg-type]
-        i = bisect.bisect_left(starts, first) - 1  # the last output starting before the frame
-        while i >= 0 and starts[i] < 0:
-            i -= 1
-        if i < 0 or spans[i][1] < last:
+        k = bisect.bisect_left(starts, first) - 1  # the last output starting before the frame
+        if k < 0:
             continue
+        i = found[k][1]
         start, stop = spans[i]
+        if stop < last:
+            continue
         before_ok = i == 0 or spans[i - 1][1] == start
         after_ok = i + 1 == len(spans) or spans[i + 1][0] == stop
         if before_ok and after_ok:

@@ -3,7 +3,7 @@
 Targets (``--target``):
 
 * ``aa55``: raw bytes, split into chunks by the first input bytes, fed to a variable and a fixed
-  decoder: no exception, pending < MAX_PENDING (41) bytes, every variable-protocol frame
+  decoder: no exception, pending < MAX_PENDING (42) bytes, every variable-protocol frame
   re-encodes to bytes that were in the input or comes from a checksum-valid 20-byte frame in
   it (nothing structurally impossible ever comes out).
 * ``aa55-fixed``: frames built from the input, encoded in the fixed (checksummed) protocol, one

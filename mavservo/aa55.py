@@ -47,10 +47,11 @@ PROTOCOLS: tuple[str, ...] = ("variable", "fixed")
 START = 0xAA
 END = 0x55
 FIXED_LENGTH = 20
-#: The decoder never holds this many bytes between calls: a frame waiting for its follower, with
-#: a candidate starting inside it (15 + 14 bytes at most; 19 + 20 and the first byte of the
-#: next for two 20-byte frames), or an incomplete candidate (< 20).
-MAX_PENDING = 41
+#: The decoder never holds this many bytes between calls. The most it holds: a 15-byte frame
+#: with a frame starting at its 13th byte and running 14 bytes past it, waiting for the frame
+#: after that to be whole (14 of its 15 bytes): 41. (Two 20-byte frames in the fixed protocol
+#: and the next byte: 40; an incomplete candidate: < 20.)
+MAX_PENDING = 42
 MAX_STD_ID = 0x7FF
 MAX_EXT_ID = 0x1FFFFFFF
 
@@ -335,25 +336,6 @@ class _Verdict(enum.Enum):
 _DATA_RE = re.compile(_DATA_ALTERNATIVES, re.DOTALL)
 
 
-def _followed_by_frame(
-    buf: bytes | bytearray, at: int, end: int, idle: bool, two_byte_start: bool = False
-) -> bool | None:
-    """Does a frame start at ``at`` (or the data end on an idle line)? None: not known yet.
-
-    ``two_byte_start``: frames start with ``AA 55`` (the fixed protocol), and both bytes are
-    asked for: a false start that ran into a real 20-byte frame ends on one of its bytes, a
-    0xAA now and then.
-    """
-    if at < end:
-        if buf[at] != START:
-            return False
-        if not two_byte_start:
-            return True
-        if at + 1 < end:
-            return buf[at + 1] == END
-    return True if idle else None
-
-
 def _run_messages(
     rows: Iterator[tuple[Any, ...]], run: _Run, timestamp: float, channel: Any, out: list[Any]
 ) -> int:
@@ -521,20 +503,25 @@ class Decoder:
                 stop = m.end()
                 fixed = type_byte == END
                 if fixed and not _checksum_ok(raw, 0):
-                    verdict = _Verdict.ACCEPT  # nothing to judge: _fixed rejects it below
-                else:
-                    verdict = self._judge(buf, start, stop, end, gap, idle, fixed)
-                if verdict is not _Verdict.ACCEPT:
-                    if verdict is _Verdict.WAIT:
-                        held = pos = start
-                        break
-                    self._record(Rejection.OVERLAP, raw)
-                    pos = start + 1
+                    self._record(Rejection.BAD_CHECKSUM, raw)
+                    pos = start + 1  # rescan after the 0xAA
                     gap = restart = True
                     break
+                # Only a frame with a 0xAA inside can be a false start over another: the rest
+                # (most frames) skip the judging.
+                if self.resolve_overlaps and raw.find(START, 1) >= 0:
+                    verdict = self._judge(buf, start, stop, end, gap, idle, fixed)
+                    if verdict is not _Verdict.ACCEPT:
+                        if verdict is _Verdict.WAIT:
+                            held = pos = start
+                            break
+                        self._record(Rejection.OVERLAP, raw)
+                        pos = start + 1
+                        gap = restart = True
+                        break
                 if fixed:
                     item = self._fixed(raw, timestamp)
-                    if item is None:  # bad checksum or impossible field: rescan after the 0xAA
+                    if item is None:  # impossible field: rescan after the 0xAA
                         pos = start + 1
                         gap = restart = True
                         break
@@ -621,9 +608,9 @@ class Decoder:
         whose 20 bytes pass the checksum by chance (1 in 256); in the variable one, where
         20-byte frames are the adapter's rare replies, a structurally valid variable frame.
         """
-        if not self.resolve_overlaps:
-            return _Verdict.ACCEPT
         if fixed and self.protocol == "fixed":
+            if stop == end and buf[stop - 1] == START and not idle:
+                return _Verdict.WAIT  # is that last 0xAA the start of an ``AA 55`` frame?
             marker, limit = _FIXED_START, min(stop + 1, end)
         else:
             marker, limit = START, stop
@@ -673,12 +660,16 @@ class Decoder:
         its first bytes decide (holding back a 20-byte follower as well would double the
         memory a decoder keeps).
         """
-        if fixed:
-            return _followed_by_frame(buf, at, end, idle, self.protocol == "fixed")
         if at >= end:
             return True if idle else None
         if buf[at] != START:
             return False
+        if fixed:
+            if self.protocol == "variable":
+                return True
+            # frames start with AA 55 here, and both bytes are asked for: a false start that
+            # ran into a real 20-byte frame ends on one of its bytes, a 0xAA now and then
+            return buf[at + 1] == END if at + 1 < end else (True if idle else None)
         if at + 1 < end and buf[at + 1] == END:
             return True  # a 20-byte adapter reply: its checksum settles it when it is reached
         if _DATA_RE.match(buf, at) is not None:
@@ -747,9 +738,8 @@ class Decoder:
     # -- internals ----------------------------------------------------------------------------
 
     def _fixed(self, raw: bytes, timestamp: float) -> Frame | AdapterSettings | ControlFrame | None:
-        if not _checksum_ok(raw, 0):
-            self._record(Rejection.BAD_CHECKSUM, raw)
-            return None
+        """The item a 20-byte frame whose checksum passed carries; None (counted) when one of
+        its fields is impossible."""
         command = raw[2]
         if command in (CMD_SETTINGS_VARIABLE, CMD_SETTINGS_FIXED):
             self.settings += 1

@@ -282,6 +282,22 @@ def test_a_frame_that_could_hide_another_waits_only_for_the_next_frame() -> None
     assert idle.feed(encode(frame)) == [] and idle.flush() == [frame]
 
 
+def test_the_most_the_decoder_holds_is_below_max_pending() -> None:
+    """The worst case behind ``MAX_PENDING``: a 15-byte frame, a frame starting on its 13th
+    byte and running past it, and 14 of the 15 bytes of the frame after that: 41 bytes, all
+    held until the last byte tells whether a whole frame follows the inner one."""
+    inner = encode(Frame(0x01020355, True, False, 8, bytes(8)))  # AA E8 55 03 02 01 ...
+    outer = b"\xaa\xe8\x01\x00\x00\x00" + bytes(6) + inner[:2] + inner[2:3]
+    assert len(outer) == 15 and outer[-1] == 0x55  # a valid frame: its end marker is inner's ID
+    follower = encode(Frame(0x1ABCDEF, True, False, 8, bytes(range(8))))
+    stream = outer + inner[3:] + follower
+    dec = Decoder()
+    assert dec.feed(stream[:41]) == []
+    assert dec.pending == 41 < aa55.MAX_PENDING
+    out = dec.feed(stream[41:]) + dec.flush()
+    assert [f.arbitration_id for f in out] == [0x01020355, 0x1ABCDEF]  # outer's 0xAA was false
+
+
 def test_without_overlap_resolution_nothing_waits_and_the_first_candidate_wins() -> None:
     frame = Frame(0x0AA, False, False, 8, bytes.fromhex("0102AAC8220103AA"))
     dec = Decoder(resolve_overlaps=False)
@@ -367,6 +383,9 @@ def test_fixed_frame_cut_before_its_checksum_does_not_swallow_the_next_one(
     dec = Decoder("fixed")
     assert data_frames_only(dec.feed(stream) + dec.flush()) == [real, after]
     assert dec.rejected[Rejection.OVERLAP] == 1
+    # a read that ends right after the 20 bytes (their last byte 0xAA) waits for the next byte
+    bytewise, _ = _decoded_in_chunks(stream, "fixed", list(range(len(stream))))
+    assert data_frames_only(bytewise) == [real, after]
     # the same frame whole, followed by a frame, is a frame like any other
     clean = Decoder("fixed")
     whole = encode(cut, "fixed") + encode(real, "fixed")
@@ -570,23 +589,59 @@ def noisy_streams(draw: st.DrawFn) -> bytes:
     return b"".join(parts)
 
 
-@settings(max_examples=300)
-@given(noisy_streams(), st.data())
-def test_output_does_not_depend_on_chunking_even_for_noisy_streams(
-    stream: bytes, data: st.DataObject
-) -> None:
-    whole = Decoder()
-    expected = whole.feed(stream) + whole.flush()
-    cuts = sorted(data.draw(st.lists(st.integers(0, len(stream)), max_size=len(stream))))
-    dec = Decoder()
+@st.composite
+def noisy_fixed_streams(draw: st.DrawFn) -> bytes:
+    """20-byte frames, cut ones, junk rich in 0xAA / 0x55, and false ``AA 55`` starts whose 20
+    bytes with the next frame's pass the checksum (the overlaps the decoder must judge)."""
+    parts = []
+    for _ in range(draw(st.integers(1, 8))):
+        kind = draw(st.integers(0, 3))
+        frame = encode(draw(frames()), "fixed")
+        if kind == 0:
+            parts.append(frame)
+        elif kind == 1:
+            parts.append(frame[: draw(st.integers(1, aa55.FIXED_LENGTH - 1))])
+        elif kind == 2:
+            junk = st.sampled_from([0xAA, 0x55, 0x01, 0x00])
+            parts.append(bytes(draw(st.lists(junk, max_size=6))))
+        else:
+            cut = draw(st.integers(3, aa55.FIXED_LENGTH - 1))
+            false = bytearray(b"\xaa\x55" + draw(st.binary(min_size=cut - 2, max_size=cut - 2)))
+            candidate = false + frame[: aa55.FIXED_LENGTH - cut]
+            false[2] = (candidate[19] - sum(candidate[3:19])) & 0xFF
+            parts.append(bytes(false) + frame)
+    return b"".join(parts)
+
+
+def _decoded_in_chunks(stream: bytes, protocol: str, cuts: list[int]) -> tuple[list, Decoder]:
+    dec = Decoder(protocol)  # type: ignore[arg-type]
     got: list = []
     prev = 0
     for cut in [*cuts, len(stream)]:
         got += dec.feed(stream[prev:cut])
         prev = cut
-    got += dec.flush()
+    return got + dec.flush(), dec
+
+
+@settings(max_examples=300)
+@given(
+    st.one_of(
+        noisy_streams().map(lambda s: (s, "variable")),
+        noisy_fixed_streams().map(lambda s: (s, "fixed")),
+    ),
+    st.data(),
+)
+def test_output_does_not_depend_on_chunking_even_for_noisy_streams(
+    case: tuple[bytes, str], data: st.DataObject
+) -> None:
+    stream, protocol = case
+    expected, whole = _decoded_in_chunks(stream, protocol, [])
+    cuts = sorted(data.draw(st.lists(st.integers(0, len(stream)), max_size=len(stream))))
+    got, dec = _decoded_in_chunks(stream, protocol, cuts)
     assert got == expected
     assert dec.rejected == whole.rejected
+    bytewise, _ = _decoded_in_chunks(stream, protocol, list(range(len(stream))))
+    assert bytewise == expected
 
 
 # -- can.Message output (what the aa55 bus asks for) ----------------------------------------------
