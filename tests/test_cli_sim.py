@@ -11,6 +11,7 @@ from pathlib import Path
 
 import can
 import pytest
+from e2e_support import wait_until
 
 from mavservo.servos import get_profile
 from mavservo.sim.cli import build_emulator, build_parser, main
@@ -65,6 +66,25 @@ def test_an_unknown_bus_or_a_bad_config_exits_two_with_the_reason(
     assert f"{bad}:2: servos[0].can_id" in capsys.readouterr().err
 
 
+def test_a_bus_without_servos_exits_two_instead_of_simulating_a_default_servo(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+):
+    config = tmp_path / "rig.yaml"
+    config.write_text(
+        TWO_BUSES.replace(
+            "    - {name: gimbal, channel: /dev/ttyUSB1}\n",
+            "    - {name: gimbal, channel: /dev/ttyUSB1}\n"
+            "    - {name: aux, channel: /dev/ttyUSB2}\n",
+        )
+    )
+    assert main(["--config", str(config), "--bus", "aux"]) == 2
+    err = capsys.readouterr().err
+    assert err == f"mavservo sim: --bus aux: no servo of {config} is on bus 'aux'\n"
+    # Explicit servos still win over the config's (empty) bus, as for any bus.
+    (servo,) = _emulator(config, "--bus", "aux", "--ids", "5").servos
+    assert (servo.profile, servo.can_id) == ("rmd-x", 5)
+
+
 def test_every_declared_servo_answers_on_the_emulated_adapter(tmp_path: Path):
     config = tmp_path / "rig.yaml"
     config.write_text(
@@ -78,10 +98,14 @@ def test_every_declared_servo_answers_on_the_emulated_adapter(tmp_path: Path):
             profile = get_profile(profile_name)(can_id)
             for request in profile.telemetry_requests():
                 bus.send(request)
-            deadline = time.monotonic() + 2.0
-            state = None
-            while state is None and time.monotonic() < deadline:
-                message: can.Message | None = bus.recv(0.1)
+            states: list[object] = []
+
+            def answered(profile=profile, states=states) -> bool:
+                message: can.Message | None = bus.recv(0.05)
                 if message is not None:
                     state = profile.decode(message, time.monotonic())
-            assert state is not None, f"{profile_name}:{can_id} did not answer"
+                    if state is not None:
+                        states.append(state)
+                return bool(states)
+
+            assert wait_until(answered, timeout=10.0), f"{profile_name}:{can_id} did not answer"

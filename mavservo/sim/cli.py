@@ -164,7 +164,14 @@ def build_emulator(
     seed = args.seed if args.seed is not None else int(section.get("seed", 0))
     rate = args.status_rate_hz or float(section.get("status_rate_hz", 50.0))
     specs: list[dict[str, Any]] = [dict(s) for s in section.get("servos") or []]
-    if args.ids is not None or args.servos is not None or not specs:
+    explicit = args.ids is not None or args.servos is not None
+    if "bus" in section and not specs and not explicit:
+        # A config's bus with no servos: falling back to the default rmd-x:1 would simulate a
+        # servo the config never declared, and the bridge would find none of its own.
+        raise ValueError(
+            f"--bus {section['bus']}: no servo of {args.config} is on bus '{section['bus']}'"
+        )
+    if explicit or not specs:
         profile = args.profile or "rmd-x"
         ids = args.ids or list(range(1, (args.servos or 1) + 1))
         specs = [{"id": i, "profile": profile} for i in ids]
