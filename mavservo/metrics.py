@@ -185,6 +185,8 @@ class ServoMetrics:
     lost: int = 0
     late_replies: int = 0
     rejected: int = 0
+    send_failed: int = 0
+    """Frames for this servo that ``bus.send`` refused (never counted as sent)."""
     setpoints_accepted: int = 0
     setpoints_rejected: int = 0
 
@@ -207,6 +209,7 @@ class ServoMetrics:
                 "lost": self.lost,
                 "late_replies": self.late_replies,
                 "rejected": self.rejected,
+                "send_failed": self.send_failed,
             },
             "setpoints": {
                 "accepted": self.setpoints_accepted,

@@ -109,38 +109,42 @@ class FailureRun:
     def __init__(self) -> None:
         self.total = 0
         self.outages = 0
-        self._since: float | None = None
-        self._in_outage = 0
-
-    @property
-    def failing_since(self) -> float | None:
+        self.failing_since: float | None = None
         """When the current outage began (None while the operation works)."""
-        return self._since
+        self._in_outage = 0
 
     def failed(self, t: float) -> bool:
         """Count a failure at ``t``; True if it starts an outage (the one to log)."""
         self.total += 1
         self._in_outage += 1
-        if self._since is not None:
+        if self.failing_since is not None:
             return False
-        self._since = t
+        self.failing_since = t
         self.outages += 1
         return True
 
     def succeeded(self, t: float) -> tuple[int, float] | None:
         """The operation worked at ``t``: ``(failures, seconds)`` of the outage it ends, if any."""
-        if self._since is None:
-            return None
-        ended = (self._in_outage, t - self._since)
-        self._since = None
+        ended = self.ongoing(t)
+        self.failing_since = None
         self._in_outage = 0
         return ended
+
+    def ongoing(self, now: float) -> tuple[int, float] | None:
+        """``(failures, seconds)`` of the outage still going on at ``now``, if any.
+
+        Reads without ending it: at ``stop()`` an outage that lasted to the end is logged, but
+        it did not end in a success, so metrics written afterwards still show it failing.
+        """
+        if self.failing_since is None:
+            return None
+        return (self._in_outage, now - self.failing_since)
 
     def to_dict(self, now: float) -> dict[str, Any]:
         return {
             "total": self.total,
             "outages": self.outages,
-            "failing_for_s": None if self._since is None else now - self._since,
+            "failing_for_s": None if self.failing_since is None else now - self.failing_since,
         }
 
 
@@ -191,7 +195,6 @@ class Scheduler:
         self._started_at: float | None = None
         self._cpu = {"runner_s": 0.0, "receiver_s": 0.0}
         self._send_failures = FailureRun()
-        self._send_failed_by_servo = dict.fromkeys(self._specs, 0)
         self._receive_failures = FailureRun()
         self.realtime_status = "not requested"
         self.spin_s = self.timing.spin_s
@@ -219,16 +222,28 @@ class Scheduler:
             thread.start()
 
     def stop(self, timeout: float = 2.0) -> None:
-        """Stop both threads (the bus stays open: it belongs to the caller)."""
+        """Stop both threads (the bus stays open: it belongs to the caller).
+
+        A thread still blocked in ``bus.send``/``bus.recv`` after ``timeout`` is left to finish
+        on its own (it is a daemon): every access to the failure runs is under the lock, so
+        its last counts stay consistent with what is read here.
+        """
         self._stop.set()
         self._wake.set()
         for thread in self._threads:
             thread.join(timeout)
+            if thread.is_alive():
+                log.warning(
+                    "scheduler %s: thread %s did not stop within %.1f s",
+                    self.name,
+                    thread.name,
+                    timeout,
+                )
         self._threads = []
         now = self._clock()
         with self._lock:
             runs = [("sends", self._send_failures), ("receives", self._receive_failures)]
-            unfinished = [(what, run.succeeded(now)) for what, run in runs]
+            unfinished = [(what, run.ongoing(now)) for what, run in runs]
         for what, ended in unfinished:
             if ended is not None:  # an outage that lasted to the end still gets its count
                 log.info(
@@ -355,7 +370,6 @@ class Scheduler:
             snapshot = self._metrics.to_dict(now)
             for name in self._specs:
                 snapshot["servos"][name]["online"] = self._core.is_online(name)
-                snapshot["servos"][name]["frames"]["send_failed"] = self._send_failed_by_servo[name]
             snapshot["send_failures"] = self._send_failures.to_dict(now)
             snapshot["receive_failures"] = self._receive_failures.to_dict(now)
         snapshot["info"].update(
@@ -489,7 +503,7 @@ class Scheduler:
             except can.CanError as exc:
                 with self._lock:
                     self._core.send_failed(out)
-                    self._send_failed_by_servo[out.servo] += 1
+                    self._metrics.servos[out.servo].send_failed += 1
                     first = self._send_failures.failed(self._clock())
                 if first:
                     log.warning(
@@ -526,10 +540,15 @@ class Scheduler:
 
     def _receive(self) -> None:
         self._apply_realtime(max(1, self.timing.realtime_priority - 1), "receiver")
+        # This thread's own view of whether receives are failing: the loop checks it on every
+        # message, so it is a local (no lock, no attribute lookup) and the shared FailureRun
+        # is only touched, under the lock, when a receive fails or works again.
+        failing = False
         while not self._stop.is_set():
             try:
                 msg = self._bus.recv(timeout=_RECV_TIMEOUT_S)
             except can.CanError as exc:
+                failing = True
                 with self._lock:
                     first = self._receive_failures.failed(self._clock())
                 if first:
@@ -541,7 +560,8 @@ class Scheduler:
                     )
                 self._stop.wait(_RECV_TIMEOUT_S)
                 continue
-            if self._receive_failures.failing_since is not None:
+            if failing:
+                failing = False
                 now = self._clock()
                 with self._lock:
                     ended = self._receive_failures.succeeded(now)

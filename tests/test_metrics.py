@@ -99,3 +99,11 @@ def test_scheduler_metrics_snapshot_is_json(tmp_path):
     assert snapshot["load"]["current"] == pytest.approx(135e-6)
     path = write_json(tmp_path / "deep" / "metrics.json", snapshot)
     assert json.loads(path.read_text()) == json.loads(json.dumps(snapshot))
+
+
+def test_refused_sends_are_a_servo_counter_next_to_lost_and_rejected():
+    metrics = SchedulerMetrics(["a"], 0.05, 0.09, 1_000_000)
+    servo = metrics.servos["a"]
+    servo.commands_sent, servo.send_failed, servo.lost = 3, 2, 1
+    frames = metrics.to_dict(now=0.0)["servos"]["a"]["frames"]
+    assert (frames["send_failed"], frames["lost"], frames["sent"]) == (2, 1, 3)

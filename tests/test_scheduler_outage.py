@@ -180,6 +180,9 @@ def test_a_bus_gone_for_good_logs_one_send_and_one_receive_warning_and_the_total
     assert metrics["send_failures"]["total"] == bus.refused_sends
     assert metrics["receive_failures"]["total"] == bus.refused_receives
     assert metrics["send_failures"]["outages"] == metrics["receive_failures"]["outages"] == 1
+    # stop() logged the totals but the bus never worked again: still failing in the metrics
+    assert metrics["send_failures"]["failing_for_s"] > 0
+    assert metrics["receive_failures"]["failing_for_s"] > 0
 
 
 def test_failure_run_reports_each_outage_once_with_its_count_and_length() -> None:
@@ -194,3 +197,14 @@ def test_failure_run_reports_each_outage_once_with_its_count_and_length() -> Non
     assert run.failed(5.0) is True  # a new outage is logged again
     assert run.succeeded(5.25) == (1, 0.25)
     assert run.to_dict(6.0) == {"total": 5, "outages": 2, "failing_for_s": None}
+
+
+def test_failure_run_reads_an_ongoing_outage_without_ending_it() -> None:
+    run = FailureRun()
+    assert run.ongoing(0.5) is None
+    run.failed(1.0)
+    run.failed(1.5)
+    assert run.ongoing(3.0) == (2, 2.0)
+    assert run.ongoing(4.0) == (2, 3.0)  # still the same outage
+    assert run.to_dict(4.0) == {"total": 2, "outages": 1, "failing_for_s": 3.0}
+    assert run.succeeded(5.0) == (2, 4.0)
