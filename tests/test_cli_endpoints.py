@@ -149,6 +149,18 @@ def test_check_without_a_file_prints_usage_and_exits_two(capsys: pytest.CaptureF
     assert "CONFIG" in err
 
 
+@pytest.mark.parametrize(("argv", "status"), [(["--help"], 0), ([], 2), (["--bogus", "x"], 2)])
+def test_check_usage_goes_to_the_streams_it_was_given(
+    argv: list[str], status: int, capsys: pytest.CaptureFixture[str]
+):
+    out, err = io.StringIO(), io.StringIO()
+    assert check_main(argv, out=out, err=err) == status
+    assert capsys.readouterr() == ("", "")  # nothing on the process's own stdout/stderr
+    written = (out if status == 0 else err).getvalue()
+    assert written.startswith("usage: mavservo check ")
+    assert (err if status == 0 else out).getvalue() == ""
+
+
 def test_check_through_the_mavservo_command(capsys: pytest.CaptureFixture[str]):
     from mavservo.cli import main
 

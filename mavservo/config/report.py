@@ -10,6 +10,7 @@ worst-case bus load per bus. Touches no hardware: the bus load comes from arithm
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 from collections.abc import Sequence
 from typing import TextIO
@@ -145,7 +146,10 @@ def check_main(argv: Sequence[str], out: TextIO | None = None, err: TextIO | Non
     parser = build_parser()
     parser.add_argument("configs", nargs="+", metavar="CONFIG", help="YAML config file(s)")
     try:
-        args = parser.parse_args(list(argv))
+        # argparse prints --help and usage errors to sys.stdout/sys.stderr itself; a caller that
+        # passed its own streams (an embedding tool, a test) gets them there like every line.
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            args = parser.parse_args(list(argv))
     except SystemExit as exc:  # --help (0) or a usage error (2), already printed by argparse
         return EXIT_OK if exc.code == 0 else EXIT_INVALID
     status = EXIT_OK
