@@ -15,6 +15,7 @@ from mavservo.busload import FrameFlow, load_ratio, servo_traffic
 
 if TYPE_CHECKING:
     from mavservo.config.schema import BusConfig, Config, SchedulerConfig, ServoConfig
+    from mavservo.servos import ServoProfile
 
 
 @dataclass(frozen=True)
@@ -44,19 +45,23 @@ def telemetry_rate_hz(servo: ServoConfig, timing: SchedulerConfig) -> float:
     return min(servo.telemetry_hz, 1.0 / timing.telemetry_period_s)
 
 
-def is_polled(servo: ServoConfig) -> bool:
-    """True when the scheduler polls the servo; False for push-style ones (CubeMars servo mode)."""
-    from mavservo.servos import get_profile
+def profile_of(servo: ServoConfig) -> ServoProfile:
+    """The servo's profile instance: the frames it is sent and answers with."""
+    from mavservo.servos import get_profile  # imported late: the profiles are a separate layer
 
-    return bool(get_profile(servo.profile)(servo.can_id).telemetry_requests())
+    return get_profile(servo.profile)(servo.can_id)
+
+
+def is_polled(profile: ServoProfile) -> bool:
+    """True when the scheduler polls a servo of this profile; False for push-style ones
+    (CubeMars servo mode), which report on their own and so are not held to the poll cap."""
+    return bool(profile.telemetry_requests())
 
 
 def servo_flows(servo: ServoConfig, timing: SchedulerConfig) -> list[FrameFlow]:
     """Every frame flow one servo causes, from its profile's own frames."""
-    from mavservo.servos import get_profile  # imported late: the profiles are a separate layer
-
     traffic = servo_traffic(
-        get_profile(servo.profile)(servo.can_id),
+        profile_of(servo),
         command_hz=command_rate_hz(servo, timing),
         poll_hz=telemetry_rate_hz(servo, timing),
         # a push-style servo reports at the rate the config asks for: the telemetry loop

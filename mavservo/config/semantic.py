@@ -83,12 +83,13 @@ def advisories(config: Config) -> list[Finding]:
     its log at start-up, ``check`` says it with the line. Push-style servos report on their own
     and are not capped.
     """
-    from mavservo.config.budget import is_polled
+    from mavservo.config.budget import is_polled, profile_of, telemetry_rate_hz
 
     findings: list[Finding] = []
-    cap_hz = 1.0 / config.scheduler.telemetry_period_s
     for index, servo in enumerate(config.servos):
-        if is_polled(servo) and servo.telemetry_hz > cap_hz * (1 + 1e-9):
+        # the rate the budget counts, which is the cap when the servo asks for more
+        cap_hz = telemetry_rate_hz(servo, config.scheduler)
+        if cap_hz < servo.telemetry_hz and is_polled(profile_of(servo)):
             findings.append(
                 (
                     ("servos", index, "telemetry_hz"),
