@@ -19,8 +19,9 @@ import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
-#: Values one DO_SET_ACTUATOR carries (params 1..6); param 7 picks which set of six.
-ACTUATORS_PER_SET = 6
+# The bridge's own count (params 1..6 per set, param 7 the set): the script addresses actuators
+# exactly as the bridge numbers them, so the two cannot drift apart.
+from mavservo.mavlink.commands import ACTUATORS_PER_SET
 
 
 @dataclass(frozen=True)
