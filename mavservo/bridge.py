@@ -27,6 +27,7 @@ from mavservo.config import Config
 from mavservo.mavlink.gimbal import GimbalDevice, settings_from_config
 from mavservo.mavlink.settings import MavlinkSettings, SigningSettings
 from mavservo.mavlink.side import MavlinkSide
+from mavservo.metrics import round_trip_figures
 from mavservo.resilient_bus import ResilientBus
 from mavservo.runlog import RunLog, new_run_dir
 from mavservo.schedule_core import ServoSpec, TimingConfig
@@ -362,12 +363,21 @@ class Bridge:
         return MavlinkSide(settings, self.backend, gimbals, on_event=self._note)
 
     def _health(self) -> dict[str, float]:
-        """Measured bus load per bus and, with a run log, the MAVLink command receipt ->
-        telemetry published percentiles (``lat_p*``, every stage), for telemetry; the wire round
-        trip ``rtt_p*`` is added by ``ServoBackend.health``."""
+        """Transport figures for telemetry (``ServoBackend.health`` hands them on).
+
+        ``bus<k>_load`` (ratio) per bus; ``rtt_p50``/``rtt_p95``/``rtt_p99`` (ms: frame written
+        -> reply decoded, the wire round trip L of the summary, over every bus); with a run
+        log, ``lat_p50``/``lat_p95``/``lat_p99`` (ms: MAVLink command receipt -> telemetry
+        published, every stage). Both latencies are published because they answer different
+        questions (how fast the bus and servos are; how fast a ground station sees a command
+        take effect) and differ ~100-fold; docs/logs.md, "Which latency is which".
+        """
         out: dict[str, float] = {}
+        round_trips: list[float] = []
         for k, scheduler in enumerate(self.schedulers.values()):
             out[f"bus{k}_load"] = scheduler.load_ratio()
+            round_trips += scheduler.round_trip_samples()
+        out.update(round_trip_figures(round_trips))
         if self.runlog is not None:
             total = self.runlog.latency.summary().get("total", {})
             for p in ("p50", "p95", "p99"):

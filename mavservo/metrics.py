@@ -264,6 +264,15 @@ class SchedulerMetrics:
         }
 
 
+def round_trip_figures(samples_s: Iterable[float]) -> dict[str, float]:
+    """``rtt_p50``/``rtt_p95``/``rtt_p99`` in ms of wire round trips given in seconds (none
+    without samples): the live figures the bridge publishes next to its bus loads."""
+    ordered = sorted(samples_s)
+    if not ordered:
+        return {}
+    return {f"rtt_p{q}": percentile(ordered, q) * 1000.0 for q in (50, 95, 99)}
+
+
 def write_json(path: str | Path, snapshot: dict[str, Any]) -> Path:
     """Write a ``to_dict`` snapshot to ``path`` (parents created), return the path."""
     target = Path(path)

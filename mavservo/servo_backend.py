@@ -20,18 +20,13 @@ from dataclasses import dataclass
 from mavservo.config import Config
 from mavservo.mapping import ChannelMap, Rejected, clamp, slew_limit
 from mavservo.mavlink.backend import ACCEPTED, ApplyResult, Outcome, ServoStatus
-from mavservo.metrics import percentile
 from mavservo.servos.base import ServoState
 
 log = logging.getLogger(__name__)
 
 
 class SetpointSink:
-    """What the backend needs from a scheduler (one per bus); :class:`Scheduler` fits it.
-
-    Optional: ``round_trip_samples() -> list[float]`` (seconds), the wire round trips L that
-    :meth:`ServoBackend.health` publishes as ``rtt_p50``...
-    """
+    """What the backend needs from a scheduler (one per bus); :class:`Scheduler` fits it."""
 
     def set_setpoint(self, servo: str, angle_deg: float, source: str, t: float | None = None): ...
     def release(self, servo: str) -> None: ...
@@ -205,28 +200,13 @@ class ServoBackend:
         self._on_event("failsafe cleared: servos move again on fresh commands")
 
     def health(self) -> dict[str, float]:
-        """Transport figures worth publishing as NAMED_VALUE_FLOAT; may be empty.
+        """Transport figures worth publishing as NAMED_VALUE_FLOAT (a copy); may be empty.
 
-        The bridge's ``health`` gives ``bus<k>_load`` (ratio) and ``lat_p50``/``lat_p95``/
-        ``lat_p99`` (ms: MAVLink command receipt -> telemetry published, every stage, when the
-        run log traces latency). Added here from the sinks that offer ``round_trip_samples``:
-        ``rtt_p50``/``rtt_p95``/``rtt_p99`` (ms: frame written -> reply decoded, the wire round
-        trip L of the summary). Both are published because they answer different questions
-        (how fast a ground station sees a command take effect; how fast the bus and servos
-        are) and differ ~100-fold; docs/logs.md, "Which latency is which".
+        They come from the ``health`` callable the bridge passes in (``Bridge._health``: bus
+        loads and the latency percentiles), because the bridge is what owns the schedulers;
+        the telemetry publisher asks the backend, which is all it knows of the bridge.
         """
-        figures = dict(self._health()) if self._health is not None else {}
-        sinks = {id(servo.sink): servo.sink for servo in self._servos.values()}
-        samples: list[float] = []
-        for sink in sinks.values():
-            round_trips = getattr(sink, "round_trip_samples", None)
-            if round_trips is not None:
-                samples.extend(round_trips())
-        if samples:
-            ordered = sorted(samples)
-            for q in (50, 95, 99):
-                figures[f"rtt_p{q}"] = percentile(ordered, q) * 1000.0
-        return figures
+        return dict(self._health()) if self._health is not None else {}
 
     # ------------------------------------------------------------------ bridge API
 
