@@ -8,36 +8,49 @@ file only dispatches, so ``mavservo --help`` stays fast and a broken optional ex
 from __future__ import annotations
 
 import importlib
-import inspect
 import os
 import sys
-from collections.abc import Callable, Sequence
-from typing import Any
+from collections.abc import Sequence
+from typing import NamedTuple
 
-#: subcommand -> (module, function, one-line help)
-COMMANDS: dict[str, tuple[str, str, str]] = {
-    "run": ("mavservo.runcmd", "main", "run the bridge (default: the built-in simulation)"),
-    "check": ("mavservo.config", "check_main", "validate config files, print mapping and bus load"),
-    "sim": ("mavservo.sim.cli", "main", "USB-CAN adapter emulator with simulated servos on a pty"),
-    "sitl": ("sitl.cli", "main", "simulated autopilot stream, or replay of a .tlog"),
-    "monitor": ("mavservo.monitor", "main", "live terminal dashboard of a running bridge"),
-    "report": ("mavservo.report", "main", "figures and a summary from a run's log directory"),
+
+class Command(NamedTuple):
+    """Where a subcommand lives: ``module.function(argv) -> int``, and its one-line help.
+
+    ``takes_prog``: the function also runs on its own (``python -m sitl``) and accepts
+    ``prog=``; it is told ``mavservo NAME`` so its usage reads ``mavservo sitl ...``, not
+    ``sitl ...``. Declared here rather than discovered, so dispatch inspects nothing.
+    """
+
+    module: str
+    function: str
+    help: str
+    takes_prog: bool = False
+
+
+COMMANDS: dict[str, Command] = {
+    "run": Command("mavservo.runcmd", "main", "run the bridge (default: the built-in simulation)"),
+    "check": Command(
+        "mavservo.config", "check_main", "validate config files, print mapping and bus load"
+    ),
+    "sim": Command(
+        "mavservo.sim.cli", "main", "USB-CAN adapter emulator with simulated servos on a pty"
+    ),
+    "sitl": Command(
+        "sitl.cli", "main", "simulated autopilot stream, or replay of a .tlog", takes_prog=True
+    ),
+    "monitor": Command("mavservo.monitor", "main", "live terminal dashboard of a running bridge"),
+    "report": Command(
+        "mavservo.report", "main", "figures and a summary from a run's log directory"
+    ),
 }
 
 
 def _usage() -> str:
     lines = ["usage: mavservo COMMAND [options]   (mavservo COMMAND --help for details)", ""]
-    lines += [f"  {name:<8} {help_}" for name, (_, _, help_) in COMMANDS.items()]
+    lines += [f"  {name:<8} {command.help}" for name, command in COMMANDS.items()]
     lines += ["", "With no command, `mavservo` is `mavservo run` on the built-in simulation."]
     return "\n".join(lines)
-
-
-def _call(func: Callable[..., Any], argv: list[str], name: str) -> Any:
-    """Run a subcommand; one that also runs on its own (``python -m sitl``) and takes ``prog``
-    is told its name here, so its usage reads ``mavservo sitl ...``, not ``sitl ...``."""
-    if "prog" in inspect.signature(func).parameters:
-        return func(argv, prog=f"mavservo {name}")
-    return func(argv)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -56,14 +69,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     if name not in COMMANDS:
         print(f"mavservo: unknown command {name!r}\n\n{_usage()}", file=sys.stderr)
         return 2
-    module_name, func_name, _ = COMMANDS[name]
+    command = COMMANDS[name]
     try:
-        module = importlib.import_module(module_name)
+        module = importlib.import_module(command.module)
     except ImportError as exc:
         print(f"mavservo {name}: unavailable ({exc})", file=sys.stderr)
         return 2
+    func = getattr(module, command.function)
     try:
-        result = _call(getattr(module, func_name), rest, name)
+        result = func(rest, prog=f"mavservo {name}") if command.takes_prog else func(rest)
     except BrokenPipeError:  # `mavservo check x.yaml | head`: the reader left, not an error
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0

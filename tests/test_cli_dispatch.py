@@ -11,11 +11,12 @@ import pytest
 from mavservo import cli
 
 
-def _module(monkeypatch: pytest.MonkeyPatch, name: str, main) -> None:
+def _module(monkeypatch: pytest.MonkeyPatch, name: str, main, *, takes_prog: bool) -> None:
     module = types.ModuleType(name)
     module.main = main
     monkeypatch.setitem(sys.modules, name, module)
-    monkeypatch.setitem(cli.COMMANDS, "tool", (name, "main", "a standalone tool"))
+    command = cli.Command(name, "main", "a standalone tool", takes_prog=takes_prog)
+    monkeypatch.setitem(cli.COMMANDS, "tool", command)
 
 
 def test_a_subcommand_that_takes_prog_prints_its_mavservo_usage(
@@ -25,7 +26,7 @@ def test_a_subcommand_that_takes_prog_prints_its_mavservo_usage(
         argparse.ArgumentParser(prog=prog).parse_args(argv)
         return 0
 
-    _module(monkeypatch, "standalone_tool", main)
+    _module(monkeypatch, "standalone_tool", main, takes_prog=True)
     with pytest.raises(SystemExit) as info:
         cli.main(["tool", "--help"])
     assert info.value.code == 0
@@ -41,6 +42,13 @@ def test_a_subcommand_without_prog_is_called_with_its_arguments_only(
         seen.append(argv)
         return 3
 
-    _module(monkeypatch, "plain_tool", main)
+    _module(monkeypatch, "plain_tool", main, takes_prog=False)
     assert cli.main(["tool", "a", "-b"]) == 3
     assert seen == [["a", "-b"]]
+
+
+def test_sitl_prints_its_mavservo_usage(capsys: pytest.CaptureFixture[str]):
+    with pytest.raises(SystemExit) as info:
+        cli.main(["sitl", "--help"])
+    assert info.value.code == 0
+    assert capsys.readouterr().out.startswith("usage: mavservo sitl ")
