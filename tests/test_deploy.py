@@ -21,6 +21,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import yaml
 
 from mavservo.config.loader import load_config
 
@@ -81,6 +82,21 @@ def test_the_service_reads_its_config_and_signing_key_only_from_its_credentials(
     assert signing is not None and signing.key_file is not None
     assert signing.key_file.parent == credentials  # not /etc/mavservo: root's alone
     assert signing.secret_key() == bytes.fromhex(key)
+
+
+def test_the_key_credential_is_on_because_every_hardware_example_signs_with_it() -> None:
+    # The unit ships with LoadCredential=signing.key enabled (an unsigned config has to comment
+    # it out): that default is right only while the hardware examples sign with that key name.
+    credentials = {entry.partition(":")[0] for entry in service("LoadCredential")}
+    hardware = []
+    for path in sorted((ROOT / "config").glob("*.yaml")):
+        document = yaml.safe_load(path.read_text())
+        channels = [str(bus.get("channel", "")) for bus in document["can"]["buses"]]
+        if any(channel.startswith("/dev/") for channel in channels):
+            hardware.append(path.name)
+            signing = document["mavlink"].get("signing") or {}
+            assert signing.get("key_file") in credentials, (path.name, signing, credentials)
+    assert hardware == ["gimbal.yaml", "plane-surfaces.yaml"]
 
 
 def test_the_unit_runs_as_a_dynamic_user_in_dialout() -> None:
