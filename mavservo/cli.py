@@ -54,7 +54,16 @@ def _usage() -> str:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = list(sys.argv[1:] if argv is None else argv)
+    try:
+        return _dispatch(list(sys.argv[1:] if argv is None else argv))
+    except BrokenPipeError:  # `mavservo check x.yaml | head`: the reader left, not an error
+        # stdout still holds what the reader did not take: point it at /dev/null so the
+        # interpreter's flush at exit does not fail on the closed pipe a second time
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+
+
+def _dispatch(args: list[str]) -> int:
     if args and args[0] in ("-h", "--help"):
         print(_usage())
         return 0
@@ -76,11 +85,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"mavservo {name}: unavailable ({exc})", file=sys.stderr)
         return 2
     func = getattr(module, command.function)
-    try:
-        result = func(rest, prog=f"mavservo {name}") if command.takes_prog else func(rest)
-    except BrokenPipeError:  # `mavservo check x.yaml | head`: the reader left, not an error
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 0
+    result = func(rest, prog=f"mavservo {name}") if command.takes_prog else func(rest)
     return int(result or 0)
 
 

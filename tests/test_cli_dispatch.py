@@ -3,12 +3,17 @@
 from __future__ import annotations
 
 import argparse
+import os
+import subprocess
 import sys
 import types
+from pathlib import Path
 
 import pytest
 
 from mavservo import cli
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def _module(monkeypatch: pytest.MonkeyPatch, name: str, main, *, takes_prog: bool) -> None:
@@ -52,3 +57,23 @@ def test_sitl_prints_its_mavservo_usage(capsys: pytest.CaptureFixture[str]):
         cli.main(["sitl", "--help"])
     assert info.value.code == 0
     assert capsys.readouterr().out.startswith("usage: mavservo sitl ")
+
+
+@pytest.mark.parametrize("argv", [["--help"], ["--version"], ["check", "config/sim.yaml"]])
+def test_a_reader_that_left_is_not_an_error(argv: list[str]):
+    # `mavservo --help | head -1`: the pipe's reader is gone by the time anything is written
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        result = subprocess.run(
+            [sys.executable, "-m", "mavservo.cli", *argv],
+            stdout=write_end,
+            stderr=subprocess.PIPE,
+            text=True,
+            timeout=60,
+            check=False,
+            cwd=ROOT,
+        )
+    finally:
+        os.close(write_end)
+    assert (result.returncode, result.stderr) == (0, "")
