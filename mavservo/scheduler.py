@@ -542,8 +542,11 @@ class Scheduler:
         self._apply_realtime(max(1, self.timing.realtime_priority - 1), "receiver")
         # This thread's own view of whether receives are failing: the loop checks it on every
         # message, so it is a local (no lock, no attribute lookup) and the shared FailureRun
-        # is only touched, under the lock, when a receive fails or works again.
-        failing = False
+        # is only touched, under the lock, when a receive fails or works again. It starts from
+        # the run's state: stop() leaves an outage that lasted to the end open, and after a
+        # restart the first receive that works ends it.
+        with self._lock:
+            failing = self._receive_failures.failing_since is not None
         while not self._stop.is_set():
             try:
                 msg = self._bus.recv(timeout=_RECV_TIMEOUT_S)

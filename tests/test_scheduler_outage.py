@@ -97,6 +97,19 @@ class CountingVirtualBus(VirtualBus):
             raise
 
 
+class ReceiveFailingBus(VirtualBus):
+    """python-can's virtual bus whose receives fail while ``receives_fail`` is set."""
+
+    receives_fail = True
+    refused_receives = 0
+
+    def recv(self, timeout: float | None = None) -> can.Message | None:
+        if self.receives_fail:
+            self.refused_receives += 1
+            raise can.CanOperationError("receive refused")
+        return super().recv(timeout)
+
+
 def records(caplog: pytest.LogCaptureFixture, level: int, *words: str) -> list[str]:
     return [
         r.getMessage()
@@ -208,3 +221,24 @@ def test_failure_run_reads_an_ongoing_outage_without_ending_it() -> None:
     assert run.ongoing(4.0) == (2, 3.0)  # still the same outage
     assert run.to_dict(4.0) == {"total": 2, "outages": 1, "failing_for_s": 3.0}
     assert run.succeeded(5.0) == (2, 4.0)
+
+
+def test_an_outage_left_open_at_stop_ends_with_the_first_receive_after_a_restart(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    caplog.set_level(logging.INFO)
+    bus = ReceiveFailingBus(channel=f"restart-{uuid.uuid4().hex}", receive_own_messages=False)
+    scheduler = Scheduler(bus, specs(1), FAST, name="bus0")
+    try:
+        with scheduler:
+            assert wait_for(lambda: bus.refused_receives >= 3)
+        assert scheduler.metrics()["receive_failures"]["failing_for_s"] > 0  # open after stop
+        bus.receives_fail = False
+        with scheduler:
+            assert wait_for(
+                lambda: scheduler.metrics()["receive_failures"]["failing_for_s"] is None
+            )
+    finally:
+        bus.shutdown()
+    assert len(records(caplog, logging.INFO, "receives work again")) == 1
+    assert scheduler.metrics()["receive_failures"]["outages"] == 1
