@@ -78,11 +78,17 @@ class OneFlipPerWrite:
 
 
 class FrameLog:
-    """Frames the host sent and the frames that reached the simulated CAN bus from the host."""
+    """Frames the host sent and the frames that reached the simulated CAN bus from the host.
+
+    The bridge is already running when the log is installed, so frames written before it may
+    still be on their way. The line is first in, first out: once a logged frame has arrived
+    (``synced``), every later arrival was written after the log was installed.
+    """
 
     def __init__(self, bridge: Bridge) -> None:
         self.sent: set[tuple] = set()
         self.arrived: list[tuple] = []
+        self.synced = False
         bus, canbus = bridge.buses["bus0"], bridge.emulators["bus0"].canbus
         send, submit = bus.send, canbus.submit
 
@@ -92,7 +98,10 @@ class FrameLog:
 
         def logged_submit(msg, ready, *rest):  # noqa: ANN001, ANN202
             if not rest:
-                self.arrived.append(self.key(msg))
+                key = self.key(msg)
+                self.synced = self.synced or key in self.sent
+                if self.synced:
+                    self.arrived.append(key)
             submit(msg, ready, *rest)
 
         bus.send = logged_send
@@ -128,6 +137,7 @@ def test_checksummed_line_with_flipped_bytes_never_applies_a_command_nobody_sent
 ) -> None:
     bridge = fixed_bridge
     log = FrameLog(bridge)
+    assert wait_until(lambda: log.synced)  # before the faults: frames in flight are not logged
     emulator = bridge.emulators["bus0"]
     line = OneFlipPerWrite(seed=3)
     emulator.line = line
