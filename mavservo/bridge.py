@@ -23,7 +23,7 @@ from typing import Any
 
 import can
 
-from mavservo.config import Config
+from mavservo.config import BusConfig, Config
 from mavservo.mavlink.gimbal import GimbalDevice, settings_from_config
 from mavservo.mavlink.settings import MavlinkSettings, SigningSettings
 from mavservo.mavlink.side import MavlinkSide
@@ -76,6 +76,36 @@ class _FanOut(SchedulerObserver):
 
     def on_reject(self, *args: Any) -> None:
         self._call("on_reject", *args)
+
+
+def servo_specs(config: Config, bus_name: str) -> list[ServoSpec]:
+    """What the scheduler of ``bus_name`` is told about each of its servos."""
+    return [
+        ServoSpec(
+            name=s.name,
+            profile=get_profile(s.profile)(s.can_id),
+            command_mode=s.command_mode,
+            telemetry_hz=s.telemetry_hz,
+            max_speed_dps=s.max_speed_dps,
+        )
+        for s in config.servos
+        if config.bus_of(s).name == bus_name
+    ]
+
+
+def timing_config(config: Config, bus: BusConfig) -> TimingConfig:
+    """The scheduler settings of the config, with ``bus``'s bitrate and load budget."""
+    sched = config.scheduler
+    return TimingConfig(
+        command_period_s=sched.command_period_s,
+        telemetry_period_s=sched.telemetry_period_s,
+        refresh_interval_s=sched.refresh_interval_s,
+        immediate_min_spacing_s=sched.immediate_min_spacing_s,
+        reply_timeout_s=sched.reply_timeout_s,
+        max_load=bus.max_load,
+        bitrate=bus.bitrate,
+        realtime=sched.realtime,
+    )
 
 
 def simulated_servos(config: Config, bus_name: str) -> list[SimServo]:
@@ -170,30 +200,10 @@ class Bridge:
             self.buses[bus_cfg.name] = self._open_bus(bus_cfg)
         sinks: dict[str, Scheduler] = {}
         for bus_cfg in cfg.can.buses:
-            specs = [
-                ServoSpec(
-                    name=s.name,
-                    profile=get_profile(s.profile)(s.can_id),
-                    command_mode=s.command_mode,
-                    telemetry_hz=s.telemetry_hz,
-                    max_speed_dps=s.max_speed_dps,
-                )
-                for s in cfg.servos
-                if cfg.bus_of(s).name == bus_cfg.name
-            ]
+            specs = servo_specs(cfg, bus_cfg.name)
             if not specs:
                 continue
-            sched = cfg.scheduler
-            timing = TimingConfig(
-                command_period_s=sched.command_period_s,
-                telemetry_period_s=sched.telemetry_period_s,
-                refresh_interval_s=sched.refresh_interval_s,
-                immediate_min_spacing_s=sched.immediate_min_spacing_s,
-                reply_timeout_s=sched.reply_timeout_s,
-                max_load=bus_cfg.max_load,
-                bitrate=bus_cfg.bitrate,
-                realtime=sched.realtime,
-            )
+            timing = timing_config(cfg, bus_cfg)
             scheduler = Scheduler(
                 self.buses[bus_cfg.name], specs, timing, observer=observer, name=bus_cfg.name
             )

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import pytest
 
+from mavservo.bridge import servo_specs, timing_config
 from mavservo.config import bus_loads, default_config_path, load_config, load_config_text
 from mavservo.config.budget import servo_flows
-from mavservo.schedule_core import ScheduleCore, ServoSpec, TimingConfig
-from mavservo.servos import get_profile
+from mavservo.schedule_core import ScheduleCore
 
 
 def _config(hz: int):
@@ -31,23 +31,8 @@ def test_check_and_the_running_scheduler_estimate_the_same_worst_case() -> None:
     frames, push-style status included: config/sim.yaml mixes polled and push-style servos."""
     config = load_config(default_config_path())
     bus = config.can.buses[0]
-    specs = [
-        ServoSpec(
-            name=s.name,
-            profile=get_profile(s.profile)(s.can_id),
-            command_mode=s.command_mode,
-            telemetry_hz=s.telemetry_hz,
-            max_speed_dps=s.max_speed_dps,
-        )
-        for s in config.servos
-    ]
+    specs = servo_specs(config, bus.name)
     assert any(not spec.profile.telemetry_requests() for spec in specs)
-    timing = TimingConfig(
-        command_period_s=config.scheduler.command_period_s,
-        telemetry_period_s=config.scheduler.telemetry_period_s,
-        immediate_min_spacing_s=config.scheduler.immediate_min_spacing_s,
-        max_load=bus.max_load,
-        bitrate=bus.bitrate,
-    )
+    timing = timing_config(config, bus)
     core = ScheduleCore(specs, timing, start=0.0)
     assert core.worst_case_load == pytest.approx(bus_loads(config)[0].load, rel=1e-9)
