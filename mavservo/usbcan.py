@@ -166,10 +166,17 @@ class AA55Bus(can.BusABC):
         self._hw_filter: tuple[int, int] | None = None
         self.channel_info = f"AA-55 USB-CAN on {channel}"
         try:
+            # exclusive: a second process on the adapter (a bridge started by hand beside the
+            # service, can.logger) would steal half of every reply; refuse it at open instead
             self._serial = serial.serial_for_url(
-                channel, baudrate=serial_baud, timeout=0, write_timeout=1.0
+                channel, baudrate=serial_baud, timeout=0, write_timeout=1.0, exclusive=True
             )
         except (serial.SerialException, ValueError, OSError) as exc:
+            if "exclusively lock" in str(exc):
+                raise can.CanInitializationError(
+                    f"aa55: {channel} is in use by another process (another mavservo, or a "
+                    "python-can tool on the same adapter?); stop it first"
+                ) from exc
             raise can.CanInitializationError(f"aa55: cannot open {channel}: {exc}") from exc
         self._fd = _descriptor(self._serial)
         self._protocol = can.CanProtocol.CAN_20

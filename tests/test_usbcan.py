@@ -66,6 +66,20 @@ def test_bus_sends_settings_then_frames(adapter: AdapterEnd) -> None:
         assert adapter.read(13) == aa55.encode(msg)
 
 
+def test_a_second_opener_of_the_adapter_is_refused_while_the_first_holds_it(
+    adapter: AdapterEnd,
+) -> None:
+    """Two processes on one adapter would each read half of every reply: the port is opened
+    exclusively, and the second opener is told who to look for."""
+    with (
+        can.Bus(interface="aa55", channel=adapter.path),
+        pytest.raises(can.CanInitializationError, match="in use by another process"),
+    ):
+        can.Bus(interface="aa55", channel=adapter.path)
+    with can.Bus(interface="aa55", channel=adapter.path):  # free again once the first shut down
+        pass
+
+
 def test_fixed_protocol_is_configured_and_used(adapter: AdapterEnd) -> None:
     with can.Bus(interface="aa55", channel=adapter.path, protocol="fixed") as bus:
         settings = adapter.read(20)
