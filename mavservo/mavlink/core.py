@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import logging
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
@@ -167,16 +167,34 @@ class MavlinkCore:
                 MAV_SEVERITY_CRITICAL, "servo bridge: autopilot lost, servos in failsafe"
             )
         if not self.watchdog.in_failsafe:
-            self.commands.tick(now)
+            self._guarded("commands", lambda: self.commands.tick(now))
         for cid, mav_type in self.components.items():
             if now >= self._next_heartbeat[cid]:
                 self._next_heartbeat[cid] = max(self._next_heartbeat[cid] + HEARTBEAT_PERIOD_S, now)
                 out.append((cid, self._heartbeat_message(mav_type)))
         servo = self.settings.servo_component_id
-        out.extend((servo, m) for m in self.telemetry.periodic(now))
+        out.extend((servo, m) for m in self._guarded("telemetry", self.telemetry.periodic, now))
         for cid, device in self.gimbals.items():
-            out.extend((cid, m) for m in device.periodic(now))
+            out.extend((cid, m) for m in self._guarded(f"gimbal {cid}", device.periodic, now))
         return out
+
+    def _guarded(self, part: str, step: Callable[..., Any], *args: Any) -> Any:
+        """Run one part of the tick; an exception there costs only that part's output.
+
+        The tick thread is the only source of heartbeats: a NaN one servo reported once killed
+        it for good while the bridge still looked online. The first failure of each part is
+        logged with its traceback, every one is counted (``tick_errors``).
+        """
+        try:
+            result = step(*args)
+        except Exception:  # noqa: BLE001 - whatever fails, the other parts must go on
+            self.counters["tick_errors"] += 1
+            key = f"tick_errors {part}"
+            if not self.counters[key]:
+                log.exception("MAVLink tick: %s failed (logged once, counted in tick_errors)", part)
+            self.counters[key] += 1
+            return []
+        return [] if result is None else result
 
     def announce(self, severity: int, text: str) -> None:
         """Queue a STATUSTEXT from the servo component (link events from the I/O layer)."""

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import struct
 import threading
 import time
 from collections import Counter
@@ -171,9 +172,18 @@ class MavlinkLink:
     def send(self, component_id: int, msg: Any, system_id: int) -> None:
         """Encode ``msg`` from ``component_id`` (its own sequence number and signature) and send."""
         encoder = self._encoders[component_id]
-        with self._write_lock:
-            encoder.srcSystem = system_id
-            encoder.send(msg)
+        try:
+            with self._write_lock:
+                encoder.srcSystem = system_id
+                encoder.send(msg)
+        except (struct.error, ValueError, TypeError, OverflowError):
+            # a field the message cannot carry (NaN in an integer): drop this message only
+            self.counters["encode_errors"] += 1
+            if self.counters["encode_errors"] == 1:
+                log.exception(
+                    "cannot encode %s (dropped; counted in encode_errors)", msg.get_type()
+                )
+            return
         self.counters["sent"] += 1
 
     def _write(self, buf: bytes) -> None:

@@ -57,6 +57,7 @@ class MavlinkSide:
             self.link.add_component(cid, self.core.system_id)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        self._tick_errors = 0  # failures the core's own guards did not catch
         #: ``on_sent(msg, t)`` after each message went out (latency tracing); must not block.
         self.on_sent: Callable[[Any, float], None] | None = None
 
@@ -82,7 +83,10 @@ class MavlinkSide:
 
     def stats(self) -> dict[str, Any]:
         with self._lock:
-            return {**self.core.stats(), "link": self.link.stats()}
+            stats = {**self.core.stats(), "link": self.link.stats()}
+            if self._tick_errors:
+                stats["tick_loop_errors"] = self._tick_errors
+            return stats
 
     # ------------------------------------------------------------------ plumbing
 
@@ -105,9 +109,14 @@ class MavlinkSide:
         next_tick = self._clock()
         while not self._stop.is_set():
             now = self._clock()
-            with self._lock:
-                out = self.core.tick(now)
-            self._send(out)
+            try:
+                with self._lock:
+                    out = self.core.tick(now)
+                self._send(out)
+            except Exception:  # noqa: BLE001 - the only heartbeat source must never die
+                self._tick_errors += 1
+                if self._tick_errors == 1:
+                    log.exception("MAVLink tick failed (logged once, counted in tick_errors)")
             next_tick += TICK_S
             delay = next_tick - self._clock()
             if delay < 0:

@@ -6,12 +6,22 @@ carriers ground stations already understand (DESIGN.md, "MAVLink facts"):
 * ACTUATOR_OUTPUT_STATUS (375): measured position normalized through the channel mapping, slot i
   = the servo's position in the config (0-based), ``active`` bit set when the position is known;
 * ESC_TELEMETRY_1_TO_4 .. 29_TO_32 (11030..): temperature, voltage, current and "rpm" (|velocity|
-  in deg/s / 6), four servos per message in config order; ground stations already show it;
+  in deg/s / 6), four servos per message in config order; ground stations already show it. Each
+  message id that has a servo in it is its own stream (its own interval, its own REQUEST_MESSAGE);
 * NAMED_VALUE_FLOAT (251): ``s<n>_pos`` (deg), ``s<n>_vel`` (deg/s), ``s<n>_cur`` (A),
-  ``s<n>_tmp`` (degC), ``s<n>_sp`` (setpoint, deg, once there is one), n = config position + 1
-  (all within the 10-character limit);
-* STATUSTEXT (253): fault onset and clearance, servo offline / back online, link events; at most
-  ``STATUSTEXT_BURST`` per second so a flapping servo cannot flood the link.
+  ``s<n>_tmp`` (degC), ``s<n>_sp`` (setpoint, deg, once there is one), ``s<n>_flt`` (the
+  :class:`~mavservo.servos.base.Fault` bits as a number, NO_REPLY set while the servo is
+  offline, so a late ground station or monitor learns current problems without waiting for an
+  event), n = config position + 1 (all within the 10-character limit);
+* STATUSTEXT (253): fault onset and clearance, servo offline / back online (also when the very
+  first state is already bad), link events; every active problem is repeated every
+  ``REMINDER_S`` for ground stations that connect later; texts longer than 50 characters go out
+  as MAVLink 2 chunks (``id`` != 0, ``chunk_seq``); at most ``STATUSTEXT_BURST`` texts per
+  second so a flapping servo cannot flood the link.
+
+Values a servo has not reported yet are NaN: float fields carry NaN (MAVLink's "unknown"),
+integer fields of ESC_TELEMETRY carry 0 (the message has no "unknown" value), and a position
+that is not finite leaves the ACTUATOR_OUTPUT_STATUS slot inactive.
 
 Rates come from the config and can be changed per message id by SET_MESSAGE_INTERVAL (-1 off,
 0 back to the configured rate); REQUEST_MESSAGE sends one immediately. Pure: time comes in.
@@ -28,6 +38,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mavservo.mavlink.backend import ActuatorBackend, ServoStatus
 from mavservo.mavlink.settings import TelemetryRates
+from mavservo.servos.base import NO_FAULT, Fault
 
 log = logging.getLogger(__name__)
 
@@ -52,12 +63,58 @@ MAV_SEVERITY_WARNING = 4
 MAV_SEVERITY_NOTICE = 5
 MAV_SEVERITY_INFO = 6
 STATUSTEXT_LENGTH = 50
+#: a longer text is sent in chunks; beyond this many it is cut (the last chunk always keeps
+#: room for the NUL that marks it as the last)
+STATUSTEXT_MAX_CHUNKS = 4
+#: every active problem (fault, offline) is announced again this often, for late listeners
+REMINDER_S = 20.0
 STATUSTEXT_BURST = 4  # per second
 STATUSTEXT_QUEUE = 32
 
 
-def _clamp_u16(value: float) -> int:
-    return int(max(0, min(UINT16_MAX, round(value))))
+def _clamp_u16(value: float | None) -> int:
+    """An unsigned 16-bit field; unknown (None, NaN) is 0, infinities clamp."""
+    if value is None or math.isnan(value):
+        return 0
+    return (
+        int(max(0, min(UINT16_MAX, round(value))))
+        if math.isfinite(value)
+        else (UINT16_MAX if value > 0 else 0)
+    )
+
+
+def _clamp_u8(value: float | None) -> int:
+    """An unsigned 8-bit field (ESC temperature); unknown is 0 like an empty slot."""
+    if value is None or math.isnan(value):
+        return 0
+    return (
+        int(max(0, min(255, round(value)))) if math.isfinite(value) else (255 if value > 0 else 0)
+    )
+
+
+ESC_IDS = {cls.id: group for group, cls in enumerate(ESC_MESSAGES)}
+
+
+def _problems(status: ServoStatus) -> tuple[bool, Any]:
+    """(online, faults) as the events compare them; NO_REPLY is reported as "not responding"."""
+    faults = status.state.faults if status.state is not None else NO_FAULT
+    return status.online, faults & ~Fault.NO_REPLY
+
+
+def statustext_messages(severity: int, text: str, text_id: int) -> list[Any]:
+    """STATUSTEXT for ``text``: one message (id 0) up to 50 characters, else MAVLink 2 chunks
+    numbered by ``chunk_seq`` under ``text_id`` (1..65535), the last one NUL-terminated."""
+    data = text.encode("ascii", "replace")
+    if len(data) <= STATUSTEXT_LENGTH:
+        return [mavlink2.MAVLink_statustext_message(severity, data, 0, 0)]
+    data = data[: STATUSTEXT_LENGTH * STATUSTEXT_MAX_CHUNKS - 1]
+    return [
+        mavlink2.MAVLink_statustext_message(
+            severity, data[start : start + STATUSTEXT_LENGTH], text_id, seq
+        )
+        # a text filling its last chunk exactly gets an empty chunk, the NUL that ends it
+        for seq, start in enumerate(range(0, len(data) + 1, STATUSTEXT_LENGTH))
+    ]
 
 
 class _Stream:
@@ -94,24 +151,29 @@ class Telemetry:
         self._boot = boot_time
         self._streams = {
             MSG_ACTUATOR_OUTPUT_STATUS: _Stream(rates.actuator_output_status_hz),
-            MSG_ESC_TELEMETRY_1_TO_4: _Stream(rates.esc_telemetry_hz),
+            **{msg_id: _Stream(rates.esc_telemetry_hz) for msg_id in ESC_IDS},
             MSG_NAMED_VALUE_FLOAT: _Stream(rates.named_value_float_hz),
         }
         self._known: dict[str, tuple[bool, Any]] = {}  # name -> (online, faults)
         self._texts: deque[tuple[int, str]] = deque()
         self._text_sent_at: deque[float] = deque()
-        self._esc_count = 0
+        self._text_id = 0
+        self._next_reminder: float | None = None
+        self._esc_counts = [0] * len(ESC_MESSAGES)
         self.counters: Counter[str] = Counter()
 
     # ------------------------------------------------------------------ services
 
     def publishes(self, msg_id: int) -> bool:
+        """Whether ``msg_id`` is one of ours: an ESC_TELEMETRY group only if a servo is in it."""
+        if msg_id in ESC_IDS:
+            return ESC_IDS[msg_id] < _esc_groups(self._backend.servo_statuses())
         return msg_id in self._streams
 
     def set_interval(self, msg_id: int, interval_us: float, now: float) -> bool:
         """SET_MESSAGE_INTERVAL: False when this component does not publish ``msg_id``."""
         stream = self._streams.get(msg_id)
-        if stream is None:
+        if stream is None or not self.publishes(msg_id):
             return False
         stream.set_interval_us(interval_us, now)
         log.info("telemetry: message %d interval set to %.0f us", msg_id, interval_us)
@@ -119,7 +181,7 @@ class Telemetry:
 
     def request(self, msg_id: int, now: float) -> list[Any] | None:
         """REQUEST_MESSAGE: the message(s) to send once, or None when not published."""
-        if msg_id not in self._streams:
+        if not self.publishes(msg_id):
             return None
         return self._build(msg_id, self._backend.servo_statuses(), now)
 
@@ -134,28 +196,41 @@ class Telemetry:
     # ------------------------------------------------------------------ periodic
 
     def periodic(self, now: float) -> list[Any]:
-        """Everything due at ``now``: event texts first, then the streams."""
+        """Everything due at ``now``: event texts first, then the streams.
+
+        A message that fails to build (a bug, a value no encoder expected) is left out, logged
+        with its traceback the first time and counted (``build_errors``): the other messages,
+        and the heartbeats the caller sends, must go on whatever one servo reports.
+        """
         statuses = self._backend.servo_statuses()
-        self._detect_events(statuses)
+        self._detect_events(statuses, now)
         out = self._drain_texts(now)
         for msg_id, stream in self._streams.items():
+            if msg_id in ESC_IDS and ESC_IDS[msg_id] >= _esc_groups(statuses):
+                continue
             if stream.due(now):
-                out.extend(self._build(msg_id, statuses, now))
+                try:
+                    out.extend(self._build(msg_id, statuses, now))
+                except Exception:  # noqa: BLE001 - one message must not stop the output
+                    self.counters["build_errors"] += 1
+                    key = f"build_errors_{msg_id}"
+                    if not self.counters[key]:
+                        log.exception("telemetry: building message %d failed (left out)", msg_id)
+                    self.counters[key] += 1
         return out
 
-    def _detect_events(self, statuses: list[ServoStatus]) -> None:
+    def _detect_events(self, statuses: list[ServoStatus], now: float) -> None:
+        """Announce changes; a servo first seen offline or faulted counts as a change from
+        "online, no fault", and active problems are repeated every ``REMINDER_S``."""
         for status in statuses:
-            faults = status.state.faults if status.state is not None else None
-            previous = self._known.get(status.name)
-            self._known[status.name] = (status.online, faults)
-            if previous is None:
-                continue
-            was_online, old_faults = previous
-            if was_online and not status.online:
+            online, faults = _problems(status)
+            was_online, old_faults = self._known.get(status.name, (True, NO_FAULT))
+            self._known[status.name] = (online, faults)
+            if was_online and not online:
                 self.announce(MAV_SEVERITY_CRITICAL, f"servo {status.name} not responding")
-            elif status.online and not was_online:
+            elif online and not was_online:
                 self.announce(MAV_SEVERITY_NOTICE, f"servo {status.name} responding again")
-            if faults is None or old_faults is None or faults == old_faults:
+            if faults == old_faults:
                 continue
             new = faults & ~old_faults
             gone = old_faults & ~faults
@@ -163,6 +238,25 @@ class Telemetry:
                 self.announce(MAV_SEVERITY_CRITICAL, f"servo {status.name} fault {_names(new)}")
             if gone:
                 self.announce(MAV_SEVERITY_NOTICE, f"servo {status.name} cleared {_names(gone)}")
+        if self._next_reminder is None:
+            self._next_reminder = now + REMINDER_S
+        elif now >= self._next_reminder:
+            self._next_reminder = max(self._next_reminder + REMINDER_S, now)
+            self._remind()
+
+    def _remind(self) -> None:
+        """Repeat the active problems, in the wording of the events, so a late listener (and
+        ``mavservo monitor``) learns them; never at the cost of events already queued."""
+        for name, (online, faults) in self._known.items():
+            texts = [] if online else [f"servo {name} not responding"]
+            if faults:
+                texts.append(f"servo {name} fault {_names(faults)}")
+            for text in texts:
+                if len(self._texts) >= STATUSTEXT_QUEUE // 2:
+                    self.counters["reminders_skipped"] += 1
+                    continue
+                self.counters["reminders"] += 1
+                self.announce(MAV_SEVERITY_WARNING, text)
 
     def _drain_texts(self, now: float) -> list[Any]:
         while self._text_sent_at and now - self._text_sent_at[0] >= 1.0:
@@ -171,11 +265,9 @@ class Telemetry:
         while self._texts and len(self._text_sent_at) < STATUSTEXT_BURST:
             severity, text = self._texts.popleft()
             self._text_sent_at.append(now)
-            out.append(
-                mavlink2.MAVLink_statustext_message(
-                    severity, text[:STATUSTEXT_LENGTH].encode("ascii", "replace"), 0, 0
-                )
-            )
+            if len(text) > STATUSTEXT_LENGTH:
+                self._text_id = self._text_id % UINT16_MAX + 1
+            out.extend(statustext_messages(severity, text, self._text_id))
         return out
 
     # ------------------------------------------------------------------ builders
@@ -183,50 +275,57 @@ class Telemetry:
     def _build(self, msg_id: int, statuses: list[ServoStatus], now: float) -> list[Any]:
         if msg_id == MSG_ACTUATOR_OUTPUT_STATUS:
             return [self._actuator_output_status(statuses, now)]
-        if msg_id == MSG_ESC_TELEMETRY_1_TO_4:
-            return self._esc_telemetry(statuses)
+        if msg_id in ESC_IDS:
+            return self._esc_telemetry(statuses, ESC_IDS[msg_id])
         return self._named_values(statuses, now)
 
     def _actuator_output_status(self, statuses: list[ServoStatus], now: float) -> Any:
         values = [math.nan] * ACTUATOR_SLOTS
         active = 0
         for status in statuses:
-            if status.index < ACTUATOR_SLOTS and status.normalized is not None:
+            if (
+                status.index < ACTUATOR_SLOTS
+                and status.normalized is not None
+                and math.isfinite(status.normalized)
+            ):
                 values[status.index] = float(status.normalized)
                 active |= 1 << status.index
         return mavlink2.MAVLink_actuator_output_status_message(
             int((now - self._boot) * 1e6), active, values
         )
 
-    def _esc_telemetry(self, statuses: list[ServoStatus]) -> list[Any]:
-        by_index = {s.index: s for s in statuses}
-        if not by_index:
+    def _esc_telemetry(self, statuses: list[ServoStatus], group: int) -> list[Any]:
+        """ESC_TELEMETRY for servos ``4 * group`` .. ``4 * group + 3`` (none if it has none)."""
+        if group >= _esc_groups(statuses):
             return []
-        self._esc_count = (self._esc_count + 1) % (UINT16_MAX + 1)
-        out = []
-        for group in range(min(len(ESC_MESSAGES), max(by_index) // 4 + 1)):
-            temps, volts, amps, rpms, counts = [0] * 4, [0] * 4, [0] * 4, [0] * 4, [0] * 4
-            for slot in range(4):
-                status = by_index.get(group * 4 + slot)
-                state = status.state if status is not None else None
-                if state is None:
-                    continue
-                temps[slot] = int(max(0, min(255, round(state.temperature_c))))
-                volts[slot] = _clamp_u16((state.voltage_v or 0.0) * 100)
-                amps[slot] = _clamp_u16(abs(state.current_a) * 100)
-                rpms[slot] = _clamp_u16(abs(state.velocity_dps) / 6.0)
-                counts[slot] = self._esc_count  # 0 stays in slots no servo fills
-            out.append(ESC_MESSAGES[group](temps, volts, amps, [0] * 4, rpms, counts))
-        return out
+        by_index = {s.index: s for s in statuses}
+        self._esc_counts[group] = (self._esc_counts[group] + 1) % (UINT16_MAX + 1)
+        temps, volts, amps, rpms, counts = [0] * 4, [0] * 4, [0] * 4, [0] * 4, [0] * 4
+        for slot in range(4):
+            status = by_index.get(group * 4 + slot)
+            state = status.state if status is not None else None
+            if state is None:
+                continue
+            temps[slot] = _clamp_u8(state.temperature_c)
+            volts[slot] = _clamp_u16(None if state.voltage_v is None else state.voltage_v * 100)
+            amps[slot] = _clamp_u16(abs(state.current_a) * 100)
+            rpms[slot] = _clamp_u16(abs(state.velocity_dps) / 6.0)
+            counts[slot] = self._esc_counts[group]  # 0 stays in slots no servo fills
+        return [ESC_MESSAGES[group](temps, volts, amps, [0] * 4, rpms, counts)]
 
     def _named_values(self, statuses: list[ServoStatus], now: float) -> list[Any]:
         boot_ms = int((now - self._boot) * 1000) & 0xFFFFFFFF
         out = []
         for status in statuses:
+            n = status.index + 1
+            online, faults = _problems(status)
+            flags = faults.value | (0 if online else Fault.NO_REPLY.value)
+            out.append(
+                mavlink2.MAVLink_named_value_float_message(boot_ms, f"s{n}_flt".encode(), flags)
+            )
             state = status.state
             if state is None:
                 continue
-            n = status.index + 1
             values = [
                 ("pos", state.position_deg),
                 ("vel", state.velocity_dps),
@@ -250,6 +349,13 @@ class Telemetry:
                 )
             )
         return out
+
+
+def _esc_groups(statuses: list[ServoStatus]) -> int:
+    """How many ESC_TELEMETRY messages the servos fill (4 per message, by config position)."""
+    if not statuses:
+        return 0
+    return min(len(ESC_MESSAGES), max(s.index for s in statuses) // 4 + 1)
 
 
 def _names(flags: Any) -> str:
