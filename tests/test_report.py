@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import random
 import shutil
 import time
@@ -137,3 +138,20 @@ def test_not_a_run_directory_is_a_clear_error(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "not a mavservo run directory" in err
     assert report.main([str(tmp_path / "missing")]) == 2
+
+
+def test_report_lists_what_went_wrong_during_the_run(recorded_run, tmp_path):
+    """Adapter outages, failsafes and failed sends, as the bridge's summary recorded them."""
+    copied = tmp_path / "eventful-run"
+    shutil.copytree(recorded_run, copied)
+    metrics_path = copied / "metrics.json"
+    metrics = json.loads(metrics_path.read_text())
+    metrics["events"] = ["bus0: CAN adapter lost (gone); reconnecting", "bus0: CAN adapter back"]
+    metrics["buses"] = {"bus0": {"send_failures": {"total": 298, "outages": 1}}}
+    metrics_path.write_text(json.dumps(metrics))
+    assert report.main([str(copied)]) == 0
+    markdown = (copied / "report" / report.REPORT_FILE).read_text()
+    events = markdown.split("## Events", 1)[1].split("## Figures", 1)[0]
+    assert "- bus0: CAN adapter lost (gone); reconnecting" in events
+    assert "- bus0: CAN adapter back" in events
+    assert "- bus bus0: 298 failed sends in 1 outage(s)" in events
