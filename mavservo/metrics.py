@@ -189,6 +189,8 @@ class ServoMetrics:
     """Frames for this servo that ``bus.send`` refused (never counted as sent)."""
     setpoints_accepted: int = 0
     setpoints_rejected: int = 0
+    setpoints_dropped: int = 0
+    """Accepted setpoints dropped unsent because the servo went offline (bus down, no reply)."""
 
     def __post_init__(self) -> None:
         self.latency = SampleStats(self.window)
@@ -214,6 +216,7 @@ class ServoMetrics:
             "setpoints": {
                 "accepted": self.setpoints_accepted,
                 "rejected": self.setpoints_rejected,
+                "dropped": self.setpoints_dropped,
             },
         }
 

@@ -39,7 +39,19 @@ Rules (paper section 3.3):
   landed on a slot and its polls queued behind the slot's commands: their replies came
   ~1.6 ms late and two reception intervals in every ``T_c / g`` were off by that much.
 * A reply expected but not received within ``reply_timeout_s`` is lost; after
-  ``offline_after_missed`` losses in a row a servo is offline until its next reply. A reply
+  ``offline_after_missed`` losses in a row a servo is offline until its next reply. A frame
+  the bus refused (``send_failed``: adapter unplugged, bus down) counts as a miss too: while
+  the bus is away no request goes out, so no reply is ever owed and none could be declared
+  lost, and the servo would read online, with frozen data, for the whole outage.
+* A servo going offline drops its setpoint that never went out (``Decision.dropped``), and
+  while it is offline every setpoint whose send the bus refuses is dropped too
+  (``SendFailure.dropped``): the bus is gone or the servo is not answering, and applying it
+  whenever the bus or the servo is back, seconds later, would be a late command (the trial's
+  payload servo moved 12 s after its ACK). The servo keeps being refreshed with its last
+  setpoint that did go out (a position it already had, and the probe that tells when it is
+  back) and moves again on a fresh setpoint. A servo with nothing to probe with (no polls,
+  no setpoint that went out) that went offline on refused sends comes back when a send on
+  the bus works again (``sent`` returns it): nothing else could ever bring it back. A reply
   is matched to an expectation of its own kind and plausible latency
   (:mod:`mavservo.reply_matching`), so one lost reply is declared lost where it happened and
   not carried along by the replies after it.
@@ -61,6 +73,7 @@ from .busload import ServoTraffic, frame_time, message_bits, servo_traffic, wors
 CommandMode = Literal["periodic", "immediate"]
 FrameKind = Literal["command", "refresh", "request"]
 _REPLY_DLC = 8
+_TIMED_OUT_KEPT = 8
 
 
 class ScheduleError(ValueError):
@@ -194,6 +207,7 @@ class Outgoing:
     msg: can.Message
     seq: int | None
     expectations: tuple[Expectation, ...] = ()
+    setpoint: Setpoint | None = None
 
 
 @dataclass(frozen=True)
@@ -205,6 +219,18 @@ class ReplyMatch:
     t_tx: float | None
     latency_s: float | None
     back_online: bool
+    late_latency_s: float | None = None
+    """For a ``"late"`` reply: how long after its request it came, when the timed-out
+    expectation it answers is still remembered (None otherwise)."""
+
+
+@dataclass(frozen=True)
+class SendFailure:
+    """What a refused frame did: whether its servo went offline with it, and the unsent
+    setpoint dropped because the servo is offline (None: none)."""
+
+    went_offline: bool
+    dropped: Setpoint | None
 
 
 @dataclass
@@ -218,6 +244,8 @@ class Decision:
     missed_slots: int = 0
     lost: list[str] = field(default_factory=list)
     went_offline: list[str] = field(default_factory=list)
+    dropped: list[tuple[str, Setpoint]] = field(default_factory=list)
+    """Setpoints dropped unsent because their servo went offline (module docstring)."""
     late_polls: list[str] = field(default_factory=list)
     deferred_polls: int = 0
 
@@ -230,13 +258,21 @@ class _ServoSlot:
     command_cost_s: float
     next_poll_due: float
     latest: Setpoint | None = None
+    last_sent: Setpoint | None = None
+    """The newest setpoint the bus took: what an offline servo is refreshed with."""
+    seq: int = 0
+    """Last sequence number given out (never reused, even when a setpoint is dropped)."""
     sent_seq: int = 0
     last_command_time: float | None = None
     released: bool = False
     expected: deque[Expectation] = field(default_factory=deque)
     missed_in_a_row: int = 0
+    offline_on_sends: bool = False
+    """Offline because the bus refused its frames (not because replies stopped)."""
     awaiting_first_reply_since: float | None = None
     replies: reply_matching.ReplyMatcher = field(default_factory=reply_matching.ReplyMatcher)
+    timed_out: deque[Expectation] = field(default_factory=lambda: deque(maxlen=_TIMED_OUT_KEPT))
+    """The latest expectations that timed out, so a late reply can tell how late it was."""
 
     @property
     def has_unsent_setpoint(self) -> bool:
@@ -451,7 +487,8 @@ class ScheduleCore:
             msg = slot.spec.profile.position_command(angle_deg, slot.spec.max_speed_dps)
         except ValueError as exc:
             return SetpointResult(False, None, str(exc))
-        seq = (latest.seq if latest else 0) + 1
+        slot.seq += 1
+        seq = slot.seq
         slot.latest = Setpoint(seq, angle_deg, source, t, msg)
         slot.released = False
         return SetpointResult(True, seq)
@@ -478,18 +515,49 @@ class ScheduleCore:
         slot.last_command_time = now
         if not replies:
             slot.awaiting_first_reply_since = now
-        return Outgoing(slot.spec.name, kind, slot.latest.msg, slot.latest.seq, expectations)
+        return Outgoing(
+            slot.spec.name, kind, slot.latest.msg, slot.latest.seq, expectations, slot.latest
+        )
 
     def _expire(self, now: float, decision: Decision) -> None:
         # Deadlines grow with position (send order, one timeout), so expired ones lead the
         # deque even after replies have taken expectations out of its middle.
         for name, slot in self._slots.items():
             while slot.expected and slot.expected[0].deadline <= now:
-                slot.expected.popleft()
+                slot.timed_out.append(slot.expected.popleft())
                 decision.lost.append(name)
-                slot.missed_in_a_row += 1
-                if slot.missed_in_a_row == self.timing.offline_after_missed:
+                if self._missed(slot, on_send=False):
                     decision.went_offline.append(name)
+                    dropped = self._drop_unsent(slot)
+                    if dropped is not None:
+                        decision.dropped.append((name, dropped))
+
+    def _missed(self, slot: _ServoSlot, *, on_send: bool) -> bool:
+        """Count one miss; True if the servo goes offline with it."""
+        slot.missed_in_a_row += 1
+        if slot.missed_in_a_row != self.timing.offline_after_missed:
+            return False
+        slot.offline_on_sends = on_send
+        return True
+
+    @staticmethod
+    def _drop_unsent(slot: _ServoSlot) -> Setpoint | None:
+        """Drop the setpoint that has not gone out, back to the last one that did.
+
+        A refused refresh (or re-send) of the last setpoint that went out drops nothing: it is
+        marked sent again, so it goes on as the refresh.
+        """
+        if not slot.has_unsent_setpoint:
+            return None
+        assert slot.latest is not None
+        last_sent = slot.last_sent
+        dropped = (
+            None if last_sent is not None and last_sent.seq >= slot.latest.seq else slot.latest
+        )
+        slot.latest = last_sent
+        if last_sent is not None:
+            slot.sent_seq = max(slot.sent_seq, last_sent.seq)
+        return dropped
 
     def _serve_command_slot(self, now: float, decision: Decision) -> None:
         t = self.timing
@@ -614,23 +682,51 @@ class ScheduleCore:
         return min(candidates)
 
     # ------------------------------------------------------------------ wire feedback
-    def sent(self, out: Outgoing, t: float) -> None:
-        """The runner wrote ``out`` at ``t``: time its replies from the real write time."""
+    def sent(self, out: Outgoing, t: float) -> list[str]:
+        """The runner wrote ``out`` at ``t``: time its replies from the real write time.
+
+        Returns the servos back online because the bus works again: those that went offline
+        on refused sends and have nothing to probe with (module docstring).
+        """
         for expectation in out.expectations:
             expectation.t_tx = t
             expectation.deadline = t + self.timing.reply_timeout_s
         slot = self._slots[out.servo]
+        if out.setpoint is not None and (
+            slot.last_sent is None or out.setpoint.seq > slot.last_sent.seq
+        ):
+            slot.last_sent = out.setpoint
         if out.kind != "request" and slot.awaiting_first_reply_since is not None:
             slot.awaiting_first_reply_since = t
+        back: list[str] = []
+        for name, other in self._slots.items():
+            if (
+                other.offline_on_sends
+                and other.latest is None
+                and other.poll_period is None
+                and not self.is_online(name)
+            ):
+                other.missed_in_a_row = 0
+                other.offline_on_sends = False
+                back.append(name)
+        return back
 
-    def send_failed(self, out: Outgoing) -> None:
-        """The bus refused ``out``: forget its replies and let the next slot try again."""
+    def send_failed(self, out: Outgoing) -> SendFailure:
+        """The bus refused ``out``: forget its replies and let the next slot try again.
+
+        The refusal counts as a miss, and an offline servo's unsent setpoint is dropped
+        (module docstring); a single refused frame (a full transmit buffer) leaves an online
+        servo's setpoint to be retried on the next slot.
+        """
         slot = self._slots[out.servo]
         for expectation in out.expectations:
             if expectation in slot.expected:
                 slot.expected.remove(expectation)
         if out.seq is not None and slot.sent_seq == out.seq:
             slot.sent_seq = out.seq - 1
+        went_offline = self._missed(slot, on_send=True)
+        dropped = None if self.is_online(out.servo) else self._drop_unsent(slot)
+        return SendFailure(went_offline, dropped)
 
     def on_reply(self, name: str, t: float, key: Hashable | None = None) -> ReplyMatch:
         """A reply from ``name`` with exchange key ``key`` was decoded at ``t``: match it to
@@ -638,22 +734,34 @@ class ScheduleCore:
         slot = self._slots[name]
         back_online = slot.missed_in_a_row >= self.timing.offline_after_missed
         slot.missed_in_a_row = 0
+        slot.offline_on_sends = False
         index = slot.replies.pick(slot.expected, t, key)
         if index is not None:
             expectation = slot.expected[index]
             del slot.expected[index]
             latency = t - expectation.t_tx if expectation.kind != "request" else None
             return ReplyMatch(expectation.kind, expectation.t_tx, latency, back_online)
-        if slot.expected:
-            return ReplyMatch("late", None, None, back_online)  # none of its kind outstanding
-        if slot.poll_period is not None or int(
-            getattr(slot.spec.profile, "replies_per_request", 1)
+        if (
+            slot.expected
+            or slot.poll_period is not None
+            or int(getattr(slot.spec.profile, "replies_per_request", 1))
         ):
-            # this servo only speaks when asked: an unmatched reply came after its timeout.
-            # (A push-style servo, no requests, also pushes between commands: not late.)
-            return ReplyMatch("late", None, None, back_online)
+            # none of its kind outstanding, or this servo only speaks when asked: an unmatched
+            # reply came after its timeout. (A push-style servo, no requests, also pushes
+            # between commands: not late.)
+            return ReplyMatch("late", None, None, back_online, self._late_latency(slot, t, key))
         if slot.awaiting_first_reply_since is not None:
             since = slot.awaiting_first_reply_since
             slot.awaiting_first_reply_since = None
             return ReplyMatch(None, since, t - since, back_online)
         return ReplyMatch(None, None, None, back_online)
+
+    @staticmethod
+    def _late_latency(slot: _ServoSlot, t: float, key: Hashable | None) -> float | None:
+        """Latency of a late reply: it answers the oldest remembered timed-out expectation of
+        its kind (a CAN node answers in order), which is then forgotten."""
+        for i, expectation in enumerate(slot.timed_out):
+            if key is None or expectation.key is None or expectation.key == key:
+                del slot.timed_out[i]
+                return t - expectation.t_tx
+        return None

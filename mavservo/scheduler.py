@@ -40,10 +40,12 @@ from .schedule_core import (
     ScheduleCore,
     ScheduleError,
     ServoSpec,
+    Setpoint,
     SetpointResult,
     TimingConfig,
     exchange_key,
 )
+from .servo_log import LateReplies, Line, OnlineLog
 from .servos.base import Fault, ServoState
 
 __all__ = [
@@ -196,6 +198,8 @@ class Scheduler:
         self._cpu = {"runner_s": 0.0, "receiver_s": 0.0}
         self._send_failures = FailureRun()
         self._receive_failures = FailureRun()
+        self._online_log = OnlineLog()
+        self._late_replies = LateReplies(self.timing.reply_timeout_s)
         self.realtime_status = "not requested"
         self.spin_s = self.timing.spin_s
         """The spin the runner actually uses (``fifo_spin_s`` once it runs real-time)."""
@@ -305,7 +309,8 @@ class Scheduler:
             return self._states.get(servo)
 
     def is_online(self, servo: str) -> bool:
-        """False after ``offline_after_missed`` replies in a row did not arrive."""
+        """False after ``offline_after_missed`` replies in a row did not arrive, or frames to
+        it in a row were refused by the bus (adapter unplugged), until its next reply."""
         with self._lock:
             return self._core.is_online(servo)
 
@@ -466,9 +471,40 @@ class Scheduler:
             self._cpu["runner_s"] = time.thread_time()
             self._wait_until(deadline)
 
+    def _log(self, lines: list[Line]) -> None:
+        for level, text in lines:
+            log.log(level, "scheduler %s: %s", self.name, text)
+
+    def _go_offline(
+        self, servo: str, reason: str, dropped: Setpoint | None, now: float
+    ) -> tuple[list[Line], ServoState | None]:
+        """Book a servo going offline (caller holds the lock): its state carries NO_REPLY, as
+        for a silent servo; returns the lines to log and the state to tell subscribers."""
+        lines = self._online_log.offline(servo, reason, now)
+        if dropped is not None:
+            lines += self._dropped(servo, dropped, now)
+        state = self._states.get(servo)
+        if state is not None:
+            state = state.with_faults(state.faults | Fault.NO_REPLY)
+            self._states[servo] = state
+        return lines, state
+
+    def _dropped(self, servo: str, dropped: Setpoint, now: float) -> list[Line]:
+        """Count a setpoint dropped unsent (caller holds the lock) and say so."""
+        self._metrics.servos[servo].setpoints_dropped += 1
+        return [
+            (
+                logging.WARNING,
+                f"servo {servo} is offline: setpoint #{dropped.seq} ({dropped.angle_deg:g} deg "
+                f"from {dropped.source}, {now - dropped.t:.2f} s old) dropped unsent; the "
+                "servo moves again on a fresh setpoint once it is back",
+            )
+        ]
+
     def _step(self) -> Decision:
         now = self._clock()
         offline_states: list[tuple[str, ServoState]] = []
+        lines: list[Line] = []
         with self._lock:
             decision = self._core.step(now)
             metrics = self._metrics
@@ -481,16 +517,16 @@ class Scheduler:
                 metrics.telemetry_ticks.mark(now)
             for servo in decision.lost:
                 metrics.servos[servo].lost += 1
+            dropped = dict(decision.dropped)
             for servo in decision.went_offline:
-                state = self._states.get(servo)
+                more, state = self._go_offline(servo, "no reply", dropped.get(servo), now)
+                lines += more
                 if state is not None:
-                    state = state.with_faults(state.faults | Fault.NO_REPLY)
-                    self._states[servo] = state
                     offline_states.append((servo, state))
+            lines += self._online_log.flush(now)
         for servo in decision.lost:
             self._notify_observer("on_lost", self.name, servo, now)
-        for servo in decision.went_offline:
-            log.warning("scheduler %s: servo %s offline (no reply)", self.name, servo)
+        self._log(lines)
         for servo, state in offline_states:
             self._notify_subscribers(servo, state)
         return decision
@@ -501,10 +537,19 @@ class Scheduler:
             try:
                 self._bus.send(out.msg)
             except can.CanError as exc:
+                now = self._clock()
+                lines: list[Line] = []
+                state: ServoState | None = None
                 with self._lock:
-                    self._core.send_failed(out)
+                    failure = self._core.send_failed(out)
                     self._metrics.servos[out.servo].send_failed += 1
-                    first = self._send_failures.failed(self._clock())
+                    first = self._send_failures.failed(now)
+                    if failure.went_offline:
+                        lines, state = self._go_offline(
+                            out.servo, "sends failing", failure.dropped, now
+                        )
+                    elif failure.dropped is not None:
+                        lines = self._dropped(out.servo, failure.dropped, now)
                 if first:
                     log.warning(
                         "scheduler %s: send to %s failed: %s (further failed sends are "
@@ -513,17 +558,22 @@ class Scheduler:
                         out.servo,
                         exc,
                     )
+                self._log(lines)
+                if state is not None:
+                    self._notify_subscribers(out.servo, state)
                 continue
             t = self._clock()
             with self._lock:
                 ended = self._send_failures.succeeded(t)
-                self._core.sent(out, t)
+                back = self._core.sent(out, t)
+                lines = [line for servo in back for line in self._online_log.online(servo, t)]
                 self._account_tx(out, t)
                 if not slot_marked and out.kind != "request":
                     self._metrics.command_ticks.mark(t)
                     slot_marked = True
             if ended is not None:
                 log.info("scheduler %s: sends work again: %d failed over %.1f s", self.name, *ended)
+            self._log(lines)
             self._notify_observer("on_tx", self.name, out.msg, t, out.kind, out.servo, out.seq)
 
     def _account_tx(self, out: Outgoing, t: float) -> None:
@@ -591,6 +641,7 @@ class Scheduler:
             return None
         profile = self._specs[servo].profile
         state = profile.decode(msg, t)
+        lines: list[Line] = []
         with self._lock:
             servo_metrics = self._metrics.servos[servo]
             if state is None:
@@ -598,15 +649,17 @@ class Scheduler:
                 return None
             match = self._core.on_reply(servo, t, exchange_key(profile, msg))
             servo_metrics.received += 1
+            if match.back_online:
+                lines += self._online_log.online(servo, t)
             if match.kind == "late":
                 servo_metrics.late_replies += 1
+                lines += self._late_replies.late(servo, match.late_latency_s)
             if match.latency_s is not None and math.isfinite(match.latency_s):
                 servo_metrics.latency.add(match.latency_s)
             if match.kind in ("request", None):
                 servo_metrics.telemetry_intervals.mark(t)
             self._states[servo] = state
-        if match.back_online:
-            log.info("scheduler %s: servo %s back online", self.name, servo)
+        self._log(lines)
         self._notify_observer("on_rx", self.name, msg, t, servo, state)
         self._notify_subscribers(servo, state)
         return state

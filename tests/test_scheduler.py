@@ -183,7 +183,11 @@ def test_stale_setpoint_rejected_through_the_api(sim_bus):
     assert scheduler.set_setpoint("s1", 1.0, "a", t=10.0).accepted
     stale = scheduler.set_setpoint("s1", 2.0, "b", t=9.0)
     assert not stale.accepted
-    assert scheduler.metrics()["servos"]["s1"]["setpoints"] == {"accepted": 1, "rejected": 1}
+    assert scheduler.metrics()["servos"]["s1"]["setpoints"] == {
+        "accepted": 1,
+        "rejected": 1,
+        "dropped": 0,
+    }
     assert recorder.setpoints == [("s1", 1, "a")]
 
 

@@ -19,8 +19,8 @@ from can.interfaces.virtual import VirtualBus
 from e2e_support import wait_until
 
 from mavservo.resilient_bus import ResilientBus
-from mavservo.scheduler import FailureRun, Scheduler, ServoSpec, TimingConfig
-from mavservo.servos import RmdX
+from mavservo.scheduler import FailureRun, Scheduler, SchedulerObserver, ServoSpec, TimingConfig
+from mavservo.servos import Fault, RmdX, ServoState
 from mavservo.sim.servo import SimServo
 from mavservo.sim.virtual import VirtualServoBus
 
@@ -242,3 +242,70 @@ def test_an_outage_left_open_at_stop_ends_with_the_first_receive_after_a_restart
         bus.shutdown()
     assert len(records(caplog, logging.INFO, "receives work again")) == 1
     assert scheduler.metrics()["receive_failures"]["outages"] == 1
+
+
+class TxRecorder(SchedulerObserver):
+    """Non-blocking observer: every frame that went out, as (servo, kind, seq)."""
+
+    def __init__(self) -> None:
+        self.tx: list[tuple[str, str, int | None]] = []
+
+    def on_tx(self, bus, msg, t, kind, servo, seq) -> None:
+        self.tx.append((servo, kind, seq))
+
+
+def test_an_unplugged_adapter_takes_servos_offline_and_drops_setpoints_meant_for_the_outage(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """The trial: with the adapter unplugged the servos read online with 15 s old data, and a
+    DO_SET_SERVO accepted during the outage moved the payload servo 12 s later, on replug."""
+    caplog.set_level(logging.INFO)
+    channel = f"outage-offline-{uuid.uuid4().hex}"
+    adapter = Adapter(channel)
+    sims = [SimServo("rmd-x", i) for i in (1, 2)]
+    recorder = TxRecorder()
+    told: list[tuple[str, ServoState]] = []
+    with VirtualServoBus(sims, channel=channel):
+        bus = ResilientBus(adapter.open, name="bus0", initial_backoff_s=0.01, max_backoff_s=0.05)
+        scheduler = Scheduler(bus, specs(), FAST, name="bus0", observer=recorder)
+        scheduler.subscribe(lambda servo, state: told.append((servo, state)))
+        names = [spec.name for spec in specs()]
+        try:
+            with scheduler:
+                for name in names:
+                    assert scheduler.set_setpoint(name, 10.0, "test").accepted
+                assert wait_for(
+                    lambda: all(
+                        scheduler.state(n) is not None and (n, "command", 1) in recorder.tx
+                        for n in names
+                    )
+                )
+                assert all(scheduler.is_online(n) for n in names)
+
+                adapter.unplug()
+                assert wait_for(lambda: not any(scheduler.is_online(n) for n in names))
+                for name in names:  # the existing offline path: NO_REPLY, subscribers told
+                    assert Fault.NO_REPLY in scheduler.state(name).faults
+                    assert any(s == name and Fault.NO_REPLY in st.faults for s, st in told)
+                late = scheduler.set_setpoint("s1", 77.0, "do_set_servo")
+                assert late.accepted  # the scheduler takes it; its send fails and drops it
+                assert wait_for(lambda: scheduler.metrics()["servos"]["s1"]["setpoints"]["dropped"])
+
+                adapter.plugged = True
+                assert wait_for(lambda: all(scheduler.is_online(n) for n in names))
+                replies_after = sims[0].replies
+                assert wait_for(lambda: sims[0].replies > replies_after + 5)
+            metrics = scheduler.metrics()
+        finally:
+            bus.shutdown()
+            adapter.close_all()
+
+    assert ("s1", "command", late.seq) not in recorder.tx
+    assert ("s1", "refresh", late.seq) not in recorder.tx
+    assert sims[0].target_deg == pytest.approx(10.0)  # still where it was before the outage
+    assert metrics["servos"]["s1"]["setpoints"]["dropped"] == 1
+    offline = records(caplog, logging.WARNING, "offline (sends failing)")
+    assert sorted(line.split()[3] for line in offline) == names  # once per servo
+    assert len(records(caplog, logging.INFO, "back online")) == len(names)
+    dropped = records(caplog, logging.WARNING, "dropped unsent")
+    assert len(dropped) == 1 and f"#{late.seq}" in dropped[0]
