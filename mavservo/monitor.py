@@ -14,7 +14,9 @@ Two halves, so the interesting part is testable without a terminal:
 What it understands (all optional; missing ones show as "-"):
 
 * NAMED_VALUE_FLOAT ``s<n>_pos|vel|cur|tmp|sp`` (deg, deg/s, A, degC, setpoint deg) for servo n
-  (1-based config position), ``bus<k>_load`` (ratio 0..1), and two latencies in ms that differ
+  (1-based config position); ``s<n>_flt``, the servo's fault bits (NO_REPLY = not responding),
+  which sets the fault column from periodic telemetry, so a monitor started after a fault
+  still shows it; ``bus<k>_load`` (ratio 0..1), and two latencies in ms that differ
   by two orders of magnitude on purpose (docs/logs.md, "Which latency is which"):
   ``lat_p50``/``lat_p95``/``lat_p99``, shown as ``cmd->telemetry``: a MAVLink command's receipt
   to the first telemetry message carrying its servo's reply, most of it the wait for the command
@@ -24,9 +26,10 @@ What it understands (all optional; missing ones show as "-"):
 * ESC_TELEMETRY_1_TO_4.. (temperature, current, voltage) and ACTUATOR_OUTPUT_STATUS (normalized
   position) for the same servo numbering;
 * HEARTBEAT of every component (autopilot, servo group 140.., gimbal 154..), with its age;
-* STATUSTEXT (tail of the last lines; ``servo NAME fault ...``/``cleared``/``not responding``
-  also set the fault column of the servo that NAME belongs to, once its name is known);
-* GIMBAL_DEVICE_ATTITUDE_STATUS (roll/pitch/yaw and failure flags).
+* STATUSTEXT (tail of the last lines; MAVLink 2 chunks (``id`` != 0) are joined back into one
+  text; ``servo NAME fault ...``/``cleared``/``not responding`` also set the fault column of
+  the servo that NAME belongs to, once its name is known);
+* GIMBAL_DEVICE_ATTITUDE_STATUS (roll/pitch/yaw and failure flags, by name).
 """
 
 from __future__ import annotations
@@ -48,8 +51,24 @@ MONITOR_SYSTEM_ID = 255
 MONITOR_COMPONENT_ID = 191  # MAV_COMP_ID_ONBOARD_COMPUTER range is taken; 191 = user 1 / GCS tools
 STALE_AFTER_S = 2.0
 STATUSTEXT_TAIL = 8
+STATUSTEXT_CHUNK = 50  # a chunk shorter than this (its NUL) is the last of its text
+STATUSTEXT_PENDING = 8  # chunked texts being reassembled at once; the oldest is given up
+#: GIMBAL_DEVICE_ERROR_FLAGS, the bits of GIMBAL_DEVICE_ATTITUDE_STATUS.failure_flags
+GIMBAL_FAILURE_FLAGS = {
+    1: "at_roll_limit",
+    2: "at_pitch_limit",
+    4: "at_yaw_limit",
+    8: "encoder_error",
+    16: "power_error",
+    32: "motor_error",
+    64: "software_error",
+    128: "comms_error",
+    256: "calibration_running",
+    512: "no_manager",
+}
 
 _NVF_SERVO = re.compile(r"^s(\d+)_(pos|vel|cur|tmp|sp)$")
+_NVF_FAULTS = re.compile(r"^s(\d+)_flt$")
 _NVF_BUS = re.compile(r"^bus(\d+)_load$")
 _NVF_LATENCY = re.compile(r"^lat_(p50|p95|p99)$")
 _NVF_ROUND_TRIP = re.compile(r"^rtt_(p50|p95|p99)$")
@@ -106,6 +125,8 @@ class MonitorState:
         #: ``rtt_p*``: frame written -> reply decoded, the wire round trip L (ms)
         self.round_trip_ms: dict[str, float] = {}
         self.gimbal: dict[str, Any] = {}
+        #: (source, id) -> (severity, {chunk_seq: text}) for chunked STATUSTEXT not complete yet
+        self._chunks: dict[tuple[int, int, int], tuple[int, dict[int, str]]] = {}
         self.messages = 0
         self.bad_messages = 0
         self.first: float | None = None
@@ -167,6 +188,8 @@ class MonitorState:
             setattr(view, attr, value)
             if attr != "setpoint_deg":
                 view.updated = now
+        elif match := _NVF_FAULTS.match(name):
+            self._on_fault_bits(self._servo(int(match.group(1))), value)
         elif match := _NVF_BUS.match(name):
             self.bus_load[int(match.group(1))] = value
         elif match := _NVF_LATENCY.match(name):
@@ -190,9 +213,25 @@ class MonitorState:
                 view = self._servo(index + 1)
                 view.normalized = float(value)
 
+    @staticmethod
+    def _on_fault_bits(view: ServoView, value: float) -> None:
+        """``s<n>_flt``: the whole current fault set, replacing what STATUSTEXT built up."""
+        from mavservo.servos.base import Fault
+
+        if math.isnan(value):
+            return
+        bits = Fault(int(value) & sum(f.value for f in Fault))
+        view.responding = Fault.NO_REPLY not in bits
+        view.faults = {f.name.lower() for f in Fault if f in bits and f is not Fault.NO_REPLY}
+
     def _on_statustext(self, msg: Any, now: float) -> None:
         text = msg.text.decode(errors="replace") if isinstance(msg.text, bytes) else msg.text
-        text = text.rstrip("\x00")
+        text = text.split("\x00")[0]
+        text_id = int(getattr(msg, "id", 0) or 0)
+        if text_id:
+            text = self._join_chunk(msg, text_id, text)
+            if text is None:
+                return
         self.texts.append((now, int(msg.severity), text))
         if match := _TEXT_FAULT.match(text):
             view = self._servo_by_name(match.group(1))
@@ -204,6 +243,23 @@ class MonitorState:
         elif match := _TEXT_ONLINE.match(text):
             view = self._servo_by_name(match.group(1))
             view.responding = match.group(2) == "responding again"
+
+    def _join_chunk(self, msg: Any, text_id: int, text: str) -> str | None:
+        """Collect one chunk of a long STATUSTEXT; the whole text once its last chunk is in."""
+        key = (msg.get_srcSystem(), msg.get_srcComponent(), text_id)
+        severity, chunks = self._chunks.pop(key, (int(msg.severity), {}))
+        chunks[int(msg.chunk_seq)] = text
+        last = (
+            max(seq for seq, part in chunks.items() if len(part) < STATUSTEXT_CHUNK)
+            if any(len(part) < STATUSTEXT_CHUNK for part in chunks.values())
+            else None
+        )
+        if last is not None and all(seq in chunks for seq in range(last + 1)):
+            return "".join(chunks[seq] for seq in range(last + 1))
+        self._chunks[key] = (severity, chunks)
+        while len(self._chunks) > STATUSTEXT_PENDING:
+            self._chunks.pop(next(iter(self._chunks)))
+        return None
 
     def _on_gimbal_device_attitude_status(self, msg: Any, now: float) -> None:
         from mavservo.mavlink.quaternion import quaternion_to_euler
@@ -291,9 +347,18 @@ class MonitorState:
             g = self.gimbal
             parts.append(
                 f"gimbal r{g['roll']:+.1f} p{g['pitch']:+.1f} y{g['yaw']:+.1f}"
-                f" flags 0x{g['failure_flags']:x}"
+                f" failure_flags {_gimbal_flags(g['failure_flags'])}"
             )
         return " | ".join(parts)
+
+
+def _gimbal_flags(flags: int) -> str:
+    """``0x20 motor_error``: GIMBAL_DEVICE_ATTITUDE_STATUS.failure_flags with bit names."""
+    names = [name for bit, name in GIMBAL_FAILURE_FLAGS.items() if flags & bit]
+    unknown = flags & ~sum(GIMBAL_FAILURE_FLAGS)
+    if unknown:
+        names.append(f"0x{unknown:x}?")
+    return f"0x{flags:x}" + (f" {'|'.join(names)}" if names else " ok")
 
 
 def _fmt(value: float | None, pattern: str) -> str:

@@ -204,3 +204,20 @@ def test_plain_lines_when_not_a_terminal():
     assert proc.returncode == 0, err.decode()
     assert "\x1b[" not in text
     assert "servo servo=1" in text and "position=+12.50" in text
+
+
+def test_gimbal_failure_flags_are_named():
+    state = MonitorState()
+    q = [1.0, 0.0, 0.0, 0.0]
+    nan3 = [float("nan")] * 3
+    for flags, shown in (
+        (0x20, "0x20 motor_error"),
+        (0x0, "0x0 ok"),
+        (0x2 | 0x400, "0x402 at_pitch_limit|0x400?"),
+    ):
+        status = mavlink2.MAVLink_gimbal_device_attitude_status_message(
+            0, 0, 0, 0, q, nan3[0], nan3[1], nan3[2], flags
+        )
+        for msg in _wire([status], component=154):
+            state.update(msg, 1.0)
+        assert f"failure_flags {shown}" in state.health_line(1.0)
