@@ -220,7 +220,26 @@ class ServoBackend:
                     self._apply_failsafe(self._servos[name], now)
             for servo in self._servos.values():
                 if servo.goal_deg is not None and servo.sent_deg != servo.goal_deg:
-                    self._send_step(servo, now)
+                    if servo.sink.is_online(servo.name):
+                        self._send_step(servo, now)
+                    else:
+                        self._pause_offline(servo, now)
+
+    def _pause_offline(self, servo: _Servo, now: float) -> None:
+        """No slew steps go to an offline servo (the scheduler would drop them unsent).
+
+        A commanded move is abandoned: resuming it when the servo is back, maybe seconds
+        later, would carry out a command long after its ACK (the trial's late payload servo);
+        the servo waits for a fresh command, as after a release. A failsafe move stays in
+        force and resumes at the slew rate from where it stopped once the servo answers.
+        """
+        if servo.source == "failsafe":
+            servo.sent_at = now
+            return
+        goal, servo.goal_deg = servo.goal_deg, None
+        self._on_event(
+            f"{servo.name} offline: move to {goal:g} deg stopped; it waits for a fresh command"
+        )
 
     def failsafe_all(self, reason: str, now: float) -> None:
         """Shutdown path: every servo to its failsafe action at once (no per-servo delay)."""

@@ -174,3 +174,35 @@ def test_health_hands_on_the_bridges_figures_as_a_copy() -> None:
 def test_health_without_the_bridges_figures_is_empty(setup) -> None:
     backend, _ = setup  # no bridge health
     assert backend.health() == {}
+
+
+def test_a_slew_in_progress_is_abandoned_when_its_servo_goes_offline(setup) -> None:
+    backend, sink = setup
+    backend.apply_servo_output(3, 1000, "do_set_servo", 0.0)  # 0 deg
+    backend.apply_servo_output(3, 2000, "do_set_servo", 0.1)  # 90 deg at 100 deg/s
+    sink.offline.add("throttle")  # the adapter is unplugged mid-move
+    sent_before = list(sink.sent)
+    backend.tick(0.3)
+    assert sink.sent == sent_before  # nothing queued for when it is back
+    sink.offline.clear()
+    backend.tick(5.0)
+    assert sink.sent == sent_before  # the old move is not resumed seconds later
+    assert backend.apply_servo_output(3, 1500, "do_set_servo", 5.1).ok  # a fresh one works
+    assert sink.last("throttle") == pytest.approx(45.0)
+
+
+def test_a_failsafe_move_waits_out_an_offline_servo_and_resumes_at_the_slew_rate(setup) -> None:
+    backend, sink = setup
+    backend.apply_servo_output(3, 2000, "servo_output_raw", 10.0)  # 90 deg, first: no limit
+    backend.enter_failsafe("link lost", 10.0)
+    backend.tick(10.4)  # throttle's failsafe (0.3 s): to 5 deg at 100 deg/s
+    assert sink.last("throttle") == pytest.approx(50.0)
+    sink.offline.add("throttle")
+    count = len(sink.sent)
+    backend.tick(10.5)
+    assert len(sink.sent) == count
+    sink.offline.clear()
+    backend.tick(10.6)  # not a jump to 5 deg: one slew step from where it stopped
+    assert sink.last("throttle") == pytest.approx(40.0)
+    backend.tick(12.0)
+    assert sink.last("throttle") == pytest.approx(5.0)  # the failsafe stays in force
