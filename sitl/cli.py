@@ -15,6 +15,7 @@ from pathlib import Path
 
 import yaml
 
+from mavservo.config.schema import read_key_file
 from sitl.profiles import PROFILES, RandomWalkProfile, get_profile
 from sitl.replay import BRIDGE_TYPES, TlogError, replay
 from sitl.script import Dropout, Event, parse_script
@@ -75,6 +76,13 @@ def build_parser(prog: str = "sitl") -> argparse.ArgumentParser:
         help="SYSTEM/COMPONENT the mission commands go to (default: 1/0)",
     )
     s.add_argument(
+        "--signing-key-file",
+        type=Path,
+        default=None,
+        help="sign everything with this MAVLink 2 key (64 hex characters, the file a signed "
+        "mavservo config's key_file names), as an autopilot set up for signing does",
+    )
+    s.add_argument(
         "--repeat-cycle-ms",
         action="store_true",
         help="send DO_REPEAT_SERVO param4 in ms (ArduPilot) instead of s (spec)",
@@ -126,6 +134,13 @@ def _run_stream(args: argparse.Namespace) -> int:
             return 2
     if args.gimbal:
         events += gimbal_demo_script()
+    signing_key = None
+    if args.signing_key_file is not None:
+        try:
+            signing_key = read_key_file(args.signing_key_file)
+        except ValueError as exc:
+            print(f"sitl: --signing-key-file: {exc}", file=sys.stderr)
+            return 2
     stream = AutopilotStream(
         args.url,
         profile,
@@ -136,6 +151,7 @@ def _run_stream(args: argparse.Namespace) -> int:
         command_target=args.command_target,
         duration_s=args.duration,
         repeat_servo_cycle="milliseconds" if args.repeat_cycle_ms else "seconds",
+        signing_key=signing_key,
     )
     stream.start()
     if hasattr(signal, "SIGUSR1") and threading.current_thread() is threading.main_thread():

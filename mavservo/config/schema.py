@@ -150,6 +150,20 @@ class SigningConfig(StrictModel):
         return key
 
 
+def read_key_file(path: str | Path) -> bytes:
+    """The 32-byte signing secret in a key file (64 hex characters, as ``key_file`` takes it),
+    for tools outside a config (``mavservo sitl stream --signing-key-file``); ValueError says why
+    a file will not do."""
+    try:
+        raw = Path(path).read_bytes()
+    except OSError as exc:
+        raise ValueError(f"cannot read {path}: {exc.strerror or exc}") from None
+    key = _parse_key_bytes(raw)
+    if key is None:
+        raise ValueError(f"{path} must hold 64 hex characters, found {len(raw.strip())} bytes")
+    return key
+
+
 def _parse_key_bytes(raw: bytes) -> bytes | None:
     text = raw.strip()
     if len(text) == 64:
