@@ -104,30 +104,36 @@ class LateReplies:
     def __init__(self, reply_timeout_s: float, warn_after: int = LATE_WARN_AFTER) -> None:
         self.reply_timeout_s = reply_timeout_s
         self.warn_after = warn_after
+        self._counts: dict[str, int] = {}
         self._latencies: dict[str, list[float]] = {}
         self._warned: set[str] = set()
 
     def late(self, servo: str, latency_s: float | None) -> list[Line]:
         """A reply from ``servo`` came after its timeout, ``latency_s`` after its request
-        (None: not known which request it answered)."""
+        (None: not known which request it answered; counted, not measured)."""
         if servo in self._warned:
             return []
+        count = self._counts[servo] = self._counts.get(servo, 0) + 1
         seen = self._latencies.setdefault(servo, [])
         if latency_s is not None:
             seen.append(latency_s)
-        if len(seen) < self.warn_after:
+        if count < self.warn_after:
             return []
         self._warned.add(servo)
-        del self._latencies[servo]
-        typical = statistics.median(seen)
+        del self._latencies[servo], self._counts[servo]
         timeout_ms = self.reply_timeout_s * 1e3
+        text = f"servo {servo}: {count} replies came after reply_timeout_s ({timeout_ms:g} ms)"
+        advice = "raise scheduler.reply_timeout_s"
+        if seen:
+            typical = statistics.median(seen)
+            text += (
+                f", typically {typical * 1e3:.0f} ms after the request "
+                f"({(typical - self.reply_timeout_s) * 1e3:.0f} ms late)"
+            )
+            advice += f" above {typical * 1e3 * 1.5:.0f} ms"
         return [
             (
                 logging.WARNING,
-                f"servo {servo}: {len(seen)} replies came after reply_timeout_s "
-                f"({timeout_ms:g} ms), typically {typical * 1e3:.0f} ms after the request "
-                f"({(typical - self.reply_timeout_s) * 1e3:.0f} ms late), and were counted "
-                f"lost; if the servo is just slow, raise scheduler.reply_timeout_s above "
-                f"{typical * 1e3 * 1.5:.0f} ms",
+                f"{text}, and were counted lost; if the servo is just slow, {advice}",
             )
         ]
