@@ -158,19 +158,23 @@ class ServoBackend:
         return ACCEPTED
 
     def servo_statuses(self) -> list[ServoStatus]:
+        """Every servo, in config order. An offline servo has no ``normalized`` position: its
+        last one is not a measurement of now, and ACTUATOR_OUTPUT_STATUS built from it showed
+        a frozen position as active for a whole adapter outage (the trial)."""
         out = []
         with self._lock:
             for servo in self._servos.values():
                 state = servo.sink.state(servo.name)
+                online = servo.sink.is_online(servo.name)
                 normalized = None
-                if state is not None and servo.channel_map is not None:
+                if online and state is not None and servo.channel_map is not None:
                     normalized = servo.channel_map.angle_to_normalized(state.position_deg)
                 out.append(
                     ServoStatus(
                         name=servo.name,
                         index=servo.index,
                         state=state,
-                        online=servo.sink.is_online(servo.name),
+                        online=online,
                         setpoint_deg=servo.goal_deg,
                         normalized=normalized,
                         servo_channel=servo.servo_channel,

@@ -14,6 +14,7 @@ import pytest
 from mavservo.config import load_config_text
 from mavservo.mavlink.backend import Outcome
 from mavservo.servo_backend import ServoBackend
+from mavservo.servos.base import NO_FAULT, ServoState
 
 CONFIG = """
 mavlink: {url: "udpin:127.0.0.1:14599"}
@@ -206,3 +207,15 @@ def test_a_failsafe_move_waits_out_an_offline_servo_and_resumes_at_the_slew_rate
     assert sink.last("throttle") == pytest.approx(40.0)
     backend.tick(12.0)
     assert sink.last("throttle") == pytest.approx(5.0)  # the failsafe stays in force
+
+
+def test_an_offline_servo_reports_no_measured_normalized_position(setup) -> None:
+    backend, sink = setup
+    state = ServoState(15.0, 0.0, 0.1, 30.0, NO_FAULT, 1.0)
+    sink.state = lambda servo: state  # every servo last reported 15 deg
+    surface = next(s for s in backend.servo_statuses() if s.name == "surface")
+    assert surface.normalized == pytest.approx(0.5)
+    sink.offline.add("surface")
+    surface = next(s for s in backend.servo_statuses() if s.name == "surface")
+    assert surface.normalized is None and not surface.online
+    assert surface.state is state  # the last values stay readable (console, age)
