@@ -311,6 +311,8 @@ class ScheduleCore:
         self._rank = {name: i for i, name in enumerate(names)}
         self._next_command_slot = start
         self._poll_round: list[str] = []
+        self._offline_on_sends: set[str] = set()
+        """Servos that went offline on refused sends and have not answered since."""
         self.worst_case_load = self._check_budget(servos)
         for spec in servos:
             poll_period = self._poll_period(spec)
@@ -538,6 +540,8 @@ class ScheduleCore:
         if slot.missed_in_a_row != self.timing.offline_after_missed:
             return False
         slot.offline_on_sends = on_send
+        if on_send:
+            self._offline_on_sends.add(slot.spec.name)
         return True
 
     @staticmethod
@@ -698,8 +702,11 @@ class ScheduleCore:
             slot.last_sent = out.setpoint
         if out.kind != "request" and slot.awaiting_first_reply_since is not None:
             slot.awaiting_first_reply_since = t
+        if not self._offline_on_sends:
+            return []  # the common case, on every frame: nothing to scan
         back: list[str] = []
-        for name, other in self._slots.items():
+        for name in list(self._offline_on_sends):
+            other = self._slots[name]
             if (
                 other.offline_on_sends
                 and other.latest is None
@@ -708,6 +715,7 @@ class ScheduleCore:
             ):
                 other.missed_in_a_row = 0
                 other.offline_on_sends = False
+                self._offline_on_sends.discard(name)
                 back.append(name)
         return back
 
@@ -734,7 +742,9 @@ class ScheduleCore:
         slot = self._slots[name]
         back_online = slot.missed_in_a_row >= self.timing.offline_after_missed
         slot.missed_in_a_row = 0
-        slot.offline_on_sends = False
+        if slot.offline_on_sends:
+            slot.offline_on_sends = False
+            self._offline_on_sends.discard(name)
         index = slot.replies.pick(slot.expected, t, key)
         if index is not None:
             expectation = slot.expected[index]
