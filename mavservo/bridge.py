@@ -424,7 +424,7 @@ class Bridge:
         """An event of the servo side: console, event list, and STATUSTEXT to the autopilot."""
         self._note(text)
         if self.mavlink is not None:
-            _quietly(lambda: self.mavlink.announce(text[:50], MAV_SEVERITY_WARNING))
+            _quietly(lambda: self.mavlink.announce(text, MAV_SEVERITY_WARNING))
 
     def _note(self, text: str) -> None:
         """Console and event list only (the MAVLink side announces its own link events)."""
