@@ -63,3 +63,23 @@ def test_health_without_round_trips_has_no_rtt_figures(buses: list[can.BusABC]) 
     bridge = Bridge(load_config_text(CONFIG, "health.yaml"), log_dir=False)
     bridge.schedulers = {"a": Scheduler(buses[0], [ServoSpec("surface", RmdX(1))])}
     assert bridge._health() == {"bus0_load": 0.0}
+
+
+def test_a_long_bridge_event_reaches_the_mavlink_side_whole() -> None:
+    """Adapter events name the device path; the link chunks long STATUSTEXT, so the bridge must
+    not cut them (a trial received "bus0: CAN adapter lost (aa55: the adapter on /tmp/")."""
+    from types import SimpleNamespace
+
+    from mavservo.bridge import Bridge
+    from mavservo.config import default_config_path, load_config
+
+    bridge = Bridge(load_config(default_config_path()), log_dir=False, status=lambda _: None)
+    sent: list[str] = []
+    capture = SimpleNamespace(announce=lambda text, severity: sent.append(text))
+    bridge.mavlink = capture  # type: ignore[assignment]
+    text = (
+        "bus0: CAN adapter lost (aa55: the adapter on "
+        "/dev/serial/by-id/usb-1a86_USB2.0-Ser_-if00 is gone); reconnecting"
+    )
+    bridge._event(text)
+    assert sent == [text]
