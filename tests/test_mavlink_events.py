@@ -175,3 +175,19 @@ def test_every_published_esc_group_can_be_requested_and_switched_off_alone():
     assert ack[0][1].result == ACCEPTED
     kinds = [m.get_type() for step in range(1, 200) for _, m in core.tick(60.0 + step * 0.01)]
     assert "ESC_TELEMETRY_5_TO_8" in kinds and "ESC_TELEMETRY_1_TO_4" not in kinds
+
+
+def test_an_offline_servo_publishes_no_old_values_as_current():
+    """While a servo (or its whole adapter) is offline, its last state is old news: its ESC
+    slot reads empty (count 0) and it sends no s<n>_pos/vel/cur/tmp, only s<n>_flt = NO_REPLY."""
+    core, backend = make_core()
+    for name in ("aileron", "drop", "flap"):
+        backend.states[name] = state(10.0)
+    backend.offline.add("drop")  # config position 2: ESC slot 1, NAMED_VALUE_FLOAT s2_*
+    out = [m for _, m in core.tick(0.0)]
+    [esc] = [m for m in out if m.get_type() == "ESC_TELEMETRY_1_TO_4"]
+    assert esc.count[0] > 0 and esc.count[2] > 0
+    assert esc.count[1] == 0 and esc.temperature[1] == 0 and esc.rpm[1] == 0
+    names = {m.name for m in out if m.get_type() == "NAMED_VALUE_FLOAT"}
+    assert {"s1_pos", "s3_pos", "s2_flt"} <= names
+    assert not names & {"s2_pos", "s2_vel", "s2_cur", "s2_tmp"}

@@ -303,7 +303,8 @@ class Telemetry:
         temps, volts, amps, rpms, counts = [0] * 4, [0] * 4, [0] * 4, [0] * 4, [0] * 4
         for slot in range(4):
             status = by_index.get(group * 4 + slot)
-            state = status.state if status is not None else None
+            # an offline servo's last state is old news: its slot reads as empty (count 0)
+            state = status.state if status is not None and status.online else None
             if state is None:
                 continue
             temps[slot] = _clamp_u8(state.temperature_c)
@@ -324,7 +325,7 @@ class Telemetry:
                 mavlink2.MAVLink_named_value_float_message(boot_ms, f"s{n}_flt".encode(), flags)
             )
             state = status.state
-            if state is None:
+            if state is None or not online:  # s<n>_flt says NO_REPLY; old values would mislead
                 continue
             values = [
                 ("pos", state.position_deg),
