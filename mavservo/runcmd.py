@@ -28,6 +28,9 @@ from mavservo.console import StatusDisplay, format_summary
 
 log = logging.getLogger("mavservo")
 
+#: Loggers whose recoveries are logged at info level next to their warnings.
+RECOVERY_LOGGERS = ("mavservo.scheduler", "mavservo.resilient_bus")
+
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
@@ -51,6 +54,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         level=logging.DEBUG if args.verbose else logging.WARNING,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
     )
+    if not args.verbose:
+        # Their warnings say a servo or a bus went away; the matching "back online" and "sends
+        # work again" lines are info, and the journal must show those too.
+        for name in RECOVERY_LOGGERS:
+            logging.getLogger(name).setLevel(logging.INFO)
     path = Path(args.config) if args.config else default_config_path()
     try:
         config = apply_overrides(load_config(path), args.mavlink, args.port)

@@ -198,3 +198,27 @@ def test_run_reports_what_the_file_left_out_and_a_bad_mavlink_option(tmp_path: P
     assert "  can: not set, using the built-in simulation" in proc.stdout
     assert "  mavlink: udpin:127.0.0.1:0 (listening)" in proc.stdout
     assert "mavlink.url: not set" not in proc.stdout
+
+
+def test_run_logs_recoveries_next_to_the_warnings_they_answer(tmp_path: Path):
+    """A journal that shows "servo offline" or "CAN adapter lost" must also show the "back
+    online" / "sends work again" lines, which are info level; the rest stays at warnings."""
+    config = tmp_path / "min.yaml"
+    config.write_text(SERVO)
+    script = (
+        "import logging, sys\n"
+        "from mavservo import runcmd\n"
+        "status = runcmd.main(sys.argv[1:])\n"
+        "levels = [logging.getLogger(n).getEffectiveLevel() for n in runcmd.RECOVERY_LOGGERS]\n"
+        "print(status, levels, logging.getLogger('mavservo.bridge').getEffectiveLevel())\n"
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", script, "-c", str(config), "--duration", "0.3"]
+        + ["--no-log", "--quiet"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=REPO,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.strip().splitlines()[-1] == "0 [20, 20] 30"
