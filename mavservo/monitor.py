@@ -443,7 +443,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     parser.add_argument("--duration", type=float, default=None, help="stop after this many s")
     parser.add_argument("--rate", type=float, default=10.0, help="dashboard refresh rate (Hz)")
-    parser.add_argument("--config", help="bridge YAML config, to show servo names")
+    parser.add_argument(
+        "--config", help="bridge YAML config: servo names, and its signing key if it signs"
+    )
+    parser.add_argument(
+        "--signing-key-file",
+        help="sign the monitor's messages with this key (64 hex characters), so that a bridge "
+        "that signs answers it on its own link (default: the --config's key, if any)",
+    )
     parser.add_argument("--plain", action="store_true", help="plain lines even on a terminal")
     parser.add_argument(
         "--no-heartbeat",
@@ -465,14 +472,28 @@ def main(argv: Sequence[str] | None = None) -> int:
         args.url, source_system=MONITOR_SYSTEM_ID, source_component=MONITOR_COMPONENT_ID
     )
     names: list[str] = []
+    signing_key: bytes | None = None
     if args.config:
         from mavservo.config.loader import ConfigError, load_config
 
         try:
-            names = [servo.name for servo in load_config(args.config).servos]
+            config = load_config(args.config)
         except ConfigError as exc:
             print(f"mavservo monitor: {exc}", file=sys.stderr)
             return 2
+        names = [servo.name for servo in config.servos]
+        if config.mavlink.signing is not None:
+            signing_key = config.mavlink.signing.secret_key()
+    if args.signing_key_file:
+        from mavservo.config.schema import read_key_file
+
+        try:
+            signing_key = read_key_file(args.signing_key_file)
+        except ValueError as exc:
+            print(f"mavservo monitor: --signing-key-file: {exc}", file=sys.stderr)
+            return 2
+    if signing_key is not None:  # a signing bridge ignores (and never answers) unsigned peers
+        conn.setup_signing(signing_key, sign_outgoing=True)
     state = MonitorState(names)
     start = time.monotonic()
     deadline = None if args.duration is None else start + args.duration

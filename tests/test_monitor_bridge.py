@@ -126,3 +126,51 @@ def test_monitor_plain_lines_carry_the_bridges_values(tmp_path: Path) -> None:
         for ln in lines
     ), proc.stdout[-2000:]
     assert not any("cmd->telemetry" in ln for ln in lines)
+
+
+SIGNED = """
+mavlink:
+  url: "udpin:127.0.0.1:{port}"
+  signing: {{key: "{key}"}}
+servos:
+  - {{name: aileron, profile: rmd-x, can_id: 1, limits_deg: [-30, 30], telemetry_hz: 10}}
+"""
+
+
+def _monitor_lines(url: str, *options: str) -> list[str]:
+    proc = subprocess.run(
+        [sys.executable, "-m", "mavservo", "monitor", url, "--duration", "4", "--plain"]
+        + list(options),
+        capture_output=True,
+        text=True,
+        timeout=30,
+        cwd=REPO,
+    )
+    assert proc.returncode == 0, proc.stderr
+    return proc.stdout.splitlines()
+
+
+def test_monitor_signs_with_a_signed_configs_key_and_the_bridge_answers_it(
+    tmp_path: Path,
+) -> None:
+    """A signing bridge answers only peers whose messages verify: the monitor takes the key
+    from the bridge's config (or --signing-key-file) and so sees the servos on the bridge's own
+    link; unsigned, it sees nothing."""
+    port = free_udp_port()
+    key = "5a" * 32
+    path = tmp_path / "signed.yaml"
+    path.write_text(SIGNED.format(port=port, key=key))
+    key_file = tmp_path / "signing.key"
+    key_file.write_text(key)
+    url = f"udpout:127.0.0.1:{port}"
+    values = re.compile(r"name=aileron setpoint=\S+ position=[-+]\d+\.\d+")
+    bridge = Bridge(load_config(path), log_dir=False, status=lambda line: None).start()
+    try:
+        signed = _monitor_lines(url, "--config", str(path))
+        by_file = _monitor_lines(url, "--signing-key-file", str(key_file))
+        unsigned = _monitor_lines(url)
+    finally:
+        bridge.stop()
+    assert any(values.search(line) for line in signed), "\n".join(signed[-20:])
+    assert any("position=" in line and "servo=1 " in line for line in by_file), by_file[-20:]
+    assert not any("position=" in line for line in unsigned)
