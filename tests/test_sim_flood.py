@@ -81,3 +81,17 @@ def test_flood_frames_to_the_host_share_one_message_object():
     assert len(seen) == int(0.01 / FLOOD)  # finished by now; the one on the wire is not
     assert len({id(msg) for _, msg in seen}) == 1
     assert max(t for t, _ in seen) <= 0.01
+
+
+@pytest.mark.parametrize("uptime_s", [0.0, 40_000.0, 1_000_000.0])
+def test_every_flood_frame_on_the_bus_reaches_the_host_whatever_the_clock_reads(
+    uptime_s: float,
+) -> None:
+    """The driver's times are monotonic seconds since boot. Past 2**15 s their rounding made a
+    finished run's frame count come out one short half the time: half the flood never reached
+    the host (the bridge then measured 62 % bus load under a full flood)."""
+    bus = SimCanBus([], 125_000)
+    bus.set_flood(0x7FF, now=uptime_s + 0.123)
+    seen = _play(bus, uptime_s + 2.123, step=0.0011, start=uptime_s + 0.123)
+    assert bus.frames > 1_800  # 2 s of 1.08 ms frames
+    assert len(seen) == bus.flood.sent >= bus.frames - 1  # the run in flight may still be on
