@@ -429,6 +429,31 @@ def plain_lines(state: MonitorState, now: float) -> list[str]:
     return lines
 
 
+def _names_and_key(config_path: str | None, key_file: str | None) -> tuple[list[str], bytes | None]:
+    """Servo names and signing key from the bridge's config and ``--signing-key-file`` (which
+    wins); ValueError says what is wrong with either (the config's errors as FILE:LINE)."""
+    names: list[str] = []
+    key: bytes | None = None
+    if config_path:
+        from mavservo.config.loader import ConfigError, load_config
+
+        try:
+            config = load_config(config_path)
+        except ConfigError as exc:
+            raise ValueError(str(exc)) from None
+        names = [servo.name for servo in config.servos]
+        if config.mavlink.signing is not None:
+            key = config.mavlink.signing.secret_key()
+    if key_file:
+        from mavservo.config.schema import read_key_file
+
+        try:
+            key = read_key_file(key_file)
+        except ValueError as exc:
+            raise ValueError(f"--signing-key-file: {exc}") from None
+    return names, key
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point for ``mavservo monitor [MAVLINK_URL] [--duration S] [--rate HZ] [--plain]``."""
     parser = argparse.ArgumentParser(
@@ -471,27 +496,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     conn = mavutil.mavlink_connection(
         args.url, source_system=MONITOR_SYSTEM_ID, source_component=MONITOR_COMPONENT_ID
     )
-    names: list[str] = []
-    signing_key: bytes | None = None
-    if args.config:
-        from mavservo.config.loader import ConfigError, load_config
-
-        try:
-            config = load_config(args.config)
-        except ConfigError as exc:
-            print(f"mavservo monitor: {exc}", file=sys.stderr)
-            return 2
-        names = [servo.name for servo in config.servos]
-        if config.mavlink.signing is not None:
-            signing_key = config.mavlink.signing.secret_key()
-    if args.signing_key_file:
-        from mavservo.config.schema import read_key_file
-
-        try:
-            signing_key = read_key_file(args.signing_key_file)
-        except ValueError as exc:
-            print(f"mavservo monitor: --signing-key-file: {exc}", file=sys.stderr)
-            return 2
+    try:
+        names, signing_key = _names_and_key(args.config, args.signing_key_file)
+    except ValueError as exc:
+        print(f"mavservo monitor: {exc}", file=sys.stderr)
+        return 2
     if signing_key is not None:  # a signing bridge ignores (and never answers) unsigned peers
         conn.setup_signing(signing_key, sign_outgoing=True)
     state = MonitorState(names)
