@@ -267,8 +267,6 @@ class _ServoSlot:
     released: bool = False
     expected: deque[Expectation] = field(default_factory=deque)
     missed_in_a_row: int = 0
-    offline_on_sends: bool = False
-    """Offline because the bus refused its frames (not because replies stopped)."""
     awaiting_first_reply_since: float | None = None
     replies: reply_matching.ReplyMatcher = field(default_factory=reply_matching.ReplyMatcher)
     timed_out: deque[Expectation] = field(default_factory=lambda: deque(maxlen=_TIMED_OUT_KEPT))
@@ -312,7 +310,8 @@ class ScheduleCore:
         self._next_command_slot = start
         self._poll_round: list[str] = []
         self._offline_on_sends: set[str] = set()
-        """Servos that went offline on refused sends and have not answered since."""
+        """Servos offline because the bus refused their frames (not because replies stopped),
+        that have not answered since."""
         self.worst_case_load = self._check_budget(servos)
         for spec in servos:
             poll_period = self._poll_period(spec)
@@ -539,9 +538,10 @@ class ScheduleCore:
         slot.missed_in_a_row += 1
         if slot.missed_in_a_row != self.timing.offline_after_missed:
             return False
-        slot.offline_on_sends = on_send
         if on_send:
             self._offline_on_sends.add(slot.spec.name)
+        else:
+            self._offline_on_sends.discard(slot.spec.name)
         return True
 
     @staticmethod
@@ -707,14 +707,8 @@ class ScheduleCore:
         back: list[str] = []
         for name in list(self._offline_on_sends):
             other = self._slots[name]
-            if (
-                other.offline_on_sends
-                and other.latest is None
-                and other.poll_period is None
-                and not self.is_online(name)
-            ):
+            if other.latest is None and other.poll_period is None and not self.is_online(name):
                 other.missed_in_a_row = 0
-                other.offline_on_sends = False
                 self._offline_on_sends.discard(name)
                 back.append(name)
         return back
@@ -742,9 +736,7 @@ class ScheduleCore:
         slot = self._slots[name]
         back_online = slot.missed_in_a_row >= self.timing.offline_after_missed
         slot.missed_in_a_row = 0
-        if slot.offline_on_sends:
-            slot.offline_on_sends = False
-            self._offline_on_sends.discard(name)
+        self._offline_on_sends.discard(name)
         index = slot.replies.pick(slot.expected, t, key)
         if index is not None:
             expectation = slot.expected[index]
