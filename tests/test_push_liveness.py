@@ -132,3 +132,22 @@ def test_polled_servos_are_not_judged_by_pushes() -> None:
 def test_the_silence_limit_follows_the_push_rate(hz, limit) -> None:
     core = make_core(pusher(hz=hz))
     assert core.push_silence_limit_s("cm") == pytest.approx(limit)
+
+
+def test_the_console_reads_waiting_until_the_first_report() -> None:
+    from mavservo.console import status_line
+
+    row = {
+        "servo": "cm",
+        "setpoint_deg": None,
+        "position_deg": None,
+        "velocity_dps": None,
+        "current_a": None,
+        "temperature_c": None,
+        "faults": "",
+        "online": True,
+        "age_s": None,
+    }
+    assert " waiting " in status_line(row)
+    assert " online " in status_line({**row, "age_s": 0.02, "position_deg": 1.0})
+    assert " OFFLINE " in status_line({**row, "online": False})
