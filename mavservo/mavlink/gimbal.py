@@ -26,6 +26,13 @@ Rules it applies (the "why" of each is in the method that applies it):
   their axis alone. With a finite q, rates are feed-forward and ignored (servos track angles).
 * **Limits.** Targets are clamped to ``limits_deg``; while a clamped target is in effect the status
   carries GIMBAL_DEVICE_ERROR_FLAGS_AT_{ROLL,PITCH,YAW}_LIMIT and ``clamp_count`` counts clamps.
+* **Refusals.** A demand the backend refuses (TEMPORARILY_REJECTED while a servo is offline) is
+  forgotten, never retried: carrying it out once the servos are back would apply a command after
+  its refusal. The next demand is a fresh one.
+* **Hostile values.** Everything is validated before use: a quaternion must have finite
+  components and a length of 0.5..2, angles must be finite and within a turn, rates finite and at
+  most ``MAX_DEMAND_RATE_DPS``, flags and ids finite. A bad command is DENIED, a bad message
+  ignored; both are counted (``bad_value``) and logged once per kind per interval.
 * **Status.** q comes from the MEASURED servo positions (falling back to the last setpoint, then 0,
   for an axis with no reading yet), in the vehicle frame (flag 32). Failure flags: offline servo
   or ``Fault.NO_REPLY`` -> COMMS_ERROR, ENCODER -> ENCODER_ERROR, voltage/power faults ->
