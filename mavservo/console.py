@@ -22,9 +22,17 @@ def _num(value: float | None, fmt: str) -> str:
     return "-" if value is None else format(value, fmt)
 
 
+def liveness(row: dict[str, Any]) -> str:
+    """ "online", "OFFLINE", or "waiting": not offline yet, but nothing reported so far (a
+    servo is only "online" on the strength of a report; before its first one it is waiting)."""
+    if not row["online"]:
+        return "OFFLINE"
+    return "waiting" if row["age_s"] is None else "online"
+
+
 def status_line(row: dict[str, Any]) -> str:
     """One servo as a plain text line (also what the tests read)."""
-    state = "online " if row["online"] else "OFFLINE"
+    state = f"{liveness(row):<7}"
     return (
         f"{row['servo']:<16} {state} set {_num(row['setpoint_deg'], '7.1f')} deg  "
         f"pos {_num(row['position_deg'], '7.1f')} deg  "
@@ -108,7 +116,7 @@ class StatusDisplay:
         for r in rows:
             table.add_row(
                 r["servo"],
-                "online" if r["online"] else "[red]OFFLINE[/red]",
+                "[red]OFFLINE[/red]" if liveness(r) == "OFFLINE" else liveness(r),
                 _num(r["setpoint_deg"], ".1f"),
                 _num(r["position_deg"], ".1f"),
                 _num(r["velocity_dps"], ".1f"),

@@ -50,11 +50,21 @@ Rules (paper section 3.3):
   payload servo moved 12 s after its ACK). The servo keeps being refreshed with its last
   setpoint that did go out (a position it already had, and the probe that tells when it is
   back) and moves again on a fresh setpoint. A servo with nothing to probe with (no polls,
-  no setpoint that went out) that went offline on refused sends comes back when a send on
-  the bus works again (``sent`` returns it): nothing else could ever bring it back. A reply
+  no pushes, no setpoint that went out) that went offline on refused sends comes back when a
+  send on the bus works again (``sent`` returns it): nothing else could ever bring it back. A reply
   is matched to an expectation of its own kind and plausible latency
   (:mod:`mavservo.reply_matching`), so one lost reply is declared lost where it happened and
   not carried along by the replies after it.
+* Liveness follows from the profile's telemetry shape, one rule per shape: a *polled* servo
+  (its profile has telemetry requests) is alive while it answers them (the misses above); a
+  *pushing* servo (no requests; it reports on its own at ``telemetry_hz``) is alive while its
+  pushes keep coming: silent for more than ``offline_after_missed`` push periods (plus one
+  ``reply_timeout_s`` of slack), counted from its last report or from the start, it goes
+  offline, commanded or not, exactly as a polled servo does (``Decision.went_offline``, its
+  unsent setpoint dropped). Before, only the replies its commands were owed could take a
+  pushing servo offline: an uncommanded one, or one whose sends the adapter still took, read
+  online with a frozen state for a whole outage (the trial: ``age 21655 ms``, ``online``). It
+  comes back with its next push, not with a working send.
 """
 
 from __future__ import annotations
@@ -271,6 +281,10 @@ class _ServoSlot:
     replies: reply_matching.ReplyMatcher = field(default_factory=reply_matching.ReplyMatcher)
     timed_out: deque[Expectation] = field(default_factory=lambda: deque(maxlen=_TIMED_OUT_KEPT))
     """The latest expectations that timed out, so a late reply can tell how late it was."""
+    push_period: float | None = None
+    """A pushing servo's report period (None: polled, or pushes nothing)."""
+    last_heard: float = 0.0
+    """When a pushing servo last reported (or the schedule started): its silence is from here."""
 
     @property
     def has_unsent_setpoint(self) -> bool:
@@ -323,6 +337,7 @@ class ScheduleCore:
                 poll_cost_s=self._poll_cost(spec),
                 command_cost_s=self._command_cost(spec),
                 next_poll_due=math.inf,
+                push_period=self._push_period(spec),
             )
         self.telemetry_phase_s = (
             self._automatic_phase()
@@ -340,6 +355,7 @@ class ScheduleCore:
         for slot in self._slots.values():
             if slot.poll_period:
                 slot.next_poll_due = self._next_telemetry_tick
+            slot.last_heard = start
 
     def _automatic_phase(self) -> float:
         """The tick phase farthest, in bus time, from both neighbouring command bursts.
@@ -375,6 +391,23 @@ class ScheduleCore:
                 f"({1 / self.timing.telemetry_period_s:g} Hz); it will be polled at the tick rate"
             )
         return max(1 / hz, self.timing.telemetry_period_s)
+
+    def _push_period(self, spec: ServoSpec) -> float | None:
+        """A pushing servo's report period: ``1 / telemetry_hz`` (default the telemetry tick,
+        as the budget assumes); None for polled servos and for one configured to push nothing."""
+        if spec.profile.telemetry_requests():
+            return None
+        hz = spec.telemetry_hz
+        if hz is None:
+            return self.timing.telemetry_period_s
+        return None if hz == 0 else 1 / hz
+
+    def push_silence_limit_s(self, name: str) -> float | None:
+        """How long a pushing servo may stay silent before it is offline (None: not pushing)."""
+        period = self._slots[name].push_period
+        if period is None:
+            return None
+        return self.timing.offline_after_missed * period + self.timing.reply_timeout_s
 
     def _poll_cost(self, spec: ServoSpec) -> float:
         """Worst-case bus time one poll of this servo takes: requests plus their replies."""
@@ -533,6 +566,19 @@ class ScheduleCore:
                     if dropped is not None:
                         decision.dropped.append((name, dropped))
 
+    def _expire_silent_pushers(self, now: float, decision: Decision) -> None:
+        """Take pushing servos whose pushes stopped offline (module docstring, Liveness)."""
+        for name, slot in self._slots.items():
+            limit = self.push_silence_limit_s(name)
+            if limit is None or not self.is_online(name) or now - slot.last_heard <= limit:
+                continue
+            slot.missed_in_a_row = self.timing.offline_after_missed
+            self._offline_on_sends.discard(name)
+            decision.went_offline.append(name)
+            dropped = self._drop_unsent(slot)
+            if dropped is not None:
+                decision.dropped.append((name, dropped))
+
     def _missed(self, slot: _ServoSlot, *, on_send: bool) -> bool:
         """Count one miss; True if the servo goes offline with it."""
         slot.missed_in_a_row += 1
@@ -659,6 +705,7 @@ class ScheduleCore:
         """Frames to send at ``now`` (commands first) and when to call ``step`` again."""
         decision = Decision(frames=[], next_deadline=math.inf)
         self._expire(now, decision)
+        self._expire_silent_pushers(now, decision)
         self._serve_command_slot(now, decision)
         self._serve_immediate(now, decision)
         self._serve_telemetry(now, decision)
@@ -707,7 +754,12 @@ class ScheduleCore:
         back: list[str] = []
         for name in list(self._offline_on_sends):
             other = self._slots[name]
-            if other.latest is None and other.poll_period is None and not self.is_online(name):
+            if (
+                other.latest is None
+                and other.poll_period is None
+                and other.push_period is None  # a pushing servo is back when it pushes
+                and not self.is_online(name)
+            ):
                 other.missed_in_a_row = 0
                 self._offline_on_sends.discard(name)
                 back.append(name)
@@ -736,6 +788,7 @@ class ScheduleCore:
         slot = self._slots[name]
         back_online = slot.missed_in_a_row >= self.timing.offline_after_missed
         slot.missed_in_a_row = 0
+        slot.last_heard = max(slot.last_heard, t)
         self._offline_on_sends.discard(name)
         index = slot.replies.pick(slot.expected, t, key)
         if index is not None:

@@ -26,6 +26,13 @@ Rules it applies (the "why" of each is in the method that applies it):
   their axis alone. With a finite q, rates are feed-forward and ignored (servos track angles).
 * **Limits.** Targets are clamped to ``limits_deg``; while a clamped target is in effect the status
   carries GIMBAL_DEVICE_ERROR_FLAGS_AT_{ROLL,PITCH,YAW}_LIMIT and ``clamp_count`` counts clamps.
+* **Refusals.** A demand the backend refuses (TEMPORARILY_REJECTED while a servo is offline) is
+  forgotten, never retried: carrying it out once the servos are back would apply a command after
+  its refusal. The next demand is a fresh one.
+* **Hostile values.** Everything is validated before use: a quaternion must have finite
+  components and a length of 0.5..2, angles must be finite and within a turn, rates finite and at
+  most ``MAX_DEMAND_RATE_DPS``, flags and ids finite. A bad command is DENIED, a bad message
+  ignored; both are counted (``bad_value``) and logged once per kind per interval.
 * **Status.** q comes from the MEASURED servo positions (falling back to the last setpoint, then 0,
   for an axis with no reading yet), in the vehicle frame (flag 32). Failure flags: offline servo
   or ``Fault.NO_REPLY`` -> COMMS_ERROR, ENCODER -> ENCODER_ERROR, voltage/power faults ->
@@ -35,6 +42,7 @@ Rules it applies (the "why" of each is in the method that applies it):
 from __future__ import annotations
 
 import enum
+import logging
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -52,11 +60,14 @@ from mavservo.mavlink.quaternion import (
     earth_to_body_yaw,
     euler_to_quaternion,
     is_nan_quaternion,
+    is_usable_attitude,
     quaternion_to_euler,
     wrap_180,
     yaw_of,
 )
 from mavservo.servos.base import Fault
+
+log = logging.getLogger(__name__)
 
 AXES = ("roll", "pitch", "yaw")
 MAV_TYPE_GIMBAL = mav.MAV_TYPE_GIMBAL  # 26
@@ -104,6 +115,15 @@ CLAMP_TOLERANCE_DEG = 1e-3
 """A request this close to a limit is float32 noise, not a clamp worth reporting."""
 SOURCE = "gimbal"
 """``source`` passed to the backend for every gimbal request."""
+MAX_DEMAND_ANGLE_DEG = 360.0
+"""A demanded angle beyond a full turn is not a pointing request but garbage (or an attack):
+refused, not clamped, because clamping 3.4e38 to a limit would move the gimbal to that limit."""
+MAX_DEMAND_RATE_DPS = 3600.0
+"""Ten turns a second: far beyond any gimbal; a larger (or infinite) rate is refused."""
+MAX_FLAGS = 0xFFFFFFFF
+"""Largest flags value a command parameter may carry (the flags fields are uint32)."""
+BAD_INPUT_LOG_INTERVAL_S = 10.0
+"""One log line per kind of bad input per interval; the rest are only counted."""
 
 
 @dataclass(frozen=True)
@@ -238,6 +258,9 @@ class GimbalCounters:
     not_for_me: int = 0
     no_target: int = 0
     denied_control: int = 0
+    bad_value: int = 0
+    """Messages ignored and commands DENIED for a hostile value (non-finite or absurd angle,
+    rate or flags; a zero, infinite or overflowing quaternion)."""
 
 
 def yaw_in_earth_frame(flags: int) -> bool:
@@ -288,6 +311,8 @@ class GimbalDevice:
         self._clamped_axes: frozenset[str] = frozenset()
         self._next_status = -math.inf
         self._next_manager_status = -math.inf
+        self._bad_input_logged: dict[str, tuple[float, int]] = {}
+        """kind of bad input -> (when its last line was logged, how many since)."""
 
     # ------------------------------------------------------------------ inputs
 
@@ -299,7 +324,7 @@ class GimbalDevice:
             if not self._addressed_to_me(msg):
                 self.counters.not_for_me += 1
                 return
-            self._on_attitude_demand(msg.flags, msg.q, self._rates_of(msg), now)
+            self._on_set_attitude(kind, msg, now)
         elif kind == "GIMBAL_MANAGER_SET_ATTITUDE":
             if not (
                 self.settings.act_as_manager
@@ -311,12 +336,41 @@ class GimbalDevice:
             if not self.control.may_control(_sender_of(msg)):
                 self.counters.denied_control += 1
                 return
-            self._on_attitude_demand(msg.flags, msg.q, self._rates_of(msg), now)
+            self._on_set_attitude(kind, msg, now)
         elif kind == "AUTOPILOT_STATE_FOR_GIMBAL_DEVICE":
-            if self._from_my_system(msg) and not is_nan_quaternion(msg.q):
-                self._on_vehicle_yaw(yaw_of(msg.q), now)
+            if not self._from_my_system(msg) or is_nan_quaternion(msg.q):
+                return
+            if not is_usable_attitude(msg.q):
+                self._bad_input(kind, f"unusable vehicle attitude q={list(msg.q)!r}", now)
+                return
+            self._on_vehicle_yaw(yaw_of(msg.q), now)
         elif kind == "ATTITUDE" and self._from_my_system(msg) and not math.isnan(msg.yaw):
+            if not math.isfinite(msg.yaw):
+                self._bad_input(kind, f"vehicle yaw {msg.yaw!r}", now)
+                return
             self._on_vehicle_yaw(wrap_180(math.degrees(msg.yaw)), now)
+
+    def _on_set_attitude(self, kind: str, msg: Any, now: float) -> None:
+        """A device or manager SET_ATTITUDE addressed to us: validated, then the demand."""
+        rates = self._rates_of(msg)
+        problem = _attitude_problem(msg.q, rates)
+        if problem:
+            self._bad_input(kind, problem, now)
+            return
+        self._on_attitude_demand(msg.flags, msg.q, rates, now)
+
+    def _bad_input(self, kind: str, detail: str, now: float) -> None:
+        """Count a hostile value and log it: the first of its kind at once, then one line per
+        :data:`BAD_INPUT_LOG_INTERVAL_S` with how many came since (a flood must not flood the
+        journal, and a traceback would be a lie: nothing is broken)."""
+        self.counters.bad_value += 1
+        last, since = self._bad_input_logged.get(kind, (-math.inf, 0))
+        if now - last < BAD_INPUT_LOG_INTERVAL_S:
+            self._bad_input_logged[kind] = (last, since + 1)
+            return
+        self._bad_input_logged[kind] = (now, 0)
+        more = f" (and {since} more since the last line)" if since else ""
+        log.warning("gimbal %s: %s ignored/denied: %s%s", self.settings.name, kind, detail, more)
 
     def handle_command(
         self,
@@ -376,17 +430,17 @@ class GimbalDevice:
         return self.manager_status(now)
 
     def periodic(self, now: float) -> list[Any]:
-        """Advance rate targets, retry rejected targets, and return the messages now due.
+        """Advance rate targets and return the messages now due.
 
         GIMBAL_DEVICE_ATTITUDE_STATUS at ``status_rate_hz``; as manager also GIMBAL_MANAGER_STATUS
-        at ``manager_status_rate_hz``. A late call sends one message, not a burst.
+        at ``manager_status_rate_hz``. A late call sends one message, not a burst. A refused
+        demand is not retried here: :meth:`_drive` has forgotten it.
         """
         self._note_time(now)
         out: list[Any] = []
         if now >= self._next_status:
-            retry = self.last_result is not None and not self.last_result.ok
-            if self.demand is not None and (self.demand.mode is Mode.RATE or retry):
-                self._drive(now, force=retry)
+            if self.demand is not None and self.demand.mode is Mode.RATE:
+                self._drive(now)
             out.append(self.attitude_status(now))
             self._next_status = _next_deadline(
                 self._next_status, 1.0 / self.settings.status_rate_hz, now
@@ -456,15 +510,17 @@ class GimbalDevice:
 
     def _do_mount_control(self, params: tuple[float, ...], now: float) -> int:
         """MAV_CMD_DO_MOUNT_CONTROL: p1 pitch, p2 roll, p3 yaw (body), p7 MAV_MOUNT_MODE."""
-        mode = params[6]
-        if math.isnan(mode):
-            return int(Outcome.DENIED)
-        mode = int(mode)
+        if not math.isfinite(params[6]):
+            return self._deny("DO_MOUNT_CONTROL", f"mount mode {params[6]!r}", now)
+        mode = int(params[6])
         if mode == mav.MAV_MOUNT_MODE_RETRACT:
             demand = Demand(Mode.RETRACT, flags=RETRACT)
         elif mode == mav.MAV_MOUNT_MODE_NEUTRAL:
             demand = Demand(Mode.NEUTRAL, flags=NEUTRAL)
         elif mode == mav.MAV_MOUNT_MODE_MAVLINK_TARGETING:
+            problem = _angles_problem(params[:3])
+            if problem:
+                return self._deny("DO_MOUNT_CONTROL", problem, now)
             angles = (
                 _finite_or_none(params[1]),
                 _finite_or_none(params[0]),
@@ -478,6 +534,10 @@ class GimbalDevice:
 
     def _do_pitchyaw(self, params: tuple[float, ...], now: float) -> int:
         """DO_GIMBAL_MANAGER_PITCHYAW: p1 pitch, p2 yaw (deg), p3/p4 rates (deg/s), p5 flags."""
+        problem = _flags_problem(params[4]) or _angles_problem(params[:2])
+        problem = problem or _rates_problem(_nan_to_none(params[2:4]))
+        if problem:
+            return self._deny("DO_GIMBAL_MANAGER_PITCHYAW", problem, now)
         flags = 0 if math.isnan(params[4]) else int(params[4])
         self._last_retract_message = None
         if flags & RETRACT:
@@ -492,6 +552,11 @@ class GimbalDevice:
             return int(self._start_rates(rates, flags, now).outcome)
         demand = Demand(Mode.ANGLE, (0.0, pitch, yaw), yaw_in_earth_frame(flags), flags)
         return int(self._set_demand(demand, now).outcome)
+
+    def _deny(self, command: str, problem: str, now: float) -> int:
+        """DENIED for a hostile parameter, counted and logged (rate-limited)."""
+        self._bad_input(command, problem, now)
+        return int(Outcome.DENIED)
 
     def _set_demand(self, demand: Demand, now: float) -> ApplyResult:
         """Make ``demand`` the one in effect and drive it.
@@ -587,7 +652,17 @@ class GimbalDevice:
             self.counters.applied += 1
         else:
             self.counters.rejected += 1
+            self._forget_refused_demand()
         return result
+
+    def _forget_refused_demand(self) -> None:
+        """A refused demand is over: its sender got the refusal, so carrying it out later would
+        be a command applied after its NACK. (It used to be retried on every status tick, and
+        the trial's gimbal moved to a pitch refused during an adapter outage 2.2 s after the
+        adapter came back.) The servos hold what they had; the next demand is a fresh one,
+        as for a servo whose move was abandoned while it was offline (servo_backend)."""
+        self.demand = None
+        self._clamped_axes = frozenset()
 
     def _current_body_angles(self, now: float) -> tuple[float | None, float | None, float | None]:
         """Where rates start from: the clamped current target, else the measured angles."""
@@ -777,7 +852,38 @@ class GimbalDevice:
         rates = (msg.angular_velocity_x, msg.angular_velocity_y, msg.angular_velocity_z)
         return tuple(  # type: ignore[return-value]
             None if math.isnan(rate) else math.degrees(rate) for rate in rates
-        )
+        )  # infinite stays infinite (math.degrees does not raise): validated by the caller
+
+
+def _nan_to_none(values: Sequence[float]) -> tuple[float | None, ...]:
+    return tuple(None if math.isnan(v) else float(v) for v in values)
+
+
+def _angles_problem(values: Sequence[float]) -> str:
+    """Why demanded angles (degrees, NaN = leave the axis alone) are unusable; "" if usable."""
+    bad = [v for v in values if not math.isnan(v) and not abs(v) <= MAX_DEMAND_ANGLE_DEG]
+    return f"angles {bad!r} deg not finite or beyond +-{MAX_DEMAND_ANGLE_DEG:g}" if bad else ""
+
+
+def _rates_problem(rates_dps: Sequence[float | None]) -> str:
+    """Why demanded rates (deg/s, None = not used) are unusable; "" if usable."""
+    bad = [r for r in rates_dps if r is not None and not abs(r) <= MAX_DEMAND_RATE_DPS]
+    return f"rates {bad!r} deg/s not finite or beyond +-{MAX_DEMAND_RATE_DPS:g}" if bad else ""
+
+
+def _flags_problem(value: float) -> str:
+    """Why a flags parameter (NaN = none) is unusable; "" if usable."""
+    if math.isnan(value) or 0 <= value <= MAX_FLAGS:
+        return ""
+    return f"flags {value!r}"
+
+
+def _attitude_problem(q: Sequence[float], rates_dps: Sequence[float | None]) -> str:
+    """Why a SET_ATTITUDE's q or rates are unusable; "" if usable. A NaN q means "no attitude"
+    (rates-only or retract); any other q must be a usable attitude."""
+    if not is_nan_quaternion(q) and not is_usable_attitude(q):
+        return f"q={list(q)!r} is not an attitude (zero, infinite or overflowing)"
+    return _rates_problem(rates_dps)
 
 
 def _sender_of(msg: Any) -> tuple[int, int] | None:

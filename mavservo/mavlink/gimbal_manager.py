@@ -64,6 +64,8 @@ class ControlSlots:
     ) -> tuple[int, int] | None:
         if math.isnan(sysid_param) or math.isnan(compid_param):
             return current
+        if not (math.isfinite(sysid_param) and math.isfinite(compid_param)):
+            return None  # int() of an infinity raises; no slot is infinite anyway
         sysid, compid = int(sysid_param), int(compid_param)
         if sysid == LEAVE_UNCHANGED:
             return current
@@ -86,5 +88,7 @@ def addresses_this_gimbal(device_id_param: float, component_id: int) -> bool:
     """
     if math.isnan(device_id_param):
         return True
+    if not math.isfinite(device_id_param):
+        return False  # int() of an infinity raises; no gimbal has an infinite id
     device_id = int(device_id_param)
     return device_id in (0, SAME_COMPONENT_DEVICE_ID, component_id)

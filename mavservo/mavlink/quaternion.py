@@ -34,6 +34,32 @@ def is_nan_quaternion(q: Sequence[float]) -> bool:
     return any(math.isnan(component) for component in q)
 
 
+ATTITUDE_NORM_RANGE = (0.5, 2.0)
+"""Lengths a received attitude quaternion may have. MAVLink attitudes are unit quaternions,
+rounded to float32 (off by ~1e-7); one off by a factor of two is not an attitude but garbage:
+zero, float32 noise around zero, or huge components (which overflowed when squared)."""
+
+
+def is_usable_attitude(q: Sequence[float]) -> bool:
+    """True for four finite components whose length is within :data:`ATTITUDE_NORM_RANGE`:
+    the only quaternions that mean an attitude.
+
+    Received quaternions are hostile input: a zero, infinite or overflowing one used to raise
+    deep inside a message handler (a traceback per message, and no validation at all before).
+    ``math.hypot`` takes the length without squaring, so huge components cannot overflow.
+    """
+    if len(q) != 4:
+        return False
+    try:
+        components = [float(c) for c in q]
+    except (TypeError, ValueError):
+        return False
+    if not all(math.isfinite(c) for c in components):
+        return False
+    low, high = ATTITUDE_NORM_RANGE
+    return low <= math.hypot(*components) <= high
+
+
 def normalize(q: Sequence[float]) -> Quaternion:
     """Scale ``q`` to unit length; a zero-length quaternion raises ``ValueError``.
 
@@ -41,7 +67,7 @@ def normalize(q: Sequence[float]) -> Quaternion:
     normalising first keeps the ``asin`` in :func:`quaternion_to_euler` inside its domain.
     """
     w, x, y, z = (float(c) for c in q)
-    norm = math.sqrt(w * w + x * x + y * y + z * z)
+    norm = math.hypot(w, x, y, z)
     if norm == 0.0 or not math.isfinite(norm):
         raise ValueError(f"cannot normalise quaternion {tuple(q)!r}")
     return (w / norm, x / norm, y / norm, z / norm)
