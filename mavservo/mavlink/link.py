@@ -205,11 +205,12 @@ class UdpServer:
         except OSError as exc:
             self._sock.close()
             if exc.errno == errno.EADDRINUSE:
-                raise LinkBusyError(
-                    exc.errno,
+                busy = LinkBusyError(
                     f"mavlink: UDP port {host}:{port} is in use by another process (another "
-                    "mavservo, a MAVLink router or MAVProxy?); stop it first",
-                ) from exc
+                    "mavservo, a MAVLink router or MAVProxy?); stop it first"
+                )
+                busy.errno = exc.errno
+                raise busy from exc
             raise
         self._sock.setblocking(False)
 
