@@ -221,6 +221,29 @@ def test_a_stream_resynchronises_after_a_bad_header_without_losing_a_frame() -> 
     assert link.counters["unknown_id"] == 1
 
 
+def test_a_stream_does_not_hold_a_good_frame_behind_a_bogus_length() -> None:
+    """On a quiet stream (one heartbeat a second on a serial link) a header announcing 255
+    bytes followed by one heartbeat: the heartbeat is handled now, not once 280 bytes came."""
+    server = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+    server.bind(("127.0.0.1", 0))
+    server.listen(1)
+    server.settimeout(5.0)
+    seen: list[int] = []
+    link = MavlinkLink(
+        f"tcp:127.0.0.1:{server.getsockname()[1]}", lambda msg, t: seen.append(msg.get_seq())
+    )
+    link.start()
+    try:
+        conn, _ = server.accept()
+        with conn:
+            conn.sendall(BLINDING_HEADER + heartbeat_frames(1)[0])
+            assert wait_until(lambda: len(seen) >= 1)
+    finally:
+        link.stop()
+        server.close()
+    assert seen == [0]
+
+
 # ---------------------------------------------------------------------- 3: secrets in the tlog
 
 

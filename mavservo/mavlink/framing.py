@@ -13,9 +13,10 @@ complete candidate frame (CRC, signature, fields):
 * a UDP datagram is parsed on its own (:meth:`FrameScanner.datagram`): a datagram never
   continues another, so nothing one sender sends can affect how the next datagram is read;
 * a stream (serial, TCP) keeps the bytes of an incomplete frame for the next read
-  (:meth:`FrameScanner.stream`); a candidate that fails its CRC, has an unknown id or bad
-  flags is skipped by one byte only, so a good frame that starts inside it is found again
-  (it is delayed until the bogus length is complete, at most 280 bytes, never lost);
+  (:meth:`FrameScanner.stream`), unless a complete frame with a right CRC already follows
+  inside it (then its length was bogus); a candidate that fails its CRC, has an unknown id
+  or bad flags is skipped by one byte only, so a good frame that starts inside it is found
+  again, not lost;
 * unknown ids are counted (``unknown_id``) and never returned: without the dialect's CRC
   extra byte their CRC cannot be checked, nor, before that, can their framing be trusted.
 
@@ -75,6 +76,34 @@ def message_id(frame: bytes | bytearray) -> int:
     return frame[7] | frame[8] << 8 | frame[9] << 16
 
 
+def crc_ok(frame: bytes | bytearray) -> bool:
+    """Whether a complete candidate frame of a known message has a right CRC (no signature
+    check: no side effect on the signing streams)."""
+    message_class = mavlink2.mavlink_map.get(message_id(frame))
+    if message_class is None:
+        return False
+    header = HEADER_V1 if frame[0] == MAGIC_V1 else HEADER_V2
+    end = header + frame[1]
+    crc = mavlink2.x25crc(frame[1:end])
+    crc.accumulate(bytes([message_class.crc_extra]))
+    return int(struct.unpack_from("<H", frame, end)[0]) == crc.crc
+
+
+def complete_frame_after(buf: bytearray, start: int) -> bool:
+    """Whether a complete frame with a right CRC starts at or after ``start``: then a frame
+    before it that is still "incomplete" announced a length it does not have (a stream must not
+    wait for 280 bytes behind a bogus header: at one heartbeat a second that is longer than
+    the autopilot's heartbeat timeout)."""
+    pos = start
+    while pos < len(buf):
+        if buf[pos] in (MAGIC_V1, MAGIC_V2):
+            length = frame_length(buf, pos)
+            if length is not None and pos + length <= len(buf) and crc_ok(buf[pos : pos + length]):
+                return True
+        pos += 1
+    return False
+
+
 class FrameScanner:
     """Frames, classifies and decodes MAVLink input; counts what it refuses in ``counters``
     (``bad_data``, ``signing_rejected``, ``unknown_id``)."""
@@ -107,9 +136,9 @@ class FrameScanner:
                 continue
             length = frame_length(buf, pos)
             if length is None or pos + length > len(buf):
-                if not final:
+                if not final and not complete_frame_after(buf, pos + 1):
                     break  # the rest of this frame is still on its way
-                pos, garbage = pos + 1, True  # truncated: a frame may start inside it
+                pos, garbage = pos + 1, True  # truncated, or a bogus length: look inside it
                 continue
             if garbage:
                 self.counters[BAD_DATA] += 1
