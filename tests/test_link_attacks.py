@@ -40,7 +40,7 @@ from test_security import (
 
 from mavservo.bridge import Bridge
 from mavservo.config.loader import load_config_text
-from mavservo.mavlink.framing import redact_secrets
+from mavservo.mavlink.framing import MAX_REFUSED_PER_DATAGRAM, redact_secrets
 from mavservo.mavlink.link import (
     MAX_UDP_PEERS,
     HandlerErrors,
@@ -183,6 +183,26 @@ def test_a_header_announcing_255_bytes_swallows_no_other_senders_command(
             got = acks(gcs, DO_SET_SERVO, 2.0 if i == 0 else 1.0)
             assert [a.result for a in got] == [0], f"command {i}"
     assert rig.setpoint("left") == pytest.approx(-30 + 60 * 0.19, abs=0.01)
+
+
+def test_a_datagram_of_crafted_candidates_is_cut_short_and_the_next_one_is_read() -> None:
+    """65,000 bytes of ``FE 00`` (a candidate frame at every other byte) cost the parser
+    0.1-0.2 s of CPU byte by byte; after MAX_REFUSED_PER_DATAGRAM refusals the rest of the
+    datagram is dropped (counted), and the heartbeat in the next datagram is handled."""
+    port = free_udp_port()
+    seen: list[str] = []
+    link = MavlinkLink(f"udpin:127.0.0.1:{port}", lambda msg, t: seen.append(msg.get_type()))
+    link.start()
+    try:
+        with stranger() as sender:
+            sender.sendto(b"\xfe\x00" * 32_500, ("127.0.0.1", port))
+            sender.sendto(heartbeat_frames(1)[0], ("127.0.0.1", port))
+            assert wait_until(lambda: len(seen) >= 1)
+    finally:
+        link.stop()
+    assert seen == ["HEARTBEAT"]
+    assert link.counters["datagram_rest_dropped"] == 1
+    assert MAX_REFUSED_PER_DATAGRAM <= link.counters["bad_data"] <= 2 * MAX_REFUSED_PER_DATAGRAM
 
 
 def heartbeat_frames(count: int) -> list[bytes]:

@@ -42,6 +42,8 @@ CHECKSUM_LEN = 2
 SIGNATURE_LEN = 13
 IFLAG_SIGNED = 0x01
 MAX_FRAME_LEN = HEADER_V2 + 255 + CHECKSUM_LEN + SIGNATURE_LEN
+#: Refused candidate frames after which the rest of a datagram is dropped unread.
+MAX_REFUSED_PER_DATAGRAM = 64
 
 #: Message fields that carry a secret, by (message name, field name). SETUP_SIGNING hands a
 #: signing key over; the others carry passwords or authentication keys.
@@ -70,10 +72,11 @@ def frame_length(buf: bytes | bytearray, pos: int) -> int | None:
     return buf[pos + 1] + HEADER_V2 + CHECKSUM_LEN + signature
 
 
-def message_id(frame: bytes | bytearray) -> int:
-    if frame[0] == MAGIC_V1:
-        return frame[5]
-    return frame[7] | frame[8] << 8 | frame[9] << 16
+def message_id(frame: bytes | bytearray, pos: int = 0) -> int:
+    """Message id of the (header-complete) frame starting at ``frame[pos]``."""
+    if frame[pos] == MAGIC_V1:
+        return frame[pos + 5]
+    return frame[pos + 7] | frame[pos + 8] << 8 | frame[pos + 9] << 16
 
 
 def crc_ok(frame: bytes | bytearray) -> bool:
@@ -98,7 +101,12 @@ def complete_frame_after(buf: bytearray, start: int) -> bool:
     while pos < len(buf):
         if buf[pos] in (MAGIC_V1, MAGIC_V2):
             length = frame_length(buf, pos)
-            if length is not None and pos + length <= len(buf) and crc_ok(buf[pos : pos + length]):
+            if (
+                length is not None
+                and pos + length <= len(buf)
+                and not (buf[pos] == MAGIC_V2 and buf[pos + 2] & ~IFLAG_SIGNED)
+                and crc_ok(buf[pos : pos + length])
+            ):
                 return True
         pos += 1
     return False
@@ -130,6 +138,7 @@ class FrameScanner:
         messages: list[Any] = []
         pos = 0
         garbage = False  # inside a run of bytes that belong to no frame (counted once per run)
+        refused = 0  # candidates that failed in this datagram
         while pos < len(buf):
             if buf[pos] not in (MAGIC_V1, MAGIC_V2):
                 pos, garbage = pos + 1, True
@@ -143,31 +152,41 @@ class FrameScanner:
             if garbage:
                 self.counters[BAD_DATA] += 1
                 garbage = False
-            verdict = self._decode(buf[pos : pos + length])
-            if isinstance(verdict, str):
-                self.counters[verdict] += 1
-                # a frame whose CRC held (only its signature failed) is skipped whole; anything
-                # else proves nothing about its length: resynchronise on the next byte
-                pos += length if verdict == SIGNING_REJECTED else 1
-            else:
+            verdict = self._classify(buf, pos, length)
+            if not isinstance(verdict, str):
                 messages.append(verdict)
                 pos += length
+                continue
+            self.counters[verdict] += 1
+            # a frame whose CRC held (only its signature failed) is skipped whole; anything
+            # else proves nothing about its length: resynchronise on the next byte
+            pos += length if verdict == SIGNING_REJECTED else 1
+            refused += 1
+            if final and refused >= MAX_REFUSED_PER_DATAGRAM:
+                # a datagram of crafted candidates (65 KB of FE 00 ...) would cost ~0.2 s of
+                # CPU, byte by byte; real senders send a few frames per datagram
+                self.counters["datagram_rest_dropped"] += 1
+                return messages, len(buf)
         if garbage:
             self.counters[BAD_DATA] += 1
         return messages, pos
 
-    def _decode(self, frame: bytearray) -> Any:
-        if frame[0] == MAGIC_V2 and frame[2] & ~IFLAG_SIGNED:
+    def _classify(self, buf: bytearray, pos: int, length: int) -> Any:
+        """The decoded message of the candidate at ``pos``, or why it was refused. The cheap
+        checks (flags, known id, CRC) come first: no copy, no exception for most garbage."""
+        if buf[pos] == MAGIC_V2 and buf[pos + 2] & ~IFLAG_SIGNED:
             return BAD_DATA  # an incompatibility flag we do not understand: must be dropped
+        if message_id(buf, pos) not in mavlink2.mavlink_map:
+            return UNKNOWN_ID
+        frame = buf[pos : pos + length]
+        if not crc_ok(frame):
+            return BAD_DATA
         try:
-            msg = self._decoder.decode(frame)
+            return self._decoder.decode(frame)
         except mavlink2.MAVError as exc:
             return SIGNING_REJECTED if "signature" in str(exc).lower() else BAD_DATA
         except Exception:  # noqa: BLE001 - any other decode failure of hostile bytes
             return BAD_DATA
-        if isinstance(msg, mavlink2.MAVLink_unknown):
-            return UNKNOWN_ID
-        return msg
 
 
 # ---------------------------------------------------------------------- redaction
