@@ -166,6 +166,50 @@ def test_output_goes_to_at_most_max_udp_peers_verified_addresses() -> None:
     assert rig.stats()["link"]["peers_refused"] == extra
 
 
+def test_a_strangers_datagram_does_not_choose_where_a_udpbcast_link_sends() -> None:
+    """``udpbcast:``: pymavlink sends, from its first write after a datagram came in, to the
+    address of that datagram, whoever sent it. Garbage from a stranger must not redirect the
+    bridge's output away from the ground station to the stranger."""
+    with stranger() as gcs, stranger() as attacker:
+        gcs.settimeout(3.0)
+        link = MavlinkLink(f"udpbcast:127.0.0.1:{gcs.getsockname()[1]}", lambda m, t: None)
+        link.add_component(140, 1)
+        link.start()
+        heartbeat = mavlink2.MAVLink_heartbeat_message(26, 8, 0, 0, 4, 3)
+        try:
+            link.send(140, heartbeat, 1)
+            _, link_address = gcs.recvfrom(4096)  # where the link sends from
+            attacker.sendto(b"garbage", link_address)
+            assert wait_until(lambda: link.counters["bad_data"] >= 1)
+            for _ in range(3):
+                link.send(140, heartbeat, 1)
+            to_gcs = drain(gcs, 1.0)
+            to_attacker = drain(attacker, 0.3)
+        finally:
+            link.stop()
+    assert (to_gcs, to_attacker) == (3, 0)
+
+
+def test_verified_peers_stay_destinations_across_a_reopen() -> None:
+    """After the endpoint is closed and reopened (the link's recovery from a socket error),
+    a ground station that spoke before still gets the output without speaking again."""
+    port = free_udp_port()
+    link = MavlinkLink(f"udpin:127.0.0.1:{port}", lambda m, t: None)
+    link.add_component(140, 1)
+    link.start()
+    heartbeat = mavlink2.MAVLink_heartbeat_message(26, 8, 0, 0, 4, 3)
+    try:
+        with stranger() as gcs:
+            gcs.sendto(heartbeat_frames(1)[0], ("127.0.0.1", port))
+            assert wait_until(lambda: link.counters["received"] >= 1)
+            link._close()  # what the receive loop does on a socket error
+            assert wait_until(lambda: link.counters["reconnects"] >= 1)
+            link.send(140, heartbeat, 1)
+            assert drain(gcs, 1.0) == 1
+    finally:
+        link.stop()
+
+
 # ---------------------------------------------------------------------- 2: one parser for all
 
 

@@ -194,10 +194,16 @@ class UdpServer:
     ``max_peers`` destinations.
     """
 
-    def __init__(self, host: str, port: int, max_peers: int = MAX_UDP_PEERS) -> None:
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        max_peers: int = MAX_UDP_PEERS,
+        peers: tuple[tuple[str, int], ...] = (),
+    ) -> None:
         self.address = (host, port)
         self.max_peers = max_peers
-        self._peers: tuple[tuple[str, int], ...] = ()
+        self._peers: tuple[tuple[str, int], ...] = peers[:max_peers]
         self.refused_peers = 0
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
@@ -215,9 +221,9 @@ class UdpServer:
         self._sock.setblocking(False)
 
     @classmethod
-    def from_url(cls, url: str) -> UdpServer:
+    def from_url(cls, url: str, peers: tuple[tuple[str, int], ...] = ()) -> UdpServer:
         host, _, port = url.split(":", 1)[1].rpartition(":")
-        return cls(host, int(port))
+        return cls(host, int(port), peers=peers)
 
     @property
     def peers(self) -> tuple[tuple[str, int], ...]:
@@ -302,6 +308,7 @@ class MavlinkLink:
         self._encoders: dict[int, mavlink2.MAVLink] = {}
         self.counters: Counter[str] = Counter()
         self.handler_errors = HandlerErrors()
+        self._udp_peers: tuple[tuple[str, int], ...] = ()
         self._decoder = self._new_decoder()
         self._scanner = FrameScanner(self._decoder, self.counters)
         self._writer = _TransportWriter(self)
@@ -334,7 +341,8 @@ class MavlinkLink:
     def open(self) -> None:
         """Open the endpoint; :class:`LinkBusyError` when a UDP server port is taken."""
         if is_udp_server_url(self.url):
-            self._conn = UdpServer.from_url(self.url)
+            # peers verified before a reopen stay peers: they need not speak first again
+            self._conn = UdpServer.from_url(self.url, peers=self._udp_peers)
         else:
             self._conn = mavutil.mavlink_connection(
                 self.url, baud=self.baud, dialect="ardupilotmega", autoreconnect=False
@@ -362,6 +370,8 @@ class MavlinkLink:
 
     def _close(self) -> None:
         conn, self._conn = self._conn, None
+        if isinstance(conn, UdpServer):
+            self._udp_peers = conn.peers
         if conn is not None:
             with contextlib.suppress(OSError):
                 conn.close()
@@ -421,7 +431,7 @@ class MavlinkLink:
                 self._on_event("MAVLink link recovered")
                 continue
             try:
-                data = self._read(conn)
+                messages = self._receive(conn)
             except Exception as exc:  # serial unplug, socket error: reopen with backoff
                 if self._stop.is_set():
                     return
@@ -430,30 +440,38 @@ class MavlinkLink:
                 self._close()
                 self._on_event("MAVLink link lost")
                 continue
-            self._consume(conn, data)
+            self._feed(messages)
 
-    def _read(self, conn: Any) -> Any:
-        """One datagram with its sender (UDP server), one datagram (UDP client) or the next
-        bytes of a stream; None or empty when nothing came within ``POLL_S``."""
+    def _receive(self, conn: Any) -> list[Any]:
+        """The verified messages of one datagram, or those completed by the next bytes of a
+        stream; empty when nothing came within ``POLL_S``."""
         if not conn.select(POLL_S):
-            return None
+            return []
         if isinstance(conn, UdpServer):
-            return conn.recv_from()
-        data = conn.recv(UDP_MAX_DATAGRAM if isinstance(conn, mavutil.mavudp) else 4096)
-        return bytes(data) if data else None
-
-    def _consume(self, conn: Any, data: Any) -> None:
-        if not data:
-            return
-        if isinstance(conn, UdpServer):
-            datagram, sender = data
+            received = conn.recv_from()
+            if received is None:
+                return []
+            datagram, sender = received
             messages = self._scanner.datagram(datagram)
             self._answer_or_ignore(conn, sender, len(messages))  # before the answers go out
-            self._feed(messages)
-        elif isinstance(conn, mavutil.mavudp):
-            self._feed(self._scanner.datagram(data))
-        else:
-            self._feed(self._scanner.stream(data))
+            return messages
+        if isinstance(conn, mavutil.mavudp):
+            return self._receive_udp_client(conn)
+        data = conn.recv(4096)
+        return self._scanner.stream(bytes(data)) if data else []
+
+    def _receive_udp_client(self, conn: Any) -> list[Any]:
+        """``udpout``/``udpbcast``: in broadcast mode pymavlink sends, from the first write on,
+        to the address of the last datagram received, whoever sent it: a stranger's datagram
+        must not choose it. Under the write lock, so no write sees the stranger's address."""
+        with self._write_lock:
+            before = getattr(conn, "last_address", None)
+            data = conn.recv(UDP_MAX_DATAGRAM)
+            messages = self._scanner.datagram(bytes(data)) if data else []
+            if data and not messages and getattr(conn, "broadcast", False):
+                conn.last_address = before
+                self.counters["strangers_ignored"] += 1
+        return messages
 
     def _answer_or_ignore(self, conn: UdpServer, sender: tuple[str, int], accepted: int) -> None:
         """A sender becomes a destination of our output only once one of its frames verified:
