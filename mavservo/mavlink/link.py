@@ -7,8 +7,22 @@ group (140) and a gimbal (154) must look like two components, so each hosted com
 and parsing uses a separate decoder that checks signatures.
 
 Signing: with a key, every outgoing message is signed; inbound messages that are unsigned (unless
-``accept_unsigned``) or badly signed come out of pymavlink's parser as BAD_DATA with an "Invalid
-signature" reason. They are counted here and never reach the core.
+``accept_unsigned``), badly signed, or timestamped more than ``SIGNING_FUTURE_S`` ahead of this
+computer's clock are counted here and never reach the core.
+
+Input is framed by :class:`~mavservo.mavlink.framing.FrameScanner`: each UDP datagram on its own
+(one sender's bytes never swallow another's), a stream (serial, TCP) resynchronising byte by
+byte after a bad frame; unknown message ids are dropped like any frame that cannot be verified.
+Only verified frames reach the core and the run log's tlog (secret fields zeroed).
+
+A UDP server (``udpin:``/``udp:``) is :class:`UdpServer`, not pymavlink's: the port is bound
+without ``SO_REUSEADDR`` (a second process on the same port is refused at start instead of
+silently taking half the commands), and output goes only to addresses that sent a verified
+frame (never to an address that sent only garbage, unknown ids or unsigned frames: no
+reflector), at most ``MAX_UDP_PEERS`` of them.
+
+A handler that raises is counted per kind (message type and exception) and logged once per
+kind with its traceback, then summarised at most every ``HANDLER_ERROR_SUMMARY_S``.
 
 The receive thread waits at most ``POLL_S`` per call so :meth:`stop` is prompt. When the endpoint
 fails (serial adapter unplugged, socket error) the link closes it, reports "link lost" through
@@ -18,7 +32,10 @@ fails (serial adapter unplugged, socket error) the link closes it, reports "link
 from __future__ import annotations
 
 import contextlib
+import errno
 import logging
+import select
+import socket
 import struct
 import threading
 import time
@@ -29,6 +46,7 @@ from typing import Any
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from mavservo.mavlink.framing import FrameScanner, redact_secrets
 from mavservo.mavlink.settings import SigningSettings
 
 log = logging.getLogger(__name__)
@@ -37,28 +55,75 @@ POLL_S = 0.1
 BACKOFF_START_S = 0.25
 BACKOFF_MAX_S = 5.0
 SIGNING_EPOCH = 1420070400  # MAVLink signing timestamps count 10 us units since 2015-01-01
+SIGNING_UNITS_PER_S = 100_000
+#: How far ahead of this computer's clock a signed frame's timestamp may be. The MAVLink spec
+#: bounds only the past (a new stream more than one minute behind the local timestamp is
+#: refused); without a bound ahead, one correctly keyed frame from a peer with a wrong clock
+#: (10 years ahead) raised pymavlink's local timestamp and locked out every new stream.
+SIGNING_FUTURE_S = 60.0
+UDP_MAX_DATAGRAM = 65535
+#: Most addresses a UDP server sends to; each one had to send a verified frame first.
+MAX_UDP_PEERS = 16
+HANDLER_ERROR_SUMMARY_S = 60.0
 
 
 def signing_timestamp(wall_time: float) -> int:
-    return int(max(0.0, wall_time - SIGNING_EPOCH) * 100_000)
+    return int(max(0.0, wall_time - SIGNING_EPOCH) * SIGNING_UNITS_PER_S)
 
 
-def _keep_stream_timestamps_on_bad_signature(decoder: mavlink2.MAVLink) -> None:
-    """Undo pymavlink's stream-timestamp update when the signature then fails to verify.
+def frame_signing_timestamp(msgbuf: bytes | bytearray) -> int:
+    """The 48-bit timestamp of a signed frame (the 6 bytes after the link id)."""
+    low, high = struct.unpack_from("<IH", msgbuf, len(msgbuf) - 12)
+    return int(low + (high << 32))
 
-    pymavlink 2.4 records a frame's timestamp for its (link, system, component) stream *before*
-    checking the signature, so one forged frame with a far-future timestamp, made without the
-    key, makes every genuine frame of that stream "old" and locks the autopilot out (found by
-    tests/test_security.py). The MAVLink reference implementation only accepts the timestamp of
-    a frame whose signature verified; this wrapper restores that order.
+
+class LinkBusyError(OSError):
+    """The endpoint is already used by another process (start-up refuses, with this text)."""
+
+
+def _verify_signatures_against_the_clock(
+    decoder: mavlink2.MAVLink,
+    counters: Counter[str],
+    wall_clock: Callable[[], float] = time.time,
+) -> None:
+    """Wrap pymavlink's signature check with three rules it lacks (pymavlink 2.4.50):
+
+    * a stream's timestamp is only recorded once the signature verified: pymavlink records it
+      *before*, so one forged far-future frame, made without the key, locked the genuine stream
+      out (found by tests/test_security.py);
+    * the timestamp of a correctly keyed frame may be at most ``SIGNING_FUTURE_S`` ahead of this
+      computer's clock; further ahead it is refused and counted (``signing_future``);
+    * the local timestamp a new stream is compared with (spec: refused when more than one
+      minute behind it) is this computer's clock, never a received timestamp: pymavlink raised
+      it to the largest timestamp accepted, so one frame 10 years ahead refused every new
+      stream until restart.
     """
     check = decoder.check_signature
-    streams = decoder.signing.stream_timestamps
+    signing = decoder.signing
+    streams = signing.stream_timestamps
 
     def check_signature(msgbuf: bytearray, src_system: int, src_component: int) -> bool:
+        now = signing_timestamp(wall_clock())
+        signing.timestamp = now
         stream = (msgbuf[-13], src_system, src_component)
         before = streams.get(stream)
-        if check(msgbuf, src_system, src_component):
+        verified = check(msgbuf, src_system, src_component)
+        signing.timestamp = now
+        ahead = frame_signing_timestamp(msgbuf) - now
+        if verified and ahead > SIGNING_FUTURE_S * SIGNING_UNITS_PER_S:
+            verified = False
+            counters["signing_future"] += 1
+            if counters["signing_future"] == 1:
+                log.warning(
+                    "signed frame from %d/%d refused: its timestamp is %.0f s ahead of this "
+                    "computer's clock (at most %.0f s accepted; check both clocks; repeats "
+                    "counted in signing_future)",
+                    src_system,
+                    src_component,
+                    ahead / SIGNING_UNITS_PER_S,
+                    SIGNING_FUTURE_S,
+                )
+        if verified:
             return True
         if before is None:
             streams.pop(stream, None)
@@ -67,6 +132,140 @@ def _keep_stream_timestamps_on_bad_signature(decoder: mavlink2.MAVLink) -> None:
         return False
 
     decoder.check_signature = check_signature  # type: ignore[method-assign]
+
+
+class HandlerErrors:
+    """Errors raised by the message handler, counted per kind, logged without a flood.
+
+    Hostile input can make a handler raise on every message (97 crafted messages gave 2,419
+    traceback lines): the first error of each kind (message type + exception type) is logged
+    with its traceback, later ones only counted and summed up in one line at most every
+    ``summary_s`` per kind.
+    """
+
+    def __init__(
+        self,
+        summary_s: float = HANDLER_ERROR_SUMMARY_S,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.summary_s = summary_s
+        self._clock = clock
+        self.by_kind: Counter[str] = Counter()
+        self._unlogged: Counter[str] = Counter()
+        self._last_logged: dict[str, float] = {}
+
+    def record(self, message_type: str, exc: BaseException) -> None:
+        kind = f"{message_type}/{type(exc).__name__}"
+        self.by_kind[kind] += 1
+        now = self._clock()
+        last = self._last_logged.get(kind)
+        if last is None:
+            self._last_logged[kind] = now
+            log.warning(
+                "error handling %s: %s (logged once per kind; repeats counted in "
+                "handler_errors and summed up every %.0f s)",
+                message_type,
+                exc,
+                self.summary_s,
+                exc_info=exc,
+            )
+            return
+        self._unlogged[kind] += 1
+        if now - last >= self.summary_s:
+            log.warning(
+                "%d more errors handling %s (%s: %s) in the last %.0f s",
+                self._unlogged.pop(kind),
+                message_type,
+                type(exc).__name__,
+                exc,
+                now - last,
+            )
+            self._last_logged[kind] = now
+
+
+class UdpServer:
+    """A UDP server endpoint (``udpin:HOST:PORT``) that answers verified peers only.
+
+    Differences from pymavlink's ``mavudp(input=True)``, each a finding of an attack run:
+    no ``SO_REUSEADDR`` (with it a second bridge bound the same port and the kernel handed the
+    ground station's commands to whichever process it picked); a sender becomes a destination
+    only when :meth:`admit` is called for it, i.e. after one of its frames verified (pymavlink
+    sends everything to every address a datagram ever came from: a reflector); at most
+    ``max_peers`` destinations.
+    """
+
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        max_peers: int = MAX_UDP_PEERS,
+        peers: tuple[tuple[str, int], ...] = (),
+    ) -> None:
+        self.address = (host, port)
+        self.max_peers = max_peers
+        self._peers: tuple[tuple[str, int], ...] = peers[:max_peers]
+        self.refused_peers = 0
+        self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        try:
+            self._sock.bind(self.address)
+        except OSError as exc:
+            self._sock.close()
+            if exc.errno == errno.EADDRINUSE:
+                busy = LinkBusyError(
+                    f"mavlink: UDP port {host}:{port} is in use by another process (another "
+                    "mavservo, a MAVLink router or MAVProxy?); stop it first"
+                )
+                busy.errno = exc.errno
+                raise busy from exc
+            raise
+        self._sock.setblocking(False)
+
+    @classmethod
+    def from_url(cls, url: str, peers: tuple[tuple[str, int], ...] = ()) -> UdpServer:
+        host, _, port = url.split(":", 1)[1].rpartition(":")
+        return cls(host, int(port), peers=peers)
+
+    @property
+    def peers(self) -> tuple[tuple[str, int], ...]:
+        return self._peers
+
+    def select(self, timeout: float) -> bool:
+        readable, _, _ = select.select([self._sock], [], [], timeout)
+        return bool(readable)
+
+    def recv_from(self) -> tuple[bytes, tuple[str, int]] | None:
+        try:
+            data, address = self._sock.recvfrom(UDP_MAX_DATAGRAM)
+        except (BlockingIOError, InterruptedError):
+            return None
+        except ConnectionRefusedError:  # ICMP unreachable from an earlier send: not fatal
+            return None
+        return data, address
+
+    def is_peer(self, address: tuple[str, int]) -> bool:
+        return address in self._peers
+
+    def admit(self, address: tuple[str, int]) -> bool:
+        """Make ``address`` a destination (it sent a verified frame); False when full."""
+        if address in self._peers:
+            return True
+        if len(self._peers) >= self.max_peers:
+            self.refused_peers += 1
+            return False
+        self._peers = (*self._peers, address)  # replaced, never mutated: write() needs no lock
+        return True
+
+    def write(self, buf: bytes) -> None:
+        for address in self._peers:
+            with contextlib.suppress(BlockingIOError, ConnectionRefusedError):
+                self._sock.sendto(buf, address)
+
+    def close(self) -> None:
+        self._sock.close()
+
+
+def is_udp_server_url(url: str) -> bool:
+    return url.startswith(("udpin:", "udp:"))
 
 
 class _TransportWriter:
@@ -107,12 +306,14 @@ class MavlinkLink:
         self._conn: Any = None
         self._write_lock = threading.Lock()
         self._encoders: dict[int, mavlink2.MAVLink] = {}
+        self.counters: Counter[str] = Counter()
+        self.handler_errors = HandlerErrors()
+        self._udp_peers: tuple[tuple[str, int], ...] = ()
         self._decoder = self._new_decoder()
+        self._scanner = FrameScanner(self._decoder, self.counters)
         self._writer = _TransportWriter(self)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._clients_before_read: set[Any] = set()
-        self.counters: Counter[str] = Counter()
 
     # ------------------------------------------------------------------ set-up
 
@@ -124,7 +325,7 @@ class MavlinkLink:
             decoder.signing.timestamp = signing_timestamp(time.time())
             if self._signing.accept_unsigned:
                 decoder.signing.allow_unsigned_callback = lambda mav, msg_id: True
-            _keep_stream_timestamps_on_bad_signature(decoder)
+            _verify_signatures_against_the_clock(decoder, self.counters)
         return decoder
 
     def add_component(self, component_id: int, system_id: int, link_id: int = 0) -> None:
@@ -138,9 +339,15 @@ class MavlinkLink:
         self._encoders[component_id] = encoder
 
     def open(self) -> None:
-        self._conn = mavutil.mavlink_connection(
-            self.url, baud=self.baud, dialect="ardupilotmega", autoreconnect=False
-        )
+        """Open the endpoint; :class:`LinkBusyError` when a UDP server port is taken."""
+        if is_udp_server_url(self.url):
+            # peers verified before a reopen stay peers: they need not speak first again
+            self._conn = UdpServer.from_url(self.url, peers=self._udp_peers)
+        else:
+            self._conn = mavutil.mavlink_connection(
+                self.url, baud=self.baud, dialect="ardupilotmega", autoreconnect=False
+            )
+        self._scanner = FrameScanner(self._decoder, self.counters)  # nothing left from before
 
     def start(self) -> None:
         if self._conn is None:
@@ -163,6 +370,8 @@ class MavlinkLink:
 
     def _close(self) -> None:
         conn, self._conn = self._conn, None
+        if isinstance(conn, UdpServer):
+            self._udp_peers = conn.peers
         if conn is not None:
             with contextlib.suppress(OSError):
                 conn.close()
@@ -192,7 +401,7 @@ class MavlinkLink:
             self.counters["send_dropped_link_down"] += 1
             return
         if self.tap is not None:
-            self.tap("out", bytes(buf), self._clock())
+            self.tap("out", redact_secrets(bytes(buf)), self._clock())
         for monitor in self._monitors:
             with contextlib.suppress(OSError):
                 monitor.write(buf)
@@ -222,7 +431,7 @@ class MavlinkLink:
                 self._on_event("MAVLink link recovered")
                 continue
             try:
-                data = self._read(conn)
+                messages = self._receive(conn)
             except Exception as exc:  # serial unplug, socket error: reopen with backoff
                 if self._stop.is_set():
                     return
@@ -231,60 +440,81 @@ class MavlinkLink:
                 self._close()
                 self._on_event("MAVLink link lost")
                 continue
-            if data and not self._feed(data):
-                self._forget_new_clients(conn)
+            self._feed(messages)
 
-    def _read(self, conn: Any) -> bytes:
+    def _receive(self, conn: Any) -> list[Any]:
+        """The verified messages of one datagram, or those completed by the next bytes of a
+        stream; empty when nothing came within ``POLL_S``."""
         if not conn.select(POLL_S):
-            return b""
-        # pymavlink's udpin adds each sender to the client set its write() iterates: a new
-        # sender arriving mid-write raised "Set changed size" in the tick thread and killed it
-        with self._write_lock:
-            self._clients_before_read = set(getattr(conn, "clients", ()))
-            data = conn.recv(4096)
-        return bytes(data) if data else b""
+            return []
+        if isinstance(conn, UdpServer):
+            received = conn.recv_from()
+            if received is None:
+                return []
+            datagram, sender = received
+            messages = self._scanner.datagram(datagram)
+            self._answer_or_ignore(conn, sender, len(messages))  # before the answers go out
+            return messages
+        if isinstance(conn, mavutil.mavudp):
+            return self._receive_udp_client(conn)
+        data = conn.recv(4096)
+        return self._scanner.stream(bytes(data)) if data else []
 
-    def _forget_new_clients(self, conn: Any) -> None:
-        """pymavlink's udpin sends everything to every address a datagram ever came from: an
-        address whose first datagram held nothing acceptable (garbage, unsigned or forged
-        frames) must not start receiving our heartbeats, ACKs and telemetry, nor be able to
-        multiply our output by spoofing many source addresses (a send racing the parse of that
-        first datagram may still reach it once)."""
-        clients = getattr(conn, "clients", None)
-        if clients is None:
-            return
+    def _receive_udp_client(self, conn: Any) -> list[Any]:
+        """``udpout``/``udpbcast``: in broadcast mode pymavlink sends, from the first write on,
+        to the address of the last datagram received, whoever sent it: a stranger's datagram
+        must not choose it. Under the write lock, so no write sees the stranger's address."""
         with self._write_lock:
-            for address in clients - self._clients_before_read:
-                clients.discard(address)
-                getattr(conn, "clients_last_alive", {}).pop(address, None)
+            before = getattr(conn, "last_address", None)
+            data = conn.recv(UDP_MAX_DATAGRAM)
+            messages = self._scanner.datagram(bytes(data)) if data else []
+            if data and not messages and getattr(conn, "broadcast", False):
+                conn.last_address = before
                 self.counters["strangers_ignored"] += 1
+        return messages
 
-    def _feed(self, data: bytes) -> int:
-        """Parse ``data``; returns how many messages were accepted (signature-checked)."""
+    def _answer_or_ignore(self, conn: UdpServer, sender: tuple[str, int], accepted: int) -> None:
+        """A sender becomes a destination of our output only once one of its frames verified:
+        garbage, unknown ids, unsigned or forged frames from a stranger (or from 200 spoofed
+        addresses) draw nothing back."""
+        if conn.is_peer(sender):
+            return
+        if not accepted:
+            self.counters["strangers_ignored"] += 1
+            return
+        if conn.admit(sender):
+            log.info("MAVLink peer %s:%d answered from now on", *sender)
+            return
+        self.counters["peers_refused"] += 1
+        if self.counters["peers_refused"] == 1:
+            log.warning(
+                "MAVLink peer %s:%d not answered: already %d peers (repeats counted in "
+                "peers_refused)",
+                *sender,
+                conn.max_peers,
+            )
+
+    def _feed(self, messages: list[Any]) -> int:
+        """Hand verified ``messages`` to the handler; returns how many there were."""
         now = self._clock()
-        accepted = 0
-        messages = self._decoder.parse_buffer(data) or []
         for msg in messages:
-            if msg.get_type() == "BAD_DATA":
-                reason = str(getattr(msg, "reason", ""))
-                key = "signing_rejected" if "signature" in reason.lower() else "bad_data"
-                self.counters[key] += 1
-                continue
             self.counters["received"] += 1
-            accepted += 1
             if self.tap is not None:
-                self.tap("in", bytes(msg.get_msgbuf()), now)
+                self.tap("in", redact_secrets(bytes(msg.get_msgbuf())), now)
             try:
                 self._on_message(msg, now)
-            except Exception:  # a handler bug must not kill the link
+            except Exception as exc:  # a handler bug must not kill the link
                 self.counters["handler_errors"] += 1
-                log.exception("error handling %s", msg.get_type())
-        return accepted
+                self.handler_errors.record(msg.get_type(), exc)
+        return len(messages)
 
     def stats(self) -> dict[str, Any]:
         # "signing_rejected" counts every frame refused by signing (unsigned or badly signed);
         # pymavlink's own reject_count stays 0 for unsigned frames, so it is not reported.
-        return {
+        stats: dict[str, Any] = {
             **dict(self.counters),
             "bad_signatures": self._decoder.signing.badsig_count,
         }
+        if self.handler_errors.by_kind:
+            stats["handler_error_kinds"] = dict(self.handler_errors.by_kind)
+        return stats
