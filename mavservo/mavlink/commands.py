@@ -413,6 +413,11 @@ class CommandHandler:
             if broadcast:
                 return None
             return comp, ApplyResult(Outcome.UNSUPPORTED, "unsupported:message not published"), []
+        infinite = [i + 1 for i, p in enumerate(cmd.params) if math.isinf(p)]
+        if infinite:
+            # the generic numeric guard: no MAVLink parameter means anything at +-inf (NaN
+            # does: "no change"), so the gimbal never sees one; its own values it checks itself
+            return comp, _denied("bad_param", f"infinite param(s) {infinite}"), []
         raw = device.handle_command(cmd.command, cmd.params, now, sender=cmd.source)
         if raw is None:
             if broadcast:
