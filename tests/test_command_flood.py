@@ -11,6 +11,8 @@ No timing thresholds: the clock is fake, the bound is a count.
 
 from __future__ import annotations
 
+import logging
+
 import can
 from test_mavlink_support import RecordingBackend
 
@@ -100,3 +102,19 @@ def test_a_stall_between_wake_up_and_write_shows_in_the_slot_metrics():
     assert after["late_command_slots"] == 1
     assert after["longest_command_gap_s"] >= 0.05 + 0.1256 - 1e-9
     scheduler._bus.shutdown()
+
+
+def test_a_flood_of_bad_commands_is_one_warning_line_per_kind_not_one_per_command(caplog):
+    handler = MavlinkCore(MavlinkSettings(system_id=1), RecordingBackend()).commands
+    with caplog.at_level(logging.WARNING, logger="mavservo.mavlink.commands"):
+        for k in range(1000):  # PWM out of range, each a distinct command, within 0.5 s
+            cmd = Command((255, 190), 1, SERVO_COMPONENT, 183, (1.0, 3000.0 + k) + (0.0,) * 5)
+            assert handler.handle(cmd, 10.0 + k * 0.0005)[0][1].result == 2  # DENIED
+        first = [r.getMessage() for r in caplog.records]
+        handler.handle(
+            Command((255, 190), 1, SERVO_COMPONENT, 183, (1.0, 9999.0) + (0.0,) * 5), 11.0
+        )
+    assert handler.counters["reason_bad_param"] == 1001
+    assert len(first) == 1
+    lines = [r.getMessage() for r in caplog.records]
+    assert len(lines) == 2 and "999 more refused for bad_param" in lines[1]

@@ -75,6 +75,8 @@ MAX_INTERVAL_US = float(INT32_MAX)
 MAX_RETRY_ENTRIES = 1024
 #: How long an entry is kept for confirmation > 0 retries, in retry windows.
 RETRY_HORIZON_WINDOWS = 5
+#: At most one warning per kind of refusal per this many seconds (the rest are counted).
+REFUSAL_LOG_INTERVAL_S = 1.0
 
 #: (component id, pymavlink message) to send from that component.
 Outgoing = tuple[int, Any]
@@ -128,6 +130,29 @@ class Command:
         target, command, message type (COMMAND_INT and COMMAND_LONG differ) and parameters."""
         params = tuple("nan" if math.isnan(p) else p for p in self.params)
         return (self.source, self.target_component, self.command, self.is_int, params)
+
+
+class RateLimitedLog:
+    """At most one line per kind of problem per ``interval_s``; the rest only counted.
+
+    Why: a flood of bad commands is one problem, and a warning line per command would fill the
+    journal (and cost the command loop the time to write it). Kinds come from a fixed
+    vocabulary (the refusal reasons), so the table stays small.
+    """
+
+    def __init__(self, interval_s: float) -> None:
+        self.interval_s = interval_s
+        self._last: dict[str, float] = {}
+        self._quiet: Counter[str] = Counter()
+
+    def quiet_since_last(self, kind: str, now: float) -> int | None:
+        """None: stay quiet (counted); else log now, with this many kept quiet since the last."""
+        last = self._last.get(kind)
+        if last is not None and 0 <= now - last < self.interval_s:
+            self._quiet[kind] += 1
+            return None
+        self._last[kind] = now
+        return self._quiet.pop(kind, 0)
 
 
 @dataclass
@@ -224,9 +249,12 @@ class CommandHandler:
     counters: Counter[str] = field(default_factory=Counter)
     _repeats: dict[int, _RepeatJob] = field(default_factory=dict)
     _retries: RetryTable = field(init=False)
+    _refusal_log: RateLimitedLog = field(init=False)
+    _now: float = 0.0
 
     def __post_init__(self) -> None:
         self._retries = RetryTable(self.settings.retry_window_s)
+        self._refusal_log = RateLimitedLog(REFUSAL_LOG_INTERVAL_S)
 
     @property
     def retry_table(self) -> RetryTable:
@@ -237,6 +265,7 @@ class CommandHandler:
 
     def handle(self, cmd: Command, now: float) -> list[Outgoing]:
         """Process one command; returns the ACK (and any requested message) to send."""
+        self._now = now
         if cmd.target_system not in (0, self.system_id()):
             self.counters["ignored_other_system"] += 1
             log.debug(
@@ -331,12 +360,16 @@ class CommandHandler:
             return
         kind = result.reason.split(":")[0] if ":" in result.reason else "backend"
         self.counters[f"reason_{kind}"] += 1
+        quiet = self._refusal_log.quiet_since_last(kind, self._now)
+        if quiet is None:
+            return
         log.warning(
-            "command %d from %s -> %s: %s",
+            "command %d from %s -> %s: %s%s",
             cmd.command,
             cmd.source,
             result.outcome.name,
             result.reason,
+            f" ({quiet} more refused for {kind} since the last line, counted)" if quiet else "",
         )
 
     def _outputs(self, cmd: Command) -> tuple[Hashable, ...]:
