@@ -1,6 +1,7 @@
 """A DO_SET_SERVO flood over real UDP against the whole bridge (finding 10), run by hand.
 
     PYTHONPATH=. python bench/bench_command_flood.py --rate 5000 --seconds 10 --runs 3
+    PYTHONPATH=. python bench/bench_command_flood.py --lookup   # handler alone, table filled
     cd /tmp && PYTHONPATH=/path/to/old/checkout python /path/to/bench/bench_command_flood.py ...
 
 The bridge (in this process: the MAVLink thread, the scheduler's two threads and the in-process
@@ -156,9 +157,40 @@ def run_once(rate: float, seconds: float) -> dict[str, Any]:
     }
 
 
+def lookup_cost(prior: int, measured: int = 2000) -> float:
+    """Microseconds per DO_SET_SERVO through the command handler alone (no I/O, no logging),
+    after ``prior`` distinct commands within one retry window: what the retry lookup costs
+    when a flood has filled the table."""
+    from mavservo.mavlink.commands import Command, CommandHandler
+    from mavservo.mavlink.core import MavlinkCore
+    from mavservo.mavlink.settings import MavlinkSettings
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+    from test_mavlink_support import RecordingBackend
+
+    handler: CommandHandler = MavlinkCore(MavlinkSettings(system_id=1), RecordingBackend()).commands
+
+    def command(k: int) -> Command:
+        return Command((255, 190), 1, 140, 183, (1.0, 1000.0 + k * 1e-3, 0, 0, 0, 0, 0))
+
+    for k in range(prior):
+        handler.handle(command(k), 1e-6 * k)
+    start = time.perf_counter()
+    for k in range(prior, prior + measured):
+        handler.handle(command(k), 1e-6 * k)
+    return (time.perf_counter() - start) / measured * 1e6
+
+
 def main() -> None:
     if len(sys.argv) == 5 and sys.argv[1] == "--flooder":
         flood(int(sys.argv[2]), float(sys.argv[3]), float(sys.argv[4]))
+        return
+    if len(sys.argv) == 2 and sys.argv[1] == "--lookup":
+        logging.basicConfig(level=logging.ERROR)
+        costs = {
+            n: statistics.median(lookup_cost(n) for _ in range(3)) for n in (0, 10_000, 30_000)
+        }
+        print(json.dumps({f"us_per_command_after_{n}": round(c, 1) for n, c in costs.items()}))
         return
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--rate", type=float, default=5000.0)
