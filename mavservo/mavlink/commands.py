@@ -395,20 +395,20 @@ class CommandHandler:
 
         Why: the handlers validate what they use, but a gimbal's handler or the backend may
         still meet a value nobody foresaw; the sender must get its one ACK and the link thread
-        must go on. Logged with the traceback once per command id, counted every time."""
+        must go on. Logged with the traceback at most once a second, counted every time."""
         try:
             return self._dispatch(cmd, now)
         except Exception:  # noqa: BLE001 - whatever a handler raises, the sender gets an ACK
             self.counters["handler_error"] += 1
-            key = f"handler_error {cmd.command}"
-            if not self.counters[key]:
+            quiet = self._refusal_log.quiet_since_last("handler_exception", now)
+            if quiet is not None:
                 log.exception(
-                    "command %d from %s: handler failed (logged once per command, counted in "
-                    "handler_error)",
+                    "command %d from %s: handler failed (%d more since the last line; all "
+                    "counted in handler_error)",
                     cmd.command,
                     cmd.source,
+                    quiet,
                 )
-            self.counters[key] += 1
             target = cmd.target_component
             component = target if target in self.gimbals else self.settings.servo_component_id
             return component, _denied("handler_error", "the handler raised"), []
