@@ -47,6 +47,7 @@ def test_retry_table_stays_bounded_under_100k_distinct_commands():
     assert acks == DISTINCT_COMMANDS
     assert handler.counters.get("retry_not_reapplied", 0) == 0
     assert retained_commands(handler) <= MAX_RETRY_ENTRIES
+    assert handler.counters["retry_entries_dropped"] > 0  # the operator sees the table was full
 
 
 class FakeClock:

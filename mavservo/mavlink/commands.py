@@ -345,6 +345,8 @@ class CommandHandler:
         self._count_result(cmd, component, result)
         entry = _Recent(cmd.retry_key(), result.outcome, now, component if ack else None)
         self._retries.record(entry, outputs)
+        if self._retries.evicted:  # the table was full: a flood of distinct targets
+            self.counters["retry_entries_dropped"] = self._retries.evicted
         if not ack:
             return []
         out: list[Outgoing] = [(component, self._ack(cmd, result.outcome))]
