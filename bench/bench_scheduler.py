@@ -360,7 +360,7 @@ def run_once(args: argparse.Namespace, n_servos: int, seconds: float) -> dict[st
         "cmd_p99_dev_ms": tick["abs_deviation"]["p99"] * ms,
         "cmd_max_dev_ms": tick["abs_deviation"]["max"] * ms,
         "missed_slots": snapshot["missed_command_slots"],
-        "wake_late_p99_ms": snapshot["command_lateness_s"]["p99"] * ms,
+        "slot_late_p99_ms": snapshot["command_lateness_s"]["p99"] * ms,  # due -> first write
         "tlm_interval_mean_ms": statistics.fmean(window_intervals) * ms,
         "tlm_interval_p1_ms": min(window_intervals) * ms if window_intervals else None,
         "tlm_in_70_100ms": sum(0.07 <= v <= 0.1 for v in window_intervals)

@@ -117,6 +117,11 @@ class PeriodStats:
         self.deviations = SampleStats(window)
         self._last: float | None = None
 
+    @property
+    def last(self) -> float | None:
+        """The latest event marked (None before the first)."""
+        return self._last
+
     def mark(self, t: float) -> None:
         if self._last is not None:
             interval = t - self._last
@@ -241,13 +246,34 @@ class SchedulerMetrics:
             )
             for name in servo_names
         }
+        self.command_period_s = command_period_s
         self.command_ticks = PeriodStats(command_period_s, window)
         self.command_lateness = SampleStats(window)
+        """Slot due -> its first command frame written (or, for a slot with nothing to write,
+        -> the step that served it). Measured at the write, not when the loop woke: a loop that
+        woke on time and then stalled before the bus took the frame left the bus silent."""
+        self.late_command_slots = 0
+        """Slots whose first command frame was written a whole period or more after the slot
+        was due, i.e. after the next slot was already due (the core counts those it skipped
+        in ``missed_command_slots``; these it served, but too late)."""
+        self.longest_command_gap_s = 0.0
+        """Longest time between two served command slots (first writes): the bus silence."""
         self.telemetry_ticks = PeriodStats(telemetry_period_s, window)
         self.missed_command_slots = 0
         self.bus_rejected = 0
         self.load = LoadMeter(bitrate, load_window_s)
         self.info: dict[str, Any] = {}
+
+    def command_slot_served(self, due: float, t: float) -> None:
+        """The command slot due at ``due`` got its first frame on the bus at ``t``."""
+        last = self.command_ticks.last
+        if last is not None:
+            self.longest_command_gap_s = max(self.longest_command_gap_s, t - last)
+        self.command_ticks.mark(t)
+        lateness = t - due
+        self.command_lateness.add(lateness)
+        if lateness >= self.command_period_s:
+            self.late_command_slots += 1
 
     def to_dict(self, now: float) -> dict[str, Any]:
         return {
@@ -256,6 +282,8 @@ class SchedulerMetrics:
             "command_lateness_s": self.command_lateness.summary(),
             "telemetry_tick": self.telemetry_ticks.summary(),
             "missed_command_slots": self.missed_command_slots,
+            "late_command_slots": self.late_command_slots,
+            "longest_command_gap_s": self.longest_command_gap_s,
             "bus_rejected": self.bus_rejected,
             "load": {
                 "window_s": self.load.window_s,

@@ -509,10 +509,12 @@ class Scheduler:
             decision = self._core.step(now)
             metrics = self._metrics
             metrics.missed_command_slots += decision.missed_slots
-            if decision.command_slot is not None:
-                metrics.command_lateness.add(now - decision.command_slot)
-                if not any(out.kind != "request" for out in decision.frames):
-                    metrics.command_ticks.mark(now)
+            if decision.command_slot is not None and not any(
+                out.kind != "request" for out in decision.frames
+            ):
+                # nothing to write in this slot: it is on time when the loop got round to it
+                # (a slot with frames is timed at its first write, in _send_all)
+                metrics.command_slot_served(decision.command_slot, now)
             if decision.telemetry_tick is not None:
                 metrics.telemetry_ticks.mark(now)
             for servo in decision.lost:
@@ -569,7 +571,8 @@ class Scheduler:
                 lines = [line for servo in back for line in self._online_log.online(servo, t)]
                 self._account_tx(out, t)
                 if not slot_marked and out.kind != "request":
-                    self._metrics.command_ticks.mark(t)
+                    assert decision.command_slot is not None
+                    self._metrics.command_slot_served(decision.command_slot, t)
                     slot_marked = True
             if ended is not None:
                 log.info("scheduler %s: sends work again: %d failed over %.1f s", self.name, *ended)

@@ -11,21 +11,30 @@ Addressing rules (why: real clients send the same command in different ways, see
   ``act_on_autopilot_commands`` is set: acted on, not ACKed (the autopilot ACKs it);
 * another system id -> ignored.
 
-Senders retry until they see the ACK, with the same content. A retry (same sender, command,
-target and parameters within ``retry_window_s``, or any COMMAND_LONG with confirmation > 0 that
-matches an earlier one) is ACKed again with the earlier result and not applied twice; this
-matters for DO_REPEAT_SERVO, which would otherwise restart.
+Senders retry until they see the ACK, with the same content. A retry is ACKed again with the
+earlier result and not applied twice (DO_REPEAT_SERVO would otherwise restart). What counts as a
+retry is decided per output the command drives (servo channel, actuator index; for anything
+else, the target component and command): a command is a retry only when it is identical (same
+sender, message type, target and parameters) to the LAST command for every output it drives,
+and either comes inside ``retry_window_s`` or carries confirmation > 0. Any other command for
+one of those outputs in between, from anyone, ends the window: 1100, 1900, 1100 us on one
+channel is three commands, never a retry (the MAVLink spec makes confirmation 0 a first
+transmission, and a change back is a change). The table holds one entry per output, at most
+``MAX_RETRY_ENTRIES``, oldest dropped first, so a lookup costs the same under a flood of
+distinct commands as for one command, and the memory is bounded.
 
 Bad input never reaches the backend: everything is validated before the first setpoint goes out.
-Pure apart from logging: time comes in as an argument, messages go out as return values.
+A handler that raises anyway (a bug, a value nobody foresaw) costs that command a DENIED ACK and
+a ``handler_error`` count, never the ACK or the thread. Pure apart from logging: time comes in as
+an argument, messages go out as return values.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-from collections import Counter
-from collections.abc import Callable, Mapping
+from collections import Counter, OrderedDict
+from collections.abc import Callable, Hashable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -56,6 +65,18 @@ MAX_REPEAT_COUNT = 1000
 MAX_REPEAT_CYCLE_S = 600.0
 #: DO_SET_ACTUATOR carries six values; param 7 is the index of the set of six they belong to.
 ACTUATORS_PER_SET = 6
+#: MAVLink 2 message ids are 24-bit: anything larger in REQUEST_MESSAGE / SET_MESSAGE_INTERVAL
+#: is not a message id.
+MAX_MESSAGE_ID = 2**24 - 1
+#: MESSAGE_INTERVAL carries the interval as int32 microseconds: a larger one cannot be reported.
+MAX_INTERVAL_US = float(INT32_MAX)
+#: Outputs the retry table remembers at most (a flood of distinct targets drops the oldest:
+#: the worst that does is apply a very old retry again, never refuse a new command).
+MAX_RETRY_ENTRIES = 1024
+#: How long an entry is kept for confirmation > 0 retries, in retry windows.
+RETRY_HORIZON_WINDOWS = 5
+#: At most one warning per kind of refusal per this many seconds (the rest are counted).
+REFUSAL_LOG_INTERVAL_S = 1.0
 
 #: (component id, pymavlink message) to send from that component.
 Outgoing = tuple[int, Any]
@@ -105,9 +126,33 @@ class Command:
         )
 
     def retry_key(self) -> tuple:
-        """Identity of a command for retry detection (NaN-safe, ignores confirmation)."""
+        """Identity of a command for retry detection (NaN-safe, ignores confirmation): sender,
+        target, command, message type (COMMAND_INT and COMMAND_LONG differ) and parameters."""
         params = tuple("nan" if math.isnan(p) else p for p in self.params)
         return (self.source, self.target_component, self.command, self.is_int, params)
+
+
+class RateLimitedLog:
+    """At most one line per kind of problem per ``interval_s``; the rest only counted.
+
+    Why: a flood of bad commands is one problem, and a warning line per command would fill the
+    journal (and cost the command loop the time to write it). Kinds come from a fixed
+    vocabulary (the refusal reasons), so the table stays small.
+    """
+
+    def __init__(self, interval_s: float) -> None:
+        self.interval_s = interval_s
+        self._last: dict[str, float] = {}
+        self._quiet: Counter[str] = Counter()
+
+    def quiet_since_last(self, kind: str, now: float) -> int | None:
+        """None: stay quiet (counted); else log now, with this many kept quiet since the last."""
+        last = self._last.get(kind)
+        if last is not None and 0 <= now - last < self.interval_s:
+            self._quiet[kind] += 1
+            return None
+        self._last[kind] = now
+        return self._quiet.pop(kind, 0)
 
 
 @dataclass
@@ -120,9 +165,68 @@ class _RepeatJob:
 
 @dataclass
 class _Recent:
+    """The last command for one or more outputs: what it was, what it got, when last seen."""
+
+    key: tuple
     result: Outcome
     when: float
     ack_component: int | None
+
+
+class RetryTable:
+    """The last command per output, for retry detection in constant time and bounded memory.
+
+    Why per output: a retry window belongs to one output. Whatever else was commanded for it
+    since (by anyone) makes an identical repeat a new command, because applying it again is
+    what its sender wants. Why an ordered dict: entries are kept in the order they were last
+    touched, so the expired ones are at the front (dropped a few per call, never a scan) and so
+    are the ones dropped when the table is full.
+    """
+
+    def __init__(self, window_s: float, max_entries: int = MAX_RETRY_ENTRIES) -> None:
+        self.window_s = window_s
+        self.max_entries = max_entries
+        self.evicted = 0
+        self._by_output: OrderedDict[Hashable, _Recent] = OrderedDict()
+
+    def __len__(self) -> int:
+        return len(self._by_output)
+
+    def find(self, cmd: Command, outputs: tuple[Hashable, ...], now: float) -> _Recent | None:
+        """The earlier command ``cmd`` retries, or None when ``cmd`` is a new command."""
+        self._expire(now)
+        entries = [self._by_output.get(output) for output in outputs]
+        first = entries[0]
+        if first is None or any(entry is not first for entry in entries):
+            return None  # never seen, or another command for one of its outputs since
+        if first.key != cmd.retry_key() or first.result is Outcome.TEMPORARILY_REJECTED:
+            return None  # a different command; "try again later" tried again is fresh
+        if cmd.confirmation > 0 or now - first.when <= self.window_s:
+            self.touch(first, outputs, now)
+            return first
+        return None
+
+    def record(self, entry: _Recent, outputs: tuple[Hashable, ...]) -> None:
+        """``entry`` is now the last command for every one of ``outputs``."""
+        self.touch(entry, outputs, entry.when)
+
+    def touch(self, entry: _Recent, outputs: tuple[Hashable, ...], now: float) -> None:
+        entry.when = now
+        for output in outputs:
+            self._by_output[output] = entry
+            self._by_output.move_to_end(output)
+        while len(self._by_output) > self.max_entries:
+            self._by_output.popitem(last=False)
+            self.evicted += 1
+
+    def _expire(self, now: float) -> None:
+        # kept a while past the window for confirmation > 0 retries
+        horizon = RETRY_HORIZON_WINDOWS * self.window_s
+        while self._by_output:
+            oldest = next(iter(self._by_output.values()))
+            if now - oldest.when <= horizon:
+                return
+            self._by_output.popitem(last=False)
 
 
 @dataclass
@@ -143,13 +247,25 @@ class CommandHandler:
     heartbeat: Callable[[int], Any]
     gimbals: Mapping[int, HostedComponent] = field(default_factory=dict)
     counters: Counter[str] = field(default_factory=Counter)
-    _recent: dict[tuple, _Recent] = field(default_factory=dict)
     _repeats: dict[int, _RepeatJob] = field(default_factory=dict)
+    _retries: RetryTable = field(init=False)
+    _refusal_log: RateLimitedLog = field(init=False)
+    _now: float = 0.0
+
+    def __post_init__(self) -> None:
+        self._retries = RetryTable(self.settings.retry_window_s)
+        self._refusal_log = RateLimitedLog(REFUSAL_LOG_INTERVAL_S)
+
+    @property
+    def retry_table(self) -> RetryTable:
+        """The retry table (read-only use: its size, its evictions)."""
+        return self._retries
 
     # ------------------------------------------------------------------ entry points
 
     def handle(self, cmd: Command, now: float) -> list[Outgoing]:
         """Process one command; returns the ACK (and any requested message) to send."""
+        self._now = now
         if cmd.target_system not in (0, self.system_id()):
             self.counters["ignored_other_system"] += 1
             log.debug(
@@ -200,12 +316,9 @@ class CommandHandler:
     # ------------------------------------------------------------------ routing
 
     def _with_retry_check(self, cmd: Command, now: float, ack: bool = True) -> list[Outgoing]:
-        self._forget_old(now)
-        key = cmd.retry_key()
-        recent = self._recent.get(key)
-        if recent is not None and (
-            now - recent.when <= self.settings.retry_window_s or cmd.confirmation > 0
-        ):
+        outputs = self._outputs(cmd)
+        recent = self._retries.find(cmd, outputs, now)
+        if recent is not None:
             self.counters["retry_not_reapplied"] += 1
             log.info(
                 "command %d from %s is a retry: ACK %s again, not applied",
@@ -213,11 +326,10 @@ class CommandHandler:
                 cmd.source,
                 recent.result.name,
             )
-            recent.when = now
             if not ack or recent.ack_component is None:
                 return []
             return [(recent.ack_component, self._ack(cmd, recent.result))]
-        decided = self._dispatch(cmd, now)
+        decided = self._guarded_dispatch(cmd, now)
         if decided is None:
             # a broadcast (or autopilot-addressed command) for nothing we map: whoever owns it
             # answers, so no ACK from here
@@ -230,37 +342,78 @@ class CommandHandler:
             )
             return []
         component, result, extra = decided
-        self.counters[f"result_{result.outcome.name.lower()}"] += 1
-        if not result.ok:
-            kind = result.reason.split(":")[0] if ":" in result.reason else "backend"
-            self.counters[f"reason_{kind}"] += 1
-            log.warning(
-                "command %d from %s -> %s: %s",
-                cmd.command,
-                cmd.source,
-                result.outcome.name,
-                result.reason,
-            )
-        else:
-            log.info(
-                "command %d from %s accepted by component %d", cmd.command, cmd.source, component
-            )
-        if result.outcome is Outcome.TEMPORARILY_REJECTED:
-            # "try again later" must be tried again: a retry of it is a fresh attempt
-            self._recent.pop(key, None)
-        else:
-            self._recent[key] = _Recent(result.outcome, now, component if ack else None)
+        self._count_result(cmd, component, result)
+        entry = _Recent(cmd.retry_key(), result.outcome, now, component if ack else None)
+        self._retries.record(entry, outputs)
+        if self._retries.evicted:  # the table was full: a flood of distinct targets
+            self.counters["retry_entries_dropped"] = self._retries.evicted
         if not ack:
             return []
         out: list[Outgoing] = [(component, self._ack(cmd, result.outcome))]
         out.extend((component, m) for m in extra)
         return out
 
-    def _forget_old(self, now: float) -> None:
-        # Keep entries a while longer than the window for confirmation>0 retries.
-        horizon = 5 * self.settings.retry_window_s
-        for key in [k for k, r in self._recent.items() if now - r.when > horizon]:
-            del self._recent[key]
+    def _count_result(self, cmd: Command, component: int, result: ApplyResult) -> None:
+        self.counters[f"result_{result.outcome.name.lower()}"] += 1
+        if result.ok:
+            log.info(
+                "command %d from %s accepted by component %d", cmd.command, cmd.source, component
+            )
+            return
+        kind = result.reason.split(":")[0] if ":" in result.reason else "backend"
+        self.counters[f"reason_{kind}"] += 1
+        quiet = self._refusal_log.quiet_since_last(kind, self._now)
+        if quiet is None:
+            return
+        log.warning(
+            "command %d from %s -> %s: %s%s",
+            cmd.command,
+            cmd.source,
+            result.outcome.name,
+            result.reason,
+            f" ({quiet} more refused for {kind} since the last line, counted)" if quiet else "",
+        )
+
+    def _outputs(self, cmd: Command) -> tuple[Hashable, ...]:
+        """What ``cmd`` drives, for retry detection: its mapped servo channel or actuator
+        indices; for anything else (message services, gimbal commands, bad or unmapped
+        targets) its target component and command. Only mapped outputs get their own entry,
+        so the keys an attacker can make up are bounded by the command ids."""
+        generic: tuple[Hashable, ...] = (("command", cmd.target_component, cmd.command),)
+        if cmd.command in (MAV_CMD_DO_SET_SERVO, MAV_CMD_DO_REPEAT_SERVO):
+            raw = cmd.params[0]
+            if _is_int(raw) and int(raw) in self.backend.mapped_servo_channels():
+                return (("servo", int(raw)),)
+            return generic
+        if cmd.command == MAV_CMD_DO_SET_ACTUATOR:
+            values = _actuator_values(cmd)
+            mapped = self.backend.mapped_actuator_indices()
+            indices = sorted(i for i in values or () if i in mapped)
+            return tuple(("actuator", i) for i in indices) or generic
+        return generic
+
+    def _guarded_dispatch(self, cmd: Command, now: float) -> tuple[int, ApplyResult, list] | None:
+        """``_dispatch``, but a handler that raises costs a DENIED ACK, not the ACK.
+
+        Why: the handlers validate what they use, but a gimbal's handler or the backend may
+        still meet a value nobody foresaw; the sender must get its one ACK and the link thread
+        must go on. Logged with the traceback at most once a second, counted every time."""
+        try:
+            return self._dispatch(cmd, now)
+        except Exception:  # noqa: BLE001 - whatever a handler raises, the sender gets an ACK
+            self.counters["handler_error"] += 1
+            quiet = self._refusal_log.quiet_since_last("handler_exception", now)
+            if quiet is not None:
+                log.exception(
+                    "command %d from %s: handler failed (%d more since the last line; all "
+                    "counted in handler_error)",
+                    cmd.command,
+                    cmd.source,
+                    quiet,
+                )
+            target = cmd.target_component
+            component = target if target in self.gimbals else self.settings.servo_component_id
+            return component, _denied("handler_error", "the handler raised"), []
 
     def _dispatch(self, cmd: Command, now: float) -> tuple[int, ApplyResult, list] | None:
         """Returns (acking component, result, messages to send after the ACK) or None."""
@@ -288,18 +441,25 @@ class CommandHandler:
         self, device: HostedComponent, cmd: Command, now: float, broadcast: bool
     ) -> tuple[int, ApplyResult, list] | None:
         comp = device.component_id
-        if cmd.command == MAV_CMD_REQUEST_MESSAGE and _is_int(cmd.params[0]):
+        if cmd.command == MAV_CMD_REQUEST_MESSAGE and _is_message_id(cmd.params[0]):
             message = device.requested_message(int(cmd.params[0]), now)
             if message is not None:
                 return comp, ApplyResult(Outcome.ACCEPTED), [message]
             if broadcast:
                 return None
             return comp, ApplyResult(Outcome.UNSUPPORTED, "unsupported:message not published"), []
+        infinite = [i + 1 for i, p in enumerate(cmd.params) if math.isinf(p)]
+        if infinite:
+            # the generic numeric guard: no MAVLink parameter means anything at +-inf (NaN
+            # does: "no change"), so the gimbal never sees one; its own values it checks itself
+            return comp, _denied("bad_param", f"infinite param(s) {infinite}"), []
         raw = device.handle_command(cmd.command, cmd.params, now, sender=cmd.source)
         if raw is None:
             if broadcast:
                 return None
             return comp, ApplyResult(Outcome.UNSUPPORTED, "unsupported:command"), []
+        if raw not in _MAV_RESULTS:
+            raise ValueError(f"gimbal {comp} answered command {cmd.command} with {raw!r}")
         return comp, ApplyResult(Outcome(int(raw)), "" if raw == 0 else "gimbal:refused"), []
 
     def _servo_command(
@@ -375,23 +535,14 @@ class CommandHandler:
         """Param 7 is the MAVLink spec's "index of actuator set (i.e. if set to 1, Actuator 1
         becomes Actuator 7)": set 0 carries actuators 1..6, the 1-based numbers that
         ``source: actuator`` channels map (PX4 acts on set 0 only)."""
-        set_index = cmd.params[6]
-        if not _is_int(set_index) or set_index < 0:
+        values = _actuator_values(cmd)
+        if values is None:
             return (
                 None
                 if broadcast
-                else _denied("bad_param", f"actuator set index (param 7) {set_index!r}")
+                else _denied("bad_param", f"actuator set index (param 7) {cmd.params[6]!r}")
             )
-        values: dict[int, float] = {}
-        for i, raw in enumerate(cmd.params[:ACTUATORS_PER_SET]):
-            value = raw
-            if cmd.is_int and i >= 4:
-                # COMMAND_INT x/y are integers: the spec scales actuators 5/6 by 1e7 there and
-                # uses INT32_MAX for "leave alone", since an integer cannot carry NaN
-                value = math.nan if raw == INT32_MAX else raw / COMMAND_INT_XY_SCALE
-            if math.isnan(value):
-                continue
-            values[int(set_index) * ACTUATORS_PER_SET + i + 1] = value
+        set_index = int(cmd.params[6])
         mapped = self.backend.mapped_actuator_indices()
         ours = {index: v for index, v in values.items() if index in mapped}
         if not ours:
@@ -400,7 +551,7 @@ class CommandHandler:
             what = (
                 "no actuator value given"
                 if not values
-                else f"unmapped actuators {sorted(values)} (set index {int(set_index)})"
+                else f"unmapped actuators {sorted(values)} (set index {set_index})"
             )
             return _denied("unmapped" if values else "bad_param", what)
         bad = {index: v for index, v in ours.items() if not -1.0 <= v <= 1.0}
@@ -421,7 +572,7 @@ class CommandHandler:
         self, cmd: Command, now: float, broadcast: bool
     ) -> tuple[ApplyResult, list] | None:
         msg_id = cmd.params[0]
-        if not _is_int(msg_id) or msg_id < 0:
+        if not _is_message_id(msg_id):
             return None if broadcast else (_denied("bad_param", f"message id {msg_id!r}"), [])
         messages = self.request_message(int(msg_id), now)
         if messages is None:
@@ -434,8 +585,10 @@ class CommandHandler:
         self, cmd: Command, broadcast: bool
     ) -> tuple[ApplyResult, list] | None:
         msg_id, interval = cmd.params[0], cmd.params[1]
-        if not _is_int(msg_id) or msg_id < 0 or not math.isfinite(interval) or interval < -1:
-            return None if broadcast else (_denied("bad_param", "message interval"), [])
+        if not _is_message_id(msg_id) or not _valid_interval(interval):
+            return (
+                None if broadcast else (_denied("bad_param", f"message interval {interval!r}"), [])
+            )
         if not self.set_interval(int(msg_id), interval):
             if broadcast:
                 return None
@@ -456,8 +609,40 @@ class CommandHandler:
         )
 
 
+_MAV_RESULTS = frozenset(int(o) for o in Outcome)
+
+
 def _is_int(value: float) -> bool:
     return math.isfinite(value) and float(value).is_integer()
+
+
+def _is_message_id(value: float) -> bool:
+    return _is_int(value) and 0 <= value <= MAX_MESSAGE_ID
+
+
+def _valid_interval(interval_us: float) -> bool:
+    """-1 (stop), 0 (default rate) or a positive interval MESSAGE_INTERVAL can report."""
+    return math.isfinite(interval_us) and -1 <= interval_us <= MAX_INTERVAL_US
+
+
+def _actuator_values(cmd: Command) -> dict[int, float] | None:
+    """DO_SET_ACTUATOR's values by 1-based actuator number (NaN = leave alone, left out), or
+    None when param 7, the actuator set index, is not a non-negative integer.
+
+    COMMAND_INT x/y are integers: the spec scales actuators 5/6 by 1e7 there and uses
+    INT32_MAX for "leave alone", since an integer cannot carry NaN."""
+    set_index = cmd.params[6]
+    if not _is_int(set_index) or set_index < 0:
+        return None
+    first = int(set_index) * ACTUATORS_PER_SET + 1
+    values: dict[int, float] = {}
+    for i, raw in enumerate(cmd.params[:ACTUATORS_PER_SET]):
+        value = raw
+        if cmd.is_int and i >= 4:
+            value = math.nan if raw == INT32_MAX else raw / COMMAND_INT_XY_SCALE
+        if not math.isnan(value):
+            values[first + i] = value
+    return values
 
 
 def _valid_pwm(value: float) -> bool:
