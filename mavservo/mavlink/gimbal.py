@@ -272,6 +272,9 @@ def yaw_in_earth_frame(flags: int) -> bool:
     return bool(flags & YAW_LOCK)
 
 
+#: Largest |ATTITUDE.yaw| taken as a heading (two turns; the spec sends -pi..pi).
+MAX_VEHICLE_YAW_RAD = 4 * math.pi
+
 def _finite_or_none(value: float) -> float | None:
     return None if value is None or math.isnan(value) else float(value)
 
@@ -345,7 +348,9 @@ class GimbalDevice:
                 return
             self._on_vehicle_yaw(yaw_of(msg.q), now)
         elif kind == "ATTITUDE" and self._from_my_system(msg) and not math.isnan(msg.yaw):
-            if not math.isfinite(msg.yaw):
+            # the spec's range is -pi..pi; beyond a couple of turns it is garbage (3e306 rad
+            # overflows to inf in degrees and wraps to NaN)
+            if not math.isfinite(msg.yaw) or abs(msg.yaw) > MAX_VEHICLE_YAW_RAD:
                 self._bad_input(kind, f"vehicle yaw {msg.yaw!r}", now)
                 return
             self._on_vehicle_yaw(wrap_180(math.degrees(msg.yaw)), now)
