@@ -344,6 +344,7 @@ class Bridge:
                 signing=SigningSettings(
                     key=cfg.mavlink.signing.secret_key(),
                     accept_unsigned=cfg.mavlink.signing.accept_unsigned,
+                    max_clock_ahead_s=cfg.mavlink.signing.max_clock_ahead_s,
                 ),
             )
         if cfg.mavlink.url == SIM:

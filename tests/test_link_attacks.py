@@ -380,6 +380,47 @@ def test_a_clock_a_little_ahead_is_still_accepted(signed_rig: Rig) -> None:
     assert rig.stats()["link"].get("signing_future", 0) == 0
 
 
+class UnboundedClockRig(Rig):
+    """A signing bridge configured for a companion without a synchronised clock."""
+
+    def __init__(self) -> None:
+        self.port = free_udp_port()
+        text = config_text(self.port, signing=True).replace(
+            f"key: {KEY.hex()}}}", f"key: {KEY.hex()}, max_clock_ahead_s: null}}"
+        )
+        assert "max_clock_ahead_s: null" in text
+        self.bridge = Bridge(load_config_text(text), log_dir=False)
+        self.bridge.start()
+        self.peers = []
+
+
+def test_without_the_ahead_bound_a_peer_ahead_is_accepted_and_locks_nobody_out() -> None:
+    """``max_clock_ahead_s: null`` (a companion whose clock is behind its autopilot's): a
+    stream 10 years ahead of this computer's clock is accepted, and a ground station on this
+    computer's time that starts afterwards is accepted too (the clock new streams are compared
+    with is never raised by a received timestamp)."""
+    rig = UnboundedClockRig()
+    try:
+        ahead = rig.peer(GCS)  # link id 1 here, 0 below: two streams of the ground station
+        ahead.setup_signing(
+            KEY,
+            sign_outgoing=True,
+            link_id=1,
+            initial_timestamp=signing_timestamp(time.time() + TEN_YEARS_S),
+        )
+        set_servo(ahead, 1, 1750)
+        # (its ACK is signed on this computer's time, which that peer's own pymavlink refuses
+        # as 10 years old: the setpoint shows the command was applied)
+        assert wait_until(lambda: rig.setpoint("left") == pytest.approx(15.0, abs=0.01))
+        gcs = rig.peer(GCS, key=KEY)
+        set_servo(gcs, 1, 1250)
+        assert [a.result for a in acks(gcs, DO_SET_SERVO, 3.0)] == [0]
+        assert rig.setpoint("left") == pytest.approx(-15.0, abs=0.01)
+        assert rig.stats()["link"].get("signing_future", 0) == 0
+    finally:
+        rig.close()
+
+
 # ---------------------------------------------------------------------- 5: a taken UDP port
 
 

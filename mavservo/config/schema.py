@@ -104,6 +104,10 @@ class SigningConfig(StrictModel):
     key: str | None = None
     key_file: Path | None = None
     accept_unsigned: Bool = False
+    #: How far ahead of this computer's clock a signed frame's timestamp may be (s); ``null``
+    #: for a companion whose clock is not synchronised at start (no RTC, no NTP/GPS time): a
+    #: clock behind its peers would otherwise refuse the autopilot's genuine frames.
+    max_clock_ahead_s: Annotated[Float, Field(gt=0)] | None = 60.0
 
     @field_validator("key")
     @classmethod

@@ -85,14 +85,16 @@ def _verify_signatures_against_the_clock(
     decoder: mavlink2.MAVLink,
     counters: Counter[str],
     wall_clock: Callable[[], float] = time.time,
+    max_ahead_s: float | None = SIGNING_FUTURE_S,
 ) -> None:
     """Wrap pymavlink's signature check with three rules it lacks (pymavlink 2.4.50):
 
     * a stream's timestamp is only recorded once the signature verified: pymavlink records it
       *before*, so one forged far-future frame, made without the key, locked the genuine stream
       out (found by tests/test_security.py);
-    * the timestamp of a correctly keyed frame may be at most ``SIGNING_FUTURE_S`` ahead of this
-      computer's clock; further ahead it is refused and counted (``signing_future``);
+    * the timestamp of a correctly keyed frame may be at most ``max_ahead_s`` (default
+      ``SIGNING_FUTURE_S``; None: no bound, for a companion without a synchronised clock) ahead
+      of this computer's clock; further ahead it is refused and counted (``signing_future``);
     * the local timestamp a new stream is compared with (spec: refused when more than one
       minute behind it) is this computer's clock, never a received timestamp: pymavlink raised
       it to the largest timestamp accepted, so one frame 10 years ahead refused every new
@@ -110,18 +112,18 @@ def _verify_signatures_against_the_clock(
         verified = check(msgbuf, src_system, src_component)
         signing.timestamp = now
         ahead = frame_signing_timestamp(msgbuf) - now
-        if verified and ahead > SIGNING_FUTURE_S * SIGNING_UNITS_PER_S:
+        if verified and max_ahead_s is not None and ahead > max_ahead_s * SIGNING_UNITS_PER_S:
             verified = False
             counters["signing_future"] += 1
             if counters["signing_future"] == 1:
                 log.warning(
                     "signed frame from %d/%d refused: its timestamp is %.0f s ahead of this "
-                    "computer's clock (at most %.0f s accepted; check both clocks; repeats "
-                    "counted in signing_future)",
+                    "computer's clock (at most %.0f s accepted, mavlink.signing."
+                    "max_clock_ahead_s; check both clocks; repeats counted in signing_future)",
                     src_system,
                     src_component,
                     ahead / SIGNING_UNITS_PER_S,
-                    SIGNING_FUTURE_S,
+                    max_ahead_s,
                 )
         if verified:
             return True
@@ -325,7 +327,9 @@ class MavlinkLink:
             decoder.signing.timestamp = signing_timestamp(time.time())
             if self._signing.accept_unsigned:
                 decoder.signing.allow_unsigned_callback = lambda mav, msg_id: True
-            _verify_signatures_against_the_clock(decoder, self.counters)
+            _verify_signatures_against_the_clock(
+                decoder, self.counters, max_ahead_s=self._signing.max_clock_ahead_s
+            )
         return decoder
 
     def add_component(self, component_id: int, system_id: int, link_id: int = 0) -> None:

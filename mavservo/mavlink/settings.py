@@ -24,6 +24,8 @@ class SigningSettings:
 
     key: bytes
     accept_unsigned: bool = False
+    #: Largest accepted lead of a signed timestamp over this computer's clock (s); None: no bound.
+    max_clock_ahead_s: float | None = 60.0
 
     @classmethod
     def from_mapping(cls, raw: Mapping[str, Any] | None) -> SigningSettings | None:
