@@ -319,3 +319,36 @@ def test_mavservo_run_says_at_once_that_its_log_failed_and_the_summary_says_inco
     [run_dir] = list(tmp_path.iterdir())
     assert json.loads((run_dir / METRICS_FILE).read_text())["runlog"]["failed_files"]
     assert _no_tmp_files(tmp_path) == []
+
+
+def test_a_run_log_problem_reaches_the_autopilot_as_statustext(tmp_path: Path) -> None:
+    """The size cap (0.001 MiB: reached at the first check) through the real bridge and link."""
+    from pymavlink import mavutil
+
+    from mavservo.bridge import Bridge, free_udp_port
+
+    port = free_udp_port()
+    listener = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255)
+    config = load_config_text(
+        f'mavlink: {{url: "udpout:127.0.0.1:{port}"}}\n'
+        "can:\n  buses:\n    - {name: a, interface: virtual, channel: runlog-cap-test}\n"
+        "servos:\n  - {name: s, profile: rmd-x, can_id: 1, limits_deg: [-30, 30]}\n"
+        "logging: {max_run_mb: 0.001, can_formats: [asc]}\n",
+        "cap.yaml",
+    )
+    events: list[str] = []
+    bridge = Bridge(config, log_dir=tmp_path, status=events.append)
+    texts: list[str] = []
+    try:
+        bridge.start()
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and not any("size cap" in t for t in texts):
+            msg = listener.recv_match(type="STATUSTEXT", blocking=True, timeout=0.5)
+            if msg is not None:
+                texts.append(msg.text)
+    finally:
+        summary = bridge.stop()
+        listener.close()
+    assert any(t.startswith("run log reached its size cap") for t in texts), texts
+    assert sum("size cap" in e for e in events) == 1
+    assert summary["runlog"]["capped"] is True and summary["runlog"]["complete"] is False
