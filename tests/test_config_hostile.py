@@ -50,6 +50,12 @@ def test_a_nine_level_alias_bomb_is_refused_at_the_alias_that_overflows() -> Non
     assert f"more than {MAX_VALUES} values" in message
 
 
+def test_a_document_with_too_many_values_is_refused_even_without_aliases() -> None:
+    [(line, message)] = refused("servos: [" + "1, " * (MAX_VALUES + 5) + "]\n")
+    assert line == 1
+    assert f"more than {MAX_VALUES} values" in message
+
+
 @pytest.mark.parametrize(
     "text",
     ["a: &x [*x]\n", "a: &x {b: *x}\n", "a: &x {<<: *x}\n", "servos: &s [{x: [*s]}]\n"],

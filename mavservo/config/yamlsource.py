@@ -175,7 +175,8 @@ class _BoundedLoader(yaml.SafeLoader):
             raise ComposerError(
                 None,
                 None,
-                f"{what} expands to more than {MAX_VALUES} values (aliases used too often)",
+                f"{what} holds more than {MAX_VALUES} values, each use of an alias counted"
+                " in full (a config has a few hundred)",
                 mark,
             )
         if self._depth + depth > MAX_DEPTH:
