@@ -147,8 +147,8 @@ def read_can_log(directory: str | os.PathLike[str], fmt: str = "blf") -> list[ca
     for path in can_log_files(directory, fmt):
         # A killed run can end mid-container: keep every frame before the torn end.
         with (
-            can.LogReader(path, **options) as reader,
             contextlib.suppress(struct.error, can.io.blf.BLFParseError, ValueError),
+            can.LogReader(path, **options) as reader,
         ):
             for message in reader:
                 frames.append(message)
@@ -234,6 +234,23 @@ class _Sink:
                 os.close(fd)
 
 
+def _cut_after_last_newline(path: Path, floor: int, chunk: int = 64 * 1024) -> None:
+    """Truncate a regular text file after its last newline at or beyond ``floor`` bytes."""
+    if not stat.S_ISREG(os.stat(path).st_mode):
+        return
+    with open(path, "rb+") as handle:
+        end = handle.seek(0, os.SEEK_END)
+        while end > floor:
+            start = max(floor, end - chunk)
+            handle.seek(start)
+            newline = handle.read(end - start).rfind(b"\n")
+            if newline >= 0:
+                handle.truncate(start + newline + 1)
+                return
+            end = start
+        handle.truncate(floor)
+
+
 class _CanLog(can.SizedRotatingLogger):
     """python-can's size-rotating logger with private files and a flush that reaches the disk.
 
@@ -243,7 +260,7 @@ class _CanLog(can.SizedRotatingLogger):
     pending container and rewrites the header (wall-clock start, size, object count) each
     second, using the writer's ``_flush``/``_write_header`` (python-can 4.3-4.6; a writer
     without them is flushed at stop only, as before). On a failed write the file is cut back
-    to its last complete flush and the logger stops.
+    to its last whole line (text formats) or container (BLF) on disk, and the logger stops.
     """
 
     def __init__(self, base_filename: Path, max_bytes: int, start_wall: float) -> None:
@@ -255,11 +272,12 @@ class _CanLog(can.SizedRotatingLogger):
     def _get_new_writer(self, filename: Any) -> Any:
         create_private(filename)
         writer = super()._get_new_writer(filename)
-        self.good_size = 0
         if isinstance(writer, can.BLFWriter) and hasattr(writer, "_write_header"):
             # relative times count from the run's start, to the millisecond BLF stores
             writer.start_timestamp = int(self._start_wall * 1000) / 1000
             self._rewrite_blf_header(writer)
+        writer.file.flush()  # the header on disk: a file cut back on failure keeps it
+        self.good_size = writer.file.tell()
         return writer
 
     @staticmethod
@@ -270,8 +288,14 @@ class _CanLog(can.SizedRotatingLogger):
         writer.file.seek(end)
 
     def on_message_received(self, msg: can.Message) -> None:
+        writer = self.writer
+        pending = getattr(writer, "_buffer_size", None)  # BLF: bytes waiting for a container
         try:
             super().on_message_received(msg)
+            if self.writer is writer and pending is not None and writer._buffer_size < pending:
+                # BLF just wrote a container: put it on disk, so a failure keeps it
+                writer.file.flush()
+                self.good_size = writer.file.tell()
         except OSError as exc:
             self._fail(exc)
             raise
@@ -292,11 +316,20 @@ class _CanLog(can.SizedRotatingLogger):
             raise
 
     def _fail(self, exc: OSError) -> None:
+        """Close the file (not ``stop()``: no end block) and cut it back to the last flush.
+
+        By name, after closing: the file object still holds the tail that failed, and closing
+        tries to write it once more (it may partly succeed under a size limit).
+        """
         self.error = exc
+        blf = isinstance(self.writer, can.BLFWriter)
         with contextlib.suppress(Exception):
-            self.writer.file.truncate(self.good_size)
-        with contextlib.suppress(Exception):
-            self.writer.file.close()  # not stop(): that would write the buffered tail again
+            self.writer.file.close()
+        with contextlib.suppress(OSError):
+            if blf:  # cut after the last container known to be on disk
+                os.truncate(self.base_filename, self.good_size)
+            else:  # text formats: keep every whole line that reached the disk
+                _cut_after_last_newline(Path(self.base_filename), self.good_size)
 
     def stop(self) -> None:
         if self.error is None:
