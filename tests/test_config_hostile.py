@@ -195,3 +195,18 @@ def test_any_text_loads_or_is_refused_with_file_and_line(text: str) -> None:
         for line in lines:
             assert LINE.match(line), line
             assert int(LINE.match(line).group(1)) >= 1
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize("text", [alias_bomb(9), "a: &x [*x]\n", "servos: " + "[" * 1000])
+def test_run_exits_2_with_the_line_for_hostile_yaml(
+    tmp_path: Path, text: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from mavservo.runcmd import main
+
+    path = tmp_path / "hostile.yaml"
+    path.write_text(text, encoding="utf-8")
+    assert main(["--config", str(path), "--no-log", "--quiet", "--duration", "0"]) == 2
+    err = capsys.readouterr().err
+    assert re.search(rf"^{re.escape(str(path))}:\d+: ", err, re.M), err
+    assert "Traceback" not in err
