@@ -173,10 +173,11 @@ def create_private(path: str | os.PathLike[str]) -> None:
 class _Sink:
     """One run-log file written through an in-memory buffer, cut back to whole rows on failure.
 
-    The writer thread appends to the buffer; :meth:`flush` writes it with ``os.write``. When a
-    write fails (ENOSPC, EFBIG, EIO) the file is truncated after the last whole record (row,
-    frame: one ``write`` call each) that reached the disk, closed, and refuses further data
-    (:attr:`error`).
+    The writer thread appends each row (csv) or frame (tlog) to a list, one ``write`` call
+    each, the cheapest thing it can do per event (it shares the interpreter lock with the
+    scheduler); :meth:`flush` joins and writes them with ``os.write``. When a write fails
+    (ENOSPC, EFBIG, EIO) the file is truncated after the last whole record that reached the
+    disk, closed, and refuses further data (:attr:`error`).
     """
 
     def __init__(self, path: Path, text: bool) -> None:
@@ -184,40 +185,51 @@ class _Sink:
         self.path = path
         self._fd: int | None = os.open(path, os.O_WRONLY | os.O_APPEND)
         self._text = text
-        self._buffer = bytearray()
-        self._record_ends: list[int] = []  # where each write() call ended in the buffer
+        self._parts: list[Any] = []
+        self._pending = 0  # characters or bytes in _parts
         self.good_size = 0
         self.error: OSError | None = None
 
     def write(self, data: str | bytes) -> None:
         if self.error is not None:
             raise self.error
-        self._buffer += data.encode("utf-8") if isinstance(data, str) else data
-        self._record_ends.append(len(self._buffer))  # csv writes a row, tlog a frame, per call
-        if len(self._buffer) >= _BUFFER_LIMIT:
+        self._parts.append(data)
+        self._pending += len(data)
+        if self._pending >= _BUFFER_LIMIT:
             self.flush()
 
     def flush(self) -> None:
-        if self._fd is None or not self._buffer:
+        if self._fd is None or not self._parts:
             return
-        view = memoryview(bytes(self._buffer))
+        data = "".join(self._parts).encode("utf-8") if self._text else b"".join(self._parts)
+        view = memoryview(data)
         written = 0
         try:
             while written < len(view):
                 written += os.write(self._fd, view[written:])
         except OSError as exc:
-            # keep the whole records that reached the disk before the failing write
-            self.good_size += max((end for end in self._record_ends if end <= written), default=0)
+            self.good_size += self._whole_records(data, written)
             self._fail(exc)
             raise
-        self.good_size += len(self._buffer)
-        self._buffer.clear()
-        self._record_ends.clear()
+        self.good_size += len(data)
+        self._parts.clear()
+        self._pending = 0
+
+    def _whole_records(self, data: bytes, written: int) -> int:
+        """Bytes of ``data`` up to the end of the last record within its first ``written``."""
+        if self._text:
+            return data.rfind(b"\n", 0, written) + 1
+        end = 0
+        for part in self._parts:
+            if end + len(part) > written:
+                break
+            end += len(part)
+        return end
 
     def _fail(self, exc: OSError) -> None:
         self.error = exc
-        self._buffer.clear()
-        self._record_ends.clear()
+        self._parts.clear()
+        self._pending = 0
         fd, self._fd = self._fd, None
         if fd is not None:
             with contextlib.suppress(OSError):
