@@ -260,6 +260,9 @@ class Bridge:
             _quietly(emulator.stop)
         if self.runlog is not None:
             _quietly(lambda: self.runlog.close(summary))
+            summary["runlog"] = {  # the summary must not point at a run log that failed
+                k: v for k, v in self.runlog.outcome().items() if k != "metrics"
+            }
         return summary
 
     def __enter__(self) -> Bridge:
@@ -292,6 +295,8 @@ class Bridge:
             servos=servos,
             config_path=self.config_path,
             tlog=cfg.tlog,
+            max_run_bytes=int(cfg.max_run_mb * 1024 * 1024),
+            on_problem=self._event,  # a full disk is said at once: console and STATUSTEXT
         )
 
     def _open_bus(self, bus_cfg: Any) -> can.BusABC:

@@ -184,8 +184,22 @@ def format_summary(summary: dict[str, Any]) -> str:
     for text in summary.get("events", []):
         lines.append(f"  event: {text}")
     if summary.get("run_dir"):
-        lines.append(f"  run log: {summary['run_dir']}  (mavservo report {summary['run_dir']})")
+        lines += _run_log_lines(summary["run_dir"], summary.get("runlog") or {})
     return "\n".join(lines)
+
+
+def _run_log_lines(run_dir: str, outcome: dict[str, Any]) -> list[str]:
+    """Where the run log is, and, when it failed (disk full, size cap), what it lacks."""
+    if outcome.get("complete", True):
+        return [f"  run log: {run_dir}  (mavservo report {run_dir})"]
+    lines = [f"  run log: {run_dir}  INCOMPLETE (complete up to the failure):"]
+    lines += [f"    {problem}" for problem in dict.fromkeys(outcome.get("problems", []))]
+    metrics_path = outcome.get("metrics_path", "")
+    if metrics_path is None:
+        lines.append("    metrics.json could not be written anywhere (see the errors above)")
+    elif metrics_path and Path(metrics_path).parent != Path(run_dir):
+        lines.append(f"    metrics.json is in {metrics_path}")
+    return lines
 
 
 def _flat(d: dict[str, Any], prefix: str = "", exclude: tuple[str, ...] = ()) -> dict[str, Any]:

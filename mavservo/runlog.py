@@ -19,6 +19,17 @@ Directory layout (see ``docs/logs.md``)::
 
 Times handed in are ``time.monotonic()`` seconds; the files carry wall-clock time, computed with
 the offset captured once at start (and stored in ``run.json`` so a reader can go back).
+
+Failure rules (docs/reliability.md, "Disk full"): the directory is 0700 and every file 0600,
+whatever the umask (CAN frames and MAVLink traffic are nobody else's business). Every file is
+flushed once a second, the BLF one too (a container per second, its header rewritten with the
+wall-clock start, so a killed run keeps all but the last second with wall-clock times). A file
+that cannot be written (disk full) is cut back to its last complete flush and closed, the
+problem is reported once per kind through ``on_problem`` (the bridge's event path: console and
+STATUSTEXT) and the log, and the bridge goes on. The whole run is capped at ``max_run_bytes``;
+``metrics.json`` is kept in memory and written at close to the run directory or, when that
+fails, to ``fallback_dir``; :meth:`RunLog.outcome` says what happened; no ``.tmp`` file is
+left behind.
 """
 
 from __future__ import annotations
@@ -26,19 +37,23 @@ from __future__ import annotations
 import contextlib
 import csv
 import enum
+import errno
 import json
+import logging
 import os
 import platform
 import re
+import stat
 import struct
 import sys
+import tempfile
 import threading
 import time
 from collections import Counter, deque
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 import can
 
@@ -68,6 +83,12 @@ TRACE_COLUMNS: tuple[str, ...] = (
 
 _POLL_S = 0.05  # the writer wakes on its own; callers never signal it
 _FLUSH_EVERY_S = 1.0
+_BUFFER_LIMIT = 256 * 1024  # a text file's buffer is written out early past this
+DIR_MODE = 0o700
+FILE_MODE = 0o600
+DEFAULT_MAX_RUN_BYTES = 1024 * 1024 * 1024
+
+log = logging.getLogger(__name__)
 
 # Event codes on the queue (small ints keep the tuples cheap to build on the caller's thread).
 _TX, _RX, _SETPOINT, _LOST, _REJECT, _MAV_IN, _MAV_OUT, _LATENCY = range(8)
@@ -91,9 +112,10 @@ def new_run_dir(base: str | os.PathLike[str], now: float | None = None) -> Path:
     for n in range(1000):
         candidate = base_path / (stamp if n == 0 else f"{stamp}-{n}")
         try:
-            candidate.mkdir()
+            candidate.mkdir(mode=DIR_MODE)
         except FileExistsError:
             continue
+        os.chmod(candidate, DIR_MODE)  # mkdir's mode is masked by the umask; this is not
         return candidate
     raise FileExistsError(f"no free run directory name under {base_path}")
 
@@ -123,9 +145,207 @@ def read_can_log(directory: str | os.PathLike[str], fmt: str = "blf") -> list[ca
     # ASC stores times relative to its header date unless asked for absolute ones.
     options = {"relative_timestamp": False} if fmt == "asc" else {}
     for path in can_log_files(directory, fmt):
-        with can.LogReader(path, **options) as reader:
-            frames.extend(reader)
+        # A killed run can end mid-container: keep every frame before the torn end.
+        with (
+            contextlib.suppress(struct.error, can.io.blf.BLFParseError, ValueError),
+            can.LogReader(path, **options) as reader,
+        ):
+            for message in reader:
+                frames.append(message)
     return frames
+
+
+def create_private(path: str | os.PathLike[str]) -> None:
+    """Create (or truncate) ``path`` as an empty file only its owner can read (0600).
+
+    python-can's writers open their files by name; creating them first fixes the mode
+    (``open`` keeps an existing file's mode). Only a regular file is chmod-ed: a test's
+    symlink to ``/dev/full`` must not change the device.
+    """
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, FILE_MODE)
+    try:
+        if stat.S_ISREG(os.fstat(fd).st_mode):
+            os.fchmod(fd, FILE_MODE)
+    finally:
+        os.close(fd)
+
+
+class _Sink:
+    """One run-log file written through an in-memory buffer, cut back to whole rows on failure.
+
+    The writer thread appends each row (csv) or frame (tlog) to a list, one ``write`` call
+    each, the cheapest thing it can do per event (it shares the interpreter lock with the
+    scheduler); :meth:`flush` joins and writes them with ``os.write``. When a write fails
+    (ENOSPC, EFBIG, EIO) the file is truncated after the last whole record that reached the
+    disk, closed, and refuses further data (:attr:`error`).
+    """
+
+    def __init__(self, path: Path, text: bool) -> None:
+        create_private(path)
+        self.path = path
+        self._fd: int | None = os.open(path, os.O_WRONLY | os.O_APPEND)
+        self._text = text
+        self._parts: list[Any] = []
+        self._pending = 0  # characters or bytes in _parts
+        self.good_size = 0
+        self.error: OSError | None = None
+
+    def write(self, data: str | bytes) -> None:
+        if self.error is not None:
+            raise self.error
+        self._parts.append(data)
+        self._pending += len(data)
+        if self._pending >= _BUFFER_LIMIT:
+            self.flush()
+
+    def flush(self) -> None:
+        if self._fd is None or not self._parts:
+            return
+        data = "".join(self._parts).encode("utf-8") if self._text else b"".join(self._parts)
+        view = memoryview(data)
+        written = 0
+        try:
+            while written < len(view):
+                written += os.write(self._fd, view[written:])
+        except OSError as exc:
+            self.good_size += self._whole_records(data, written)
+            self._fail(exc)
+            raise
+        self.good_size += len(data)
+        self._parts.clear()
+        self._pending = 0
+
+    def _whole_records(self, data: bytes, written: int) -> int:
+        """Bytes of ``data`` up to the end of the last record within its first ``written``."""
+        if self._text:
+            return data.rfind(b"\n", 0, written) + 1
+        end = 0
+        for part in self._parts:
+            if end + len(part) > written:
+                break
+            end += len(part)
+        return end
+
+    def _fail(self, exc: OSError) -> None:
+        self.error = exc
+        self._parts.clear()
+        self._pending = 0
+        fd, self._fd = self._fd, None
+        if fd is not None:
+            with contextlib.suppress(OSError):
+                os.ftruncate(fd, self.good_size)
+            with contextlib.suppress(OSError):
+                os.close(fd)
+
+    def close(self) -> None:
+        try:
+            self.flush()
+        finally:
+            fd, self._fd = self._fd, None
+            if fd is not None:
+                os.close(fd)
+
+
+def _cut_after_last_newline(path: Path, floor: int, chunk: int = 64 * 1024) -> None:
+    """Truncate a regular text file after its last newline at or beyond ``floor`` bytes."""
+    if not stat.S_ISREG(os.stat(path).st_mode):
+        return
+    with open(path, "rb+") as handle:
+        end = handle.seek(0, os.SEEK_END)
+        while end > floor:
+            start = max(floor, end - chunk)
+            handle.seek(start)
+            newline = handle.read(end - start).rfind(b"\n")
+            if newline >= 0:
+                handle.truncate(start + newline + 1)
+                return
+            end = start
+        handle.truncate(floor)
+
+
+class _CanLog(can.SizedRotatingLogger):
+    """python-can's size-rotating logger with private files and a flush that reaches the disk.
+
+    BLF (python-can's :class:`can.BLFWriter`) buffers frames into 128 KiB containers and writes
+    its header, which holds the start time every frame is relative to, only at ``stop``: a
+    killed run lost the last ~5 s and read back with times from 1970. :meth:`flush` writes the
+    pending container and rewrites the header (wall-clock start, size, object count) each
+    second, using the writer's ``_flush``/``_write_header`` (python-can 4.3-4.6; a writer
+    without them is flushed at stop only, as before). On a failed write the file is cut back
+    to its last whole line (text formats) or container (BLF) on disk, and the logger stops.
+    """
+
+    def __init__(self, base_filename: Path, max_bytes: int, start_wall: float) -> None:
+        self._start_wall = start_wall
+        self.good_size = 0
+        self.error: OSError | None = None
+        super().__init__(base_filename=base_filename, max_bytes=max_bytes)
+
+    def _get_new_writer(self, filename: Any) -> Any:
+        create_private(filename)
+        writer = super()._get_new_writer(filename)
+        if isinstance(writer, can.BLFWriter) and hasattr(writer, "_write_header"):
+            # relative times count from the run's start, to the millisecond BLF stores
+            writer.start_timestamp = int(self._start_wall * 1000) / 1000
+            self._rewrite_blf_header(writer)
+        writer.file.flush()  # the header on disk: a file cut back on failure keeps it
+        self.good_size = writer.file.tell()
+        return writer
+
+    @staticmethod
+    def _rewrite_blf_header(writer: Any) -> None:
+        end = writer.file.tell()
+        writer.file.seek(0)
+        writer._write_header(max(end, 144))  # 144: BLF's file header size
+        writer.file.seek(end)
+
+    def on_message_received(self, msg: can.Message) -> None:
+        writer = self.writer
+        pending = getattr(writer, "_buffer_size", None)  # BLF: bytes waiting for a container
+        try:
+            super().on_message_received(msg)
+            if self.writer is writer and pending is not None and writer._buffer_size < pending:
+                # BLF just wrote a container: put it on disk, so a failure keeps it
+                writer.file.flush()
+                self.good_size = writer.file.tell()
+        except OSError as exc:
+            self._fail(exc)
+            raise
+
+    def flush(self) -> None:
+        """Everything handed in so far onto the disk (the BLF header made current)."""
+        if self.error is not None:
+            return
+        writer = self.writer
+        try:
+            if isinstance(writer, can.BLFWriter) and hasattr(writer, "_flush"):
+                writer._flush()
+                self._rewrite_blf_header(writer)
+            writer.file.flush()
+            self.good_size = writer.file.tell()
+        except OSError as exc:
+            self._fail(exc)
+            raise
+
+    def _fail(self, exc: OSError) -> None:
+        """Close the file (not ``stop()``: no end block) and cut it back to the last flush.
+
+        By name, after closing: the file object still holds the tail that failed, and closing
+        tries to write it once more (it may partly succeed under a size limit).
+        """
+        self.error = exc
+        blf = isinstance(self.writer, can.BLFWriter)
+        with contextlib.suppress(Exception):
+            self.writer.file.close()
+        with contextlib.suppress(OSError):
+            if blf:  # cut after the last container known to be on disk
+                os.truncate(self.base_filename, self.good_size)
+            else:  # text formats: keep every whole line that reached the disk
+                _cut_after_last_newline(Path(self.base_filename), self.good_size)
+
+    def stop(self) -> None:
+        if self.error is None:
+            super().stop()
 
 
 def _versions() -> dict[str, str]:
@@ -165,9 +385,12 @@ class RunLog:
         latency_window: int = 4096,
         header: Mapping[str, Any] | None = None,
         autostart: bool = True,
+        max_run_bytes: int = DEFAULT_MAX_RUN_BYTES,
+        on_problem: Callable[[str], None] | None = None,
+        fallback_dir: str | os.PathLike[str] | None = None,
     ) -> None:
         self.directory = Path(directory)
-        self.directory.mkdir(parents=True, exist_ok=True)
+        self.directory.mkdir(mode=DIR_MODE, parents=True, exist_ok=True)
         self.formats = tuple(f.lower().lstrip(".") for f in formats)
         self.rotate_bytes = int(rotate_bytes)
         self._start_wall = time.time()
@@ -192,13 +415,22 @@ class RunLog:
         self.write_errors = 0
         self.last_error: str | None = None
         self.latency = LatencyTracer(window=latency_window, on_record=self._latency_record)
+        self.max_run_bytes = int(max_run_bytes)
+        self._on_problem = on_problem
+        self._fallback_dir = Path(fallback_dir) if fallback_dir else Path(tempfile.gettempdir())
+        self._problems_reported: set[str] = set()
+        self.problems: list[str] = []
+        self.failed_files: dict[str, str] = {}
+        self.capped = False
+        self.flushes = 0
+        self._outcome: dict[str, Any] = {}
 
         self._thread: threading.Thread | None = None
         self._closed = False
         self._last_setpoint: dict[str, float] = {}
-        self._files: dict[str, IO[Any]] = {}
+        self._files: dict[str, _Sink] = {}
         self._csv: dict[str, Any] = {}
-        self._can_loggers: list[can.io.BaseRotatingLogger] = []
+        self._can_loggers: list[_CanLog] = []
         self._open_files()
         self._write_header()
         if autostart:
@@ -228,8 +460,20 @@ class RunLog:
         self._stopping.set()  # the writer drains what is queued, then returns
         self._thread.join(timeout)
         self._close_files()
-        self._write_header(end_wall=time.time())
+        header_error = self._write_header(end_wall=time.time())
+        if header_error is not None:
+            self._report("header", f"cannot update {RUN_HEADER} at close: {header_error}")
         self._write_metrics(metrics or {})
+
+    def outcome(self) -> dict[str, Any]:
+        """What became of the run log: complete or not, why, and where ``metrics.json`` is."""
+        return {
+            "complete": not self.problems,
+            "problems": list(self.problems),
+            "failed_files": dict(self.failed_files),
+            "capped": self.capped,
+            **self._outcome,
+        }
 
     def __enter__(self) -> RunLog:
         return self
@@ -246,6 +490,9 @@ class RunLog:
             "queue_size": self._queue_size,
             "write_errors": self.write_errors,
             "last_error": self.last_error,
+            "failed_files": dict(self.failed_files),
+            "capped": self.capped,
+            "max_run_bytes": self.max_run_bytes,
         }
 
     # -- observer interface (called from scheduler / link threads; never blocks) -------------
@@ -335,29 +582,94 @@ class RunLog:
     def _open_files(self) -> None:
         d = self.directory
         for fmt in self.formats:
-            logger = can.SizedRotatingLogger(
-                base_filename=d / f"{CAN_BASENAME}.{fmt}", max_bytes=self.rotate_bytes
-            )
-            self._can_loggers.append(logger)
+            path = d / f"{CAN_BASENAME}.{fmt}"
+            self._can_loggers.append(_CanLog(path, self.rotate_bytes, self._start_wall))
         for key, name, columns in (
             ("trace", TRACE_FILE, TRACE_COLUMNS),
             ("latency", LATENCY_FILE, LATENCY_COLUMNS),
         ):
-            handle = open(d / name, "w", newline="", encoding="utf-8")  # noqa: SIM115
-            self._files[key] = handle
-            self._csv[key] = csv.writer(handle)
+            sink = _Sink(d / name, text=True)
+            self._files[key] = sink
+            self._csv[key] = csv.writer(sink)
             self._csv[key].writerow(columns)
-        self._files["rejections"] = open(d / REJECTIONS_FILE, "w", encoding="utf-8")  # noqa: SIM115
+        self._files["rejections"] = _Sink(d / REJECTIONS_FILE, text=True)
         if self._tlog_enabled:
-            self._files["tlog"] = open(d / TLOG_FILE, "wb")  # noqa: SIM115
+            self._files["tlog"] = _Sink(d / TLOG_FILE, text=False)
 
     def _close_files(self) -> None:
         for logger in self._can_loggers:
-            with contextlib.suppress(Exception):
+            try:
                 logger.stop()
-        for handle in self._files.values():
-            with contextlib.suppress(Exception):
-                handle.close()
+            except OSError as exc:
+                self._file_failed(Path(logger.base_filename).name, exc)
+            except Exception:  # noqa: BLE001 - closing goes on with the other files
+                log.debug("closing a CAN log failed", exc_info=True)
+        for sink in self._files.values():
+            try:
+                sink.close()
+            except OSError as exc:
+                self._file_failed(sink.path.name, exc)
+
+    def _flush_all(self) -> None:
+        """Every file's buffered data onto the disk; failures are reported, never raised."""
+        for logger in self._can_loggers:
+            try:
+                logger.flush()
+            except OSError as exc:
+                self._file_failed(Path(logger.base_filename).name, exc)
+        for sink in self._files.values():
+            try:
+                sink.flush()
+            except OSError as exc:
+                self._file_failed(sink.path.name, exc)
+        self.flushes += 1
+        self._check_size()
+
+    def _check_size(self) -> None:
+        """Stop writing events once the run's files add up to ``max_run_bytes``."""
+        if self.capped:
+            return
+        total = 0
+        with contextlib.suppress(OSError), os.scandir(self.directory) as entries:
+            for entry in entries:
+                with contextlib.suppress(OSError):
+                    if entry.is_file(follow_symlinks=False):
+                        total += entry.stat(follow_symlinks=False).st_size
+        if total >= self.max_run_bytes:
+            self.capped = True
+            self._report(
+                "cap",
+                f"run log reached its size cap ({total / 2**20:.0f} MiB >= logging.max_run_mb);"
+                " it records nothing more this run (the bridge keeps running)",
+            )
+
+    def _file_failed(self, name: str, exc: OSError) -> None:
+        """A file stopped working: count it, and say it once per kind of error."""
+        if name in self.failed_files:
+            return
+        self.failed_files[name] = f"{exc.strerror or exc}"
+        self.write_errors += 1
+        self.last_error = f"{name}: {exc.strerror or exc}"
+        kind = errno.errorcode.get(exc.errno or 0, "error")
+        self._report(
+            kind,
+            f"run log: cannot write {name} ({exc.strerror or exc}); that file stops here,"
+            " complete up to the last second (the bridge keeps running)",
+        )
+
+    def _report(self, kind: str, text: str) -> None:
+        """One log line and one ``on_problem`` call per kind of problem; all kept in problems."""
+        self.problems.append(text)
+        if kind in self._problems_reported:
+            log.debug("%s", text)
+            return
+        self._problems_reported.add(kind)
+        log.error("%s", text)
+        if self._on_problem is not None:
+            try:
+                self._on_problem(text)
+            except Exception:  # noqa: BLE001 - a broken listener must not stop the writer
+                log.debug("on_problem failed", exc_info=True)
 
     def _run(self) -> None:
         last_flush = time.monotonic()
@@ -365,10 +677,16 @@ class RunLog:
             stopping = self._stopping.is_set()  # read before draining: nothing is left behind
             while self._queue:
                 item = self._queue.popleft()
+                if self.capped:
+                    self.dropped["cap"] += 1
+                    continue
                 try:
                     self._write(item)
                     self.written[_CATEGORY[item[0]]] += 1
-                except Exception as exc:  # a full disk must not kill the bridge
+                except OSError as exc:  # a full disk must not kill the bridge
+                    self.dropped["write_failed"] += 1
+                    self._file_failed(_failed_name(exc, item), exc)
+                except Exception as exc:  # noqa: BLE001 - nor must one odd event
                     self.write_errors += 1
                     self.last_error = f"{type(exc).__name__}: {exc}"
             if stopping:
@@ -377,9 +695,10 @@ class RunLog:
             now = time.monotonic()
             if now - last_flush >= _FLUSH_EVERY_S:
                 last_flush = now
-                for handle in self._files.values():
-                    with contextlib.suppress(Exception):
-                        handle.flush()
+                try:
+                    self._flush_all()
+                except Exception:  # noqa: BLE001 - the writer thread must outlive any file
+                    log.exception("run log flush failed")
 
     def _write(self, item: tuple[Any, ...]) -> None:
         code = item[0]
@@ -418,8 +737,13 @@ class RunLog:
             channel=self._bus_entry(bus)["channel"],
             check=False,
         )
-        for logger in self._can_loggers:
-            logger.on_message_received(msg)
+        for logger in self._can_loggers:  # one full CAN log does not stop the others
+            if logger.error is not None:
+                continue
+            try:
+                logger.on_message_received(msg)
+            except OSError as exc:
+                self._file_failed(Path(logger.base_filename).name, exc)
         if code == _RX and item[9] is not None:
             servo, state = item[8], item[9]
             self._csv["trace"].writerow(
@@ -438,7 +762,7 @@ class RunLog:
 
     # -- header and metrics ----------------------------------------------------------------
 
-    def _write_header(self, end_wall: float | None = None) -> None:
+    def _write_header(self, end_wall: float | None = None) -> OSError | None:
         header: dict[str, Any] = {
             "format": "mavservo-run",
             "format_version": LOG_FORMAT_VERSION,
@@ -452,17 +776,45 @@ class RunLog:
             "end_wall": end_wall,
             "can_formats": list(self.formats),
             "rotate_bytes": self.rotate_bytes,
+            "max_run_bytes": self.max_run_bytes,
             "buses": self._buses,
             "servos": self._servos,
             **self._extra_header,
         }
-        _write_json_atomic(self.directory / RUN_HEADER, header)
+        if end_wall is None:  # at start: a failure is start-up's (the caller's) to report
+            _write_json_atomic(self.directory / RUN_HEADER, header)
+            return None
+        try:
+            _write_json_atomic(self.directory / RUN_HEADER, header)
+        except OSError as exc:
+            return exc
+        return None
 
     def _write_metrics(self, metrics: Mapping[str, Any]) -> None:
+        """``metrics.json`` in the run directory, else in the fallback directory, else only in
+        memory; :meth:`outcome` and the log say which."""
         data = dict(metrics)
         data["runlog"] = self.counters()
         data["latency"] = self.latency.summary()
-        _write_json_atomic(self.directory / METRICS_FILE, data)
+        data["runlog_problems"] = list(self.problems)
+        self._outcome["metrics"] = data
+        targets = [
+            self.directory / METRICS_FILE,
+            self._fallback_dir / f"mavservo-{self.directory.name}-{METRICS_FILE}",
+        ]
+        errors = []
+        for target in targets:
+            try:
+                _write_json_atomic(target, data)
+            except OSError as exc:
+                errors.append(f"{target}: {exc.strerror or exc}")
+                continue
+            self._outcome["metrics_path"] = str(target)
+            if errors:
+                self._report("metrics", f"{METRICS_FILE} written to {target} ({errors[0]})")
+            return
+        self._outcome["metrics_path"] = None
+        self._report("metrics", f"{METRICS_FILE} could not be written: {'; '.join(errors)}")
 
 
 def _num(value: Any) -> str:
@@ -478,7 +830,30 @@ def _faults(value: Any) -> str:
     return str(value) if value else ""
 
 
+def _failed_name(exc: OSError, item: tuple[Any, ...]) -> str:
+    """Which file an event's failed write was for (named by the errno's filename if set)."""
+    if exc.filename:
+        return Path(exc.filename).name
+    return {
+        "can": f"{CAN_BASENAME}.*",
+        "trace": TRACE_FILE,
+        "rejections": REJECTIONS_FILE,
+        "mavlink": TLOG_FILE,
+        "latency": LATENCY_FILE,
+    }[_CATEGORY[item[0]]]
+
+
 def _write_json_atomic(path: Path, data: Mapping[str, Any]) -> None:
+    """Write ``path`` (0600) through a temporary file that never outlives a failure."""
     tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2, default=str) + "\n", encoding="utf-8")
-    os.replace(tmp, path)
+    text = json.dumps(data, indent=2, default=str) + "\n"
+    try:
+        create_private(tmp)
+        with open(tmp, "w", encoding="utf-8") as handle:
+            handle.write(text)
+            handle.flush()
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise

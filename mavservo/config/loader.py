@@ -21,6 +21,7 @@ from yaml.nodes import ScalarNode
 from mavservo.config.schema import Config
 from mavservo.config.semantic import Finding, advisories, budget_checks, cross_checks
 from mavservo.config.yamlsource import (
+    MAX_BYTES,
     Problem,
     YamlDocument,
     YamlSyntaxError,
@@ -57,14 +58,29 @@ def load_config_with_warnings(path: str | Path) -> tuple[Config, list[Problem]]:
     errors do; ``mavservo check`` prints them, and a config with warnings is still valid.
     """
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
-        problem = Problem((), None, f"cannot read the file: {reason}")
-        raise ConfigError(str(path), [problem]) from None
+    text = _read_text(path)
     config, document = _validate(text, str(path), path.resolve().parent)
     return config, _located(advisories(config), document)
+
+
+def _read_text(path: Path) -> str:
+    """The file's text, at most :data:`MAX_BYTES` (+1 to notice more) read; a ConfigError
+    names the line of a byte that is not UTF-8 (binary junk gets a line like any error)."""
+    try:
+        with path.open("rb") as handle:
+            data = handle.read(MAX_BYTES + 1)
+    except OSError as exc:
+        problem = Problem((), None, f"cannot read the file: {exc.strerror or exc}")
+        raise ConfigError(str(path), [problem]) from None
+    if len(data) > MAX_BYTES:
+        problem = Problem((), 1, f"the file is larger than {MAX_BYTES} bytes; is it a config?")
+        raise ConfigError(str(path), [problem])
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data[: exc.start].count(b"\n") + 1
+        problem = Problem((), line, f"not UTF-8 text: byte 0x{data[exc.start]:02x} is not valid")
+        raise ConfigError(str(path), [problem]) from None
 
 
 def load_config_text(text: str, filename: str = "<config>", base_dir: Path | None = None) -> Config:

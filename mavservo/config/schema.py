@@ -606,6 +606,9 @@ class LoggingConfig(StrictModel):
     dir: Path = Path("runs")
     can_formats: list[Literal["asc", "blf", "csv", "log", "trc"]] = ["asc"]
     rotate_mb: Float | None = Field(50.0, gt=0)
+    #: Every file of a run together stops growing here (the run log said nothing and filled
+    #: 104 MB in 25 minutes, only the CAN logs rotated); 1 GiB is ~4 h of the built-in sim.
+    max_run_mb: Float = Field(1024.0, gt=0)
     tlog: Bool = True
     level: Literal["debug", "info", "warning", "error"] = "info"
 

@@ -5,6 +5,14 @@ node's start mark; the same graph is then constructed into plain Python data for
 pydantic ``loc`` tuple (``("channels", 2, "channel")``) is walked back down the graph to find the
 line it came from. Duplicate mapping keys, which PyYAML would silently resolve to the last one,
 are reported here because they are exactly the silent typo the config must refuse.
+
+Every YAML input is hostile until parsed: PyYAML composes recursively and expands aliases
+without limit, so a 1,000-bracket line ended in a RecursionError traceback, ``a: &x [*x]`` in a
+loop, and a 9-level alias bomb (each level an alias list of the one before) made the old
+duplicate-key walk visit 10**9 nodes. :class:`_BoundedLoader` refuses, with the line, nesting
+deeper than :data:`MAX_DEPTH`, an alias inside the node it names, and a document whose values
+(aliases counted as often as they are used) exceed :data:`MAX_VALUES`, all while composing,
+before anything is expanded; and the text itself is capped at :data:`MAX_BYTES`.
 """
 
 from __future__ import annotations
@@ -14,7 +22,17 @@ from dataclasses import dataclass
 from typing import Any
 
 import yaml
+from yaml.composer import ComposerError
+from yaml.events import AliasEvent
 from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
+
+#: Deepest nesting of mappings and lists accepted, aliases expanded (the real configs use 5).
+MAX_DEPTH = 32
+#: Most values (scalars, lists, mappings; each use of an alias counts its whole subtree) in a
+#: document: the shipped sim.yaml has ~400, so this leaves room and bounds the work per file.
+MAX_VALUES = 20_000
+#: Largest config text accepted: the shipped ones are 3-11 KB; PyYAML parses ~1 MB/s.
+MAX_BYTES = 256 * 1024
 
 
 @dataclass(frozen=True)
@@ -95,10 +113,89 @@ class YamlDocument:
         return node
 
 
+class _BoundedLoader(yaml.SafeLoader):
+    """PyYAML's safe loader with bounded composition (see the module docstring).
+
+    ``compose_node`` is where PyYAML recurses and resolves aliases, so the three limits are
+    checked there, each node's expanded size and depth computed once from its children's.
+    """
+
+    def __init__(self, text: str) -> None:
+        super().__init__(text)
+        self._depth = 0
+        self._open_anchors: list[str] = []
+        self._expanded: dict[int, tuple[int, int]] = {}  # id(node) -> (values, depth)
+
+    def compose_node(self, parent: Node | None, index: Any) -> Node:
+        if self.check_event(AliasEvent):
+            event = self.peek_event()
+            if event.anchor in self._open_anchors:
+                raise ComposerError(
+                    None,
+                    None,
+                    f"alias *{event.anchor} is inside the node it names (a loop)",
+                    event.start_mark,
+                )
+            node = super().compose_node(parent, index)
+            self._check_expanded(node, event.start_mark, f"alias *{event.anchor}")
+            return node
+        event = self.peek_event()
+        self._depth += 1
+        if self._depth > MAX_DEPTH:
+            raise ComposerError(
+                None, None, f"nested more than {MAX_DEPTH} levels deep", event.start_mark
+            )
+        if event.anchor is not None:
+            self._open_anchors.append(event.anchor)
+        node = super().compose_node(parent, index)
+        if event.anchor is not None:
+            self._open_anchors.pop()
+        self._depth -= 1
+        self._expanded[id(node)] = self._measure(node)
+        self._check_expanded(node, event.start_mark, "this value")
+        return node
+
+    def _measure(self, node: Node) -> tuple[int, int]:
+        """(values, depth) of ``node`` with aliases expanded, from its children's (known)."""
+        children: list[Node] = []
+        if isinstance(node, SequenceNode):
+            children = node.value
+        elif isinstance(node, MappingNode):
+            children = [part for pair in node.value for part in pair]
+        values, depth = 1, 1
+        for child in children:
+            child_values, child_depth = self._expanded.get(id(child), (1, 1))
+            values += child_values
+            depth = max(depth, child_depth + 1)
+        return values, depth
+
+    def _check_expanded(self, node: Node, mark: Any, what: str) -> None:
+        values, depth = self._expanded.get(id(node), (1, 1))
+        if values > MAX_VALUES:
+            raise ComposerError(
+                None,
+                None,
+                f"{what} holds more than {MAX_VALUES} values, each use of an alias counted"
+                " in full (a config has a few hundred)",
+                mark,
+            )
+        if self._depth + depth > MAX_DEPTH:
+            raise ComposerError(
+                None,
+                None,
+                f"{what} makes the document nest more than {MAX_DEPTH} levels deep",
+                mark,
+            )
+
+
 def parse_yaml(text: str) -> YamlDocument:
     """Parse one YAML document; raises :class:`YamlSyntaxError` with the line on bad syntax."""
+    if len(text) > MAX_BYTES:
+        raise YamlSyntaxError(
+            1, f"the file is {len(text)} characters long; a config has at most {MAX_BYTES}"
+        )
     try:
-        loader = yaml.SafeLoader(text)
+        loader = _BoundedLoader(text)
     except yaml.reader.ReaderError as exc:  # a control character: rejected before any parsing
         raise YamlSyntaxError(
             text[: exc.position].count("\n") + 1,
@@ -164,7 +261,14 @@ def _child(node: Node | None, part: str | int) -> tuple[Node | None, Node | None
     return None, None
 
 
-def _find_duplicate_keys(node: Node, path: tuple[str | int, ...], out: list[Problem]) -> None:
+def _find_duplicate_keys(
+    node: Node, path: tuple[str | int, ...], out: list[Problem], seen_nodes: set[int] | None = None
+) -> None:
+    """Report repeated keys; a node reached again through an alias is not walked again."""
+    seen_nodes = set() if seen_nodes is None else seen_nodes
+    if id(node) in seen_nodes:
+        return
+    seen_nodes.add(id(node))
     if isinstance(node, MappingNode):
         seen: dict[str, int] = {}
         for key_node, value_node in node.value:
@@ -180,7 +284,8 @@ def _find_duplicate_keys(node: Node, path: tuple[str | int, ...], out: list[Prob
                     )
                 else:
                     seen[key] = _line(key_node) or 0
-            _find_duplicate_keys(value_node, path + ((key,) if key is not None else ()), out)
+            step = (key,) if key is not None else ()
+            _find_duplicate_keys(value_node, path + step, out, seen_nodes)
     elif isinstance(node, SequenceNode):
         for index, item in enumerate(node.value):
-            _find_duplicate_keys(item, path + (index,), out)
+            _find_duplicate_keys(item, path + (index,), out, seen_nodes)
