@@ -28,6 +28,11 @@ of the bridge's threads and of each child over that time.
 
 Resident memory (VmRSS) and the Python heap (tracemalloc, optional) are sampled at every
 window boundary: "memory flat" means the last third does not grow beyond the first third.
+At every boundary ``processes`` also records, for the bridge's process and each child
+(simulator, autopilot), VmRSS, open file descriptors (``/proc/<pid>/fd``) and threads
+(``/proc/<pid>/status`` Threads; for the bridge also ``threading.active_count()``), and
+``flat_from_s`` says, per process, from when on its RSS (and the heap) never rose more than
+1 % above its value then: the time to flat.
 
     flock /tmp/mavservo-bench.lock python bench/soak.py --minutes 30 > soak.json
 """
@@ -70,6 +75,33 @@ def rss_kib(pid: int | str = "self") -> int:
         if line.startswith("VmRSS:"):
             return int(line.split()[1])
     return 0
+
+
+def process_figures(pid: int | str = "self") -> dict[str, int]:
+    """VmRSS (kB), open file descriptors and OS threads of ``pid``: what a leak shows up in."""
+    figures = {"rss_kib": 0, "fds": 0, "threads": 0}
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                figures["rss_kib"] = int(line.split()[1])
+            elif line.startswith("Threads:"):
+                figures["threads"] = int(line.split()[1])
+        figures["fds"] = len(os.listdir(f"/proc/{pid}/fd"))
+    except OSError:  # a child that has gone: zeros, the run goes on
+        pass
+    return figures
+
+
+def flat_from(samples: list[tuple[float, int]], tolerance: float = 0.01) -> float | None:
+    """The first time ``t`` of ``(t, value)`` samples after which the value never rose more
+    than ``tolerance`` (a fraction) above its value at ``t``: when memory went flat."""
+    highest_after = -1
+    flat = None
+    for t, value in reversed(samples):
+        highest_after = max(highest_after, value)
+        if highest_after <= value * (1 + tolerance):
+            flat = t
+    return flat
 
 
 def run_queue_wait_s(pid: int | str = "self") -> dict[str, float]:
@@ -499,6 +531,16 @@ def main() -> None:
     end = started + args.minutes * 60
     windows: list[dict[str, Any]] = []
     memory: list[tuple[float, int, int]] = []
+    processes: list[dict[str, Any]] = []
+
+    def sample_processes(t: float) -> None:
+        row: dict[str, Any] = {"t_s": round(t, 1)}
+        for name, pid in pids.items():
+            row[name] = process_figures(pid or "self")
+        row["bridge"]["py_threads"] = threading.active_count()
+        processes.append(row)
+
+    sample_processes(time.monotonic() - started)
     index = 0
     baseline: tracemalloc.Snapshot | None = None
     start_up: dict[str, Any] = {}
@@ -543,13 +585,14 @@ def main() -> None:
             )
             heap = tracemalloc.get_traced_memory()[0] if args.tracemalloc else 0
             memory.append((round(time.monotonic() - started, 1), rss_kib(), heap))
+            sample_processes(time.monotonic() - started)
             if args.tracemalloc and index == len(args.phases) - 1:
                 baseline = tracemalloc.take_snapshot()  # after one full cycle of phases
             index += 1
         growth = []
         if baseline is not None:
             diff = tracemalloc.take_snapshot().compare_to(baseline, "lineno")
-            growth = [str(stat) for stat in diff[:8]]
+            growth = [str(stat) for stat in diff[:12]]
     finally:
         summary = setup.stop()
         diagnostics.stop()
@@ -595,6 +638,20 @@ def main() -> None:
         "diagnosis": diagnostics.report(windows),
         "windows": windows,
         "memory_samples": memory,
+        "flat_from_s": {
+            **{
+                f"{name}_rss": flat_from([(p["t_s"], p[name]["rss_kib"]) for p in processes])
+                for name in pids
+            },
+            "bridge_heap": flat_from([(t, heap) for t, _, heap in memory])
+            if args.tracemalloc
+            else None,
+        },
+        "processes": {
+            "first": processes[0] if processes else None,
+            "last": processes[-1] if processes else None,
+            "samples": processes,
+        },
         "heap_growth_top": growth,
         "events": summary.get("events", []),
     }
