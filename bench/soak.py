@@ -50,8 +50,9 @@ import sys
 import threading
 import time
 import tracemalloc
-from collections import Counter, deque
-from collections.abc import Iterable
+from array import array
+from collections import Counter
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -68,6 +69,9 @@ PHASES = ("clean", "line_1e-3", "clean", "unplug", "clean", "servo_silent")
 SILENT_ID = 2
 COMMAND_PERIOD_S = 0.02
 REPLY_TIMEOUT_S = 0.05
+SENDS_KEPT = 3000
+"""Sends and decodes kept per servo: 50 s at 60 frames/s, so a clean window's losses can be
+followed up to two windows later."""
 
 
 def rss_kib(pid: int | str = "self") -> int:
@@ -118,22 +122,83 @@ def run_queue_wait_s(pid: int | str = "self") -> dict[str, float]:
     return out
 
 
+class Ring:
+    """The last ``maxlen`` records, oldest first, in columns allocated in full up front.
+
+    The diagnosis records (every send and decode per servo, every lost reply) used to be deques
+    of tuples of float objects: about 100 bytes a record, growing until full, which put the
+    harness itself among the top heap growers of its own memory figure for minutes. Columns are
+    ``array`` type codes (``"d"`` float, ``"b"``/``"i"`` int) or ``"s"`` for a string from a
+    small set (kinds, servo names), stored as an index into a table. Iteration yields tuples,
+    or the bare value for a one-column ring (reads like the deque it replaces).
+    """
+
+    def __init__(self, maxlen: int, columns: str) -> None:
+        self.maxlen = maxlen
+        self._columns = columns
+        self._arrays = [
+            array(
+                "H" if code == "s" else code,
+                bytes(array("H" if code == "s" else code).itemsize * maxlen),
+            )
+            for code in columns
+        ]
+        self._names: list[str] = []
+        self._codes: dict[str, int] = {}
+        self._next = 0
+        self._size = 0
+
+    def _encode(self, code: str, value: Any) -> Any:
+        if code != "s":
+            return value
+        index = self._codes.get(value)
+        if index is None:
+            index = self._codes[value] = len(self._names)
+            self._names.append(value)
+        return index
+
+    def append(self, record: Any) -> None:
+        values = (record,) if len(self._columns) == 1 else record
+        for column, code, value in zip(self._arrays, self._columns, values, strict=True):
+            column[self._next] = self._encode(code, value)
+        self._next = (self._next + 1) % self.maxlen
+        self._size = min(self._size + 1, self.maxlen)
+
+    def extend(self, records: Iterable[Any]) -> None:
+        for record in records:
+            self.append(record)
+
+    def __len__(self) -> int:
+        return self._size
+
+    def __iter__(self) -> Iterator[Any]:
+        start = (self._next - self._size) % self.maxlen
+        for i in range(self._size):
+            j = (start + i) % self.maxlen
+            record = tuple(
+                self._names[column[j]] if code == "s" else column[j]
+                for column, code in zip(self._arrays, self._columns, strict=True)
+            )
+            yield record[0] if len(record) == 1 else record
+
+
 class Diagnostics(SchedulerObserver):
     """Time-stamped evidence: process stalls, GC pauses, command-slot gaps, lost replies.
 
-    Observer hooks only append to bounded deques (they run inside the scheduler's loops).
+    Observer hooks only append to bounded rings allocated up front (they run inside the
+    scheduler's loops, and the soak's memory figure must not measure its own records filling).
     """
 
     def __init__(self, stall_s: float = 0.005, keep: int = 20_000) -> None:
         self.stall_s = stall_s
-        self.stalls: deque[tuple[float, float]] = deque(maxlen=keep)  # (end, duration)
-        self.gc_pauses: deque[tuple[float, float, int]] = deque(maxlen=keep)  # (end, s, gen)
-        self.missed: deque[tuple[float, int]] = deque(maxlen=keep)  # (seen at, slots)
-        self.lost: deque[tuple[float, str]] = deque(maxlen=keep)
-        self.sent: dict[str, deque[tuple[float, str]]] = {}  # per servo: (t, kind)
-        self.received: dict[str, deque[float]] = {}  # per servo: when its replies were decoded
+        self.stalls = Ring(keep, "dd")  # (end, duration)
+        self.gc_pauses = Ring(keep, "ddb")  # (end, s, generation)
+        self.missed = Ring(keep, "di")  # (seen at, slots)
+        self.lost = Ring(keep, "ds")  # (t, servo)
+        self.sent: dict[str, Ring] = {}  # per servo: (t, kind)
+        self.received: dict[str, Ring] = {}  # per servo: when its replies were decoded
         self.followed: list[dict[str, Any]] = []
-        self.sim_lag: deque[tuple[float, float]] = deque(maxlen=keep)  # (t, lag)
+        self.sim_lag = Ring(keep, "dd")  # (t, lag)
         self.scheduler: Any = None
         """Set to the bridge's scheduler once it exists: its missed-slot count is watched."""
         self.first_command: float | None = None
@@ -176,12 +241,18 @@ class Diagnostics(SchedulerObserver):
 
     def on_tx(self, bus: str, msg: Any, t: float, kind: str, servo: str, seq: Any) -> None:
         # 50 s per servo: a window's losses are followed up to two windows later
-        self.sent.setdefault(servo, deque(maxlen=3000)).append((t, kind))
+        sent = self.sent.get(servo)
+        if sent is None:
+            sent = self.sent[servo] = Ring(SENDS_KEPT, "ds")
+        sent.append((t, kind))
         if self.first_command is None and kind == "command":
             self.first_command = t
 
     def on_rx(self, bus: str, msg: Any, t: float, servo: str, state: Any) -> None:
-        self.received.setdefault(servo, deque(maxlen=3000)).append(t)  # 50 s, like sends
+        received = self.received.get(servo)
+        if received is None:
+            received = self.received[servo] = Ring(SENDS_KEPT, "d")  # 50 s, like sends
+        received.append(t)
 
     def on_lost(self, bus: str, servo: str, t: float) -> None:
         self.lost.append((t, servo))

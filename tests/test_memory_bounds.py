@@ -298,3 +298,17 @@ def test_soak_flat_from_is_the_first_time_after_which_memory_stays_within_one_pe
     still_growing = [(t, 100 + 5 * t) for t in range(10)]
     assert soak.flat_from(still_growing) == 9
     assert soak.flat_from([]) is None
+
+
+def test_soak_diagnosis_rings_hold_the_last_records_and_allocate_nothing_after_built():
+    soak = soak_module()
+    sent = soak.Ring(3000, "ds")
+    records = [(i * 0.001, ("command", "refresh", "request")[i % 3]) for i in range(N)]
+    sent.extend(records[:10])
+    assert list(sent) == records[:10]
+    assert allocated_by(lambda: sent.extend(records[10:])) < 16 * 1024  # deque: ~300 kB
+    assert len(sent) == 3000 and list(sent) == records[-3000:]
+    decoded = soak.Ring(5, "d")
+    decoded.extend(float(i) for i in range(N))
+    assert list(decoded) == [float(i) for i in range(N - 5, N)]
+    assert soak.Ring(4, "ddb").__len__() == 0 and list(soak.Ring(4, "dd")) == []
