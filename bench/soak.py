@@ -69,6 +69,7 @@ PHASES = ("clean", "line_1e-3", "clean", "unplug", "clean", "servo_silent")
 SILENT_ID = 2
 COMMAND_PERIOD_S = 0.02
 REPLY_TIMEOUT_S = 0.05
+FOLLOWED_KEPT = 300
 SENDS_KEPT = 3000
 """Sends and decodes kept per servo: 50 s at 60 frames/s, so a clean window's losses can be
 followed up to two windows later."""
@@ -198,6 +199,10 @@ class Diagnostics(SchedulerObserver):
         self.sent: dict[str, Ring] = {}  # per servo: (t, kind)
         self.received: dict[str, Ring] = {}  # per servo: when its replies were decoded
         self.followed: list[dict[str, Any]] = []
+        """The first ``FOLLOWED_KEPT`` clean-window losses followed through the trace (each
+        holds the trace excerpt around it, kB apiece: a noisy run must not grow by them)."""
+        self.verdicts: Counter[str] = Counter()
+        """The verdict of every loss followed, kept or not."""
         self.sim_lag = Ring(keep, "dd")  # (t, lag)
         self.scheduler: Any = None
         """Set to the bridge's scheduler once it exists: its missed-slot count is watched."""
@@ -308,6 +313,11 @@ class Diagnostics(SchedulerObserver):
             )
         return out
 
+    def keep_followed(self, followed: list[dict[str, Any]]) -> None:
+        """Count every verdict; keep the first ``FOLLOWED_KEPT`` losses in full."""
+        self.verdicts.update(f["verdict"] for f in followed)
+        self.followed += followed[: max(0, FOLLOWED_KEPT - len(self.followed))]
+
     def attribute(self, start: float, end: float, min_s: float = 0.005) -> str:
         """What else happened in ``[start, end]``: the first cause found, by weight."""
 
@@ -397,8 +407,8 @@ class Diagnostics(SchedulerObserver):
             "stalls_over_5ms": len(self.stalls),
             "stall_max_ms": round(max((d for _, d in self.stalls), default=0) * 1e3, 2),
             "sim_lag_spikes_over_5ms": len(self.sim_lag),
-            "clean_losses_followed": self.followed[:300],
-            "clean_loss_verdicts": dict(Counter(f["verdict"] for f in self.followed)),
+            "clean_losses_followed": self.followed,
+            "clean_loss_verdicts": dict(self.verdicts),
         }
 
 
@@ -492,9 +502,9 @@ class Deployed:
                 return self.sim.request("trace", t0=t0, t1=t1, ids=ids)["trace"]
 
             try:
-                diagnostics.followed += diagnostics.follow_losses(*follow, trace)
+                diagnostics.keep_followed(diagnostics.follow_losses(*follow, trace))
             except Exception as error:  # diagnosis must never end a 30-minute run
-                diagnostics.followed.append({"verdict": f"follow failed: {error!r}"})
+                diagnostics.keep_followed([{"verdict": f"follow failed: {error!r}"}])
         stats = self.sim.request("stats")
         diagnostics.sim_lag.extend(tuple(x) for x in stats["lag"]["spike_times"])
         keys = ("frames_to_host", "bytes_overflowed", "rejected_from_host", "host_dropped")

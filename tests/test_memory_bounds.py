@@ -312,3 +312,14 @@ def test_soak_diagnosis_rings_hold_the_last_records_and_allocate_nothing_after_b
     decoded.extend(float(i) for i in range(N))
     assert list(decoded) == [float(i) for i in range(N - 5, N)]
     assert soak.Ring(4, "ddb").__len__() == 0 and list(soak.Ring(4, "dd")) == []
+
+
+def test_soak_keeps_the_first_followed_losses_and_counts_every_verdict():
+    soak = soak_module()
+    diagnostics = soak.Diagnostics()
+    for window in range(40):  # 40 windows of 50 followed losses, each with its trace excerpt
+        diagnostics.keep_followed(
+            [{"verdict": ("late", "no reply")[i % 2], "sim": [window] * 50} for i in range(50)]
+        )
+    assert len(diagnostics.followed) == soak.FOLLOWED_KEPT
+    assert diagnostics.verdicts == {"late": 1000, "no reply": 1000}
