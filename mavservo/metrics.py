@@ -14,6 +14,7 @@ JSON-serialisable snapshot the API, the live monitor and the run log share.
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from array import array
@@ -71,18 +72,21 @@ class FloatRing:
     def __bool__(self) -> bool:
         return self._size > 0
 
-    def _oldest(self) -> int:
-        return (self._next - self._size) % self.maxlen
+    def _parts(self) -> tuple[array[float], array[float]]:
+        """The values as (older, newer) copies: a C-level slice each, so iterating stays as
+        cheap as a deque's (``Scheduler.round_trip_samples`` reads under the scheduler's lock).
+        Until the ring is full nothing has wrapped and the older part is empty."""
+        if self._size < self.maxlen:
+            return array("d"), self._values[: self._size]
+        return self._values[self._next :], self._values[: self._next]
 
     def __iter__(self) -> Iterator[float]:
-        start, values = self._oldest(), self._values
-        for i in range(self._size):
-            yield values[(start + i) % self.maxlen]
+        older, newer = self._parts()
+        return itertools.chain(older, newer)
 
     def __reversed__(self) -> Iterator[float]:
-        values = self._values
-        for i in range(1, self._size + 1):
-            yield values[(self._next - i) % self.maxlen]
+        older, newer = self._parts()
+        return itertools.chain(reversed(newer), reversed(older))
 
     def values(self) -> list[float]:
         """The held values in storage order, not time order (for sorting: one C-level copy).
