@@ -382,6 +382,8 @@ class DeployedRig:
                 "sweep",
                 "--servo-rate",
                 "50",
+                "--keep",  # its logs are read by nobody here: full (flat) within ~20 s
+                "1000",
             ],
             stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL,

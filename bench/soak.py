@@ -28,6 +28,11 @@ of the bridge's threads and of each child over that time.
 
 Resident memory (VmRSS) and the Python heap (tracemalloc, optional) are sampled at every
 window boundary: "memory flat" means the last third does not grow beyond the first third.
+At every boundary ``processes`` also records, for the bridge's process and each child
+(simulator, autopilot), VmRSS, open file descriptors (``/proc/<pid>/fd``) and threads
+(``/proc/<pid>/status`` Threads; for the bridge also ``threading.active_count()``), and
+``flat_from_s`` says, per process, from when on its RSS (and the heap) never rose more than
+1 % above its value then: the time to flat.
 
     flock /tmp/mavservo-bench.lock python bench/soak.py --minutes 30 > soak.json
 """
@@ -45,8 +50,9 @@ import sys
 import threading
 import time
 import tracemalloc
-from collections import Counter, deque
-from collections.abc import Iterable
+from array import array
+from collections import Counter
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -63,6 +69,10 @@ PHASES = ("clean", "line_1e-3", "clean", "unplug", "clean", "servo_silent")
 SILENT_ID = 2
 COMMAND_PERIOD_S = 0.02
 REPLY_TIMEOUT_S = 0.05
+FOLLOWED_KEPT = 300
+SENDS_KEPT = 3000
+"""Sends and decodes kept per servo: 50 s at 60 frames/s, so a clean window's losses can be
+followed up to two windows later."""
 
 
 def rss_kib(pid: int | str = "self") -> int:
@@ -70,6 +80,33 @@ def rss_kib(pid: int | str = "self") -> int:
         if line.startswith("VmRSS:"):
             return int(line.split()[1])
     return 0
+
+
+def process_figures(pid: int | str = "self") -> dict[str, int]:
+    """VmRSS (kB), open file descriptors and OS threads of ``pid``: what a leak shows up in."""
+    figures = {"rss_kib": 0, "fds": 0, "threads": 0}
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                figures["rss_kib"] = int(line.split()[1])
+            elif line.startswith("Threads:"):
+                figures["threads"] = int(line.split()[1])
+        figures["fds"] = len(os.listdir(f"/proc/{pid}/fd"))
+    except OSError:  # a child that has gone: zeros, the run goes on
+        pass
+    return figures
+
+
+def flat_from(samples: list[tuple[float, int]], tolerance: float = 0.01) -> float | None:
+    """The first time ``t`` of ``(t, value)`` samples after which the value never rose more
+    than ``tolerance`` (a fraction) above its value at ``t``: when memory went flat."""
+    highest_after = -1
+    flat = None
+    for t, value in reversed(samples):
+        highest_after = max(highest_after, value)
+        if highest_after <= value * (1 + tolerance):
+            flat = t
+    return flat
 
 
 def run_queue_wait_s(pid: int | str = "self") -> dict[str, float]:
@@ -86,22 +123,87 @@ def run_queue_wait_s(pid: int | str = "self") -> dict[str, float]:
     return out
 
 
+class Ring:
+    """The last ``maxlen`` records, oldest first, in columns allocated in full up front.
+
+    The diagnosis records (every send and decode per servo, every lost reply) used to be deques
+    of tuples of float objects: about 100 bytes a record, growing until full, which put the
+    harness itself among the top heap growers of its own memory figure for minutes. Columns are
+    ``array`` type codes (``"d"`` float, ``"b"``/``"i"`` int) or ``"s"`` for a string from a
+    small set (kinds, servo names), stored as an index into a table. Iteration yields tuples,
+    or the bare value for a one-column ring (reads like the deque it replaces).
+    """
+
+    def __init__(self, maxlen: int, columns: str) -> None:
+        self.maxlen = maxlen
+        self._columns = columns
+        self._arrays = [
+            array(
+                "H" if code == "s" else code,
+                bytes(array("H" if code == "s" else code).itemsize * maxlen),
+            )
+            for code in columns
+        ]
+        self._names: list[str] = []
+        self._codes: dict[str, int] = {}
+        self._next = 0
+        self._size = 0
+
+    def _encode(self, code: str, value: Any) -> Any:
+        if code != "s":
+            return value
+        index = self._codes.get(value)
+        if index is None:
+            index = self._codes[value] = len(self._names)
+            self._names.append(value)
+        return index
+
+    def append(self, record: Any) -> None:
+        values = (record,) if len(self._columns) == 1 else record
+        for column, code, value in zip(self._arrays, self._columns, values, strict=True):
+            column[self._next] = self._encode(code, value)
+        self._next = (self._next + 1) % self.maxlen
+        self._size = min(self._size + 1, self.maxlen)
+
+    def extend(self, records: Iterable[Any]) -> None:
+        for record in records:
+            self.append(record)
+
+    def __len__(self) -> int:
+        return self._size
+
+    def __iter__(self) -> Iterator[Any]:
+        start = (self._next - self._size) % self.maxlen
+        for i in range(self._size):
+            j = (start + i) % self.maxlen
+            record = tuple(
+                self._names[column[j]] if code == "s" else column[j]
+                for column, code in zip(self._arrays, self._columns, strict=True)
+            )
+            yield record[0] if len(record) == 1 else record
+
+
 class Diagnostics(SchedulerObserver):
     """Time-stamped evidence: process stalls, GC pauses, command-slot gaps, lost replies.
 
-    Observer hooks only append to bounded deques (they run inside the scheduler's loops).
+    Observer hooks only append to bounded rings allocated up front (they run inside the
+    scheduler's loops, and the soak's memory figure must not measure its own records filling).
     """
 
     def __init__(self, stall_s: float = 0.005, keep: int = 20_000) -> None:
         self.stall_s = stall_s
-        self.stalls: deque[tuple[float, float]] = deque(maxlen=keep)  # (end, duration)
-        self.gc_pauses: deque[tuple[float, float, int]] = deque(maxlen=keep)  # (end, s, gen)
-        self.missed: deque[tuple[float, int]] = deque(maxlen=keep)  # (seen at, slots)
-        self.lost: deque[tuple[float, str]] = deque(maxlen=keep)
-        self.sent: dict[str, deque[tuple[float, str]]] = {}  # per servo: (t, kind)
-        self.received: dict[str, deque[float]] = {}  # per servo: when its replies were decoded
+        self.stalls = Ring(keep, "dd")  # (end, duration)
+        self.gc_pauses = Ring(keep, "ddb")  # (end, s, generation)
+        self.missed = Ring(keep, "di")  # (seen at, slots)
+        self.lost = Ring(keep, "ds")  # (t, servo)
+        self.sent: dict[str, Ring] = {}  # per servo: (t, kind)
+        self.received: dict[str, Ring] = {}  # per servo: when its replies were decoded
         self.followed: list[dict[str, Any]] = []
-        self.sim_lag: deque[tuple[float, float]] = deque(maxlen=keep)  # (t, lag)
+        """The first ``FOLLOWED_KEPT`` clean-window losses followed through the trace (each
+        holds the trace excerpt around it, kB apiece: a noisy run must not grow by them)."""
+        self.verdicts: Counter[str] = Counter()
+        """The verdict of every loss followed, kept or not."""
+        self.sim_lag = Ring(keep, "dd")  # (t, lag)
         self.scheduler: Any = None
         """Set to the bridge's scheduler once it exists: its missed-slot count is watched."""
         self.first_command: float | None = None
@@ -144,12 +246,18 @@ class Diagnostics(SchedulerObserver):
 
     def on_tx(self, bus: str, msg: Any, t: float, kind: str, servo: str, seq: Any) -> None:
         # 50 s per servo: a window's losses are followed up to two windows later
-        self.sent.setdefault(servo, deque(maxlen=3000)).append((t, kind))
+        sent = self.sent.get(servo)
+        if sent is None:
+            sent = self.sent[servo] = Ring(SENDS_KEPT, "ds")
+        sent.append((t, kind))
         if self.first_command is None and kind == "command":
             self.first_command = t
 
     def on_rx(self, bus: str, msg: Any, t: float, servo: str, state: Any) -> None:
-        self.received.setdefault(servo, deque(maxlen=3000)).append(t)  # 50 s, like sends
+        received = self.received.get(servo)
+        if received is None:
+            received = self.received[servo] = Ring(SENDS_KEPT, "d")  # 50 s, like sends
+        received.append(t)
 
     def on_lost(self, bus: str, servo: str, t: float) -> None:
         self.lost.append((t, servo))
@@ -204,6 +312,11 @@ class Diagnostics(SchedulerObserver):
                 }
             )
         return out
+
+    def keep_followed(self, followed: list[dict[str, Any]]) -> None:
+        """Count every verdict; keep the first ``FOLLOWED_KEPT`` losses in full."""
+        self.verdicts.update(f["verdict"] for f in followed)
+        self.followed += followed[: max(0, FOLLOWED_KEPT - len(self.followed))]
 
     def attribute(self, start: float, end: float, min_s: float = 0.005) -> str:
         """What else happened in ``[start, end]``: the first cause found, by weight."""
@@ -294,8 +407,8 @@ class Diagnostics(SchedulerObserver):
             "stalls_over_5ms": len(self.stalls),
             "stall_max_ms": round(max((d for _, d in self.stalls), default=0) * 1e3, 2),
             "sim_lag_spikes_over_5ms": len(self.sim_lag),
-            "clean_losses_followed": self.followed[:300],
-            "clean_loss_verdicts": dict(Counter(f["verdict"] for f in self.followed)),
+            "clean_losses_followed": self.followed,
+            "clean_loss_verdicts": dict(self.verdicts),
         }
 
 
@@ -389,9 +502,9 @@ class Deployed:
                 return self.sim.request("trace", t0=t0, t1=t1, ids=ids)["trace"]
 
             try:
-                diagnostics.followed += diagnostics.follow_losses(*follow, trace)
+                diagnostics.keep_followed(diagnostics.follow_losses(*follow, trace))
             except Exception as error:  # diagnosis must never end a 30-minute run
-                diagnostics.followed.append({"verdict": f"follow failed: {error!r}"})
+                diagnostics.keep_followed([{"verdict": f"follow failed: {error!r}"}])
         stats = self.sim.request("stats")
         diagnostics.sim_lag.extend(tuple(x) for x in stats["lag"]["spike_times"])
         keys = ("frames_to_host", "bytes_overflowed", "rejected_from_host", "host_dropped")
@@ -499,6 +612,16 @@ def main() -> None:
     end = started + args.minutes * 60
     windows: list[dict[str, Any]] = []
     memory: list[tuple[float, int, int]] = []
+    processes: list[dict[str, Any]] = []
+
+    def sample_processes(t: float) -> None:
+        row: dict[str, Any] = {"t_s": round(t, 1)}
+        for name, pid in pids.items():
+            row[name] = process_figures(pid or "self")
+        row["bridge"]["py_threads"] = threading.active_count()
+        processes.append(row)
+
+    sample_processes(time.monotonic() - started)
     index = 0
     baseline: tracemalloc.Snapshot | None = None
     start_up: dict[str, Any] = {}
@@ -543,13 +666,14 @@ def main() -> None:
             )
             heap = tracemalloc.get_traced_memory()[0] if args.tracemalloc else 0
             memory.append((round(time.monotonic() - started, 1), rss_kib(), heap))
+            sample_processes(time.monotonic() - started)
             if args.tracemalloc and index == len(args.phases) - 1:
                 baseline = tracemalloc.take_snapshot()  # after one full cycle of phases
             index += 1
         growth = []
         if baseline is not None:
             diff = tracemalloc.take_snapshot().compare_to(baseline, "lineno")
-            growth = [str(stat) for stat in diff[:8]]
+            growth = [str(stat) for stat in diff[:12]]
     finally:
         summary = setup.stop()
         diagnostics.stop()
@@ -595,6 +719,20 @@ def main() -> None:
         "diagnosis": diagnostics.report(windows),
         "windows": windows,
         "memory_samples": memory,
+        "flat_from_s": {
+            **{
+                f"{name}_rss": flat_from([(p["t_s"], p[name]["rss_kib"]) for p in processes])
+                for name in pids
+            },
+            "bridge_heap": flat_from([(t, heap) for t, _, heap in memory])
+            if args.tracemalloc
+            else None,
+        },
+        "processes": {
+            "first": processes[0] if processes else None,
+            "last": processes[-1] if processes else None,
+            "samples": processes,
+        },
         "heap_growth_top": growth,
         "events": summary.get("events", []),
     }

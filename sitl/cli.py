@@ -30,6 +30,17 @@ def _target(text: str) -> tuple[int, int]:
     return system, component
 
 
+#: ``--keep`` default: at 50 Hz SERVO_OUTPUT_RAW the logs are full after about 20 s.
+STREAM_KEEP = 1000
+
+
+def _positive_keep(text: str) -> int:
+    value = int(text)
+    if value < 2:
+        raise argparse.ArgumentTypeError("must be at least 2")
+    return value
+
+
 def build_parser(prog: str = "sitl") -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -81,6 +92,15 @@ def build_parser(prog: str = "sitl") -> argparse.ArgumentParser:
         default=None,
         help="sign everything with this MAVLink 2 key (64 hex characters, the file a signed "
         "mavservo config's key_file names), as an autopilot set up for signing does",
+    )
+    s.add_argument(
+        "--keep",
+        type=_positive_keep,
+        default=STREAM_KEEP,
+        help="records kept per log (commanded values per channel, messages sent and received, "
+        "commands, ACKs); a shell run reads none of them, so few keep its memory flat within "
+        "a minute instead of filling 20,000 entries for a quarter of an hour "
+        "(default: %(default)s)",
     )
     s.add_argument(
         "--repeat-cycle-ms",
@@ -152,6 +172,7 @@ def _run_stream(args: argparse.Namespace) -> int:
         duration_s=args.duration,
         repeat_servo_cycle="milliseconds" if args.repeat_cycle_ms else "seconds",
         signing_key=signing_key,
+        keep=args.keep,
     )
     stream.start()
     if hasattr(signal, "SIGUSR1") and threading.current_thread() is threading.main_thread():

@@ -8,9 +8,14 @@ COMMAND_ACK it receives to :meth:`CommandTracker.on_ack`.
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 
 MAV_RESULT_IN_PROGRESS = 5
+
+#: Settled commands and ACKs kept for inspection: a long run (the soak's autopilot child, a
+#: scripted stream left running) must not grow, and ``due`` walks the command list every loop.
+RECORDS_KEEP = 20_000
 
 
 @dataclass
@@ -50,15 +55,25 @@ class AckRecord:
 
 
 class CommandTracker:
-    """Pending commands, their retries and the ACKs that settle them."""
+    """Pending commands, their retries and the ACKs that settle them.
 
-    def __init__(self, retry_interval_s: float = 0.5, max_attempts: int = 4) -> None:
+    Memory is bounded by ``keep``: the newest ``keep`` ACKs, and every pending command plus the
+    newest settled ones up to ``keep`` records (a pending command is never forgotten: it is
+    settled or given up on, never dropped unseen).
+    """
+
+    def __init__(
+        self, retry_interval_s: float = 0.5, max_attempts: int = 4, keep: int = RECORDS_KEEP
+    ) -> None:
         if max_attempts < 1:
             raise ValueError("max_attempts must be >= 1")
+        if keep < 1:
+            raise ValueError("keep must be >= 1")
         self.retry_interval_s = retry_interval_s
         self.max_attempts = max_attempts
+        self.keep = keep
         self.commands: list[CommandRecord] = []
-        self.acks: list[AckRecord] = []
+        self.acks: deque[AckRecord] = deque(maxlen=keep)
 
     def submit(
         self,
@@ -73,7 +88,24 @@ class CommandTracker:
             raise ValueError("COMMAND_LONG has exactly 7 params")
         record = CommandRecord(command, tuple(params), target_system, target_component, now)
         self.commands.append(record)
+        if len(self.commands) > self.keep:
+            self._forget_settled()
         return record
+
+    def _forget_settled(self) -> None:
+        """Drop the oldest settled records beyond ``keep``, down to ``keep // 2`` settled ones
+        (in halves, so the cost stays O(1) per submit on average). Pending ones all stay."""
+        settled = sum(1 for record in self.commands if record.done)
+        drop = settled - self.keep // 2 if len(self.commands) > self.keep else 0
+        if drop <= 0:
+            return
+        kept: list[CommandRecord] = []
+        for record in self.commands:
+            if drop and record.done:
+                drop -= 1
+                continue
+            kept.append(record)
+        self.commands[:] = kept
 
     def due(self, now: float) -> list[CommandRecord]:
         """Commands to (re)send at ``now``; marks them sent. Gives up after ``max_attempts``."""

@@ -68,7 +68,7 @@ BOOT_OFFSET_S = 1.0  # the simulated autopilot "booted" this long before the str
 MAX_IDLE_WAIT_S = 0.01
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Commanded:
     """One change of what the autopilot asked for: a SERVO_OUTPUT_RAW value or a command."""
 
@@ -78,8 +78,11 @@ class Commanded:
     source: str  # "servo_output_raw", "do_set_servo", "do_repeat_servo", "do_set_actuator", ...
 
 
-#: Commanded values kept per channel for :meth:`AutopilotStream.commanded_pwm` lookups (about
-#: 17 minutes of changes at 20 Hz); older entries are dropped in halves (amortised O(1)).
+#: Records kept by default (``keep``): commanded values per channel for
+#: :meth:`AutopilotStream.commanded_pwm` lookups (about 17 minutes of changes at 20 Hz, 7 at
+#: 50 Hz), sent messages, received messages, commands and ACKs. Older commanded values are
+#: dropped in halves (amortised O(1)). A process that only streams (``python -m sitl stream``,
+#: the soak's autopilot) asks for far fewer, so its memory is flat within a minute.
 COMMANDED_KEEP = 20_000
 
 
@@ -113,9 +116,12 @@ class AutopilotStream(Background):
         duration_s: float | None = None,
         connection_kwargs: dict[str, Any] | None = None,
         signing_key: bytes | None = None,
+        keep: int = COMMANDED_KEEP,
     ) -> None:
         if repeat_servo_cycle not in ("seconds", "milliseconds"):
             raise ValueError("repeat_servo_cycle must be 'seconds' or 'milliseconds'")
+        if keep < 2:
+            raise ValueError("keep must be >= 2")
         self.url = url
         self.profile = get_profile(profile) if isinstance(profile, str) else profile
         self.script = script if isinstance(script, Script) else Script(script or ())
@@ -146,10 +152,12 @@ class AutopilotStream(Background):
         }
         self._intervals = dict(self._defaults)
 
-        self.commands = CommandTracker(retry_interval_s, max_attempts)
-        self.received = Received()
+        #: bound of every record log below (per channel for the commanded values)
+        self.keep = keep
+        self.commands = CommandTracker(retry_interval_s, max_attempts, keep=keep)
+        self.received = Received(keep=keep)
         self.sent: Counter[str] = Counter()
-        self.sent_log: deque[tuple[float, str]] = deque(maxlen=20_000)
+        self.sent_log: deque[tuple[float, str]] = deque(maxlen=keep)
         self.dropouts: list[tuple[float, float]] = []
         self.gimbal_device_info: Any | None = None
 
@@ -262,8 +270,8 @@ class AutopilotStream(Background):
             times = self._commanded_times.setdefault((kind, entry.key), [])
             log.append(entry)
             times.append(entry.t)
-            if len(log) > COMMANDED_KEEP:  # long runs (soak, `url: sim`) stay bounded
-                drop = len(log) - COMMANDED_KEEP // 2
+            if len(log) > self.keep:  # long runs (soak, `url: sim`) stay bounded
+                drop = len(log) - self.keep // 2
                 del log[:drop], times[:drop]
 
     # ------------------------------------------------------------------ the thread
