@@ -16,11 +16,11 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from mavservo.bridge import Bridge, free_udp_port
+from mavservo.app.bridge import Bridge, free_udp_port
 from mavservo.config import Config, load_config_text
-from mavservo.scheduler import SchedulerObserver
+from mavservo.scheduling.runner import SchedulerObserver
 from mavservo.sim.servo import SimServo
-from sitl.link import mavlink2, open_link
+from mavservo.sim.autopilot.link import mavlink2, open_link
 
 MAV_CMD_DO_SET_SERVO = 183
 MAV_CMD_DO_SET_ACTUATOR = 187

@@ -14,7 +14,7 @@ import pytest
 from e2e_support import Recorder, ServoSpy, running, sim_servo, wait_until
 
 from mavservo.sim.adapter import LineCorrupter, LineFaults
-from sitl.stream import AutopilotStream
+from mavservo.sim.autopilot.stream import AutopilotStream
 
 # a bridge thread dying (an exception nobody catches) fails the test, not just warns
 pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")

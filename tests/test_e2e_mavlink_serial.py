@@ -20,7 +20,7 @@ from pathlib import Path
 from e2e_support import sim_servo, wait_until
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from mavservo.bridge import Bridge
+from mavservo.app.bridge import Bridge
 from mavservo.config import load_config_text
 
 CONFIG = """

@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 from e2e_support import Recorder, pwm_to_angle, running, sim_servo, wait_until
 
-from sitl.replay import iter_tlog, replay
+from mavservo.sim.autopilot.replay import iter_tlog, replay
 
 # a bridge thread dying (an exception nobody catches) fails the test, not just warns
 pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")

@@ -17,8 +17,8 @@ import threading
 import pytest
 from e2e_support import running, wait_until
 
-from sitl.profiles import StaircaseProfile
-from sitl.stream import AutopilotStream
+from mavservo.sim.autopilot.profiles import StaircaseProfile
+from mavservo.sim.autopilot.stream import AutopilotStream
 
 # a bridge thread dying (an exception nobody catches) fails the test, not just warns
 pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")

@@ -18,7 +18,7 @@ from mavservo.mavlink.core import MavlinkCore  # noqa: E402
 from mavservo.mavlink.settings import MavlinkSettings  # noqa: E402
 from mavservo.mavlink.side import MavlinkSide  # noqa: E402
 from mavservo.mavlink.telemetry import REMINDER_S, STATUSTEXT_LENGTH  # noqa: E402
-from mavservo.monitor import MonitorState  # noqa: E402
+from mavservo.app.monitor import MonitorState  # noqa: E402
 from mavservo.servos.base import Fault  # noqa: E402
 
 GCS = (255, 190)

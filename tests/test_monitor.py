@@ -17,7 +17,7 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2  # noqa: E402
 
-from mavservo.monitor import MonitorState, plain_lines, render  # noqa: E402
+from mavservo.app.monitor import MonitorState, plain_lines, render  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -139,7 +139,7 @@ def _run_monitor(port: int, stdout, extra=()) -> subprocess.Popen:
         [
             sys.executable,
             "-m",
-            "mavservo.monitor",
+            "mavservo.app.monitor",
             f"udpin:127.0.0.1:{port}",
             "--duration",
             "3",

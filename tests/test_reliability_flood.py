@@ -21,7 +21,7 @@ from collections.abc import Callable, Iterator
 import pytest
 from e2e_support import wait_until as poll_until
 
-from mavservo.bridge import Bridge
+from mavservo.app.bridge import Bridge
 from mavservo.config.loader import load_config_text
 from mavservo.sim.child import SimulatorProcess
 

@@ -17,7 +17,7 @@ from e2e_support import wait_until as poll_until
 from pymavlink import mavutil
 from test_mavlink_support import RecordingBackend, command_long, heartbeat, servo_output_raw, wire
 
-from mavservo.bridge import Bridge
+from mavservo.app.bridge import Bridge
 from mavservo.config.loader import load_config_text
 from mavservo.mavlink.core import MavlinkCore
 from mavservo.mavlink.settings import MavlinkSettings

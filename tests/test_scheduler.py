@@ -12,7 +12,7 @@ from collections import defaultdict
 import can
 import pytest
 
-from mavservo.scheduler import (
+from mavservo.scheduling.runner import (
     ScheduleError,
     Scheduler,
     SchedulerObserver,

@@ -18,15 +18,21 @@ import pytest
 from can.interfaces.virtual import VirtualBus
 from e2e_support import wait_until
 
-from mavservo.resilient_bus import ResilientBus
-from mavservo.scheduler import FailureRun, Scheduler, SchedulerObserver, ServoSpec, TimingConfig
+from mavservo.transport.resilient_bus import ResilientBus
+from mavservo.scheduling.runner import (
+    FailureRun,
+    Scheduler,
+    SchedulerObserver,
+    ServoSpec,
+    TimingConfig,
+)
 from mavservo.servos import Fault, RmdX, ServoState
 from mavservo.sim.servo import SimServo
 from mavservo.sim.virtual import VirtualServoBus
 
 FAST = TimingConfig(command_period_s=0.02, telemetry_period_s=0.03, reply_timeout_s=0.05)
 WAIT_LIMIT_S = 5.0
-SCHEDULER_LOG = "mavservo.scheduler"
+SCHEDULER_LOG = "mavservo.scheduling.runner"
 
 
 def wait_for(condition) -> bool:

@@ -30,7 +30,7 @@ from e2e_support import wait_until as poll_until
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from mavservo.bridge import Bridge
+from mavservo.app.bridge import Bridge
 from mavservo.config.loader import load_config_text
 
 os.environ.setdefault("MAVLINK20", "1")  # pymavlink peers speak MAVLink 1 (never signed) without it

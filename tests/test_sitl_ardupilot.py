@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from sitl.link import mavlink2 as mav
-from sitl.testing import collect, free_udp_port, of_type, peer
+from mavservo.sim.autopilot.link import mavlink2 as mav
+from autopilot_support import collect, free_udp_port, of_type, peer
 
 REPO = Path(__file__).resolve().parent.parent
 SCRIPT = REPO / "sitl" / "run-arduplane.sh"

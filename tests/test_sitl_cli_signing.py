@@ -22,7 +22,7 @@ def _free_udp_port() -> int:
 
 def _stream(*options: str) -> subprocess.Popen[str]:
     return subprocess.Popen(
-        [sys.executable, "-m", "sitl", "stream", *options],
+        [sys.executable, "-m", "mavservo.sim.autopilot", "stream", *options],
         cwd=REPO,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,

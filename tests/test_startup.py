@@ -22,10 +22,10 @@ from typing import Any
 import can
 import pytest
 
-from mavservo.bridge import Bridge
+from mavservo.app.bridge import Bridge
 from mavservo.config.loader import load_config_text
 from mavservo.mavlink.side import MavlinkSide
-from mavservo.scheduler import Scheduler, SchedulerObserver, ServoSpec, TimingConfig
+from mavservo.scheduling.runner import Scheduler, SchedulerObserver, ServoSpec, TimingConfig
 from mavservo.servos import RmdX
 
 BENCH_FAULTS = Path(__file__).resolve().parent.parent / "bench" / "bench_faults.py"

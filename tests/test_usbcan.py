@@ -13,11 +13,17 @@ from collections.abc import Iterator
 import can
 import pytest
 
-from mavservo import aa55
-from mavservo.aa55 import Frame
-from mavservo.bridge import Bridge
+from mavservo.transport.aa55 import codec as aa55
+from mavservo.transport.aa55.codec import Frame
+from mavservo.app.bridge import Bridge
 from mavservo.config.loader import load_config_text
-from mavservo.usbcan import AUTO_HOLD_BYTES, AUTO_HOLD_S, LOAD_WINDOW_S, LineLoad, auto_hold_s
+from mavservo.transport.aa55.bus import (
+    AUTO_HOLD_BYTES,
+    AUTO_HOLD_S,
+    LOAD_WINDOW_S,
+    LineLoad,
+    auto_hold_s,
+)
 
 
 class AdapterEnd:

@@ -23,7 +23,7 @@ from mavservo.config.loader import (
     load_config_with_warnings,
 )
 from mavservo.config.overrides import OverrideError, apply_overrides
-from mavservo.config.report import check_main, resolved_mapping
+from mavservo.app.check import check_main, resolved_mapping
 from mavservo.config.schema import (
     ActuatorChannel,
     BusConfig,

@@ -525,7 +525,7 @@ class SchedulerConfig(StrictModel):
 class SimAutopilotConfig(StrictModel):
     """The built-in autopilot stream simulator (used when ``mavlink.url`` is ``sim``).
 
-    ``script`` is a list of timed events in :mod:`sitl.script`'s format, checked here with the
+    ``script`` is a list of timed events in :mod:`mavservo.config.autopilot_script`'s format, checked here with the
     simulator's own parser so a bad event is reported with its line.
     """
 
@@ -541,7 +541,7 @@ class SimAutopilotConfig(StrictModel):
     @field_validator("script")
     @classmethod
     def _script_parses(cls, script: list[dict[str, Any]]) -> list[dict[str, Any]]:
-        from sitl.script import parse_script  # the simulator owns the event format
+        from mavservo.config.autopilot_script import parse_script  # the simulator owns the event format
 
         try:
             parse_script(script)

@@ -7,7 +7,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from sitl.link import open_link
+from mavservo.sim.autopilot.link import open_link
 
 
 def free_udp_port() -> int:

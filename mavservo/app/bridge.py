@@ -27,12 +27,12 @@ from mavservo.config import BusConfig, Config
 from mavservo.mavlink.gimbal import GimbalDevice, settings_from_config
 from mavservo.mavlink.settings import MavlinkSettings, SigningSettings
 from mavservo.mavlink.side import MavlinkSide
-from mavservo.metrics import round_trip_figures
-from mavservo.resilient_bus import ResilientBus
-from mavservo.runlog import RunLog, new_run_dir
-from mavservo.schedule_core import ServoSpec, TimingConfig
-from mavservo.scheduler import Scheduler, SchedulerObserver
-from mavservo.servo_backend import ServoBackend
+from mavservo.records.metrics import round_trip_figures
+from mavservo.transport.resilient_bus import ResilientBus
+from mavservo.records.runlog import RunLog, new_run_dir
+from mavservo.scheduling.core import ServoSpec, TimingConfig
+from mavservo.scheduling.runner import Scheduler, SchedulerObserver
+from mavservo.control.servo_backend import ServoBackend
 from mavservo.servos import get_profile
 from mavservo.sim.adapter import AdapterEmulator
 from mavservo.sim.servo import Faults, Physics, SimServo
@@ -347,7 +347,7 @@ class Bridge:
                 ),
             )
         if cfg.mavlink.url == SIM:
-            from sitl.factory import simulator_from_config
+            from mavservo.sim.autopilot.factory import simulator_from_config
 
             port = free_udp_port()
             settings = dataclasses.replace(settings, url=f"udpin:127.0.0.1:{port}")
