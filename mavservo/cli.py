@@ -31,7 +31,7 @@ class Command(NamedTuple):
 COMMANDS: dict[str, Command] = {
     "run": Command("mavservo.app.run", "main", "run the bridge (default: the built-in simulation)"),
     "check": Command(
-        "mavservo.config", "check_main", "validate config files, print mapping and bus load"
+        "mavservo.app.check", "check_main", "validate config files, print mapping and bus load"
     ),
     "sim": Command(
         "mavservo.sim.cli", "main", "USB-CAN adapter emulator with simulated servos on a pty"

@@ -35,7 +35,7 @@ from mavservo.scheduling.runner import Scheduler, SchedulerObserver
 from mavservo.control.servo_backend import ServoBackend
 from mavservo.servos import get_profile
 from mavservo.sim.adapter import AdapterEmulator
-from mavservo.sim.servo import Faults, Physics, SimServo
+from mavservo.sim.servo import simulated_servos
 
 log = logging.getLogger(__name__)
 
@@ -106,27 +106,6 @@ def timing_config(config: Config, bus: BusConfig) -> TimingConfig:
         bitrate=bus.bitrate,
         realtime=sched.realtime,
     )
-
-
-def simulated_servos(config: Config, bus_name: str) -> list[SimServo]:
-    """The simulated devices for the servos on ``bus_name`` (``simulation.servos`` tunes them)."""
-    out = []
-    for index, servo in enumerate(config.servos):
-        if config.bus_of(servo).name != bus_name:
-            continue
-        physics, faults = config.simulated_settings(servo)
-        # push-style servos (CubeMars) report at the rate the config budgets for them
-        out.append(
-            SimServo(
-                servo.profile,
-                servo.can_id,
-                Physics.from_dict(physics),
-                Faults.from_dict(faults),
-                seed=index,
-                status_rate_hz=servo.telemetry_hz,
-            )
-        )
-    return out
 
 
 def settle_heap() -> None:

@@ -560,7 +560,7 @@ SimValue = float | int | bool | str | None
 
 
 class SimServoConfig(StrictModel):
-    """Physics and fault injection of one simulated servo, in :mod:`mavservo.sim.servo` terms."""
+    """Physics and fault injection of one simulated servo, in :mod:`mavservo.config.simulation` terms."""
 
     physics: dict[str, SimValue] = {}
     faults: dict[str, SimValue] = {}
@@ -568,7 +568,7 @@ class SimServoConfig(StrictModel):
     @field_validator("physics")
     @classmethod
     def _known_physics(cls, values: dict[str, SimValue]) -> dict[str, SimValue]:
-        from mavservo.sim.servo import Physics  # the simulator owns the meaning of these keys
+        from mavservo.config.simulation import Physics
 
         Physics.from_dict(values)
         return values
@@ -576,7 +576,7 @@ class SimServoConfig(StrictModel):
     @field_validator("faults")
     @classmethod
     def _known_faults(cls, values: dict[str, SimValue]) -> dict[str, SimValue]:
-        from mavservo.sim.servo import Faults
+        from mavservo.config.simulation import Faults
 
         Faults.from_dict(values)
         return values
