@@ -208,7 +208,7 @@ def test_run_logs_recoveries_next_to_the_warnings_they_answer(tmp_path: Path):
     config.write_text(SERVO)
     script = (
         "import logging, sys\n"
-        "from mavservo import runcmd\n"
+        "from mavservo.app import run as runcmd\n"
         "status = runcmd.main(sys.argv[1:])\n"
         "levels = [logging.getLogger(n).getEffectiveLevel() for n in runcmd.RECOVERY_LOGGERS]\n"
         "print(status, levels, logging.getLogger('mavservo.app.bridge').getEffectiveLevel())\n"

@@ -26,7 +26,8 @@ from mavservo.sim.autopilot.replay import (
     iter_tlog_records,
     replay,
 )
-from autopilot_support import collect, free_udp_port, of_type, peer
+from autopilot_support import collect, of_type, peer
+from conftest import free_udp_port
 
 DATA = Path(__file__).parent / "data"
 SERVOS = DATA / "plane-servos.tlog"

@@ -15,7 +15,8 @@ from mavservo.sim.autopilot.profiles import HoldProfile, StaircaseProfile, Sweep
 from mavservo.sim.autopilot.replay import ReplayRunner
 from mavservo.config.autopilot_script import Event, RepeatServo, SetActuator, SetServo
 from mavservo.sim.autopilot.stream import AutopilotStream, normalized_outputs
-from autopilot_support import collect, free_udp_port, of_type, peer
+from autopilot_support import collect, of_type, peer
+from conftest import free_udp_port
 
 
 @pytest.fixture

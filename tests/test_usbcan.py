@@ -5,7 +5,6 @@ from __future__ import annotations
 import contextlib
 import os
 import select
-import socket
 import time
 import tty
 from collections.abc import Iterator
@@ -24,6 +23,7 @@ from mavservo.transport.aa55.bus import (
     LineLoad,
     auto_hold_s,
 )
+from conftest import free_udp_port
 
 
 class AdapterEnd:
@@ -345,9 +345,7 @@ def test_auto_read_interval_holds_only_while_the_line_is_busy(adapter: AdapterEn
 
 
 def test_the_bridge_passes_the_configured_read_interval_to_its_adapter() -> None:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        port = sock.getsockname()[1]
+    port = free_udp_port()
     config = load_config_text(f"""
 mavlink: {{url: "udpin:127.0.0.1:{port}", system_id: 1}}
 can:
