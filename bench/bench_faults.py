@@ -354,7 +354,8 @@ simulated hardware and autopilot just below, since on a drone they have CPUs of 
 class DeployedRig:
     """The bridge alone in this process at SCHED_FIFO (``scheduler.realtime: true`` too), the
     adapter emulator and its servos in a child process (:class:`SimulatorProcess`) and the
-    simulated autopilot in another (``python -m mavservo.sim.autopilot stream``), both real-time as well.
+    simulated autopilot in another (``python -m mavservo.sim.autopilot stream``), both real-time as
+    well.
 
     Why: real servos, adapter and autopilot do not share the bridge's CPU or interpreter lock;
     in one process a timing figure measures the simulator as much as the bridge.

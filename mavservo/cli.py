@@ -17,8 +17,8 @@ from typing import NamedTuple
 class Command(NamedTuple):
     """Where a subcommand lives: ``module.function(argv) -> int``, and its one-line help.
 
-    ``takes_prog``: the function also runs on its own (``python -m mavservo.sim.autopilot``) and accepts
-    ``prog=``; it is told ``mavservo NAME`` so its usage reads ``mavservo sitl ...``, not
+    ``takes_prog``: the function also runs on its own (``python -m mavservo.sim.autopilot``) and
+    accepts ``prog=``; it is told ``mavservo NAME`` so its usage reads ``mavservo sitl ...``, not
     ``sitl ...``. Declared here rather than discovered, so dispatch inspects nothing.
     """
 
@@ -37,9 +37,14 @@ COMMANDS: dict[str, Command] = {
         "mavservo.sim.cli", "main", "USB-CAN adapter emulator with simulated servos on a pty"
     ),
     "sitl": Command(
-        "mavservo.sim.autopilot.cli", "main", "simulated autopilot stream, or replay of a .tlog", takes_prog=True
+        "mavservo.sim.autopilot.cli",
+        "main",
+        "simulated autopilot stream, or replay of a .tlog",
+        takes_prog=True,
     ),
-    "monitor": Command("mavservo.app.monitor", "main", "live terminal dashboard of a running bridge"),
+    "monitor": Command(
+        "mavservo.app.monitor", "main", "live terminal dashboard of a running bridge"
+    ),
     "report": Command(
         "mavservo.app.report", "main", "figures and a summary from a run's log directory"
     ),

@@ -24,7 +24,9 @@ def free_udp_port() -> int:
         return int(sock.getsockname()[1])
 
 
-def wait_until(predicate: Callable[[], Any], timeout: float = WAIT_S, interval: float = 0.01) -> bool:
+def wait_until(
+    predicate: Callable[[], Any], timeout: float = WAIT_S, interval: float = 0.01
+) -> bool:
     """Poll ``predicate`` until it is truthy or ``timeout`` passes (bounded in time and count)."""
     deadline = time.monotonic() + timeout
     for _ in range(int(timeout / interval) + 2):

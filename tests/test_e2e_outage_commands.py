@@ -13,7 +13,14 @@ from __future__ import annotations
 import math
 
 import pytest
-from e2e_support import MAV_CMD_DO_SET_SERVO, MAV_RESULT_ACCEPTED, MAV_RESULT_TEMPORARILY_REJECTED, Peer, running, sim_servo
+from e2e_support import (
+    MAV_CMD_DO_SET_SERVO,
+    MAV_RESULT_ACCEPTED,
+    MAV_RESULT_TEMPORARILY_REJECTED,
+    Peer,
+    running,
+    sim_servo,
+)
 from conftest import wait_until
 
 pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")

@@ -16,7 +16,16 @@ import statistics
 import time
 
 import pytest
-from e2e_support import MAV_CMD_DO_SET_ACTUATOR, MAV_CMD_DO_SET_SERVO, MAV_RESULT_ACCEPTED, Peer, named_values, pwm_to_angle, running, sim_servo
+from e2e_support import (
+    MAV_CMD_DO_SET_ACTUATOR,
+    MAV_CMD_DO_SET_SERVO,
+    MAV_RESULT_ACCEPTED,
+    Peer,
+    named_values,
+    pwm_to_angle,
+    running,
+    sim_servo,
+)
 from conftest import wait_until
 
 # a bridge thread dying (an exception nobody catches) fails the test, not just warns

@@ -11,7 +11,14 @@ from __future__ import annotations
 import time
 
 import pytest
-from e2e_support import MAV_CMD_DO_SET_SERVO, MAV_RESULT_ACCEPTED, MAV_RESULT_TEMPORARILY_REJECTED, Peer, running, sim_servo
+from e2e_support import (
+    MAV_CMD_DO_SET_SERVO,
+    MAV_RESULT_ACCEPTED,
+    MAV_RESULT_TEMPORARILY_REJECTED,
+    Peer,
+    running,
+    sim_servo,
+)
 from conftest import wait_until
 
 # a bridge thread dying (an exception nobody catches) fails the test, not just warns

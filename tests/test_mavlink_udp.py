@@ -148,7 +148,9 @@ def test_request_message_routed_to_gimbal_and_servo_components(bridge):
     kept = []
     ack = wait_for_message(gcs, is_ack(512), keep=kept)
     assert ack is not None and ack.result == 0 and ack.get_srcComponent() == 154
-    beat = wait_for_message(gcs, lambda m: m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 154)
+    beat = wait_for_message(
+        gcs, lambda m: m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 154
+    )
     assert beat is not None and beat.type == 26
 
 

@@ -291,7 +291,9 @@ def test_an_unplugged_adapter_takes_servos_offline_and_drops_setpoints_meant_for
                     assert any(s == name and Fault.NO_REPLY in st.faults for s, st in told)
                 late = scheduler.set_setpoint("s1", 77.0, "do_set_servo")
                 assert late.accepted  # the scheduler takes it; its send fails and drops it
-                assert wait_until(lambda: scheduler.metrics()["servos"]["s1"]["setpoints"]["dropped"])
+                assert wait_until(
+                    lambda: scheduler.metrics()["servos"]["s1"]["setpoints"]["dropped"]
+                )
 
                 adapter.plugged = True
                 assert wait_until(lambda: all(scheduler.is_online(n) for n in names))

@@ -1,9 +1,9 @@
 """What the scheduler logs about its servos: flapping rate-limited, slow servos named once.
 
-The pure rules (:mod:`mavservo.scheduling.outage_log`) under a fake clock, then the threaded scheduler on
-python-can ``virtual`` with simulated servos that lose or delay their replies (the trial: 8-29
-``offline (no reply)`` lines in 6-8 s and no recovery line; a servo answering 80 ms late read as
-losing most replies with nothing in the log saying the timeout was too short).
+The pure rules (:mod:`mavservo.scheduling.outage_log`) under a fake clock, then the threaded
+scheduler on python-can ``virtual`` with simulated servos that lose or delay their replies (the
+trial: 8-29 ``offline (no reply)`` lines in 6-8 s and no recovery line; a servo answering 80 ms
+late read as losing most replies with nothing in the log saying the timeout was too short).
 """
 
 from __future__ import annotations

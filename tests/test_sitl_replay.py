@@ -273,7 +273,8 @@ def test_cli_exits_zero_on_sigint(command: list[str]) -> None:
     port = free_udp_port()
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     proc = subprocess.Popen(
-        [sys.executable, "-m", "mavservo.sim.autopilot", *command, "--url", f"udpout:127.0.0.1:{port}"],
+        [sys.executable, "-m", "mavservo.sim.autopilot", *command]
+        + ["--url", f"udpout:127.0.0.1:{port}"],
         cwd=REPO,
         env=env,
         stdout=subprocess.PIPE,
