@@ -45,7 +45,7 @@ import can
 import serial
 from can.interfaces.seeedstudio.seeedstudio import SeeedBus
 
-from mavservo.aa55 import MAX_EXT_ID, MAX_STD_ID, Decoder, Frame, encode
+from mavservo.transport.aa55.codec import MAX_EXT_ID, MAX_STD_ID, Decoder, Frame, encode
 
 #: 2 Mbaud with 10 bits per byte (start + 8 + stop) and 13-byte frames (std ID, 8 data bytes).
 SATURATED_FPS = 15_400

@@ -29,7 +29,7 @@ os.environ.setdefault("MAVLINK20", "1")
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2  # noqa: E402
 
-from mavservo.bridge import Bridge, free_udp_port  # noqa: E402
+from mavservo.app.bridge import Bridge, free_udp_port  # noqa: E402
 from mavservo.config import load_config_text  # noqa: E402
 
 CONFIG = """

@@ -43,10 +43,10 @@ from typing import Any
 
 import can
 
-from mavservo import aa55
-from mavservo.bridge import Bridge, settle_heap
+from mavservo.transport.aa55 import codec as aa55
+from mavservo.app.bridge import Bridge, settle_heap
 from mavservo.config.loader import load_config_text
-from mavservo.scheduler import SchedulerObserver
+from mavservo.scheduling.runner import SchedulerObserver
 from mavservo.sim.adapter import LineCorrupter, LineFaults
 from mavservo.sim.child import RecentKeys, SimulatorProcess, frame_key
 
@@ -354,7 +354,8 @@ simulated hardware and autopilot just below, since on a drone they have CPUs of 
 class DeployedRig:
     """The bridge alone in this process at SCHED_FIFO (``scheduler.realtime: true`` too), the
     adapter emulator and its servos in a child process (:class:`SimulatorProcess`) and the
-    simulated autopilot in another (``python -m sitl stream``), both real-time as well.
+    simulated autopilot in another (``python -m mavservo.sim.autopilot stream``), both real-time as
+    well.
 
     Why: real servos, adapter and autopilot do not share the bridge's CPU or interpreter lock;
     in one process a timing figure measures the simulator as much as the bridge.
@@ -374,7 +375,7 @@ class DeployedRig:
             [
                 sys.executable,
                 "-m",
-                "sitl",
+                "mavservo.sim.autopilot",
                 "stream",
                 "--url",
                 f"udpout:127.0.0.1:{port}",

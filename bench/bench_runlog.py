@@ -20,7 +20,7 @@ from types import SimpleNamespace
 
 import can
 
-from mavservo.runlog import RunLog
+from mavservo.records.runlog import RunLog
 
 CMD = can.Message(
     arbitration_id=0x141, is_extended_id=False, data=b"\xa4\x00\x68\x01\x10\x27\x00\x00"

@@ -31,7 +31,7 @@ from typing import Any
 
 import can
 
-from mavservo.scheduler import Scheduler, SchedulerObserver, ServoSpec, TimingConfig
+from mavservo.scheduling.runner import Scheduler, SchedulerObserver, ServoSpec, TimingConfig
 from mavservo.servos import RmdX
 from mavservo.sim.servo import SimServo
 
@@ -273,7 +273,7 @@ class Transport:
         self.sims = [SimServo("rmd-x", i) for i in range(1, n_servos + 1)]
         if kind == "pty":
             from mavservo.sim.adapter import AdapterEmulator
-            from mavservo.usbcan import AA55Bus
+            from mavservo.transport.aa55.bus import AA55Bus
 
             if in_process:
                 self.device = AdapterEmulator(self.sims, bitrate=bitrate).start()

@@ -30,7 +30,7 @@ import atheris
 with atheris.instrument_imports(include=["mavservo"]):
     import can
 
-    from mavservo import aa55
+    from mavservo.transport.aa55 import codec as aa55
     from mavservo.servos import PROFILES
     from mavservo.sim.servo import SimServo
 

@@ -12,7 +12,7 @@ Two set-ups:
   (deploy/mavservo.service: the whole process SCHED_FIFO 50, ``scheduler.realtime: true``);
   the adapter emulator and its servos run in a child process
   (:class:`mavservo.sim.child.SimulatorProcess`) at SCHED_FIFO 40 and the simulated autopilot
-  in another (``python -m sitl stream``) at SCHED_FIFO 30, since real servos, adapter and
+  in another (``python -m mavservo.sim.autopilot stream``) at SCHED_FIFO 30, since real servos, adapter and
   autopilot do not share the bridge's CPU or interpreter lock.
 * ``--setup in-process``: everything in this process at normal priority (the earlier runs).
 
@@ -60,9 +60,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from bench_faults import DeployedRig, Recorder, bridge_config  # noqa: E402
 
-from mavservo.bridge import Bridge  # noqa: E402
+from mavservo.app.bridge import Bridge  # noqa: E402
 from mavservo.config.loader import load_config_text  # noqa: E402
-from mavservo.scheduler import SchedulerObserver  # noqa: E402
+from mavservo.scheduling.runner import SchedulerObserver  # noqa: E402
 from mavservo.sim.adapter import LineCorrupter, LineFaults  # noqa: E402
 
 PHASES = ("clean", "line_1e-3", "clean", "unplug", "clean", "servo_silent")

@@ -17,8 +17,8 @@ from typing import NamedTuple
 class Command(NamedTuple):
     """Where a subcommand lives: ``module.function(argv) -> int``, and its one-line help.
 
-    ``takes_prog``: the function also runs on its own (``python -m sitl``) and accepts
-    ``prog=``; it is told ``mavservo NAME`` so its usage reads ``mavservo sitl ...``, not
+    ``takes_prog``: the function also runs on its own (``python -m mavservo.sim.autopilot``) and
+    accepts ``prog=``; it is told ``mavservo NAME`` so its usage reads ``mavservo sitl ...``, not
     ``sitl ...``. Declared here rather than discovered, so dispatch inspects nothing.
     """
 
@@ -29,19 +29,24 @@ class Command(NamedTuple):
 
 
 COMMANDS: dict[str, Command] = {
-    "run": Command("mavservo.runcmd", "main", "run the bridge (default: the built-in simulation)"),
+    "run": Command("mavservo.app.run", "main", "run the bridge (default: the built-in simulation)"),
     "check": Command(
-        "mavservo.config", "check_main", "validate config files, print mapping and bus load"
+        "mavservo.app.check", "check_main", "validate config files, print mapping and bus load"
     ),
     "sim": Command(
         "mavservo.sim.cli", "main", "USB-CAN adapter emulator with simulated servos on a pty"
     ),
     "sitl": Command(
-        "sitl.cli", "main", "simulated autopilot stream, or replay of a .tlog", takes_prog=True
+        "mavservo.sim.autopilot.cli",
+        "main",
+        "simulated autopilot stream, or replay of a .tlog",
+        takes_prog=True,
     ),
-    "monitor": Command("mavservo.monitor", "main", "live terminal dashboard of a running bridge"),
+    "monitor": Command(
+        "mavservo.app.monitor", "main", "live terminal dashboard of a running bridge"
+    ),
     "report": Command(
-        "mavservo.report", "main", "figures and a summary from a run's log directory"
+        "mavservo.app.report", "main", "figures and a summary from a run's log directory"
     ),
 }
 

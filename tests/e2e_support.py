@@ -12,32 +12,21 @@ from __future__ import annotations
 import contextlib
 import threading
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from mavservo.bridge import Bridge, free_udp_port
+from mavservo.app.bridge import Bridge, free_udp_port
 from mavservo.config import Config, load_config_text
-from mavservo.scheduler import SchedulerObserver
+from mavservo.scheduling.runner import SchedulerObserver
 from mavservo.sim.servo import SimServo
-from sitl.link import mavlink2, open_link
+from mavservo.sim.autopilot.link import mavlink2, open_link
+from conftest import wait_until
 
 MAV_CMD_DO_SET_SERVO = 183
 MAV_CMD_DO_SET_ACTUATOR = 187
 MAV_RESULT_ACCEPTED = 0
 MAV_RESULT_TEMPORARILY_REJECTED = 1
-
-
-def wait_until(predicate: Callable[[], Any], timeout: float, interval: float = 0.02) -> bool:
-    """Poll ``predicate`` until it is truthy or ``timeout`` passes (bounded in time and count)."""
-    deadline = time.monotonic() + timeout
-    for _ in range(int(timeout / interval) + 2):
-        if predicate():
-            return True
-        if time.monotonic() >= deadline:
-            break
-        time.sleep(interval)
-    return bool(predicate())
 
 
 def bridge_config(body: str, port: int, *, extra_mavlink: str = "") -> Config:
@@ -278,5 +267,4 @@ __all__ = [
     "pwm_to_angle",
     "running",
     "sim_servo",
-    "wait_until",
 ]

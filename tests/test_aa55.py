@@ -9,8 +9,15 @@ import pytest
 from hypothesis import HealthCheck, assume, example, given, settings
 from hypothesis import strategies as st
 
-from mavservo import aa55
-from mavservo.aa55 import AdapterSettings, ControlFrame, Decoder, Frame, Rejection, encode
+from mavservo.transport.aa55 import codec as aa55
+from mavservo.transport.aa55.codec import (
+    AdapterSettings,
+    ControlFrame,
+    Decoder,
+    Frame,
+    Rejection,
+    encode,
+)
 
 
 @st.composite

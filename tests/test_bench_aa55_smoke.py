@@ -14,7 +14,7 @@ from types import ModuleType
 
 import pytest
 
-from mavservo.aa55 import Frame, encode
+from mavservo.transport.aa55.codec import Frame, encode
 
 BENCH = Path(__file__).resolve().parent.parent / "bench" / "bench_aa55.py"
 

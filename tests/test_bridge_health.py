@@ -12,9 +12,9 @@ from collections.abc import Iterator
 import can
 import pytest
 
-from mavservo.bridge import Bridge
+from mavservo.app.bridge import Bridge
 from mavservo.config import load_config_text
-from mavservo.scheduler import Scheduler, ServoSpec
+from mavservo.scheduling.runner import Scheduler, ServoSpec
 from mavservo.servos import RmdX
 
 CONFIG = """
@@ -70,7 +70,7 @@ def test_a_long_bridge_event_reaches_the_mavlink_side_whole() -> None:
     not cut them (a trial received "bus0: CAN adapter lost (aa55: the adapter on /tmp/")."""
     from types import SimpleNamespace
 
-    from mavservo.bridge import Bridge
+    from mavservo.app.bridge import Bridge
     from mavservo.config import default_config_path, load_config
 
     bridge = Bridge(load_config(default_config_path()), log_dir=False, status=lambda _: None)

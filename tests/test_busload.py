@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from mavservo.busload import (
+from mavservo.scheduling.busload import (
     FrameFlow,
     ServoTraffic,
     frame_bits,

@@ -16,10 +16,11 @@ from pathlib import Path
 
 import pytest
 
-from mavservo.config import check_main, load_config, load_config_text
+from mavservo.app.check import check_main
+from mavservo.config import load_config, load_config_text
 from mavservo.config.endpoints import bitrate_text, endpoint_lines
 from mavservo.config.overrides import apply_overrides
-from mavservo.console import StatusDisplay
+from mavservo.app.console import StatusDisplay
 
 REPO = Path(__file__).resolve().parents[1]
 SERVO = "servos:\n  - {name: a, profile: rmd-x, can_id: 1}\n"
@@ -171,7 +172,7 @@ def test_check_through_the_mavservo_command(capsys: pytest.CaptureFixture[str]):
 def test_report_names_the_report_extra_when_matplotlib_is_missing(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ):
-    from mavservo import report
+    from mavservo.app import report
 
     monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib -> ImportError
     assert report.main([str(tmp_path)]) == 2
@@ -207,10 +208,10 @@ def test_run_logs_recoveries_next_to_the_warnings_they_answer(tmp_path: Path):
     config.write_text(SERVO)
     script = (
         "import logging, sys\n"
-        "from mavservo import runcmd\n"
+        "from mavservo.app import run as runcmd\n"
         "status = runcmd.main(sys.argv[1:])\n"
         "levels = [logging.getLogger(n).getEffectiveLevel() for n in runcmd.RECOVERY_LOGGERS]\n"
-        "print(status, levels, logging.getLogger('mavservo.bridge').getEffectiveLevel())\n"
+        "print(status, levels, logging.getLogger('mavservo.app.bridge').getEffectiveLevel())\n"
     )
     proc = subprocess.run(
         [sys.executable, "-c", script, "-c", str(config), "--duration", "0.3"]

@@ -13,12 +13,11 @@ import pytest
 from mavservo.config import (
     ConfigError,
     bus_loads,
-    check_main,
     default_config_path,
     load_config,
     load_config_text,
-    resolved_mapping,
 )
+from mavservo.app.check import check_main, resolved_mapping
 
 REPO = Path(__file__).resolve().parent.parent
 SHIPPED = sorted((REPO / "config").glob("*.yaml"))

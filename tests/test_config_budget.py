@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import pytest
 
-from mavservo.bridge import servo_specs, timing_config
+from mavservo.app.bridge import servo_specs, timing_config
 from mavservo.config import bus_loads, default_config_path, load_config, load_config_text
 from mavservo.config.budget import servo_flows
-from mavservo.schedule_core import ScheduleCore
+from mavservo.scheduling.core import ScheduleCore
 
 
 def _config(hz: int):

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from mavservo.console import format_summary
+from mavservo.app.console import format_summary
 
 
 def test_summary_counts_failed_sends_per_bus() -> None:

@@ -20,8 +20,8 @@ from e2e_support import (
     Peer,
     running,
     sim_servo,
-    wait_until,
 )
+from conftest import wait_until
 
 pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")
 

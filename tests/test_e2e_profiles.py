@@ -25,8 +25,8 @@ from e2e_support import (
     pwm_to_angle,
     running,
     sim_servo,
-    wait_until,
 )
+from conftest import wait_until
 
 # a bridge thread dying (an exception nobody catches) fails the test, not just warns
 pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")

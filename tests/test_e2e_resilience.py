@@ -18,8 +18,8 @@ from e2e_support import (
     Peer,
     running,
     sim_servo,
-    wait_until,
 )
+from conftest import wait_until
 
 # a bridge thread dying (an exception nobody catches) fails the test, not just warns
 pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")

@@ -21,8 +21,8 @@ import can
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from mavservo import aa55
-from mavservo.aa55 import Decoder, Frame, encode
+from mavservo.transport.aa55 import codec as aa55
+from mavservo.transport.aa55.codec import Decoder, Frame, encode
 from mavservo.servos import PROFILES
 from mavservo.sim.adapter import LineCorrupter, LineFaults
 from mavservo.sim.servo import SimServo

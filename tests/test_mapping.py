@@ -9,7 +9,7 @@ from hypothesis import assume, given
 from hypothesis import strategies as st
 
 from mavservo.config import default_config_path, load_config
-from mavservo.mapping import (
+from mavservo.control.mapping import (
     PWM_VALID_US,
     ChannelMap,
     Rejected,

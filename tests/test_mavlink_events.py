@@ -12,13 +12,14 @@ os.environ.setdefault("MAVLINK20", "1")
 from dataclasses import replace  # noqa: E402
 
 from test_mavlink_support import RecordingBackend, command_long, state, wire  # noqa: E402
-from test_mavlink_udp import free_udp_port, peer, wait_for  # noqa: E402
+from conftest import free_udp_port, wait_for_message  # noqa: E402
+from test_mavlink_udp import peer  # noqa: E402
 
 from mavservo.mavlink.core import MavlinkCore  # noqa: E402
 from mavservo.mavlink.settings import MavlinkSettings  # noqa: E402
 from mavservo.mavlink.side import MavlinkSide  # noqa: E402
 from mavservo.mavlink.telemetry import REMINDER_S, STATUSTEXT_LENGTH  # noqa: E402
-from mavservo.monitor import MonitorState  # noqa: E402
+from mavservo.app.monitor import MonitorState  # noqa: E402
 from mavservo.servos.base import Fault  # noqa: E402
 
 GCS = (255, 190)
@@ -114,7 +115,7 @@ def test_long_statustext_is_chunked_and_the_monitor_joins_it_over_udp():
     side.start()
     try:
         gcs.mav.heartbeat_send(6, 8, 0, 0, 4)
-        assert wait_for(gcs, lambda m: m.get_type() == "HEARTBEAT") is not None
+        assert wait_for_message(gcs, lambda m: m.get_type() == "HEARTBEAT") is not None
         side.announce(text)
         side.announce("short one")
         side.announce(exact)
@@ -127,7 +128,7 @@ def test_long_statustext_is_chunked_and_the_monitor_joins_it_over_udp():
                 monitor.update(msg, 0.0)
             return len(monitor.texts) >= 3
 
-        assert wait_for(gcs, seen) is not None
+        assert wait_for_message(gcs, seen) is not None
     finally:
         side.stop()
         gcs.close()

@@ -7,8 +7,6 @@ from __future__ import annotations
 
 import math
 import os
-import socket
-import time
 
 os.environ.setdefault("MAVLINK20", "1")
 
@@ -21,28 +19,10 @@ from mavservo.mavlink.gimbal import GimbalDevice, GimbalSettings  # noqa: E402
 from mavservo.mavlink.quaternion import euler_to_quaternion, quaternion_to_euler  # noqa: E402
 from mavservo.mavlink.settings import MavlinkSettings  # noqa: E402
 from mavservo.mavlink.side import MavlinkSide  # noqa: E402
+from conftest import free_udp_port, wait_for_message  # noqa: E402
 
 WAIT_S = 3.0
 NAN = math.nan
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def wait_for(conn, predicate, timeout=WAIT_S):
-    """First received message satisfying ``predicate``; bounded in time and message count."""
-    deadline = time.monotonic() + timeout
-    for _ in range(20_000):
-        remaining = deadline - time.monotonic()
-        if remaining <= 0:
-            return None
-        msg = conn.recv_match(blocking=True, timeout=min(remaining, 0.2))
-        if msg is not None and predicate(msg):
-            return msg
-    return None
 
 
 def status_from_gimbal(after_ms: int):
@@ -106,7 +86,7 @@ def send_set_attitude(autopilot, roll, pitch, yaw, flags):
 
 
 def latest_status_angles(conn, after_ms):
-    status = wait_for(conn, status_from_gimbal(after_ms))
+    status = wait_for_message(conn, status_from_gimbal(after_ms))
     assert status is not None, "no GIMBAL_DEVICE_ATTITUDE_STATUS from 1/154"
     return status, quaternion_to_euler(status.q)
 
@@ -115,7 +95,7 @@ def test_arducopter_style_session_over_udp(gimbal_bridge):
     device, backend, autopilot, gcs = gimbal_bridge
     # discovery, as ArduPilot does it: REQUEST_MESSAGE(283) to the gimbal component
     autopilot.mav.command_long_send(1, 154, mav.MAV_CMD_REQUEST_MESSAGE, 0, 283, 0, 0, 0, 0, 0, 0)
-    info = wait_for(autopilot, lambda m: m.get_type() == "GIMBAL_DEVICE_INFORMATION")
+    info = wait_for_message(autopilot, lambda m: m.get_type() == "GIMBAL_DEVICE_INFORMATION")
     assert info is not None and info.get_srcComponent() == 154
     assert info.pitch_min == pytest.approx(math.radians(-90.0))
 
@@ -150,7 +130,7 @@ def test_arducopter_style_session_over_udp(gimbal_bridge):
 
     # manager information: only from a gimbal that is its own manager
     gcs.mav.command_long_send(1, 154, mav.MAV_CMD_REQUEST_MESSAGE, 0, 280, 0, 0, 0, 0, 0, 0)
-    ack = wait_for(gcs, ack_for(mav.MAV_CMD_REQUEST_MESSAGE))
+    ack = wait_for_message(gcs, ack_for(mav.MAV_CMD_REQUEST_MESSAGE))
     assert ack is not None
     expected = mav.MAV_RESULT_ACCEPTED if device.settings.act_as_manager else 3  # UNSUPPORTED
     assert ack.result == expected
@@ -161,17 +141,17 @@ def test_mavsdk_style_manager_commands_over_udp(gimbal_bridge):
     configure = mav.MAV_CMD_DO_GIMBAL_MANAGER_CONFIGURE
     pitchyaw = mav.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW
     gcs.mav.command_long_send(1, 154, configure, 0, -2, -2, -1, -1, 0, 0, 0)
-    ack = wait_for(gcs, ack_for(configure))
+    ack = wait_for_message(gcs, ack_for(configure))
     assert ack is not None and ack.get_srcComponent() == 154
     if not device.settings.act_as_manager:
         assert ack.result == mav.MAV_RESULT_UNSUPPORTED
         return
     assert ack.result == mav.MAV_RESULT_ACCEPTED
     gcs.mav.command_long_send(1, 154, pitchyaw, 0, -20, 30, NAN, NAN, 0, 0, 0)
-    ack = wait_for(gcs, ack_for(pitchyaw))
+    ack = wait_for_message(gcs, ack_for(pitchyaw))
     assert ack is not None and ack.result == mav.MAV_RESULT_ACCEPTED
     assert backend.last == pytest.approx((0.0, -20.0, 30.0))
-    manager_status = wait_for(gcs, lambda m: m.get_type() == "GIMBAL_MANAGER_STATUS")
+    manager_status = wait_for_message(gcs, lambda m: m.get_type() == "GIMBAL_MANAGER_STATUS")
     assert manager_status is not None
     assert (manager_status.primary_control_sysid, manager_status.primary_control_compid) == (
         255,

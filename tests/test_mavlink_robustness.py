@@ -17,7 +17,8 @@ import can  # noqa: E402
 import pytest  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2  # noqa: E402
 from test_mavlink_support import RecordingBackend, state  # noqa: E402
-from test_mavlink_udp import free_udp_port, peer, wait_for, wait_until  # noqa: E402
+from conftest import free_udp_port, wait_for_message, wait_until  # noqa: E402
+from test_mavlink_udp import peer  # noqa: E402
 
 from mavservo.mavlink.core import MavlinkCore  # noqa: E402
 from mavservo.mavlink.settings import MavlinkSettings  # noqa: E402
@@ -117,7 +118,7 @@ def test_heartbeats_keep_coming_over_udp_when_telemetry_raises():
         def ours(msg) -> bool:
             return msg.get_type() == "HEARTBEAT" and msg.get_srcComponent() == 140
 
-        wait_for(gcs, lambda m: sum(map(ours, seen)) >= 3, timeout=6.0, keep=seen)
+        wait_for_message(gcs, lambda m: sum(map(ours, seen)) >= 3, timeout=6.0, keep=seen)
         assert sum(map(ours, seen)) >= 3
         assert side.stats()["core"]["tick_errors"] > 1  # still ticking, still failing
     finally:

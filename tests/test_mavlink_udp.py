@@ -4,29 +4,20 @@ talk to a running MavlinkSide backed by the recording backend double."""
 from __future__ import annotations
 
 import os
-import socket
-import time
-from collections.abc import Callable
 
 os.environ.setdefault("MAVLINK20", "1")
 
 import pytest  # noqa: E402
-from e2e_support import wait_until as poll_until
 from pymavlink import mavutil  # noqa: E402
 from test_mavlink_support import RecordingBackend, state  # noqa: E402
 
 from mavservo.mavlink.gimbal import GimbalDevice, GimbalSettings  # noqa: E402
 from mavservo.mavlink.settings import MavlinkSettings, SigningSettings  # noqa: E402
 from mavservo.mavlink.side import MavlinkSide  # noqa: E402
+from conftest import free_udp_port, wait_for_message, wait_until  # noqa: E402
 
 KEY = bytes(range(32))
 WAIT_S = 3.0
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def peer(port: int, system: int, component: int):
@@ -37,27 +28,6 @@ def peer(port: int, system: int, component: int):
         dialect="ardupilotmega",
     )
     return conn
-
-
-def wait_for(conn, predicate, timeout=WAIT_S, keep=None):
-    """Receive until ``predicate(msg)``; bounded by ``timeout`` and a message count."""
-    deadline = time.monotonic() + timeout
-    for _ in range(20000):
-        remaining = deadline - time.monotonic()
-        if remaining <= 0:
-            return None
-        msg = conn.recv_match(blocking=True, timeout=min(remaining, 0.2))
-        if msg is None:
-            continue
-        if keep is not None:
-            keep.append(msg)
-        if predicate(msg):
-            return msg
-    return None
-
-
-def wait_until(condition: Callable[[], bool], timeout: float = WAIT_S) -> bool:
-    return poll_until(condition, timeout, interval=0.01)
 
 
 def is_ack(command):
@@ -107,11 +77,11 @@ def test_commands_acks_retries_and_mirroring_over_udp(bridge):
     assert [c[2] for c in backend.servo_calls()] == [1500.0, 1600.0]
 
     gcs.mav.command_long_send(1, 140, 183, 0, 9, 1100, 0, 0, 0, 0, 0)
-    ack = wait_for(gcs, is_ack(183))
+    ack = wait_for_message(gcs, is_ack(183))
     assert ack is not None and ack.result == 0
     assert (ack.get_srcSystem(), ack.get_srcComponent()) == (1, 140)
     gcs.mav.command_long_send(1, 140, 183, 1, 9, 1100, 0, 0, 0, 0, 0)  # retry
-    again = wait_for(gcs, is_ack(183))
+    again = wait_for_message(gcs, is_ack(183))
     assert again is not None and again.result == 0
     assert [c for c in backend.servo_calls() if c[3] == "do_set_servo"] == [
         ("servo", 9, 1100.0, "do_set_servo")
@@ -120,12 +90,12 @@ def test_commands_acks_retries_and_mirroring_over_udp(bridge):
     gcs.mav.command_long_send(
         1, 0, 187, 0, -0.5, float("nan"), float("nan"), float("nan"), float("nan"), float("nan"), 0
     )
-    ack = wait_for(gcs, is_ack(187))
+    ack = wait_for_message(gcs, is_ack(187))
     assert ack is not None and ack.result == 0 and ack.get_srcComponent() == 140
     assert backend.servo_calls("actuator") == [("actuator", 1, -0.5, "do_set_actuator")]
 
     gcs.mav.command_int_send(1, 140, 0, 183, 0, 0, 3, 1500, 0, 0, 0, 0, 0)  # unmapped
-    ack = wait_for(gcs, is_ack(183))
+    ack = wait_for_message(gcs, is_ack(183))
     assert ack is not None and ack.result == 2
     assert side.stats()["commands"]["reason_unmapped"] == 1
 
@@ -135,7 +105,7 @@ def test_telemetry_heartbeats_and_components_over_udp(bridge):
     backend.states["aileron"] = state(12.0, velocity=60.0, current=0.5, temperature=35)
     introduce(autopilot, gcs)
     seen: list = []
-    wait_for(gcs, lambda m: False, timeout=2.2, keep=seen)
+    wait_for_message(gcs, lambda m: False, timeout=2.2, keep=seen)
     beats = {
         (m.get_srcComponent(), m.type)
         for m in seen
@@ -165,20 +135,22 @@ def test_request_message_routed_to_gimbal_and_servo_components(bridge):
     assert wait_until(lambda: side.stats()["system_id"] == 1)
     gcs.mav.command_long_send(1, 154, 512, 0, 283, 0, 0, 0, 0, 0, 0)
     kept: list = []
-    ack = wait_for(gcs, is_ack(512), keep=kept)
+    ack = wait_for_message(gcs, is_ack(512), keep=kept)
     assert ack is not None and ack.result == 0 and ack.get_srcComponent() == 154
-    assert wait_for(gcs, lambda m: m.get_type() == "GIMBAL_DEVICE_INFORMATION", keep=kept)
+    assert wait_for_message(gcs, lambda m: m.get_type() == "GIMBAL_DEVICE_INFORMATION", keep=kept)
     gcs.mav.command_long_send(1, 154, 512, 0, 280, 0, 0, 0, 0, 0, 0)  # manager info: not ours
-    ack = wait_for(gcs, is_ack(512))
+    ack = wait_for_message(gcs, is_ack(512))
     assert ack is not None and ack.result == 3
     gcs.mav.command_long_send(1, 140, 511, 0, 11030, 100000, 0, 0, 0, 0, 0)
-    ack = wait_for(gcs, is_ack(511))
+    ack = wait_for_message(gcs, is_ack(511))
     assert ack is not None and ack.result == 0 and ack.get_srcComponent() == 140
     gcs.mav.command_long_send(1, 154, 512, 0, 0, 0, 0, 0, 0, 0, 0)  # HEARTBEAT, from the gimbal
     kept = []
-    ack = wait_for(gcs, is_ack(512), keep=kept)
+    ack = wait_for_message(gcs, is_ack(512), keep=kept)
     assert ack is not None and ack.result == 0 and ack.get_srcComponent() == 154
-    beat = wait_for(gcs, lambda m: m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 154)
+    beat = wait_for_message(
+        gcs, lambda m: m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 154
+    )
     assert beat is not None and beat.type == 26
 
 
@@ -186,7 +158,7 @@ def test_failsafe_on_autopilot_heartbeat_loss_and_recovery(bridge):
     side, backend, autopilot, gcs = bridge
     introduce(autopilot, gcs)
     texts: list = []
-    lost = wait_for(
+    lost = wait_for_message(
         gcs,
         lambda m: m.get_type() == "STATUSTEXT" and "failsafe" in m.text,
         timeout=4.0,
@@ -195,7 +167,7 @@ def test_failsafe_on_autopilot_heartbeat_loss_and_recovery(bridge):
     assert lost is not None and lost.get_srcComponent() == 140
     assert backend.failsafe_events == ["enter"]
     autopilot.mav.heartbeat_send(1, 3, 0, 0, 4)
-    back = wait_for(gcs, lambda m: m.get_type() == "STATUSTEXT" and "back" in m.text)
+    back = wait_for_message(gcs, lambda m: m.get_type() == "STATUSTEXT" and "back" in m.text)
     assert back is not None
     assert backend.failsafe_events == ["enter", "leave"]
 
@@ -210,7 +182,7 @@ def test_signing_rejects_unsigned_and_accepts_signed(bridge):
     assert backend.calls == []
     gcs.setup_signing(KEY, sign_outgoing=True)
     gcs.mav.command_long_send(1, 140, 183, 0, 9, 1300, 0, 0, 0, 0, 0)
-    ack = wait_for(gcs, is_ack(183))
+    ack = wait_for_message(gcs, is_ack(183))
     assert ack is not None and ack.result == 0 and ack.get_signed()
     assert backend.servo_calls() == [("servo", 9, 1300.0, "do_set_servo")]
     bad = bytes(reversed(KEY))

@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from mavservo.metrics import (
+from mavservo.records.metrics import (
     LoadMeter,
     PeriodStats,
     SampleStats,

@@ -6,7 +6,6 @@ import io
 import os
 import pty
 import select
-import socket
 import subprocess
 import sys
 import threading
@@ -17,7 +16,8 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2  # noqa: E402
 
-from mavservo.monitor import MonitorState, plain_lines, render  # noqa: E402
+from mavservo.app.monitor import MonitorState, plain_lines, render  # noqa: E402
+from conftest import free_udp_port  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -113,12 +113,6 @@ def test_render_and_plain_lines_show_the_same_values():
         assert value in screen and value in text
 
 
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
 def _send_until(port: int, stop: threading.Event, limit_s: float = 15.0) -> None:
     conn = mavutil.mavlink_connection(
         f"udpout:127.0.0.1:{port}", source_system=1, source_component=140, dialect="ardupilotmega"
@@ -139,7 +133,7 @@ def _run_monitor(port: int, stdout, extra=()) -> subprocess.Popen:
         [
             sys.executable,
             "-m",
-            "mavservo.monitor",
+            "mavservo.app.monitor",
             f"udpin:127.0.0.1:{port}",
             "--duration",
             "3",
@@ -153,7 +147,7 @@ def _run_monitor(port: int, stdout, extra=()) -> subprocess.Popen:
 
 
 def test_dashboard_renders_in_a_pseudo_terminal():
-    port = _free_udp_port()
+    port = free_udp_port()
     master, slave = pty.openpty()
     stop = threading.Event()
     sender = threading.Thread(target=_send_until, args=(port, stop), daemon=True)
@@ -190,7 +184,7 @@ def test_dashboard_renders_in_a_pseudo_terminal():
 
 
 def test_plain_lines_when_not_a_terminal():
-    port = _free_udp_port()
+    port = free_udp_port()
     stop = threading.Event()
     sender = threading.Thread(target=_send_until, args=(port, stop), daemon=True)
     proc = _run_monitor(port, subprocess.PIPE)

@@ -11,7 +11,7 @@ import sys
 import time
 from pathlib import Path
 
-from mavservo.bridge import Bridge, free_udp_port
+from mavservo.app.bridge import Bridge, free_udp_port
 from mavservo.config import load_config
 
 REPO = Path(__file__).resolve().parents[1]

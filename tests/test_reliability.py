@@ -18,14 +18,14 @@ from __future__ import annotations
 
 import random
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 
 import pytest
-from e2e_support import wait_until as poll_until
 
-from mavservo.bridge import Bridge
+from mavservo.app.bridge import Bridge
 from mavservo.config.loader import load_config_text
 from mavservo.sim.adapter import LineCorrupter, LineFaults
+from conftest import wait_until
 
 WAIT_S = 6.0
 
@@ -53,10 +53,6 @@ def config(protocol: str, servos: int = 3) -> str:
     )
     lines.append("logging: {dir: runs}")
     return "\n".join(lines) + "\n"
-
-
-def wait_until(condition: Callable[[], bool], timeout: float = WAIT_S) -> bool:
-    return poll_until(condition, timeout, interval=0.01)
 
 
 class OneFlipPerWrite:

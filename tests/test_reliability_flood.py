@@ -16,14 +16,14 @@ Every wait is bounded and only asks "did it happen".
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 
 import pytest
-from e2e_support import wait_until as poll_until
 
-from mavservo.bridge import Bridge
+from mavservo.app.bridge import Bridge
 from mavservo.config.loader import load_config_text
 from mavservo.sim.child import SimulatorProcess
+from conftest import wait_until
 
 SERVOS = 3
 BITRATE = 125_000
@@ -52,10 +52,6 @@ def _config(channel: str) -> str:
         "simulation: {autopilot: {profile: sweep, servo_output_rate_hz: 50, gimbal: false}}"
     )
     return "\n".join(lines) + "\n"
-
-
-def wait_until(condition: Callable[[], bool], timeout: float = WAIT_S) -> bool:
-    return poll_until(condition, timeout, interval=0.02)
 
 
 @pytest.fixture

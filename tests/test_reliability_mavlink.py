@@ -8,19 +8,17 @@ over UDP to the simulated servos.
 from __future__ import annotations
 
 import os
-import socket
 import time
-from collections.abc import Callable
 
 import pytest
-from e2e_support import wait_until as poll_until
 from pymavlink import mavutil
 from test_mavlink_support import RecordingBackend, command_long, heartbeat, servo_output_raw, wire
 
-from mavservo.bridge import Bridge
+from mavservo.app.bridge import Bridge
 from mavservo.config.loader import load_config_text
 from mavservo.mavlink.core import MavlinkCore
 from mavservo.mavlink.settings import MavlinkSettings
+from conftest import free_udp_port, wait_until
 
 os.environ.setdefault("MAVLINK20", "1")
 
@@ -94,16 +92,6 @@ def test_command_flood_is_acked_once_each_and_retries_are_not_reapplied() -> Non
 
 
 # -- end to end ----------------------------------------------------------------------------
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
-def wait_until(condition: Callable[[], bool], timeout: float = 6.0) -> bool:
-    return poll_until(condition, timeout, interval=0.02)
 
 
 @pytest.fixture

@@ -12,9 +12,9 @@ from types import SimpleNamespace
 import can
 import pytest
 
-from mavservo import report
-from mavservo.busload import message_bits
-from mavservo.runlog import RunLog, read_can_log
+from mavservo.app import report
+from mavservo.scheduling.busload import message_bits
+from mavservo.records.runlog import RunLog, read_can_log
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 

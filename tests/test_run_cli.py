@@ -11,7 +11,7 @@ import sys
 import time
 from pathlib import Path
 
-from mavservo.bridge import settle_heap
+from mavservo.app.bridge import settle_heap
 from mavservo.config import default_config_path, load_config
 
 REPO = Path(__file__).resolve().parents[1]

@@ -15,7 +15,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from mavservo.runlog import (
+from mavservo.records.runlog import (
     METRICS_FILE,
     RUN_HEADER,
     RunLog,
@@ -214,7 +214,7 @@ class _Tee:
 def test_short_scheduler_run_on_a_virtual_bus_reads_back_frame_for_frame(tmp_path):
     import uuid
 
-    from mavservo.scheduler import Scheduler, ServoSpec, TimingConfig
+    from mavservo.scheduling.runner import Scheduler, ServoSpec, TimingConfig
     from mavservo.servos import RmdX
     from mavservo.sim.servo import SimServo
     from mavservo.sim.virtual import VirtualServoBus

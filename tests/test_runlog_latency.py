@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from mavservo.latency import STAGES, LatencyTracer
+from mavservo.records.latency import STAGES, LatencyTracer
 
 STATE = object()
 

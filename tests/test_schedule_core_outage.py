@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import pytest
 
-from mavservo.schedule_core import Decision, ScheduleCore, ServoSpec, TimingConfig
+from mavservo.scheduling.core import Decision, ScheduleCore, ServoSpec, TimingConfig
 from mavservo.servos import RmdX
 
 T_C = 0.05

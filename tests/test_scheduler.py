@@ -12,7 +12,7 @@ from collections import defaultdict
 import can
 import pytest
 
-from mavservo.scheduler import (
+from mavservo.scheduling.runner import (
     ScheduleError,
     Scheduler,
     SchedulerObserver,
@@ -22,18 +22,10 @@ from mavservo.scheduler import (
 from mavservo.servos import Fault, RmdX
 from mavservo.sim.servo import SimServo
 from mavservo.sim.virtual import VirtualServoBus
+from conftest import wait_until
 
 FAST = TimingConfig(command_period_s=0.02, telemetry_period_s=0.03, reply_timeout_s=0.05)
 WAIT_LIMIT_S = 5.0
-
-
-def wait_for(condition, limit_s: float = WAIT_LIMIT_S) -> bool:
-    """Poll ``condition`` a bounded number of times within ``limit_s``."""
-    for _ in range(int(limit_s / 0.01)):
-        if condition():
-            return True
-        time.sleep(0.01)
-    return condition()
 
 
 class Recorder(SchedulerObserver):
@@ -96,13 +88,13 @@ def test_commands_reach_the_servos_and_telemetry_comes_back(sim_bus):
                 s is not None and abs(s.position_deg - targets[n]) <= 1.0 for n, s in states.items()
             )
 
-        assert wait_for(settled), {n: scheduler.state(n) for n in targets}
+        assert wait_until(settled), {n: scheduler.state(n) for n in targets}
 
         def polled_enough() -> bool:
             servos_now = scheduler.metrics()["servos"]
             return all(servos_now[n]["telemetry_interval_s"]["interval"]["n"] >= 3 for n in targets)
 
-        assert wait_for(polled_enough)
+        assert wait_until(polled_enough)
     for sim in servos.servos:
         assert sim.target_deg == pytest.approx(targets[f"s{sim.can_id}"], abs=0.01)
     snapshot = json.loads(json.dumps(scheduler.metrics()))
@@ -133,7 +125,7 @@ def test_sequence_numbers_on_the_wire_never_go_backwards(sim_bus):
             scheduler.set_setpoint("s1", float(k), "burst")
             scheduler.set_setpoint("s2", float(-k), "burst")
             time.sleep(0.002)
-        assert wait_for(lambda: scheduler.metrics()["servos"]["s1"]["frames"]["refreshes"] > 2)
+        assert wait_until(lambda: scheduler.metrics()["servos"]["s1"]["frames"]["refreshes"] > 2)
     for servo in ("s1", "s2"):
         seqs = [seq for name, kind, seq, _ in recorder.tx if name == servo and kind != "request"]
         assert seqs == sorted(seqs) and seqs[-1] == 40
@@ -150,14 +142,14 @@ def test_silent_servo_goes_offline_with_no_reply_fault_and_comes_back(sim_bus):
     scheduler.subscribe(lambda name, state: name == "s3" and seen_faults.append(state.faults))
     with scheduler:
         scheduler.set_setpoint("s3", 1.0, "test")
-        assert wait_for(lambda: scheduler.state("s3") is not None)
+        assert wait_until(lambda: scheduler.state("s3") is not None)
         servos.servos[2].faults.silent = True
-        assert wait_for(lambda: not scheduler.is_online("s3"))
+        assert wait_until(lambda: not scheduler.is_online("s3"))
         assert Fault.NO_REPLY in scheduler.state("s3").faults
         assert scheduler.is_online("s1")
         servos.servos[2].faults.silent = False
-        assert wait_for(lambda: scheduler.is_online("s3"))
-        assert wait_for(lambda: Fault.NO_REPLY not in scheduler.state("s3").faults)
+        assert wait_until(lambda: scheduler.is_online("s3"))
+        assert wait_until(lambda: Fault.NO_REPLY not in scheduler.state("s3").faults)
     assert "s3" in recorder.lost
     assert scheduler.metrics()["servos"]["s3"]["frames"]["lost"] >= FAST.offline_after_missed
     assert any(Fault.NO_REPLY in f for f in seen_faults)
@@ -168,7 +160,7 @@ def test_release_stops_the_keep_alive(sim_bus):
     scheduler = Scheduler(bus, specs(1), FAST)
     with scheduler:
         scheduler.set_setpoint("s1", 3.0, "test")
-        assert wait_for(lambda: scheduler.metrics()["servos"]["s1"]["frames"]["refreshes"] > 1)
+        assert wait_until(lambda: scheduler.metrics()["servos"]["s1"]["frames"]["refreshes"] > 1)
         scheduler.release("s1")
         time.sleep(3 * FAST.command_period_s)  # let a slot that was already decided go out
         frozen = scheduler.metrics()["servos"]["s1"]["frames"]["refreshes"]
@@ -213,7 +205,7 @@ def test_realtime_request_is_reported_not_raised(sim_bus):
         bus, specs(1), TimingConfig(command_period_s=0.02, telemetry_period_s=0.03, realtime=True)
     )
     with scheduler:
-        assert wait_for(lambda: scheduler.realtime_status != "not requested")
+        assert wait_until(lambda: scheduler.realtime_status != "not requested")
     status = scheduler.metrics()["info"]["realtime"]
     assert status.startswith("SCHED_FIFO") or status.startswith("refused")
 
@@ -232,7 +224,7 @@ def test_failing_observer_and_subscriber_do_not_stop_the_loop(sim_bus):
     with scheduler:
         scheduler.set_setpoint("s1", 1.0, "test")
         assert calls.wait(WAIT_LIMIT_S)
-        assert wait_for(lambda: scheduler.metrics()["servos"]["s1"]["frames"]["received"] > 3)
+        assert wait_until(lambda: scheduler.metrics()["servos"]["s1"]["frames"]["received"] > 3)
 
 
 def _start_under_fifo(scheduler: Scheduler) -> BaseException | None:
@@ -266,11 +258,11 @@ def test_a_runner_under_an_inherited_fifo_policy_uses_the_fifo_spin(sim_bus):
     if refused is not None:
         pytest.skip(f"SCHED_FIFO not granted here: {refused!r}")
     try:
-        assert wait_for(lambda: scheduler.realtime_status != "not requested")
+        assert wait_until(lambda: scheduler.realtime_status != "not requested")
         assert scheduler.realtime_status == "inherited real-time policy"
         assert scheduler.spin_s == 0.0
         assert scheduler.metrics()["info"]["spin_s"] == 0.0
-        assert wait_for(lambda: scheduler.metrics()["command_tick"]["interval"]["n"] >= 5)
+        assert wait_until(lambda: scheduler.metrics()["command_tick"]["interval"]["n"] >= 5)
     finally:
         scheduler.stop()
 
@@ -281,7 +273,7 @@ def test_a_runner_at_normal_priority_keeps_the_configured_spin(sim_bus):
         command_period_s=0.02, telemetry_period_s=0.03, spin_s=0.002, fifo_spin_s=0.0
     )
     with Scheduler(bus, specs(1), timing) as scheduler:
-        assert wait_for(lambda: scheduler.metrics()["command_tick"]["interval"]["n"] >= 3)
+        assert wait_until(lambda: scheduler.metrics()["command_tick"]["interval"]["n"] >= 3)
         assert scheduler.spin_s == 0.002
         assert scheduler.realtime_status == "not requested"
 
@@ -293,7 +285,7 @@ def test_round_trip_samples_are_the_latest_wire_latencies_bounded_per_servo(sim_
     with scheduler:
         scheduler.set_setpoint("s1", 4.0, "test")
         scheduler.set_setpoint("s2", -4.0, "test")
-        assert wait_for(
+        assert wait_until(
             lambda: all(s["latency_s"]["n"] >= 6 for s in scheduler.metrics()["servos"].values())
         )
     store = scheduler.metrics_store.servos

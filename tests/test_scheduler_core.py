@@ -9,14 +9,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mavservo.busload import frame_time
-from mavservo.schedule_core import (
-    Decision,
-    ScheduleCore,
-    ScheduleError,
-    ServoSpec,
-    TimingConfig,
-)
+from mavservo.scheduling.busload import frame_time
+from mavservo.scheduling.core import Decision, ScheduleCore, ScheduleError, ServoSpec, TimingConfig
 from mavservo.servos import RmdX
 
 T_C = 0.05

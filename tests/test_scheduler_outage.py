@@ -16,21 +16,23 @@ import uuid
 import can
 import pytest
 from can.interfaces.virtual import VirtualBus
-from e2e_support import wait_until
 
-from mavservo.resilient_bus import ResilientBus
-from mavservo.scheduler import FailureRun, Scheduler, SchedulerObserver, ServoSpec, TimingConfig
+from mavservo.transport.resilient_bus import ResilientBus
+from mavservo.scheduling.runner import (
+    FailureRun,
+    Scheduler,
+    SchedulerObserver,
+    ServoSpec,
+    TimingConfig,
+)
 from mavservo.servos import Fault, RmdX, ServoState
 from mavservo.sim.servo import SimServo
 from mavservo.sim.virtual import VirtualServoBus
+from conftest import wait_until
 
 FAST = TimingConfig(command_period_s=0.02, telemetry_period_s=0.03, reply_timeout_s=0.05)
 WAIT_LIMIT_S = 5.0
-SCHEDULER_LOG = "mavservo.scheduler"
-
-
-def wait_for(condition) -> bool:
-    return wait_until(condition, WAIT_LIMIT_S, interval=0.01)
+SCHEDULER_LOG = "mavservo.scheduling.runner"
 
 
 def specs(n: int = 2) -> list[ServoSpec]:
@@ -136,12 +138,12 @@ def test_an_unplugged_adapter_logs_one_warning_and_one_recovery_and_counts_every
             with scheduler:
                 for spec in specs():
                     assert scheduler.set_setpoint(spec.name, 10.0, "test").accepted
-                assert wait_for(lambda: bus.sent >= 10)
+                assert wait_until(lambda: bus.sent >= 10)
                 adapter.unplug()
-                assert wait_for(lambda: bus.refused >= 20)  # many slots fail while it is away
+                assert wait_until(lambda: bus.refused >= 20)  # many slots fail while it is away
                 sent_while_away = bus.sent
                 adapter.plugged = True
-                assert wait_for(lambda: bus.reconnects == 1 and bus.sent > sent_while_away + 5)
+                assert wait_until(lambda: bus.reconnects == 1 and bus.sent > sent_while_away + 5)
             metrics = scheduler.metrics()
         finally:
             bus.shutdown()
@@ -174,9 +176,9 @@ def test_a_bus_gone_for_good_logs_one_send_and_one_receive_warning_and_the_total
         with scheduler:
             for spec in specs():
                 assert scheduler.set_setpoint(spec.name, 5.0, "test").accepted
-            assert wait_for(lambda: scheduler.metrics()["servos"]["s1"]["frames"]["sent"] > 3)
+            assert wait_until(lambda: scheduler.metrics()["servos"]["s1"]["frames"]["sent"] > 3)
             bus.shutdown()
-            assert wait_for(lambda: bus.refused_sends >= 20 and bus.refused_receives >= 5)
+            assert wait_until(lambda: bus.refused_sends >= 20 and bus.refused_receives >= 5)
             failing = scheduler.metrics()
         metrics = scheduler.metrics()
     finally:
@@ -231,11 +233,11 @@ def test_an_outage_left_open_at_stop_ends_with_the_first_receive_after_a_restart
     scheduler = Scheduler(bus, specs(1), FAST, name="bus0")
     try:
         with scheduler:
-            assert wait_for(lambda: bus.refused_receives >= 3)
+            assert wait_until(lambda: bus.refused_receives >= 3)
         assert scheduler.metrics()["receive_failures"]["failing_for_s"] > 0  # open after stop
         bus.receives_fail = False
         with scheduler:
-            assert wait_for(
+            assert wait_until(
                 lambda: scheduler.metrics()["receive_failures"]["failing_for_s"] is None
             )
     finally:
@@ -274,7 +276,7 @@ def test_an_unplugged_adapter_takes_servos_offline_and_drops_setpoints_meant_for
             with scheduler:
                 for name in names:
                     assert scheduler.set_setpoint(name, 10.0, "test").accepted
-                assert wait_for(
+                assert wait_until(
                     lambda: all(
                         scheduler.state(n) is not None and (n, "command", 1) in recorder.tx
                         for n in names
@@ -283,18 +285,20 @@ def test_an_unplugged_adapter_takes_servos_offline_and_drops_setpoints_meant_for
                 assert all(scheduler.is_online(n) for n in names)
 
                 adapter.unplug()
-                assert wait_for(lambda: not any(scheduler.is_online(n) for n in names))
+                assert wait_until(lambda: not any(scheduler.is_online(n) for n in names))
                 for name in names:  # the existing offline path: NO_REPLY, subscribers told
                     assert Fault.NO_REPLY in scheduler.state(name).faults
                     assert any(s == name and Fault.NO_REPLY in st.faults for s, st in told)
                 late = scheduler.set_setpoint("s1", 77.0, "do_set_servo")
                 assert late.accepted  # the scheduler takes it; its send fails and drops it
-                assert wait_for(lambda: scheduler.metrics()["servos"]["s1"]["setpoints"]["dropped"])
+                assert wait_until(
+                    lambda: scheduler.metrics()["servos"]["s1"]["setpoints"]["dropped"]
+                )
 
                 adapter.plugged = True
-                assert wait_for(lambda: all(scheduler.is_online(n) for n in names))
+                assert wait_until(lambda: all(scheduler.is_online(n) for n in names))
                 replies_after = sims[0].replies
-                assert wait_for(lambda: sims[0].replies > replies_after + 5)
+                assert wait_until(lambda: sims[0].replies > replies_after + 5)
             metrics = scheduler.metrics()
         finally:
             bus.shutdown()

@@ -22,16 +22,16 @@ import os
 import random
 import socket
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from typing import Any
 
 import pytest
-from e2e_support import wait_until as poll_until
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from mavservo.bridge import Bridge
+from mavservo.app.bridge import Bridge
 from mavservo.config.loader import load_config_text
+from conftest import free_udp_port, wait_until
 
 os.environ.setdefault("MAVLINK20", "1")  # pymavlink peers speak MAVLink 1 (never signed) without it
 
@@ -41,12 +41,6 @@ DO_SET_SERVO = 183
 AUTOPILOT = (1, 1)
 GCS = (255, 190)
 ROGUE = (66, 190)
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
 
 
 def config_text(port: int, signing: bool) -> str:
@@ -71,10 +65,6 @@ channels:
      output_deg: [-30, 30]}}
 logging: {{dir: runs}}
 """
-
-
-def wait_until(condition: Callable[[], bool], timeout: float = WAIT_S) -> bool:
-    return poll_until(condition, timeout, interval=0.01)
 
 
 def acks(conn: Any, command: int, timeout: float) -> list[Any]:

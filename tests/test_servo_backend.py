@@ -13,7 +13,7 @@ import pytest
 
 from mavservo.config import load_config_text
 from mavservo.mavlink.backend import Outcome
-from mavservo.servo_backend import ServoBackend
+from mavservo.control.servo_backend import ServoBackend
 from mavservo.servos.base import NO_FAULT, ServoState
 
 CONFIG = """

@@ -1,9 +1,9 @@
 """What the scheduler logs about its servos: flapping rate-limited, slow servos named once.
 
-The pure rules (:mod:`mavservo.servo_log`) under a fake clock, then the threaded scheduler on
-python-can ``virtual`` with simulated servos that lose or delay their replies (the trial: 8-29
-``offline (no reply)`` lines in 6-8 s and no recovery line; a servo answering 80 ms late read as
-losing most replies with nothing in the log saying the timeout was too short).
+The pure rules (:mod:`mavservo.scheduling.outage_log`) under a fake clock, then the threaded
+scheduler on python-can ``virtual`` with simulated servos that lose or delay their replies (the
+trial: 8-29 ``offline (no reply)`` lines in 6-8 s and no recovery line; a servo answering 80 ms
+late read as losing most replies with nothing in the log saying the timeout was too short).
 """
 
 from __future__ import annotations
@@ -13,13 +13,14 @@ import uuid
 
 import can
 import pytest
-from e2e_support import wait_until
 
-from mavservo.scheduler import Scheduler, ServoSpec, TimingConfig
-from mavservo.servo_log import LateReplies, OnlineLog
+
+from mavservo.scheduling.runner import Scheduler, ServoSpec, TimingConfig
+from mavservo.scheduling.outage_log import LateReplies, OnlineLog
 from mavservo.servos import Fault, RmdX, ServoState
 from mavservo.sim.servo import Faults, SimServo
 from mavservo.sim.virtual import VirtualServoBus
+from conftest import wait_until
 
 FAST = TimingConfig(command_period_s=0.02, telemetry_period_s=0.03, reply_timeout_s=0.05)
 WAIT_LIMIT_S = 10.0
@@ -82,7 +83,7 @@ def scheduler_records(caplog: pytest.LogCaptureFixture, level: int, *words: str)
     return [
         r.getMessage()
         for r in caplog.records
-        if r.name == "mavservo.scheduler"
+        if r.name == "mavservo.scheduling.runner"
         and r.levelno == level
         and all(w in r.getMessage() for w in words)
     ]

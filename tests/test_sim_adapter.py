@@ -20,7 +20,7 @@ import pytest
 from mavservo.servos import CubeMarsAK, Fault, RmdX, ServoProfile, ServoState
 from mavservo.sim.adapter import AdapterEmulator, LineFaults
 from mavservo.sim.servo import Faults, Physics, SimServo
-from mavservo.usbcan import AA55Bus
+from mavservo.transport.aa55.bus import AA55Bus
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -15,7 +15,7 @@ import pytest
 
 from mavservo.servos import RmdX
 from mavservo.sim.child import SimulatorProcess, frame_key
-from mavservo.usbcan import AA55Bus
+from mavservo.transport.aa55.bus import AA55Bus
 
 
 @pytest.fixture

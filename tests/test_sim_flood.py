@@ -11,7 +11,7 @@ import math
 
 import pytest
 
-from mavservo.busload import frame_time
+from mavservo.scheduling.busload import frame_time
 from mavservo.servos import RmdX
 from mavservo.sim.canbus import SimCanBus
 from mavservo.sim.servo import SimServo

@@ -7,7 +7,7 @@ from itertools import pairwise
 import can
 import pytest
 
-from mavservo.busload import frame_time
+from mavservo.scheduling.busload import frame_time
 from mavservo.servos import CubeMarsAK, Fault, RmdX
 from mavservo.sim.canbus import SimCanBus
 from mavservo.sim.servo import Faults, Physics, SimServo

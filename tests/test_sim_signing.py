@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import time
 
-from mavservo.bridge import Bridge
+from mavservo.app.bridge import Bridge
 from mavservo.config import load_config_text
 
 KEY = "6b" * 32

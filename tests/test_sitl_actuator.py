@@ -15,11 +15,12 @@ import math
 from pathlib import Path
 
 import pytest
-from e2e_support import MAV_CMD_DO_SET_ACTUATOR, MAV_RESULT_ACCEPTED, Recorder, wait_until
+from e2e_support import MAV_CMD_DO_SET_ACTUATOR, MAV_RESULT_ACCEPTED, Recorder
 
-from mavservo.bridge import Bridge
+from mavservo.app.bridge import Bridge
 from mavservo.config import ConfigError, load_config, load_config_text
-from sitl.script import SetActuator, parse_event
+from mavservo.config.autopilot_script import SetActuator, parse_event
+from conftest import wait_until
 
 REPO = Path(__file__).resolve().parent.parent
 ACTUATOR_SET_SIZE = 6  # the spec: params 1..6 carry one set of six actuators
@@ -115,7 +116,7 @@ def test_the_quick_start_do_set_actuator_event_addresses_a_mapped_actuator() -> 
 
 
 def test_stream_cli_refuses_an_old_script_with_one_clear_line(tmp_path, capsys) -> None:
-    from sitl.cli import main
+    from mavservo.sim.autopilot.cli import main
 
     script = tmp_path / "old.yaml"
     script.write_text("- {at: 1.0, do_set_actuator: {values: [0.5], group: 1}}\n")

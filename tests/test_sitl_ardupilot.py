@@ -14,11 +14,13 @@ from pathlib import Path
 
 import pytest
 
-from sitl.link import mavlink2 as mav
-from sitl.testing import collect, free_udp_port, of_type, peer
+from mavservo.sim.autopilot.link import mavlink2 as mav
+from autopilot_support import collect, of_type, peer
+from conftest import free_udp_port
 
 REPO = Path(__file__).resolve().parent.parent
-SCRIPT = REPO / "sitl" / "run-arduplane.sh"
+AUTOPILOT = REPO / "mavservo" / "sim" / "autopilot"  # the simulator and its ArduPilot files
+SCRIPT = AUTOPILOT / "run-arduplane.sh"
 
 
 def _parm(path: Path) -> dict[str, float]:
@@ -32,8 +34,8 @@ def _parm(path: Path) -> dict[str, float]:
 
 
 def test_parameter_files_match_the_recorded_sessions() -> None:
-    companion = _parm(REPO / "sitl" / "arduplane-companion.parm")
-    gimbal = _parm(REPO / "sitl" / "arduplane-gimbal.parm")
+    companion = _parm(AUTOPILOT / "arduplane-companion.parm")
+    gimbal = _parm(AUTOPILOT / "arduplane-gimbal.parm")
     assert companion["SERIAL1_PROTOCOL"] == 2
     assert (companion["SERVO9_FUNCTION"], companion["SERVO10_FUNCTION"]) == (0, 1)
     assert (gimbal["MNT1_TYPE"], gimbal["SCHED_LOOP_RATE"]) == (6, 100)
@@ -88,8 +90,8 @@ def test_dry_run_without_ardupilot_shows_the_command_to_use_once_it_is_installed
     assert "--serial1=udpclient:127.0.0.1:14600" in words
     param_files = [w.split("=", 1)[1] for w in words if w.startswith("--add-param-file=")]
     assert param_files == [
-        str(REPO / "sitl" / "arduplane-companion.parm"),
-        str(REPO / "sitl" / "arduplane-gimbal.parm"),
+        str(AUTOPILOT / "arduplane-companion.parm"),
+        str(AUTOPILOT / "arduplane-gimbal.parm"),
     ]
     assert words[-2:] == ["-w", "--console"]
 
@@ -107,7 +109,7 @@ def test_launcher_command_line_for_the_arduplane_binary(tmp_path: Path) -> None:
     assert words[0].endswith("arduplane")
     assert words[words.index("--serial1") + 1] == "udpclient:127.0.0.1:14600"
     defaults = words[words.index("--defaults") + 1].replace("\\,", ",")
-    gimbal_parm = REPO / "sitl" / "arduplane-gimbal.parm"
+    gimbal_parm = AUTOPILOT / "arduplane-gimbal.parm"
     assert defaults.endswith(f"arduplane-companion.parm,{gimbal_parm}")
 
 

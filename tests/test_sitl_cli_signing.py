@@ -2,27 +2,21 @@
 
 from __future__ import annotations
 
-import socket
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 from pymavlink import mavutil
+from conftest import free_udp_port
 
 REPO = Path(__file__).resolve().parent.parent
 KEY_HEX = "42" * 32
 
 
-def _free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
 def _stream(*options: str) -> subprocess.Popen[str]:
     return subprocess.Popen(
-        [sys.executable, "-m", "sitl", "stream", *options],
+        [sys.executable, "-m", "mavservo.sim.autopilot", "stream", *options],
         cwd=REPO,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
@@ -33,7 +27,7 @@ def _stream(*options: str) -> subprocess.Popen[str]:
 def test_stream_signs_with_the_key_file_and_a_bad_file_is_one_clear_line(tmp_path: Path) -> None:
     key_file = tmp_path / "signing.key"
     key_file.write_text(KEY_HEX + "\n")
-    port = _free_udp_port()
+    port = free_udp_port()
     listener = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255)
     types: set[str] = set()
     try:

@@ -8,9 +8,9 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from sitl.commands import CommandTracker
-from sitl.gimbal import euler_to_quaternion, quaternion_to_euler
-from sitl.profiles import (
+from mavservo.sim.autopilot.commands import CommandTracker
+from mavservo.sim.autopilot.gimbal import euler_to_quaternion, quaternion_to_euler
+from mavservo.sim.autopilot.profiles import (
     N_CHANNELS,
     PROFILES,
     RandomWalkProfile,
@@ -18,7 +18,7 @@ from sitl.profiles import (
     SweepProfile,
     get_profile,
 )
-from sitl.script import (
+from mavservo.config.autopilot_script import (
     Dropout,
     GimbalTarget,
     RepeatServo,

@@ -18,9 +18,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sitl.cli import main
-from sitl.replay import BRIDGE_TYPES, TlogError, iter_tlog, iter_tlog_records, replay
-from sitl.testing import collect, free_udp_port, of_type, peer
+from mavservo.sim.autopilot.cli import main
+from mavservo.sim.autopilot.replay import (
+    BRIDGE_TYPES,
+    TlogError,
+    iter_tlog,
+    iter_tlog_records,
+    replay,
+)
+from autopilot_support import collect, of_type, peer
+from conftest import free_udp_port
 
 DATA = Path(__file__).parent / "data"
 SERVOS = DATA / "plane-servos.tlog"
@@ -266,7 +273,8 @@ def test_cli_exits_zero_on_sigint(command: list[str]) -> None:
     port = free_udp_port()
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     proc = subprocess.Popen(
-        [sys.executable, "-m", "sitl", *command, "--url", f"udpout:127.0.0.1:{port}"],
+        [sys.executable, "-m", "mavservo.sim.autopilot", *command]
+        + ["--url", f"udpout:127.0.0.1:{port}"],
         cwd=REPO,
         env=env,
         stdout=subprocess.PIPE,
@@ -294,7 +302,7 @@ def test_cli_stream_scripted_and_on_demand_dropouts() -> None:
         [
             sys.executable,
             "-m",
-            "sitl",
+            "mavservo.sim.autopilot",
             "stream",
             "--profile",
             "hold",
@@ -347,7 +355,7 @@ pwm = st.integers(min_value=0, max_value=65535)
 )
 def test_written_tlog_reads_back_exactly(frames, tmp_path_factory) -> None:
     """Round trip: messages packed as MAVLink 2 (or 1) into tlog records come back unchanged."""
-    from sitl.link import mavlink2
+    from mavservo.sim.autopilot.link import mavlink2
 
     encoder = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
     stamp = 1_795_302_091_605_568

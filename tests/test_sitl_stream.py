@@ -7,15 +7,16 @@ from collections import Counter
 
 import pytest
 
-from sitl.factory import simulator_from_config
-from sitl.gimbal import quaternion_to_euler
-from sitl.link import mavlink2 as mav
-from sitl.link import open_link
-from sitl.profiles import HoldProfile, StaircaseProfile, SweepProfile
-from sitl.replay import ReplayRunner
-from sitl.script import Event, RepeatServo, SetActuator, SetServo
-from sitl.stream import AutopilotStream, normalized_outputs
-from sitl.testing import collect, free_udp_port, of_type, peer
+from mavservo.sim.autopilot.factory import simulator_from_config
+from mavservo.sim.autopilot.gimbal import quaternion_to_euler
+from mavservo.sim.autopilot.link import mavlink2 as mav
+from mavservo.sim.autopilot.link import open_link
+from mavservo.sim.autopilot.profiles import HoldProfile, StaircaseProfile, SweepProfile
+from mavservo.sim.autopilot.replay import ReplayRunner
+from mavservo.config.autopilot_script import Event, RepeatServo, SetActuator, SetServo
+from mavservo.sim.autopilot.stream import AutopilotStream, normalized_outputs
+from autopilot_support import collect, of_type, peer
+from conftest import free_udp_port
 
 
 @pytest.fixture

@@ -22,29 +22,15 @@ from typing import Any
 import can
 import pytest
 
-from mavservo.bridge import Bridge
+from mavservo.app.bridge import Bridge
 from mavservo.config.loader import load_config_text
 from mavservo.mavlink.side import MavlinkSide
-from mavservo.scheduler import Scheduler, SchedulerObserver, ServoSpec, TimingConfig
+from mavservo.scheduling.runner import Scheduler, SchedulerObserver, ServoSpec, TimingConfig
 from mavservo.servos import RmdX
+from conftest import free_udp_port, wait_until
 
 BENCH_FAULTS = Path(__file__).resolve().parent.parent / "bench" / "bench_faults.py"
 WAIT_LIMIT_S = 5.0
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
-
-
-def wait_for(condition: Any, limit_s: float = WAIT_LIMIT_S) -> bool:
-    """Poll ``condition`` a bounded number of times within ``limit_s``."""
-    for _ in range(int(limit_s / 0.01)):
-        if condition():
-            return True
-        time.sleep(0.01)
-    return bool(condition())
 
 
 class FirstFrames(SchedulerObserver):
@@ -91,7 +77,7 @@ def test_the_command_clock_starts_only_after_the_mavlink_side_is_up(monkeypatch)
     try:
         before = time.monotonic()
         uptime = bridge.schedulers["bus0"].metrics()["info"]["uptime_s"]
-        assert wait_for(lambda: frames.tx), "the scheduler sent nothing"
+        assert wait_until(lambda: frames.tx), "the scheduler sent nothing"
     finally:
         bridge.stop()
     assert [name for name, _ in events] == ["mavlink up", "scheduler start"]
@@ -116,7 +102,7 @@ def test_a_setpoint_queued_before_the_scheduler_starts_goes_out_in_its_first_slo
         assert queued.accepted
         assert not frames.tx, "nothing goes out before the scheduler starts"
         scheduler.start()
-        assert wait_for(lambda: frames.tx)
+        assert wait_until(lambda: frames.tx)
         scheduler.stop()
         servo, kind, seq, _ = frames.tx[0]
         assert (servo, kind, seq) == ("s1", "command", queued.seq)

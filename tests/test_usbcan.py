@@ -5,7 +5,6 @@ from __future__ import annotations
 import contextlib
 import os
 import select
-import socket
 import time
 import tty
 from collections.abc import Iterator
@@ -13,11 +12,18 @@ from collections.abc import Iterator
 import can
 import pytest
 
-from mavservo import aa55
-from mavservo.aa55 import Frame
-from mavservo.bridge import Bridge
+from mavservo.transport.aa55 import codec as aa55
+from mavservo.transport.aa55.codec import Frame
+from mavservo.app.bridge import Bridge
 from mavservo.config.loader import load_config_text
-from mavservo.usbcan import AUTO_HOLD_BYTES, AUTO_HOLD_S, LOAD_WINDOW_S, LineLoad, auto_hold_s
+from mavservo.transport.aa55.bus import (
+    AUTO_HOLD_BYTES,
+    AUTO_HOLD_S,
+    LOAD_WINDOW_S,
+    LineLoad,
+    auto_hold_s,
+)
+from conftest import free_udp_port
 
 
 class AdapterEnd:
@@ -339,9 +345,7 @@ def test_auto_read_interval_holds_only_while_the_line_is_busy(adapter: AdapterEn
 
 
 def test_the_bridge_passes_the_configured_read_interval_to_its_adapter() -> None:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        port = sock.getsockname()[1]
+    port = free_udp_port()
     config = load_config_text(f"""
 mavlink: {{url: "udpin:127.0.0.1:{port}", system_id: 1}}
 can:

@@ -1,4 +1,4 @@
-"""mavservo configuration: the YAML schema, loading with ``FILE:LINE`` errors, and ``check``.
+"""mavservo configuration: the YAML schema and loading with ``FILE:LINE`` errors.
 
 Public API::
 
@@ -6,11 +6,11 @@ Public API::
     load_config_with_warnings(path) -> (Config, [Problem])  # + settings that will not do as said
     load_config_text(text, filename) -> Config
     default_config_path() -> Path            # the built-in sim.yaml
-    resolved_mapping(config) -> str          # human-readable table for `mavservo check`
     bus_loads(config) -> list[BusLoad]       # worst-case R per bus
-    check_main(argv) -> int                  # `mavservo check CONFIG...`: 0 valid, 2 invalid
     endpoint_lines(config) -> list[str]      # MAVLink URL and bus interfaces, in words
     apply_overrides(config, mavlink, port)   # --mavlink / --port; OverrideError names the option
+
+`mavservo check` (which also needs the channel mapping, a layer above) is :mod:`mavservo.app.check`.
 """
 
 from mavservo.config.budget import BusLoad, bus_loads
@@ -23,7 +23,6 @@ from mavservo.config.loader import (
     load_config_with_warnings,
 )
 from mavservo.config.overrides import OverrideError, apply_overrides
-from mavservo.config.report import check_main, resolved_mapping
 from mavservo.config.schema import (
     ActuatorChannel,
     BusConfig,
@@ -61,11 +60,9 @@ __all__ = [
     "SimulationConfig",
     "apply_overrides",
     "bus_loads",
-    "check_main",
     "default_config_path",
     "endpoint_lines",
     "load_config",
     "load_config_text",
     "load_config_with_warnings",
-    "resolved_mapping",
 ]

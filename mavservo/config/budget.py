@@ -2,7 +2,7 @@
 
 The frames each servo puts on the bus come from its profile (what one position command and one
 telemetry poll look like, and how many replies each gets), the rates from the scheduler settings,
-and the arithmetic from :mod:`mavservo.busload`. A configuration whose worst case exceeds its
+and the arithmetic from :mod:`mavservo.scheduling.busload`. A configuration whose worst case exceeds its
 bus's ``max_load`` is refused at load time, before anything touches the bus.
 """
 
@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from mavservo.busload import FrameFlow, load_ratio, servo_traffic
+from mavservo.scheduling.busload import FrameFlow, load_ratio, servo_traffic
 
 if TYPE_CHECKING:
     from mavservo.config.schema import BusConfig, Config, SchedulerConfig, ServoConfig

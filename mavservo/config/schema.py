@@ -529,7 +529,7 @@ class SchedulerConfig(StrictModel):
 class SimAutopilotConfig(StrictModel):
     """The built-in autopilot stream simulator (used when ``mavlink.url`` is ``sim``).
 
-    ``script`` is a list of timed events in :mod:`sitl.script`'s format, checked here with the
+    ``script`` is a list of timed events in :mod:`mavservo.config.autopilot_script`'s format, checked here with the
     simulator's own parser so a bad event is reported with its line.
     """
 
@@ -545,7 +545,7 @@ class SimAutopilotConfig(StrictModel):
     @field_validator("script")
     @classmethod
     def _script_parses(cls, script: list[dict[str, Any]]) -> list[dict[str, Any]]:
-        from sitl.script import parse_script  # the simulator owns the event format
+        from mavservo.config.autopilot_script import parse_script  # the simulator owns the event format
 
         try:
             parse_script(script)
@@ -564,7 +564,7 @@ SimValue = float | int | bool | str | None
 
 
 class SimServoConfig(StrictModel):
-    """Physics and fault injection of one simulated servo, in :mod:`mavservo.sim.servo` terms."""
+    """Physics and fault injection of one simulated servo, in :mod:`mavservo.config.simulation` terms."""
 
     physics: dict[str, SimValue] = {}
     faults: dict[str, SimValue] = {}
@@ -572,7 +572,7 @@ class SimServoConfig(StrictModel):
     @field_validator("physics")
     @classmethod
     def _known_physics(cls, values: dict[str, SimValue]) -> dict[str, SimValue]:
-        from mavservo.sim.servo import Physics  # the simulator owns the meaning of these keys
+        from mavservo.config.simulation import Physics
 
         Physics.from_dict(values)
         return values
@@ -580,7 +580,7 @@ class SimServoConfig(StrictModel):
     @field_validator("faults")
     @classmethod
     def _known_faults(cls, values: dict[str, SimValue]) -> dict[str, SimValue]:
-        from mavservo.sim.servo import Faults
+        from mavservo.config.simulation import Faults
 
         Faults.from_dict(values)
         return values

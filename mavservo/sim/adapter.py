@@ -36,7 +36,7 @@ from typing import Any
 
 import can
 
-from .. import aa55
+from mavservo.transport.aa55 import codec as aa55
 from .canbus import SimCanBus
 from .servo import SimServo
 

@@ -40,7 +40,7 @@ from typing import Any
 
 import can
 
-from .. import aa55
+from mavservo.transport.aa55 import codec as aa55
 from .adapter import AdapterEmulator, LineCorrupter, LineFaults, host_decoder
 from .canbus import HOST
 from .servo import SimServo
@@ -298,7 +298,7 @@ def _handle(
 
 def _servos(args: argparse.Namespace) -> list[SimServo]:
     if args.config:
-        from ..bridge import simulated_servos
+        from mavservo.sim.servo import simulated_servos
         from ..config.loader import load_config
 
         return simulated_servos(load_config(args.config), args.bus)

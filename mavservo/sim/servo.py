@@ -18,12 +18,11 @@ from __future__ import annotations
 import math
 import random
 import struct
-from collections.abc import Mapping
-from dataclasses import dataclass, fields
-from typing import Any
+from typing import TYPE_CHECKING
 
 import can
 
+from ..config.simulation import Faults, Physics
 from ..servos import get_profile
 from ..servos.base import NO_FAULT, Fault
 from ..servos.cubemars import (
@@ -43,79 +42,14 @@ from ..servos.rmdx import (
     error_word_from_faults,
 )
 
+if TYPE_CHECKING:
+    from ..config import Config
+
 Reply = tuple[float, can.Message]
 """A frame the servo will put on the bus, and the earliest time it is ready to."""
 
 _MAX_STEPS_PER_ADVANCE = 20_000
 _STEP_S = 0.001
-
-
-def _from_mapping(cls: type, values: Mapping[str, Any] | None, what: str) -> Any:
-    """Build a dataclass from a YAML mapping, naming unknown keys instead of ignoring them."""
-    values = dict(values or {})
-    known = {f.name for f in fields(cls)}
-    unknown = sorted(set(values) - known)
-    if unknown:
-        raise ValueError(f"unknown {what} option(s) {unknown}; known: {sorted(known)}")
-    return cls(**values)
-
-
-@dataclass
-class Physics:
-    """Mechanical and thermal model of one servo (defaults: a small gimbal-class actuator)."""
-
-    max_speed_dps: float = 720.0
-    """The servo's own speed ceiling; a command's speed limit can only lower it."""
-    max_accel_dps2: float = 3600.0
-    position_gain: float = 20.0
-    """1/s: velocity demand per degree of error near the target (smooth final approach)."""
-    current_per_accel: float = 0.0005
-    """A per deg/s^2: current needed to accelerate the rotor and load inertia."""
-    viscous_current: float = 0.002
-    """A per deg/s of speed (viscous friction)."""
-    friction_current: float = 0.15
-    """A of Coulomb friction while moving."""
-    load_current: float = 0.0
-    """A needed to hold a constant external load torque (e.g. an off-balance camera)."""
-    current_noise_a: float = 0.01
-    ambient_c: float = 25.0
-    heating_c_per_a2s: float = 0.05
-    """degC per second per A^2 of winding loss."""
-    cooling_per_s: float = 0.01
-    """Fraction of the excess over ambient shed per second."""
-    over_current_a: float = 10.0
-    over_temperature_c: float = 80.0
-    voltage_v: float = 24.0
-    initial_position_deg: float = 0.0
-    relax_after_s: float | None = None
-    """Seconds without a command after which the servo goes limp; None: never."""
-    relax_rate_dps: float = 5.0
-    """Speed of the limp drift toward ``relax_rest_deg`` (gravity, spring of the cable...)."""
-    relax_rest_deg: float = 0.0
-
-    @classmethod
-    def from_dict(cls, values: Mapping[str, Any] | None) -> Physics:
-        return _from_mapping(cls, values, "physics")
-
-
-@dataclass
-class Faults:
-    """Faults injected into one servo; all mutable at run time so tests can flip them."""
-
-    drop_reply_prob: float = 0.0
-    """Probability that any one reply or status push is lost."""
-    reply_delay_s: float = 0.0
-    """Extra delay before every reply (a slow or overloaded servo)."""
-    silent: bool = False
-    """Stop answering altogether (commands still move the servo: a lost TX path)."""
-    over_current: bool = False
-    """Report the over-current fault flag regardless of the physics."""
-    over_temperature: bool = False
-    """Report the over-temperature fault flag regardless of the physics."""
-
-    @classmethod
-    def from_dict(cls, values: Mapping[str, Any] | None) -> Faults:
-        return _from_mapping(cls, values, "fault")
 
 
 class SimServo:
@@ -436,3 +370,24 @@ _DEVICES: dict[str, type] = {
     "cubemars-ak": _CubeMarsDevice,
 }
 """Profile name -> device-side model; a new profile adds its device here."""
+
+
+def simulated_servos(config: Config, bus_name: str) -> list[SimServo]:
+    """The simulated devices for the servos on ``bus_name`` (``simulation.servos`` tunes them)."""
+    out = []
+    for index, servo in enumerate(config.servos):
+        if config.bus_of(servo).name != bus_name:
+            continue
+        physics, faults = config.simulated_settings(servo)
+        # push-style servos (CubeMars) report at the rate the config budgets for them
+        out.append(
+            SimServo(
+                servo.profile,
+                servo.can_id,
+                Physics.from_dict(physics),
+                Faults.from_dict(faults),
+                seed=index,
+                status_rate_hz=servo.telemetry_hz,
+            )
+        )
+    return out

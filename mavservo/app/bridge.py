@@ -27,15 +27,15 @@ from mavservo.config import BusConfig, Config
 from mavservo.mavlink.gimbal import GimbalDevice, settings_from_config
 from mavservo.mavlink.settings import MavlinkSettings, SigningSettings
 from mavservo.mavlink.side import MavlinkSide
-from mavservo.metrics import round_trip_figures
-from mavservo.resilient_bus import ResilientBus
-from mavservo.runlog import RunLog, new_run_dir
-from mavservo.schedule_core import ServoSpec, TimingConfig
-from mavservo.scheduler import Scheduler, SchedulerObserver
-from mavservo.servo_backend import ServoBackend
+from mavservo.records.metrics import round_trip_figures
+from mavservo.transport.resilient_bus import ResilientBus
+from mavservo.records.runlog import RunLog, new_run_dir
+from mavservo.scheduling.core import ServoSpec, TimingConfig
+from mavservo.scheduling.runner import Scheduler, SchedulerObserver
+from mavservo.control.servo_backend import ServoBackend
 from mavservo.servos import get_profile
 from mavservo.sim.adapter import AdapterEmulator
-from mavservo.sim.servo import Faults, Physics, SimServo
+from mavservo.sim.servo import simulated_servos
 
 log = logging.getLogger(__name__)
 
@@ -106,27 +106,6 @@ def timing_config(config: Config, bus: BusConfig) -> TimingConfig:
         bitrate=bus.bitrate,
         realtime=sched.realtime,
     )
-
-
-def simulated_servos(config: Config, bus_name: str) -> list[SimServo]:
-    """The simulated devices for the servos on ``bus_name`` (``simulation.servos`` tunes them)."""
-    out = []
-    for index, servo in enumerate(config.servos):
-        if config.bus_of(servo).name != bus_name:
-            continue
-        physics, faults = config.simulated_settings(servo)
-        # push-style servos (CubeMars) report at the rate the config budgets for them
-        out.append(
-            SimServo(
-                servo.profile,
-                servo.can_id,
-                Physics.from_dict(physics),
-                Faults.from_dict(faults),
-                seed=index,
-                status_rate_hz=servo.telemetry_hz,
-            )
-        )
-    return out
 
 
 def settle_heap() -> None:
@@ -353,7 +332,7 @@ class Bridge:
                 ),
             )
         if cfg.mavlink.url == SIM:
-            from sitl.factory import simulator_from_config
+            from mavservo.sim.autopilot.factory import simulator_from_config
 
             port = free_udp_port()
             settings = dataclasses.replace(settings, url=f"udpin:127.0.0.1:{port}")

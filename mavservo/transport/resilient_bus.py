@@ -5,7 +5,7 @@ wrapper opens the real bus through a factory; when the device fails (``CanOperat
 ``OSError``), it closes it, reports the loss once, and reopens it with exponential backoff from the
 receive path, reporting the recovery. While the device is gone ``send`` fails fast with
 ``CanOperationError`` (the scheduler counts every refused send and logs the outage once:
-:class:`~mavservo.scheduler.FailureRun`) and ``recv`` waits out its timeout, so no thread
+:class:`~mavservo.scheduling.runner.FailureRun`) and ``recv`` waits out its timeout, so no thread
 ever blocks on a dead port.
 """
 

@@ -13,7 +13,7 @@ Directory layout (see ``docs/logs.md``)::
     can.asc/.blf     every TX and RX CAN frame (python-can writers, rotated by size)
     rejections.log   decoder rejections with the offending bytes
     trace.csv        setpoints and decoded servo states, for the report's figures
-    latency.csv      one row per command, stage by stage (mavservo.latency)
+    latency.csv      one row per command, stage by stage (mavservo.records.latency)
     mavlink.tlog     MAVLink in and out, 8-byte big-endian usec wall timestamp + raw frame
     metrics.json     written at close: scheduler metrics, latency summary, log counters
 
@@ -57,8 +57,8 @@ from typing import Any
 
 import can
 
-from mavservo.latency import CSV_COLUMNS as LATENCY_COLUMNS
-from mavservo.latency import CommandTrace, LatencyTracer
+from mavservo.records.latency import CSV_COLUMNS as LATENCY_COLUMNS
+from mavservo.records.latency import CommandTrace, LatencyTracer
 
 RUN_HEADER = "run.json"
 TRACE_FILE = "trace.csv"

@@ -1,6 +1,6 @@
 """The dual-loop priority scheduler: the only writer to one CAN bus.
 
-:class:`Scheduler` runs the pure policy of :mod:`mavservo.schedule_core` on absolute monotonic
+:class:`Scheduler` runs the pure policy of :mod:`mavservo.scheduling.core` on absolute monotonic
 deadlines in one thread (the only caller of ``bus.send``, so command-over-telemetry priority is
 structural), and decodes replies in a second thread (``bus.recv``) through the servo profiles.
 Upper layers talk to it through a small thread-safe API: ``set_setpoint``, ``state``,
@@ -32,8 +32,8 @@ from typing import Any
 import can
 
 from .busload import message_bits
-from .metrics import SchedulerMetrics, write_json
-from .schedule_core import (
+from mavservo.records.metrics import SchedulerMetrics, write_json
+from mavservo.scheduling.core import (
     Decision,
     FrameKind,
     Outgoing,
@@ -45,8 +45,8 @@ from .schedule_core import (
     TimingConfig,
     exchange_key,
 )
-from .servo_log import LateReplies, Line, OnlineLog
-from .servos.base import Fault, ServoState
+from mavservo.scheduling.outage_log import LateReplies, Line, OnlineLog
+from mavservo.servos.base import Fault, ServoState
 
 __all__ = [
     "ScheduleError",

@@ -18,8 +18,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from sitl.background import Background
-from sitl.link import mavlink2, open_link
+from mavservo.sim.autopilot.background import Background
+from mavservo.sim.autopilot.link import mavlink2, open_link
 
 # What the bridge consumes (docs/architecture.md, mavservo/mavlink/).
 BRIDGE_TYPES: frozenset[str] = frozenset(

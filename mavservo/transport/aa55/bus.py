@@ -23,7 +23,7 @@ from typing import Any, Literal
 import can
 import serial
 
-from mavservo import aa55
+from mavservo.transport.aa55 import codec as aa55
 
 log = logging.getLogger(__name__)
 
@@ -106,7 +106,7 @@ class AA55Bus(can.BusABC):
     """A CAN bus behind an AA-55 USB-CAN adapter on a serial port.
 
     :param channel: serial device (``/dev/ttyUSB0``, ``COM3``) or any pyserial URL.
-    :param bitrate: CAN bitrate, one of :data:`mavservo.aa55.BITRATE_CODES`.
+    :param bitrate: CAN bitrate, one of :data:`mavservo.transport.aa55.codec.BITRATE_CODES`.
     :param serial_baud: serial line speed (the adapter's default is 2,000,000).
     :param protocol: ``"variable"`` (everyday) or ``"fixed"`` (20-byte checksummed frames).
     :param mode: ``normal``, ``loopback``, ``silent`` or ``loopback_silent``.

@@ -13,7 +13,7 @@ memory (one open record per servo, ``metrics.SampleStats`` rings per stage), so 
 flight. It reads no clock: every time comes in as an argument (``time.monotonic()`` seconds).
 
 The tracer has the scheduler's observer method names, so it can be registered as an observer
-directly, or be fed by :class:`mavservo.runlog.RunLog`, which forwards to it.
+directly, or be fed by :class:`mavservo.records.runlog.RunLog`, which forwards to it.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any
 
-from mavservo.metrics import SampleStats
+from mavservo.records.metrics import SampleStats
 
 STAGES: tuple[str, ...] = ("accept", "tx", "round_trip", "publish")
 """Stage names in the order a command passes through them."""

@@ -13,7 +13,7 @@ Two protocols share the serial line:
 
 The module is sans-I/O (like h11): bytes in, frames out, nothing else. That is what lets the
 decoder be fuzzed and property-tested, and lets the same code serve the host interface
-(:mod:`mavservo.usbcan`) and the adapter emulator (:mod:`mavservo.sim.adapter`).
+(:mod:`mavservo.transport.aa55.bus`) and the adapter emulator (:mod:`mavservo.sim.adapter`).
 """
 
 from __future__ import annotations

@@ -8,9 +8,9 @@ sysid 1 / compid 1 with MAVLink 2 and the ardupilotmega dialect:
 * SERVO_OUTPUT_RAW (port 0, all 16 channels, ``time_usec``) at the configured rate, 20 Hz by
   default like ArduPilot after SET_MESSAGE_INTERVAL; SET_MESSAGE_INTERVAL and REQUEST_MESSAGE
   from the companion are honoured and ACKed,
-* the values of a scripted :mod:`sitl.profiles` profile, with DO_SET_SERVO / DO_REPEAT_SERVO /
+* the values of a scripted :mod:`mavservo.sim.autopilot.profiles` profile, with DO_SET_SERVO / DO_REPEAT_SERVO /
   DO_SET_ACTUATOR sent as COMMAND_LONG (ACKs collected, MAVSDK-style retries) from a
-  :class:`sitl.script.Script` or from calls made while it runs,
+  :class:`mavservo.config.autopilot_script.Script` or from calls made while it runs,
 * a gimbal manager like ArduPilot's MNT1_TYPE 6 backend: MAV_CMD_REQUEST_MESSAGE(283) every
   second until the device at component 154 answers, then GIMBAL_DEVICE_SET_ATTITUDE and
   AUTOPILOT_STATE_FOR_GIMBAL_DEVICE at ~50 Hz,
@@ -34,12 +34,12 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
-from sitl.background import Background
-from sitl.commands import CommandRecord, CommandTracker
-from sitl.gimbal import FLAG_RETRACT, euler_to_quaternion
-from sitl.link import mavlink2 as mav
-from sitl.link import open_link
-from sitl.profiles import (
+from mavservo.sim.autopilot.background import Background
+from mavservo.sim.autopilot.commands import CommandRecord, CommandTracker
+from mavservo.sim.autopilot.gimbal import FLAG_RETRACT, euler_to_quaternion
+from mavservo.sim.autopilot.link import mavlink2 as mav
+from mavservo.sim.autopilot.link import open_link
+from mavservo.sim.autopilot.profiles import (
     SURFACE_MAX,
     SURFACE_MIN,
     SURFACE_TRIM,
@@ -49,8 +49,8 @@ from sitl.profiles import (
     Profile,
     get_profile,
 )
-from sitl.recorder import Received
-from sitl.script import (
+from mavservo.sim.autopilot.recorder import Received
+from mavservo.config.autopilot_script import (
     Action,
     Dropout,
     Event,

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Run ArduPlane SITL with its SERIAL1 MAVLink 2 link sent to the mavservo bridge.
 #
-#   sitl/run-arduplane.sh [--gimbal] [--port 14551] [--host 127.0.0.1] [--speedup 1]
+#   mavservo/sim/autopilot/run-arduplane.sh [--gimbal] [--port 14551] [--host 127.0.0.1] [--speedup 1]
 #                         [--no-wipe] [--dry-run] [-- extra args for sim_vehicle.py/arduplane]
 #
 # Uses sim_vehicle.py if it is on PATH (MAVProxy on SERIAL0 as usual, for a GCS), otherwise the

@@ -18,7 +18,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 
 from mavservo.config import Config
-from mavservo.mapping import ChannelMap, Rejected, clamp, slew_limit
+from mavservo.control.mapping import ChannelMap, Rejected, clamp, slew_limit
 from mavservo.mavlink.backend import ACCEPTED, ApplyResult, Outcome, ServoStatus
 from mavservo.servos.base import ServoState
 

@@ -19,7 +19,7 @@ from mavservo.config.budget import BusLoad, bus_loads
 from mavservo.config.endpoints import endpoint_lines
 from mavservo.config.loader import ConfigError, load_config_with_warnings
 from mavservo.config.schema import Config, ServoOutputChannel
-from mavservo.mapping import ChannelMap, Rejected
+from mavservo.control.mapping import ChannelMap, Rejected
 
 EXIT_OK = 0
 EXIT_INVALID = 2

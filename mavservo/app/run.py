@@ -24,12 +24,12 @@ from mavservo.config import (
     default_config_path,
     load_config,
 )
-from mavservo.console import StatusDisplay, format_summary
+from mavservo.app.console import StatusDisplay, format_summary
 
 log = logging.getLogger("mavservo")
 
 #: Loggers whose recoveries are logged at info level next to their warnings.
-RECOVERY_LOGGERS = ("mavservo.scheduler", "mavservo.resilient_bus")
+RECOVERY_LOGGERS = ("mavservo.scheduling.runner", "mavservo.transport.resilient_bus")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -72,7 +72,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"mavservo: cannot use {path}: {exc}", file=sys.stderr)
         return 2
 
-    from mavservo.bridge import Bridge, settle_heap
+    from mavservo.app.bridge import Bridge, settle_heap
 
     display = StatusDisplay(enabled=not args.quiet)
     bridge = Bridge(

@@ -20,8 +20,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from mavservo import runlog
-from mavservo.latency import STAGE_DESCRIPTIONS, STAGES, summarize
+from mavservo.records import runlog
+from mavservo.records.latency import STAGE_DESCRIPTIONS, STAGES, summarize
 
 FIGURES: dict[str, str] = {
     "response": "fig3_response.png",
@@ -206,7 +206,7 @@ def bus_load_series(
     Every frame counts with its worst-case stuffed length (``busload.message_bits``), TX and RX
     alike: both occupy the same bus.
     """
-    from mavservo.busload import message_bits
+    from mavservo.scheduling.busload import message_bits
 
     bins: dict[int, dict[int, int]] = defaultdict(lambda: defaultdict(int))
     for msg in frames:
