@@ -34,7 +34,7 @@ os.environ.setdefault("MAVLINK20", "1")
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2  # noqa: E402
 
 import mavservo  # noqa: E402
-from mavservo.bridge import Bridge  # noqa: E402
+from mavservo.app.bridge import Bridge  # noqa: E402
 from mavservo.config.loader import load_config_text  # noqa: E402
 
 KEY = bytes(range(1, 33))

@@ -112,7 +112,7 @@ def decided(stats: dict[str, Any]) -> int:
 
 
 def run_once(rate: float, seconds: float) -> dict[str, Any]:
-    from mavservo.bridge import Bridge
+    from mavservo.app.bridge import Bridge
     from mavservo.config.loader import load_config_text
 
     port = free_udp_port()

@@ -43,12 +43,12 @@ from typing import Any
 
 import can
 
-from mavservo.transport.aa55 import codec as aa55
 from mavservo.app.bridge import Bridge, settle_heap
 from mavservo.config.loader import load_config_text
 from mavservo.scheduling.runner import SchedulerObserver
 from mavservo.sim.adapter import LineCorrupter, LineFaults
 from mavservo.sim.child import RecentKeys, SimulatorProcess, frame_key
+from mavservo.transport.aa55 import codec as aa55
 
 RATES = (1e-6, 1e-5, 1e-4, 1e-3, 1e-2)
 

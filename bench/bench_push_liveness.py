@@ -20,7 +20,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from mavservo.bridge import Bridge, free_udp_port
+from mavservo.app.bridge import Bridge, free_udp_port
 from mavservo.config.loader import load_config_text
 
 SERVOS = {

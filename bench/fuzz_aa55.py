@@ -30,9 +30,9 @@ import atheris
 with atheris.instrument_imports(include=["mavservo"]):
     import can
 
-    from mavservo.transport.aa55 import codec as aa55
     from mavservo.servos import PROFILES
     from mavservo.sim.servo import SimServo
+    from mavservo.transport.aa55 import codec as aa55
 
 
 def _chunks(fdp: atheris.FuzzedDataProvider) -> tuple[bytes, list[bytes]]:

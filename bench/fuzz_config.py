@@ -37,7 +37,7 @@ SEEDS = sorted((ROOT / "config").glob("*.yaml"))
 
 CHILD = r"""
 import sys, time
-from mavservo.config.report import check_main
+from mavservo.app.check import check_main
 import io
 t = time.process_time()
 err = io.StringIO()

@@ -12,7 +12,8 @@ Two set-ups:
   (deploy/mavservo.service: the whole process SCHED_FIFO 50, ``scheduler.realtime: true``);
   the adapter emulator and its servos run in a child process
   (:class:`mavservo.sim.child.SimulatorProcess`) at SCHED_FIFO 40 and the simulated autopilot
-  in another (``python -m mavservo.sim.autopilot stream``) at SCHED_FIFO 30, since real servos, adapter and
+  in another (``python -m mavservo.sim.autopilot stream``) at SCHED_FIFO 30, since real servos,
+  adapter and
   autopilot do not share the bridge's CPU or interpreter lock.
 * ``--setup in-process``: everything in this process at normal priority (the earlier runs).
 

@@ -16,12 +16,13 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from conftest import wait_until
+
 from mavservo.app.bridge import Bridge, free_udp_port
 from mavservo.config import Config, load_config_text
 from mavservo.scheduling.runner import SchedulerObserver
-from mavservo.sim.servo import SimServo
 from mavservo.sim.autopilot.link import mavlink2, open_link
-from conftest import wait_until
+from mavservo.sim.servo import SimServo
 
 MAV_CMD_DO_SET_SERVO = 183
 MAV_CMD_DO_SET_ACTUATOR = 187

@@ -17,10 +17,10 @@ from pathlib import Path
 import pytest
 
 from mavservo.app.check import check_main
+from mavservo.app.console import StatusDisplay
 from mavservo.config import load_config, load_config_text
 from mavservo.config.endpoints import bitrate_text, endpoint_lines
 from mavservo.config.overrides import apply_overrides
-from mavservo.app.console import StatusDisplay
 
 REPO = Path(__file__).resolve().parents[1]
 SERVO = "servos:\n  - {name: a, profile: rmd-x, can_id: 1}\n"

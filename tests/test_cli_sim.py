@@ -11,12 +11,11 @@ from pathlib import Path
 
 import can
 import pytest
-
+from conftest import wait_until
 
 from mavservo.servos import get_profile
 from mavservo.sim.cli import build_emulator, build_parser, main
 from mavservo.transport.aa55.bus import AA55Bus
-from conftest import wait_until
 
 TWO_BUSES = """\
 can:

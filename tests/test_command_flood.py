@@ -19,7 +19,7 @@ from test_mavlink_support import RecordingBackend
 from mavservo.mavlink.commands import MAX_RETRY_ENTRIES, Command, CommandHandler
 from mavservo.mavlink.core import MavlinkCore
 from mavservo.mavlink.settings import MavlinkSettings
-from mavservo.scheduler import Scheduler, ServoSpec, TimingConfig
+from mavservo.scheduling.runner import Scheduler, ServoSpec, TimingConfig
 from mavservo.servos import RmdX
 
 SERVO_COMPONENT = 140

@@ -16,6 +16,8 @@ import time
 
 os.environ.setdefault("MAVLINK20", "1")
 
+from conftest import wait_for_message as wait_for  # noqa: E402, F401, F811
+from conftest import wait_until
 from test_mavlink_support import (  # noqa: E402
     NAN,
     RecordingBackend,
@@ -23,7 +25,7 @@ from test_mavlink_support import (  # noqa: E402
     command_long,
     wire,
 )
-from test_mavlink_udp import bridge, introduce, is_ack, wait_for, wait_until  # noqa: E402, F401, F811
+from test_mavlink_udp import bridge, introduce, is_ack  # noqa: E402, F401, F811
 
 from mavservo.mavlink.core import MavlinkCore  # noqa: E402
 from mavservo.mavlink.settings import MavlinkSettings  # noqa: E402

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from mavservo.app.check import check_main, resolved_mapping
 from mavservo.config import (
     ConfigError,
     bus_loads,
@@ -17,7 +18,6 @@ from mavservo.config import (
     load_config,
     load_config_text,
 )
-from mavservo.app.check import check_main, resolved_mapping
 
 REPO = Path(__file__).resolve().parent.parent
 SHIPPED = sorted((REPO / "config").glob("*.yaml"))

@@ -17,7 +17,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from mavservo.config import ConfigError, check_main, load_config, load_config_text
+from mavservo.app.check import check_main
+from mavservo.config import ConfigError, load_config, load_config_text
 from mavservo.config.yamlsource import MAX_BYTES, MAX_DEPTH, MAX_VALUES
 
 LINE = re.compile(r"^bad\.yaml:(\d+): .+$")
@@ -202,7 +203,7 @@ def test_any_text_loads_or_is_refused_with_file_and_line(text: str) -> None:
 def test_run_exits_2_with_the_line_for_hostile_yaml(
     tmp_path: Path, text: str, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from mavservo.runcmd import main
+    from mavservo.app.run import main
 
     path = tmp_path / "hostile.yaml"
     path.write_text(text, encoding="utf-8")

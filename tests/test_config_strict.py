@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from mavservo.config import ConfigError, load_config_text
 from mavservo.app.check import check_main
+from mavservo.config import ConfigError, load_config_text
 from mavservo.config.overrides import OverrideError, apply_overrides
 from mavservo.config.urls import url_problem
 

@@ -11,11 +11,11 @@ beyond 0x7FF) may ever reach a servo, and the bridge keeps running.
 from __future__ import annotations
 
 import pytest
+from conftest import wait_until
 from e2e_support import Recorder, ServoSpy, running, sim_servo
 
 from mavservo.sim.adapter import LineCorrupter, LineFaults
 from mavservo.sim.autopilot.stream import AutopilotStream
-from conftest import wait_until
 
 # a bridge thread dying (an exception nobody catches) fails the test, not just warns
 pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")

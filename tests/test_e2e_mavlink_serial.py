@@ -17,12 +17,12 @@ import time
 import tty
 from pathlib import Path
 
+from conftest import wait_until
 from e2e_support import sim_servo
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mavservo.app.bridge import Bridge
 from mavservo.config import load_config_text
-from conftest import wait_until
 
 CONFIG = """
 mavlink: {{url: "{path}", baud: 115200, heartbeat_timeout_s: 5.0}}

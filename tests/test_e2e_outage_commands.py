@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 
 import pytest
+from conftest import wait_until
 from e2e_support import (
     MAV_CMD_DO_SET_SERVO,
     MAV_RESULT_ACCEPTED,
@@ -21,7 +22,6 @@ from e2e_support import (
     running,
     sim_servo,
 )
-from conftest import wait_until
 
 pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")
 

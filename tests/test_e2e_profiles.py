@@ -16,6 +16,7 @@ import statistics
 import time
 
 import pytest
+from conftest import wait_until
 from e2e_support import (
     MAV_CMD_DO_SET_ACTUATOR,
     MAV_CMD_DO_SET_SERVO,
@@ -26,7 +27,6 @@ from e2e_support import (
     running,
     sim_servo,
 )
-from conftest import wait_until
 
 # a bridge thread dying (an exception nobody catches) fails the test, not just warns
 pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")

@@ -14,6 +14,7 @@ pty, simulated CubeMars servos; every wait is bounded.
 from __future__ import annotations
 
 import pytest
+from conftest import wait_until
 from e2e_support import (
     MAV_RESULT_ACCEPTED,
     MAV_RESULT_TEMPORARILY_REJECTED,
@@ -21,11 +22,10 @@ from e2e_support import (
     ServoSpy,
     running,
     sim_servo,
-    wait_until,
 )
 
 from mavservo.servos.base import Fault
-from sitl.link import mavlink2
+from mavservo.sim.autopilot.link import mavlink2
 
 pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")
 

@@ -13,10 +13,10 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from conftest import wait_until
 from e2e_support import Recorder, pwm_to_angle, running, sim_servo
 
 from mavservo.sim.autopilot.replay import iter_tlog, replay
-from conftest import wait_until
 
 # a bridge thread dying (an exception nobody catches) fails the test, not just warns
 pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")

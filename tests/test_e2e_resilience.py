@@ -11,6 +11,7 @@ from __future__ import annotations
 import time
 
 import pytest
+from conftest import wait_until
 from e2e_support import (
     MAV_CMD_DO_SET_SERVO,
     MAV_RESULT_ACCEPTED,
@@ -19,7 +20,6 @@ from e2e_support import (
     running,
     sim_servo,
 )
-from conftest import wait_until
 
 # a bridge thread dying (an exception nobody catches) fails the test, not just warns
 pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")

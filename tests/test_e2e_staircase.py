@@ -15,11 +15,11 @@ import math
 import threading
 
 import pytest
+from conftest import wait_until
 from e2e_support import running
 
 from mavservo.sim.autopilot.profiles import StaircaseProfile
 from mavservo.sim.autopilot.stream import AutopilotStream
-from conftest import wait_until
 
 # a bridge thread dying (an exception nobody catches) fails the test, not just warns
 pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")

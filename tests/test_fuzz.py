@@ -21,11 +21,11 @@ import can
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from mavservo.transport.aa55 import codec as aa55
-from mavservo.transport.aa55.codec import Decoder, Frame, encode
 from mavservo.servos import PROFILES
 from mavservo.sim.adapter import LineCorrupter, LineFaults
 from mavservo.sim.servo import SimServo
+from mavservo.transport.aa55 import codec as aa55
+from mavservo.transport.aa55.codec import Decoder, Frame, encode
 
 
 @st.composite

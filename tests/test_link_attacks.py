@@ -24,21 +24,12 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from conftest import free_udp_port, wait_until
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
-from test_security import (
-    DO_SET_SERVO,
-    GCS,
-    KEY,
-    Rig,
-    acks,
-    config_text,
-    free_udp_port,
-    set_servo,
-    wait_until,
-)
+from test_security import DO_SET_SERVO, GCS, KEY, Rig, acks, config_text, set_servo
 
-from mavservo.bridge import Bridge
+from mavservo.app.bridge import Bridge
 from mavservo.config.loader import load_config_text
 from mavservo.mavlink.framing import MAX_REFUSED_PER_DATAGRAM, redact_secrets
 from mavservo.mavlink.link import (

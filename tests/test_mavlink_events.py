@@ -11,15 +11,15 @@ os.environ.setdefault("MAVLINK20", "1")
 
 from dataclasses import replace  # noqa: E402
 
-from test_mavlink_support import RecordingBackend, command_long, state, wire  # noqa: E402
 from conftest import free_udp_port, wait_for_message  # noqa: E402
+from test_mavlink_support import RecordingBackend, command_long, state, wire  # noqa: E402
 from test_mavlink_udp import peer  # noqa: E402
 
+from mavservo.app.monitor import MonitorState  # noqa: E402
 from mavservo.mavlink.core import MavlinkCore  # noqa: E402
 from mavservo.mavlink.settings import MavlinkSettings  # noqa: E402
 from mavservo.mavlink.side import MavlinkSide  # noqa: E402
 from mavservo.mavlink.telemetry import REMINDER_S, STATUSTEXT_LENGTH  # noqa: E402
-from mavservo.app.monitor import MonitorState  # noqa: E402
 from mavservo.servos.base import Fault  # noqa: E402
 
 GCS = (255, 190)

@@ -11,6 +11,7 @@ import os
 os.environ.setdefault("MAVLINK20", "1")
 
 import pytest  # noqa: E402
+from conftest import free_udp_port, wait_for_message  # noqa: E402
 from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mav  # noqa: E402
 from test_mavlink_gimbal import AXIS_SERVOS, LIMITS, FollowingBackend  # noqa: E402
@@ -19,7 +20,6 @@ from mavservo.mavlink.gimbal import GimbalDevice, GimbalSettings  # noqa: E402
 from mavservo.mavlink.quaternion import euler_to_quaternion, quaternion_to_euler  # noqa: E402
 from mavservo.mavlink.settings import MavlinkSettings  # noqa: E402
 from mavservo.mavlink.side import MavlinkSide  # noqa: E402
-from conftest import free_udp_port, wait_for_message  # noqa: E402
 
 WAIT_S = 3.0
 NAN = math.nan

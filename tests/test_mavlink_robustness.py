@@ -15,9 +15,9 @@ os.environ.setdefault("MAVLINK20", "1")
 
 import can  # noqa: E402
 import pytest  # noqa: E402
+from conftest import free_udp_port, wait_for_message, wait_until  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2  # noqa: E402
 from test_mavlink_support import RecordingBackend, state  # noqa: E402
-from conftest import free_udp_port, wait_for_message, wait_until  # noqa: E402
 from test_mavlink_udp import peer  # noqa: E402
 
 from mavservo.mavlink.core import MavlinkCore  # noqa: E402

@@ -8,13 +8,13 @@ import os
 os.environ.setdefault("MAVLINK20", "1")
 
 import pytest  # noqa: E402
+from conftest import free_udp_port, wait_for_message, wait_until  # noqa: E402
 from pymavlink import mavutil  # noqa: E402
 from test_mavlink_support import RecordingBackend, state  # noqa: E402
 
 from mavservo.mavlink.gimbal import GimbalDevice, GimbalSettings  # noqa: E402
 from mavservo.mavlink.settings import MavlinkSettings, SigningSettings  # noqa: E402
 from mavservo.mavlink.side import MavlinkSide  # noqa: E402
-from conftest import free_udp_port, wait_for_message, wait_until  # noqa: E402
 
 KEY = bytes(range(32))
 WAIT_S = 3.0

@@ -26,12 +26,12 @@ from typing import Any
 
 import pytest
 
-from mavservo.latency import STAGES, LatencyTracer
-from mavservo.metrics import FloatRing, SampleStats, SchedulerMetrics, percentile
-from sitl.cli import STREAM_KEEP, build_parser
-from sitl.commands import CommandTracker
-from sitl.recorder import Received
-from sitl.stream import AutopilotStream, Commanded
+from mavservo.records.latency import STAGES, LatencyTracer
+from mavservo.records.metrics import FloatRing, SampleStats, SchedulerMetrics, percentile
+from mavservo.sim.autopilot.cli import STREAM_KEEP, build_parser
+from mavservo.sim.autopilot.commands import CommandTracker
+from mavservo.sim.autopilot.recorder import Received
+from mavservo.sim.autopilot.stream import AutopilotStream, Commanded
 
 N = 100_000
 

@@ -13,11 +13,11 @@ import time
 from pathlib import Path
 
 os.environ.setdefault("MAVLINK20", "1")
+from conftest import free_udp_port  # noqa: E402
 from pymavlink import mavutil  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2  # noqa: E402
 
 from mavservo.app.monitor import MonitorState, plain_lines, render  # noqa: E402
-from conftest import free_udp_port  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import pytest
 
-from mavservo.schedule_core import Decision, ScheduleCore, ServoSpec, TimingConfig
+from mavservo.scheduling.core import Decision, ScheduleCore, ServoSpec, TimingConfig
 from mavservo.servos import CubeMarsAK, RmdX
 
 START = 100.0
@@ -135,7 +135,7 @@ def test_the_silence_limit_follows_the_push_rate(hz, limit) -> None:
 
 
 def test_the_console_reads_waiting_until_the_first_report() -> None:
-    from mavservo.console import status_line
+    from mavservo.app.console import status_line
 
     row = {
         "servo": "cm",

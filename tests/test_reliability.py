@@ -21,11 +21,11 @@ import time
 from collections.abc import Iterator
 
 import pytest
+from conftest import wait_until
 
 from mavservo.app.bridge import Bridge
 from mavservo.config.loader import load_config_text
 from mavservo.sim.adapter import LineCorrupter, LineFaults
-from conftest import wait_until
 
 WAIT_S = 6.0
 

@@ -19,11 +19,11 @@ import time
 from collections.abc import Iterator
 
 import pytest
+from conftest import wait_until
 
 from mavservo.app.bridge import Bridge
 from mavservo.config.loader import load_config_text
 from mavservo.sim.child import SimulatorProcess
-from conftest import wait_until
 
 SERVOS = 3
 BITRATE = 125_000

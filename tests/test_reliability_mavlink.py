@@ -11,6 +11,7 @@ import os
 import time
 
 import pytest
+from conftest import free_udp_port, wait_until
 from pymavlink import mavutil
 from test_mavlink_support import RecordingBackend, command_long, heartbeat, servo_output_raw, wire
 
@@ -18,7 +19,6 @@ from mavservo.app.bridge import Bridge
 from mavservo.config.loader import load_config_text
 from mavservo.mavlink.core import MavlinkCore
 from mavservo.mavlink.settings import MavlinkSettings
-from conftest import free_udp_port, wait_until
 
 os.environ.setdefault("MAVLINK20", "1")
 

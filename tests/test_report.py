@@ -13,8 +13,8 @@ import can
 import pytest
 
 from mavservo.app import report
-from mavservo.scheduling.busload import message_bits
 from mavservo.records.runlog import RunLog, read_can_log
+from mavservo.scheduling.busload import message_bits
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 

@@ -23,7 +23,7 @@ import can
 import pytest
 
 from mavservo.config import ConfigError, load_config_text
-from mavservo.runlog import (
+from mavservo.records.runlog import (
     METRICS_FILE,
     RUN_HEADER,
     TRACE_FILE,
@@ -177,7 +177,7 @@ _FSIZE_CHILD = textwrap.dedent(
     """
     import json, resource, signal, sys, time
     import can
-    from mavservo.runlog import RunLog
+    from mavservo.records.runlog import RunLog
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # past the limit: EFBIG, like a full disk
     limit = int(sys.argv[2])
     resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
@@ -234,7 +234,7 @@ _KILL_CHILD = textwrap.dedent(
     """
     import sys, time
     import can
-    from mavservo.runlog import RunLog
+    from mavservo.records.runlog import RunLog
     log = RunLog(sys.argv[1], formats=("asc", "blf"))
     t0 = time.monotonic()
     count = 300
@@ -287,7 +287,7 @@ _RUN_CHILD = textwrap.dedent(
     signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
     limit = int(sys.argv[1])
     resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
-    from mavservo.runcmd import main
+    from mavservo.app.run import main
     sys.exit(main(sys.argv[2:]))
     """
 )
@@ -313,7 +313,9 @@ def test_mavservo_run_says_at_once_that_its_log_failed_and_the_summary_says_inco
     ]
     assert len(events) == 1, proc.stdout  # the bridge's event line (also sent as STATUSTEXT)
     assert "File too large" in events[0]
-    assert proc.stderr.count("ERROR mavservo.runlog: run log: cannot write") == 1, proc.stderr
+    assert proc.stderr.count("ERROR mavservo.records.runlog: run log: cannot write") == 1, (
+        proc.stderr
+    )
     summary = proc.stdout[proc.stdout.index("mavservo summary") :]
     assert "INCOMPLETE" in summary
     [run_dir] = list(tmp_path.iterdir())
@@ -325,7 +327,7 @@ def test_a_run_log_problem_reaches_the_autopilot_as_statustext(tmp_path: Path) -
     """The size cap (0.001 MiB: reached at the first check) through the real bridge and link."""
     from pymavlink import mavutil
 
-    from mavservo.bridge import Bridge, free_udp_port
+    from mavservo.app.bridge import Bridge, free_udp_port
 
     port = free_udp_port()
     listener = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255)

@@ -11,6 +11,7 @@ from collections import defaultdict
 
 import can
 import pytest
+from conftest import wait_until
 
 from mavservo.scheduling.runner import (
     ScheduleError,
@@ -22,7 +23,6 @@ from mavservo.scheduling.runner import (
 from mavservo.servos import Fault, RmdX
 from mavservo.sim.servo import SimServo
 from mavservo.sim.virtual import VirtualServoBus
-from conftest import wait_until
 
 FAST = TimingConfig(command_period_s=0.02, telemetry_period_s=0.03, reply_timeout_s=0.05)
 WAIT_LIMIT_S = 5.0

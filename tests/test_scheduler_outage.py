@@ -16,8 +16,8 @@ import uuid
 import can
 import pytest
 from can.interfaces.virtual import VirtualBus
+from conftest import wait_until
 
-from mavservo.transport.resilient_bus import ResilientBus
 from mavservo.scheduling.runner import (
     FailureRun,
     Scheduler,
@@ -28,7 +28,7 @@ from mavservo.scheduling.runner import (
 from mavservo.servos import Fault, RmdX, ServoState
 from mavservo.sim.servo import SimServo
 from mavservo.sim.virtual import VirtualServoBus
-from conftest import wait_until
+from mavservo.transport.resilient_bus import ResilientBus
 
 FAST = TimingConfig(command_period_s=0.02, telemetry_period_s=0.03, reply_timeout_s=0.05)
 WAIT_LIMIT_S = 5.0

@@ -26,12 +26,12 @@ from collections.abc import Iterator
 from typing import Any
 
 import pytest
+from conftest import free_udp_port, wait_until
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mavservo.app.bridge import Bridge
 from mavservo.config.loader import load_config_text
-from conftest import free_udp_port, wait_until
 
 os.environ.setdefault("MAVLINK20", "1")  # pymavlink peers speak MAVLink 1 (never signed) without it
 

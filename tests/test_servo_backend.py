@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 import pytest
 
 from mavservo.config import load_config_text
-from mavservo.mavlink.backend import Outcome
 from mavservo.control.servo_backend import ServoBackend
+from mavservo.mavlink.backend import Outcome
 from mavservo.servos.base import NO_FAULT, ServoState
 
 CONFIG = """

@@ -13,14 +13,13 @@ import uuid
 
 import can
 import pytest
+from conftest import wait_until
 
-
-from mavservo.scheduling.runner import Scheduler, ServoSpec, TimingConfig
 from mavservo.scheduling.outage_log import LateReplies, OnlineLog
+from mavservo.scheduling.runner import Scheduler, ServoSpec, TimingConfig
 from mavservo.servos import Fault, RmdX, ServoState
 from mavservo.sim.servo import Faults, SimServo
 from mavservo.sim.virtual import VirtualServoBus
-from conftest import wait_until
 
 FAST = TimingConfig(command_period_s=0.02, telemetry_period_s=0.03, reply_timeout_s=0.05)
 WAIT_LIMIT_S = 10.0

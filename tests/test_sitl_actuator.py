@@ -15,12 +15,12 @@ import math
 from pathlib import Path
 
 import pytest
+from conftest import wait_until
 from e2e_support import MAV_CMD_DO_SET_ACTUATOR, MAV_RESULT_ACCEPTED, Recorder
 
 from mavservo.app.bridge import Bridge
 from mavservo.config import ConfigError, load_config, load_config_text
 from mavservo.config.autopilot_script import SetActuator, parse_event
-from conftest import wait_until
 
 REPO = Path(__file__).resolve().parent.parent
 ACTUATOR_SET_SIZE = 6  # the spec: params 1..6 carry one set of six actuators

@@ -13,10 +13,10 @@ import subprocess
 from pathlib import Path
 
 import pytest
-
-from mavservo.sim.autopilot.link import mavlink2 as mav
 from autopilot_support import collect, of_type, peer
 from conftest import free_udp_port
+
+from mavservo.sim.autopilot.link import mavlink2 as mav
 
 REPO = Path(__file__).resolve().parent.parent
 AUTOPILOT = REPO / "mavservo" / "sim" / "autopilot"  # the simulator and its ArduPilot files

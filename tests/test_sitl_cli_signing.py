@@ -7,8 +7,8 @@ import sys
 import time
 from pathlib import Path
 
-from pymavlink import mavutil
 from conftest import free_udp_port
+from pymavlink import mavutil
 
 REPO = Path(__file__).resolve().parent.parent
 KEY_HEX = "42" * 32

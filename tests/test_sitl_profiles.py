@@ -8,16 +8,6 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from mavservo.sim.autopilot.commands import CommandTracker
-from mavservo.sim.autopilot.gimbal import euler_to_quaternion, quaternion_to_euler
-from mavservo.sim.autopilot.profiles import (
-    N_CHANNELS,
-    PROFILES,
-    RandomWalkProfile,
-    StaircaseProfile,
-    SweepProfile,
-    get_profile,
-)
 from mavservo.config.autopilot_script import (
     Dropout,
     GimbalTarget,
@@ -27,6 +17,16 @@ from mavservo.config.autopilot_script import (
     parse_event,
     parse_script,
     repeat_servo_value,
+)
+from mavservo.sim.autopilot.commands import CommandTracker
+from mavservo.sim.autopilot.gimbal import euler_to_quaternion, quaternion_to_euler
+from mavservo.sim.autopilot.profiles import (
+    N_CHANNELS,
+    PROFILES,
+    RandomWalkProfile,
+    StaircaseProfile,
+    SweepProfile,
+    get_profile,
 )
 
 times = st.floats(min_value=0.0, max_value=600.0, allow_nan=False)

@@ -15,6 +15,8 @@ from functools import cache
 from pathlib import Path
 
 import pytest
+from autopilot_support import collect, of_type, peer
+from conftest import free_udp_port
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -26,8 +28,6 @@ from mavservo.sim.autopilot.replay import (
     iter_tlog_records,
     replay,
 )
-from autopilot_support import collect, of_type, peer
-from conftest import free_udp_port
 
 DATA = Path(__file__).parent / "data"
 SERVOS = DATA / "plane-servos.tlog"

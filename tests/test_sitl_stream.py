@@ -6,17 +6,17 @@ import math
 from collections import Counter
 
 import pytest
+from autopilot_support import collect, of_type, peer
+from conftest import free_udp_port
 
+from mavservo.config.autopilot_script import Event, RepeatServo, SetActuator, SetServo
 from mavservo.sim.autopilot.factory import simulator_from_config
 from mavservo.sim.autopilot.gimbal import quaternion_to_euler
 from mavservo.sim.autopilot.link import mavlink2 as mav
 from mavservo.sim.autopilot.link import open_link
 from mavservo.sim.autopilot.profiles import HoldProfile, StaircaseProfile, SweepProfile
 from mavservo.sim.autopilot.replay import ReplayRunner
-from mavservo.config.autopilot_script import Event, RepeatServo, SetActuator, SetServo
 from mavservo.sim.autopilot.stream import AutopilotStream, normalized_outputs
-from autopilot_support import collect, of_type, peer
-from conftest import free_udp_port
 
 
 @pytest.fixture

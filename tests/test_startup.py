@@ -21,13 +21,13 @@ from typing import Any
 
 import can
 import pytest
+from conftest import free_udp_port, wait_until
 
 from mavservo.app.bridge import Bridge
 from mavservo.config.loader import load_config_text
 from mavservo.mavlink.side import MavlinkSide
 from mavservo.scheduling.runner import Scheduler, SchedulerObserver, ServoSpec, TimingConfig
 from mavservo.servos import RmdX
-from conftest import free_udp_port, wait_until
 
 BENCH_FAULTS = Path(__file__).resolve().parent.parent / "bench" / "bench_faults.py"
 WAIT_LIMIT_S = 5.0

@@ -11,11 +11,11 @@ from collections.abc import Iterator
 
 import can
 import pytest
+from conftest import free_udp_port
 
-from mavservo.transport.aa55 import codec as aa55
-from mavservo.transport.aa55.codec import Frame
 from mavservo.app.bridge import Bridge
 from mavservo.config.loader import load_config_text
+from mavservo.transport.aa55 import codec as aa55
 from mavservo.transport.aa55.bus import (
     AUTO_HOLD_BYTES,
     AUTO_HOLD_S,
@@ -23,7 +23,7 @@ from mavservo.transport.aa55.bus import (
     LineLoad,
     auto_hold_s,
 )
-from conftest import free_udp_port
+from mavservo.transport.aa55.codec import Frame
 
 
 class AdapterEnd:

@@ -24,18 +24,18 @@ from typing import Any
 import can
 
 from mavservo.config import BusConfig, Config
+from mavservo.control.servo_backend import ServoBackend
 from mavservo.mavlink.gimbal import GimbalDevice, settings_from_config
 from mavservo.mavlink.settings import MavlinkSettings, SigningSettings
 from mavservo.mavlink.side import MavlinkSide
 from mavservo.records.metrics import round_trip_figures
-from mavservo.transport.resilient_bus import ResilientBus
 from mavservo.records.runlog import RunLog, new_run_dir
 from mavservo.scheduling.core import ServoSpec, TimingConfig
 from mavservo.scheduling.runner import Scheduler, SchedulerObserver
-from mavservo.control.servo_backend import ServoBackend
 from mavservo.servos import get_profile
 from mavservo.sim.adapter import AdapterEmulator
 from mavservo.sim.servo import simulated_servos
+from mavservo.transport.resilient_bus import ResilientBus
 
 log = logging.getLogger(__name__)
 

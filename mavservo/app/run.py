@@ -17,6 +17,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from mavservo.app.console import StatusDisplay, format_summary
 from mavservo.config import (
     ConfigError,
     OverrideError,
@@ -24,7 +25,6 @@ from mavservo.config import (
     default_config_path,
     load_config,
 )
-from mavservo.app.console import StatusDisplay, format_summary
 
 log = logging.getLogger("mavservo")
 

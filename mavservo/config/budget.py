@@ -2,7 +2,8 @@
 
 The frames each servo puts on the bus come from its profile (what one position command and one
 telemetry poll look like, and how many replies each gets), the rates from the scheduler settings,
-and the arithmetic from :mod:`mavservo.scheduling.busload`. A configuration whose worst case exceeds its
+and the arithmetic from :mod:`mavservo.scheduling.busload`. A configuration whose worst case exceeds
+its
 bus's ``max_load`` is refused at load time, before anything touches the bus.
 """
 

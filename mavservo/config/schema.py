@@ -529,7 +529,8 @@ class SchedulerConfig(StrictModel):
 class SimAutopilotConfig(StrictModel):
     """The built-in autopilot stream simulator (used when ``mavlink.url`` is ``sim``).
 
-    ``script`` is a list of timed events in :mod:`mavservo.config.autopilot_script`'s format, checked here with the
+    ``script`` is a list of timed events in :mod:`mavservo.config.autopilot_script`'s format,
+    checked here with the
     simulator's own parser so a bad event is reported with its line.
     """
 
@@ -545,7 +546,9 @@ class SimAutopilotConfig(StrictModel):
     @field_validator("script")
     @classmethod
     def _script_parses(cls, script: list[dict[str, Any]]) -> list[dict[str, Any]]:
-        from mavservo.config.autopilot_script import parse_script  # the simulator owns the event format
+        from mavservo.config.autopilot_script import (
+            parse_script,  # the simulator owns the event format
+        )
 
         try:
             parse_script(script)
@@ -564,7 +567,8 @@ SimValue = float | int | bool | str | None
 
 
 class SimServoConfig(StrictModel):
-    """Physics and fault injection of one simulated servo, in :mod:`mavservo.config.simulation` terms."""
+    """Physics and fault injection of one simulated servo, in :mod:`mavservo.config.simulation`
+    terms."""
 
     physics: dict[str, SimValue] = {}
     faults: dict[str, SimValue] = {}

@@ -275,6 +275,7 @@ def yaw_in_earth_frame(flags: int) -> bool:
 #: Largest |ATTITUDE.yaw| taken as a heading (two turns; the spec sends -pi..pi).
 MAX_VEHICLE_YAW_RAD = 4 * math.pi
 
+
 def _finite_or_none(value: float) -> float | None:
     return None if value is None or math.isnan(value) else float(value)
 

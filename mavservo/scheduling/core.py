@@ -53,7 +53,8 @@ Rules (paper section 3.3):
   no pushes, no setpoint that went out) that went offline on refused sends comes back when a
   send on the bus works again (``sent`` returns it): nothing else could ever bring it back. A reply
   is matched to an expectation of its own kind and plausible latency
-  (:mod:`mavservo.scheduling.reply_matching`), so one lost reply is declared lost where it happened and
+  (:mod:`mavservo.scheduling.reply_matching`), so one lost reply is declared lost where it happened
+  and
   not carried along by the replies after it.
 * Liveness follows from the profile's telemetry shape, one rule per shape: a *polled* servo
   (its profile has telemetry requests) is alive while it answers them (the misses above); a

@@ -31,7 +31,6 @@ from typing import Any
 
 import can
 
-from .busload import message_bits
 from mavservo.records.metrics import SchedulerMetrics, write_json
 from mavservo.scheduling.core import (
     Decision,
@@ -47,6 +46,8 @@ from mavservo.scheduling.core import (
 )
 from mavservo.scheduling.outage_log import LateReplies, Line, OnlineLog
 from mavservo.servos.base import Fault, ServoState
+
+from .busload import message_bits
 
 __all__ = [
     "ScheduleError",

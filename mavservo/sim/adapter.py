@@ -37,6 +37,7 @@ from typing import Any
 import can
 
 from mavservo.transport.aa55 import codec as aa55
+
 from .canbus import SimCanBus
 from .servo import SimServo
 

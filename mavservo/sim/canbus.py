@@ -28,6 +28,7 @@ from dataclasses import dataclass
 import can
 
 from mavservo.scheduling.busload import frame_time
+
 from .servo import SimServo
 
 HOST = None

@@ -41,6 +41,7 @@ from typing import Any
 import can
 
 from mavservo.transport.aa55 import codec as aa55
+
 from .adapter import AdapterEmulator, LineCorrupter, LineFaults, host_decoder
 from .canbus import HOST
 from .servo import SimServo
@@ -299,6 +300,7 @@ def _handle(
 def _servos(args: argparse.Namespace) -> list[SimServo]:
     if args.config:
         from mavservo.sim.servo import simulated_servos
+
         from ..config.loader import load_config
 
         return simulated_servos(load_config(args.config), args.bus)

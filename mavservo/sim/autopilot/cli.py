@@ -1,4 +1,5 @@
-"""``python -m mavservo.sim.autopilot stream|replay``: the simulator and the tlog replayer from a shell.
+"""``python -m mavservo.sim.autopilot stream|replay``: the simulator and the tlog replayer from a
+shell.
 
 ``main(argv) -> int`` is also what ``mavservo sitl ...`` calls. Ctrl-C ends either command cleanly
 with exit status 0 after printing what was sent and received.
@@ -15,10 +16,10 @@ from pathlib import Path
 
 import yaml
 
+from mavservo.config.autopilot_script import Dropout, Event, parse_script
 from mavservo.config.schema import read_key_file
 from mavservo.sim.autopilot.profiles import PROFILES, RandomWalkProfile, get_profile
 from mavservo.sim.autopilot.replay import BRIDGE_TYPES, TlogError, replay
-from mavservo.config.autopilot_script import Dropout, Event, parse_script
 from mavservo.sim.autopilot.stream import AutopilotStream, gimbal_demo_script
 
 
@@ -66,7 +67,9 @@ def build_parser(prog: str = "sitl") -> argparse.ArgumentParser:
         action="store_true",
         help="act as a gimbal manager (MNT1_TYPE 6) with a demo target sequence",
     )
-    s.add_argument("--script", type=Path, help="YAML list of events (see mavservo/config/autopilot_script.py)")
+    s.add_argument(
+        "--script", type=Path, help="YAML list of events (see mavservo/config/autopilot_script.py)"
+    )
     s.add_argument(
         "--dropout",
         action="append",

@@ -3,9 +3,11 @@
 The bridge (``mavlink.url: sim``) calls :func:`simulator_from_config` with the validated
 ``simulation.autopilot`` section (a pydantic model or a plain mapping) and the connection string
 the simulator should use to reach the bridge; it gets back an object with ``start()``/``stop()``.
-Keys understood: ``profile`` (a :mod:`mavservo.sim.autopilot.profiles` name or ``replay``), ``servo_output_rate_hz``,
+Keys understood: ``profile`` (a :mod:`mavservo.sim.autopilot.profiles` name or ``replay``),
+``servo_output_rate_hz``,
 ``actuator_output_status_hz`` (PX4-style, 0 = off),
-``replay_file``, ``speed``, ``seed``, ``script`` (list of events, see :mod:`mavservo.config.autopilot_script`),
+``replay_file``, ``speed``, ``seed``, ``script`` (list of events, see
+:mod:`mavservo.config.autopilot_script`),
 ``gimbal``, ``command_target``, ``repeat_servo_cycle``. Unknown keys are ignored so the config
 may grow ahead of the simulator.
 """
@@ -15,9 +17,9 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
+from mavservo.config.autopilot_script import GimbalTarget, parse_script
 from mavservo.sim.autopilot.profiles import RandomWalkProfile, get_profile
 from mavservo.sim.autopilot.replay import ReplayRunner
-from mavservo.config.autopilot_script import GimbalTarget, parse_script
 from mavservo.sim.autopilot.stream import AutopilotStream, gimbal_demo_script
 
 

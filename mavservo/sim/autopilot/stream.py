@@ -8,7 +8,8 @@ sysid 1 / compid 1 with MAVLink 2 and the ardupilotmega dialect:
 * SERVO_OUTPUT_RAW (port 0, all 16 channels, ``time_usec``) at the configured rate, 20 Hz by
   default like ArduPilot after SET_MESSAGE_INTERVAL; SET_MESSAGE_INTERVAL and REQUEST_MESSAGE
   from the companion are honoured and ACKed,
-* the values of a scripted :mod:`mavservo.sim.autopilot.profiles` profile, with DO_SET_SERVO / DO_REPEAT_SERVO /
+* the values of a scripted :mod:`mavservo.sim.autopilot.profiles` profile, with DO_SET_SERVO /
+DO_REPEAT_SERVO /
   DO_SET_ACTUATOR sent as COMMAND_LONG (ACKs collected, MAVSDK-style retries) from a
   :class:`mavservo.config.autopilot_script.Script` or from calls made while it runs,
 * a gimbal manager like ArduPilot's MNT1_TYPE 6 backend: MAV_CMD_REQUEST_MESSAGE(283) every
@@ -34,6 +35,17 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
+from mavservo.config.autopilot_script import (
+    Action,
+    Dropout,
+    Event,
+    GimbalTarget,
+    RepeatServo,
+    Script,
+    SetActuator,
+    SetServo,
+    repeat_servo_value,
+)
 from mavservo.sim.autopilot.background import Background
 from mavservo.sim.autopilot.commands import CommandRecord, CommandTracker
 from mavservo.sim.autopilot.gimbal import FLAG_RETRACT, euler_to_quaternion
@@ -50,17 +62,6 @@ from mavservo.sim.autopilot.profiles import (
     get_profile,
 )
 from mavservo.sim.autopilot.recorder import Received
-from mavservo.config.autopilot_script import (
-    Action,
-    Dropout,
-    Event,
-    GimbalTarget,
-    RepeatServo,
-    Script,
-    SetActuator,
-    SetServo,
-    repeat_servo_value,
-)
 
 GIMBAL_DEVICE_INFORMATION_ID = 283
 REQUEST_INTERVAL_S = 1.0  # ArduPilot re-asks the gimbal device for its information every second
@@ -81,7 +82,8 @@ class Commanded:
 #: Records kept by default (``keep``): commanded values per channel for
 #: :meth:`AutopilotStream.commanded_pwm` lookups (about 17 minutes of changes at 20 Hz, 7 at
 #: 50 Hz), sent messages, received messages, commands and ACKs. Older commanded values are
-#: dropped in halves (amortised O(1)). A process that only streams (``python -m sitl stream``,
+#: dropped in halves (amortised O(1)). A process that only streams (``python -m
+#: mavservo.sim.autopilot stream``,
 #: the soak's autopilot) asks for far fewer, so its memory is flat within a minute.
 COMMANDED_KEEP = 20_000
 
