@@ -55,6 +55,13 @@ STEPS = [(1568, 1233, -0.2461), (1811, 1402, 0.4437), (1127, 1950, -0.8123)]
 SAMPLES = 4  # telemetry samples per servo and step, after settling
 
 
+def all_replied_since(bridge, t: float) -> bool:
+    """Every servo's latest decoded state is stamped after ``t`` (the scheduler's monotonic
+    clock)."""
+    states = [bridge.schedulers["bus0"].state(name) for name in SERVOS]
+    return all(state is not None and state.timestamp > t for state in states)
+
+
 def test_every_profile_round_trip_with_acks_and_telemetry_resolution() -> None:
     errors: dict[str, list[float]] = {name: [] for name in SERVOS}
     normalized_checked = 0
@@ -79,7 +86,10 @@ def test_every_profile_round_trip_with_acks_and_telemetry_resolution() -> None:
                     ),
                     5.0,
                 ), {n: s.position_deg for n, s in servos.items()}
-                time.sleep(0.25)  # a poll round after settling, so no reply predates it
+                # a reply of every servo decoded after settling (an event, not a fixed sleep),
+                # so no telemetry sent from here on carries a state that predates it
+                settled_at = time.monotonic()
+                assert wait_until(lambda t=settled_at: all_replied_since(bridge, t), 5.0)
                 mark = peer.count()
                 wait_until(
                     lambda m=mark: all(

@@ -8,8 +8,6 @@ is bounded.
 
 from __future__ import annotations
 
-import time
-
 import pytest
 from conftest import wait_until
 from e2e_support import (
@@ -32,6 +30,16 @@ def pwm_for(angle: float, span: float = 90.0) -> float:
 
 def near(bridge, name: str, angle: float, tol: float = 0.05):
     return lambda: abs(sim_servo(bridge, name).position_deg - angle) < tol
+
+
+def all_got_more(servos: list, marks: list[int], more: int) -> bool:
+    """Every servo received ``more`` commands (refreshes included) since its mark."""
+    return all(s.commands >= m + more for s, m in zip(servos, marks, strict=True))
+
+
+def sends_failed(bridge, name: str) -> int:
+    """Frames for servo ``name`` the scheduler could not write (the adapter was gone)."""
+    return bridge.schedulers["bus0"].metrics()["servos"][name]["frames"]["send_failed"]
 
 
 # ------------------------------------------------------------------------------ USB unplug
@@ -58,7 +66,10 @@ def test_usb_unplug_and_replug_mid_run_is_reported_and_recovered() -> None:
             emulator.unplug()
             assert wait_until(lambda: any("lost" in t for _, t in bridge.events), 5), bridge.events
             frames_while_away = servo.commands + servo.requests
-            time.sleep(0.3)  # the bridge keeps trying to send into the void
+            # the bridge keeps trying to send into the void: three failed sends later (no
+            # fixed sleep), none of its frames has reached the servo
+            failed = sends_failed(bridge, "s1")
+            assert wait_until(lambda: sends_failed(bridge, "s1") >= failed + 3, 5)
             assert servo.commands + servo.requests == frames_while_away
             emulator.replug()
             assert wait_until(lambda: any("back" in t for _, t in bridge.events), 8), bridge.events
@@ -143,8 +154,14 @@ def test_silent_autopilot_puts_each_servo_in_its_failsafe_and_recovery_waits_for
             assert wait_until(
                 lambda: any("autopilot back" in t for t in peer.statustexts(mark)), 5
             ), peer.statustexts(mark)
-            time.sleep(0.5)  # nothing moves on its own after recovery
+            # nothing moves on its own after recovery. No fixed sleep: the servos that keep
+            # their failsafe setpoint get two more refreshes each, so command slots went by in
+            # which a stray command would have gone out; none changed a target or woke limp
+            keeping = [sim_servo(bridge, n) for n in NAMES if n != "limp"]
+            marks = [servo.commands for servo in keeping]
+            assert wait_until(lambda: all_got_more(keeping, marks, 2), 3)
             for name, angle in expected.items():
+                assert sim_servo(bridge, name).target_deg == pytest.approx(angle, abs=0.01)
                 assert sim_servo(bridge, name).position_deg == pytest.approx(angle, abs=0.05)
             assert limp.commands == limp_before
             # a fresh command moves them again

@@ -2,19 +2,25 @@
 
 from __future__ import annotations
 
+import csv
 import gc
-import json
 import re
 import signal
+import statistics
+import struct
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 from mavservo.app.bridge import settle_heap
-from mavservo.config import default_config_path, load_config
+from mavservo.config import Config, default_config_path, load_config
+from mavservo.records.runlog import read_can_log
+from mavservo.servos.rmdx import CMD_POSITION, REQUEST_BASE
 
 REPO = Path(__file__).resolve().parents[1]
+SWEPT_CHANNELS = (1, 2, 3, 4)
+"""SERVO_OUTPUT_RAW channels the default simulated autopilot sweeps (its ``sweep`` profile)."""
 
 
 def run_mavservo(*args: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:
@@ -42,10 +48,77 @@ def test_default_run_moves_servos_and_reports_both_directions(tmp_path: Path) ->
         assert sent > 0 and received > 0, f"{name}: {row.group(0)}"
         assert rejected == 0
     assert "decoder rejections 0" in out
-    # the mirrored surfaces moved: their setpoints are not all at the centre
-    run_dir = next(tmp_path.iterdir())
-    metrics = json.loads((run_dir / "metrics.json").read_text())
-    assert metrics, "metrics.json is empty"
+    # the swept surfaces moved: the run's trace and CAN log show it
+    config = load_config(default_config_path())
+    [run_dir] = list(tmp_path.iterdir())
+    trace = read_trace(run_dir / "trace.csv")
+    commanded = commanded_angles_on_the_wire(run_dir, config)
+    for name, (low, high) in swept_surfaces(config).items():
+        assert_commands_moved(name, trace, commanded, span=high - low)
+        assert_positions_followed(name, trace, span=high - low)
+
+
+def swept_surfaces(config: Config) -> dict[str, tuple[float, float]]:
+    """Servo name -> the angle range of its channel, for every channel the sweep drives."""
+    surfaces = {}
+    for channel in config.channels:
+        if channel.source == "servo_output" and channel.channel in SWEPT_CHANNELS:
+            low, high = sorted(channel.output_deg)
+            surfaces[channel.servo] = (low, high)
+    assert len(surfaces) == len(SWEPT_CHANNELS), surfaces
+    return surfaces
+
+
+def read_trace(path: Path) -> list[dict[str, str]]:
+    with path.open(newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def commanded_angles_on_the_wire(run_dir: Path, config: Config) -> dict[str, list[float]]:
+    """Servo name -> the angles of every RMD-X position command (0xA4) in the run's CAN log."""
+    names = {REQUEST_BASE + s.can_id: s.name for s in config.servos if s.profile == "rmd-x"}
+    angles: dict[str, list[float]] = {name: [] for name in names.values()}
+    for msg in read_can_log(run_dir, "asc"):
+        name = names.get(msg.arbitration_id)
+        if msg.is_rx or msg.is_extended_id or name is None or msg.data[0] != CMD_POSITION:
+            continue
+        angles[name].append(struct.unpack_from("<i", msg.data, 4)[0] / 100)
+    return angles
+
+
+def assert_commands_moved(
+    name: str, trace: list[dict[str, str]], wire: dict[str, list[float]], span: float
+) -> None:
+    """Accepted setpoints and the position commands on the wire take many values, widely."""
+    setpoints = [float(r["setpoint_deg"]) for r in trace if on(r, name, "setpoint")]
+    for what, angles in (("accepted setpoints", setpoints), ("commands on the wire", wire[name])):
+        assert len(set(angles)) >= 10, f"{name}: {what} barely change: {sorted(set(angles))}"
+        assert max(angles) - min(angles) >= span / 3, f"{name}: {what} span only {angles}"
+    # what went on the wire is what was accepted (to the wire's 0.01 deg), nothing invented
+    invented = [a for a in wire[name] if min(abs(a - s) for s in setpoints) > 0.005 + 1e-9]
+    assert not invented, f"{name}: commanded on the wire but never accepted: {invented}"
+
+
+def assert_positions_followed(name: str, trace: list[dict[str, str]], span: float) -> None:
+    """Measured positions move over the commanded range, with the setpoint in force.
+
+    Structure, not speed: positions rise and fall with the commands (correlation well above
+    chance; a lagging reply on a loaded machine lowers it a little, a servo that stands still
+    or moves the wrong way makes it ~0 or negative) and never leave the commanded range
+    (RMD-X reports whole degrees).
+    """
+    rows = [r for r in trace if on(r, name, "state") and r["setpoint_deg"]]
+    assert len(rows) >= 10, f"{name}: {len(rows)} measured states"
+    setpoints = [float(r["setpoint_deg"]) for r in rows]
+    positions = [float(r["position_deg"]) for r in rows]
+    assert max(positions) - min(positions) >= span / 3, f"{name}: positions {positions}"
+    assert min(setpoints) - 1 <= min(positions) and max(positions) <= max(setpoints) + 1, name
+    assert len(set(setpoints)) > 1 and len(set(positions)) > 1, name
+    assert statistics.correlation(setpoints, positions) > 0.5, (name, setpoints, positions)
+
+
+def on(row: dict[str, str], servo: str, event: str) -> bool:
+    return row["servo"] == servo and row["event"] == event
 
 
 def test_sigterm_stops_cleanly_with_status_zero(tmp_path: Path) -> None:

@@ -156,16 +156,24 @@ def test_silent_servo_goes_offline_with_no_reply_fault_and_comes_back(sim_bus):
 
 
 def test_release_stops_the_keep_alive(sim_bus):
+    """The threaded scheduler applies the core's release (which tests/test_scheduler_core.py
+    proves under a fake clock). No fixed sleep: s2, set at the same time with the same refresh
+    interval, keeps refreshing; while it refreshes three more times, a keep-alive of s1 would
+    have gone out at least twice (one slot decided before the release may still go out)."""
     bus, _ = sim_bus
-    scheduler = Scheduler(bus, specs(1), FAST)
+    scheduler = Scheduler(bus, specs(2), FAST)
+
+    def refreshes(name: str) -> int:
+        return scheduler.metrics()["servos"][name]["frames"]["refreshes"]
+
     with scheduler:
         scheduler.set_setpoint("s1", 3.0, "test")
-        assert wait_until(lambda: scheduler.metrics()["servos"]["s1"]["frames"]["refreshes"] > 1)
+        scheduler.set_setpoint("s2", -3.0, "test")
+        assert wait_until(lambda: refreshes("s1") > 1 and refreshes("s2") > 1)
         scheduler.release("s1")
-        time.sleep(3 * FAST.command_period_s)  # let a slot that was already decided go out
-        frozen = scheduler.metrics()["servos"]["s1"]["frames"]["refreshes"]
-        time.sleep(5 * FAST.command_period_s)
-        assert scheduler.metrics()["servos"]["s1"]["frames"]["refreshes"] == frozen
+        released_at, other = refreshes("s1"), refreshes("s2")
+        assert wait_until(lambda: refreshes("s2") >= other + 3)
+        assert refreshes("s1") <= released_at + 1
 
 
 def test_stale_setpoint_rejected_through_the_api(sim_bus):

@@ -7,7 +7,7 @@ import math
 
 import can
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mavservo.servos import (
@@ -209,8 +209,12 @@ def test_registry_names_and_clear_error():
 
 angles = st.floats(min_value=-30_000, max_value=30_000, allow_nan=False)
 speeds = st.floats(min_value=1, max_value=700, allow_nan=False)
+#: the simulated device in these properties is pure, but a loaded shared machine can push one
+#: example past hypothesis' default 200 ms deadline (timing is not what they judge)
+simulator_settings = settings(deadline=None)
 
 
+@simulator_settings
 @given(angle=angles, speed=speeds, can_id=st.integers(1, 32), lk=st.booleans())
 def test_rmd_command_round_trips_through_the_simulated_device(angle, speed, can_id, lk):
     profile = (LkTech if lk else RmdX)(can_id)
@@ -222,6 +226,7 @@ def test_rmd_command_round_trips_through_the_simulated_device(angle, speed, can_
     assert profile.decode(replies[0][1], replies[0][0]) is not None
 
 
+@simulator_settings
 @given(
     angle=st.floats(min_value=-36_000, max_value=36_000, allow_nan=False),
     speed=st.one_of(st.none(), speeds),
@@ -237,6 +242,7 @@ def test_cubemars_command_round_trips_through_the_simulated_device(angle, speed,
         assert servo.speed_limit_dps == pytest.approx(max(speed, step), abs=step)
 
 
+@simulator_settings
 @given(
     position=st.floats(min_value=-3000, max_value=3000, allow_nan=False),
     name=st.sampled_from(sorted(PROFILES)),

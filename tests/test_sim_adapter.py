@@ -44,6 +44,26 @@ def _ask(bus: can.BusABC, profile: ServoProfile, timeout: float = 0.5) -> ServoS
     return _reply(bus, profile, timeout)
 
 
+def _unanswered(bus: can.BusABC, asked: ServoProfile, witness: ServoProfile) -> bool:
+    """True when ``asked`` does not answer a poll, shown by ordering instead of a fixed wait.
+
+    ``asked`` is polled first, then ``witness``, a servo that answers no sooner: the simulated
+    bus sends frames in the order they are due (a lower id first only among frames due
+    together, so ``asked`` has the lower id or the witness answers late), so a reply of
+    ``asked`` would arrive before the witness's. Every frame up to the witness's reply is read.
+    """
+    for request in asked.telemetry_requests() + witness.telemetry_requests():
+        bus.send(request)
+    for _ in range(200):  # bounded: frames of other servos may come in between
+        msg = bus.recv(timeout=2.0)
+        assert msg is not None, "the witness never answered"
+        if asked.is_reply(msg):
+            return False
+        if witness.is_reply(msg):
+            return True
+    raise AssertionError("no reply of the witness among 200 frames")
+
+
 @pytest.fixture
 def emulator_factory():
     started: list[AdapterEmulator] = []
@@ -116,13 +136,13 @@ def test_dropped_delayed_and_silent_servos_are_seen_from_the_host(emulator_facto
     emulator = emulator_factory(servos)
     with AA55Bus(channel=emulator.path) as bus:
         assert _ask(bus, RmdX(1)) is not None
-        assert _ask(bus, RmdX(2), timeout=0.3) is None
         asked = time.monotonic()
-        assert _ask(bus, RmdX(3), timeout=2.0) is not None
+        # servo 2 drops its reply; servo 3 answers 0.3 s late: it is the witness
+        assert _unanswered(bus, RmdX(2), witness=RmdX(3))
         assert time.monotonic() - asked >= 0.3  # a lower bound set by the fault, not the machine
+        assert servos[1].replies_dropped >= 1
         servos[0].faults.silent = True  # faults can be flipped while running
-        assert _ask(bus, RmdX(1), timeout=0.3) is None
-    assert servos[1].replies_dropped >= 1
+        assert _unanswered(bus, RmdX(1), witness=RmdX(3))
 
 
 def test_fault_flags_reach_the_host(emulator_factory):
@@ -169,7 +189,7 @@ def test_settings_frame_sets_bitrate_mode_filter_and_protocol(emulator_factory):
         assert _ask(bus, RmdX(2), timeout=2.0) is not None
         assert (emulator.filter_id, emulator.mask) == (0x242, 0x7FF)
         filtered_before = emulator.frames_filtered
-        assert _ask(bus, RmdX(1), timeout=0.3) is None
+        assert _unanswered(bus, RmdX(1), witness=RmdX(2))  # 0x241 would win arbitration
         assert emulator.frames_filtered > filtered_before
 
 

@@ -3,7 +3,7 @@ signs with the bridge's key, and the bridge acts on it (and still refuses the un
 
 from __future__ import annotations
 
-import time
+from conftest import wait_until
 
 from mavservo.app.bridge import Bridge
 from mavservo.config import load_config_text
@@ -25,13 +25,19 @@ def test_simulated_autopilot_signs_with_the_bridges_key() -> None:
     bridge.start()
     try:
         servo = bridge.emulators["bus0"].servos[0]
-        deadline = time.monotonic() + 10
-        while time.monotonic() < deadline and servo.commands < 5:
-            time.sleep(0.05)
-        time.sleep(1.0)
+        assert wait_until(lambda: servo.commands >= 5)
+        # no fixed sleep: 20 signed SERVO_OUTPUT_RAW acted on (1 s of the stream) is the point
+        # by which a signing problem would have shown as a rejection
+        assert wait_until(lambda: applied(bridge) >= 20)
     finally:
         summary = bridge.stop()
     mav = summary["mavlink"]
     assert mav["mirror"]["applied"] > 0, mav  # signed SERVO_OUTPUT_RAW was acted on
     assert mav["link"].get("signing_rejected", 0) == 0, mav["link"]
     assert servo.commands >= 5
+
+
+def applied(bridge: Bridge) -> int:
+    """SERVO_OUTPUT_RAW values the bridge's MAVLink side acted on."""
+    assert bridge.mavlink is not None
+    return int(bridge.mavlink.stats()["mirror"].get("applied", 0))

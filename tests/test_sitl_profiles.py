@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mavservo.config.autopilot_script import (
@@ -30,9 +30,13 @@ from mavservo.sim.autopilot.profiles import (
 )
 
 times = st.floats(min_value=0.0, max_value=600.0, allow_nan=False)
+#: no per-example deadline: the simulator's profiles are pure, but on a loaded shared machine
+#: an example hit hypothesis' default 200 ms twice (timing is not what these tests judge)
+no_deadline = settings(deadline=None)
 
 
 @pytest.mark.parametrize("name", sorted(PROFILES))
+@no_deadline
 @given(t=times)
 def test_profiles_are_deterministic_and_in_ardupilot_ranges(name: str, t: float) -> None:
     a, b = get_profile(name), get_profile(name)
@@ -70,6 +74,7 @@ def test_staircase_climbs_monotonically_then_returns_to_neutral() -> None:
     assert stairs.pwm(2.0)[0] == stairs.pwm(3.999)[0]
 
 
+@no_deadline
 @given(seed=st.integers(0, 2**32 - 1), t1=times, t2=times)
 def test_random_walk_same_seed_same_walk_in_any_order(seed: int, t1: float, t2: float) -> None:
     forward, backward = RandomWalkProfile(seed=seed), RandomWalkProfile(seed=seed)
@@ -159,6 +164,7 @@ def test_command_tracker_matches_acks_by_command_and_source() -> None:
 angles = st.floats(min_value=-179.0, max_value=179.0)
 
 
+@no_deadline
 @given(roll=angles, pitch=st.floats(min_value=-89.0, max_value=89.0), yaw=angles)
 def test_quaternion_round_trip(roll: float, pitch: float, yaw: float) -> None:
     q = euler_to_quaternion(roll, pitch, yaw)

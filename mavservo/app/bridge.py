@@ -17,7 +17,7 @@ import logging
 import socket
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -121,6 +121,24 @@ def settle_heap() -> None:
     is never freed, which costs less.
     """
     gc.freeze()
+
+
+def health_figures(
+    schedulers: Iterable[Scheduler], latency_total: Mapping[str, Any] | None = None
+) -> dict[str, float]:
+    """``Bridge._health``'s figures from its schedulers and the run log's ``total`` latency
+    summary (seconds); a function of its inputs so that tests build them without a bridge."""
+    out: dict[str, float] = {}
+    round_trips: list[float] = []
+    for k, scheduler in enumerate(schedulers):
+        out[f"bus{k}_load"] = scheduler.load_ratio()
+        round_trips += scheduler.round_trip_samples()
+    out.update(round_trip_figures(round_trips))
+    for p in ("p50", "p95", "p99"):
+        value = (latency_total or {}).get(p)
+        if value is not None:
+            out[f"lat_{p}"] = value * 1000.0
+    return out
 
 
 class Bridge:
@@ -367,18 +385,8 @@ class Bridge:
         questions (how fast the bus and servos are; how fast a ground station sees a command
         take effect) and differ ~100-fold; docs/logs.md, "Which latency is which".
         """
-        out: dict[str, float] = {}
-        round_trips: list[float] = []
-        for k, scheduler in enumerate(self.schedulers.values()):
-            out[f"bus{k}_load"] = scheduler.load_ratio()
-            round_trips += scheduler.round_trip_samples()
-        out.update(round_trip_figures(round_trips))
-        if self.runlog is not None:
-            total = self.runlog.latency.summary().get("total", {})
-            for p in ("p50", "p95", "p99"):
-                if total.get(p) is not None:
-                    out[f"lat_{p}"] = total[p] * 1000.0
-        return out
+        total = self.runlog.latency.summary().get("total", {}) if self.runlog is not None else {}
+        return health_figures(self.schedulers.values(), total)
 
     def _tap_mavlink(self, side: MavlinkSide, runlog: RunLog) -> None:
         """MAVLink frames into the run's .tlog; telemetry sends close the latency traces."""

@@ -43,7 +43,6 @@ from mavservo.servos.base import NO_FAULT, Fault
 log = logging.getLogger(__name__)
 
 MSG_ACTUATOR_OUTPUT_STATUS = 375
-MSG_ESC_TELEMETRY_1_TO_4 = 11030
 MSG_NAMED_VALUE_FLOAT = 251
 ESC_MESSAGES = [
     mavlink2.MAVLink_esc_telemetry_1_to_4_message,
@@ -61,7 +60,6 @@ UINT16_MAX = 65535
 MAV_SEVERITY_CRITICAL = 2
 MAV_SEVERITY_WARNING = 4
 MAV_SEVERITY_NOTICE = 5
-MAV_SEVERITY_INFO = 6
 STATUSTEXT_LENGTH = 50
 #: a longer text is sent in chunks; beyond this many it is cut (the last chunk always keeps
 #: room for the NUL that marks it as the last)

@@ -4,9 +4,9 @@ Nothing here reads a clock or starts a thread: callers pass every timestamp in. 
 store is a ring buffer of raw doubles allocated in full when it is built (:class:`FloatRing`),
 so a bridge's memory is flat from its first second, not only once every window has filled
 (a deque of float objects took 32 bytes a sample and about 7 minutes at 10 Hz to fill). The
-mean, sigma, min and max are kept exactly over *all* samples (Welford), the percentiles and
-``fraction_within`` over the most recent ``window`` samples, which is what a live monitor and
-an end-of-run report want.
+mean, sigma, min and max are kept exactly over *all* samples (Welford), the percentiles over
+the most recent ``window`` samples, which is what a live monitor and an end-of-run report
+want.
 
 The scheduler owns one ``SchedulerMetrics`` and updates it under its lock; ``to_dict()`` is the
 JSON-serialisable snapshot the API, the live monitor and the run log share.
@@ -132,12 +132,6 @@ class SampleStats:
     @property
     def sigma(self) -> float | None:
         return math.sqrt(self._m2 / self.count) if self.count else None
-
-    def fraction_within(self, low: float, high: float) -> float | None:
-        """Share of the recent window inside ``[low, high]`` (e.g. intervals in 70-100 ms)."""
-        if not self.recent:
-            return None
-        return sum(1 for v in self.recent.values() if low <= v <= high) / len(self.recent)
 
     def summary(self) -> dict[str, Any]:
         """Count, mean, sigma, min, max and p50/p95/p99 of the recent window (None when empty)."""

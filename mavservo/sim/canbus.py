@@ -119,9 +119,6 @@ class SimCanBus:
         self.busy_s = 0.0
         self._busy: deque[tuple[float, float]] = deque(maxlen=load_history)
 
-    def attach(self, servo: SimServo) -> None:
-        self.servos.append(servo)
-
     def submit(self, msg: can.Message, ready: float, source: SimServo | None = HOST) -> None:
         """Queue ``msg`` for transmission; it may start no earlier than ``ready``."""
         if source is HOST:

@@ -14,8 +14,3 @@ __all__ = ["FLAG_RETRACT", "euler_to_quaternion", "quaternion_to_euler"]
 
 # GIMBAL_DEVICE_FLAGS as ArduPilot sets them (see tests/data/README.md).
 FLAG_RETRACT = 1
-FLAG_NEUTRAL = 2
-FLAG_ROLL_LOCK = 4
-FLAG_PITCH_LOCK = 8
-FLAG_YAW_LOCK = 16
-FLAG_YAW_IN_EARTH_FRAME = 64

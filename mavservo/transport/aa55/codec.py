@@ -425,13 +425,6 @@ class Decoder:
         """Bytes held back as the start of an incomplete candidate."""
         return len(self._buf)
 
-    def set_protocol(self, protocol: ProtocolName) -> None:
-        """Switch protocol (the adapter does so on a settings frame); pending bytes are kept."""
-        if protocol not in PROTOCOLS:
-            raise ValueError(f"unknown protocol {protocol!r}; expected one of {PROTOCOLS}")
-        self.protocol = protocol
-        self._pattern = _VARIABLE_RE if protocol == "variable" else _FIXED_RE
-
     def feed(
         self, data: bytes, timestamp: float = 0.0
     ) -> list[Frame | AdapterSettings | ControlFrame]:
