@@ -30,9 +30,9 @@ from mavservo.mavlink.settings import MavlinkSettings, SigningSettings
 from mavservo.mavlink.side import MavlinkSide
 from mavservo.records.metrics import round_trip_figures
 from mavservo.records.runlog import RunLog, new_run_dir
-from mavservo.scheduling.core import ServoSpec, TimingConfig
+from mavservo.scheduling.core import FrameKind, ServoSpec, TimingConfig
 from mavservo.scheduling.runner import Scheduler, SchedulerObserver
-from mavservo.servos import get_profile
+from mavservo.servos import ServoState, get_profile
 from mavservo.sim.adapter import AdapterEmulator
 from mavservo.sim.servo import simulated_servos
 from mavservo.transport.resilient_bus import ResilientBus
@@ -51,31 +51,42 @@ def free_udp_port() -> int:
 
 
 class _FanOut(SchedulerObserver):
-    """Passes scheduler events to several observers (run log, latency tracer, live status)."""
+    """Passes scheduler events to several observers (run log, latency tracer, live status).
 
-    def __init__(self, *observers: Any) -> None:
+    Every observer implements the whole :class:`SchedulerObserver` Protocol (a subclass
+    inherits no-ops for the hooks it does not need), so each hook is simply called on each.
+    """
+
+    def __init__(self, *observers: SchedulerObserver | None) -> None:
         self.observers = [o for o in observers if o is not None]
 
-    def _call(self, name: str, *args: Any) -> None:
+    def on_setpoint(self, servo: str, seq: int, angle_deg: float, source: str, t: float) -> None:
         for observer in self.observers:
-            method = getattr(observer, name, None)
-            if method is not None:
-                method(*args)
+            observer.on_setpoint(servo, seq, angle_deg, source, t)
 
-    def on_setpoint(self, *args: Any) -> None:
-        self._call("on_setpoint", *args)
+    def on_tx(
+        self,
+        bus: str,
+        msg: can.Message,
+        t: float,
+        kind: FrameKind,
+        servo: str,
+        seq: int | None,
+    ) -> None:
+        for observer in self.observers:
+            observer.on_tx(bus, msg, t, kind, servo, seq)
 
-    def on_tx(self, *args: Any) -> None:
-        self._call("on_tx", *args)
+    def on_rx(self, bus: str, msg: can.Message, t: float, servo: str, state: ServoState) -> None:
+        for observer in self.observers:
+            observer.on_rx(bus, msg, t, servo, state)
 
-    def on_rx(self, *args: Any) -> None:
-        self._call("on_rx", *args)
+    def on_lost(self, bus: str, servo: str, t: float) -> None:
+        for observer in self.observers:
+            observer.on_lost(bus, servo, t)
 
-    def on_lost(self, *args: Any) -> None:
-        self._call("on_lost", *args)
-
-    def on_reject(self, *args: Any) -> None:
-        self._call("on_reject", *args)
+    def on_reject(self, bus: str, reason: str, raw_bytes: bytes, t: float) -> None:
+        for observer in self.observers:
+            observer.on_reject(bus, reason, raw_bytes, t)
 
 
 def servo_specs(config: Config, bus_name: str) -> list[ServoSpec]:
