@@ -70,9 +70,10 @@ class SchedulerObserver(Protocol):
     """Hooks called from the scheduler's threads (the scheduler's observer boundary).
 
     A Protocol: the run log implements it structurally; a class that subclasses it explicitly
-    inherits a no-op for every hook it does not override. Implementations MUST be non-blocking (append to a queue, bump a counter): they run inside
-    the command loop and the receive loop, so a slow observer would delay commands. Exceptions
-    are logged and swallowed; they never stop the loop. ``bus`` is the scheduler's name.
+    inherits a no-op for every hook it does not override. Implementations MUST be non-blocking
+    (append to a queue, bump a counter): they run inside the command loop and the receive loop,
+    so a slow observer would delay commands. Exceptions are logged and swallowed; they never
+    stop the loop. ``bus`` is the scheduler's name.
     """
 
     def on_setpoint(self, servo: str, seq: int, angle_deg: float, source: str, t: float) -> None:
