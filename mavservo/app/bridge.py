@@ -248,10 +248,11 @@ class Bridge:
             _quietly(bus.shutdown)
         for emulator in self.emulators.values():
             _quietly(emulator.stop)
-        if self.runlog is not None:
-            _quietly(lambda: self.runlog.close(summary))
+        runlog = self.runlog
+        if runlog is not None:
+            _quietly(lambda: runlog.close(summary))
             summary["runlog"] = {  # the summary must not point at a run log that failed
-                k: v for k, v in self.runlog.outcome().items() if k != "metrics"
+                k: v for k, v in runlog.outcome().items() if k != "metrics"
             }
         return summary
 
@@ -267,7 +268,8 @@ class Bridge:
         if self._log_dir is False:
             return
         cfg = self.config.logging
-        base = Path(self._log_dir) if self._log_dir else cfg.dir
+        given = self._log_dir  # True, like None and "", means the config's own directory
+        base = Path(given) if isinstance(given, (str, Path)) and given else cfg.dir
         self.run_dir = new_run_dir(base)
         buses = {
             b.name: {"bitrate": b.bitrate, "max_load": b.max_load, "interface": b.interface}
@@ -320,10 +322,10 @@ class Bridge:
 
         return ResilientBus(open_other, name=name, on_event=self._event)
 
-    def _rejected(self, bus_name: str, reason: Any, raw: bytes) -> None:
+    def _rejected(self, bus_name: str, reason: object, raw: bytes) -> None:
         scheduler = self.schedulers.get(bus_name)
         if scheduler is not None:
-            scheduler.report_reject(getattr(reason, "value", str(reason)), raw)
+            scheduler.report_reject(reason, raw)  # it reports an enum reason by its value
 
     def _make_mavlink(self) -> MavlinkSide:
         cfg = self.config
@@ -354,7 +356,7 @@ class Bridge:
                 section["signing_key"] = settings.signing.key
             self.autopilot_sim = simulator_from_config(section, f"udpout:127.0.0.1:{port}")
         assert self.backend is not None
-        servo_limits = {s.name: tuple(s.limits_deg) for s in cfg.servos}
+        servo_limits = {s.name: s.limits_deg for s in cfg.servos}
         status_hz = cfg.mavlink.telemetry.gimbal_attitude_status_hz
         fixed_sysid = None if cfg.mavlink.system_id == "follow" else cfg.mavlink.system_id
         gimbals = [
@@ -419,8 +421,9 @@ class Bridge:
     def _event(self, text: str) -> None:
         """An event of the servo side: console, event list, and STATUSTEXT to the autopilot."""
         self._note(text)
-        if self.mavlink is not None:
-            _quietly(lambda: self.mavlink.announce(text, MAV_SEVERITY_WARNING))
+        mavlink = self.mavlink
+        if mavlink is not None:
+            _quietly(lambda: mavlink.announce(text, MAV_SEVERITY_WARNING))
 
     def _note(self, text: str) -> None:
         """Console and event list only (the MAVLink side announces its own link events)."""
@@ -431,7 +434,7 @@ class Bridge:
 
     def status_rows(self) -> list[dict[str, Any]]:
         """One row per servo for the live status line."""
-        rows = []
+        rows: list[dict[str, Any]] = []
         if self.backend is None:
             return rows
         now = time.monotonic()  # the scheduler stamps states with its monotonic clock

@@ -19,6 +19,7 @@ scheduler's CPU (docs/benchmarks.md, Scheduler).
 
 from __future__ import annotations
 
+import enum
 import itertools
 import logging
 import math
@@ -27,7 +28,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any, ParamSpec, Protocol
+from typing import Any, ParamSpec, Protocol, runtime_checkable
 
 import can
 
@@ -103,6 +104,14 @@ class SchedulerObserver(Protocol):
     def on_reject(self, bus: str, reason: str, raw_bytes: bytes, t: float) -> None:
         """The bus's frame decoder rejected bytes (forwarded through ``report_reject``)."""
         return None
+
+
+@runtime_checkable
+class RejectReporting(Protocol):
+    """A bus that reports the bytes its frame decoder rejected (the aa55 bus): ``on_reject``
+    is called with ``(reason, raw_bytes)``; None until someone listens."""
+
+    on_reject: Callable[[Any, bytes], None] | None
 
 
 class _NoObserver(SchedulerObserver):
@@ -218,7 +227,7 @@ class Scheduler:
         """The spin the runner actually uses (``fifo_spin_s`` once it runs real-time)."""
         for warning in self._core.warnings:
             log.warning("scheduler %s: %s", self.name, warning)
-        if getattr(bus, "on_reject", "absent") is None:
+        if isinstance(bus, RejectReporting) and bus.on_reject is None:
             # an aa55 bus with no rejection callback yet: count its decoder rejections here
             bus.on_reject = self.report_reject
 
@@ -352,7 +361,7 @@ class Scheduler:
         reported) or a string.
         """
         when = self._clock() if t is None else t
-        text = str(getattr(reason, "value", reason))
+        text = str(reason.value if isinstance(reason, enum.Enum) else reason)
         with self._lock:
             self._metrics.bus_rejected += 1
         self._notify_observer(self._observer.on_reject, self.name, text, bytes(raw_bytes), when)
