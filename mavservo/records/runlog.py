@@ -60,6 +60,7 @@ from can.io.generic import FileIOMessageWriter
 
 from mavservo.records.latency import CSV_COLUMNS as LATENCY_COLUMNS
 from mavservo.records.latency import CommandTrace, LatencyTracer
+from mavservo.servos.base import ServoState
 
 RUN_HEADER = "run.json"
 TRACE_FILE = "trace.csv"
@@ -546,7 +547,9 @@ class RunLog:
             )
         )
 
-    def on_rx(self, bus: str, msg: can.Message, t: float, servo: str | None, state: Any) -> None:
+    def on_rx(
+        self, bus: str, msg: can.Message, t: float, servo: str | None, state: ServoState | None
+    ) -> None:
         self.latency.on_rx(bus, msg, t, servo, state)
         self._put(
             (
@@ -781,11 +784,11 @@ class RunLog:
                     servo or "",
                     "state",
                     _num(self._last_setpoint.get(servo)),
-                    _num(getattr(state, "position_deg", None)),
-                    _num(getattr(state, "velocity_dps", None)),
-                    _num(getattr(state, "current_a", None)),
-                    _num(getattr(state, "temperature_c", None)),
-                    _faults(getattr(state, "faults", None)),
+                    _num(state.position_deg),
+                    _num(state.velocity_dps),
+                    _num(state.current_a),
+                    _num(state.temperature_c),
+                    _faults(state.faults),
                 ]
             )
 

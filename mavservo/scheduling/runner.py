@@ -192,7 +192,7 @@ class Scheduler:
         name: str | None = None,
     ) -> None:
         self.timing = timing or TimingConfig()
-        self.name = name or str(getattr(bus, "channel_info", "bus"))
+        self.name = name or str(bus.channel_info)
         self._bus = bus
         self._clock = clock
         self._observer: SchedulerObserver = observer or _NoObserver()
@@ -663,7 +663,7 @@ class Scheduler:
         """Decode one received frame (called by the receive thread; public for tests and for
         buses that deliver frames through a Notifier instead)."""
         with self._lock:
-            if not msg.is_error_frame and not getattr(msg, "is_fd", False):
+            if not msg.is_error_frame and not msg.is_fd:
                 self._metrics.load.add(t, message_bits(msg))
         servo = next(
             (name for name, spec in self._specs.items() if spec.profile.is_reply(msg)), None
