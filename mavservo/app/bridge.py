@@ -19,7 +19,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 import can
 
@@ -87,6 +87,16 @@ class _FanOut(SchedulerObserver):
     def on_reject(self, bus: str, reason: str, raw_bytes: bytes, t: float) -> None:
         for observer in self.observers:
             observer.on_reject(bus, reason, raw_bytes, t)
+
+
+@runtime_checkable
+class StatsReporting(Protocol):
+    """A bus that counts what its transport saw (the aa55 bus, the auto-reconnect wrapper);
+    other python-can buses report nothing."""
+
+    def stats(self) -> dict[str, Any]:
+        """Transport counters since start-up, for the summary and the run log."""
+        ...
 
 
 def servo_specs(config: Config, bus_name: str) -> list[ServoSpec]:
@@ -469,7 +479,7 @@ class Bridge:
             bus = self.buses.get(name)
             out["buses"][name] = {
                 **{k: v for k, v in metrics.items() if k != "servos"},
-                "transport": bus.stats() if bus is not None and hasattr(bus, "stats") else {},
+                "transport": bus.stats() if isinstance(bus, StatsReporting) else {},
             }
             out["servos"].update(metrics.get("servos", {}))
         if self.mavlink is not None:
