@@ -57,6 +57,9 @@ class TimingBackend:
     def leave_failsafe(self, now):
         pass
 
+    def health(self) -> dict[str, float]:
+        return {}
+
 
 def free_port() -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:

@@ -76,6 +76,9 @@ class FollowingBackend:
     def leave_failsafe(self, now) -> None:
         pass
 
+    def health(self) -> dict[str, float]:
+        return {}
+
     @property
     def last(self) -> tuple[float | None, float | None, float | None]:
         return self.calls[-1][1:]

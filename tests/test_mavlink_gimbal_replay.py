@@ -74,6 +74,9 @@ class RecordingBackend:
     def leave_failsafe(self, now) -> None:
         pass
 
+    def health(self) -> dict[str, float]:
+        return {}
+
 
 @pytest.fixture(scope="module")
 def replay():

@@ -90,6 +90,9 @@ class RecordingBackend:
         self.in_failsafe = False
         self.failsafe_events.append("leave")
 
+    def health(self) -> dict[str, float]:
+        return {}
+
     def servo_calls(self, kind: str = "servo") -> list[tuple]:
         with self.lock:
             return [c for c in self.calls if c[0] == kind]

@@ -11,13 +11,13 @@ from hypothesis import strategies as st
 
 from mavservo.scheduling.busload import frame_time
 from mavservo.scheduling.core import Decision, ScheduleCore, ScheduleError, ServoSpec, TimingConfig
-from mavservo.servos import RmdX
+from mavservo.servos import RmdX, ServoProfile
 
 T_C = 0.05
 T_T = 0.09
 
 
-class PushServo:
+class PushServo(ServoProfile):
     """A tiny push-style profile: commands on 0x300+id, status pushed on 0x380+id, no requests."""
 
     replies_per_command = 0

@@ -111,7 +111,10 @@ def test_rmd_fine_angle_survives_an_agreeing_whole_degree_reply():
 
 def test_rmd_every_nth_poll_reads_faults():
     profile = RmdX(2, fault_poll_every=4, multi_turn_poll_every=3)
-    commands = [profile.telemetry_requests()[0].data[0] for _ in range(12)]
+    commands = []
+    for _ in range(12):
+        commands.append(profile.telemetry_requests()[0].data[0])
+        profile.poll_sent()
     assert commands == [0x9C, 0x9C, 0x92, 0x9A, 0x9C, 0x92, 0x9C, 0x9A, 0x92, 0x9C, 0x9C, 0x9A]
     assert all(m.arbitration_id == 0x142 and len(m.data) == 8 for m in profile.telemetry_requests())
 

@@ -78,6 +78,7 @@ def test_rmd_status_reply_carries_whole_degrees_multi_turn_hundredths():
     profile = RmdX(1, multi_turn_poll_every=2, fault_poll_every=None)
     [(_, coarse)] = servo.receive(profile.telemetry_requests()[0], 0.0)
     assert RmdX(1).decode(coarse, 0.0).position_deg == 90.0
+    profile.poll_sent()  # the first poll went out: the second asks for the multi-turn angle
     [(_, fine)] = servo.receive(profile.telemetry_requests()[0], 0.0)
     assert RmdX(1).decode(fine, 0.0).position_deg == pytest.approx(90.4)
 

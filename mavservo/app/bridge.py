@@ -19,7 +19,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 import can
 
@@ -30,9 +30,9 @@ from mavservo.mavlink.settings import MavlinkSettings, SigningSettings
 from mavservo.mavlink.side import MavlinkSide
 from mavservo.records.metrics import round_trip_figures
 from mavservo.records.runlog import RunLog, new_run_dir
-from mavservo.scheduling.core import ServoSpec, TimingConfig
+from mavservo.scheduling.core import FrameKind, ServoSpec, TimingConfig
 from mavservo.scheduling.runner import Scheduler, SchedulerObserver
-from mavservo.servos import get_profile
+from mavservo.servos import ServoState, get_profile
 from mavservo.sim.adapter import AdapterEmulator
 from mavservo.sim.servo import simulated_servos
 from mavservo.transport.resilient_bus import ResilientBus
@@ -51,31 +51,52 @@ def free_udp_port() -> int:
 
 
 class _FanOut(SchedulerObserver):
-    """Passes scheduler events to several observers (run log, latency tracer, live status)."""
+    """Passes scheduler events to several observers (run log, latency tracer, live status).
 
-    def __init__(self, *observers: Any) -> None:
+    Every observer implements the whole :class:`SchedulerObserver` Protocol (a subclass
+    inherits no-ops for the hooks it does not need), so each hook is simply called on each.
+    """
+
+    def __init__(self, *observers: SchedulerObserver | None) -> None:
         self.observers = [o for o in observers if o is not None]
 
-    def _call(self, name: str, *args: Any) -> None:
+    def on_setpoint(self, servo: str, seq: int, angle_deg: float, source: str, t: float) -> None:
         for observer in self.observers:
-            method = getattr(observer, name, None)
-            if method is not None:
-                method(*args)
+            observer.on_setpoint(servo, seq, angle_deg, source, t)
 
-    def on_setpoint(self, *args: Any) -> None:
-        self._call("on_setpoint", *args)
+    def on_tx(
+        self,
+        bus: str,
+        msg: can.Message,
+        t: float,
+        kind: FrameKind,
+        servo: str,
+        seq: int | None,
+    ) -> None:
+        for observer in self.observers:
+            observer.on_tx(bus, msg, t, kind, servo, seq)
 
-    def on_tx(self, *args: Any) -> None:
-        self._call("on_tx", *args)
+    def on_rx(self, bus: str, msg: can.Message, t: float, servo: str, state: ServoState) -> None:
+        for observer in self.observers:
+            observer.on_rx(bus, msg, t, servo, state)
 
-    def on_rx(self, *args: Any) -> None:
-        self._call("on_rx", *args)
+    def on_lost(self, bus: str, servo: str, t: float) -> None:
+        for observer in self.observers:
+            observer.on_lost(bus, servo, t)
 
-    def on_lost(self, *args: Any) -> None:
-        self._call("on_lost", *args)
+    def on_reject(self, bus: str, reason: str, raw_bytes: bytes, t: float) -> None:
+        for observer in self.observers:
+            observer.on_reject(bus, reason, raw_bytes, t)
 
-    def on_reject(self, *args: Any) -> None:
-        self._call("on_reject", *args)
+
+@runtime_checkable
+class StatsReporting(Protocol):
+    """A bus that counts what its transport saw (the aa55 bus, the auto-reconnect wrapper);
+    other python-can buses report nothing."""
+
+    def stats(self) -> dict[str, Any]:
+        """Transport counters since start-up, for the summary and the run log."""
+        ...
 
 
 def servo_specs(config: Config, bus_name: str) -> list[ServoSpec]:
@@ -255,10 +276,11 @@ class Bridge:
             _quietly(bus.shutdown)
         for emulator in self.emulators.values():
             _quietly(emulator.stop)
-        if self.runlog is not None:
-            _quietly(lambda: self.runlog.close(summary))
+        runlog = self.runlog
+        if runlog is not None:
+            _quietly(lambda: runlog.close(summary))
             summary["runlog"] = {  # the summary must not point at a run log that failed
-                k: v for k, v in self.runlog.outcome().items() if k != "metrics"
+                k: v for k, v in runlog.outcome().items() if k != "metrics"
             }
         return summary
 
@@ -274,7 +296,8 @@ class Bridge:
         if self._log_dir is False:
             return
         cfg = self.config.logging
-        base = Path(self._log_dir) if self._log_dir else cfg.dir
+        given = self._log_dir  # True, like None and "", means the config's own directory
+        base = Path(given) if isinstance(given, (str, Path)) and given else cfg.dir
         self.run_dir = new_run_dir(base)
         buses = {
             b.name: {"bitrate": b.bitrate, "max_load": b.max_load, "interface": b.interface}
@@ -327,10 +350,10 @@ class Bridge:
 
         return ResilientBus(open_other, name=name, on_event=self._event)
 
-    def _rejected(self, bus_name: str, reason: Any, raw: bytes) -> None:
+    def _rejected(self, bus_name: str, reason: object, raw: bytes) -> None:
         scheduler = self.schedulers.get(bus_name)
         if scheduler is not None:
-            scheduler.report_reject(getattr(reason, "value", str(reason)), raw)
+            scheduler.report_reject(reason, raw)  # it reports an enum reason by its value
 
     def _make_mavlink(self) -> MavlinkSide:
         cfg = self.config
@@ -361,7 +384,7 @@ class Bridge:
                 section["signing_key"] = settings.signing.key
             self.autopilot_sim = simulator_from_config(section, f"udpout:127.0.0.1:{port}")
         assert self.backend is not None
-        servo_limits = {s.name: tuple(s.limits_deg) for s in cfg.servos}
+        servo_limits = {s.name: s.limits_deg for s in cfg.servos}
         status_hz = cfg.mavlink.telemetry.gimbal_attitude_status_hz
         fixed_sysid = None if cfg.mavlink.system_id == "follow" else cfg.mavlink.system_id
         gimbals = [
@@ -416,8 +439,9 @@ class Bridge:
     def _event(self, text: str) -> None:
         """An event of the servo side: console, event list, and STATUSTEXT to the autopilot."""
         self._note(text)
-        if self.mavlink is not None:
-            _quietly(lambda: self.mavlink.announce(text, MAV_SEVERITY_WARNING))
+        mavlink = self.mavlink
+        if mavlink is not None:
+            _quietly(lambda: mavlink.announce(text, MAV_SEVERITY_WARNING))
 
     def _note(self, text: str) -> None:
         """Console and event list only (the MAVLink side announces its own link events)."""
@@ -428,7 +452,7 @@ class Bridge:
 
     def status_rows(self) -> list[dict[str, Any]]:
         """One row per servo for the live status line."""
-        rows = []
+        rows: list[dict[str, Any]] = []
         if self.backend is None:
             return rows
         now = time.monotonic()  # the scheduler stamps states with its monotonic clock
@@ -463,7 +487,7 @@ class Bridge:
             bus = self.buses.get(name)
             out["buses"][name] = {
                 **{k: v for k, v in metrics.items() if k != "servos"},
-                "transport": bus.stats() if bus is not None and hasattr(bus, "stats") else {},
+                "transport": bus.stats() if isinstance(bus, StatsReporting) else {},
             }
             out["servos"].update(metrics.get("servos", {}))
         if self.mavlink is not None:

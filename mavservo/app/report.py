@@ -175,6 +175,9 @@ def load_run(directory: str | Path) -> Run:
 
 # -- derived series (pure) -----------------------------------------------------------------
 
+#: Per CAN channel: window start times (s since the run's start) and the bits in each window.
+LoadSeries = dict[int, tuple[list[float], list[int]]]
+
 
 def stage_samples(rows: Sequence[dict[str, str]]) -> dict[str, list[float]]:
     """Per-stage durations (seconds) from latency.csv rows, skipping missing stages."""
@@ -200,7 +203,7 @@ def complete_commands(rows: Sequence[dict[str, str]]) -> list[dict[str, float]]:
 
 def bus_load_series(
     frames: Sequence[Any], start_wall: float, window_s: float = LOAD_WINDOW_S
-) -> dict[int, tuple[list[float], list[float]]]:
+) -> LoadSeries:
     """Per CAN channel: window start times (s since run start) and bits on the wire per window.
 
     Every frame counts with its worst-case stuffed length (``busload.message_bits``), TX and RX
@@ -213,7 +216,7 @@ def bus_load_series(
         channel = msg.channel if isinstance(msg.channel, int) else 0
         index = int(math.floor((msg.timestamp - start_wall) / window_s))
         bins[channel][index] += message_bits(msg)
-    series = {}
+    series: LoadSeries = {}
     for channel, by_index in bins.items():
         if not by_index:
             continue
@@ -403,7 +406,7 @@ def plot_latency_stages(run: Run, path: Path) -> None:
     fig.savefig(path, dpi=100)
 
 
-def plot_bus_load(run: Run, path: Path, series: dict[int, tuple[list[float], list[float]]]) -> None:
+def plot_bus_load(run: Run, path: Path, series: LoadSeries) -> None:
     """Bus load R per 1 s window for each bus, with its configured budget."""
     fig, axes = _figure()
     ax = axes[0][0]
@@ -444,9 +447,6 @@ def plot_bus_load(run: Run, path: Path, series: dict[int, tuple[list[float], lis
 
 def _ms(value: Any) -> str:
     return "n/a" if value is None else f"{float(value) * 1e3:.2f}"
-
-
-LoadSeries = dict[int, tuple[list[float], list[float]]]
 
 
 def scheduler_servo_metrics(metrics: dict[str, Any]) -> dict[str, dict[str, Any]]:

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from pydantic import BaseModel, ValidationError
+from pydantic_core import ErrorDetails
 from yaml.nodes import ScalarNode
 
 from mavservo.config.schema import Config
@@ -176,7 +177,7 @@ def _describe_missing(
     return f"required key is missing ({typo!r} here looks like a misspelling of it)", unknown[typo]
 
 
-def _describe(error: dict[str, Any], loc: tuple[str | int, ...], scalar: ScalarNode | None) -> str:
+def _describe(error: ErrorDetails, loc: tuple[str | int, ...], scalar: ScalarNode | None) -> str:
     kind = error["type"]
     if kind == "extra_forbidden":
         allowed = _allowed_keys(loc[:-1])

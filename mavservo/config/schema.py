@@ -25,6 +25,7 @@ from pydantic import (
 )
 
 from mavservo.config.urls import url_problem
+from mavservo.transport.aa55.codec import BITRATE_CODES
 
 #: YAML reads ``yes``/``no``/``on``/``off`` as booleans and a quoted ``"3.0"`` as a string, and
 #: pydantic's lax mode would quietly turn them into 1, 1.0 and 3.0 (and ``"no"`` into False), so
@@ -43,22 +44,6 @@ Name = Annotated[str, Field(pattern=NAME_PATTERN, max_length=32)]
 SERVO_COMPONENT_IDS = range(140, 154)
 #: MAV_COMP_ID_GIMBAL (154) and MAV_COMP_ID_GIMBAL2..6 (171..175).
 GIMBAL_COMPONENT_IDS = (154, *range(171, 176))
-
-#: Bitrates the AA-55 adapters can be set to (the settings frame only has codes for these).
-AA55_BITRATES = (
-    1_000_000,
-    800_000,
-    500_000,
-    400_000,
-    250_000,
-    200_000,
-    125_000,
-    100_000,
-    50_000,
-    20_000,
-    10_000,
-    5_000,
-)
 
 #: Absolute PWM bounds a channel's input range must stay within (DO_SET_SERVO sanity range).
 PWM_MIN_US = 800
@@ -266,8 +251,9 @@ class BusConfig(StrictModel):
 
     @model_validator(mode="after")
     def _aa55_bitrate_has_a_code(self) -> BusConfig:
-        if self.interface == "aa55" and self.bitrate not in AA55_BITRATES:
-            codes = ", ".join(str(rate) for rate in AA55_BITRATES)
+        # the codec's table is the one list of what the adapter can do: ask it, keep no copy
+        if self.interface == "aa55" and self.bitrate not in BITRATE_CODES:
+            codes = ", ".join(str(rate) for rate in BITRATE_CODES)
             raise ValueError(f"an aa55 adapter supports bitrates {codes}; got {self.bitrate}")
         return self
 

@@ -136,7 +136,7 @@ class _BoundedLoader(yaml.SafeLoader):
                     f"alias *{event.anchor} is inside the node it names (a loop)",
                     event.start_mark,
                 )
-            node = super().compose_node(parent, index)
+            node = self._compose(parent, index, event.start_mark)
             self._check_expanded(node, event.start_mark, f"alias *{event.anchor}")
             return node
         event = self.peek_event()
@@ -147,12 +147,20 @@ class _BoundedLoader(yaml.SafeLoader):
             )
         if event.anchor is not None:
             self._open_anchors.append(event.anchor)
-        node = super().compose_node(parent, index)
+        node = self._compose(parent, index, event.start_mark)
         if event.anchor is not None:
             self._open_anchors.pop()
         self._depth -= 1
         self._expanded[id(node)] = self._measure(node)
         self._check_expanded(node, event.start_mark, "this value")
+        return node
+
+    def _compose(self, parent: Node | None, index: Any, mark: Any) -> Node:
+        """PyYAML's ``compose_node``, which always returns a node when it does not raise
+        (its stubs allow None: such a document is refused as malformed, never passed on)."""
+        node = super().compose_node(parent, index)
+        if node is None:
+            raise ComposerError(None, None, "expected a node here", mark)
         return node
 
     def _measure(self, node: Node) -> tuple[int, int]:

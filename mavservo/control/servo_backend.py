@@ -16,22 +16,37 @@ import logging
 import threading
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import Protocol
 
 from mavservo.config import Config
 from mavservo.control.mapping import ChannelMap, Rejected, clamp, slew_limit
 from mavservo.mavlink.backend import ACCEPTED, ApplyResult, Outcome, ServoStatus
+from mavservo.scheduling.core import SetpointResult
 from mavservo.servos.base import ServoState
 
 log = logging.getLogger(__name__)
 
 
-class SetpointSink:
+class SetpointSink(Protocol):
     """What the backend needs from a scheduler (one per bus); :class:`Scheduler` fits it."""
 
-    def set_setpoint(self, servo: str, angle_deg: float, source: str, t: float | None = None): ...
-    def release(self, servo: str) -> None: ...
-    def state(self, servo: str) -> ServoState | None: ...
-    def is_online(self, servo: str) -> bool: ...
+    def set_setpoint(
+        self, servo: str, angle_deg: float, source: str, t: float | None = None
+    ) -> SetpointResult:
+        """Queue a setpoint; the result says whether it was accepted, and if not, why."""
+        ...
+
+    def release(self, servo: str) -> None:
+        """Stop commanding ``servo`` until its next setpoint (failsafe ``release``)."""
+        ...
+
+    def state(self, servo: str) -> ServoState | None:
+        """The servo's last decoded state, or None before its first reply."""
+        ...
+
+    def is_online(self, servo: str) -> bool:
+        """False once the servo stopped answering (see the scheduler's liveness rules)."""
+        ...
 
 
 @dataclass
@@ -77,16 +92,17 @@ class ServoBackend:
         self._health = health
         self._on_event = on_event or (lambda line: log.info("%s", line))
         self._servos: dict[str, _Servo] = {}
-        for index, servo in enumerate(config.servos):
-            self._servos[servo.name] = _Servo(
-                name=servo.name,
+        for index, servo_config in enumerate(config.servos):
+            low, high = servo_config.limits_deg
+            self._servos[servo_config.name] = _Servo(
+                name=servo_config.name,
                 index=index,
-                sink=sinks[servo.name],
-                limits_deg=tuple(servo.limits_deg),
-                neutral_deg=servo.neutral_deg,
-                failsafe_action=servo.failsafe.action,
-                failsafe_position_deg=servo.failsafe.position_deg,
-                failsafe_delay_s=servo.failsafe.timeout_s,
+                sink=sinks[servo_config.name],
+                limits_deg=(low, high),
+                neutral_deg=servo_config.neutral_deg,
+                failsafe_action=servo_config.failsafe.action,
+                failsafe_position_deg=servo_config.failsafe.position_deg,
+                failsafe_delay_s=servo_config.failsafe.timeout_s,
             )
         # A servo may be mapped from both sources, each with its own input range: keep the
         # map with the source, and the first map on the servo for reporting measured positions.
@@ -298,12 +314,11 @@ class ServoBackend:
         # t=None: the scheduler stamps it on arrival. Calls come in under this backend's lock, so
         # arrival order is command order even when threads read their clocks out of order.
         result = servo.sink.set_setpoint(servo.name, step, servo.source)
-        if getattr(result, "accepted", True):
+        if result.accepted:
             servo.sent_deg = step
             servo.sent_at = now
             return ACCEPTED
-        reason = getattr(result, "reason", "rejected by the scheduler")
-        return ApplyResult(Outcome.DENIED, str(reason))
+        return ApplyResult(Outcome.DENIED, result.reason or "rejected by the scheduler")
 
     def _apply_failsafe(self, servo: _Servo, now: float) -> None:
         action = servo.failsafe_action

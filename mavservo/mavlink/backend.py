@@ -103,3 +103,7 @@ class ActuatorBackend(Protocol):
 
     def leave_failsafe(self, now: float) -> None:
         """Allow fresh commands to drive the servos again; nothing moves until one arrives."""
+
+    def health(self) -> dict[str, float]:
+        """Transport figures to publish as NAMED_VALUE_FLOAT (``bus0_load``, ``lat_p99``), by
+        name of at most 10 characters; empty when there are none."""

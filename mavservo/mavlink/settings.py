@@ -12,7 +12,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
-FOLLOW = "follow"
+FOLLOW: Literal["follow"] = "follow"
 
 #: MAV_COMP_ID_SERVO1: the component every servo group is published as by default.
 DEFAULT_SERVO_COMPONENT = 140
@@ -103,7 +103,7 @@ class MavlinkSettings:
         return cls(
             url=str(raw.get("url", defaults.url)),
             baud=int(raw.get("baud", defaults.baud)),
-            system_id=FOLLOW if system_id == FOLLOW else int(system_id),
+            system_id=_system_id(system_id),
             autopilot_system=int(autopilot.get("system", 1)),
             autopilot_component=int(autopilot.get("component", 1)),
             heartbeat_timeout_s=float(raw.get("heartbeat_timeout_s", 2.0)),
@@ -124,3 +124,12 @@ class MavlinkSettings:
 
     def trim_us(self, channel: int) -> float:
         return float(self.channel_trims_us.get(channel, 1500.0))
+
+
+def _system_id(value: object) -> int | Literal["follow"]:
+    """``"follow"`` or the fixed system id of an (already validated) ``system_id``."""
+    if value == FOLLOW:
+        return FOLLOW
+    if isinstance(value, (int, str)):
+        return int(value)
+    raise TypeError(f"mavlink.system_id: expected an int or {FOLLOW!r}, got {value!r}")

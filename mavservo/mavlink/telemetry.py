@@ -339,9 +339,8 @@ class Telemetry:
                         boot_ms, f"s{n}_{suffix}".encode(), float(value)
                     )
                 )
-        # bus load and latency figures, when the backend offers them (``bus0_load``, ``lat_p99``)
-        health = getattr(self._backend, "health", None)
-        for name, value in (health() if health is not None else {}).items():
+        # bus load and latency figures (``bus0_load``, ``lat_p99``); a backend may have none
+        for name, value in self._backend.health().items():
             out.append(
                 mavlink2.MAVLink_named_value_float_message(
                     boot_ms, name[:10].encode(), float(value)

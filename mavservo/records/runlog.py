@@ -56,9 +56,11 @@ from pathlib import Path
 from typing import Any
 
 import can
+from can.io.generic import FileIOMessageWriter
 
 from mavservo.records.latency import CSV_COLUMNS as LATENCY_COLUMNS
 from mavservo.records.latency import CommandTrace, LatencyTracer
+from mavservo.servos.base import ServoState
 
 RUN_HEADER = "run.json"
 TRACE_FILE = "trace.csv"
@@ -263,6 +265,24 @@ def _cut_after_last_newline(path: Path, floor: int, chunk: int = 64 * 1024) -> N
         handle.truncate(floor)
 
 
+def _file_writer(writer: can.io.generic.MessageWriter) -> FileIOMessageWriter[Any]:
+    """The rotating logger's writer as the file writer it is: every format it rotates (asc,
+    blf, csv, log, txt) writes a file, whose ``file`` is flushed and measured here."""
+    if not isinstance(writer, FileIOMessageWriter):
+        raise TypeError(f"can log: {type(writer).__name__} does not write a file")
+    return writer
+
+
+def _blf_pending(writer: object) -> int | None:
+    """Bytes a BLF writer holds for its next container; None for other writers.
+
+    ``_buffer_size`` is python-can's private attribute (4.3-4.6), read by name because a
+    version without it must not break logging: its containers then reach the disk at stop.
+    """
+    value = getattr(writer, "_buffer_size", None)
+    return value if isinstance(value, int) else None
+
+
 class _CanLog(can.SizedRotatingLogger):
     """python-can's size-rotating logger with private files and a flush that reaches the disk.
 
@@ -283,7 +303,7 @@ class _CanLog(can.SizedRotatingLogger):
 
     def _get_new_writer(self, filename: Any) -> Any:
         create_private(filename)
-        writer = super()._get_new_writer(filename)
+        writer = _file_writer(super()._get_new_writer(filename))
         if isinstance(writer, can.BLFWriter) and hasattr(writer, "_write_header"):
             # relative times count from the run's start, to the millisecond BLF stores
             writer.start_timestamp = int(self._start_wall * 1000) / 1000
@@ -300,11 +320,13 @@ class _CanLog(can.SizedRotatingLogger):
         writer.file.seek(end)
 
     def on_message_received(self, msg: can.Message) -> None:
-        writer = self.writer
-        pending = getattr(writer, "_buffer_size", None)  # BLF: bytes waiting for a container
+        writer = _file_writer(self.writer)
+        pending = _blf_pending(writer)  # BLF: bytes waiting for a container
         try:
             super().on_message_received(msg)
-            if self.writer is writer and pending is not None and writer._buffer_size < pending:
+            after = _blf_pending(writer)
+            wrote_container = pending is not None and after is not None and after < pending
+            if self.writer is writer and wrote_container:
                 # BLF just wrote a container: put it on disk, so a failure keeps it
                 writer.file.flush()
                 self.good_size = writer.file.tell()
@@ -316,7 +338,7 @@ class _CanLog(can.SizedRotatingLogger):
         """Everything handed in so far onto the disk (the BLF header made current)."""
         if self.error is not None:
             return
-        writer = self.writer
+        writer = _file_writer(self.writer)
         try:
             if isinstance(writer, can.BLFWriter) and hasattr(writer, "_flush"):
                 writer._flush()
@@ -336,7 +358,7 @@ class _CanLog(can.SizedRotatingLogger):
         self.error = exc
         blf = isinstance(self.writer, can.BLFWriter)
         with contextlib.suppress(Exception):
-            self.writer.file.close()
+            _file_writer(self.writer).file.close()
         with contextlib.suppress(OSError):
             if blf:  # cut after the last container known to be on disk
                 os.truncate(self.base_filename, self.good_size)
@@ -525,7 +547,9 @@ class RunLog:
             )
         )
 
-    def on_rx(self, bus: str, msg: can.Message, t: float, servo: str | None, state: Any) -> None:
+    def on_rx(
+        self, bus: str, msg: can.Message, t: float, servo: str | None, state: ServoState | None
+    ) -> None:
         self.latency.on_rx(bus, msg, t, servo, state)
         self._put(
             (
@@ -547,7 +571,15 @@ class RunLog:
         self._put((_LOST, bus, servo, t))
 
     def on_reject(self, bus: str, reason: Any, raw_bytes: bytes, t: float) -> None:
-        self._put((_REJECT, bus, str(getattr(reason, "value", reason)), bytes(raw_bytes), t))
+        self._put(
+            (
+                _REJECT,
+                bus,
+                str(reason.value if isinstance(reason, enum.Enum) else reason),
+                bytes(raw_bytes),
+                t,
+            )
+        )
 
     def mavlink_received(self, servo: str, t: float) -> None:
         """The link received a command for ``servo`` at ``t`` (starts its latency trace)."""
@@ -752,11 +784,11 @@ class RunLog:
                     servo or "",
                     "state",
                     _num(self._last_setpoint.get(servo)),
-                    _num(getattr(state, "position_deg", None)),
-                    _num(getattr(state, "velocity_dps", None)),
-                    _num(getattr(state, "current_a", None)),
-                    _num(getattr(state, "temperature_c", None)),
-                    _faults(getattr(state, "faults", None)),
+                    _num(state.position_deg),
+                    _num(state.velocity_dps),
+                    _num(state.current_a),
+                    _num(state.temperature_c),
+                    _faults(state.faults),
                 ]
             )
 

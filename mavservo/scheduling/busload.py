@@ -24,7 +24,9 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any, Literal, Protocol
+from typing import Literal, Protocol
+
+from mavservo.servos.base import ServoProfile
 
 Stuffing = Literal["worst", "none"]
 
@@ -160,7 +162,7 @@ class ServoTraffic:
 
 
 def servo_traffic(
-    profile: Any,
+    profile: ServoProfile,
     *,
     command_hz: float,
     poll_hz: float,
@@ -170,8 +172,8 @@ def servo_traffic(
     """One servo's worst-case traffic, from its profile's own frames: what the scheduler's
     start-up budget and ``mavservo check`` both count, so that they agree.
 
-    ``profile`` is a servo profile instance (``position_command``, ``telemetry_requests``,
-    ``replies_per_*``). The command is shaped as the scheduler sends it, with the speed limit
+    ``profile`` gives the frames (``position_command``, ``telemetry_requests``, a query) and
+    ``replies_per_*``. The command is shaped as the scheduler sends it, with the speed limit
     (a CubeMars command is 4 bytes without one, 8 with). A polled servo answers ``poll_hz``
     requests; a push-style one (no requests) sends ``status_hz`` status frames on its own.
     """
@@ -181,10 +183,10 @@ def servo_traffic(
         command_hz=command_hz,
         command_extended=bool(command.is_extended_id),
         command_dlc=int(command.dlc),
-        replies_per_command=int(getattr(profile, "replies_per_command", 1)),
+        replies_per_command=profile.replies_per_command,
         request_hz=poll_hz if requests else 0.0,
         request_shapes=tuple((bool(r.is_extended_id), int(r.dlc)) for r in requests),
-        replies_per_request=int(getattr(profile, "replies_per_request", 1)),
+        replies_per_request=profile.replies_per_request,
         push_hz=0.0 if requests else status_hz,
     )
 

@@ -78,6 +78,8 @@ from typing import Literal
 
 import can
 
+from mavservo.servos.base import ServoProfile
+
 from . import reply_matching
 from .busload import ServoTraffic, frame_time, message_bits, servo_traffic, worst_case_load
 
@@ -159,7 +161,8 @@ class ServoSpec:
     """One servo on this bus: its name (as the mapping layer knows it), profile and policy."""
 
     name: str
-    profile: object  # a mavservo.servos.ServoProfile (duck-typed: tests may pass their own)
+    profile: ServoProfile
+    """The contract the scheduler reads: frames, replies per frame, exchange keys, polls."""
     command_mode: CommandMode = "periodic"
     telemetry_hz: float | None = None
     """Polls per second; None: ``1 / telemetry_period_s``; 0: never poll."""
@@ -296,11 +299,10 @@ class _ServoSlot:
         return any(e.kind == "request" for e in self.expected)
 
 
-def exchange_key(profile: object, msg: can.Message) -> Hashable | None:
-    """The profile's ``exchange_key`` of ``msg``, or None for profiles that do not define one
-    (their replies then match any outstanding expectation, oldest plausible first)."""
-    key_of = getattr(profile, "exchange_key", None)
-    return key_of(msg) if key_of is not None else None
+def exchange_key(profile: ServoProfile, msg: can.Message) -> Hashable | None:
+    """The profile's ``exchange_key`` of ``msg``; None for profiles whose replies do not say
+    what they answer (they then match any outstanding expectation, oldest plausible first)."""
+    return profile.exchange_key(msg)
 
 
 def _msg_shape(msg: can.Message) -> tuple[bool, int]:
@@ -417,7 +419,7 @@ class ScheduleCore:
         for req in spec.profile.telemetry_requests():
             extended, dlc = _msg_shape(req)
             cost += frame_time(extended, dlc, bitrate, bool(req.is_remote_frame))
-            replies = int(getattr(spec.profile, "replies_per_request", 1))
+            replies = spec.profile.replies_per_request
             cost += replies * frame_time(extended, _REPLY_DLC, bitrate)
         return cost
 
@@ -466,7 +468,7 @@ class ScheduleCore:
     def _command_cost(self, spec: ServoSpec) -> float:
         """Worst-case bus time of one command to this servo and the replies it provokes."""
         command = spec.profile.position_command(0.0, spec.max_speed_dps)
-        replies = int(getattr(spec.profile, "replies_per_command", 1))
+        replies = spec.profile.replies_per_command
         bitrate = self.timing.bitrate
         return message_bits(command) / bitrate + replies * frame_time(
             bool(command.is_extended_id), _REPLY_DLC, bitrate
@@ -539,7 +541,7 @@ class ScheduleCore:
     # ------------------------------------------------------------------------ the policy
     def _command_frame(self, slot: _ServoSlot, kind: FrameKind, now: float) -> Outgoing:
         assert slot.latest is not None
-        replies = int(getattr(slot.spec.profile, "replies_per_command", 1))
+        replies = slot.spec.profile.replies_per_command
         key = exchange_key(slot.spec.profile, slot.latest.msg)
         expectations = tuple(
             Expectation("command", now, now + self.timing.reply_timeout_s, key)
@@ -686,7 +688,7 @@ class ScheduleCore:
             budget -= slot.poll_cost_s
             if now - slot.next_poll_due > t.telemetry_period_s / 2:
                 decision.late_polls.append(name)
-            replies = int(getattr(slot.spec.profile, "replies_per_request", 1))
+            replies = slot.spec.profile.replies_per_request
             for req in slot.spec.profile.telemetry_requests():
                 key = exchange_key(slot.spec.profile, req)
                 expectations = tuple(
@@ -695,6 +697,7 @@ class ScheduleCore:
                 )
                 slot.expected.extend(expectations)
                 decision.frames.append(Outgoing(name, "request", req, None, expectations))
+            slot.spec.profile.poll_sent()  # the one place a poll goes out: count it here
             assert slot.poll_period is not None
             slot.next_poll_due += slot.poll_period
             if slot.next_poll_due < now:  # far behind: do not try to catch up with a burst
@@ -797,11 +800,7 @@ class ScheduleCore:
             del slot.expected[index]
             latency = t - expectation.t_tx if expectation.kind != "request" else None
             return ReplyMatch(expectation.kind, expectation.t_tx, latency, back_online)
-        if (
-            slot.expected
-            or slot.poll_period is not None
-            or int(getattr(slot.spec.profile, "replies_per_request", 1))
-        ):
+        if slot.expected or slot.poll_period is not None or slot.spec.profile.replies_per_request:
             # none of its kind outstanding, or this servo only speaks when asked: an unmatched
             # reply came after its timeout. (A push-style servo, no requests, also pushes
             # between commands: not late.)

@@ -19,6 +19,7 @@ scheduler's CPU (docs/benchmarks.md, Scheduler).
 
 from __future__ import annotations
 
+import enum
 import itertools
 import logging
 import math
@@ -27,7 +28,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, ParamSpec, Protocol, runtime_checkable
 
 import can
 
@@ -60,21 +61,25 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
+_P = ParamSpec("_P")
 
 StateCallback = Callable[[str, ServoState], None]
 _RECV_TIMEOUT_S = 0.05
 
 
-class SchedulerObserver:
-    """Hooks called from the scheduler's threads; every method is an optional no-op.
+class SchedulerObserver(Protocol):
+    """Hooks called from the scheduler's threads (the scheduler's observer boundary).
 
-    Implementations MUST be non-blocking (append to a queue, bump a counter): they run inside
-    the command loop and the receive loop, so a slow observer would delay commands. Exceptions
-    are logged and swallowed; they never stop the loop. ``bus`` is the scheduler's name.
+    A Protocol: the run log implements it structurally; a class that subclasses it explicitly
+    inherits a no-op for every hook it does not override. Implementations MUST be non-blocking
+    (append to a queue, bump a counter): they run inside the command loop and the receive loop,
+    so a slow observer would delay commands. Exceptions are logged and swallowed; they never
+    stop the loop. ``bus`` is the scheduler's name.
     """
 
     def on_setpoint(self, servo: str, seq: int, angle_deg: float, source: str, t: float) -> None:
         """A setpoint was accepted into the scheduler."""
+        return None
 
     def on_tx(
         self,
@@ -86,15 +91,31 @@ class SchedulerObserver:
         seq: int | None,
     ) -> None:
         """``bus.send`` returned for ``msg``; ``t`` is the monotonic time just after the write."""
+        return None
 
     def on_rx(self, bus: str, msg: can.Message, t: float, servo: str, state: ServoState) -> None:
         """A reply from ``servo`` was decoded into ``state``."""
+        return None
 
     def on_lost(self, bus: str, servo: str, t: float) -> None:
         """A reply ``servo`` owed us did not arrive within ``reply_timeout_s``."""
+        return None
 
     def on_reject(self, bus: str, reason: str, raw_bytes: bytes, t: float) -> None:
         """The bus's frame decoder rejected bytes (forwarded through ``report_reject``)."""
+        return None
+
+
+@runtime_checkable
+class RejectReporting(Protocol):
+    """A bus that reports the bytes its frame decoder rejected (the aa55 bus): ``on_reject``
+    is called with ``(reason, raw_bytes)``; None until someone listens."""
+
+    on_reject: Callable[[Any, bytes], None] | None
+
+
+class _NoObserver(SchedulerObserver):
+    """The observer of a scheduler nobody observes: every hook a no-op."""
 
 
 class FailureRun:
@@ -171,10 +192,10 @@ class Scheduler:
         name: str | None = None,
     ) -> None:
         self.timing = timing or TimingConfig()
-        self.name = name or str(getattr(bus, "channel_info", "bus"))
+        self.name = name or str(bus.channel_info)
         self._bus = bus
         self._clock = clock
-        self._observer = observer or SchedulerObserver()
+        self._observer: SchedulerObserver = observer or _NoObserver()
         self._core = ScheduleCore(servos, self.timing, start=clock())
         self._specs = {spec.name: spec for spec in servos}
         self._metrics = SchedulerMetrics(
@@ -206,7 +227,7 @@ class Scheduler:
         """The spin the runner actually uses (``fifo_spin_s`` once it runs real-time)."""
         for warning in self._core.warnings:
             log.warning("scheduler %s: %s", self.name, warning)
-        if getattr(bus, "on_reject", "absent") is None:
+        if isinstance(bus, RejectReporting) and bus.on_reject is None:
             # an aa55 bus with no rejection callback yet: count its decoder rejections here
             bus.on_reject = self.report_reject
 
@@ -295,7 +316,9 @@ class Scheduler:
             wake = result.accepted and self._core.wants_immediate_wake(servo)
         if result.accepted:
             assert result.seq is not None
-            self._notify_observer("on_setpoint", servo, result.seq, angle_deg, source, when)
+            self._notify_observer(
+                self._observer.on_setpoint, servo, result.seq, angle_deg, source, when
+            )
         if wake:
             self._wake.set()
         return result
@@ -338,10 +361,10 @@ class Scheduler:
         reported) or a string.
         """
         when = self._clock() if t is None else t
-        text = str(getattr(reason, "value", reason))
+        text = str(reason.value if isinstance(reason, enum.Enum) else reason)
         with self._lock:
             self._metrics.bus_rejected += 1
-        self._notify_observer("on_reject", self.name, text, bytes(raw_bytes), when)
+        self._notify_observer(self._observer.on_reject, self.name, text, bytes(raw_bytes), when)
 
     def round_trip_samples(self, per_servo: int = 256) -> list[float]:
         """The latest wire round trips L of every servo (seconds, frame written -> its reply
@@ -398,11 +421,13 @@ class Scheduler:
         return write_json(path, self.metrics())
 
     # ------------------------------------------------------------------------ the threads
-    def _notify_observer(self, method: str, *args: Any) -> None:
+    @staticmethod
+    def _notify_observer(hook: Callable[_P, None], *args: _P.args, **kwargs: _P.kwargs) -> None:
+        """Call one observer hook; an observer's failure is logged, never raised."""
         try:
-            getattr(self._observer, method)(*args)
+            hook(*args, **kwargs)
         except Exception:  # an observer must never stop the loop
-            log.exception("scheduler observer %s failed", method)
+            log.exception("scheduler observer %s failed", getattr(hook, "__name__", hook))
 
     def _notify_subscribers(self, servo: str, state: ServoState) -> None:
         with self._lock:
@@ -528,7 +553,7 @@ class Scheduler:
                     offline_states.append((servo, state))
             lines += self._online_log.flush(now)
         for servo in decision.lost:
-            self._notify_observer("on_lost", self.name, servo, now)
+            self._notify_observer(self._observer.on_lost, self.name, servo, now)
         self._log(lines)
         for servo, state in offline_states:
             self._notify_subscribers(servo, state)
@@ -578,7 +603,9 @@ class Scheduler:
             if ended is not None:
                 log.info("scheduler %s: sends work again: %d failed over %.1f s", self.name, *ended)
             self._log(lines)
-            self._notify_observer("on_tx", self.name, out.msg, t, out.kind, out.servo, out.seq)
+            self._notify_observer(
+                self._observer.on_tx, self.name, out.msg, t, out.kind, out.servo, out.seq
+            )
 
     def _account_tx(self, out: Outgoing, t: float) -> None:
         servo = self._metrics.servos[out.servo]
@@ -636,7 +663,7 @@ class Scheduler:
         """Decode one received frame (called by the receive thread; public for tests and for
         buses that deliver frames through a Notifier instead)."""
         with self._lock:
-            if not msg.is_error_frame and not getattr(msg, "is_fd", False):
+            if not msg.is_error_frame and not msg.is_fd:
                 self._metrics.load.add(t, message_bits(msg))
         servo = next(
             (name for name, spec in self._specs.items() if spec.profile.is_reply(msg)), None
@@ -664,6 +691,6 @@ class Scheduler:
                 servo_metrics.telemetry_intervals.mark(t)
             self._states[servo] = state
         self._log(lines)
-        self._notify_observer("on_rx", self.name, msg, t, servo, state)
+        self._notify_observer(self._observer.on_rx, self.name, msg, t, servo, state)
         self._notify_subscribers(servo, state)
         return state

@@ -101,10 +101,31 @@ class ServoProfile(ABC):
         self.last_state: ServoState | None = None
         """The last decoded state, or None before the first reply."""
 
-    def _merge(self, timestamp: float, **fields: object) -> ServoState:
-        """Fold a partial reply into the last known state and remember the result."""
+    def _merge(
+        self,
+        timestamp: float,
+        *,
+        position_deg: float | None = None,
+        velocity_dps: float | None = None,
+        current_a: float | None = None,
+        temperature_c: float | None = None,
+        faults: Fault | None = None,
+        voltage_v: float | None = None,
+    ) -> ServoState:
+        """Fold a partial reply into the last known state and remember the result.
+
+        A field the reply did not carry (None) keeps its last known value.
+        """
         base = self.last_state or ServoState.unknown()
-        self.last_state = replace(base, timestamp=timestamp, **fields)
+        self.last_state = ServoState(
+            position_deg=base.position_deg if position_deg is None else position_deg,
+            velocity_dps=base.velocity_dps if velocity_dps is None else velocity_dps,
+            current_a=base.current_a if current_a is None else current_a,
+            temperature_c=base.temperature_c if temperature_c is None else temperature_c,
+            faults=base.faults if faults is None else faults,
+            timestamp=timestamp,
+            voltage_v=base.voltage_v if voltage_v is None else voltage_v,
+        )
         return self.last_state
 
     @abstractmethod
@@ -113,7 +134,20 @@ class ServoProfile(ABC):
 
     @abstractmethod
     def telemetry_requests(self) -> list[can.Message]:
-        """Frames to send for one telemetry poll; empty for servos that push their status."""
+        """Frames the next telemetry poll sends; empty for servos that push their status.
+
+        A query: asking (the bus-load budget, the scheduler's start-up checks) changes nothing.
+        The scheduler reports a poll that went out with :meth:`poll_sent`.
+        """
+
+    def poll_sent(self) -> None:
+        """The poll :meth:`telemetry_requests` described went out: move on to the next one.
+
+        Profiles that interleave requests of several kinds (RMD-X: a fault read every Nth poll)
+        count here, where polls are sent, so that building a budget consumes none. The default
+        has nothing to count.
+        """
+        return None
 
     @abstractmethod
     def is_reply(self, msg: can.Message) -> bool:

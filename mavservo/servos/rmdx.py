@@ -91,7 +91,7 @@ class RmdX(ServoProfile):
         self.fault_poll_every = fault_poll_every
         self.multi_turn_poll_every = multi_turn_poll_every
         self.polls = 0
-        """Telemetry polls built so far; drives the 9A / 92 interleaving."""
+        """Telemetry polls sent so far (:meth:`poll_sent`); drives the 9A / 92 interleaving."""
 
     @property
     def request_id(self) -> int:
@@ -112,14 +112,17 @@ class RmdX(ServoProfile):
         return self._request(struct.pack("<BBHi", CMD_POSITION, 0, speed_field, angle_field))
 
     def telemetry_requests(self) -> list[can.Message]:
-        self.polls += 1
-        if self.fault_poll_every and self.polls % self.fault_poll_every == 0:
+        poll = self.polls + 1  # the poll these frames are for; counted when it is sent
+        if self.fault_poll_every and poll % self.fault_poll_every == 0:
             command = CMD_STATUS_1
-        elif self.multi_turn_poll_every and self.polls % self.multi_turn_poll_every == 0:
+        elif self.multi_turn_poll_every and poll % self.multi_turn_poll_every == 0:
             command = CMD_MULTI_TURN_ANGLE
         else:
             command = CMD_STATUS_2
         return [self._request(bytes([command, 0, 0, 0, 0, 0, 0, 0]))]
+
+    def poll_sent(self) -> None:
+        self.polls += 1
 
     def is_reply(self, msg: can.Message) -> bool:
         return (

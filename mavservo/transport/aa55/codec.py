@@ -34,6 +34,7 @@ __all__ = [
     "MODES",
     "AdapterSettings",
     "ControlFrame",
+    "Decoded",
     "Decoder",
     "Frame",
     "Rejection",
@@ -195,6 +196,11 @@ class ControlFrame:
 
     command: int
     raw: bytes
+
+
+Decoded = Frame | AdapterSettings | ControlFrame | can.Message
+"""What :meth:`Decoder.feed` returns per item: ``can.Message`` for data frames with
+``messages=True``, :class:`Frame` without; settings and control frames as themselves."""
 
 
 def _frame_dlc(frame: FrameLike) -> int:
@@ -425,9 +431,7 @@ class Decoder:
         """Bytes held back as the start of an incomplete candidate."""
         return len(self._buf)
 
-    def feed(
-        self, data: bytes, timestamp: float = 0.0
-    ) -> list[Frame | AdapterSettings | ControlFrame]:
+    def feed(self, data: bytes, timestamp: float = 0.0) -> list[Decoded]:
         if not self._buf and type(data) is bytes:
             # Nothing held back: scan the caller's bytes where they are and keep only the tail.
             # Copying a whole read into the buffer first costs little on a warm CPU but ~15 us
@@ -436,7 +440,7 @@ class Decoder:
         self._buf += data
         return self._scan(self._buf, timestamp, idle=False)
 
-    def flush(self, timestamp: float = 0.0) -> list[Frame | AdapterSettings | ControlFrame]:
+    def flush(self, timestamp: float = 0.0) -> list[Decoded]:
         """The line went idle: settle what was held back, give up on an incomplete candidate.
 
         A frame held back for want of the byte after it is judged with the end of data as its
@@ -454,12 +458,10 @@ class Decoder:
         self._gap = False  # after an idle line the next byte starts afresh
         return out
 
-    def _scan(
-        self, buf: bytes | bytearray, timestamp: float, idle: bool
-    ) -> list[Frame | AdapterSettings | ControlFrame]:
+    def _scan(self, buf: bytes | bytearray, timestamp: float, idle: bool) -> list[Decoded]:
         """Decode ``buf`` (the held-back bytes, or a fresh chunk when nothing was held back);
         what may still begin a frame ends up in ``self._buf``."""
-        out: list[Frame | AdapterSettings | ControlFrame] = []
+        out: list[Decoded] = []
         append = out.append
         from_bytes = int.from_bytes
         variable = self.protocol == "variable"
@@ -520,9 +522,9 @@ class Decoder:
                         break
                     if type(item) is Frame:
                         frames += 1
-                        if self.messages:
-                            item = item.to_message(self.channel)  # type: ignore[assignment]
-                    append(item)
+                        append(item.to_message(self.channel) if self.messages else item)
+                    else:
+                        append(item)
                     pos, gap = stop, False
                     continue
                 frames += 1
@@ -601,6 +603,7 @@ class Decoder:
         whose 20 bytes pass the checksum by chance (1 in 256); in the variable one, where
         20-byte frames are the adapter's rare replies, a structurally valid variable frame.
         """
+        marker: bytes | int  # what starts an inner candidate: ``AA 55``, or a lone 0xAA
         if fixed and self.protocol == "fixed":
             if stop == end and buf[stop - 1] == START and not idle:
                 return _Verdict.WAIT  # is that last 0xAA the start of an ``AA 55`` frame?
