@@ -46,6 +46,7 @@ from typing import Any
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from mavservo.errors import EndpointBusyError
 from mavservo.mavlink.framing import FrameScanner, redact_secrets
 from mavservo.mavlink.settings import SigningSettings
 
@@ -77,8 +78,9 @@ def frame_signing_timestamp(msgbuf: bytes | bytearray) -> int:
     return int(low + (high << 32))
 
 
-class LinkBusyError(OSError):
-    """The endpoint is already used by another process (start-up refuses, with this text)."""
+class LinkBusyError(EndpointBusyError, OSError):
+    """The endpoint is already used by another process (start-up refuses, with this text); an
+    ``OSError`` too, with the ``errno`` of the failed bind, for callers of a socket API."""
 
 
 def _verify_signatures_against_the_clock(

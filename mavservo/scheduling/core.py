@@ -78,6 +78,8 @@ from typing import Literal
 
 import can
 
+from mavservo.errors import MavservoError
+
 from . import reply_matching
 from .busload import ServoTraffic, frame_time, message_bits, servo_traffic, worst_case_load
 
@@ -87,7 +89,7 @@ _REPLY_DLC = 8
 _TIMED_OUT_KEPT = 8
 
 
-class ScheduleError(ValueError):
+class ScheduleError(MavservoError, ValueError):
     """A configuration the scheduler refuses to run (e.g. worst-case bus load over the limit)."""
 
 

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from mavservo.errors import MavservoError
 from mavservo.sim.autopilot.background import Background
 from mavservo.sim.autopilot.link import mavlink2, open_link
 
@@ -39,7 +40,7 @@ _STX_V1, _STX_V2 = 0xFE, 0xFD
 _SIGNED = 0x01
 
 
-class TlogError(ValueError):
+class TlogError(MavservoError, ValueError):
     """The file is not a well-formed tlog at ``offset``."""
 
 

@@ -11,6 +11,7 @@ turns a vanished device into ``can.CanOperationError`` instead of a hang.
 from __future__ import annotations
 
 import collections
+import errno
 import logging
 import math
 import os
@@ -23,6 +24,7 @@ from typing import Any, Literal
 import can
 import serial
 
+from mavservo.errors import DeviceMissingError, EndpointBusyError
 from mavservo.transport.aa55 import codec as aa55
 
 log = logging.getLogger(__name__)
@@ -102,6 +104,30 @@ def _descriptor(port: serial.SerialBase) -> int | None:
         return None
 
 
+class AdapterBusyError(EndpointBusyError, can.CanInitializationError):
+    """The adapter's serial port is held by another process (a python-can open failure too)."""
+
+
+class AdapterMissingError(DeviceMissingError, can.CanInitializationError):
+    """No adapter at that path (unplugged, or back under another device name)."""
+
+
+#: errno values of an open that found no device behind the path
+_NO_DEVICE_ERRNOS = frozenset({errno.ENOENT, errno.ENODEV, errno.ENXIO})
+
+
+def _open_error(channel: str, exc: BaseException) -> can.CanInitializationError:
+    """The typed python-can error for a failed open of ``channel``: busy, missing or other."""
+    if "exclusively lock" in str(exc):
+        return AdapterBusyError(
+            f"aa55: {channel} is in use by another process (another mavservo, or a "
+            "python-can tool on the same adapter?); stop it first"
+        )
+    if getattr(exc, "errno", None) in _NO_DEVICE_ERRNOS:
+        return AdapterMissingError(f"aa55: no adapter at {channel}: {exc}")
+    return can.CanInitializationError(f"aa55: cannot open {channel}: {exc}")
+
+
 class AA55Bus(can.BusABC):
     """A CAN bus behind an AA-55 USB-CAN adapter on a serial port.
 
@@ -172,12 +198,7 @@ class AA55Bus(can.BusABC):
                 channel, baudrate=serial_baud, timeout=0, write_timeout=1.0, exclusive=True
             )
         except (serial.SerialException, ValueError, OSError) as exc:
-            if "exclusively lock" in str(exc):
-                raise can.CanInitializationError(
-                    f"aa55: {channel} is in use by another process (another mavservo, or a "
-                    "python-can tool on the same adapter?); stop it first"
-                ) from exc
-            raise can.CanInitializationError(f"aa55: cannot open {channel}: {exc}") from exc
+            raise _open_error(channel, exc) from exc
         self._fd = _descriptor(self._serial)
         self._protocol = can.CanProtocol.CAN_20
         super().__init__(channel=channel, can_filters=can_filters, **kwargs)
@@ -381,10 +402,18 @@ class AA55Bus(can.BusABC):
     # -- lifecycle ----------------------------------------------------------------------------
 
     def fileno(self) -> int:
-        try:
-            return self._serial.fileno()
-        except Exception:  # pragma: no cover - platform dependent
+        """The serial port's descriptor (for ``select`` and python-can's asyncio ``Notifier``).
+
+        -1 only for a pyserial URL port that has no descriptor (``loop://``, ``socket://``...),
+        as python-can's contract allows; a port that is closed or gone raises
+        ``CanOperationError`` instead of passing for a bus without a descriptor.
+        """
+        if self._fd is None:
             return -1
+        try:
+            return int(self._serial.fileno())
+        except (serial.SerialException, OSError, ValueError, AttributeError) as exc:
+            raise self._gone(exc) from exc
 
     def stats(self) -> dict[str, Any]:
         """Decoder counters, for summaries and run logs."""
