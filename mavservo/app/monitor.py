@@ -37,7 +37,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import math
-import os
 import re
 import sys
 import time
@@ -484,16 +483,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
 
-    os.environ.setdefault("MAVLINK20", "1")  # ESC_TELEMETRY_* and friends are MAVLink 2 only
     from pymavlink import mavutil
     from rich.console import Console
-
-    mavutil.set_dialect("ardupilotmega")
     from rich.live import Live
+
+    from mavservo.mavlink.connection import open_connection
 
     console = Console()
     plain = args.plain or not console.is_terminal
-    conn = mavutil.mavlink_connection(
+    # MAVLink 2 (ESC_TELEMETRY_* and friends exist only there), without process-wide changes
+    conn = open_connection(
         args.url, source_system=MONITOR_SYSTEM_ID, source_component=MONITOR_COMPONENT_ID
     )
     try:

@@ -47,6 +47,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mavservo.errors import EndpointBusyError
+from mavservo.mavlink.connection import open_connection
 from mavservo.mavlink.framing import FrameScanner, redact_secrets
 from mavservo.mavlink.settings import SigningSettings
 
@@ -350,9 +351,7 @@ class MavlinkLink:
             # peers verified before a reopen stay peers: they need not speak first again
             self._conn = UdpServer.from_url(self.url, peers=self._udp_peers)
         else:
-            self._conn = mavutil.mavlink_connection(
-                self.url, baud=self.baud, dialect="ardupilotmega", autoreconnect=False
-            )
+            self._conn = open_connection(self.url, baud=self.baud, autoreconnect=False)
         self._scanner = FrameScanner(self._decoder, self.counters)  # nothing left from before
 
     def start(self) -> None:
@@ -360,7 +359,7 @@ class MavlinkLink:
             self.open()
         for url in self._monitor_urls:  # output-only copies; a failure there is not fatal
             try:
-                self._monitors.append(mavutil.mavlink_connection(url, dialect="ardupilotmega"))
+                self._monitors.append(open_connection(url))
             except Exception as exc:  # noqa: BLE001 - any pymavlink open failure
                 log.warning("monitor output %s unavailable: %s", url, exc)
         self._stop.clear()
