@@ -109,7 +109,7 @@ def test_autopilot_serial_unplug_and_replug() -> None:
             autopilot.unplug()
             assert wait_until(lambda: any("lost" in t for _, t in bridge.events), 5), bridge.events
             time.sleep(0.5)  # reopen attempts fail while the port is gone; nothing crashes
-            assert bridge.mavlink is not None and bridge.mavlink._thread.is_alive()
+            assert bridge.mavlink is not None and bridge.mavlink.is_running
 
             autopilot.received.clear()
             autopilot.plug()

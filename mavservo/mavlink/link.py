@@ -50,6 +50,7 @@ from mavservo.errors import EndpointBusyError
 from mavservo.mavlink.connection import open_connection
 from mavservo.mavlink.framing import FrameScanner, redact_secrets
 from mavservo.mavlink.settings import SigningSettings
+from mavservo.threads import BackgroundLoop
 
 log = logging.getLogger(__name__)
 
@@ -136,7 +137,7 @@ def _verify_signatures_against_the_clock(
             streams[stream] = before
         return False
 
-    decoder.check_signature = check_signature  # type: ignore[method-assign]
+    decoder.check_signature = check_signature
 
 
 class HandlerErrors:
@@ -317,8 +318,7 @@ class MavlinkLink:
         self._decoder = self._new_decoder()
         self._scanner = FrameScanner(self._decoder, self.counters)
         self._writer = _TransportWriter(self)
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._loop = BackgroundLoop(self._receive_loop, name="mavlink-rx")
 
     # ------------------------------------------------------------------ set-up
 
@@ -362,15 +362,10 @@ class MavlinkLink:
                 self._monitors.append(open_connection(url))
             except Exception as exc:  # noqa: BLE001 - any pymavlink open failure
                 log.warning("monitor output %s unavailable: %s", url, exc)
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._receive_loop, name="mavlink-rx", daemon=True)
-        self._thread.start()
+        self._loop.start()
 
     def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-            self._thread = None
+        self._loop.stop()
         self._close()
 
     def _close(self) -> None:
@@ -420,10 +415,10 @@ class MavlinkLink:
 
     def _receive_loop(self) -> None:
         backoff = BACKOFF_START_S
-        while not self._stop.is_set():
+        while not self._loop.stopping:
             conn = self._conn
             if conn is None:
-                if self._stop.wait(backoff):
+                if self._loop.wait(backoff):
                     return
                 backoff = min(backoff * 2, BACKOFF_MAX_S)
                 try:
@@ -438,7 +433,7 @@ class MavlinkLink:
             try:
                 messages = self._receive(conn)
             except Exception as exc:  # serial unplug, socket error: reopen with backoff
-                if self._stop.is_set():
+                if self._loop.stopping:
                     return
                 log.warning("mavlink link lost: %s", exc)
                 self.counters["link_lost"] += 1
