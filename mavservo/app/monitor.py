@@ -158,8 +158,8 @@ class MonitorState:
         handler = getattr(self, f"_on_{kind.lower()}", None)
         if handler is not None:
             handler(msg, now)
-        elif _ESC_GROUP.match(kind):
-            self._on_esc(msg, now, int(_ESC_GROUP.match(kind).group(1)))
+        elif esc := _ESC_GROUP.match(kind):
+            self._on_esc(msg, now, int(esc.group(1)))
 
     # -- handlers ------------------------------------------------------------------------------
 
@@ -221,7 +221,9 @@ class MonitorState:
             return
         bits = Fault(int(value) & sum(f.value for f in Fault))
         view.responding = Fault.NO_REPLY not in bits
-        view.faults = {f.name.lower() for f in Fault if f in bits and f is not Fault.NO_REPLY}
+        view.faults = {
+            f.name.lower() for f in Fault if f.name and f in bits and f is not Fault.NO_REPLY
+        }
 
     def _on_statustext(self, msg: Any, now: float) -> None:
         text = msg.text.decode(errors="replace") if isinstance(msg.text, bytes) else msg.text

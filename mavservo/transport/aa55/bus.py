@@ -19,7 +19,7 @@ import select
 import threading
 import time
 from collections.abc import Callable
-from typing import Any, Literal
+from typing import Any, Literal, TypedDict
 
 import can
 import serial
@@ -104,6 +104,15 @@ def _descriptor(port: serial.SerialBase) -> int | None:
         return None
 
 
+class _AdapterSettings(TypedDict):
+    """What :func:`codec.settings_frame` needs besides the hardware filter."""
+
+    bitrate: int
+    mode: str
+    protocol: aa55.ProtocolName
+    extended: bool
+
+
 class AdapterBusyError(EndpointBusyError, can.CanInitializationError):
     """The adapter's serial port is held by another process (a python-can open failure too)."""
 
@@ -167,9 +176,12 @@ class AA55Bus(can.BusABC):
     ) -> None:
         if not channel:
             raise can.CanInitializationError("aa55: a serial port is required (channel=...)")
-        self._settings_kwargs = dict(
-            bitrate=bitrate, mode=mode, protocol=protocol, extended=extended
-        )
+        self._settings_kwargs: _AdapterSettings = {
+            "bitrate": bitrate,
+            "mode": mode,
+            "protocol": protocol,
+            "extended": extended,
+        }
         try:  # validate before opening anything
             aa55.settings_frame(**self._settings_kwargs)
         except ValueError as exc:
@@ -361,9 +373,9 @@ class AA55Bus(can.BusABC):
                     return msg
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:  # ends on a message that passes the filters, or at the deadline
-            msg = self._receive(deadline)
-            if msg is None or self._filters is None or self._matches_filters(msg):
-                return msg
+            received = self._receive(deadline)
+            if received is None or self._filters is None or self._matches_filters(received):
+                return received
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         deadline = None if timeout is None else time.monotonic() + timeout
