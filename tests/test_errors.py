@@ -10,19 +10,22 @@ from __future__ import annotations
 import errno
 import logging
 import os
+import re
 import socket
 import uuid
 from pathlib import Path
 
 import can
 import pytest
+from conftest import wait_until
 
 from mavservo.app import run
 from mavservo.app.report import ReportError
 from mavservo.config import ConfigError, OverrideError
 from mavservo.config.yamlsource import YamlSyntaxError
 from mavservo.errors import DeviceMissingError, EndpointBusyError, MavservoError, StartupError
-from mavservo.mavlink.link import LinkBusyError, UdpServer
+from mavservo.mavlink.link import REOPEN_WARNING_INTERVAL_S as LINK_REOPEN_INTERVAL_S
+from mavservo.mavlink.link import LinkBusyError, MavlinkLink, UdpServer
 from mavservo.scheduling.core import ScheduleError
 from mavservo.servos import UnknownProfileError
 from mavservo.sim.adapter import AdapterEmulator
@@ -201,3 +204,32 @@ def test_a_reopen_that_keeps_failing_is_a_warning_at_a_bounded_rate(
     assert adapter.channel in warnings[0] and "No such file or directory" in warnings[0]
     assert "(1 failed attempts" in warnings[0]
     assert f"({1 + int(REOPEN_WARNING_INTERVAL_S)} failed attempts" in warnings[1]
+
+
+def test_a_mavlink_reopen_that_keeps_failing_is_a_warning_at_a_bounded_rate(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A serial telemetry link behind a symlink (as udev names a USB radio): unplugged, its
+    reopen fails; that is a warning naming the path, repeated only after the interval."""
+    master, slave = os.openpty()
+    path = tmp_path / "ttyACM-radio"
+    os.symlink(os.ttyname(slave), path)
+    now = [0.0]
+    link = MavlinkLink(str(path), lambda msg, t: None, clock=lambda: now[0])
+    caplog.set_level(logging.WARNING, logger="mavservo.mavlink.link")
+    link.start()
+    try:
+        path.unlink()
+        os.close(master)
+        os.close(slave)
+        assert wait_until(lambda: link.failed_reopens >= 2, timeout=10.0)
+        seen = link.failed_reopens
+        now[0] += LINK_REOPEN_INTERVAL_S
+        assert wait_until(lambda: link.failed_reopens > seen, timeout=10.0)
+    finally:
+        link.stop()
+    warnings = [r.getMessage() for r in caplog.records if "cannot reopen" in r.getMessage()]
+    assert len(warnings) == 2, warnings
+    assert str(path) in warnings[0] and "(1 failed attempts" in warnings[0]
+    later = re.search(r"\((\d+) failed attempts", warnings[1])
+    assert later is not None and int(later.group(1)) > seen >= 2

@@ -47,6 +47,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mavservo.errors import EndpointBusyError
+from mavservo.mavlink.commands import RateLimitedLog
 from mavservo.mavlink.connection import open_connection
 from mavservo.mavlink.framing import FrameScanner, redact_secrets
 from mavservo.mavlink.settings import SigningSettings
@@ -57,6 +58,8 @@ log = logging.getLogger(__name__)
 POLL_S = 0.1
 BACKOFF_START_S = 0.25
 BACKOFF_MAX_S = 5.0
+#: At most one "cannot reopen" warning per this many seconds of one outage (the first at once).
+REOPEN_WARNING_INTERVAL_S = 30.0
 SIGNING_EPOCH = 1420070400  # MAVLink signing timestamps count 10 us units since 2015-01-01
 SIGNING_UNITS_PER_S = 100_000
 #: How far ahead of this computer's clock a signed frame's timestamp may be. The MAVLink spec
@@ -319,6 +322,8 @@ class MavlinkLink:
         self._scanner = FrameScanner(self._decoder, self.counters)
         self._writer = _TransportWriter(self)
         self._loop = BackgroundLoop(self._receive_loop, name="mavlink-rx")
+        self.failed_reopens = 0  # in the current outage
+        self._reopen_log = RateLimitedLog(REOPEN_WARNING_INTERVAL_S)
 
     # ------------------------------------------------------------------ set-up
 
@@ -423,9 +428,11 @@ class MavlinkLink:
                 backoff = min(backoff * 2, BACKOFF_MAX_S)
                 try:
                     self.open()
-                except Exception as exc:  # any failure to reopen: keep trying
-                    log.debug("mavlink reopen failed: %s", exc)
+                except Exception as exc:  # noqa: BLE001 - any failure to reopen: keep trying
+                    self._reopen_failed(exc)
                     continue
+                self.failed_reopens = 0  # the next outage warns at its first failure again
+                self._reopen_log = RateLimitedLog(REOPEN_WARNING_INTERVAL_S)
                 backoff = BACKOFF_START_S
                 self.counters["reconnects"] += 1
                 self._on_event("MAVLink link recovered")
@@ -441,6 +448,21 @@ class MavlinkLink:
                 self._on_event("MAVLink link lost")
                 continue
             self._feed(messages)
+
+    def _reopen_failed(self, exc: BaseException) -> None:
+        """A reopen that keeps failing is a warning naming the endpoint and the error: at the
+        first failure, then at most once per :data:`REOPEN_WARNING_INTERVAL_S` with the count,
+        so a telemetry radio that came back under another device name is noticed."""
+        self.failed_reopens += 1
+        if self._reopen_log.quiet_since_last("reopen", self._clock()) is None:
+            log.debug("mavlink: reopen of %s failed: %s", self.url, exc)
+            return
+        log.warning(
+            "mavlink: cannot reopen %s (%d failed attempts since it was lost): %s; still trying",
+            self.url,
+            self.failed_reopens,
+            exc,
+        )
 
     def _receive(self, conn: Any) -> list[Any]:
         """The verified messages of one datagram, or those completed by the next bytes of a
