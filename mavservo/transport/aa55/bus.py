@@ -133,7 +133,10 @@ def _open_error(channel: str, exc: BaseException) -> can.CanInitializationError:
             "python-can tool on the same adapter?); stop it first"
         )
     if getattr(exc, "errno", None) in _NO_DEVICE_ERRNOS:
-        return AdapterMissingError(f"aa55: no adapter at {channel}: {exc}")
+        return AdapterMissingError(
+            f"aa55: cannot open {channel}: {exc} (no adapter there: unplugged, or named "
+            "differently?)"
+        )
     return can.CanInitializationError(f"aa55: cannot open {channel}: {exc}")
 
 
