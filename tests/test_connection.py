@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Iterator
+from typing import Any
 
 import pytest
 from conftest import free_udp_port
@@ -45,9 +46,9 @@ def assert_untouched(snapshot: dict[str, object]) -> None:
     assert mavutil.current_dialect == snapshot["dialect"]
 
 
-def receive(conn: object, kind: str) -> object:
+def receive(conn: Any, kind: str) -> Any:
     for _ in range(RECV_ATTEMPTS):
-        msg = conn.recv_match(type=kind, blocking=True, timeout=RECV_WAIT_S)  # type: ignore[attr-defined]
+        msg = conn.recv_match(type=kind, blocking=True, timeout=RECV_WAIT_S)
         if msg is not None:
             return msg
     raise AssertionError(f"no {kind} within {RECV_ATTEMPTS} attempts")
@@ -64,8 +65,8 @@ def test_a_mavlink2_exchange_leaves_the_process_state_alone(
     try:
         client.mav.servo_output_raw_send(0, 0, *([1500] * 8), *([1000] * 7), 1999)
         msg = receive(server, "SERVO_OUTPUT_RAW")
-        assert msg.servo16_raw == 1999  # type: ignore[attr-defined]
-        assert msg.get_srcComponent() == 190  # type: ignore[attr-defined]
+        assert msg.servo16_raw == 1999
+        assert msg.get_srcComponent() == 190
         assert isinstance(server.mav, mavlink2.MAVLink)
     finally:
         server.close()
