@@ -116,3 +116,18 @@ def test_join_waits_for_a_loop_that_ends_by_itself() -> None:
     assert loop.started and loop.join(WAIT_S) and finished.is_set()
     assert not loop.stop_event.is_set()
     assert loop.stop(WAIT_S) and loop.stop_event.is_set() and not loop.started
+
+
+def test_a_started_simulator_used_as_a_context_runs_one_loop() -> None:
+    """``with AdapterEmulator(...).start() as e`` started the adapter loop twice (two threads
+    on one state) before the helper refused it; now the context reuses the running loop."""
+    from mavservo.sim.adapter import AdapterEmulator
+    from mavservo.sim.servo import SimServo
+    from mavservo.sim.virtual import VirtualServoBus
+
+    with AdapterEmulator([SimServo("rmd-x", 1)]).start() as emulator:
+        loops = [t for t in threading.enumerate() if t.name == "sim-usbcan-adapter"]
+        assert len(loops) == 1
+    assert emulator.error is None
+    with VirtualServoBus([SimServo("rmd-x", 1)], channel="threads-test").start():
+        assert [t.name for t in threading.enumerate()].count("sim-virtual-bus") == 1

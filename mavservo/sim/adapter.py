@@ -230,7 +230,9 @@ class AdapterEmulator:
                 os.rmdir(self._own_dir)
 
     def __enter__(self) -> AdapterEmulator:
-        return self.start()
+        # ``with X(...).start() as x`` is the usual spelling: a second start would run a second
+        # loop on the same state
+        return self if self._loop.started else self.start()
 
     def __exit__(self, *exc: object) -> None:
         self.stop()

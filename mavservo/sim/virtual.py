@@ -59,7 +59,9 @@ class VirtualServoBus:
             self._bus = None
 
     def __enter__(self) -> VirtualServoBus:
-        return self.start()
+        # ``with X(...).start() as x`` is the usual spelling: a second start would run a second
+        # loop on the same state
+        return self if self._loop.started else self.start()
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
