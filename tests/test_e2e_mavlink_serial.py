@@ -118,6 +118,7 @@ def test_autopilot_serial_unplug_and_replug() -> None:
             # wait for, not a fixed sleep; a dead tick thread would stop the count)
             dropped = dropped_while_down(bridge)
             assert wait_until(lambda: dropped_while_down(bridge) >= dropped + 5, 5)
+            assert bridge.mavlink is not None and bridge.mavlink.is_running
 
             autopilot.received.clear()
             autopilot.plug()

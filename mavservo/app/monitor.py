@@ -37,7 +37,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import math
-import os
 import re
 import sys
 import time
@@ -159,8 +158,8 @@ class MonitorState:
         handler = getattr(self, f"_on_{kind.lower()}", None)
         if handler is not None:
             handler(msg, now)
-        elif _ESC_GROUP.match(kind):
-            self._on_esc(msg, now, int(_ESC_GROUP.match(kind).group(1)))
+        elif esc := _ESC_GROUP.match(kind):
+            self._on_esc(msg, now, int(esc.group(1)))
 
     # -- handlers ------------------------------------------------------------------------------
 
@@ -222,7 +221,9 @@ class MonitorState:
             return
         bits = Fault(int(value) & sum(f.value for f in Fault))
         view.responding = Fault.NO_REPLY not in bits
-        view.faults = {f.name.lower() for f in Fault if f in bits and f is not Fault.NO_REPLY}
+        view.faults = {
+            f.name.lower() for f in Fault if f.name and f in bits and f is not Fault.NO_REPLY
+        }
 
     def _on_statustext(self, msg: Any, now: float) -> None:
         text = msg.text.decode(errors="replace") if isinstance(msg.text, bytes) else msg.text
@@ -484,16 +485,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
 
-    os.environ.setdefault("MAVLINK20", "1")  # ESC_TELEMETRY_* and friends are MAVLink 2 only
     from pymavlink import mavutil
     from rich.console import Console
-
-    mavutil.set_dialect("ardupilotmega")
     from rich.live import Live
+
+    from mavservo.mavlink.connection import open_connection
 
     console = Console()
     plain = args.plain or not console.is_terminal
-    conn = mavutil.mavlink_connection(
+    # MAVLink 2 (ESC_TELEMETRY_* and friends exist only there), without process-wide changes
+    conn = open_connection(
         args.url, source_system=MONITOR_SYSTEM_ID, source_component=MONITOR_COMPONENT_ID
     )
     try:

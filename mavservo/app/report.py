@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from mavservo.errors import MavservoError
 from mavservo.records import runlog
 from mavservo.records.latency import STAGE_DESCRIPTIONS, STAGES, summarize
 
@@ -35,7 +36,7 @@ LOAD_WINDOW_S = 1.0
 DEFAULT_BITRATE = 1_000_000
 
 
-class ReportError(Exception):
+class ReportError(MavservoError):
     """The directory cannot be reported on (not a run, unreadable files)."""
 
 

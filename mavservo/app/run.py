@@ -2,7 +2,9 @@
 
 Exit status: 0 after a clean run (duration elapsed, SIGINT or SIGTERM); 2 for a bad config or bad
 arguments (nothing was touched); 1 when start-up fails for another reason (a port that cannot be
-opened...). Errors are one clear line, never a traceback.
+opened...). An expected start-up failure (a :class:`~mavservo.errors.MavservoError` such as a
+busy port or a missing adapter, an ``OSError``, a python-can interface that cannot open) is one
+clear line; anything else is a bug and prints its traceback too, so it can be reported.
 """
 
 from __future__ import annotations
@@ -13,9 +15,12 @@ import signal
 import sys
 import threading
 import time
+import traceback
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
+
+import can
 
 from mavservo.app.console import StatusDisplay, format_summary
 from mavservo.config import (
@@ -25,11 +30,15 @@ from mavservo.config import (
     default_config_path,
     load_config,
 )
+from mavservo.errors import MavservoError
 
 log = logging.getLogger("mavservo")
 
 #: Loggers whose recoveries are logged at info level next to their warnings.
 RECOVERY_LOGGERS = ("mavservo.scheduling.runner", "mavservo.transport.resilient_bus")
+
+#: Start-up failures a user can cause or fix (config, busy or missing devices): one line each.
+EXPECTED_STARTUP_ERRORS = (MavservoError, OSError, can.CanInitializationError)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -90,9 +99,14 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         try:
             bridge.start()
-        except Exception as exc:  # noqa: BLE001 - one clear line, not a traceback
+        except EXPECTED_STARTUP_ERRORS as exc:
             print(f"mavservo: cannot start: {exc}", file=sys.stderr)
             log.debug("start-up failure", exc_info=True)
+            return 1
+        except Exception as exc:  # noqa: BLE001 - a bug: its cause and where, for the report
+            kind = type(exc).__name__
+            print(f"mavservo: cannot start: unexpected {kind}: {exc}", file=sys.stderr)
+            traceback.print_exc(file=sys.stderr)
             return 1
         settle_heap()
         display.started(path, bridge)

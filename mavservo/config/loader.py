@@ -29,11 +29,12 @@ from mavservo.config.yamlsource import (
     format_path,
     parse_yaml,
 )
+from mavservo.errors import MavservoError
 
 _DATA_DIR = Path(__file__).resolve().parent.parent / "data"
 
 
-class ConfigError(Exception):
+class ConfigError(MavservoError):
     """A config that cannot be used; ``str()`` has one ``FILE:LINE: path: message`` per problem."""
 
     def __init__(self, filename: str, problems: list[Problem]) -> None:

@@ -15,9 +15,10 @@ from pydantic import ValidationError
 
 from mavservo.config.schema import Config
 from mavservo.config.urls import url_problem
+from mavservo.errors import MavservoError
 
 
-class OverrideError(ValueError):
+class OverrideError(MavservoError, ValueError):
     """A command-line override that cannot be used; the message names the option."""
 
 

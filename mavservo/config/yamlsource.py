@@ -26,6 +26,8 @@ from yaml.composer import ComposerError
 from yaml.events import AliasEvent
 from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 
+from mavservo.errors import MavservoError
+
 #: Deepest nesting of mappings and lists accepted, aliases expanded (the real configs use 5).
 MAX_DEPTH = 32
 #: Most values (scalars, lists, mappings; each use of an alias counts its whole subtree) in a
@@ -60,7 +62,7 @@ def format_path(path: Sequence[str | int]) -> str:
     return text
 
 
-class YamlSyntaxError(Exception):
+class YamlSyntaxError(MavservoError):
     """The text is not valid YAML; carries the 1-based line of the problem."""
 
     def __init__(self, line: int | None, message: str) -> None:

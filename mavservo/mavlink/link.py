@@ -46,14 +46,20 @@ from typing import Any
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from mavservo.errors import EndpointBusyError
+from mavservo.mavlink.commands import RateLimitedLog
+from mavservo.mavlink.connection import open_connection
 from mavservo.mavlink.framing import FrameScanner, redact_secrets
 from mavservo.mavlink.settings import SigningSettings
+from mavservo.threads import BackgroundLoop
 
 log = logging.getLogger(__name__)
 
 POLL_S = 0.1
 BACKOFF_START_S = 0.25
 BACKOFF_MAX_S = 5.0
+#: At most one "cannot reopen" warning per this many seconds of one outage (the first at once).
+REOPEN_WARNING_INTERVAL_S = 30.0
 SIGNING_EPOCH = 1420070400  # MAVLink signing timestamps count 10 us units since 2015-01-01
 SIGNING_UNITS_PER_S = 100_000
 #: How far ahead of this computer's clock a signed frame's timestamp may be. The MAVLink spec
@@ -77,8 +83,9 @@ def frame_signing_timestamp(msgbuf: bytes | bytearray) -> int:
     return int(low + (high << 32))
 
 
-class LinkBusyError(OSError):
-    """The endpoint is already used by another process (start-up refuses, with this text)."""
+class LinkBusyError(EndpointBusyError, OSError):
+    """The endpoint is already used by another process (start-up refuses, with this text); an
+    ``OSError`` too, with the ``errno`` of the failed bind, for callers of a socket API."""
 
 
 def _verify_signatures_against_the_clock(
@@ -133,7 +140,7 @@ def _verify_signatures_against_the_clock(
             streams[stream] = before
         return False
 
-    decoder.check_signature = check_signature  # type: ignore[method-assign]
+    decoder.check_signature = check_signature
 
 
 class HandlerErrors:
@@ -314,8 +321,9 @@ class MavlinkLink:
         self._decoder = self._new_decoder()
         self._scanner = FrameScanner(self._decoder, self.counters)
         self._writer = _TransportWriter(self)
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._loop = BackgroundLoop(self._receive_loop, name="mavlink-rx")
+        self.failed_reopens = 0  # in the current outage
+        self._reopen_log = RateLimitedLog(REOPEN_WARNING_INTERVAL_S)
 
     # ------------------------------------------------------------------ set-up
 
@@ -348,9 +356,7 @@ class MavlinkLink:
             # peers verified before a reopen stay peers: they need not speak first again
             self._conn = UdpServer.from_url(self.url, peers=self._udp_peers)
         else:
-            self._conn = mavutil.mavlink_connection(
-                self.url, baud=self.baud, dialect="ardupilotmega", autoreconnect=False
-            )
+            self._conn = open_connection(self.url, baud=self.baud, autoreconnect=False)
         self._scanner = FrameScanner(self._decoder, self.counters)  # nothing left from before
 
     def start(self) -> None:
@@ -358,18 +364,13 @@ class MavlinkLink:
             self.open()
         for url in self._monitor_urls:  # output-only copies; a failure there is not fatal
             try:
-                self._monitors.append(mavutil.mavlink_connection(url, dialect="ardupilotmega"))
+                self._monitors.append(open_connection(url))
             except Exception as exc:  # noqa: BLE001 - any pymavlink open failure
                 log.warning("monitor output %s unavailable: %s", url, exc)
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._receive_loop, name="mavlink-rx", daemon=True)
-        self._thread.start()
+        self._loop.start()
 
     def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-            self._thread = None
+        self._loop.stop()
         self._close()
 
     def _close(self) -> None:
@@ -419,17 +420,19 @@ class MavlinkLink:
 
     def _receive_loop(self) -> None:
         backoff = BACKOFF_START_S
-        while not self._stop.is_set():
+        while not self._loop.stopping:
             conn = self._conn
             if conn is None:
-                if self._stop.wait(backoff):
+                if self._loop.wait(backoff):
                     return
                 backoff = min(backoff * 2, BACKOFF_MAX_S)
                 try:
                     self.open()
-                except Exception as exc:  # any failure to reopen: keep trying
-                    log.debug("mavlink reopen failed: %s", exc)
+                except Exception as exc:  # noqa: BLE001 - any failure to reopen: keep trying
+                    self._reopen_failed(exc)
                     continue
+                self.failed_reopens = 0  # the next outage warns at its first failure again
+                self._reopen_log = RateLimitedLog(REOPEN_WARNING_INTERVAL_S)
                 backoff = BACKOFF_START_S
                 self.counters["reconnects"] += 1
                 self._on_event("MAVLink link recovered")
@@ -437,7 +440,7 @@ class MavlinkLink:
             try:
                 messages = self._receive(conn)
             except Exception as exc:  # serial unplug, socket error: reopen with backoff
-                if self._stop.is_set():
+                if self._loop.stopping:
                     return
                 log.warning("mavlink link lost: %s", exc)
                 self.counters["link_lost"] += 1
@@ -445,6 +448,21 @@ class MavlinkLink:
                 self._on_event("MAVLink link lost")
                 continue
             self._feed(messages)
+
+    def _reopen_failed(self, exc: BaseException) -> None:
+        """A reopen that keeps failing is a warning naming the endpoint and the error: at the
+        first failure, then at most once per :data:`REOPEN_WARNING_INTERVAL_S` with the count,
+        so a telemetry radio that came back under another device name is noticed."""
+        self.failed_reopens += 1
+        if self._reopen_log.quiet_since_last("reopen", self._clock()) is None:
+            log.debug("mavlink: reopen of %s failed: %s", self.url, exc)
+            return
+        log.warning(
+            "mavlink: cannot reopen %s (%d failed attempts since it was lost): %s; still trying",
+            self.url,
+            self.failed_reopens,
+            exc,
+        )
 
     def _receive(self, conn: Any) -> list[Any]:
         """The verified messages of one datagram, or those completed by the next bytes of a

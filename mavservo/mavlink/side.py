@@ -21,6 +21,7 @@ from mavservo.mavlink.core import MavlinkCore
 from mavservo.mavlink.link import MavlinkLink
 from mavservo.mavlink.settings import MavlinkSettings
 from mavservo.mavlink.telemetry import MAV_SEVERITY_WARNING
+from mavservo.threads import BackgroundLoop
 
 log = logging.getLogger(__name__)
 
@@ -55,23 +56,22 @@ class MavlinkSide:
         )
         for cid in self.core.components:
             self.link.add_component(cid, self.core.system_id)
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._loop = BackgroundLoop(self._tick_loop, name="mavlink-tick")
         self._tick_errors = 0  # failures the core's own guards did not catch
         #: ``on_sent(msg, t)`` after each message went out (latency tracing); must not block.
         self.on_sent: Callable[[Any, float], None] | None = None
 
     def start(self) -> None:
         self.link.start()
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._tick_loop, name="mavlink-tick", daemon=True)
-        self._thread.start()
+        self._loop.start()
+
+    @property
+    def is_running(self) -> bool:
+        """True while the tick loop (the only heartbeat source) runs."""
+        return self._loop.is_running
 
     def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=2.0)
-            self._thread = None
+        self._loop.stop()
         self.link.stop()
 
     def __enter__(self) -> MavlinkSide:
@@ -107,7 +107,7 @@ class MavlinkSide:
 
     def _tick_loop(self) -> None:
         next_tick = self._clock()
-        while not self._stop.is_set():
+        while not self._loop.stopping:
             now = self._clock()
             try:
                 with self._lock:
@@ -122,7 +122,7 @@ class MavlinkSide:
             if delay < 0:
                 next_tick = self._clock()
                 delay = 0
-            self._stop.wait(delay)
+            self._loop.wait(delay)
 
     def _send(self, out: list[Outgoing]) -> None:
         system_id = self.core.system_id

@@ -78,6 +78,7 @@ from typing import Literal
 
 import can
 
+from mavservo.errors import MavservoError
 from mavservo.servos.base import ServoProfile
 
 from . import reply_matching
@@ -89,7 +90,7 @@ _REPLY_DLC = 8
 _TIMED_OUT_KEPT = 8
 
 
-class ScheduleError(ValueError):
+class ScheduleError(MavservoError, ValueError):
     """A configuration the scheduler refuses to run (e.g. worst-case bus load over the limit)."""
 
 

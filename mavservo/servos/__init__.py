@@ -6,6 +6,8 @@ Adding a servo family is one module with a :class:`ServoProfile` subclass and on
 
 from __future__ import annotations
 
+from mavservo.errors import MavservoError
+
 from .base import NO_FAULT, UNKNOWN, Fault, ServoProfile, ServoState
 from .cubemars import CubeMarsAK
 from .rmdx import LkTech, RmdX
@@ -17,7 +19,7 @@ PROFILES: dict[str, type[ServoProfile]] = {
 }
 
 
-class UnknownProfileError(KeyError, ValueError):
+class UnknownProfileError(MavservoError, KeyError, ValueError):
     """A YAML or CLI name that no profile answers to (a KeyError and a ValueError, so both
     dictionary-style and validation-style callers catch it)."""
 

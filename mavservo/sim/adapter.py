@@ -36,6 +36,7 @@ from typing import Any
 
 import can
 
+from mavservo.threads import BackgroundLoop
 from mavservo.transport.aa55 import codec as aa55
 
 from .canbus import SimCanBus
@@ -190,8 +191,7 @@ class AdapterEmulator:
         self.device: str | None = None
         """The /dev/pts/N the link points to now (None while unplugged)."""
         self._lock = threading.RLock()
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._loop = BackgroundLoop(self._run, name="sim-usbcan-adapter")
         self.error: BaseException | None = None
 
         self.frames_from_host = 0
@@ -219,23 +219,20 @@ class AdapterEmulator:
     def start(self) -> AdapterEmulator:
         """Create the port and run the adapter in a background thread."""
         self.replug()
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name="sim-usbcan-adapter", daemon=True)
-        self._thread.start()
+        self._loop.start()
         return self
 
     def stop(self, timeout: float = 2.0) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout)
-            self._thread = None
+        self._loop.stop(timeout)
         self.unplug()
         if self._own_dir is not None:
             with contextlib.suppress(OSError):
                 os.rmdir(self._own_dir)
 
     def __enter__(self) -> AdapterEmulator:
-        return self.start()
+        # ``with X(...).start() as x`` is the usual spelling: a second start would run a second
+        # loop on the same state
+        return self if self._loop.started else self.start()
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
@@ -279,7 +276,7 @@ class AdapterEmulator:
     def _run(self) -> None:
         last_rx = self.clock()
         try:
-            while not self._stop.is_set():
+            while not self._loop.stopping:
                 with self._lock:
                     master = self._master
                     next_event = self.canbus.next_event_time()
@@ -287,7 +284,7 @@ class AdapterEmulator:
                 wait = _MAX_WAIT_S if next_event is None else next_event - now
                 wait = max(0.0, min(_MAX_WAIT_S, wait))
                 if master is None:
-                    self._stop.wait(wait)
+                    self._loop.wait(wait)
                     data = b""
                 else:
                     data = self._read(master, wait)
@@ -314,7 +311,7 @@ class AdapterEmulator:
             # EIO: no process holds the slave open; EBADF: unplugged under us.
             if isinstance(error, OSError) and error.errno not in (errno.EIO, errno.EBADF):
                 raise
-            self._stop.wait(wait)
+            self._loop.wait(wait)
         return b""
 
     def _from_host(self, data: bytes, now: float) -> None:

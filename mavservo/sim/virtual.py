@@ -13,6 +13,8 @@ from collections.abc import Callable, Iterable
 
 import can
 
+from mavservo.threads import BackgroundLoop
+
 from .canbus import SimCanBus
 from .servo import SimServo
 
@@ -36,8 +38,7 @@ class VirtualServoBus:
         self.channel = channel
         self.canbus = SimCanBus(servos, bitrate)
         self.clock = clock
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._loop = BackgroundLoop(self._run, name="sim-virtual-bus")
         self._bus: can.BusABC | None = None
         self.error: BaseException | None = None
         self._lock = threading.Lock()
@@ -48,22 +49,19 @@ class VirtualServoBus:
 
     def start(self) -> VirtualServoBus:
         self._bus = can.Bus(interface="virtual", channel=self.channel, receive_own_messages=False)
-        self._stop.clear()
-        self._thread = threading.Thread(target=self._run, name="sim-virtual-bus", daemon=True)
-        self._thread.start()
+        self._loop.start()
         return self
 
     def stop(self, timeout: float = 2.0) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout)
-            self._thread = None
+        self._loop.stop(timeout)
         if self._bus is not None:
             self._bus.shutdown()
             self._bus = None
 
     def __enter__(self) -> VirtualServoBus:
-        return self.start()
+        # ``with X(...).start() as x`` is the usual spelling: a second start would run a second
+        # loop on the same state
+        return self if self._loop.started else self.start()
 
     def __exit__(self, *exc: object) -> None:
         self.stop()
@@ -76,7 +74,7 @@ class VirtualServoBus:
         bus = self._bus
         assert bus is not None
         try:
-            while not self._stop.is_set():
+            while not self._loop.stopping:
                 now = self.clock()
                 with self._lock:
                     next_event = self.canbus.next_event_time()

@@ -3,7 +3,10 @@
 The scheduler owns the only writer to the bus and should not have to know about cables. This
 wrapper opens the real bus through a factory; when the device fails (``CanOperationError``,
 ``OSError``), it closes it, reports the loss once, and reopens it with exponential backoff from the
-receive path, reporting the recovery. While the device is gone ``send`` fails fast with
+receive path, reporting the recovery. A reopen that keeps failing is a warning naming the path and
+the error: at the first failure, then at most once per :data:`REOPEN_WARNING_INTERVAL_S` with the
+count, so an adapter that came back under another device name (``/dev/ttyUSB1``) is noticed
+without flooding the journal. While the device is gone ``send`` fails fast with
 ``CanOperationError`` (the scheduler counts every refused send and logs the outage once:
 :class:`~mavservo.scheduling.runner.FailureRun`) and ``recv`` waits out its timeout, so no thread
 ever blocks on a dead port.
@@ -20,6 +23,9 @@ from typing import Any
 import can
 
 log = logging.getLogger(__name__)
+
+#: At most one "reopen failed" warning per this many seconds of one outage (the first at once).
+REOPEN_WARNING_INTERVAL_S = 30.0
 
 
 class ResilientBus(can.BusABC):
@@ -47,6 +53,10 @@ class ResilientBus(can.BusABC):
         self._clock = clock
         self._lock = threading.Lock()
         self._bus: can.BusABC | None = factory()  # the first open must work: errors surface
+        #: what the factory opens (the serial device of an AA-55 adapter), named in warnings
+        self.path = _device_name(self._bus, name)
+        self.failed_reopens = 0  # in the current outage
+        self._reopen_warned_at: float | None = None
         self._backoff = initial_backoff_s
         self._next_attempt = 0.0
         self.disconnects = 0
@@ -101,6 +111,8 @@ class ResilientBus(can.BusABC):
             self.down_since = self._clock()
             self._backoff = self._initial_backoff
             self._next_attempt = self.down_since + self._backoff
+            self.failed_reopens = 0
+            self._reopen_warned_at = None
         if hasattr(bus, "stats"):
             _add_counts(self._retired, bus.stats())
         try:
@@ -121,9 +133,7 @@ class ResilientBus(can.BusABC):
             except Exception as exc:  # noqa: BLE001 - any open failure means "not back yet"
                 self._backoff = min(self._backoff * 2, self._max_backoff)
                 self._next_attempt = now + self._backoff
-                log.debug(
-                    "%s: reconnect failed (%s); next try in %.2f s", self.name, exc, self._backoff
-                )
+                self._reopen_failed(exc, now)
                 return None
             self._bus = bus
             self.reconnects += 1
@@ -131,6 +141,23 @@ class ResilientBus(can.BusABC):
             self.down_since = None
         self._on_event(f"{self.name}: CAN adapter back after {down_for:.1f} s")
         return bus
+
+    def _reopen_failed(self, exc: BaseException, now: float) -> None:
+        """Count a failed reopen; warn at the first, then at most once per interval."""
+        self.failed_reopens += 1
+        warned = self._reopen_warned_at
+        if warned is not None and now - warned < REOPEN_WARNING_INTERVAL_S:
+            log.debug("%s: reopen of %s failed: %s", self.name, self.path, exc)
+            return
+        self._reopen_warned_at = now
+        log.warning(
+            "%s: cannot reopen %s (%d failed attempts since it was lost): %s; still trying "
+            "(an adapter that came back under another device name needs a config change)",
+            self.name,
+            self.path,
+            self.failed_reopens,
+            exc,
+        )
 
     def stats(self) -> dict[str, Any]:
         """The device's counters since start-up, across reconnects (each reopened device starts
@@ -151,6 +178,15 @@ class ResilientBus(can.BusABC):
         bus, self._bus = self._bus, None
         if bus is not None:
             bus.shutdown()
+
+
+def _device_name(bus: can.BusABC, default: str) -> str:
+    """The serial path a bus was opened on (AA-55), else its ``channel_info`` (other buses
+    keep objects, not names, in ``channel``)."""
+    channel = getattr(bus, "channel", None)
+    if isinstance(channel, str):
+        return channel
+    return str(getattr(bus, "channel_info", default))
 
 
 def _add_counts(total: dict[str, Any], more: dict[str, Any]) -> dict[str, Any]:

@@ -1,16 +1,19 @@
 """The life cycle both simulator drivers share: a thread started by ``start()``, ended by
-``stop()``, waited for, and usable as a context manager."""
+``stop()``, waited for, and usable as a context manager (the thread itself is a
+:class:`~mavservo.threads.BackgroundLoop`)."""
 
 from __future__ import annotations
 
-import threading
 from typing import Any
+
+from mavservo.threads import BackgroundLoop
 
 
 class Background:
-    """Mixin for a class that sets ``self._thread`` in ``start()`` and defines ``stop()``."""
+    """Mixin for a class that sets ``self._loop`` in ``__init__`` and defines ``start()`` and
+    ``stop()`` around it."""
 
-    _thread: threading.Thread | None
+    _loop: BackgroundLoop
 
     def start(self) -> Any:  # pragma: no cover - every user defines it
         raise NotImplementedError
@@ -20,17 +23,14 @@ class Background:
 
     def wait(self, timeout: float) -> bool:
         """Wait for the thread to end by itself; True when it has (or never started)."""
-        if self._thread is None:
-            return True
-        self._thread.join(timeout)
-        return not self._thread.is_alive()
+        return self._loop.join(timeout)
 
     @property
     def running(self) -> bool:
-        return self._thread is not None and self._thread.is_alive()
+        return self._loop.is_running
 
     def __enter__(self) -> Any:
-        return self if self._thread is not None else self.start()
+        return self if self._loop.started else self.start()
 
     def __exit__(self, *exc: object) -> None:
         self.stop()

@@ -194,8 +194,9 @@ def _run_stream(args: argparse.Namespace) -> int:
             signal.signal(signal.SIGUSR1, previous_usr1)
     print(f"sitl: sent {dict(stream.sent)}")
     print(f"sitl: received {stream.received.counts()}")
+    t0 = stream.t0 or 0.0  # set by start(); drop-outs are only recorded after it
     for start, end in stream.dropouts:
-        print(f"sitl: drop-out {start - stream.t0:.1f}..{end - stream.t0:.1f} s")
+        print(f"sitl: drop-out {start - t0:.1f}..{end - t0:.1f} s")
     for record in stream.commands.commands:
         print(
             f"sitl: command {record.command} {record.params[:3]} attempts={record.attempts} "

@@ -18,7 +18,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from mavservo.config.autopilot_script import GimbalTarget, parse_script
-from mavservo.sim.autopilot.profiles import RandomWalkProfile, get_profile
+from mavservo.sim.autopilot.profiles import Profile, RandomWalkProfile, get_profile
 from mavservo.sim.autopilot.replay import ReplayRunner
 from mavservo.sim.autopilot.stream import AutopilotStream, gimbal_demo_script
 
@@ -41,6 +41,7 @@ def simulator_from_config(section: Any, url: str) -> AutopilotStream | ReplayRun
         if not cfg.get("replay_file"):
             raise ValueError("profile 'replay' needs replay_file")
         return ReplayRunner(cfg["replay_file"], url, speed=float(cfg.get("speed", 1.0)))
+    profile: Profile
     if profile_name == "random-walk":
         profile = RandomWalkProfile(seed=int(cfg.get("seed", 0)))
     else:

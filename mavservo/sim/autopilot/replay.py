@@ -18,8 +18,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from mavservo.errors import MavservoError
 from mavservo.sim.autopilot.background import Background
 from mavservo.sim.autopilot.link import mavlink2, open_link
+from mavservo.threads import BackgroundLoop
 
 # What the bridge consumes (docs/architecture.md, mavservo/mavlink/).
 BRIDGE_TYPES: frozenset[str] = frozenset(
@@ -39,7 +41,7 @@ _STX_V1, _STX_V2 = 0xFE, 0xFD
 _SIGNED = 0x01
 
 
-class TlogError(ValueError):
+class TlogError(MavservoError, ValueError):
     """The file is not a well-formed tlog at ``offset``."""
 
 
@@ -132,7 +134,7 @@ def replay(
     if speed <= 0:
         raise ValueError("speed must be > 0")
     own = isinstance(url_or_conn, str)
-    conn = open_link(url_or_conn, 255, 0) if own else url_or_conn
+    conn: Any = open_link(url_or_conn, 255, 0) if own else url_or_conn
     result = ReplayResult()
     began = clock()
     origin: float | None = None
@@ -185,26 +187,22 @@ class ReplayRunner(Background):
         self.options = options
         self.result: ReplayResult | None = None
         self.error: BaseException | None = None
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._loop = BackgroundLoop(self._run, name="sitl-replay")
 
     def start(self) -> ReplayRunner:
-        if self._thread is not None:
+        if self._loop.started:
             raise RuntimeError("replay already started")
         if not self.path.is_file():
             raise FileNotFoundError(self.path)
-        self._thread = threading.Thread(target=self._run, name="sitl-replay", daemon=True)
-        self._thread.start()
+        self._loop.start()
         return self
 
     def _run(self) -> None:
         try:
-            self.result = replay(self.path, self.url, stop=self._stop, **self.options)
+            self.result = replay(self.path, self.url, stop=self._loop.stop_event, **self.options)
         except Exception as exc:  # surfaced through .error
             self.error = exc
             raise
 
     def stop(self, timeout: float = 2.0) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout)
+        self._loop.stop(timeout)

@@ -62,6 +62,7 @@ from mavservo.sim.autopilot.profiles import (
     get_profile,
 )
 from mavservo.sim.autopilot.recorder import Received
+from mavservo.threads import BackgroundLoop
 
 GIMBAL_DEVICE_INFORMATION_ID = 283
 REQUEST_INTERVAL_S = 1.0  # ArduPilot re-asks the gimbal device for its information every second
@@ -174,8 +175,7 @@ class AutopilotStream(Background):
         self._gimbal_logged: GimbalTarget | None = None
         self._dropout_until = 0.0
         self._next_request = 0.0
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
+        self._loop = BackgroundLoop(self._run, name="sitl-autopilot")
         self._conn: Any = None
         self.t0: float | None = None
         self.error: BaseException | None = None
@@ -184,7 +184,7 @@ class AutopilotStream(Background):
 
     def start(self) -> AutopilotStream:
         """Open the link and start the thread; returns self so ``with ... .start()`` reads well."""
-        if self._thread is not None:
+        if self.t0 is not None:  # one run per stream: its records and counters are that run's
             raise RuntimeError("stream already started")
         self._conn = open_link(
             self.url, self.system_id, self.component_id, **self._connection_kwargs
@@ -195,15 +195,12 @@ class AutopilotStream(Background):
                 self.signing_key, sign_outgoing=True, allow_unsigned_callback=lambda *_: True
             )
         self.t0 = time.monotonic()
-        self._thread = threading.Thread(target=self._run, name="sitl-autopilot", daemon=True)
-        self._thread.start()
+        self._loop.start()
         return self
 
     def stop(self, timeout: float = 2.0) -> None:
         """Stop the thread (waits at most ``timeout``) and close the link."""
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout)
+        self._loop.stop(timeout)
         if self._conn is not None:
             self._conn.close()
             self._conn = None
@@ -282,7 +279,7 @@ class AutopilotStream(Background):
         assert self.t0 is not None
         next_due = {name: self.t0 for name, iv in self._intervals.items() if iv}
         try:
-            while not self._stop.is_set():
+            while not self._loop.stopping:
                 now = time.monotonic()
                 t = now - self.t0
                 if self.duration_s is not None and t >= self.duration_s:
@@ -318,6 +315,9 @@ class AutopilotStream(Background):
 
     def _wait(self, timeout: float) -> None:
         port = getattr(self._conn, "port", None)
+        if port is None:  # not a socket or serial connection (closed, or a file)
+            time.sleep(timeout)
+            return
         try:
             select.select([port], [], [], timeout)
         except (TypeError, ValueError, OSError):

@@ -11,6 +11,7 @@ turns a vanished device into ``can.CanOperationError`` instead of a hang.
 from __future__ import annotations
 
 import collections
+import errno
 import logging
 import math
 import os
@@ -18,11 +19,12 @@ import select
 import threading
 import time
 from collections.abc import Callable
-from typing import Any, Literal
+from typing import Any, Literal, TypedDict
 
 import can
 import serial
 
+from mavservo.errors import DeviceMissingError, EndpointBusyError
 from mavservo.transport.aa55 import codec as aa55
 
 log = logging.getLogger(__name__)
@@ -102,6 +104,42 @@ def _descriptor(port: serial.SerialBase) -> int | None:
         return None
 
 
+class _AdapterSettings(TypedDict):
+    """What :func:`codec.settings_frame` needs besides the hardware filter."""
+
+    bitrate: int
+    mode: str
+    protocol: aa55.ProtocolName
+    extended: bool
+
+
+class AdapterBusyError(EndpointBusyError, can.CanInitializationError):
+    """The adapter's serial port is held by another process (a python-can open failure too)."""
+
+
+class AdapterMissingError(DeviceMissingError, can.CanInitializationError):
+    """No adapter at that path (unplugged, or back under another device name)."""
+
+
+#: errno values of an open that found no device behind the path
+_NO_DEVICE_ERRNOS = frozenset({errno.ENOENT, errno.ENODEV, errno.ENXIO})
+
+
+def _open_error(channel: str, exc: BaseException) -> can.CanInitializationError:
+    """The typed python-can error for a failed open of ``channel``: busy, missing or other."""
+    if "exclusively lock" in str(exc):
+        return AdapterBusyError(
+            f"aa55: {channel} is in use by another process (another mavservo, or a "
+            "python-can tool on the same adapter?); stop it first"
+        )
+    if getattr(exc, "errno", None) in _NO_DEVICE_ERRNOS:
+        return AdapterMissingError(
+            f"aa55: cannot open {channel}: {exc} (no adapter there: unplugged, or named "
+            "differently?)"
+        )
+    return can.CanInitializationError(f"aa55: cannot open {channel}: {exc}")
+
+
 class AA55Bus(can.BusABC):
     """A CAN bus behind an AA-55 USB-CAN adapter on a serial port.
 
@@ -141,9 +179,12 @@ class AA55Bus(can.BusABC):
     ) -> None:
         if not channel:
             raise can.CanInitializationError("aa55: a serial port is required (channel=...)")
-        self._settings_kwargs = dict(
-            bitrate=bitrate, mode=mode, protocol=protocol, extended=extended
-        )
+        self._settings_kwargs: _AdapterSettings = {
+            "bitrate": bitrate,
+            "mode": mode,
+            "protocol": protocol,
+            "extended": extended,
+        }
         try:  # validate before opening anything
             aa55.settings_frame(**self._settings_kwargs)
         except ValueError as exc:
@@ -172,12 +213,7 @@ class AA55Bus(can.BusABC):
                 channel, baudrate=serial_baud, timeout=0, write_timeout=1.0, exclusive=True
             )
         except (serial.SerialException, ValueError, OSError) as exc:
-            if "exclusively lock" in str(exc):
-                raise can.CanInitializationError(
-                    f"aa55: {channel} is in use by another process (another mavservo, or a "
-                    "python-can tool on the same adapter?); stop it first"
-                ) from exc
-            raise can.CanInitializationError(f"aa55: cannot open {channel}: {exc}") from exc
+            raise _open_error(channel, exc) from exc
         self._fd = _descriptor(self._serial)
         self._protocol = can.CanProtocol.CAN_20
         super().__init__(channel=channel, can_filters=can_filters, **kwargs)
@@ -340,9 +376,9 @@ class AA55Bus(can.BusABC):
                     return msg
         deadline = None if timeout is None else time.monotonic() + timeout
         while True:  # ends on a message that passes the filters, or at the deadline
-            msg = self._receive(deadline)
-            if msg is None or self._filters is None or self._matches_filters(msg):
-                return msg
+            received = self._receive(deadline)
+            if received is None or self._filters is None or self._matches_filters(received):
+                return received
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         deadline = None if timeout is None else time.monotonic() + timeout
@@ -381,10 +417,18 @@ class AA55Bus(can.BusABC):
     # -- lifecycle ----------------------------------------------------------------------------
 
     def fileno(self) -> int:
-        try:
-            return self._serial.fileno()
-        except Exception:  # pragma: no cover - platform dependent
+        """The serial port's descriptor (for ``select`` and python-can's asyncio ``Notifier``).
+
+        -1 only for a pyserial URL port that has no descriptor (``loop://``, ``socket://``...),
+        as python-can's contract allows; a port that is closed or gone raises
+        ``CanOperationError`` instead of passing for a bus without a descriptor.
+        """
+        if self._fd is None:
             return -1
+        try:
+            return int(self._serial.fileno())
+        except (serial.SerialException, OSError, ValueError, AttributeError) as exc:
+            raise self._gone(exc) from exc
 
     def stats(self) -> dict[str, Any]:
         """Decoder counters, for summaries and run logs."""
