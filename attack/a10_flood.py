@@ -49,7 +49,7 @@ def main() -> None:
                 flooder.mav.command_long_send(1, 140, 183, 0, rnd.choice((1, 2, 3, 4, 9, 10)),
                                               rnd.uniform(1100, 1900), 0, 0, 0, 0, 0)
             else:  # distinct generic keys: (target component, command)
-                flooder.mav.command_long_send(1, rnd.randrange(0, 256), rnd.randrange(0, 65536),
+                flooder.mav.command_long_send(1, rnd.choice((0, 140, 154)), rnd.randrange(0, 65536),
                                               0, 0, 0, 0, 0, 0, 0, 0)
             sent += 1
         if now >= next_probe:
@@ -58,12 +58,16 @@ def main() -> None:
             t0 = time.monotonic()
             gcs.mav.command_long_send(1, 140, 183, 0, 10, 1100 + 800 * (len(probes) % 2),
                                       0, 0, 0, 0, 0)
-            ack = None
-            for m in collect(gcs, 0.5, "COMMAND_ACK"):
-                if m.command == 183 and m.target_system == 255:
-                    ack = m
+            got = None
+            for _ in range(1000):
+                rem = t0 + 0.5 - time.monotonic()
+                if rem <= 0:
                     break
-            probes.append(None if ack is None else round((time.monotonic() - t0) * 1000, 1))
+                m = gcs.recv_match(type="COMMAND_ACK", blocking=True, timeout=rem)
+                if m is not None and m.command == 183:
+                    got = round((time.monotonic() - t0) * 1000, 1)
+                    break
+            probes.append(got)
             rss_samples.append(rss_kb(pid))
         collect(flooder, 0.0005)
         sleep = 0.01 - (time.monotonic() - t_batch)
