@@ -64,7 +64,7 @@ def main() -> None:
                 if rem <= 0:
                     break
                 m = gcs.recv_match(type="COMMAND_ACK", blocking=True, timeout=rem)
-                if m is not None and m.command == 183:
+                if m is not None and m.command == 183 and m.target_system == 255:
                     got = round((time.monotonic() - t0) * 1000, 1)
                     break
             probes.append(got)
