@@ -10,7 +10,8 @@ Trigger from outside: DO_SET_SERVO to a channel with max_slew_dps whose servo is
 (here: sim.yaml's aileron, channel 1, with the simulated servo silent), repeated with changing
 PWM. Each command makes one _pause_offline call; the race is won within seconds.
 
-Usage: python attack/a10b_deadlock.py [rate_hz] [max_seconds]
+Usage: python attack/a10b_deadlock.py [rate_hz] [max_seconds] [only1]
+(only1: every command to the flapping servo's channel 1)
 """
 
 from __future__ import annotations
@@ -20,6 +21,9 @@ import sys
 import time
 
 from harness import BridgeProc, collect, peer
+
+
+ONLY_AILERON = "only1" in sys.argv
 
 
 def main() -> None:
@@ -38,7 +42,7 @@ def main() -> None:
         # 1 command in 20 to the flapping slew-limited servo, the rest keep the MAVLink side's
         # lock busy (other channels, each a change, so never a retry)
         for k in range(20):
-            channel = 1 if k == 0 else (2, 4)[k % 2]
+            channel = 1 if k == 0 or ONLY_AILERON else (2, 4)[k % 2]
             gcs.mav.command_long_send(1, 140, 183, 0, channel, 1100 + ((i + k) % 2) * 800,
                                       0, 0, 0, 0, 0)
             sent += 1
