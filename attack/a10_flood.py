@@ -15,9 +15,10 @@ from harness import BridgeProc, collect, peer
 
 
 def rss_kb(pid: int) -> int:
-    for line in open(f"/proc/{pid}/status"):
-        if line.startswith("VmRSS"):
-            return int(line.split()[1])
+    with open(f"/proc/{pid}/status") as status:
+        for line in status:
+            if line.startswith("VmRSS"):
+                return int(line.split()[1])
     return -1
 
 
@@ -46,18 +47,31 @@ def main() -> None:
         for _ in range(50):  # 50 per 10 ms = 5,000/s
             kind = rnd.random()
             if kind < 0.5:
-                flooder.mav.command_long_send(1, 140, 183, 0, rnd.choice((1, 2, 3, 4, 9, 10)),
-                                              rnd.uniform(1100, 1900), 0, 0, 0, 0, 0)
+                flooder.mav.command_long_send(
+                    1,
+                    140,
+                    183,
+                    0,
+                    rnd.choice((1, 2, 3, 4, 9, 10)),
+                    rnd.uniform(1100, 1900),
+                    0,
+                    0,
+                    0,
+                    0,
+                    0,
+                )
             else:  # distinct generic keys: (target component, command)
-                flooder.mav.command_long_send(1, rnd.choice((0, 140, 154)), rnd.randrange(0, 65536),
-                                              0, 0, 0, 0, 0, 0, 0, 0)
+                flooder.mav.command_long_send(
+                    1, rnd.choice((0, 140, 154)), rnd.randrange(0, 65536), 0, 0, 0, 0, 0, 0, 0, 0
+                )
             sent += 1
         if now >= next_probe:
             next_probe = now + 1.0
             collect(gcs, 0.001)
             t0 = time.monotonic()
-            gcs.mav.command_long_send(1, 140, 183, 0, 10, 1100 + 800 * (len(probes) % 2),
-                                      0, 0, 0, 0, 0)
+            gcs.mav.command_long_send(
+                1, 140, 183, 0, 10, 1100 + 800 * (len(probes) % 2), 0, 0, 0, 0, 0
+            )
             got = None
             for _ in range(1000):
                 rem = t0 + 0.5 - time.monotonic()
@@ -81,8 +95,12 @@ def main() -> None:
     print(f"RSS kB: before {rss0}, per second {rss_samples}, after {rss1}")
     print("commands:", st["commands"])
     print("link:", st["link"])
-    print("log lines:", len(bridge.log_lines()),
-          "tracebacks:", sum("Traceback" in ln for ln in bridge.log_lines()))
+    print(
+        "log lines:",
+        len(bridge.log_lines()),
+        "tracebacks:",
+        sum("Traceback" in ln for ln in bridge.log_lines()),
+    )
 
 
 if __name__ == "__main__":

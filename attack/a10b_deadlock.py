@@ -22,7 +22,6 @@ import time
 
 from harness import BridgeProc, collect, peer
 
-
 ONLY_AILERON = "only1" in sys.argv
 
 
@@ -43,8 +42,9 @@ def main() -> None:
         # lock busy (other channels, each a change, so never a retry)
         for k in range(20):
             channel = 1 if k == 0 or ONLY_AILERON else (2, 4)[k % 2]
-            gcs.mav.command_long_send(1, 140, 183, 0, channel, 1100 + ((i + k) % 2) * 800,
-                                      0, 0, 0, 0, 0)
+            gcs.mav.command_long_send(
+                1, 140, 183, 0, channel, 1100 + ((i + k) % 2) * 800, 0, 0, 0, 0, 0
+            )
             sent += 1
         if collect(gcs, 20.0 / rate):
             last_heard = time.monotonic()
@@ -55,16 +55,22 @@ def main() -> None:
         print(f"no hang after {sent} commands in {time.monotonic() - t0:.1f} s")
         bridge.finish(timeout=60)
         return
-    print(f"HANG: nothing from the bridge since t={hung_at:.1f} s after {sent} commands "
-          f"at {rate:.0f}/s (pid {bridge.proc.pid})")
+    print(
+        f"HANG: nothing from the bridge since t={hung_at:.1f} s after {sent} commands "
+        f"at {rate:.0f}/s (pid {bridge.proc.pid})"
+    )
     time.sleep(max_s + 12 - (time.monotonic() - t0))  # past its --duration
     print("still running past --duration:", bridge.proc.poll() is None)
-    dump = subprocess.run([sys.executable.replace("python", "py-spy"), "dump", "--pid",
-                           str(bridge.proc.pid)], capture_output=True, text=True, timeout=30)
+    dump = subprocess.run(
+        [sys.executable.replace("python", "py-spy"), "dump", "--pid", str(bridge.proc.pid)],
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
     lines = dump.stdout.splitlines()
     for i, ln in enumerate(lines):
         if any(n in ln for n in ('"bridge-tick"', '"mavlink-tick"', '"mavlink-rx"')):
-            print("\n".join(lines[i:i + 4]))
+            print("\n".join(lines[i : i + 4]))
     bridge.proc.terminate()
     try:
         bridge.proc.wait(5)

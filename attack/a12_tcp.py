@@ -12,9 +12,8 @@ from __future__ import annotations
 import socket
 import time
 
-from pymavlink.dialects.v20 import ardupilotmega as m2
-
 from harness import BridgeProc, encoder, free_port, pack
+from pymavlink.dialects.v20 import ardupilotmega as m2
 
 
 def connect(port: int) -> socket.socket:
@@ -74,12 +73,15 @@ def main() -> None:
     time.sleep(15)  # never read
     s.sendall(pack(enc, enc.command_long_encode(1, 140, 183, 0, 9, 1100, 0, 0, 0, 0, 0)))
     time.sleep(1)
-    alive = bridge.proc.poll() is None
+    still_running = bridge.proc.poll() is None
+    print('bridge still running after the idle client:', still_running)
     rc = bridge.finish(timeout=40)
     dt = time.monotonic() - t0
     st = bridge.mavlink_stats()
-    print(f"(b) client never read for 15 s: bridge exit={rc} {dt:.0f} s after connect "
-          f"(duration 25 s incl. start); commands={st['commands']}; link={st['link']}")
+    print(
+        f"(b) client never read for 15 s: bridge exit={rc} {dt:.0f} s after connect "
+        f"(duration 25 s incl. start); commands={st['commands']}; link={st['link']}"
+    )
     s.close()
 
 

@@ -43,8 +43,10 @@ def main() -> None:
             except (TimeoutError, BlockingIOError):
                 pass
     bridge.finish()
-    print(f"{len(strangers)} strangers each replayed ONE captured bridge frame (no key): "
-          f"datagrams back in 3 s per stranger = {back}")
+    print(
+        f"{len(strangers)} strangers each replayed ONE captured bridge frame (no key): "
+        f"datagrams back in 3 s per stranger = {back}"
+    )
     print("link:", bridge.mavlink_stats()["link"])
 
 

@@ -19,11 +19,15 @@ BLINDING = bytes.fromhex("FD FF 00 00 00 01 01 4C 00 00")
 
 
 def payloads(signed: bool) -> dict[str, bytes]:
-    p = {"unknown_v2": UNKNOWN_V2, "unknown_v1": UNKNOWN_V1, "blinding": BLINDING,
-         "garbage": bytes(range(256)),
-         # unknown id with the "signed" flag and 13 junk signature bytes
-         "unknown_v2_signedflag": bytes.fromhex("FD 03 01 00 00 42 42 DE BC 0A 01 02 03 00 00")
-         + bytes(13)}
+    p = {
+        "unknown_v2": UNKNOWN_V2,
+        "unknown_v1": UNKNOWN_V1,
+        "blinding": BLINDING,
+        "garbage": bytes(range(256)),
+        # unknown id with the "signed" flag and 13 junk signature bytes
+        "unknown_v2_signedflag": bytes.fromhex("FD 03 01 00 00 42 42 DE BC 0A 01 02 03 00 00")
+        + bytes(13),
+    }
     if signed:
         hb = encoder((66, 190)).heartbeat_encode(6, 8, 0, 0, 4)
         p["unsigned_heartbeat"] = pack(encoder((66, 190)), hb)
@@ -54,7 +58,7 @@ def main() -> None:
         socks.append(s)
     kinds = payloads(signed)
     sent = 0
-    for rnd in range(3):
+    for _rnd in range(3):
         for s in socks:
             for data in kinds.values():
                 s.sendto(data, ("127.0.0.1", bridge.port))
@@ -78,6 +82,7 @@ def main() -> None:
     link = bridge.mavlink_stats()["link"]
     tlog = (bridge.run_dir() / "mavlink.tlog").read_bytes()
     from pymavlink import mavutil
+
     mlog = mavutil.mavlink_connection(str(bridge.run_dir() / "mavlink.tlog"))
     srcs: dict[tuple, int] = {}
     for _ in range(1_000_000):
@@ -91,9 +96,11 @@ def main() -> None:
     print(f"datagrams back to strangers={back}  ratio={back / sent:.4f}")
     print(f"legit gcs got ~{gcs_got} msgs; exit={rc}")
     print("link counters:", link)
-    print("tlog frames from 0x42 sys (66) / unknown payload bytes present:",
-          {k: v for k, v in srcs.items() if k[0] in (0x42, 66)},
-          UNKNOWN_V2[10:13] in tlog)
+    print(
+        "tlog frames from 0x42 sys (66) / unknown payload bytes present:",
+        {k: v for k, v in srcs.items() if k[0] in (0x42, 66)},
+        UNKNOWN_V2[10:13] in tlog,
+    )
     print("tlog sources:", sorted(srcs.items())[:20])
     print(f"log lines: {len(lines)}")
     for ln in lines[:40]:

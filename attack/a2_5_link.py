@@ -35,8 +35,7 @@ def p2_udp() -> None:
     acked = 0
     for i in range(50):
         evil.sendto(BLINDING, ("127.0.0.1", bridge.port))
-        gcs.mav.command_long_send(1, 140, DO_SET_SERVO, 0, 9 + i % 2, 1100 + 16 * i,
-                                  0, 0, 0, 0, 0)
+        gcs.mav.command_long_send(1, 140, DO_SET_SERVO, 0, 9 + i % 2, 1100 + 16 * i, 0, 0, 0, 0, 0)
         acked += len([m for m in collect(gcs, 0.1, "COMMAND_ACK") if m.result == 0])
     rc = bridge.finish()
     print(f"2/UDP: 50 commands each after a blinding header: ACCEPTED acks={acked} exit={rc}")
@@ -64,8 +63,12 @@ def p2_tcp() -> None:
     }
     sent = 0
     for i in range(40):
-        good = pack(enc, enc.command_long_encode(1, 140, DO_SET_SERVO, 0, 9 + i % 2,
-                                                 1100 + 16 * i, 0, 0, 0, 0, 0))
+        good = pack(
+            enc,
+            enc.command_long_encode(
+                1, 140, DO_SET_SERVO, 0, 9 + i % 2, 1100 + 16 * i, 0, 0, 0, 0, 0
+            ),
+        )
         name = list(bad_variants)[i % 4]
         bad = bad_variants[name]
         if bad is None:
@@ -77,6 +80,7 @@ def p2_tcp() -> None:
         time.sleep(0.05)
     # read ACKs from the stream
     from pymavlink.dialects.v20 import ardupilotmega as m2
+
     dec = m2.MAVLink(None)
     dec.robust_parsing = True
     s.settimeout(0.2)
@@ -120,18 +124,28 @@ def p3() -> None:
     rc = bridge.finish()
     run = bridge.run_dir()
     tlog = (run / "mavlink.tlog").read_bytes()
-    print(f"3: exit={rc} key in tlog={new_key in tlog} key[:8] in tlog={new_key[:8] in tlog} "
-          f"zero-padded key prefix in tlog={key_z[:16] in tlog} "
-          f"passkey={b'operator-passkey' in tlog} authkey={b'authkey-secret' in tlog} "
-          f"bridge key in tlog={KEY in tlog}")
-    print(f"   run dir mode {oct(stat.S_IMODE(run.stat().st_mode))}; files:",
-          {p.name: oct(stat.S_IMODE(p.stat().st_mode)) for p in run.iterdir()})
+    print(
+        f"3: exit={rc} key in tlog={new_key in tlog} key[:8] in tlog={new_key[:8] in tlog} "
+        f"zero-padded key prefix in tlog={key_z[:16] in tlog} "
+        f"passkey={b'operator-passkey' in tlog} authkey={b'authkey-secret' in tlog} "
+        f"bridge key in tlog={KEY in tlog}"
+    )
+    print(
+        f"   run dir mode {oct(stat.S_IMODE(run.stat().st_mode))}; files:",
+        {p.name: oct(stat.S_IMODE(p.stat().st_mode)) for p in run.iterdir()},
+    )
     for p in run.iterdir():
-        if new_key in p.read_bytes() or KEY in p.read_bytes() or new_key.hex() in p.read_text(
-                errors="ignore"):
+        if (
+            new_key in p.read_bytes()
+            or KEY in p.read_bytes()
+            or new_key.hex() in p.read_text(errors="ignore")
+        ):
             print("   KEY FOUND IN", p.name)
-    print("   stdout/err contains key hex:", new_key.hex() in bridge.out + bridge.err,
-          KEY.hex() in bridge.out + bridge.err)
+    print(
+        "   stdout/err contains key hex:",
+        new_key.hex() in bridge.out + bridge.err,
+        KEY.hex() in bridge.out + bridge.err,
+    )
     print("   run.json mentions key:", KEY.hex() in (run / "run.json").read_text())
 
 
@@ -146,8 +160,11 @@ def p4() -> None:
     s.sendto(pack(enc, enc.heartbeat_encode(6, 8, 0, 0, 4)), ("127.0.0.1", bridge.port))
     time.sleep(0.3)
     results = {}
-    for name, src, link in (("same sys other link", (255, 190), 3),
-                            ("new sys", (250, 190), 0), ("new comp", (255, 191), 7)):
+    for name, src, link in (
+        ("same sys other link", (255, 190), 3),
+        ("new sys", (250, 190), 0),
+        ("new comp", (255, 191), 7),
+    ):
         g = peer(bridge.port, source=src, key=KEY, link_id=link)
         g.mav.heartbeat_send(6, 8, 0, 0, 4)
         g.mav.command_long_send(1, 140, DO_SET_SERVO, 0, 9, 1900, 0, 0, 0, 0, 0)
@@ -161,8 +178,10 @@ def p4() -> None:
         except TimeoutError:
             break
     rc = bridge.finish()
-    print(f"4: acks for new signed streams after a 10-years-ahead frame: {results}; "
-          f"datagrams to the future sender={back}; exit={rc}")
+    print(
+        f"4: acks for new signed streams after a 10-years-ahead frame: {results}; "
+        f"datagrams to the future sender={back}; exit={rc}"
+    )
     print("   ", bridge.mavlink_stats()["link"])
     print("   ", [ln for ln in bridge.log_lines() if "ahead" in ln])
 
@@ -170,9 +189,18 @@ def p4() -> None:
 def p5() -> None:
     first = BridgeProc("cfg_open.yaml", duration=8)
     first.wait_ready()
-    args = [sys.executable.replace("python", "mavservo"), "run", "--config",
-            os.path.join(os.path.dirname(__file__), "cfg_open.yaml"), "--mavlink", first.url,
-            "--duration", "3", "--no-log", "-q"]
+    args = [
+        sys.executable.replace("python", "mavservo"),
+        "run",
+        "--config",
+        os.path.join(os.path.dirname(__file__), "cfg_open.yaml"),
+        "--mavlink",
+        first.url,
+        "--duration",
+        "3",
+        "--no-log",
+        "-q",
+    ]
     t0 = time.monotonic()
     r = subprocess.run(args, capture_output=True, text=True, timeout=30)
     dt = time.monotonic() - t0
@@ -181,8 +209,10 @@ def p5() -> None:
     # also 0.0.0.0 on the same port while the first holds 127.0.0.1
     args[5] = first.url.replace("127.0.0.1", "0.0.0.0")
     r = subprocess.run(args, capture_output=True, text=True, timeout=30)
-    print(f"5b: bridge on {args[5]} while first holds {first.url}: exit={r.returncode}:",
-          (r.stdout + r.stderr).strip().splitlines()[:3])
+    print(
+        f"5b: bridge on {args[5]} while first holds {first.url}: exit={r.returncode}:",
+        (r.stdout + r.stderr).strip().splitlines()[:3],
+    )
     first.finish()
 
 

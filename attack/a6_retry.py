@@ -46,42 +46,74 @@ def main() -> None:
 
     # 1: the promise as stated
     for pwm in (1100, 1900, 1100):
-        step(f"DO_SET_SERVO ch9 {pwm} conf0",
-             lambda pwm=pwm: gcs.mav.command_long_send(1, 140, DO_SET_SERVO, 0, 9, pwm,
-                                                       0, 0, 0, 0, 0))
+        step(
+            f"DO_SET_SERVO ch9 {pwm} conf0",
+            lambda pwm=pwm: gcs.mav.command_long_send(
+                1, 140, DO_SET_SERVO, 0, 9, pwm, 0, 0, 0, 0, 0
+            ),
+        )
     time.sleep(2.5)
     # 2: same physical servo via DO_SET_ACTUATOR in between (actuator 1 = payload_release)
-    step("DO_SET_SERVO ch9 1100 conf0",
-         lambda: gcs.mav.command_long_send(1, 140, DO_SET_SERVO, 0, 9, 1100, 0, 0, 0, 0, 0))
-    step("DO_SET_ACTUATOR act1 +1.0",
-         lambda: gcs.mav.command_long_send(1, 140, DO_SET_ACTUATOR, 0, 1.0, float("nan"),
-                                           float("nan"), float("nan"), float("nan"),
-                                           float("nan"), 0))
-    step("DO_SET_SERVO ch9 1100 conf0 (change back after the actuator command)",
-         lambda: gcs.mav.command_long_send(1, 140, DO_SET_SERVO, 0, 9, 1100, 0, 0, 0, 0, 0))
+    step(
+        "DO_SET_SERVO ch9 1100 conf0",
+        lambda: gcs.mav.command_long_send(1, 140, DO_SET_SERVO, 0, 9, 1100, 0, 0, 0, 0, 0),
+    )
+    step(
+        "DO_SET_ACTUATOR act1 +1.0",
+        lambda: gcs.mav.command_long_send(
+            1,
+            140,
+            DO_SET_ACTUATOR,
+            0,
+            1.0,
+            float("nan"),
+            float("nan"),
+            float("nan"),
+            float("nan"),
+            float("nan"),
+            0,
+        ),
+    )
+    step(
+        "DO_SET_SERVO ch9 1100 conf0 (change back after the actuator command)",
+        lambda: gcs.mav.command_long_send(1, 140, DO_SET_SERVO, 0, 9, 1100, 0, 0, 0, 0, 0),
+    )
     time.sleep(2.5)
     # 3: COMMAND_INT twin of a COMMAND_LONG (same command, other message type)
-    step("COMMAND_LONG ch10 1100",
-         lambda: gcs.mav.command_long_send(1, 140, DO_SET_SERVO, 0, 10, 1100, 0, 0, 0, 0, 0))
-    step("COMMAND_INT ch10 1900",
-         lambda: gcs.mav.command_int_send(1, 140, 0, DO_SET_SERVO, 0, 0, 10, 1900, 0, 0,
-                                          0, 0, 0))
-    step("COMMAND_LONG ch10 1100 (change back)",
-         lambda: gcs.mav.command_long_send(1, 140, DO_SET_SERVO, 0, 10, 1100, 0, 0, 0, 0, 0))
+    step(
+        "COMMAND_LONG ch10 1100",
+        lambda: gcs.mav.command_long_send(1, 140, DO_SET_SERVO, 0, 10, 1100, 0, 0, 0, 0, 0),
+    )
+    step(
+        "COMMAND_INT ch10 1900",
+        lambda: gcs.mav.command_int_send(1, 140, 0, DO_SET_SERVO, 0, 0, 10, 1900, 0, 0, 0, 0, 0),
+    )
+    step(
+        "COMMAND_LONG ch10 1100 (change back)",
+        lambda: gcs.mav.command_long_send(1, 140, DO_SET_SERVO, 0, 10, 1100, 0, 0, 0, 0, 0),
+    )
     time.sleep(2.5)
     # 4: other sender moves the channel in between
     other = peer(bridge.port, source=(254, 190))
     other.mav.heartbeat_send(6, 8, 0, 0, 4)
-    step("GCS ch10 1900", lambda: gcs.mav.command_long_send(1, 140, DO_SET_SERVO, 0, 10, 1900,
-                                                            0, 0, 0, 0, 0))
-    step("OTHER ch10 1100", lambda: other.mav.command_long_send(1, 140, DO_SET_SERVO, 0, 10,
-                                                                1100, 0, 0, 0, 0, 0))
-    step("GCS ch10 1900 (change back)",
-         lambda: gcs.mav.command_long_send(1, 140, DO_SET_SERVO, 0, 10, 1900, 0, 0, 0, 0, 0))
+    step(
+        "GCS ch10 1900",
+        lambda: gcs.mav.command_long_send(1, 140, DO_SET_SERVO, 0, 10, 1900, 0, 0, 0, 0, 0),
+    )
+    step(
+        "OTHER ch10 1100",
+        lambda: other.mav.command_long_send(1, 140, DO_SET_SERVO, 0, 10, 1100, 0, 0, 0, 0, 0),
+    )
+    step(
+        "GCS ch10 1900 (change back)",
+        lambda: gcs.mav.command_long_send(1, 140, DO_SET_SERVO, 0, 10, 1900, 0, 0, 0, 0, 0),
+    )
     # 5: confirmation games: a real retry (conf 1) must not be re-applied, conf 0 repeat within
     # window is a retry by design
-    step("GCS ch10 1900 conf1 (retry)",
-         lambda: gcs.mav.command_long_send(1, 140, DO_SET_SERVO, 1, 10, 1900, 0, 0, 0, 0, 0))
+    step(
+        "GCS ch10 1900 conf1 (retry)",
+        lambda: gcs.mav.command_long_send(1, 140, DO_SET_SERVO, 1, 10, 1900, 0, 0, 0, 0, 0),
+    )
     rc = bridge.finish()
     for row in log:
         print(row)

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import sys
 import time
-from pathlib import Path
 
 from harness import HERE, collect, free_port, peer
 
@@ -22,7 +21,9 @@ from mavservo.config.loader import load_config_text
 def main() -> None:
     rounds = int(sys.argv[1]) if len(sys.argv) > 1 else 5
     port = free_port()
-    text = (HERE / "cfg_open.yaml").read_text().replace("url: sim ", f"url: udpin:127.0.0.1:{port} ")
+    text = (
+        (HERE / "cfg_open.yaml").read_text().replace("url: sim ", f"url: udpin:127.0.0.1:{port} ")
+    )
     bridge = Bridge(load_config_text(text), log_dir=False)
     bridge.start()
     try:
@@ -45,23 +46,28 @@ def main() -> None:
             emulator.replug()
             time.sleep(2.0)
             hb2 = [m for m in collect(gcs, 1.5, "HEARTBEAT") if m.get_srcComponent() == 140]
-            print(f"round {r}: ACKs during outage {len(results)} "
-                  f"(results {sorted(set(results))}); heartbeats from 140 in 1.5 s: during "
-                  f"outage {len(hb)}, after replug {len(hb2)}")
+            print(
+                f"round {r}: ACKs during outage {len(results)} "
+                f"(results {sorted(set(results))}); heartbeats from 140 in 1.5 s: during "
+                f"outage {len(hb)}, after replug {len(hb2)}"
+            )
             if not hb2:
                 print("HANG: no heartbeat after replug")
                 import faulthandler
+
                 faulthandler.dump_traceback(all_threads=True)
                 break
     finally:
         stop_deadline = time.monotonic()
         import threading
+
         t = threading.Thread(target=bridge.stop, daemon=True)
         t.start()
         t.join(10)
         print("bridge.stop returned:", not t.is_alive(), f"{time.monotonic() - stop_deadline:.1f}s")
         if t.is_alive():
             import os
+
             os._exit(3)
 
 

@@ -43,17 +43,25 @@ def cmds(targets=(140, 154, 0)) -> None:
     bridge.wait_ready()
     gcs = peer(bridge.port)
     gcs.mav.heartbeat_send(6, 8, 0, 0, 4)
-    base = {183: [9, 1500, 0, 0, 0, 0, 0], 184: [10, 1500, 2, 1, 0, 0, 0],
-            187: [0.5, NAN, NAN, NAN, NAN, NAN, 0], 511: [33, 100000, 0, 0, 0, 0, 0],
-            512: [33, 0, 0, 0, 0, 0, 0], 205: [10, 0, 20, 0, 0, 0, 2],
-            1000: [10, 20, NAN, NAN, 0, 0, 0], 1001: [-1, -1, -1, -1, 0, 0, 0],
-            204: [2, 0, 0, 0, 0, 0, 0], 4242: [0] * 7}
+    base = {
+        183: [9, 1500, 0, 0, 0, 0, 0],
+        184: [10, 1500, 2, 1, 0, 0, 0],
+        187: [0.5, NAN, NAN, NAN, NAN, NAN, 0],
+        511: [33, 100000, 0, 0, 0, 0, 0],
+        512: [33, 0, 0, 0, 0, 0, 0],
+        205: [10, 0, 20, 0, 0, 0, 2],
+        1000: [10, 20, NAN, NAN, 0, 0, 0],
+        1001: [-1, -1, -1, -1, 0, 0, 0],
+        204: [2, 0, 0, 0, 0, 0, 0],
+        4242: [0] * 7,
+    }
     sent = Counter()
     got = Counter()
     extra = []
     n = 0
     for command, target, kind, param, value in itertools.product(
-            COMMANDS, targets, ("long", "int"), range(7), HOSTILE):
+        COMMANDS, targets, ("long", "int"), range(7), HOSTILE
+    ):
         p = list(base[command])
         p[param] = value
         if kind == "long":
@@ -61,18 +69,36 @@ def cmds(targets=(140, 154, 0)) -> None:
         else:
             x = p[4] if param != 4 else value
             y = p[5] if param != 5 else value
-            xi = int(max(-2**31, min(2**31 - 1, x if math.isfinite(x) else 0)))
-            yi = int(max(-2**31, min(2**31 - 1, y if math.isfinite(y) else 0)))
-            gcs.mav.command_int_send(1, target, 0, command, 0, 0, p[0], p[1], p[2], p[3],
-                                     xi, yi, p[6])
+            xi = int(max(-(2**31), min(2**31 - 1, x if math.isfinite(x) else 0)))
+            yi = int(max(-(2**31), min(2**31 - 1, y if math.isfinite(y) else 0)))
+            gcs.mav.command_int_send(
+                1, target, 0, command, 0, 0, p[0], p[1], p[2], p[3], xi, yi, p[6]
+            )
         n += 1
         acks = acks_for(gcs, 0.25 if target else 0.02, 0.02)
         if target and len(acks) != 1:
-            print("  !", command, target, kind, "param", param + 1, value, "->",
-                  [(a.command, a.get_srcComponent(), a.result) for a in acks])
+            print(
+                "  !",
+                command,
+                target,
+                kind,
+                "param",
+                param + 1,
+                value,
+                "->",
+                [(a.command, a.get_srcComponent(), a.result) for a in acks],
+            )
         if not target and acks:
-            print("  broadcast", command, kind, "param", param + 1, value, "->",
-                  [(a.command, a.get_srcComponent(), a.result) for a in acks])
+            print(
+                "  broadcast",
+                command,
+                kind,
+                "param",
+                param + 1,
+                value,
+                "->",
+                [(a.command, a.get_srcComponent(), a.result) for a in acks],
+            )
         # ACKs may trail into the next slot: collect generously, match by totals below
         for a in acks:
             got[(a.command, a.get_srcComponent())] += 1
@@ -116,18 +142,28 @@ def msgs() -> None:
     gcs = peer(bridge.port)
     ap = peer(bridge.port, source=(1, 1))  # spoofs the autopilot (signing off)
     gcs.mav.heartbeat_send(6, 8, 0, 0, 4)
-    qs = [[NAN] * 4, [0.0] * 4, [INF, 0.0, 0.0, 0.0], [3.4e38, 3.4e38, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0],
-          [1e-30, 0.0, 0.0, 0.0], [-INF, NAN, 1.0, 0.0], [0.5, 0.5, 0.5, 0.5], [1e19, 1e19, 1e19, 1e19]]
+    qs = [
+        [NAN] * 4,
+        [0.0] * 4,
+        [INF, 0.0, 0.0, 0.0],
+        [3.4e38, 3.4e38, 0.0, 0.0],
+        [1.0, 0.0, 0.0, 0.0],
+        [1e-30, 0.0, 0.0, 0.0],
+        [-INF, NAN, 1.0, 0.0],
+        [0.5, 0.5, 0.5, 0.5],
+        [1e19, 1e19, 1e19, 1e19],
+    ]
     n = 0
-    for rnd in range(20):
+    for _rnd in range(20):
         for q in qs:
             for v in HOSTILE:
                 for tgt in (154, 0):
                     gcs.mav.gimbal_device_set_attitude_send(1, tgt, 0, q, v, v, v)
                     gcs.mav.gimbal_manager_set_attitude_send(1, tgt, 0, 0, q, v, v, v)
                     gcs.mav.gimbal_manager_set_pitchyaw_send(1, tgt, 0, 0, v, v, v, v)
-                ap.mav.autopilot_state_for_gimbal_device_send(1, 154, 0, q, 0, v, v, v, 0,
-                                                              v, 0, 0, v)
+                ap.mav.autopilot_state_for_gimbal_device_send(
+                    1, 154, 0, q, 0, v, v, v, 0, v, 0, 0, v
+                )
                 ap.mav.attitude_send(0, v, v, v, v, v, v)
                 pw = int(v) & 0xFFFF if math.isfinite(v) and abs(v) < 1e18 else 65535
                 ap.mav.servo_output_raw_send(0, 0, *[pw] * 8, *[pw] * 8)
@@ -161,14 +197,21 @@ def allowed() -> None:
     rc = bridge.finish()
     lines = [ln for ln in bridge.log_lines() if "allowed_sources" in ln]
     st = bridge.mavlink_stats()
-    print(f"allowed: {n} PARAM_REQUEST_LIST from 66/190 (not allowed); exit={rc}; "
-          f"rejected_source={st['core'].get('rejected_source')}; log lines about it={len(lines)}")
+    print(
+        f"allowed: {n} PARAM_REQUEST_LIST from 66/190 (not allowed); exit={rc}; "
+        f"rejected_source={st['core'].get('rejected_source')}; log lines about it={len(lines)}"
+    )
     for ln in lines[:3]:
         print("   ", ln)
 
 
 if __name__ == "__main__":
-    todo = {"cmds": cmds, "msgs": msgs, "allowed": allowed,
-            "addressed": lambda: cmds((140, 154)), "broadcast": lambda: cmds((0,))}
+    todo = {
+        "cmds": cmds,
+        "msgs": msgs,
+        "allowed": allowed,
+        "addressed": lambda: cmds((140, 154)),
+        "broadcast": lambda: cmds((0,)),
+    }
     for name in sys.argv[1:] or list(todo):
         todo[name]()

@@ -28,18 +28,37 @@ def free_port() -> int:
 
 
 class BridgeProc:
-    def __init__(self, cfg: str, duration: float, url: str | None = None, verbose=False,
-                 extra: list[str] | None = None, log_dir: str | None = None) -> None:
+    def __init__(
+        self,
+        cfg: str,
+        duration: float,
+        url: str | None = None,
+        verbose=False,
+        extra: list[str] | None = None,
+        log_dir: str | None = None,
+    ) -> None:
         self.port = free_port()
         self.url = url or f"udpin:127.0.0.1:{self.port}"
         self.log_dir = log_dir or f"/tmp/atk_runs/{os.getpid()}_{time.time_ns()}"
-        args = [MAVSERVO, "run", "--config", str(HERE / cfg), "--mavlink", self.url,
-                "--duration", str(duration), "--log-dir", self.log_dir, "-q"]
+        args = [
+            MAVSERVO,
+            "run",
+            "--config",
+            str(HERE / cfg),
+            "--mavlink",
+            self.url,
+            "--duration",
+            str(duration),
+            "--log-dir",
+            self.log_dir,
+            "-q",
+        ]
         if verbose:
             args.append("-v")
         args += extra or []
-        self.proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                     text=True)
+        self.proc = subprocess.Popen(
+            args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        )
         self.out = self.err = ""
 
     def wait_ready(self, timeout=15.0) -> None:
@@ -72,8 +91,12 @@ class BridgeProc:
 
 
 def peer(port: int, source=(255, 190), key: bytes | None = None, link_id=0, bind_ip=None):
-    conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=source[0],
-                                      source_component=source[1], dialect="ardupilotmega")
+    conn = mavutil.mavlink_connection(
+        f"udpout:127.0.0.1:{port}",
+        source_system=source[0],
+        source_component=source[1],
+        dialect="ardupilotmega",
+    )
     if bind_ip:
         conn.port.bind((bind_ip, 0))
     if key is not None:
@@ -100,8 +123,9 @@ def encoder(source=(255, 190), key: bytes | None = None, link_id=0, timestamp=No
         enc.signing.secret_key = key
         enc.signing.sign_outgoing = True
         enc.signing.link_id = link_id
-        enc.signing.timestamp = timestamp if timestamp is not None else int(
-            (time.time() - 1420070400) * 100_000)
+        enc.signing.timestamp = (
+            timestamp if timestamp is not None else int((time.time() - 1420070400) * 100_000)
+        )
     return enc
 
 
