@@ -74,7 +74,7 @@ def main() -> None:
     s.sendall(pack(enc, enc.command_long_encode(1, 140, 183, 0, 9, 1100, 0, 0, 0, 0, 0)))
     time.sleep(1)
     still_running = bridge.proc.poll() is None
-    print('bridge still running after the idle client:', still_running)
+    print("bridge still running after the idle client:", still_running)
     rc = bridge.finish(timeout=40)
     dt = time.monotonic() - t0
     st = bridge.mavlink_stats()
