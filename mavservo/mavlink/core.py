@@ -13,9 +13,10 @@ as is, and the configured autopilot (system, component) is watched.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections import Counter
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
@@ -242,4 +243,18 @@ class MavlinkCore:
             "telemetry": dict(self.telemetry.counters),
             "failsafe_count": self.watchdog.failsafe_count,
             "in_failsafe": self.watchdog.in_failsafe,
+            "gimbals": self._gimbal_counters(),
         }
+
+    def _gimbal_counters(self) -> dict[str, dict[str, int]]:
+        """Each hosted gimbal's counters (``bad_value``, ``denied_control``, ...) by component
+        id, so they reach the summary and ``metrics.json`` like the command counters: a flood
+        of hostile gimbal values was DENIED and counted, but the count stayed in the device."""
+        out: dict[str, dict[str, int]] = {}
+        for cid, device in self.gimbals.items():
+            counters = getattr(device, "counters", None)
+            if dataclasses.is_dataclass(counters) and not isinstance(counters, type):
+                out[str(cid)] = dataclasses.asdict(counters)
+            elif isinstance(counters, Mapping):
+                out[str(cid)] = dict(counters)
+        return out
