@@ -49,9 +49,7 @@ def test_spoofed_flood_from_a_source_not_allowed_gives_a_handful_of_lines(
         assert wait_until(lambda b=batch: rejected_source(rig) >= (b + 1) * BATCH)
     elapsed = time.monotonic() - started
     assert rejected_source(rig) == SPOOFED
-    lines = [
-        r.getMessage() for r in caplog.records if "not in allowed_sources" in r.getMessage()
-    ]
+    lines = [r.getMessage() for r in caplog.records if "not in allowed_sources" in r.getMessage()]
     # one line when the flood starts, then at most one per interval it lasted
     assert 1 <= len(lines) <= 2 + math.ceil(elapsed / REFUSAL_LOG_INTERVAL_S)
     assert len(lines) < 20
