@@ -51,7 +51,7 @@ def test_udp_server_counts_every_datagram_the_kernel_dropped(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
     server = UdpServer("127.0.0.1", 0)
-    address = server._sock.getsockname()
+    address = server.address
     caplog.set_level(logging.WARNING, logger="mavservo.mavlink.link")
     try:
         assert server.counts_kernel_drops

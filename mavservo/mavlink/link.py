@@ -239,6 +239,7 @@ class UdpServer:
                 raise busy from exc
             raise
         self._sock.setblocking(False)
+        self.address = self._sock.getsockname()[:2]  # the port the kernel chose for port 0
         self.rcvbuf_bytes = self._enlarge_receive_buffer(UDP_RCVBUF_BYTES)
         self.counts_kernel_drops = self._enable_drop_count()
         #: datagrams read from the socket, and datagrams the kernel dropped before they could
