@@ -362,7 +362,9 @@ class Bridge:
         trims = {
             c.channel: c.input.resolved_trim for c in cfg.channels if c.source == "servo_output"
         }
-        settings = MavlinkSettings.from_mapping(raw, channel_trims_us=trims)
+        settings = MavlinkSettings.from_mapping(
+            raw, channel_trims_us=trims, command_period_s=cfg.scheduler.command_period_s
+        )
         if cfg.mavlink.signing is not None:
             settings = dataclasses.replace(
                 settings,

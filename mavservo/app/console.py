@@ -132,6 +132,10 @@ def _ms(value: float | None) -> str:
     return "-" if value is None else f"{value * 1000:.2f}"
 
 
+def _ms_unit(value: float | None) -> str:
+    return "-" if value is None else f"{_ms(value)} ms"
+
+
 def format_summary(summary: dict[str, Any]) -> str:
     """The end-of-run summary: frames both ways, errors, latency L / sigma_L, bus load R."""
     lines = ["", "mavservo summary"]
@@ -146,7 +150,9 @@ def format_summary(summary: dict[str, Any]) -> str:
             f"  bus {name}: load R now {load.get('current', 0) * 100:.1f} % "
             f"(peak {load.get('peak', 0) * 100:.1f} %, worst case "
             f"{bus.get('info', {}).get('worst_case_load', 0) * 100:.1f} %), "
-            f"missed command slots {bus.get('missed_command_slots', 0)}, "
+            f"missed command slots {bus.get('missed_command_slots', 0)} "
+            f"(late {bus.get('late_command_slots', 0)}, "
+            f"longest gap {_ms_unit(bus.get('longest_command_gap_s'))}), "
             f"decoder rejections {sum(rejected.values()) if rejected else 0}, "
             f"bytes discarded {transport.get('bytes_discarded', 0)}, "
             f"reconnects {transport.get('reconnects', 0)}, "

@@ -63,6 +63,10 @@ PWM_MAX_US = 2500.0
 #: A repeat longer than this is almost certainly a unit mix-up (ms read as s), so it is refused.
 MAX_REPEAT_COUNT = 1000
 MAX_REPEAT_CYCLE_S = 600.0
+#: Shortest DO_REPEAT_SERVO half cycle whatever the scheduler's period: the MAVLink side's tick
+#: (mavlink/side.py TICK_S, 10 ms) steps the repeats, so a shorter half cycle puts several
+#: steps into one tick (a 1 ms cycle and count 1000 gave 2,000 setpoints at once).
+MIN_REPEAT_HALF_CYCLE_S = 0.01
 #: DO_SET_ACTUATOR carries six values; param 7 is the index of the set of six they belong to.
 ACTUATORS_PER_SET = 6
 #: MAVLink 2 message ids are 24-bit: anything larger in REQUEST_MESSAGE / SET_MESSAGE_INTERVAL
@@ -306,6 +310,12 @@ class CommandHandler:
             if not job.steps:
                 del self._repeats[channel]
 
+    def min_repeat_cycle_s(self) -> float:
+        """The shortest DO_REPEAT_SERVO cycle accepted: two half cycles, each at least one
+        command period of the scheduler (a shorter one would be overwritten before its slot
+        came, or, below the tick, several steps would go out at once) and one tick."""
+        return 2.0 * max(self.settings.command_period_s, MIN_REPEAT_HALF_CYCLE_S)
+
     def repeating_channels(self) -> set[int]:
         return set(self._repeats)
 
@@ -521,6 +531,13 @@ class CommandHandler:
         cycle_s = cycle / 1000.0 if self.settings.repeat_servo_cycle == "milliseconds" else cycle
         if cycle_s > MAX_REPEAT_CYCLE_S:
             return _denied("bad_param", f"cycle time {cycle_s} s")
+        shortest = self.min_repeat_cycle_s()
+        if cycle_s < shortest:
+            return _denied(
+                "cycle_too_short",
+                f"cycle time {cycle_s:g} s < {shortest:g} s (two command periods: each half "
+                "cycle needs a command slot of its own)",
+            )
         result = self.backend.apply_servo_output(channel, pwm, "do_repeat_servo", now)
         if not result.ok:
             return result

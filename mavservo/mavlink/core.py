@@ -13,16 +13,23 @@ as is, and the configured autopilot (system, component) is watched.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections import Counter
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mavservo.mavlink.arbitration import CommandHold
 from mavservo.mavlink.backend import ActuatorBackend
-from mavservo.mavlink.commands import Command, CommandHandler, Outgoing
+from mavservo.mavlink.commands import (
+    REFUSAL_LOG_INTERVAL_S,
+    Command,
+    CommandHandler,
+    Outgoing,
+    RateLimitedLog,
+)
 from mavservo.mavlink.component import MAV_TYPE_GIMBAL, MAV_TYPE_SERVO, HostedComponent
 from mavservo.mavlink.failsafe import FailsafeEvent, HeartbeatWatchdog
 from mavservo.mavlink.mirror import Mirror
@@ -82,6 +89,7 @@ class MavlinkCore:
         self._now = boot_time
         self._next_heartbeat = {cid: boot_time for cid in self.components}
         self.counters: Counter[str] = Counter()
+        self._problem_log = RateLimitedLog(REFUSAL_LOG_INTERVAL_S)
 
     @property
     def system_id(self) -> int:
@@ -111,12 +119,32 @@ class MavlinkCore:
             return []
         if not from_autopilot and not self._source_allowed(source):
             self.counters["rejected_source"] += 1
-            log.warning("message %s from %s rejected: not in allowed_sources", kind, source)
+            self._log_rejected_source(kind, source, now)
             return []
         if kind in COMMAND_TYPES:
             return self.commands.handle(Command.from_message(msg), now)
         self._to_gimbals(msg, now)
         return []
+
+    def _log_rejected_source(self, kind: str, source: tuple[int, int], now: float) -> None:
+        """One line per ``REFUSAL_LOG_INTERVAL_S`` for the whole kind, not one per message.
+
+        Why: on an unsigned link anyone can spoof a known message from a source not allowed;
+        a line per message was a log flood an attacker controlled (500 spoofed commands, 500
+        lines). Every one is still counted in ``rejected_source``; the line says how many
+        were kept quiet since the last one. One kind for every message type, so cycling
+        through message types buys no more lines."""
+        quiet = self._problem_log.quiet_since_last("rejected_source", now)
+        if quiet is None:
+            return
+        log.warning(
+            "message %s from %s rejected: not in allowed_sources%s",
+            kind,
+            source,
+            f" ({quiet} more rejected since the last line, counted in rejected_source)"
+            if quiet
+            else " (repeats counted in rejected_source, one line a second at most)",
+        )
 
     def _source_allowed(self, source: tuple[int, int]) -> bool:
         allowed = self.settings.allowed_sources
@@ -215,4 +243,18 @@ class MavlinkCore:
             "telemetry": dict(self.telemetry.counters),
             "failsafe_count": self.watchdog.failsafe_count,
             "in_failsafe": self.watchdog.in_failsafe,
+            "gimbals": self._gimbal_counters(),
         }
+
+    def _gimbal_counters(self) -> dict[str, dict[str, int]]:
+        """Each hosted gimbal's counters (``bad_value``, ``denied_control``, ...) by component
+        id, so they reach the summary and ``metrics.json`` like the command counters: a flood
+        of hostile gimbal values was DENIED and counted, but the count stayed in the device."""
+        out: dict[str, dict[str, int]] = {}
+        for cid, device in self.gimbals.items():
+            counters = getattr(device, "counters", None)
+            if dataclasses.is_dataclass(counters) and not isinstance(counters, type):
+                out[str(cid)] = dataclasses.asdict(counters)
+            elif isinstance(counters, Mapping):
+                out[str(cid)] = dict(counters)
+        return out

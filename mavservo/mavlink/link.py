@@ -37,6 +37,7 @@ import logging
 import select
 import socket
 import struct
+import sys
 import threading
 import time
 from collections import Counter
@@ -71,6 +72,17 @@ UDP_MAX_DATAGRAM = 65535
 #: Most addresses a UDP server sends to; each one had to send a verified frame first.
 MAX_UDP_PEERS = 16
 HANDLER_ERROR_SUMMARY_S = 60.0
+#: Receive buffer a UDP server asks for. Linux's default (net.core.rmem_default, 208 KiB) held
+#: too few datagrams: a 5,000/s command flood lost a median 441 per 10 s in the kernel, unseen.
+#: The kernel caps the request at net.core.rmem_max; what it granted is read back and reported.
+UDP_RCVBUF_BYTES = 1 << 20
+#: Linux's SO_RXQ_OVFL (socket(7)): every datagram carries the socket's count of datagrams the
+#: kernel dropped so far; Python's socket module does not name it. None: not on this system.
+SO_RXQ_OVFL: int | None = getattr(
+    socket, "SO_RXQ_OVFL", 40 if sys.platform.startswith("linux") else None
+)
+#: At most one warning about kernel drops per this many seconds (every drop is counted).
+UDP_DROP_LOG_INTERVAL_S = 10.0
 
 
 def signing_timestamp(wall_time: float) -> int:
@@ -201,6 +213,12 @@ class UdpServer:
     only when :meth:`admit` is called for it, i.e. after one of its frames verified (pymavlink
     sends everything to every address a datagram ever came from: a reflector); at most
     ``max_peers`` destinations.
+
+    Datagrams the kernel drops because the receive queue is full (a flood, a stalled reader)
+    are counted (:attr:`kernel_drops`, from ``SO_RXQ_OVFL`` where the system has it) and
+    warned about at most every ``UDP_DROP_LOG_INTERVAL_S``; the receive buffer is enlarged to
+    ``UDP_RCVBUF_BYTES`` (as far as the kernel allows, :attr:`rcvbuf_bytes` is what it gave).
+    Both counters and the buffer size reach the link's stats (``udp_*``).
     """
 
     def __init__(
@@ -228,6 +246,42 @@ class UdpServer:
                 raise busy from exc
             raise
         self._sock.setblocking(False)
+        self.address = self._sock.getsockname()[:2]  # the port the kernel chose for port 0
+        self.rcvbuf_bytes = self._enlarge_receive_buffer(UDP_RCVBUF_BYTES)
+        self.counts_kernel_drops = self._enable_drop_count()
+        #: datagrams read from the socket, and datagrams the kernel dropped before they could
+        #: be read (as far as the last datagram read tells: drops after it show with the next)
+        self.datagrams = 0
+        self.kernel_drops = 0
+        self._kernel_drop_mark = 0
+        self._drops_logged_at: float | None = None
+        self._drops_logged = 0
+
+    def _enlarge_receive_buffer(self, wanted: int) -> int:
+        """Ask for ``wanted`` bytes of receive buffer; returns what the kernel granted (Linux
+        doubles the request for its bookkeeping and caps it at net.core.rmem_max)."""
+        with contextlib.suppress(OSError):
+            self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, wanted)
+        granted = int(self._sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF))
+        if granted < wanted:
+            log.info(
+                "UDP receive buffer of %s:%d is %d KiB, asked for %d KiB (the kernel caps it at "
+                "net.core.rmem_max; raise that for more room under a flood)",
+                *self.address,
+                granted // 1024,
+                wanted // 1024,
+            )
+        return granted
+
+    def _enable_drop_count(self) -> bool:
+        """Ask the kernel to tell each datagram's drop count (Linux); False elsewhere."""
+        if SO_RXQ_OVFL is None:
+            return False
+        try:
+            self._sock.setsockopt(socket.SOL_SOCKET, SO_RXQ_OVFL, 1)
+        except OSError:
+            return False
+        return True
 
     @classmethod
     def from_url(cls, url: str, peers: tuple[tuple[str, int], ...] = ()) -> UdpServer:
@@ -244,12 +298,50 @@ class UdpServer:
 
     def recv_from(self) -> tuple[bytes, tuple[str, int]] | None:
         try:
-            data, address = self._sock.recvfrom(UDP_MAX_DATAGRAM)
+            if self.counts_kernel_drops:
+                data, ancillary, _, address = self._sock.recvmsg(
+                    UDP_MAX_DATAGRAM, socket.CMSG_SPACE(4)
+                )
+                self._note_kernel_drops(ancillary)
+            else:
+                data, address = self._sock.recvfrom(UDP_MAX_DATAGRAM)
         except (BlockingIOError, InterruptedError):
             return None
         except ConnectionRefusedError:  # ICMP unreachable from an earlier send: not fatal
             return None
+        self.datagrams += 1
         return data, address
+
+    def _note_kernel_drops(self, ancillary: list[tuple[int, int, bytes]]) -> None:
+        """Take the socket's drop count from a datagram's ancillary data (absent: none yet).
+
+        The kernel's count is cumulative for the socket and 32 bits wide: the growth since the
+        last datagram is added, modulo 2**32."""
+        for level, kind, payload in ancillary:
+            if level != socket.SOL_SOCKET or kind != SO_RXQ_OVFL or len(payload) < 4:
+                continue
+            (mark,) = struct.unpack_from("=I", payload)
+            grown = (mark - self._kernel_drop_mark) & 0xFFFFFFFF
+            self._kernel_drop_mark = mark
+            if grown:
+                self.kernel_drops += grown
+                self._warn_kernel_drops(time.monotonic())
+
+    def _warn_kernel_drops(self, now: float) -> None:
+        """One warning per ``UDP_DROP_LOG_INTERVAL_S`` at most, with the drops since the last."""
+        last = self._drops_logged_at
+        if last is not None and now - last < UDP_DROP_LOG_INTERVAL_S:
+            return
+        log.warning(
+            "MAVLink UDP %s:%d: the kernel dropped %d datagrams (receive queue full: a flood or "
+            "a stalled reader; %d in all, counted in udp_kernel_drops; receive buffer %d KiB)",
+            *self.address,
+            self.kernel_drops - self._drops_logged,
+            self.kernel_drops,
+            self.rcvbuf_bytes // 1024,
+        )
+        self._drops_logged_at = now
+        self._drops_logged = self.kernel_drops
 
     def is_peer(self, address: tuple[str, int]) -> bool:
         return address in self._peers
@@ -271,6 +363,38 @@ class UdpServer:
 
     def close(self) -> None:
         self._sock.close()
+
+
+class UdpServerTotals:
+    """The UDP server figures of a link across reopens (each socket counts from zero).
+
+    Why here and not in the server: a reopen makes a new :class:`UdpServer`; the totals add up
+    the servers seen by :meth:`observe` (the last one's figures stay readable after it closed).
+    """
+
+    def __init__(self) -> None:
+        self._current: UdpServer | None = None
+        self._earlier = Counter[str]()
+
+    def observe(self, conn: Any) -> dict[str, int | bool]:
+        """The ``udp_*`` stats with ``conn`` (the link's endpoint now, or None) taken in."""
+        if isinstance(conn, UdpServer) and conn is not self._current:
+            if self._current is not None:
+                self._earlier.update(self._figures(self._current))
+            self._current = conn
+        if self._current is None:
+            return {}
+        totals = self._earlier + Counter(self._figures(self._current))
+        return {
+            "udp_datagrams": totals["udp_datagrams"],
+            "udp_kernel_drops": totals["udp_kernel_drops"],
+            "udp_rcvbuf_bytes": self._current.rcvbuf_bytes,
+            "udp_kernel_drops_counted": self._current.counts_kernel_drops,
+        }
+
+    @staticmethod
+    def _figures(server: UdpServer) -> dict[str, int]:
+        return {"udp_datagrams": server.datagrams, "udp_kernel_drops": server.kernel_drops}
 
 
 def is_udp_server_url(url: str) -> bool:
@@ -317,6 +441,7 @@ class MavlinkLink:
         self._encoders: dict[int, mavlink2.MAVLink] = {}
         self.counters: Counter[str] = Counter()
         self.handler_errors = HandlerErrors()
+        self._udp_totals = UdpServerTotals()
         self._udp_peers: tuple[tuple[str, int], ...] = ()
         self._decoder = self._new_decoder()
         self._scanner = FrameScanner(self._decoder, self.counters)
@@ -539,4 +664,5 @@ class MavlinkLink:
         }
         if self.handler_errors.by_kind:
             stats["handler_error_kinds"] = dict(self.handler_errors.by_kind)
+        stats.update(self._udp_totals.observe(self._conn))
         return stats

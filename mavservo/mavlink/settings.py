@@ -84,12 +84,18 @@ class MavlinkSettings:
     servo_component_id: int = DEFAULT_SERVO_COMPONENT
     channel_trims_us: Mapping[int, float] = field(default_factory=dict)
     retry_window_s: float = 2.0
+    #: The scheduler's command period (scheduler.command_period_s): the fastest a new setpoint
+    #: reaches a servo, hence the shortest DO_REPEAT_SERVO half cycle the bridge can carry.
+    command_period_s: float = 0.05
     #: Extra endpoints that get a copy of every frame the bridge sends (``mavservo monitor``).
     monitor_outputs: tuple[str, ...] = ()
 
     @classmethod
     def from_mapping(
-        cls, raw: Mapping[str, Any], channel_trims_us: Mapping[int, float] | None = None
+        cls,
+        raw: Mapping[str, Any],
+        channel_trims_us: Mapping[int, float] | None = None,
+        command_period_s: float | None = None,
     ) -> MavlinkSettings:
         """Build from the (already validated) ``mavlink:`` config section as a plain mapping."""
         autopilot = raw.get("autopilot") or {}
@@ -120,6 +126,9 @@ class MavlinkSettings:
             monitor_outputs=tuple(str(u) for u in raw.get("monitor_outputs") or ()),
             servo_component_id=int(raw.get("servo_component_id", DEFAULT_SERVO_COMPONENT)),
             channel_trims_us=dict(channel_trims_us or {}),
+            command_period_s=defaults.command_period_s
+            if command_period_s is None
+            else float(command_period_s),
         )
 
     def trim_us(self, channel: int) -> float:
