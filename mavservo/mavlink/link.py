@@ -474,13 +474,28 @@ class MavlinkLink:
             if received is None:
                 return []
             datagram, sender = received
-            messages = self._scanner.datagram(datagram)
+            messages = self._not_our_own(self._scanner.datagram(datagram))
             self._answer_or_ignore(conn, sender, len(messages))  # before the answers go out
             return messages
         if isinstance(conn, mavutil.mavudp):
             return self._receive_udp_client(conn)
         data = conn.recv(4096)
-        return self._scanner.stream(bytes(data)) if data else []
+        return self._not_our_own(self._scanner.stream(bytes(data))) if data else []
+
+    def _not_our_own(self, messages: list[Any]) -> list[Any]:
+        """``messages`` without those claiming a hosted component's identity (our system id,
+        a component added with :meth:`add_component`), counted in ``own_identity``.
+
+        Why: no peer may speak as us. A stranger without the key replayed one of the bridge's
+        own signed HEARTBEATs (seen by anyone on the path): it verified (same key, a stream
+        never seen as input), so the stranger became a UDP destination of the whole output
+        (378 datagrams in 3 s, finding H); the core dropped it only afterwards, as an echo. A
+        router's echo of our own traffic is dropped here the same way."""
+        own = {(encoder.srcSystem, component) for component, encoder in self._encoders.items()}
+        kept = [m for m in messages if (m.get_srcSystem(), m.get_srcComponent()) not in own]
+        if len(kept) != len(messages):
+            self.counters["own_identity"] += len(messages) - len(kept)
+        return kept
 
     def _receive_udp_client(self, conn: Any) -> list[Any]:
         """``udpout``/``udpbcast``: in broadcast mode pymavlink sends, from the first write on,
@@ -489,7 +504,7 @@ class MavlinkLink:
         with self._write_lock:
             before = getattr(conn, "last_address", None)
             data = conn.recv(UDP_MAX_DATAGRAM)
-            messages = self._scanner.datagram(bytes(data)) if data else []
+            messages = self._not_our_own(self._scanner.datagram(bytes(data)) if data else [])
             if data and not messages and getattr(conn, "broadcast", False):
                 conn.last_address = before
                 self.counters["strangers_ignored"] += 1
