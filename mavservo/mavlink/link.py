@@ -19,7 +19,11 @@ A UDP server (``udpin:``/``udp:``) is :class:`UdpServer`, not pymavlink's: the p
 without ``SO_REUSEADDR`` (a second process on the same port is refused at start instead of
 silently taking half the commands), and output goes only to addresses that sent a verified
 frame (never to an address that sent only garbage, unknown ids or unsigned frames: no
-reflector), at most ``MAX_UDP_PEERS`` of them.
+reflector), at most ``MAX_UDP_PEERS`` of them. A TCP server (``tcpin:``) is :class:`TcpServer`:
+several clients, each framed on its own, answered once verified (pymavlink's serves one).
+
+A frame claiming one of the link's own hosted identities is never a peer's: dropped and counted
+(``own_identity``) before it can admit an address or reach the core.
 
 A handler that raises is counted per kind (message type and exception) and logged once per
 kind with its traceback, then summarised at most every ``HANDLER_ERROR_SUMMARY_S``.
