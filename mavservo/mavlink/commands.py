@@ -13,15 +13,19 @@ Addressing rules (why: real clients send the same command in different ways, see
 
 Senders retry until they see the ACK, with the same content. A retry is ACKed again with the
 earlier result and not applied twice (DO_REPEAT_SERVO would otherwise restart). What counts as a
-retry is decided per output the command drives (servo channel, actuator index; for anything
-else, the target component and command): a command is a retry only when it is identical (same
-sender, message type, target and parameters) to the LAST command for every output it drives,
+retry is decided per servo the command drives (its servo channel or actuator indices resolved
+through the mapping, so a DO_SET_SERVO and a DO_SET_ACTUATOR for one servo share one window;
+for anything else, the target component and command): a command is a retry only when it is
+identical (same sender, message type, target and parameters) to the LAST command for every
+servo it drives,
 and either comes inside ``retry_window_s`` or carries confirmation > 0. Any other command for
 one of those outputs in between, from anyone, ends the window: 1100, 1900, 1100 us on one
 channel is three commands, never a retry (the MAVLink spec makes confirmation 0 a first
-transmission, and a change back is a change). The table holds one entry per output, at most
-``MAX_RETRY_ENTRIES``, oldest dropped first, so a lookup costs the same under a flood of
-distinct commands as for one command, and the memory is bounded.
+transmission, and a change back is a change). Mirrored autopilot streams (SERVO_OUTPUT_RAW)
+do not end a window, on purpose: a retry is the sender's lost-ACK repeat of what it asked
+before the stream's newer value, and applying it would undo that newer value. The table holds
+one entry per servo, at most ``MAX_RETRY_ENTRIES``, oldest dropped first, so a lookup costs
+the same under a flood of distinct commands as for one command, and the memory is bounded.
 
 Bad input never reaches the backend: everything is validated before the first setpoint goes out.
 A handler that raises anyway (a bug, a value nobody foresaw) costs that command a DENIED ACK and
@@ -254,6 +258,7 @@ class CommandHandler:
     _repeats: dict[int, _RepeatJob] = field(default_factory=dict)
     _retries: RetryTable = field(init=False)
     _refusal_log: RateLimitedLog = field(init=False)
+    _servo_of_output: dict[tuple[str, int], str] | None = None
     _now: float = 0.0
 
     def __post_init__(self) -> None:
@@ -385,22 +390,48 @@ class CommandHandler:
         )
 
     def _outputs(self, cmd: Command) -> tuple[Hashable, ...]:
-        """What ``cmd`` drives, for retry detection: its mapped servo channel or actuator
-        indices; for anything else (message services, gimbal commands, bad or unmapped
-        targets) its target component and command. Only mapped outputs get their own entry,
-        so the keys an attacker can make up are bounded by the command ids."""
+        """What ``cmd`` drives, for retry detection: the servos its mapped servo channel or
+        actuator indices drive (see :meth:`_driven`); for anything else (message services,
+        gimbal commands, bad or unmapped targets) its target component and command. Only
+        mapped outputs get their own entry, so the keys an attacker can make up are bounded by
+        the command ids and the servos."""
         generic: tuple[Hashable, ...] = (("command", cmd.target_component, cmd.command),)
         if cmd.command in (MAV_CMD_DO_SET_SERVO, MAV_CMD_DO_REPEAT_SERVO):
             raw = cmd.params[0]
             if _is_int(raw) and int(raw) in self.backend.mapped_servo_channels():
-                return (("servo", int(raw)),)
+                return (self._driven(("servo", int(raw))),)
             return generic
         if cmd.command == MAV_CMD_DO_SET_ACTUATOR:
             values = _actuator_values(cmd)
             mapped = self.backend.mapped_actuator_indices()
             indices = sorted(i for i in values or () if i in mapped)
-            return tuple(("actuator", i) for i in indices) or generic
+            driven = dict.fromkeys(self._driven(("actuator", i)) for i in indices)
+            return tuple(driven) or generic
         return generic
+
+    def _driven(self, output: tuple[str, int]) -> Hashable:
+        """The retry key of a mapped ``output`` ("servo", channel) / ("actuator", index): the
+        servo it drives. Why: one servo may be mapped from a servo channel AND an actuator
+        (config/sim.yaml's payload_release: channel 9 and actuator 1); keyed by output,
+        DO_SET_SERVO(9, 1100), DO_SET_ACTUATOR(1, +1), DO_SET_SERVO(9, 1100) took the third
+        for a retry of the first, ACKed it ACCEPTED and left the servo at +1 (finding A).
+        Keyed by servo, any command that drives the servo ends the window of every other."""
+        servo = self._servo_by_output().get(output)
+        return output if servo is None else ("servo_named", servo)
+
+    def _servo_by_output(self) -> dict[tuple[str, int], str]:
+        """Which servo each mapped output drives, from the backend's statuses (the mapping is
+        fixed for a run, so it is read once; the config allows one mapping per source and
+        servo, so a status names every output of its servo)."""
+        if self._servo_of_output is None:
+            table: dict[tuple[str, int], str] = {}
+            for status in self.backend.servo_statuses():
+                if status.servo_channel is not None:
+                    table[("servo", status.servo_channel)] = status.name
+                if status.actuator_index is not None:
+                    table[("actuator", status.actuator_index)] = status.name
+            self._servo_of_output = table
+        return self._servo_of_output
 
     def _guarded_dispatch(self, cmd: Command, now: float) -> tuple[int, ApplyResult, list] | None:
         """``_dispatch``, but a handler that raises costs a DENIED ACK, not the ACK.
@@ -461,7 +492,11 @@ class CommandHandler:
         infinite = [i + 1 for i, p in enumerate(cmd.params) if math.isinf(p)]
         if infinite:
             # the generic numeric guard: no MAVLink parameter means anything at +-inf (NaN
-            # does: "no change"), so the gimbal never sees one; its own values it checks itself
+            # does: "no change"), so the gimbal never sees one; its own values it checks itself.
+            # A broadcast the gimbal does not handle is not its to answer, inf or not: the
+            # guard ran first and made 154 DENY broadcast NAV_TAKEOFF(inf) (finding B)
+            if broadcast and not device.handles_command(cmd.command):
+                return None
             return comp, _denied("bad_param", f"infinite param(s) {infinite}"), []
         raw = device.handle_command(cmd.command, cmd.params, now, sender=cmd.source)
         if raw is None:

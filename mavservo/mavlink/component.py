@@ -35,6 +35,10 @@ class HostedComponent(Protocol):
     ) -> int | None:
         """Handle a command from ``sender``; a MAV_RESULT, or None when it is not for it."""
 
+    def handles_command(self, command: int) -> bool:
+        """Whether :meth:`handle_command` acts on ``command`` at all (whatever its params): a
+        broadcast of any other command is not this component's to answer."""
+
     def periodic(self, now: float) -> list[Any]:
         """Messages due at ``now`` (attitude status at its rate, ...), sent from its component."""
 

@@ -410,6 +410,13 @@ class GimbalDevice:
             return int(Outcome.ACCEPTED if ok else Outcome.DENIED)
         return None
 
+    def handles_command(self, command_id: int) -> bool:
+        """The commands :meth:`handle_command` acts on (the others return None, "not mine")."""
+        if command_id == CMD_DO_MOUNT_CONTROL:
+            return True
+        manager_commands = (CMD_DO_GIMBAL_MANAGER_PITCHYAW, CMD_DO_GIMBAL_MANAGER_CONFIGURE)
+        return bool(self.settings.act_as_manager) and command_id in manager_commands
+
     def supports_message(self, message_id: int) -> bool:
         """Whether a MAV_CMD_REQUEST_MESSAGE for ``message_id`` is ours to answer.
 

@@ -19,7 +19,11 @@ A UDP server (``udpin:``/``udp:``) is :class:`UdpServer`, not pymavlink's: the p
 without ``SO_REUSEADDR`` (a second process on the same port is refused at start instead of
 silently taking half the commands), and output goes only to addresses that sent a verified
 frame (never to an address that sent only garbage, unknown ids or unsigned frames: no
-reflector), at most ``MAX_UDP_PEERS`` of them.
+reflector), at most ``MAX_UDP_PEERS`` of them. A TCP server (``tcpin:``) is :class:`TcpServer`:
+several clients, each framed on its own, answered once verified (pymavlink's serves one).
+
+A frame claiming one of the link's own hosted identities is never a peer's: dropped and counted
+(``own_identity``) before it can admit an address or reach the core.
 
 A handler that raises is counted per kind (message type and exception) and logged once per
 kind with its traceback, then summarised at most every ``HANDLER_ERROR_SUMMARY_S``.
@@ -71,6 +75,10 @@ SIGNING_FUTURE_S = 60.0
 UDP_MAX_DATAGRAM = 65535
 #: Most addresses a UDP server sends to; each one had to send a verified frame first.
 MAX_UDP_PEERS = 16
+#: Most clients a TCP server (``tcpin:``) serves at once.
+MAX_TCP_CLIENTS = 8
+#: A TCP client that has not sent a verified frame within this many seconds is closed.
+TCP_UNVERIFIED_IDLE_S = 5.0
 HANDLER_ERROR_SUMMARY_S = 60.0
 #: Receive buffer a UDP server asks for. Linux's default (net.core.rmem_default, 208 KiB) held
 #: too few datagrams: a 5,000/s command flood lost a median 441 per 10 s in the kernel, unseen.
@@ -401,6 +409,198 @@ def is_udp_server_url(url: str) -> bool:
     return url.startswith(("udpin:", "udp:"))
 
 
+def is_tcp_server_url(url: str) -> bool:
+    return url.startswith("tcpin:")
+
+
+class TcpClient:
+    """One connection to a :class:`TcpServer`: its own stream framing state (a frame split
+    over two writes of one client never continues with another client's bytes)."""
+
+    def __init__(self, sock: socket.socket, scanner: FrameScanner, since: float) -> None:
+        self.sock = sock
+        self.scanner = scanner
+        self.since = since
+        self.verified = False
+        #: why a writer gave up on it; the read thread closes it (only it closes sockets, so a
+        #: socket is never closed under its select)
+        self.dropped: str | None = None
+
+
+class TcpServer:
+    """A TCP server endpoint (``tcpin:HOST:PORT``) for several clients at once.
+
+    pymavlink's ``mavtcpin`` accepts one client and serves the next only when it closes: an
+    idle stranger that connected first shut the ground station out, and the station's
+    command, queued in the kernel, was applied seconds late when the stranger left (finding
+    G). Here every client is read as its bytes arrive (a command is handled when it comes or
+    not at all, never queued behind another client), at most ``max_clients`` at once; output
+    goes to clients that sent a verified frame (:meth:`verify`), as on UDP; a client without
+    a verified frame for ``idle_s`` is closed, and when the table is full the oldest such
+    client makes room for a newcomer (strangers cannot hold the port against a station); a
+    client that does not read what it is sent (its socket buffer full) is closed rather than
+    allowed to block the bridge's writers.
+    """
+
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        new_scanner: Callable[[], FrameScanner],
+        counters: Counter[str],
+        max_clients: int = MAX_TCP_CLIENTS,
+        idle_s: float = TCP_UNVERIFIED_IDLE_S,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.max_clients = max_clients
+        self.idle_s = idle_s
+        self._new_scanner = new_scanner
+        self._counters = counters
+        self._clock = clock
+        self._lock = threading.Lock()  # the client table: read thread vs. writers
+        self._clients: dict[socket.socket, TcpClient] = {}
+        self._listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
+        # on Linux SO_REUSEADDR lets a restarted bridge bind past TIME_WAIT; it never lets
+        # a second process listen on the same port
+        self._listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            self._listener.bind((host, port))
+            self._listener.listen(max_clients)
+        except OSError as exc:
+            self._listener.close()
+            if exc.errno == errno.EADDRINUSE:
+                busy = LinkBusyError(
+                    f"mavlink: TCP port {host}:{port} is in use by another process (another "
+                    "mavservo, a MAVLink router or MAVProxy?); stop it first"
+                )
+                busy.errno = exc.errno
+                raise busy from exc
+            raise
+        self._listener.setblocking(False)
+
+    @classmethod
+    def from_url(
+        cls, url: str, new_scanner: Callable[[], FrameScanner], counters: Counter[str]
+    ) -> TcpServer:
+        host, _, port = url.split(":", 1)[1].rpartition(":")
+        return cls(host, int(port), new_scanner, counters)
+
+    @property
+    def clients(self) -> int:
+        return len(self._clients)
+
+    def select(self, timeout: float) -> bool:
+        self._sweep()
+        readable, _, _ = select.select([self._listener, *self._sockets()], [], [], timeout)
+        return bool(readable)
+
+    def _sockets(self) -> list[socket.socket]:
+        with self._lock:
+            return list(self._clients)
+
+    def receive(self) -> list[tuple[TcpClient, bytes]]:
+        """Accept whoever connects, then the bytes of every client that has some (without
+        waiting); a client that closed or failed is removed."""
+        self._accept()
+        ready, _, _ = select.select(self._sockets(), [], [], 0)
+        received = []
+        for sock in ready:
+            client = self._clients.get(sock)
+            if client is None:
+                continue
+            try:
+                data = sock.recv(4096)
+            except (BlockingIOError, InterruptedError):
+                continue
+            except OSError:
+                data = b""
+            if not data:
+                self._remove(client, client.dropped or "tcp_clients_closed")
+                continue
+            received.append((client, data))
+        return received
+
+    def verify(self, client: TcpClient) -> None:
+        """``client`` sent a verified frame: it receives our output from now on."""
+        if not client.verified:
+            client.verified = True
+            log.info("MAVLink TCP client %s answered from now on", _peer_name(client.sock))
+
+    def write(self, buf: bytes) -> None:
+        with self._lock:
+            targets = [c for c in self._clients.values() if c.verified and not c.dropped]
+        for client in targets:
+            try:
+                sent = client.sock.send(buf)
+            except (BlockingIOError, InterruptedError):
+                sent = 0
+            except OSError:
+                sent = -1
+            if sent != len(buf):  # a part of a frame would corrupt its stream: let it go
+                client.dropped = "tcp_clients_closed" if sent < 0 else "tcp_clients_not_reading"
+                with contextlib.suppress(OSError):
+                    client.sock.shutdown(socket.SHUT_RDWR)  # wakes the read thread
+
+    def close(self) -> None:
+        with self._lock:
+            clients, self._clients = list(self._clients.values()), {}
+        for client in clients:
+            client.sock.close()
+        self._listener.close()
+
+    def _accept(self) -> None:
+        for _ in range(self.max_clients):  # bounded per call
+            try:
+                sock, _ = self._listener.accept()
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError:
+                return
+            sock.setblocking(False)
+            if len(self._clients) >= self.max_clients and not self._make_room():
+                self._counters["tcp_clients_refused"] += 1
+                sock.close()
+                continue
+            with self._lock:
+                self._clients[sock] = TcpClient(sock, self._new_scanner(), self._clock())
+            self._counters["tcp_clients_accepted"] += 1
+
+    def _make_room(self) -> bool:
+        """Close the oldest client that never sent a verified frame; False when all did."""
+        unverified = [c for c in self._clients.values() if not c.verified]
+        if not unverified:
+            return False
+        self._remove(min(unverified, key=lambda c: c.since), "tcp_clients_replaced")
+        return True
+
+    def _sweep(self) -> None:
+        """Close the clients a writer gave up on, and those idle without a verified frame."""
+        now = self._clock()
+        with self._lock:
+            clients = list(self._clients.values())
+        for client in clients:
+            if client.dropped:
+                self._remove(client, client.dropped)
+            elif not client.verified and now - client.since > self.idle_s:
+                self._remove(client, "tcp_clients_idle")
+
+    def _remove(self, client: TcpClient, reason: str) -> None:
+        with self._lock:
+            if self._clients.pop(client.sock, None) is None:
+                return
+        self._counters[reason] += 1
+        with contextlib.suppress(OSError):
+            client.sock.close()
+
+
+def _peer_name(sock: socket.socket) -> str:
+    try:
+        host, port = sock.getpeername()[:2]
+    except OSError:
+        return "(gone)"
+    return f"{host}:{port}"
+
+
 class _TransportWriter:
     """File-like object the per-component encoders write into."""
 
@@ -480,6 +680,10 @@ class MavlinkLink:
         if is_udp_server_url(self.url):
             # peers verified before a reopen stay peers: they need not speak first again
             self._conn = UdpServer.from_url(self.url, peers=self._udp_peers)
+        elif is_tcp_server_url(self.url):
+            self._conn = TcpServer.from_url(
+                self.url, lambda: FrameScanner(self._decoder, self.counters), self.counters
+            )
         else:
             self._conn = open_connection(self.url, baud=self.baud, autoreconnect=False)
         self._scanner = FrameScanner(self._decoder, self.counters)  # nothing left from before
@@ -599,13 +803,41 @@ class MavlinkLink:
             if received is None:
                 return []
             datagram, sender = received
-            messages = self._scanner.datagram(datagram)
+            messages = self._not_our_own(self._scanner.datagram(datagram))
             self._answer_or_ignore(conn, sender, len(messages))  # before the answers go out
             return messages
+        if isinstance(conn, TcpServer):
+            return self._receive_tcp(conn)
         if isinstance(conn, mavutil.mavudp):
             return self._receive_udp_client(conn)
         data = conn.recv(4096)
-        return self._scanner.stream(bytes(data)) if data else []
+        return self._not_our_own(self._scanner.stream(bytes(data))) if data else []
+
+    def _not_our_own(self, messages: list[Any]) -> list[Any]:
+        """``messages`` without those claiming a hosted component's identity (our system id,
+        a component added with :meth:`add_component`), counted in ``own_identity``.
+
+        Why: no peer may speak as us. A stranger without the key replayed one of the bridge's
+        own signed HEARTBEATs (seen by anyone on the path): it verified (same key, a stream
+        never seen as input), so the stranger became a UDP destination of the whole output
+        (378 datagrams in 3 s, finding H); the core dropped it only afterwards, as an echo. A
+        router's echo of our own traffic is dropped here the same way."""
+        own = {(encoder.srcSystem, component) for component, encoder in self._encoders.items()}
+        kept = [m for m in messages if (m.get_srcSystem(), m.get_srcComponent()) not in own]
+        if len(kept) != len(messages):
+            self.counters["own_identity"] += len(messages) - len(kept)
+        return kept
+
+    def _receive_tcp(self, conn: TcpServer) -> list[Any]:
+        """The verified messages the ready TCP clients completed, each client framed on its
+        own; a client is answered from its first verified frame (before the answers go out)."""
+        messages: list[Any] = []
+        for client, data in conn.receive():
+            verified = self._not_our_own(client.scanner.stream(data))
+            if verified:
+                conn.verify(client)
+            messages.extend(verified)
+        return messages
 
     def _receive_udp_client(self, conn: Any) -> list[Any]:
         """``udpout``/``udpbcast``: in broadcast mode pymavlink sends, from the first write on,
@@ -614,7 +846,7 @@ class MavlinkLink:
         with self._write_lock:
             before = getattr(conn, "last_address", None)
             data = conn.recv(UDP_MAX_DATAGRAM)
-            messages = self._scanner.datagram(bytes(data)) if data else []
+            messages = self._not_our_own(self._scanner.datagram(bytes(data)) if data else [])
             if data and not messages and getattr(conn, "broadcast", False):
                 conn.last_address = before
                 self.counters["strangers_ignored"] += 1
