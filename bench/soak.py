@@ -70,7 +70,9 @@ PHASES = ("clean", "line_1e-3", "clean", "unplug", "clean", "servo_silent")
 SILENT_ID = 2
 COMMAND_PERIOD_S = 0.02
 REPLY_TIMEOUT_S = 0.05
-FOLLOWED_KEPT = 300
+FOLLOWED_KEPT = 20
+"""Clean-window losses kept in full (their trace excerpts, ~10 kB apiece); every verdict is
+counted. Was 300: up to ~3 MB that filled loss by loss, i.e. slowly over a whole run."""
 SENDS_KEPT = 3000
 """Sends and decodes kept per servo: 50 s at 60 frames/s, so a clean window's losses can be
 followed up to two windows later."""
