@@ -362,14 +362,23 @@ class DeployedRig:
     """
 
     def __init__(
-        self, servos: int, observers: Sequence[Any] = (), protocol: str = "variable"
+        self,
+        servos: int,
+        observers: Sequence[Any] = (),
+        protocol: str = "variable",
+        sim_trace_keep: int | None = None,
+        sim_max_keys: int | None = None,
     ) -> None:
         self._dir = tempfile.TemporaryDirectory(prefix="mavservo-rig-")
         port = free_udp_port()
         config_path = os.path.join(self._dir.name, "rig.yaml")
         Path(config_path).write_text(bridge_config(servos, protocol))
         self.sim = SimulatorProcess(
-            config=config_path, protocol=protocol, realtime_priority=SIM_PRIORITY
+            config=config_path,
+            protocol=protocol,
+            realtime_priority=SIM_PRIORITY,
+            trace_keep=sim_trace_keep,
+            max_keys=sim_max_keys,
         )
         self.autopilot = subprocess.Popen(
             [

@@ -70,10 +70,26 @@ PHASES = ("clean", "line_1e-3", "clean", "unplug", "clean", "servo_silent")
 SILENT_ID = 2
 COMMAND_PERIOD_S = 0.02
 REPLY_TIMEOUT_S = 0.05
-FOLLOWED_KEPT = 300
+FOLLOWED_KEPT = 20
+"""Clean-window losses kept in full (their trace excerpts, ~10 kB apiece); every verdict is
+counted. Was 300: up to ~3 MB that filled loss by loss, i.e. slowly over a whole run."""
 SENDS_KEPT = 3000
 """Sends and decodes kept per servo: 50 s at 60 frames/s, so a clean window's losses can be
 followed up to two windows later."""
+
+
+TRACE_FRAMES_PER_SERVO_S = 120
+"""Frames the simulator traces per servo and second: ~60 from the host, ~60 replies."""
+SIM_MAX_KEYS = 1000
+"""Distinct host frames the simulator counts until it clears them: nobody reads them here
+(its default, 200,000 keys, took minutes to fill)."""
+
+
+def sim_trace_keep(servos: int, window_s: float) -> int:
+    """The simulator's trace bound for this soak: a clean window's losses are followed at the
+    next window's end, so the trace must reach back two windows (plus 10 s of margin); no
+    further, so that the child's memory is full (flat) within about that time."""
+    return int(TRACE_FRAMES_PER_SERVO_S * servos * (2 * window_s + 10))
 
 
 def rss_kib(pid: int | str = "self") -> int:
@@ -418,7 +434,7 @@ class InProcess:
 
     name = "in-process"
 
-    def __init__(self, servos: int, observer: SchedulerObserver) -> None:
+    def __init__(self, servos: int, observer: SchedulerObserver, window_s: float) -> None:
         self.bridge = Bridge(
             load_config_text(bridge_config(servos, "variable")), log_dir=False, observers=[observer]
         )
@@ -467,8 +483,13 @@ class Deployed:
 
     name = "deployed"
 
-    def __init__(self, servos: int, observer: SchedulerObserver) -> None:
-        self.rig = DeployedRig(servos, observers=[observer])
+    def __init__(self, servos: int, observer: SchedulerObserver, window_s: float) -> None:
+        self.rig = DeployedRig(
+            servos,
+            observers=[observer],
+            sim_trace_keep=sim_trace_keep(servos, window_s),
+            sim_max_keys=SIM_MAX_KEYS,
+        )
         self.sim = self.rig.sim
         self.bridge = self.rig.bridge
 
@@ -575,6 +596,32 @@ def lost_by_request_time(
             windows[i]["lost_by_request"] += 1
 
 
+def baseline_due(args: argparse.Namespace, index: int, memory: list[Any]) -> bool:
+    """Is this window boundary (``memory[-1]``) where the heap baseline is taken?"""
+    if args.heap_baseline_s is None:
+        return index == len(args.phases) - 1  # after one full cycle of phases
+    return memory[-1][0] >= args.heap_baseline_s
+
+
+def heap_growth(
+    baseline: tracemalloc.Snapshot, t0: float | None, t1: float, frames: int
+) -> dict[str, Any]:
+    """The top growers of the heap from the baseline to now, by line and (with more than one
+    frame traced) by traceback: where memory still grows once the stores are full."""
+    snapshot = tracemalloc.take_snapshot()
+    out: dict[str, Any] = {
+        "from_s": t0,
+        "to_s": t1,
+        "by_line": [str(stat) for stat in snapshot.compare_to(baseline, "lineno")[:12]],
+    }
+    if frames > 1:
+        out["by_traceback"] = [
+            {"stat": str(stat), "traceback": stat.traceback.format()}
+            for stat in snapshot.compare_to(baseline, "traceback")[:6]
+        ]
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--minutes", type=float, default=30.0)
@@ -589,14 +636,28 @@ def main() -> None:
         help="the cycle of windows (default: %(default)s)",
     )
     parser.add_argument("--tracemalloc", action="store_true", help="also sample the Python heap")
+    parser.add_argument(
+        "--heap-baseline-s",
+        type=float,
+        default=None,
+        help="with --tracemalloc: take the heap baseline at the first window boundary after "
+        "this many seconds (default: after the first cycle of phases); top growers are "
+        "against it",
+    )
+    parser.add_argument(
+        "--tracemalloc-frames",
+        type=int,
+        default=1,
+        help="frames per traceback: >1 also lists growers by their callers",
+    )
     args = parser.parse_args()
     # SIGTERM ends the run through the finally below: children stopped, figures printed
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(1))
     if args.tracemalloc:
-        tracemalloc.start()
+        tracemalloc.start(args.tracemalloc_frames)
     diagnostics = Diagnostics()
     kind = Deployed if args.setup == "deployed" else InProcess
-    setup = kind(args.servos, diagnostics)
+    setup = kind(args.servos, diagnostics, args.window_s)
     bridge = setup.bridge
     diagnostics.start()
     pids = {"bridge": 0, **setup.child_pids()}  # 0: this process
@@ -625,6 +686,7 @@ def main() -> None:
     sample_processes(time.monotonic() - started)
     index = 0
     baseline: tracemalloc.Snapshot | None = None
+    baseline_t: float | None = None
     start_up: dict[str, Any] = {}
     try:
         time.sleep(2.0)  # servos come online
@@ -668,13 +730,13 @@ def main() -> None:
             heap = tracemalloc.get_traced_memory()[0] if args.tracemalloc else 0
             memory.append((round(time.monotonic() - started, 1), rss_kib(), heap))
             sample_processes(time.monotonic() - started)
-            if args.tracemalloc and index == len(args.phases) - 1:
-                baseline = tracemalloc.take_snapshot()  # after one full cycle of phases
+            if args.tracemalloc and baseline is None and baseline_due(args, index, memory):
+                baseline = tracemalloc.take_snapshot()
+                baseline_t = memory[-1][0]
             index += 1
-        growth = []
+        growth: dict[str, Any] = {}
         if baseline is not None:
-            diff = tracemalloc.take_snapshot().compare_to(baseline, "lineno")
-            growth = [str(stat) for stat in diff[:12]]
+            growth = heap_growth(baseline, baseline_t, memory[-1][0], args.tracemalloc_frames)
     finally:
         summary = setup.stop()
         diagnostics.stop()

@@ -321,3 +321,27 @@ def test_soak_keeps_the_first_followed_losses_and_counts_every_verdict():
         )
     assert len(diagnostics.followed) == soak.FOLLOWED_KEPT
     assert diagnostics.verdicts == {"late": 1000, "no reply": 1000}
+
+
+def test_soak_followed_losses_fill_their_bound_within_a_few_windows_and_stay_small():
+    """The followed losses hold trace excerpts (~50 simulator events and decode times each):
+    kept 300 in full they filled for a whole noisy run, ~3 MB loss by loss."""
+    soak = soak_module()
+    diagnostics = soak.Diagnostics()
+
+    def loss(window: int, i: int) -> dict[str, Any]:
+        return {
+            "t": window + i * 0.001,
+            "verdict": "late",
+            "sim": [(0.001 * e, "in", hex(0x141)) for e in range(50)],
+            "host_rx": [0.001 * e for e in range(10)],
+        }
+
+    def windows(first: int, count: int) -> None:
+        for window in range(first, first + count):
+            diagnostics.keep_followed([loss(window, i) for i in range(5)])
+
+    windows(0, 4)  # 20 losses followed: the bound is reached
+    assert allocated_by(lambda: windows(4, 100)) < 64 * 1024
+    assert diagnostics.verdicts == {"late": 520}
+    assert len(diagnostics.followed) == soak.FOLLOWED_KEPT

@@ -130,3 +130,28 @@ def test_frames_the_line_corrupted_into_ones_nobody_sent_are_counted_as_wrong(ch
     _ask(bus, 1)  # a clean frame after the corrupted ones: all of them have been handled
     counts = sim.request("wrong")
     assert 0 < counts["wrong"] < counts["arrived"] <= 201
+
+
+def test_the_owner_bounds_the_trace_and_the_arrival_counts():
+    """A long run passes smaller bounds so the child's memory is full (flat) sooner: the trace
+    keeps only the last ``trace_keep`` frames, the counts at most ``max_keys`` distinct ones."""
+    sim = SimulatorProcess(2, trace_keep=4, max_keys=1)
+    bus = AA55Bus(sim.path, bitrate=1_000_000)
+    try:
+        for _ in range(3):  # 12 frames traced: each request in, each reply out
+            assert _ask(bus, 1) and _ask(bus, 2)
+        now = sim.request("stats")["t"]
+        trace = sim.request("trace", t0=0.0, t1=now, ids=[0x141, 0x142, 0x241, 0x242])["trace"]
+        assert [(direction, frame) for _, direction, frame, _ in trace] == [
+            ("in", 0x141),
+            ("out", 0x241),
+            ("in", 0x142),
+            ("out", 0x242),
+        ]
+        assert sim.request("arrivals")["arrivals"] == {
+            frame_key(RmdX(2).telemetry_requests()[0]): 1
+        }
+    finally:
+        bus.shutdown()
+        sim.stop()
+    assert sim.process.returncode == 0

@@ -86,6 +86,8 @@ class SimulatorProcess:
     ``servos``: that many RMD-X servos with IDs 1..n, or ``config`` (a mavservo YAML file) and
     ``bus``: the same simulated servos the bridge would build for ``channel: sim``.
     ``realtime_priority``: run the child at SCHED_FIFO with that priority (None: normal).
+    ``trace_keep`` / ``max_keys``: bound the trace and the arrival counts (:class:`_Arrivals`)
+    lower than the defaults, so a long run's child is full (flat) sooner.
     """
 
     def __init__(
@@ -98,6 +100,8 @@ class SimulatorProcess:
         config: str | None = None,
         bus: str = "bus0",
         start_timeout_s: float = 20.0,
+        trace_keep: int | None = None,
+        max_keys: int | None = None,
     ) -> None:
         command = [
             sys.executable,
@@ -114,6 +118,10 @@ class SimulatorProcess:
             command += ["--servos", str(servos or 1)]
         if realtime_priority is not None:
             command += ["--realtime", str(realtime_priority)]
+        if trace_keep is not None:  # the owner's bounds (None: the child's defaults)
+            command += ["--trace-keep", str(trace_keep)]
+        if max_keys is not None:
+            command += ["--max-keys", str(max_keys)]
         self.process = subprocess.Popen(
             command,
             stdin=subprocess.PIPE,
@@ -317,11 +325,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--bitrate", type=int, default=1_000_000)
     parser.add_argument("--protocol", choices=("variable", "fixed"), default="variable")
     parser.add_argument("--realtime", type=int, default=None, metavar="PRIORITY")
+    parser.add_argument("--trace-keep", type=int, default=150_000, help="frames traced")
+    parser.add_argument("--max-keys", type=int, default=200_000, help="distinct arrivals kept")
     args = parser.parse_args(argv)
     if args.realtime is not None:  # before the adapter thread exists: it inherits the policy
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(args.realtime))
     emulator = AdapterEmulator(_servos(args), bitrate=args.bitrate, protocol=args.protocol)
-    arrivals = _Arrivals(emulator)
+    arrivals = _Arrivals(emulator, keep=args.trace_keep, max_keys=args.max_keys)
     emulator.start()
     try:
         print(emulator.path, flush=True)
