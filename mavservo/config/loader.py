@@ -21,7 +21,7 @@ from yaml.nodes import ScalarNode
 
 from mavservo.config.schema import Config
 from mavservo.config.semantic import Finding, advisories, budget_checks, cross_checks
-from mavservo.config.smallfile import SmallFileError, read_small_file
+from mavservo.config.smallfile import FileTooLargeError, SmallFileError, read_small_file
 from mavservo.config.yamlsource import (
     MAX_BYTES,
     Problem,
@@ -71,6 +71,9 @@ def _read_text(path: Path) -> str:
     names the line of a byte that is not UTF-8 (binary junk gets a line like any error)."""
     try:
         data = read_small_file(path, MAX_BYTES)
+    except FileTooLargeError:
+        problem = Problem((), 1, f"the file is larger than {MAX_BYTES} bytes; is it a config?")
+        raise ConfigError(str(path), [problem]) from None
     except SmallFileError as exc:
         problem = Problem((), None, str(exc))
         raise ConfigError(str(path), [problem]) from None

@@ -18,6 +18,10 @@ class SmallFileError(ValueError):
     """Why the file will not do, in words fit for a config error."""
 
 
+class FileTooLargeError(SmallFileError):
+    """The file holds more than the limit (only ``limit`` + 1 bytes were read)."""
+
+
 def read_small_file(path: str | Path, limit: int) -> bytes:
     """The file's bytes; SmallFileError when it is unreadable, not a regular file, or larger
     than ``limit`` bytes."""
@@ -43,7 +47,7 @@ def read_small_file(path: str | Path, limit: int) -> bytes:
     finally:
         os.close(fd)
     if size > limit:
-        raise SmallFileError(f"{path} is larger than {limit} bytes")
+        raise FileTooLargeError(f"{path} is larger than {limit} bytes")
     return b"".join(chunks)
 
 
