@@ -21,6 +21,7 @@ from yaml.nodes import ScalarNode
 
 from mavservo.config.schema import Config
 from mavservo.config.semantic import Finding, advisories, budget_checks, cross_checks
+from mavservo.config.smallfile import FileTooLargeError, SmallFileError, read_small_file
 from mavservo.config.yamlsource import (
     MAX_BYTES,
     Problem,
@@ -69,14 +70,13 @@ def _read_text(path: Path) -> str:
     """The file's text, at most :data:`MAX_BYTES` (+1 to notice more) read; a ConfigError
     names the line of a byte that is not UTF-8 (binary junk gets a line like any error)."""
     try:
-        with path.open("rb") as handle:
-            data = handle.read(MAX_BYTES + 1)
-    except OSError as exc:
-        problem = Problem((), None, f"cannot read the file: {exc.strerror or exc}")
-        raise ConfigError(str(path), [problem]) from None
-    if len(data) > MAX_BYTES:
+        data = read_small_file(path, MAX_BYTES)
+    except FileTooLargeError:
         problem = Problem((), 1, f"the file is larger than {MAX_BYTES} bytes; is it a config?")
-        raise ConfigError(str(path), [problem])
+        raise ConfigError(str(path), [problem]) from None
+    except SmallFileError as exc:
+        problem = Problem((), None, str(exc))
+        raise ConfigError(str(path), [problem]) from None
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:

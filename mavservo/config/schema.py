@@ -24,6 +24,7 @@ from pydantic import (
     model_validator,
 )
 
+from mavservo.config.smallfile import SmallFileError, read_small_file
 from mavservo.config.urls import url_problem
 from mavservo.transport.aa55.codec import BITRATE_CODES
 
@@ -78,6 +79,11 @@ class ComponentAddress(StrictModel):
     component: Int = Field(1, ge=0, le=255)
 
 
+#: Largest key file read: 64 hex characters plus whitespace fit many times over; a device or a
+#: huge file is refused after this many bytes (red-team finding F).
+MAX_KEY_FILE_BYTES = 4096
+
+
 class SigningConfig(StrictModel):
     """MAVLink 2 signing: the 32-byte secret as 64 hex characters, inline or in a file.
 
@@ -111,11 +117,9 @@ class SigningConfig(StrictModel):
         base_dir = (info.context or {}).get("base_dir")
         resolved = path if path.is_absolute() or base_dir is None else Path(base_dir) / path
         try:
-            raw = resolved.read_bytes()
-        except OSError as exc:
-            raise ValueError(
-                f"expected a readable key file, cannot read {resolved}: {exc.strerror or exc}"
-            ) from None
+            raw = read_small_file(resolved, MAX_KEY_FILE_BYTES)
+        except SmallFileError as exc:
+            raise ValueError(f"expected a readable key file: {exc}") from None
         if _parse_key_bytes(raw) is None:
             raise ValueError(
                 f"key file {resolved} must hold 64 hex characters, found {len(raw.strip())} bytes"
@@ -133,7 +137,10 @@ class SigningConfig(StrictModel):
         if self.key is not None:
             return bytes.fromhex(self.key)
         assert self.key_file is not None  # guaranteed by _exactly_one_source
-        key = _parse_key_bytes(self.key_file.read_bytes())
+        try:
+            key = _parse_key_bytes(read_small_file(self.key_file, MAX_KEY_FILE_BYTES))
+        except SmallFileError as exc:
+            raise ValueError(f"key file no longer usable: {exc}") from None
         if key is None:
             raise ValueError(f"key file {self.key_file} no longer holds a valid key")
         return key
@@ -144,9 +151,9 @@ def read_key_file(path: str | Path) -> bytes:
     for tools outside a config (``mavservo sitl stream --signing-key-file``); ValueError says why
     a file will not do."""
     try:
-        raw = Path(path).read_bytes()
-    except OSError as exc:
-        raise ValueError(f"cannot read {path}: {exc.strerror or exc}") from None
+        raw = read_small_file(path, MAX_KEY_FILE_BYTES)
+    except SmallFileError as exc:
+        raise ValueError(str(exc)) from None
     key = _parse_key_bytes(raw)
     if key is None:
         raise ValueError(f"{path} must hold 64 hex characters, found {len(raw.strip())} bytes")

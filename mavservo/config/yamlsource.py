@@ -23,6 +23,7 @@ from typing import Any
 
 import yaml
 from yaml.composer import ComposerError
+from yaml.constructor import ConstructorError
 from yaml.events import AliasEvent
 from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 
@@ -157,6 +158,19 @@ class _BoundedLoader(yaml.SafeLoader):
         self._check_expanded(node, event.start_mark, "this value")
         return node
 
+    def construct_object(self, node: Node, deep: bool = False) -> Any:
+        """PyYAML's, with any failure of a constructor turned into a marked YAML error at the
+        value's line: ``int("9" * 4301)`` raised a bare ValueError and ``mavservo check``
+        printed a traceback (red-team finding E); bad ``!!timestamp`` values did the same."""
+        try:
+            return super().construct_object(node, deep)
+        except yaml.YAMLError:
+            raise
+        except (ValueError, TypeError, OverflowError, ArithmeticError) as exc:
+            raise ConstructorError(
+                None, None, f"cannot read this value: {_first_line(exc)}", node.start_mark
+            ) from None
+
     def _compose(self, parent: Node | None, index: Any, mark: Any) -> Node:
         """PyYAML's ``compose_node``, which always returns a node when it does not raise
         (its stubs allow None: such a document is refused as malformed, never passed on)."""
@@ -235,6 +249,12 @@ def parse_yaml(text: str) -> YamlDocument:
     finally:
         loader.dispose()
     return YamlDocument(data, root, problems)
+
+
+def _first_line(exc: BaseException) -> str:
+    """The first line of an exception's text, short enough for a config error."""
+    text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    return text[:200]
 
 
 #: PyYAML's wording for the usual cause, a line indented more or less than its siblings.

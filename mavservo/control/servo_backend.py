@@ -233,6 +233,7 @@ class ServoBackend:
     def tick(self, now: float) -> None:
         """Carry out failsafe actions that fell due, and advance slew-limited servos one step
         toward their goals (call every command period)."""
+        events: list[str] = []
         with self._lock:
             for name, due in list(self._failsafe_due.items()):
                 if due <= now:
@@ -243,9 +244,18 @@ class ServoBackend:
                     if servo.sink.is_online(servo.name):
                         self._send_step(servo, now)
                     else:
-                        self._pause_offline(servo, now)
+                        events.extend(self._pause_offline(servo, now))
+        # Emitted after the lock is released: the event hook announces over MAVLink, whose lock
+        # the MAVLink threads hold while calling into this backend (red-team finding D, a
+        # lock-order deadlock that hung the whole bridge).
+        self._emit(events)
 
-    def _pause_offline(self, servo: _Servo, now: float) -> None:
+    def _emit(self, events: list[str]) -> None:
+        """Hand events to ``on_event``; never called with ``_lock`` held (see :meth:`tick`)."""
+        for line in events:
+            self._on_event(line)
+
+    def _pause_offline(self, servo: _Servo, now: float) -> list[str]:
         """No slew steps go to an offline servo (the scheduler would drop them unsent).
 
         A commanded move is abandoned: resuming it when the servo is back, maybe seconds
@@ -255,11 +265,9 @@ class ServoBackend:
         """
         if servo.source == "failsafe":
             servo.sent_at = now
-            return
+            return []
         goal, servo.goal_deg = servo.goal_deg, None
-        self._on_event(
-            f"{servo.name} offline: move to {goal:g} deg stopped; it waits for a fresh command"
-        )
+        return [f"{servo.name} offline: move to {goal:g} deg stopped; it waits for a fresh command"]
 
     def failsafe_all(self, reason: str, now: float) -> None:
         """Shutdown path: every servo to its failsafe action at once (no per-servo delay)."""
@@ -295,9 +303,11 @@ class ServoBackend:
             servo.goal_deg = angle
             servo.source = source
             self.counters["accepted"] += 1
-            if self._on_command is not None:
-                self._on_command(servo.name, now)
-            return self._send_step(servo, now)
+            result = self._send_step(servo, now)
+        # The latency hook is the bridge's: called without this lock held (finding D).
+        if self._on_command is not None:
+            self._on_command(servo.name, now)
+        return result
 
     def _send_step(self, servo: _Servo, now: float) -> ApplyResult:
         assert servo.goal_deg is not None
