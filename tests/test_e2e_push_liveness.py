@@ -23,6 +23,7 @@ from e2e_support import (
     running,
     sim_servo,
 )
+from test_e2e_recorded import GIMBAL  # the three-CubeMars gimbal of the recorded runs
 
 from mavservo.servos.base import Fault
 from mavservo.sim.autopilot.link import mavlink2
@@ -33,20 +34,6 @@ MAV_CMD_DO_MOUNT_CONTROL = 205
 MAV_MOUNT_MODE_MAVLINK_TARGETING = 2
 GIMBAL_TARGET = (1, 154)
 AXES = ("gimbal_roll", "gimbal_pitch", "gimbal_yaw")
-GIMBAL = """
-  heartbeat_timeout_s: 60
-servos:
-  - {name: gimbal_roll, profile: cubemars-ak, can_id: 1, limits_deg: [-30, 30], telemetry_hz: 20}
-  - {name: gimbal_pitch, profile: cubemars-ak, can_id: 2, limits_deg: [-90, 30], telemetry_hz: 20}
-  - {name: gimbal_yaw, profile: cubemars-ak, can_id: 3, limits_deg: [-160, 160], telemetry_hz: 20}
-gimbals:
-  - name: gimbal
-    component_id: 154
-    roll: gimbal_roll
-    pitch: gimbal_pitch
-    yaw: gimbal_yaw
-    limits_deg: {roll: [-30, 30], pitch: [-90, 30], yaw: [-160, 160]}
-"""
 WAIT_S = 5.0
 
 
