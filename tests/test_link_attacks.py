@@ -14,6 +14,7 @@ Each test replays one finding of an attack run against ``mavservo/mavlink/link.p
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import socket
 import subprocess
@@ -249,10 +250,10 @@ def heartbeat_frames(count: int) -> list[bytes]:
     return frames
 
 
-def test_a_stream_resynchronises_after_a_bad_header_without_losing_a_frame() -> None:
-    """On TCP (a stream, like serial) the same 255-byte header is followed by 30 heartbeats:
-    all 30 arrive, in order (the parser skips the bogus header, not the bytes it announced);
-    a frame with an unknown id inside the stream costs nothing either."""
+@contextlib.contextmanager
+def link_on_a_stream() -> Iterator[tuple[socket.socket, MavlinkLink, list[int]]]:
+    """A started link on a TCP stream (like a serial line) and the peer's end of it; yields
+    (peer socket, link, sequence numbers of the messages the link handled, in order)."""
     server = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
     server.bind(("127.0.0.1", 0))
     server.listen(1)
@@ -265,13 +266,21 @@ def test_a_stream_resynchronises_after_a_bad_header_without_losing_a_frame() -> 
     try:
         conn, _ = server.accept()
         with conn:
-            frames = heartbeat_frames(30)
-            stream = BLINDING_HEADER + b"".join(frames[:15]) + UNKNOWN_V2 + b"".join(frames[15:])
-            conn.sendall(stream)
-            assert wait_until(lambda: len(seen) >= 30)
+            yield conn, link, seen
     finally:
         link.stop()
         server.close()
+
+
+def test_a_stream_resynchronises_after_a_bad_header_without_losing_a_frame() -> None:
+    """On TCP (a stream, like serial) the same 255-byte header is followed by 30 heartbeats:
+    all 30 arrive, in order (the parser skips the bogus header, not the bytes it announced);
+    a frame with an unknown id inside the stream costs nothing either."""
+    with link_on_a_stream() as (conn, link, seen):
+        frames = heartbeat_frames(30)
+        stream = BLINDING_HEADER + b"".join(frames[:15]) + UNKNOWN_V2 + b"".join(frames[15:])
+        conn.sendall(stream)
+        assert wait_until(lambda: len(seen) >= 30)
     assert seen == list(range(30))
     assert link.counters["unknown_id"] == 1
 
@@ -279,23 +288,9 @@ def test_a_stream_resynchronises_after_a_bad_header_without_losing_a_frame() -> 
 def test_a_stream_does_not_hold_a_good_frame_behind_a_bogus_length() -> None:
     """On a quiet stream (one heartbeat a second on a serial link) a header announcing 255
     bytes followed by one heartbeat: the heartbeat is handled now, not once 280 bytes came."""
-    server = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-    server.bind(("127.0.0.1", 0))
-    server.listen(1)
-    server.settimeout(5.0)
-    seen: list[int] = []
-    link = MavlinkLink(
-        f"tcp:127.0.0.1:{server.getsockname()[1]}", lambda msg, t: seen.append(msg.get_seq())
-    )
-    link.start()
-    try:
-        conn, _ = server.accept()
-        with conn:
-            conn.sendall(BLINDING_HEADER + heartbeat_frames(1)[0])
-            assert wait_until(lambda: len(seen) >= 1)
-    finally:
-        link.stop()
-        server.close()
+    with link_on_a_stream() as (conn, _link, seen):
+        conn.sendall(BLINDING_HEADER + heartbeat_frames(1)[0])
+        assert wait_until(lambda: len(seen) >= 1)
     assert seen == [0]
 
 
