@@ -45,6 +45,9 @@ COMMANDS: dict[str, Command] = {
     "monitor": Command(
         "mavservo.app.monitor", "main", "live terminal dashboard of a running bridge"
     ),
+    "params": Command(
+        "mavservo.app.params", "main", "MAVLink parameters of a config: list, overlay, metadata"
+    ),
     "report": Command(
         "mavservo.app.report", "main", "figures and a summary from a run's log directory"
     ),

@@ -24,9 +24,11 @@ from typing import Any, Protocol, runtime_checkable
 import can
 
 from mavservo.config import BusConfig, Config
+from mavservo.config.overlay import overlay_path
+from mavservo.control.live_parameters import LiveParameters
 from mavservo.control.servo_backend import ServoBackend
 from mavservo.mavlink.gimbal import GimbalDevice, settings_from_config
-from mavservo.mavlink.settings import MavlinkSettings, SigningSettings
+from mavservo.mavlink.settings import MavlinkSettings, SigningSettings, TelemetryRates
 from mavservo.mavlink.side import MavlinkSide
 from mavservo.records.metrics import round_trip_figures
 from mavservo.records.runlog import RunLog, new_run_dir
@@ -178,8 +180,17 @@ class Bridge:
         log_dir: str | Path | None | bool = None,
         status: Callable[[str], None] | None = None,
         observers: Sequence[SchedulerObserver] = (),
+        parameter_base: Config | None = None,
+        overlay: Mapping[str, float] | None = None,
+        persist_parameters: bool = True,
     ) -> None:
         self.config = config
+        #: the config file without its overlay, and the overlay's values (PARAM_SET keeps the
+        #: differences from the file in the overlay; see mavservo/config/overlay.py)
+        self._parameter_base = parameter_base or config
+        self._overlay = dict(overlay or {})
+        self._persist_parameters = persist_parameters and config_path is not None
+        self.parameters: LiveParameters | None = None
         #: extra scheduler observers (tests, live tools) next to the run log's
         self._observers = tuple(observers)
         self.config_path = config_path
@@ -234,6 +245,7 @@ class Bridge:
             on_event=self._event,
             on_command=self.runlog.mavlink_received if self.runlog is not None else None,
             health=self._health,
+            slew_step_s=cfg.scheduler.command_period_s,
         )
         self.mavlink = self._make_mavlink()
         if self.runlog is not None:
@@ -398,7 +410,42 @@ class Bridge:
             )
             for g in cfg.gimbals
         ]
-        return MavlinkSide(settings, self.backend, gimbals, on_event=self._note)
+        self._gimbal_devices = gimbals
+        self.parameters = LiveParameters(
+            cfg,
+            base=self._parameter_base,
+            overlay=self._overlay,
+            overlay_file=(
+                overlay_path(self.config_path)
+                if self._persist_parameters and self.config_path is not None
+                else None
+            ),
+            config_name=Path(self.config_path).name if self.config_path else "the config",
+            servo_component=cfg.mavlink.servo_component_id,
+            gimbal_components={g.component_id: g.name for g in cfg.gimbals},
+            apply=self._apply_parameters,
+        )
+        return MavlinkSide(
+            settings, self.backend, gimbals, on_event=self._note, parameters=self.parameters
+        )
+
+    def _apply_parameters(self, updated: Config) -> None:
+        """A PARAM_SET the config's rules accepted: the mapping, the gimbals' limits and the
+        telemetry rates take it at once (called by the MAVLink thread, under its lock)."""
+        assert self.backend is not None and self.mavlink is not None
+        self.backend.reconfigure(updated, time.monotonic())
+        servo_limits = {s.name: s.limits_deg for s in updated.servos}
+        fixed_sysid = None if updated.mavlink.system_id == "follow" else updated.mavlink.system_id
+        for device, gimbal in zip(self._gimbal_devices, updated.gimbals, strict=True):
+            device.settings = settings_from_config(
+                gimbal,
+                servo_limits,
+                status_rate_hz=updated.mavlink.telemetry.gimbal_attitude_status_hz,
+                system_id=fixed_sysid,
+            )
+        rates = TelemetryRates(**updated.mavlink.telemetry.model_dump())
+        self.mavlink.core.telemetry.set_rates(rates, time.monotonic())
+        self.config = updated
 
     def _health(self) -> dict[str, float]:
         """Transport figures for telemetry (``ServoBackend.health`` hands them on).

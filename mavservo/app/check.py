@@ -17,7 +17,9 @@ from typing import TextIO
 
 from mavservo.config.budget import BusLoad, bus_loads
 from mavservo.config.endpoints import endpoint_lines
-from mavservo.config.loader import ConfigError, load_config_with_warnings
+from mavservo.config.loader import ConfigError
+from mavservo.config.overlay import LoadedConfig, load_config_with_overlay, overlay_path
+from mavservo.config.parameters import current_values
 from mavservo.config.schema import Config, ServoOutputChannel
 from mavservo.control.mapping import ChannelMap, Rejected
 
@@ -121,6 +123,18 @@ def _load_line(load: BusLoad) -> str:
     )
 
 
+def overlay_lines(loaded: LoadedConfig, path: str) -> list[str]:
+    """The values a ground station set (the overlay), against the file's own."""
+    file_values = current_values(loaded.base)
+    lines = [f"parameters set from a ground station ({overlay_path(path)}, in force):"]
+    lines += [
+        f"  {name} {value:g} (file: {file_values[name]:g})"
+        for name, value in sorted(loaded.overlay.items())
+    ]
+    lines.append(f"  `mavservo params --clear {path}` returns to the file's values")
+    return lines
+
+
 def _count(n: int, noun: str) -> str:
     return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
 
@@ -155,12 +169,15 @@ def check_main(argv: Sequence[str], out: TextIO | None = None, err: TextIO | Non
     status = EXIT_OK
     for path in args.configs:
         try:
-            config, warnings = load_config_with_warnings(path)
+            loaded = load_config_with_overlay(path)
         except ConfigError as exc:
             print(str(exc), file=err)
             status = EXIT_INVALID
             continue
+        config, warnings = loaded.config, loaded.warnings
         print(f"{path}: valid\n", file=out)
+        if loaded.overlay:
+            print("\n".join(overlay_lines(loaded, path)) + "\n", file=out)
         if warnings:
             print("warnings:", file=out)
             for warning in warnings:

@@ -28,8 +28,8 @@ from mavservo.config import (
     OverrideError,
     apply_overrides,
     default_config_path,
-    load_config,
 )
+from mavservo.config.overlay import load_config_with_overlay
 from mavservo.errors import MavservoError
 
 log = logging.getLogger("mavservo")
@@ -70,7 +70,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             logging.getLogger(name).setLevel(logging.INFO)
     path = Path(args.config) if args.config else default_config_path()
     try:
-        config = apply_overrides(load_config(path), args.mavlink, args.port)
+        loaded = load_config_with_overlay(path)
+        config = apply_overrides(loaded.config, args.mavlink, args.port)
     except ConfigError as exc:
         print(f"mavservo: invalid configuration\n{exc}", file=sys.stderr)
         return 2
@@ -89,6 +90,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         config_path=path,
         log_dir=False if args.no_log else args.log_dir,
         status=display.event,
+        parameter_base=loaded.base,
+        overlay=loaded.overlay,
+        # the built-in default lives inside the installed package: tuning it is for this run
+        persist_parameters=args.config is not None,
     )
     stop = threading.Event()
 

@@ -69,6 +69,9 @@ class _Servo:
     servo_channel: int | None = None
     actuator_index: int | None = None
     channel_map: ChannelMap | None = None
+    #: the last accepted input (``servo_output`` or ``actuator``, channel or index, value), so a
+    #: new mapping (a PARAM_SET of the trim) can send the servo where that input maps now
+    last_input: tuple[str, int, float] | None = None
 
 
 class ServoBackend:
@@ -85,29 +88,53 @@ class ServoBackend:
         on_event: Callable[[str], None] | None = None,
         on_command: Callable[[str, float], None] | None = None,
         health: Callable[[], dict[str, float]] | None = None,
+        slew_step_s: float | None = None,
     ) -> None:
         self._lock = threading.RLock()
+        #: the longest time one slew step may cover (the tick period): a servo that sat still
+        #: for a minute must not be allowed a minute's worth of motion in one step
+        self._slew_step_s = slew_step_s
         #: ``on_command(servo, t_received)`` for each accepted MAVLink request (latency stage 1)
         self._on_command = on_command
         self._health = health
         self._on_event = on_event or (lambda line: log.info("%s", line))
-        self._servos: dict[str, _Servo] = {}
-        for index, servo_config in enumerate(config.servos):
-            low, high = servo_config.limits_deg
-            self._servos[servo_config.name] = _Servo(
+        self._servos: dict[str, _Servo] = {
+            servo_config.name: _Servo(
                 name=servo_config.name,
                 index=index,
                 sink=sinks[servo_config.name],
-                limits_deg=(low, high),
+                limits_deg=servo_config.limits_deg,
                 neutral_deg=servo_config.neutral_deg,
                 failsafe_action=servo_config.failsafe.action,
                 failsafe_position_deg=servo_config.failsafe.position_deg,
-                failsafe_delay_s=servo_config.failsafe.timeout_s,
             )
-        # A servo may be mapped from both sources, each with its own input range: keep the
-        # map with the source, and the first map on the servo for reporting measured positions.
+            for index, servo_config in enumerate(config.servos)
+        }
         self._by_channel: dict[int, tuple[_Servo, ChannelMap]] = {}
         self._by_actuator: dict[int, tuple[_Servo, ChannelMap]] = {}
+        self._gimbals: dict[str, dict[str, str]] = {}
+        self._configure(config)
+        self.in_failsafe = False
+        #: servo name -> when its failsafe action is due (link lost, waiting out its timeout_s)
+        self._failsafe_due: dict[str, float] = {}
+        self.counters: dict[str, int] = {"accepted": 0, "rejected": 0, "clamped": 0}
+
+    def _configure(self, config: Config) -> None:
+        """Take limits, failsafe settings and the channel mapping from ``config`` (the servo
+        names and their order never change: they come from the file, not from parameters)."""
+        for servo_config in config.servos:
+            servo = self._servos[servo_config.name]
+            servo.limits_deg = servo_config.limits_deg
+            servo.neutral_deg = servo_config.neutral_deg
+            servo.failsafe_action = servo_config.failsafe.action
+            servo.failsafe_position_deg = servo_config.failsafe.position_deg
+            servo.failsafe_delay_s = servo_config.failsafe.timeout_s
+            servo.channel_map = None
+            servo.max_slew_dps = None
+        # A servo may be mapped from both sources, each with its own input range: keep the
+        # map with the source, and the first map on the servo for reporting measured positions.
+        self._by_channel.clear()
+        self._by_actuator.clear()
         for entry in config.channels:
             servo = self._servos[entry.servo]
             channel_map = ChannelMap.from_config(entry, config)
@@ -121,10 +148,35 @@ class ServoBackend:
                 self._by_actuator[entry.index] = (servo, channel_map)
                 servo.actuator_index = entry.index
         self._gimbals = {g.name: g.axes() for g in config.gimbals}
-        self.in_failsafe = False
-        #: servo name -> when its failsafe action is due (link lost, waiting out its timeout_s)
-        self._failsafe_due: dict[str, float] = {}
-        self.counters: dict[str, int] = {"accepted": 0, "rejected": 0, "clamped": 0}
+
+    def reconfigure(self, config: Config, now: float) -> None:
+        """Apply new settings (a ground station's PARAM_SET) without a restart.
+
+        A servo that follows an input is sent where that same input maps now (a new trim moves
+        it by the trim), a goal outside new limits is brought inside them, and every move goes
+        through the slew limit like any other, so a parameter never makes a servo jump faster
+        than its channel allows.
+        """
+        with self._lock:
+            self._configure(config)
+            for servo in self._servos.values():
+                if servo.goal_deg is None or servo.source == "failsafe":
+                    continue
+                goal = servo.goal_deg
+                if servo.last_input is not None:
+                    mapped = self._remap(servo, *servo.last_input)
+                    goal = goal if mapped is None else mapped
+                servo.goal_deg = clamp(goal, servo.limits_deg)[0]
+                if servo.sink.is_online(servo.name):
+                    self._send_step(servo, now)
+
+    def _remap(self, servo: _Servo, source: str, key: int, value: float) -> float | None:
+        table = self._by_channel if source == "servo_output" else self._by_actuator
+        mapped = table.get(key)
+        if mapped is None or mapped[0] is not servo:
+            return None
+        target = mapped[1].to_angle(value)
+        return None if isinstance(target, Rejected) else target.angle_deg
 
     # ------------------------------------------------------------------ ActuatorBackend
 
@@ -140,13 +192,19 @@ class ServoBackend:
         mapped = self._by_channel.get(channel)
         if mapped is None:
             return ApplyResult(Outcome.DENIED, f"servo channel {channel} is not mapped")
-        return self._apply_input(*mapped, pwm_us, source, now)
+        result = self._apply_input(*mapped, pwm_us, source, now)
+        if result.ok:
+            mapped[0].last_input = ("servo_output", channel, pwm_us)
+        return result
 
     def apply_actuator(self, index: int, value: float, source: str, now: float) -> ApplyResult:
         mapped = self._by_actuator.get(index)
         if mapped is None:
             return ApplyResult(Outcome.DENIED, f"actuator {index} is not mapped")
-        return self._apply_input(*mapped, value, source, now)
+        result = self._apply_input(*mapped, value, source, now)
+        if result.ok:
+            mapped[0].last_input = ("actuator", index, value)
+        return result
 
     def apply_gimbal(
         self,
@@ -302,6 +360,7 @@ class ServoBackend:
                 self.counters["clamped"] += 1
             servo.goal_deg = angle
             servo.source = source
+            servo.last_input = None  # the input callers record it again after this
             self.counters["accepted"] += 1
             result = self._send_step(servo, now)
         # The latency hook is the bridge's: called without this lock held (finding D).
@@ -318,6 +377,8 @@ class ServoBackend:
             and servo.sent_at is not None
         ):
             dt = now - servo.sent_at
+            if self._slew_step_s is not None:
+                dt = min(dt, self._slew_step_s)
             step = slew_limit(servo.sent_deg, servo.goal_deg, dt, servo.max_slew_dps)
             if step == servo.sent_deg:
                 return ACCEPTED  # no time has passed yet; the next tick moves it

@@ -33,10 +33,12 @@ from mavservo.mavlink.commands import (
 from mavservo.mavlink.component import MAV_TYPE_GIMBAL, MAV_TYPE_SERVO, HostedComponent
 from mavservo.mavlink.failsafe import FailsafeEvent, HeartbeatWatchdog
 from mavservo.mavlink.mirror import Mirror
+from mavservo.mavlink.params import SERVICE_TYPES, ParameterServer, ParameterStore, SetResult
 from mavservo.mavlink.settings import FOLLOW, MavlinkSettings
 from mavservo.mavlink.telemetry import (
     MAV_SEVERITY_CRITICAL,
     MAV_SEVERITY_NOTICE,
+    MAV_SEVERITY_WARNING,
     Telemetry,
 )
 
@@ -60,6 +62,7 @@ class MavlinkCore:
         backend: ActuatorBackend,
         gimbals: Sequence[HostedComponent] = (),
         boot_time: float = 0.0,
+        parameters: ParameterStore | None = None,
     ) -> None:
         self.settings = settings
         self.backend = backend
@@ -90,6 +93,14 @@ class MavlinkCore:
         self._next_heartbeat = {cid: boot_time for cid in self.components}
         self.counters: Counter[str] = Counter()
         self._problem_log = RateLimitedLog(REFUSAL_LOG_INTERVAL_S)
+        #: parameters, and a prompt "not supported" to FTP and mission requests, on every
+        #: component (without a store the components serve no parameters but still answer)
+        self.parameters = ParameterServer(
+            parameters or _NoParameters(),
+            self.components,
+            signing=settings.signing is not None,
+            announce=lambda text: self.telemetry.announce(MAV_SEVERITY_WARNING, text),
+        )
 
     @property
     def system_id(self) -> int:
@@ -123,6 +134,8 @@ class MavlinkCore:
             return []
         if kind in COMMAND_TYPES:
             return self.commands.handle(Command.from_message(msg), now)
+        if kind in SERVICE_TYPES:
+            return self.parameters.handle(msg, self._system_id, source)
         self._to_gimbals(msg, now)
         return []
 
@@ -202,6 +215,7 @@ class MavlinkCore:
                 out.append((cid, self._heartbeat_message(mav_type)))
         servo = self.settings.servo_component_id
         out.extend((servo, m) for m in self._guarded("telemetry", self.telemetry.periodic, now))
+        out.extend(self._guarded("parameters", self.parameters.periodic))
         for cid, device in self.gimbals.items():
             out.extend((cid, m) for m in self._guarded(f"gimbal {cid}", device.periodic, now))
         return out
@@ -241,6 +255,7 @@ class MavlinkCore:
             "mirror": dict(self.mirror.counters),
             "mirror_held_by_command": self.hold.mirror_suppressed,
             "telemetry": dict(self.telemetry.counters),
+            "parameters": dict(self.parameters.counters),
             "failsafe_count": self.watchdog.failsafe_count,
             "in_failsafe": self.watchdog.in_failsafe,
             "gimbals": self._gimbal_counters(),
@@ -258,3 +273,16 @@ class MavlinkCore:
             elif isinstance(counters, Mapping):
                 out[str(cid)] = dict(counters)
         return out
+
+
+class _NoParameters:
+    """The store of a bridge built without parameters: every component serves none."""
+
+    def names(self, component_id: int) -> list[str]:
+        return []
+
+    def value(self, name: str) -> float:
+        raise KeyError(name)
+
+    def set(self, name: str, value: float, sender: tuple[int, int]) -> SetResult:
+        raise KeyError(name)

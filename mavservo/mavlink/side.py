@@ -19,6 +19,7 @@ from mavservo.mavlink.commands import Outgoing
 from mavservo.mavlink.component import HostedComponent
 from mavservo.mavlink.core import MavlinkCore
 from mavservo.mavlink.link import MavlinkLink
+from mavservo.mavlink.params import ParameterStore
 from mavservo.mavlink.settings import MavlinkSettings
 from mavservo.mavlink.telemetry import MAV_SEVERITY_WARNING
 from mavservo.threads import BackgroundLoop
@@ -38,13 +39,16 @@ class MavlinkSide:
         gimbals: Sequence[HostedComponent] = (),
         clock: Callable[[], float] = time.monotonic,
         on_event: Callable[[str], None] | None = None,
+        parameters: ParameterStore | None = None,
     ) -> None:
         self._clock = clock
         #: also told about link loss / recovery (the bridge's console and event list)
         self._on_event = on_event
         # re-entrant: the core calls the backend under this lock, and the backend may announce
         self._lock = threading.RLock()
-        self.core = MavlinkCore(settings, backend, gimbals, boot_time=clock())
+        self.core = MavlinkCore(
+            settings, backend, gimbals, boot_time=clock(), parameters=parameters
+        )
         self.link = MavlinkLink(
             settings.url,
             self._on_message,

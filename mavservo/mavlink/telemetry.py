@@ -168,6 +168,22 @@ class Telemetry:
             return ESC_IDS[msg_id] < _esc_groups(self._backend.servo_statuses())
         return msg_id in self._streams
 
+    def set_rates(self, rates: TelemetryRates, now: float) -> None:
+        """New default rates (a ground station's TEL_*_HZ parameters), in force at once; a
+        rate a SET_MESSAGE_INTERVAL chose keeps its interval until that is reset."""
+        defaults = {
+            MSG_ACTUATOR_OUTPUT_STATUS: rates.actuator_output_status_hz,
+            **{msg_id: rates.esc_telemetry_hz for msg_id in ESC_IDS},
+            MSG_NAMED_VALUE_FLOAT: rates.named_value_float_hz,
+        }
+        for msg_id, hz in defaults.items():
+            stream = self._streams[msg_id]
+            overridden = stream.period != stream.default_period
+            stream.default_period = 1.0 / hz if hz > 0 else None
+            if not overridden:
+                stream.period = stream.default_period
+                stream.next_due = now
+
     def set_interval(self, msg_id: int, interval_us: float, now: float) -> bool:
         """SET_MESSAGE_INTERVAL: False when this component does not publish ``msg_id``."""
         stream = self._streams.get(msg_id)

@@ -1,0 +1,253 @@
+"""The MAVLink parameter protocol on the bridge's components, and quick "no" to other services.
+
+Ground stations ask every component they see for its parameters (QGroundControl, Mission Planner,
+MAVProxy's ``param`` module) and, in MAVProxy's case, first try MAVLink FTP for the packed list.
+A component that stays silent makes them wait and print time-outs; one that answers lets an
+integrator trim a control surface from the field. This module is the protocol, without I/O: it
+takes received messages and the passing of time and returns PARAM_VALUE / PARAM_ERROR /
+FILE_TRANSFER_PROTOCOL / MISSION_ACK messages to send from a component. What a value means,
+whether it is valid and how it takes effect belong to a :class:`ParameterStore`.
+
+Rules (https://mavlink.io/en/services/parameter.html):
+
+* PARAM_REQUEST_LIST: every parameter of the component as PARAM_VALUE with its index and the
+  count, paced (:data:`VALUES_PER_TICK`) so a list does not arrive as one burst on a radio.
+* PARAM_REQUEST_READ: by name when ``param_index`` is -1, else by index; an unknown one gets
+  PARAM_ERROR (MAV_PARAM_ERROR_DOES_NOT_EXIST).
+* PARAM_SET: a PARAM_VALUE with the value now in force, accepted or not (the old value when
+  refused, plus a STATUSTEXT with the reason from the store and a counter).
+* Values travel as MAV_PARAM_TYPE_REAL32; every parameter of the bridge is a float (integral
+  ones such as ``SRV1_REV`` are whole-number floats), so no ground station has to know whether
+  integers are byte-wise or C-cast encoded.
+
+Security: on a link with signing, only signed frames may read or set parameters (a link that
+``accept_unsigned`` lets unsigned frames in for the rest); ``allowed_sources`` is applied by the
+caller before a message reaches here. Refusals are counted, never answered: answering an
+unsigned reader would leak the tuning to anyone on the radio.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import Counter, deque
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from mavservo.mavlink.commands import Outgoing
+
+log = logging.getLogger(__name__)
+
+#: PARAM_VALUEs sent per MAVLink tick (10 ms) while a list is going out: 100 a second.
+VALUES_PER_TICK = 1
+#: Lists in flight at once (one per requesting component); more requests restart a list.
+MAX_PENDING_VALUES = 4096
+
+PARAM_TYPES = ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET")
+SERVICE_TYPES = (*PARAM_TYPES, "FILE_TRANSFER_PROTOCOL", "MISSION_REQUEST_LIST")
+
+# MAVLink FTP (https://mavlink.io/en/services/ftp.html): the NAK answer and its error code.
+FTP_OPCODE_NAK = 129
+FTP_ERROR_UNKNOWN_COMMAND = 7
+FTP_HEADER_BYTES = 12
+
+
+@dataclass(frozen=True)
+class SetResult:
+    """What a PARAM_SET did: the value in force afterwards, and why a refused one was refused."""
+
+    accepted: bool
+    value: float
+    reason: str = ""
+
+
+class ParameterStore(Protocol):
+    """The bridge's parameters as the protocol sees them (names, values, validated changes)."""
+
+    def names(self, component_id: int) -> list[str]:
+        """The parameters ``component_id`` serves, in index order (empty: none)."""
+        ...
+
+    def value(self, name: str) -> float:
+        """The value in force now."""
+        ...
+
+    def set(self, name: str, value: float, sender: tuple[int, int]) -> SetResult:
+        """Validate and apply a new value (or refuse it, saying why)."""
+        ...
+
+
+class ParameterServer:
+    """PARAM_* and "not supported" answers for the components in ``store``.
+
+    ``announce(text)`` queues a STATUSTEXT (a refused PARAM_SET says why there, where the user
+    looks); ``signing`` says whether the link signs (then unsigned frames are refused here).
+    """
+
+    def __init__(
+        self,
+        store: ParameterStore,
+        component_ids: Iterable[int],
+        *,
+        signing: bool,
+        announce: Callable[[str], None],
+    ) -> None:
+        self.store = store
+        self.component_ids = tuple(component_ids)
+        self.signing = signing
+        self._announce = announce
+        self._pending: deque[tuple[int, int]] = deque()
+        self.counters: Counter[str] = Counter()
+
+    # ------------------------------------------------------------------ input
+
+    def handle(self, msg: Any, system_id: int, sender: tuple[int, int]) -> list[Outgoing]:
+        """A PARAM_*, FTP or mission request; replies for each component it is addressed to."""
+        kind = msg.get_type()
+        targets = self._addressed(msg, system_id)
+        if not targets:
+            return []
+        if kind in PARAM_TYPES and self.signing and not getattr(msg, "_signed", False):
+            self.counters["unsigned_refused"] += 1
+            return []
+        out: list[Outgoing] = []
+        for component_id in targets:
+            out.extend(self._handle_for(kind, msg, component_id, sender))
+        return out
+
+    def _addressed(self, msg: Any, system_id: int) -> list[int]:
+        """Our components ``msg`` targets: one, or all of them for component 0."""
+        if getattr(msg, "target_system", 0) not in (0, system_id):
+            return []
+        target = getattr(msg, "target_component", 0)
+        if target == 0:
+            return list(self.component_ids)
+        return [target] if target in self.component_ids else []
+
+    def _handle_for(
+        self, kind: str, msg: Any, component_id: int, sender: tuple[int, int]
+    ) -> list[Outgoing]:
+        if kind == "PARAM_REQUEST_LIST":
+            return self._request_list(component_id)
+        if kind == "PARAM_REQUEST_READ":
+            return self._request_read(msg, component_id, sender)
+        if kind == "PARAM_SET":
+            return self._set(msg, component_id, sender)
+        if kind == "FILE_TRANSFER_PROTOCOL":
+            return self._ftp_nak(msg, component_id)
+        if kind == "MISSION_REQUEST_LIST":
+            self.counters["mission_unsupported"] += 1
+            ack = mavlink2.MAVLink_mission_ack_message(
+                sender[0],
+                sender[1],
+                mavlink2.MAV_MISSION_UNSUPPORTED,
+                getattr(msg, "mission_type", 0),
+            )
+            return [(component_id, ack)]
+        return []
+
+    def _request_list(self, component_id: int) -> list[Outgoing]:
+        names = self.store.names(component_id)
+        self.counters["list_requests"] += 1
+        # a repeated request restarts this component's list instead of queueing a second copy
+        self._pending = deque(item for item in self._pending if item[0] != component_id)
+        room = MAX_PENDING_VALUES - len(self._pending)
+        self._pending.extend((component_id, index) for index in range(min(len(names), room)))
+        return []
+
+    def _request_read(self, msg: Any, component_id: int, sender: tuple[int, int]) -> list[Outgoing]:
+        names = self.store.names(component_id)
+        self.counters["read_requests"] += 1
+        index = int(msg.param_index)
+        name = _param_id(msg.param_id)
+        if index >= 0:
+            if index >= len(names):
+                return [self._error(component_id, sender, name, index, "DOES_NOT_EXIST")]
+            return [(component_id, self._value(names, index))]
+        if name not in names:
+            return [self._error(component_id, sender, name, -1, "DOES_NOT_EXIST")]
+        return [(component_id, self._value(names, names.index(name)))]
+
+    def _set(self, msg: Any, component_id: int, sender: tuple[int, int]) -> list[Outgoing]:
+        names = self.store.names(component_id)
+        name = _param_id(msg.param_id)
+        if name not in names:
+            self.counters["set_unknown"] += 1
+            return [self._error(component_id, sender, name, -1, "DOES_NOT_EXIST")]
+        value = float(msg.param_value)
+        result = self.store.set(name, value, sender)
+        if result.accepted:
+            self.counters["set_accepted"] += 1
+            log.warning("parameter %s set to %g by %d/%d", name, result.value, *sender)
+        else:
+            self.counters["set_refused"] += 1
+            log.warning(
+                "parameter %s = %s from %d/%d refused: %s", name, value, *sender, result.reason
+            )
+            self._announce(f"{name} {value:g} refused: {result.reason.removeprefix(name + ': ')}")
+        return [(component_id, self._value(names, names.index(name)))]
+
+    def _ftp_nak(self, msg: Any, component_id: int) -> list[Outgoing]:
+        """Every FTP request is answered NAK "unknown command" at once (MAVProxy then falls back
+        to PARAM_REQUEST_LIST instead of waiting for its FTP time-out)."""
+        self.counters["ftp_refused"] += 1
+        request = bytes(msg.payload)
+        if len(request) < FTP_HEADER_BYTES:
+            return []
+        sequence = int.from_bytes(request[0:2], "little")
+        session, opcode = request[2], request[3]
+        header = (
+            ((sequence + 1) & 0xFFFF).to_bytes(2, "little")
+            + bytes([session, FTP_OPCODE_NAK, 1, opcode, 0, 0])
+            + bytes(4)
+        )
+        payload = list(header + bytes([FTP_ERROR_UNKNOWN_COMMAND]))
+        payload += [0] * (251 - len(payload))
+        reply = mavlink2.MAVLink_file_transfer_protocol_message(
+            msg.target_network, msg.get_srcSystem(), msg.get_srcComponent(), payload
+        )
+        return [(component_id, reply)]
+
+    # ------------------------------------------------------------------ time
+
+    def periodic(self) -> list[Outgoing]:
+        """The next values of lists being sent (:data:`VALUES_PER_TICK` per call)."""
+        out: list[Outgoing] = []
+        while self._pending and len(out) < VALUES_PER_TICK:
+            component_id, index = self._pending.popleft()
+            names = self.store.names(component_id)
+            if index < len(names):
+                out.append((component_id, self._value(names, index)))
+        return out
+
+    # ------------------------------------------------------------------ messages
+
+    def _value(self, names: list[str], index: int) -> Any:
+        value = self.store.value(names[index])
+        return mavlink2.MAVLink_param_value_message(
+            names[index].encode("ascii"),
+            value if math.isfinite(value) else 0.0,
+            mavlink2.MAV_PARAM_TYPE_REAL32,
+            len(names),
+            index,
+        )
+
+    def _error(
+        self, component_id: int, sender: tuple[int, int], name: str, index: int, error: str
+    ) -> Outgoing:
+        self.counters[f"error_{error.lower()}"] += 1
+        code = getattr(mavlink2, f"MAV_PARAM_ERROR_{error}")
+        message = mavlink2.MAVLink_param_error_message(
+            sender[0], sender[1], name.encode("ascii", "replace")[:16], index, code
+        )
+        return (component_id, message)
+
+
+def _param_id(raw: Any) -> str:
+    """PARAM_* ``param_id``: up to 16 characters, NUL-padded when shorter."""
+    if isinstance(raw, bytes):
+        raw = raw.decode("ascii", "replace")
+    return str(raw).split("\x00", 1)[0][:16]
