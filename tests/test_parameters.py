@@ -294,3 +294,48 @@ def test_hostile_requests_never_raise(
     }[kind]()
     _handle(server, msg)
     _drain(server)
+
+
+# ------------------------------------------------------------------------------------ CLI
+
+
+def test_params_cli_lists_marks_overlay_values_writes_metadata_and_clears(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import json
+
+    from mavservo.cli import main
+
+    path = _config_file(tmp_path)
+    write_overlay(overlay_path(path), {"SRV1_TRIM": 2.0}, path.name)
+    assert main(["params", str(path)]) == 0
+    listing = capsys.readouterr().out
+    assert "SRV1_TRIM" in listing and "2*" in listing and "rig.params.yaml" in listing
+
+    assert main(["check", str(path)]) == 0
+    assert "SRV1_TRIM 2 (file: 0)" in capsys.readouterr().out
+
+    metadata_file = tmp_path / "params.json"
+    assert main(["params", "--metadata", str(metadata_file), str(path)]) == 0
+    metadata = json.loads(metadata_file.read_text())
+    by_name = {p["name"]: p for p in metadata["parameters"]}
+    assert by_name["SRV1_TRIM"]["units"] == "deg"
+    assert by_name["SRV1_FS_ACT"]["values"][3] == {"value": 3, "description": "release"}
+    assert len(by_name) == len(parameter_table(load_config(path)))
+
+    assert main(["params", "--clear", str(path)]) == 0
+    assert not overlay_path(path).exists()
+    capsys.readouterr()
+    assert main(["check", str(path)]) == 0
+    assert "parameters set from a ground station" not in capsys.readouterr().out
+
+
+def test_check_refuses_a_stale_overlay_with_its_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from mavservo.cli import main
+
+    path = _config_file(tmp_path)
+    overlay_path(path).write_text("SRV1_TRIM: 1\nSRV42_MIN: 0\n")
+    assert main(["check", str(path)]) == 2
+    assert "rig.params.yaml:2: SRV42_MIN: no such parameter" in capsys.readouterr().err
