@@ -13,6 +13,7 @@ import can
 import pytest
 
 from mavservo.app import report
+from mavservo.records.metrics import LoadMeter
 from mavservo.records.runlog import RunLog, read_can_log
 from mavservo.scheduling.busload import message_bits
 
@@ -70,7 +71,7 @@ def _record_run(directory: Path, seconds: float = 3.0, seed: int = 7) -> RunLog:
                 "servos": {
                     "left": {
                         "latency_s": {"n": 3, "mean": 0.001, "sigma": 0.0002, "p99": 0.0015},
-                        "frames": {"sent": 10, "received": 9, "lost": 1, "late_replies": 0},
+                        "frames": {"sent": 10, "received": 9, "timed_out": 1, "lost": 1},
                     }
                 }
             }
@@ -100,12 +101,10 @@ def test_report_writes_every_figure_and_lists_it(recorded_run, tmp_path):
     tx = sum(1 for m in frames if not m.is_rx)
     assert f"| CAN frames TX / RX | {tx} / {len(frames) - tx} |" in markdown
     assert "| Decoder rejections | 1 |" in markdown
-    assert "| Replies lost (timeouts) | 1 |" in markdown
-    assert "| Scheduler left: frames sent / received / lost / late | 10 / 9 / 1 / 0 |" in markdown
-    assert (
-        "| Scheduler left: L, commands and refreshes (written -> reply decoded) "
-        "(mean / sigma / p99) [ms] | 1.00 / 0.20 / 1.50" in markdown
-    )
+    # the run summary's columns, under its names: sent recv pushed lost late rej, L, state
+    assert "| servo | sent | recv | pushed | lost | late | rej | L mean [ms] |" in markdown
+    assert "| left | 10 | 9 | 0 | 1 | 0 | 0 | 1.00 | 0.20 | 1.50 | n/a |" in markdown
+    assert "| Commands traced (complete / superseded / timed_out / open) |" in markdown
 
 
 def test_summary_latency_matches_the_latency_log(recorded_run):
@@ -113,16 +112,24 @@ def test_summary_latency_matches_the_latency_log(recorded_run):
     samples = report.stage_samples(run.latency_rows)["round_trip"]
     assert samples and all(0.002 <= s <= 0.0041 for s in samples)
     rows = dict(report.summary_rows(run, report.bus_load_series(run.frames, run.start_wall)))
-    mean_ms = float(rows["Latency L, round trip (mean / p50 / p95 / p99) [ms]"].split(" / ")[0])
+    (key,) = (k for k in rows if k.startswith("Stage round_trip:"))
+    assert "(mean / p50 / p95 / p99) [ms]" in key
+    mean_ms = float(rows[key].split(" / ")[0])
     assert mean_ms == pytest.approx(1e3 * sum(samples) / len(samples), abs=0.01)
 
 
-def test_bus_load_windows_add_up_to_every_frame(recorded_run):
+def test_bus_load_series_is_the_schedulers_load_meter(recorded_run):
+    """The report's load curve is LoadMeter's measure (the window ending at each frame), so
+    its peak is the summary's ``load.peak``, not a lower fixed-bin figure (6.58 against 6.8)."""
     run = report.load_run(recorded_run)
-    series = report.bus_load_series(run.frames, run.start_wall)
+    series = report.bus_load_series(run.frames, run.start_wall, {0: 1_000_000})
     assert set(series) == {0}
-    _, bits = series[0]
-    assert sum(bits) == sum(message_bits(m) for m in run.frames)
+    meter = LoadMeter(1_000_000, window_s=report.LOAD_WINDOW_S)
+    for msg in sorted(run.frames, key=lambda m: m.timestamp):
+        meter.add(msg.timestamp, message_bits(msg))
+    _, loads = series[0]
+    assert len(loads) == len(run.frames)
+    assert max(loads) == pytest.approx(meter.peak, rel=1e-9)
 
 
 def test_report_on_an_empty_run_still_draws_every_figure(tmp_path):
