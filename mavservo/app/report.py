@@ -114,6 +114,11 @@ def load_run(directory: str | Path) -> Run:
         raise ReportError(f"{header_path}: unreadable run header ({exc})") from exc
     if header.get("format") != "mavservo-run":
         raise ReportError(f"{header_path}: not a mavservo run header")
+    if header.get("start_failed"):
+        raise ReportError(
+            f"{directory}: this run never started ({header['start_failed']}); nothing was "
+            "recorded, so there is nothing to report"
+        )
     start = float(header.get("start_monotonic", 0.0))
 
     servos: dict[str, ServoTrace] = defaultdict(ServoTrace)
@@ -281,7 +286,7 @@ def _colour(index: int) -> Any:
     return f"C{index}" if index < 10 else colormaps["tab20"](index % 20)
 
 
-def plot_response(run: Run, path: Path) -> None:
+def plot_response(run: Run, path: Path) -> Any:
     """Fig. 3: commanded vs measured position, velocity and current over time.
 
     One legend for the figure, outside on the right: a colour per servo and the two line
@@ -326,6 +331,7 @@ def plot_response(run: Run, path: Path) -> None:
     for ax in (ax_pos, ax_vel, ax_cur):
         ax.grid(True, alpha=0.3)
     fig.savefig(path, dpi=100)
+    return fig  # for tests: legends and panels are asserted on the objects
 
 
 def _servo_grid(count: int, panel_height: float = 2.2):
@@ -356,7 +362,7 @@ def _plot_intervals(
     xlabel: str,
     ylabel: str,
     title: str,
-) -> None:
+) -> Any:
     """One panel per servo with at least two states, ``draw(ax, colour, intervals_ms, p50)``."""
     named = [
         (index, name, [v * 1e3 for v in trace.intervals_s()])
@@ -375,16 +381,17 @@ def _plot_intervals(
     fig.supylabel(ylabel)
     fig.suptitle(title)
     fig.savefig(path, dpi=100)
+    return fig  # for tests: legends and panels are asserted on the objects
 
 
-def plot_interval_histogram(run: Run, path: Path) -> None:
+def plot_interval_histogram(run: Run, path: Path) -> Any:
     """Fig. 4: distribution of state intervals (time between decoded states), p50 marked."""
 
     def draw(ax: Any, colour: Any, intervals_ms: list[float], p50: float) -> None:
         ax.hist(intervals_ms, bins=40, color=colour, alpha=0.8)
         ax.axvline(p50, color="k", linestyle="--", linewidth=1.0)
 
-    _plot_intervals(
+    return _plot_intervals(
         run,
         path,
         draw,
@@ -394,14 +401,14 @@ def plot_interval_histogram(run: Run, path: Path) -> None:
     )
 
 
-def plot_interval_sequence(run: Run, path: Path) -> None:
+def plot_interval_sequence(run: Run, path: Path) -> Any:
     """Fig. 5: state interval over successive states."""
 
     def draw(ax: Any, colour: Any, intervals_ms: list[float], p50: float) -> None:
         ax.plot(range(1, len(intervals_ms) + 1), intervals_ms, ".", markersize=3, color=colour)
         ax.axhline(p50, color="k", linestyle="--", linewidth=1.0)
 
-    _plot_intervals(
+    return _plot_intervals(
         run,
         path,
         draw,
@@ -415,7 +422,7 @@ def plot_interval_sequence(run: Run, path: Path) -> None:
 _STAGE_FLOOR_MS = 1e-3
 
 
-def plot_latency_stages(run: Run, path: Path) -> None:
+def plot_latency_stages(run: Run, path: Path) -> Any:
     """Each stage's distribution on a log axis, and the round-trip histogram.
 
     A log axis because the stages differ a thousandfold (accept ~0.1 ms, publish up to a
@@ -462,9 +469,10 @@ def plot_latency_stages(run: Run, path: Path) -> None:
     for ax in (ax_stages, ax_hist):
         ax.grid(True, alpha=0.3)
     fig.savefig(path, dpi=100)
+    return fig  # for tests: legends and panels are asserted on the objects
 
 
-def plot_bus_load(run: Run, path: Path, series: LoadSeries) -> None:
+def plot_bus_load(run: Run, path: Path, series: LoadSeries) -> Any:
     """Bus load R over the sliding window per bus, with its peak, plan and budget."""
     fig, axes = _figure()
     ax = axes[0][0]
@@ -508,6 +516,7 @@ def plot_bus_load(run: Run, path: Path, series: LoadSeries) -> None:
     ax.set_ylim(bottom=0)
     ax.grid(True, alpha=0.3)
     fig.savefig(path, dpi=100)
+    return fig  # for tests: legends and panels are asserted on the objects
 
 
 # -- summary -------------------------------------------------------------------------------
