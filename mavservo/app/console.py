@@ -154,9 +154,10 @@ TIMING_COLUMNS: tuple[tuple[str, int, str, str], ...] = (
     ("state p50", 9, "state_interval_s", "p50"),
 )
 SUMMARY_LEGEND = (
-    "  (ms; recv = every decoded reply, pushed = sent unasked by a push-style servo; "
-    "lost = timed out, never came; late = came after its timeout; "
-    "L = frame written -> reply decoded; state = time between decoded states; docs/logs.md)"
+    "  recv = every decoded reply, pushed = sent unasked by a push-style servo;"
+    " lost = timed out, never came;\n"
+    "  late = came after its timeout; L (ms) = frame written -> reply decoded;"
+    " state (ms) = between decoded states (docs/logs.md)"
 )
 
 
