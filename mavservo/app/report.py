@@ -2,8 +2,10 @@
 
 It works from the files of a run directory alone (see ``docs/logs.md``), so a user can run it
 on a directory copied off the drone. Figures follow the paper: commanded vs measured response
-(Fig. 3), telemetry reception interval histogram (Fig. 4) and sequence (Fig. 5), plus what the
-paper did not show: the latency split into host-visible stages and the bus load over time.
+(Fig. 3), the state interval's histogram (Fig. 4) and sequence (Fig. 5), one panel per servo,
+plus what the paper did not show: each latency stage on a log axis and the bus load over time.
+Every figure quoted is ``metrics.json``'s, under the run summary's name (docs/logs.md, "Every
+figure, once"); a run directory that holds only ``run.json`` with ``start_failed`` is refused.
 matplotlib is used through its object API on the Agg canvas: headless, no global pyplot state.
 """
 
