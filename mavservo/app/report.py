@@ -263,7 +263,7 @@ def bus_metrics(metrics: dict[str, Any]) -> dict[str, dict[str, Any]]:
 
 # -- figures -------------------------------------------------------------------------------
 
-#: Fig. 3's legend: one entry per servo (its colour) plus the two line styles.
+#: Panels a row in the per-servo figures (Figs. 4 and 5): nine servos make a 3 x 3 grid.
 MAX_GRID_COLUMNS = 3
 
 
