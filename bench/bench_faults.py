@@ -229,7 +229,7 @@ def transport(summary: dict[str, Any]) -> dict[str, Any]:
         "transport": bus["transport"],
         "servo_frames": {
             k: sum(s["frames"][k] for s in summary["servos"].values())
-            for k in ("sent", "received", "lost", "late_replies")
+            for k in ("sent", "received", "lost", "late")
         },
     }
 
@@ -573,7 +573,7 @@ def canflood_section(seconds: float, servos: int) -> list[dict[str, Any]]:
                 "sent": frames("sent"),
                 "received": frames("received"),
                 "lost": frames("lost"),
-                "late": frames("late_replies"),
+                "late": frames("late"),
                 # the scheduler's own command-to-reply latency (recent window, all servos)
                 "latency_p50_ms_median": _ms(
                     sorted(s["latency_s"]["p50"] or 0 for s in after["servos"].values())[

@@ -371,7 +371,7 @@ def run_once(args: argparse.Namespace, n_servos: int, seconds: float) -> dict[st
         "L_p99_ms": max(s["p99"] for s in latencies if s["p99"]) * ms,
         "R_mean": snapshot["load"]["total_bits"] / (elapsed * args.bitrate),
         "R_peak": snapshot["load"]["peak"],
-        "R_worst_case": snapshot["info"]["worst_case_load"],
+        "R_worst_case": snapshot["load"]["planned"],
         "lost": lost,
         "received": received,
         "cpu_sched_pct": (cpu["runner_s"] + cpu["receiver_s"]) / elapsed * 100,

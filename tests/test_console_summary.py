@@ -10,8 +10,7 @@ def test_summary_counts_failed_sends_per_bus() -> None:
         "uptime_s": 12.0,
         "buses": {
             "bus0": {
-                "load": {"current": 0.1, "peak": 0.2},
-                "info": {"worst_case_load": 0.3},
+                "load": {"current": 0.1, "mean": 0.05, "peak": 0.2, "planned": 0.3},
                 "missed_command_slots": 0,
                 "send_failures": {"total": 60, "outages": 1, "failing_for_s": 0.0},
                 "transport": {"reconnects": 1, "bytes_discarded": 0, "rejected": {}},

@@ -104,6 +104,27 @@ def test_scheduler_metrics_snapshot_is_json(tmp_path):
 def test_refused_sends_are_a_servo_counter_next_to_lost_and_rejected():
     metrics = SchedulerMetrics(["a"], 0.05, 0.09, 1_000_000)
     servo = metrics.servos["a"]
-    servo.commands_sent, servo.send_failed, servo.lost = 3, 2, 1
+    servo.commands_sent, servo.send_failed, servo.timed_out = 3, 2, 1
     frames = metrics.to_dict(now=0.0)["servos"]["a"]["frames"]
     assert (frames["send_failed"], frames["lost"], frames["sent"]) == (2, 1, 3)
+
+
+def test_a_late_reply_is_late_not_lost():
+    """The summary once said ``lost 1`` for a reply that came late (``late_replies: 1``):
+    lost is what timed out and never came."""
+    metrics = SchedulerMetrics(["a"], 0.05, 0.09, 1_000_000)
+    servo = metrics.servos["a"]
+    servo.timed_out, servo.late_replies = 3, 1
+    frames = metrics.to_dict(now=0.0)["servos"]["a"]["frames"]
+    assert (frames["timed_out"], frames["late"], frames["lost"]) == (3, 1, 2)
+    servo.late_replies = 4  # a duplicate late reply: late, and nothing is lost below zero
+    assert metrics.to_dict(now=0.0)["servos"]["a"]["frames"]["lost"] == 0
+
+
+def test_load_mean_is_every_bit_over_the_time_since_the_first_frame():
+    meter = LoadMeter(bitrate=1000, window_s=1.0)
+    for t in (10.0, 10.5, 11.0, 13.0):
+        meter.add(t, 100)
+    assert meter.mean(14.0) == pytest.approx(400 / (4.0 * 1000))
+    assert meter.peak == pytest.approx(0.2)  # (10.0, 11.0]: two frames
+    assert LoadMeter(bitrate=1000).mean(5.0) == 0.0

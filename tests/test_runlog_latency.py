@@ -50,15 +50,15 @@ def test_refresh_and_early_reply_do_not_count():
     assert record.received is None and record.stage_seconds()["accept"] is None
 
 
-def test_superseded_and_lost_commands_are_reported_partial():
+def test_superseded_and_timed_out_commands_are_reported_partial():
     records = []
     tracer = LatencyTracer(on_record=records.append)
     tracer.on_setpoint("s1", 1, 1.0, "test", 1.0)
     tracer.on_setpoint("s1", 2, 2.0, "test", 1.01)
     tracer.on_tx("bus0", None, 1.02, "command", "s1", 2)
     tracer.on_lost("bus0", "s1", 1.07)
-    assert [(r.seq, r.outcome) for r in records] == [(1, "superseded"), (2, "lost")]
-    assert tracer.counts["superseded"] == 1 and tracer.counts["lost"] == 1
+    assert [(r.seq, r.outcome) for r in records] == [(1, "superseded"), (2, "timed_out")]
+    assert tracer.counts["superseded"] == 1 and tracer.counts["timed_out"] == 1
     tracer.on_setpoint("s1", 3, 3.0, "test", 2.0)
     tracer.close_open()
     assert records[-1].outcome == "open"

@@ -137,14 +137,19 @@ def test_a_servo_answering_after_its_timeout_gets_one_warning_naming_the_setting
         try:
             with scheduler:
                 assert wait_until(
-                    lambda: scheduler.metrics()["servos"]["slow"]["frames"]["late_replies"] >= 10,
+                    lambda: scheduler.metrics()["servos"]["slow"]["frames"]["late"] >= 10,
                     WAIT_LIMIT_S,
                     interval=0.01,
                 )
         finally:
             bus.shutdown()
 
+    frames = scheduler.metrics()["servos"]["slow"]["frames"]
+    # every late reply had timed out first; it is late, not also lost (the summary said both)
+    assert frames["timed_out"] == frames["late"] + frames["lost"]
+    assert frames["lost"] < frames["late"]
     (warning,) = scheduler_records(caplog, logging.WARNING, "reply_timeout_s")
     assert warning.startswith("scheduler bus0: servo slow: ")
+    assert "(counted late, not lost)" in warning
     assert "(50 ms)" in warning and "ms late" in warning
     assert "raise scheduler.reply_timeout_s" in warning

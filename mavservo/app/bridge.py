@@ -208,6 +208,7 @@ class Bridge:
         self._stop = threading.Event()
         self._tick_thread: threading.Thread | None = None
         self._started = False
+        self._start_error: str | None = None
         self._stopped = False
         self.started_at: float | None = None
 
@@ -216,7 +217,8 @@ class Bridge:
     def start(self) -> Bridge:
         try:
             self._start()
-        except BaseException:
+        except BaseException as exc:
+            self._start_error = str(exc) or type(exc).__name__
             self.stop()
             raise
         return self
@@ -289,7 +291,10 @@ class Bridge:
         for emulator in self.emulators.values():
             _quietly(emulator.stop)
         runlog = self.runlog
-        if runlog is not None:
+        if runlog is not None and not self._started:  # nothing ran: say why, record nothing
+            reason = self._start_error or "stopped before start-up finished"
+            _quietly(lambda: runlog.abandon(reason))
+        elif runlog is not None:
             _quietly(lambda: runlog.close(summary))
             summary["runlog"] = {  # the summary must not point at a run log that failed
                 k: v for k, v in runlog.outcome().items() if k != "metrics"

@@ -136,6 +136,58 @@ def _ms_unit(value: float | None) -> str:
     return "-" if value is None else f"{_ms(value)} ms"
 
 
+#: The summary's per-servo columns: (header, width, metrics.json field under ``frames``).
+#: ``docs/logs.md`` defines each; the report's table uses the same names.
+FRAME_COLUMNS: tuple[tuple[str, int, str], ...] = (
+    ("sent", 6, "sent"),
+    ("recv", 6, "received"),
+    ("pushed", 6, "pushed"),
+    ("lost", 5, "lost"),
+    ("late", 5, "late"),
+    ("rej", 4, "rejected"),
+)
+#: (header, width, field of ``latency_s`` or ``state_interval_s``), values in ms.
+TIMING_COLUMNS: tuple[tuple[str, int, str, str], ...] = (
+    ("L mean", 7, "latency_s", "mean"),
+    ("sigma_L", 7, "latency_s", "sigma"),
+    ("L p99", 7, "latency_s", "p99"),
+    ("state p50", 9, "state_interval_s", "p50"),
+)
+SUMMARY_LEGEND = (
+    "  recv = every decoded reply, pushed = sent unasked by a push-style servo;"
+    " lost = timed out, never came;\n"
+    "  late = came after its timeout; L (ms) = frame written -> reply decoded;"
+    " state (ms) = between decoded states (docs/logs.md)"
+)
+
+
+def load_text(load: dict[str, Any]) -> str:
+    """A bus's load R figures by their metrics.json names (``load.mean``, ``load.peak``,
+    ``load.planned``), two decimals as the report shows them."""
+    return (
+        f"load R mean {load.get('mean', 0) * 100:.2f} %, peak {load.get('peak', 0) * 100:.2f} % "
+        f"(busiest {load.get('window_s', 1.0):g} s), "
+        f"planned {load.get('planned', 0) * 100:.2f} % (configured rates)"
+    )
+
+
+def _servo_table(servos: dict[str, Any]) -> list[str]:
+    """One row per servo: frame counters, then L and the state interval in ms."""
+    header = f"  {'servo':<16}" + "".join(f" {h:>{w}}" for h, w, _ in FRAME_COLUMNS)
+    header += "".join(f" {h:>{w}}" for h, w, _, _ in TIMING_COLUMNS)
+    lines = [header]
+    for name, servo in servos.items():
+        frames = servo.get("frames", {})
+        row = f"  {name:<16}" + "".join(f" {frames.get(k, 0):>{w}}" for _, w, k in FRAME_COLUMNS)
+        row += "".join(
+            f" {_ms((servo.get(group) or {}).get(key)):>{w}}" for _, w, group, key in TIMING_COLUMNS
+        )
+        lines.append(row)
+    if servos:
+        lines.append(SUMMARY_LEGEND)
+    return lines
+
+
 def format_summary(summary: dict[str, Any]) -> str:
     """The end-of-run summary: frames both ways, errors, latency L / sigma_L, bus load R."""
     lines = ["", "mavservo summary"]
@@ -143,13 +195,10 @@ def format_summary(summary: dict[str, Any]) -> str:
     if uptime is not None:
         lines.append(f"  ran {uptime:.1f} s")
     for name, bus in summary.get("buses", {}).items():
-        load = bus.get("load", {})
         transport = bus.get("transport", {})
         rejected = transport.get("rejected", {})
         lines.append(
-            f"  bus {name}: load R now {load.get('current', 0) * 100:.1f} % "
-            f"(peak {load.get('peak', 0) * 100:.1f} %, worst case "
-            f"{bus.get('info', {}).get('worst_case_load', 0) * 100:.1f} %), "
+            f"  bus {name}: {load_text(bus.get('load', {}))}, "
             f"missed command slots {bus.get('missed_command_slots', 0)} "
             f"(late {bus.get('late_command_slots', 0)}, "
             f"longest gap {_ms_unit(bus.get('longest_command_gap_s'))}), "
@@ -158,20 +207,7 @@ def format_summary(summary: dict[str, Any]) -> str:
             f"reconnects {transport.get('reconnects', 0)}, "
             f"failed sends {bus.get('send_failures', {}).get('total', 0)}"
         )
-    lines.append(
-        f"  {'servo':<16} {'sent':>6} {'recv':>6} {'lost':>5} {'rej':>4} "
-        f"{'L mean ms':>9} {'sigma_L':>8} {'L p99':>7} {'telem p50 ms':>12}"
-    )
-    for name, servo in summary.get("servos", {}).items():
-        frames = servo.get("frames", {})
-        lat = servo.get("latency_s", {})
-        interval = servo.get("telemetry_interval_s", {}).get("interval", {})
-        lines.append(
-            f"  {name:<16} {frames.get('sent', 0):>6} {frames.get('received', 0):>6} "
-            f"{frames.get('lost', 0):>5} {frames.get('rejected', 0):>4} "
-            f"{_ms(lat.get('mean')):>9} {_ms(lat.get('sigma')):>8} {_ms(lat.get('p99')):>7} "
-            f"{_ms(interval.get('p50')):>12}"
-        )
+    lines += _servo_table(summary.get("servos", {}))
     mav = summary.get("mavlink") or {}
     if mav:
         link = mav.get("link", {})

@@ -2,8 +2,10 @@
 
 It works from the files of a run directory alone (see ``docs/logs.md``), so a user can run it
 on a directory copied off the drone. Figures follow the paper: commanded vs measured response
-(Fig. 3), telemetry reception interval histogram (Fig. 4) and sequence (Fig. 5), plus what the
-paper did not show: the latency split into host-visible stages and the bus load over time.
+(Fig. 3), the state interval's histogram (Fig. 4) and sequence (Fig. 5), one panel per servo,
+plus what the paper did not show: each latency stage on a log axis and the bus load over time.
+Every figure quoted is ``metrics.json``'s, under the run summary's name (docs/logs.md, "Every
+figure, once"); a run directory that holds only ``run.json`` with ``start_failed`` is refused.
 matplotlib is used through its object API on the Agg canvas: headless, no global pyplot state.
 """
 
@@ -23,6 +25,7 @@ from typing import Any
 from mavservo.errors import MavservoError
 from mavservo.records import runlog
 from mavservo.records.latency import STAGE_DESCRIPTIONS, STAGES, summarize
+from mavservo.records.metrics import percentile
 
 FIGURES: dict[str, str] = {
     "response": "fig3_response.png",
@@ -54,9 +57,9 @@ class ServoTrace:
     fault_samples: int = 0
 
     def intervals_s(self) -> list[float]:
-        """Reception intervals of successive decoded states: every reply (telemetry polls,
-        command replies and pushes), so shorter than the poll period; the scheduler's poll-only
-        intervals are in metrics.json (telemetry_interval_s) and the run summary."""
+        """State intervals: between successive decoded states, every reply (command replies,
+        poll answers, pushes), as ``state_interval_s`` in metrics.json and ``state p50`` in
+        the run summary; so shorter than the poll period (``telemetry_interval_s``)."""
         return [b - a for a, b in zip(self.state_t, self.state_t[1:], strict=False)]
 
 
@@ -113,6 +116,11 @@ def load_run(directory: str | Path) -> Run:
         raise ReportError(f"{header_path}: unreadable run header ({exc})") from exc
     if header.get("format") != "mavservo-run":
         raise ReportError(f"{header_path}: not a mavservo run header")
+    if header.get("start_failed"):
+        raise ReportError(
+            f"{directory}: this run never started ({header['start_failed']}); nothing was "
+            "recorded, so there is nothing to report"
+        )
     start = float(header.get("start_monotonic", 0.0))
 
     servos: dict[str, ServoTrace] = defaultdict(ServoTrace)
@@ -176,8 +184,9 @@ def load_run(directory: str | Path) -> Run:
 
 # -- derived series (pure) -----------------------------------------------------------------
 
-#: Per CAN channel: window start times (s since the run's start) and the bits in each window.
-LoadSeries = dict[int, tuple[list[float], list[int]]]
+#: Per CAN channel: times (s since the run's start) of every frame and the bus load R of the
+#: window ending there (the scheduler's ``LoadMeter`` definition, so its peak is metrics.json's).
+LoadSeries = dict[int, tuple[list[float], list[float]]]
 
 
 def stage_samples(rows: Sequence[dict[str, str]]) -> dict[str, list[float]]:
@@ -191,39 +200,40 @@ def stage_samples(rows: Sequence[dict[str, str]]) -> dict[str, list[float]]:
     return out
 
 
-def complete_commands(rows: Sequence[dict[str, str]]) -> list[dict[str, float]]:
-    """Stage durations of commands that reached at least a decoded reply (for stacking)."""
-    out = []
-    for row in rows:
-        stages = {stage: _float(row.get(f"{stage}_s", "")) for stage in STAGES}
-        if stages["round_trip"] is None:
-            continue
-        out.append({stage: value or 0.0 for stage, value in stages.items()})
-    return out
-
-
 def bus_load_series(
-    frames: Sequence[Any], start_wall: float, window_s: float = LOAD_WINDOW_S
+    frames: Sequence[Any],
+    start_wall: float,
+    bitrates: dict[int, int] | None = None,
+    window_s: float = LOAD_WINDOW_S,
 ) -> LoadSeries:
-    """Per CAN channel: window start times (s since run start) and bits on the wire per window.
-
-    Every frame counts with its worst-case stuffed length (``busload.message_bits``), TX and RX
-    alike: both occupy the same bus.
-    """
+    """Per CAN channel, at every frame: the bits of the frames in ``(t - window_s, t]`` over
+    ``window_s * bitrate``, TX and RX alike (both occupy the bus), each frame at its
+    worst-case stuffed length (``busload.message_bits``). This is ``metrics.LoadMeter``'s
+    measure, so the series' maximum is the run's ``load.peak`` (up to the log's timestamp
+    resolution) and not a fixed-bin average below it (the report said 6.58 % where the
+    summary said 6.8 %)."""
     from mavservo.scheduling.busload import message_bits
 
-    bins: dict[int, dict[int, int]] = defaultdict(lambda: defaultdict(int))
+    by_channel: dict[int, list[tuple[float, int]]] = defaultdict(list)
     for msg in frames:
         channel = msg.channel if isinstance(msg.channel, int) else 0
-        index = int(math.floor((msg.timestamp - start_wall) / window_s))
-        bins[channel][index] += message_bits(msg)
+        by_channel[channel].append((msg.timestamp - start_wall, message_bits(msg)))
     series: LoadSeries = {}
-    for channel, by_index in bins.items():
-        if not by_index:
-            continue
-        first, last = min(by_index), max(by_index)
-        indices = range(first, last + 1)
-        series[channel] = ([i * window_s for i in indices], [by_index.get(i, 0) for i in indices])
+    for channel, events in by_channel.items():
+        events.sort()
+        capacity = window_s * (bitrates or {}).get(channel, DEFAULT_BITRATE)
+        times: list[float] = []
+        loads: list[float] = []
+        first = 0
+        in_window = 0
+        for t, bits in events:
+            in_window += bits
+            while events[first][0] <= t - window_s:
+                in_window -= events[first][1]
+                first += 1
+            times.append(t)
+            loads.append(in_window / capacity)
+        series[channel] = (times, loads)
     return series
 
 
@@ -235,7 +245,26 @@ def bus_names_by_channel(header: dict[str, Any]) -> dict[int, tuple[str, dict[st
     return out
 
 
+def channel_bitrates(header: dict[str, Any]) -> dict[int, int]:
+    """CAN channel number -> its bus's bitrate from run.json."""
+    return {
+        channel: int(info.get("bitrate") or DEFAULT_BITRATE)
+        for channel, (_, info) in bus_names_by_channel(header).items()
+    }
+
+
+def bus_metrics(metrics: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """Each bus's scheduler snapshot in metrics.json (``buses.<name>``), when recorded."""
+    buses = metrics.get("buses")
+    if not isinstance(buses, dict):
+        return {}
+    return {name: bus for name, bus in buses.items() if isinstance(bus, dict)}
+
+
 # -- figures -------------------------------------------------------------------------------
+
+#: Panels a row in the per-servo figures (Figs. 4 and 5): nine servos make a 3 x 3 grid.
+MAX_GRID_COLUMNS = 3
 
 
 def _figure(rows: int = 1, cols: int = 1, height: float = 4.0, sharex: bool = False):
@@ -252,140 +281,179 @@ def _empty(ax: Any, text: str) -> None:
     ax.text(0.5, 0.5, text, ha="center", va="center", transform=ax.transAxes, color="gray")
 
 
-def plot_response(run: Run, path: Path) -> None:
-    """Fig. 3: commanded vs measured position, velocity and current over time."""
+def _colour(index: int) -> Any:
+    """A distinct colour per servo: tab10 up to ten servos, tab20 beyond (C0..C9 repeat)."""
+    from matplotlib import colormaps
+
+    return f"C{index}" if index < 10 else colormaps["tab20"](index % 20)
+
+
+def plot_response(run: Run, path: Path) -> Any:
+    """Fig. 3: commanded vs measured position, velocity and current over time.
+
+    One legend for the figure, outside on the right: a colour per servo and the two line
+    styles (dashed commanded, solid measured), not two entries per servo (9 servos made 18,
+    and the legend beside the first panel pushed a gap under it)."""
+    from matplotlib.lines import Line2D
+
     fig, axes = _figure(3, 1, height=8.0, sharex=True)
     ax_pos, ax_vel, ax_cur = axes[0][0], axes[1][0], axes[2][0]
-    plotted = False
+    handles: list[Any] = []
     for index, (name, trace) in enumerate(sorted(run.servos.items())):
-        color = f"C{index % 10}"
+        colour = _colour(index)
+        if not (trace.setpoint_t or trace.state_t):
+            continue
         if trace.setpoint_t:
             ax_pos.step(
                 trace.setpoint_t,
                 trace.setpoint_deg,
                 where="post",
-                color=color,
+                color=colour,
                 linestyle="--",
                 linewidth=1.0,
-                label=f"{name} commanded",
             )
-            plotted = True
         if trace.state_t:
-            ax_pos.plot(
-                trace.state_t,
-                trace.position_deg,
-                color=color,
-                linewidth=1.2,
-                label=f"{name} measured",
-            )
-            ax_vel.plot(trace.state_t, trace.velocity_dps, color=color, linewidth=1.0, label=name)
-            ax_cur.plot(trace.state_t, trace.current_a, color=color, linewidth=1.0, label=name)
-            plotted = True
-    if not plotted:
+            ax_pos.plot(trace.state_t, trace.position_deg, color=colour, linewidth=1.2)
+            ax_vel.plot(trace.state_t, trace.velocity_dps, color=colour, linewidth=1.0)
+            ax_cur.plot(trace.state_t, trace.current_a, color=colour, linewidth=1.0)
+        handles.append(Line2D([], [], color=colour, linewidth=2.0, label=name))
+    if handles:
+        handles += [
+            Line2D([], [], color="black", linestyle="--", label="commanded"),
+            Line2D([], [], color="black", linestyle="-", label="measured"),
+        ]
+        fig.legend(handles=handles, loc="outside right upper", fontsize="small")
+    else:
         _empty(ax_pos, "no setpoints or telemetry recorded")
     ax_pos.set_ylabel("position [deg]")
     ax_vel.set_ylabel("velocity [deg/s]")
     ax_cur.set_ylabel("current [A]")
     ax_cur.set_xlabel("time since start [s]")
-    ax_pos.set_title("Commanded vs measured response (paper Fig. 3)")
+    fig.suptitle("Commanded vs measured response (paper Fig. 3)")
     for ax in (ax_pos, ax_vel, ax_cur):
         ax.grid(True, alpha=0.3)
-    if plotted:
-        # outside the axes: with many servos an inside legend hides the traces
-        ax_pos.legend(fontsize="x-small", loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.savefig(path, dpi=100)
+    return fig  # for tests: legends and panels are asserted on the objects
+
+
+def _servo_grid(count: int, panel_height: float = 2.2):
+    """One small panel per servo (at most three a row), sharing both axes: nine servos'
+    intervals in one axes were nine overlapping scatter series."""
+    cols = max(1, min(MAX_GRID_COLUMNS, count))
+    rows = max(1, math.ceil(count / cols))
+    fig, axes = _figure(rows, cols, height=max(3.5, panel_height * rows + 1.0))
+    flat = [ax for row in axes for ax in row]
+    for ax in flat[count:]:
+        ax.set_visible(False)
+    return fig, flat[: max(1, count)]
+
+
+def state_interval_p50_ms(run: Run, name: str, intervals_ms: list[float]) -> float:
+    """A servo's state interval p50 in ms as metrics.json has it (``state_interval_s.p50``,
+    the summary's ``state p50``), else from the trace's intervals."""
+    recorded = (scheduler_servo_metrics(run.metrics).get(name) or {}).get("state_interval_s")
+    if isinstance(recorded, dict) and isinstance(recorded.get("p50"), int | float):
+        return float(recorded["p50"]) * 1e3
+    return percentile(sorted(intervals_ms), 50)
 
 
 def _plot_intervals(
     run: Run,
     path: Path,
-    draw: Callable[[Any, str, str, list[float]], None],
+    draw: Callable[[Any, Any, list[float], float], None],
     xlabel: str,
     ylabel: str,
     title: str,
-) -> None:
-    """One axes, one colour per servo, ``draw(ax, colour, name, intervals_ms)`` per servo."""
-    fig, axes = _figure()
-    ax = axes[0][0]
-    any_data = False
-    for index, (name, trace) in enumerate(sorted(run.servos.items())):
-        intervals_ms = [v * 1e3 for v in trace.intervals_s()]
-        if intervals_ms:
-            any_data = True
-            draw(ax, f"C{index % 10}", name, intervals_ms)
-    if any_data:
-        ax.legend(fontsize="small")
-    else:
-        _empty(ax, "fewer than two telemetry samples per servo")
-    ax.set_xlabel(xlabel)
-    ax.set_ylabel(ylabel)
-    ax.set_title(title)
-    ax.grid(True, alpha=0.3)
+) -> Any:
+    """One panel per servo with at least two states, ``draw(ax, colour, intervals_ms, p50)``."""
+    named = [
+        (index, name, [v * 1e3 for v in trace.intervals_s()])
+        for index, (name, trace) in enumerate(sorted(run.servos.items()))
+    ]
+    named = [entry for entry in named if entry[2]]
+    fig, axes = _servo_grid(len(named))
+    if not named:
+        _empty(axes[0], "fewer than two telemetry samples per servo")
+    for ax, (index, name, intervals_ms) in zip(axes, named, strict=False):
+        p50 = state_interval_p50_ms(run, name, intervals_ms)
+        draw(ax, _colour(index), intervals_ms, p50)
+        ax.set_title(f"{name}: state p50 {p50:.1f} ms", fontsize="small")
+        ax.grid(True, alpha=0.3)
+    fig.supxlabel(xlabel)
+    fig.supylabel(ylabel)
+    fig.suptitle(title)
     fig.savefig(path, dpi=100)
+    return fig  # for tests: legends and panels are asserted on the objects
 
 
-def plot_interval_histogram(run: Run, path: Path) -> None:
-    """Fig. 4: distribution of reply reception intervals."""
+def plot_interval_histogram(run: Run, path: Path) -> Any:
+    """Fig. 4: distribution of state intervals (time between decoded states), p50 marked."""
 
-    def draw(ax: Any, colour: str, name: str, intervals_ms: list[float]) -> None:
-        mean = sum(intervals_ms) / len(intervals_ms)
-        ax.hist(
-            intervals_ms, bins=40, alpha=0.6, color=colour, label=f"{name} (mean {mean:.1f} ms)"
-        )
-        ax.axvline(mean, color=colour, linestyle="--", linewidth=1.0)
+    def draw(ax: Any, colour: Any, intervals_ms: list[float], p50: float) -> None:
+        ax.hist(intervals_ms, bins=40, color=colour, alpha=0.8)
+        ax.axvline(p50, color="k", linestyle="--", linewidth=1.0)
 
-    _plot_intervals(
+    return _plot_intervals(
         run,
         path,
         draw,
-        "reception interval [ms]",
+        "state interval [ms]",
         "count",
-        "Reception intervals of every decoded reply (paper Fig. 4)",
+        "State interval: time between decoded states, every reply and push (paper Fig. 4)",
     )
 
 
-def plot_interval_sequence(run: Run, path: Path) -> None:
-    """Fig. 5: reception interval over successive samples."""
+def plot_interval_sequence(run: Run, path: Path) -> Any:
+    """Fig. 5: state interval over successive states."""
 
-    def draw(ax: Any, colour: str, name: str, intervals_ms: list[float]) -> None:
-        ax.plot(
-            range(1, len(intervals_ms) + 1),
-            intervals_ms,
-            ".",
-            markersize=3,
-            color=colour,
-            label=name,
-        )
+    def draw(ax: Any, colour: Any, intervals_ms: list[float], p50: float) -> None:
+        ax.plot(range(1, len(intervals_ms) + 1), intervals_ms, ".", markersize=3, color=colour)
+        ax.axhline(p50, color="k", linestyle="--", linewidth=1.0)
 
-    _plot_intervals(
+    return _plot_intervals(
         run,
         path,
         draw,
-        "sample",
-        "reception interval [ms]",
-        "Reception intervals over successive samples (paper Fig. 5)",
+        "state (n-th decoded state of the servo)",
+        "state interval [ms]",
+        "State interval over successive states (paper Fig. 5)",
     )
 
 
-def plot_latency_stages(run: Run, path: Path) -> None:
-    """Per-command latency with its stages stacked (sorted by total), and the L histogram."""
+#: Shortest duration drawn on the stage plot's log axis (a 0 s stage would vanish).
+_STAGE_FLOOR_MS = 1e-3
+
+
+def plot_latency_stages(run: Run, path: Path) -> Any:
+    """Each stage's distribution on a log axis, and the round-trip histogram.
+
+    A log axis because the stages differ a thousandfold (accept ~0.1 ms, publish up to a
+    telemetry period): stacked linearly, the first stage was invisible."""
     fig, axes = _figure(1, 2, height=4.5)
-    ax_stack, ax_hist = axes[0][0], axes[0][1]
-    commands = complete_commands(run.latency_rows)
-    if commands:
-        commands.sort(key=lambda c: sum(c.values()))
-        # One filled area per stage, not one bar per command: a 400 s run has ~100,000
-        # commands, and bars took two minutes and 1 GB to draw; the areas look the same.
-        ax_stack.stackplot(
-            range(len(commands)),
-            *([c[stage] * 1e3 for c in commands] for stage in STAGES),
-            labels=[STAGE_DESCRIPTIONS[stage] for stage in STAGES],
-            colors=[f"C{index}" for index in range(len(STAGES))],
-            step="post",
-            linewidth=0,
+    ax_stages, ax_hist = axes[0][0], axes[0][1]
+    samples = stage_samples(run.latency_rows)
+    drawn = [stage for stage in STAGES if samples[stage]]
+    if drawn:
+        data = [[max(v * 1e3, _STAGE_FLOOR_MS) for v in samples[s]] for s in drawn]
+        boxes = ax_stages.boxplot(
+            data,
+            orientation="horizontal",
+            whis=(5, 95),
+            showfliers=False,
+            patch_artist=True,
+            medianprops={"color": "black"},
+            tick_labels=[f"{s}\n{STAGE_DESCRIPTIONS[s].split(' (')[0]}" for s in drawn],
         )
-        ax_stack.legend(fontsize="x-small", loc="upper left")
-        round_trip_ms = [c["round_trip"] * 1e3 for c in commands]
+        for index, box in enumerate(boxes["boxes"]):
+            box.set_facecolor(f"C{STAGES.index(drawn[index])}")
+            box.set_alpha(0.7)
+        ax_stages.set_xscale("log")
+        ax_stages.invert_yaxis()  # the order a command passes through them, top down
+        ax_stages.tick_params(axis="y", labelsize="x-small")
+    else:
+        _empty(ax_stages, "no command stage recorded")
+    round_trip_ms = [v * 1e3 for v in samples["round_trip"]]
+    if round_trip_ms:
         ax_hist.hist(round_trip_ms, bins=40, color="C2", alpha=0.8)
         stats = summarize(round_trip_ms)
         for q, style in (("p50", "-"), ("p95", "--"), ("p99", ":")):
@@ -394,53 +462,63 @@ def plot_latency_stages(run: Run, path: Path) -> None:
             )
         ax_hist.legend(fontsize="small")
     else:
-        _empty(ax_stack, "no command reached a decoded reply")
         _empty(ax_hist, "no round trips recorded")
-    ax_stack.set_xlabel("command (sorted by total latency)")
-    ax_stack.set_ylabel("latency [ms]")
-    ax_stack.set_title("Latency by stage (paper eq. 1)")
-    ax_hist.set_xlabel("round trip L: written -> reply decoded [ms]")
+    ax_stages.set_xlabel("stage duration [ms], log scale (box p25-p75, whiskers p5-p95)")
+    ax_stages.set_title("Latency by stage (paper eq. 1)")
+    ax_hist.set_xlabel("stage round_trip: written -> reply decoded [ms]")
     ax_hist.set_ylabel("count")
-    ax_hist.set_title("Latency distribution")
-    for ax in (ax_stack, ax_hist):
+    ax_hist.set_title("round_trip distribution (new setpoints)")
+    for ax in (ax_stages, ax_hist):
         ax.grid(True, alpha=0.3)
     fig.savefig(path, dpi=100)
+    return fig  # for tests: legends and panels are asserted on the objects
 
 
-def plot_bus_load(run: Run, path: Path, series: LoadSeries) -> None:
-    """Bus load R per 1 s window for each bus, with its configured budget."""
+def plot_bus_load(run: Run, path: Path, series: LoadSeries) -> Any:
+    """Bus load R over the sliding window per bus, with its peak, plan and budget."""
     fig, axes = _figure()
     ax = axes[0][0]
     names = bus_names_by_channel(run.header)
+    recorded = bus_metrics(run.metrics)
     if series:
-        for channel, (times, bits) in sorted(series.items()):
+        for channel, (times, loads) in sorted(series.items()):
             name, info = names.get(channel, (f"channel {channel}", {}))
-            bitrate = int(info.get("bitrate") or DEFAULT_BITRATE)
-            load_pct = [100.0 * b / (LOAD_WINDOW_S * bitrate) for b in bits]
+            colour = _colour(channel)
+            figures = load_figures(recorded.get(name), loads)
             ax.step(
                 times,
-                load_pct,
+                [100 * v for v in loads],
                 where="post",
-                color=f"C{channel % 10}",
-                label=f"{name} @ {bitrate / 1000:.0f} kbit/s",
+                color=colour,
+                linewidth=0.8,
+                label=f"{name}: peak {100 * figures['peak']:.2f} %",
             )
+            if figures.get("planned") is not None:
+                ax.axhline(
+                    100 * figures["planned"],
+                    color=colour,
+                    linestyle=":",
+                    linewidth=1.0,
+                    label=f"{name}: planned {100 * figures['planned']:.2f} %",
+                )
             if info.get("max_load"):
                 ax.axhline(
                     100.0 * float(info["max_load"]),
-                    color=f"C{channel % 10}",
+                    color=colour,
                     linestyle="--",
                     linewidth=1.0,
-                    label=f"{name} budget R_max",
+                    label=f"{name}: budget max_load {100 * float(info['max_load']):.0f} %",
                 )
-        ax.legend(fontsize="small")
+        ax.legend(fontsize="small", loc="best")
     else:
         _empty(ax, "no CAN frames recorded")
     ax.set_xlabel("time since start [s]")
     ax.set_ylabel("bus load R [%] (worst-case stuffing)")
-    ax.set_title(f"Bus load over {LOAD_WINDOW_S:g} s windows")
+    ax.set_title(f"Bus load R over the last {LOAD_WINDOW_S:g} s, at every frame")
     ax.set_ylim(bottom=0)
     ax.grid(True, alpha=0.3)
     fig.savefig(path, dpi=100)
+    return fig  # for tests: legends and panels are asserted on the objects
 
 
 # -- summary -------------------------------------------------------------------------------
@@ -448,6 +526,10 @@ def plot_bus_load(run: Run, path: Path, series: LoadSeries) -> None:
 
 def _ms(value: Any) -> str:
     return "n/a" if value is None else f"{float(value) * 1e3:.2f}"
+
+
+def _pct(value: Any) -> str:
+    return "n/a" if value is None else f"{float(value) * 100:.2f}"
 
 
 def scheduler_servo_metrics(metrics: dict[str, Any]) -> dict[str, dict[str, Any]]:
@@ -465,47 +547,53 @@ def scheduler_servo_metrics(metrics: dict[str, Any]) -> dict[str, dict[str, Any]
     return found
 
 
+def load_figures(recorded: dict[str, Any] | None, loads: Sequence[float]) -> dict[str, Any]:
+    """A bus's ``load.mean``/``load.peak``/``load.planned`` as metrics.json has them (the
+    summary's figures); a run without them (killed, old) gets peak and mean from the log."""
+    load = (recorded or {}).get("load")
+    if isinstance(load, dict) and isinstance(load.get("peak"), int | float):
+        return {k: load.get(k) for k in ("mean", "peak", "planned")}
+    return {
+        "mean": sum(loads) / len(loads) if loads else None,
+        "peak": max(loads, default=0.0),
+        "planned": None,
+    }
+
+
+def stage_figures(run: Run) -> dict[str, dict[str, Any]]:
+    """Per stage n, mean, p50/p95/p99 in seconds: metrics.json ``latency.stages`` when
+    written (the same numbers the bridge computed), else from latency.csv."""
+    recorded = (run.metrics.get("latency") or {}).get("stages")
+    if isinstance(recorded, dict) and all(isinstance(recorded.get(s), dict) for s in STAGES):
+        return {stage: recorded[stage] for stage in STAGES}
+    samples = stage_samples(run.latency_rows)
+    return {stage: summarize(samples[stage]) for stage in STAGES}
+
+
 def summary_rows(run: Run, series: LoadSeries) -> list[tuple[str, str]]:
-    """Table-2 style rows: (quantity, value)."""
+    """Run-wide rows (quantity, value); per-servo and per-bus figures are in their tables."""
     rows: list[tuple[str, str]] = []
-    stages = stage_samples(run.latency_rows)
-    round_trip = summarize(stages["round_trip"])
-    rows.append(
-        (
-            "Latency L, round trip (mean / p50 / p95 / p99) [ms]",
-            " / ".join(_ms(round_trip.get(k)) for k in ("mean", "p50", "p95", "p99")),
-        )
-    )
-    rows.append(("Jitter sigma_L [ms]", _ms(round_trip.get("sigma"))))
-    for stage in STAGES:
-        s = summarize(stages[stage])
+    for stage, s in stage_figures(run).items():
         rows.append(
             (
-                f"Stage {stage}: {STAGE_DESCRIPTIONS[stage]} (p50 / p95 / p99) [ms]",
-                " / ".join(_ms(s.get(k)) for k in ("p50", "p95", "p99")) + f" (n={s['n']})",
+                f"Stage {stage}: {STAGE_DESCRIPTIONS[stage]} (mean / p50 / p95 / p99) [ms]",
+                " / ".join(_ms(s.get(k)) for k in ("mean", "p50", "p95", "p99"))
+                + f" (n={s.get('n', 0)})",
             )
         )
-    intervals = [v for trace in run.servos.values() for v in trace.intervals_s()]
-    iv = summarize(intervals)
-    rows.append(
-        (
-            "Reply reception interval, all replies (mean / sigma / p99) [ms]",
-            " / ".join(_ms(iv.get(k)) for k in ("mean", "sigma", "p99")),
-        )
-    )
     outcomes: dict[str, int] = defaultdict(int)
     for row in run.latency_rows:
         outcomes[row.get("outcome", "?")] += 1
+    kinds = ("complete", "superseded", "timed_out", "open")
     rows.append(
         (
-            "Commands traced (complete / superseded / lost / open)",
-            " / ".join(str(outcomes.get(k, 0)) for k in ("complete", "superseded", "lost", "open")),
+            "Commands traced (" + " / ".join(kinds) + ")",
+            " / ".join(str(outcomes.get(k, 0)) for k in kinds),
         )
     )
     tx = sum(1 for m in run.frames if not m.is_rx)
     rx = sum(1 for m in run.frames if m.is_rx)
     rows.append(("CAN frames TX / RX", f"{tx} / {rx}"))
-    rows.append(("Replies lost (timeouts)", str(sum(t.lost for t in run.servos.values()))))
     rows.append(
         (
             "Telemetry samples with a fault flag",
@@ -515,41 +603,41 @@ def summary_rows(run: Run, series: LoadSeries) -> list[tuple[str, str]]:
     rows.append(("Decoder rejections", str(run.rejections)))
     dropped = run.metrics.get("runlog", {}).get("dropped_total")
     rows.append(("Log lines dropped (slow disk)", "n/a" if dropped is None else str(dropped)))
-    for servo, data in sorted(scheduler_servo_metrics(run.metrics).items()):
-        lat = data.get("latency_s") or {}
-        frames = data.get("frames") or {}
-        if lat.get("n"):
-            rows.append(
-                (
-                    f"Scheduler {servo}: L, commands and refreshes (written -> reply decoded) "
-                    "(mean / sigma / p99) [ms]",
-                    " / ".join(_ms(lat.get(k)) for k in ("mean", "sigma", "p99"))
-                    + f" (n={lat['n']})",
-                )
-            )
-        if frames:
-            rows.append(
-                (
-                    f"Scheduler {servo}: frames sent / received / lost / late",
-                    " / ".join(
-                        str(frames.get(k, 0)) for k in ("sent", "received", "lost", "late_replies")
-                    ),
-                )
-            )
-    names = bus_names_by_channel(run.header)
-    for channel, (_, bits) in sorted(series.items()):
-        name, info = names.get(channel, (f"channel {channel}", {}))
-        bitrate = int(info.get("bitrate") or DEFAULT_BITRATE)
-        loads = [b / (LOAD_WINDOW_S * bitrate) for b in bits]
-        budget = info.get("max_load")
-        rows.append(
-            (
-                f"Bus utilization {name} (mean / peak) [%]",
-                f"{100 * sum(loads) / len(loads):.2f} / {100 * max(loads):.2f}"
-                + ("" if budget is None else f" (budget {100 * float(budget):.0f})"),
-            )
-        )
     return rows
+
+
+def servo_table(run: Run) -> list[str]:
+    """Per servo, the run summary's columns under the same names, from metrics.json."""
+    from mavservo.app.console import FRAME_COLUMNS, TIMING_COLUMNS
+
+    servos = scheduler_servo_metrics(run.metrics)
+    if not servos:
+        return ["No scheduler metrics recorded (metrics.json missing or from a killed run)."]
+    heads = [h for h, _, _ in FRAME_COLUMNS] + [f"{h} [ms]" for h, _, _, _ in TIMING_COLUMNS]
+    lines = ["| servo | " + " | ".join(heads) + " |", "|---" * (len(heads) + 1) + "|"]
+    for name, data in sorted(servos.items()):
+        frames = data.get("frames") or {}
+        cells = [str(frames.get(key, 0)) for _, _, key in FRAME_COLUMNS]
+        cells += [_ms((data.get(group) or {}).get(key)) for _, _, group, key in TIMING_COLUMNS]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def bus_table(run: Run, series: LoadSeries) -> list[str]:
+    """Per bus, load R mean / peak / planned (the summary's names) and the budget, in %."""
+    lines = [
+        "| bus | load R mean [%] | peak [%] | planned [%] | budget max_load [%] |",
+        "|---|---|---|---|---|",
+    ]
+    recorded = bus_metrics(run.metrics)
+    by_name = {name: channel for channel, (name, _) in bus_names_by_channel(run.header).items()}
+    for name in sorted(set(recorded) | set(by_name)):
+        loads = series.get(by_name[name], ([], []))[1] if name in by_name else []
+        figures = load_figures(recorded.get(name), loads)
+        budget = ((run.header.get("buses") or {}).get(name) or {}).get("max_load")
+        cells = [_pct(figures[k]) for k in ("mean", "peak", "planned")] + [_pct(budget)]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return lines
 
 
 def _event_lines(metrics: dict[str, Any]) -> list[str]:
@@ -571,7 +659,11 @@ def _event_lines(metrics: dict[str, Any]) -> list[str]:
 
 
 def write_markdown(
-    run: Run, out_dir: Path, rows: list[tuple[str, str]], figures: dict[str, Path]
+    run: Run,
+    out_dir: Path,
+    rows: list[tuple[str, str]],
+    series: LoadSeries,
+    figures: dict[str, Path],
 ) -> Path:
     header = run.header
     lines = [
@@ -585,9 +677,20 @@ def write_markdown(
         "",
         "## Summary (paper Table 2 quantities)",
         "",
+        "Every figure is defined in docs/logs.md, under the name the run summary and",
+        "metrics.json give it.",
+        "",
         "| quantity | value |",
         "|---|---|",
         *(f"| {name} | {value} |" for name, value in rows),
+        "",
+        "## Per servo",
+        "",
+        *servo_table(run),
+        "",
+        "## Per bus",
+        "",
+        *bus_table(run, series),
         "",
         *_event_lines(run.metrics),
         "## Figures",
@@ -595,9 +698,9 @@ def write_markdown(
     ]
     titles = {
         "response": "Commanded vs measured position, velocity, current (Fig. 3)",
-        "interval_histogram": "Telemetry reception interval histogram (Fig. 4)",
-        "interval_sequence": "Reception intervals over successive samples (Fig. 5)",
-        "latency_stages": "Latency by stage and its distribution",
+        "interval_histogram": "State interval histogram per servo (Fig. 4)",
+        "interval_sequence": "State interval over successive states per servo (Fig. 5)",
+        "latency_stages": "Latency by stage and the round_trip distribution",
         "bus_load": "Bus load over time",
     }
     for key, path in figures.items():
@@ -613,14 +716,14 @@ def generate(directory: str | Path, out_dir: str | Path | None = None) -> dict[s
     run = load_run(directory)
     out = Path(out_dir) if out_dir is not None else run.directory / "report"
     out.mkdir(parents=True, exist_ok=True)
-    series = bus_load_series(run.frames, run.start_wall)
+    series = bus_load_series(run.frames, run.start_wall, channel_bitrates(run.header))
     figures = {key: out / name for key, name in FIGURES.items()}
     plot_response(run, figures["response"])
     plot_interval_histogram(run, figures["interval_histogram"])
     plot_interval_sequence(run, figures["interval_sequence"])
     plot_latency_stages(run, figures["latency_stages"])
     plot_bus_load(run, figures["bus_load"], series)
-    report = write_markdown(run, out, summary_rows(run, series), figures)
+    report = write_markdown(run, out, summary_rows(run, series), series, figures)
     return {**figures, "report": report}
 
 

@@ -601,7 +601,9 @@ class LoggingConfig(StrictModel):
     """Where a run's records go: CAN logs (python-can writers), MAVLink tlog, text log."""
 
     dir: Path = Path("runs")
-    can_formats: list[Literal["asc", "blf", "csv", "log", "trc"]] = ["asc"]
+    #: Both by default, as the README promises: ASC for reading by eye and diffing, BLF for
+    #: exact timestamps and CAN tools (a config without ``logging:`` wrote only ASC).
+    can_formats: list[Literal["asc", "blf", "csv", "log", "trc"]] = ["asc", "blf"]
     rotate_mb: Float | None = Field(50.0, gt=0)
     #: Every file of a run together stops growing here (the run log said nothing and filled
     #: 104 MB in 25 minutes, only the CAN logs rotated); 1 GiB is ~4 h of the built-in sim.

@@ -101,7 +101,7 @@ class LatencyTracer:
     """Follows each command through the stages; thread-safe, O(1) per event, bounded memory.
 
     ``on_record`` (optional) receives every finished :class:`CommandTrace`: complete ones, and
-    partial ones that were superseded by a newer setpoint or lost their reply, so a log shows
+    partial ones that were superseded by a newer setpoint or whose reply timed out, so a log shows
     where a command stopped. It is called under the tracer's lock and must not block.
     """
 
@@ -120,7 +120,7 @@ class LatencyTracer:
             "commands": 0,
             "complete": 0,
             "superseded": 0,
-            "lost": 0,
+            "timed_out": 0,
             "open": 0,
         }
 
@@ -162,14 +162,15 @@ class LatencyTracer:
                 trace.decoded = t
 
     def on_lost(self, bus: str, servo: str | None, t: float) -> None:
-        """A reply timed out: the open command will never have a round trip."""
+        """A reply timed out (outcome ``timed_out``, as the scheduler's counter: a reply after
+        its timeout is late, not lost, but this command's round trip ends here)."""
         if servo is None:
             return
         with self._lock:
             trace = self._open.get(servo)
             if trace is not None and trace.written is not None and trace.decoded is None:
                 del self._open[servo]
-                self._finish(trace, "lost")
+                self._finish(trace, "timed_out")
 
     def on_reject(self, bus: str, reason: str, raw_bytes: bytes, t: float) -> None:
         """Decoder rejections do not belong to a command; accepted for observer symmetry."""

@@ -208,6 +208,7 @@ class LoadMeter:
         self._bits_in_window = 0
         self.total_bits = 0
         self.peak = 0.0
+        self.first_t: float | None = None
 
     def _expire(self, now: float) -> None:
         horizon = now - self.window_s
@@ -219,6 +220,8 @@ class LoadMeter:
             self._bits_in_window -= self._events[0][1]
         self._events.append((t, bits))
         self._bits_in_window += bits
+        if self.first_t is None:
+            self.first_t = t
         self.total_bits += bits
         self._expire(t)
         self.peak = max(self.peak, self._bits_in_window / (self.window_s * self.bitrate))
@@ -226,6 +229,15 @@ class LoadMeter:
     def ratio(self, now: float) -> float:
         self._expire(now)
         return self._bits_in_window / (self.window_s * self.bitrate)
+
+    def mean(self, now: float) -> float:
+        """Every bit seen over the time from the first frame to ``now`` (at least one window),
+        as a share of the bus: the run's average R, which ``peak`` (the busiest window ending
+        at a frame) always reaches or exceeds."""
+        if self.first_t is None:
+            return 0.0
+        span = max(now - self.first_t, self.window_s)
+        return self.total_bits / (span * self.bitrate)
 
 
 @dataclass
@@ -237,13 +249,23 @@ class ServoMetrics:
     window: int = DEFAULT_WINDOW
     latency: SampleStats = field(init=False)
     telemetry_intervals: PeriodStats = field(init=False)
+    """Between answers to telemetry polls and pushes: the poll stream, against its period."""
+    state_intervals: PeriodStats = field(init=False)
+    """Between any two decoded states (command replies, poll answers, pushes): how fresh the
+    servo's published state is, and what the report's Figs. 4 and 5 draw from trace.csv."""
     command_intervals: PeriodStats = field(init=False)
     commands_sent: int = 0
     refreshes_sent: int = 0
     requests_sent: int = 0
     received: int = 0
-    lost: int = 0
+    """Every decoded reply: answers, late answers and pushes."""
+    pushed: int = 0
+    """Replies that answered nothing sent: status a push-style servo sends on its own, so
+    ``received`` can be far above ``sent`` for it."""
+    timed_out: int = 0
+    """Expected replies not there within ``reply_timeout_s``."""
     late_replies: int = 0
+    """Replies that came after their timeout (counted in ``timed_out`` and ``received``)."""
     rejected: int = 0
     send_failed: int = 0
     """Frames for this servo that ``bus.send`` refused (never counted as sent)."""
@@ -255,12 +277,21 @@ class ServoMetrics:
     def __post_init__(self) -> None:
         self.latency = SampleStats(self.window)
         self.telemetry_intervals = PeriodStats(self.telemetry_period_s, self.window)
+        self.state_intervals = PeriodStats(None, self.window)
         self.command_intervals = PeriodStats(self.command_period_s, self.window)
+
+    @property
+    def lost(self) -> int:
+        """Expected replies that never came: timed out and not late. A reply after its timeout
+        is late, not lost (the summary once counted it as both). Not below 0: a duplicate
+        reply with no timed-out expectation left to answer counts as late only."""
+        return max(0, self.timed_out - self.late_replies)
 
     def to_dict(self) -> dict[str, Any]:
         return {
             "latency_s": self.latency.summary(),
             "telemetry_interval_s": self.telemetry_intervals.summary(),
+            "state_interval_s": self.state_intervals.intervals.summary(),
             "command_interval_s": self.command_intervals.summary(),
             "frames": {
                 "commands": self.commands_sent,
@@ -268,8 +299,10 @@ class ServoMetrics:
                 "requests": self.requests_sent,
                 "sent": self.commands_sent + self.refreshes_sent + self.requests_sent,
                 "received": self.received,
+                "pushed": self.pushed,
+                "timed_out": self.timed_out,
+                "late": self.late_replies,
                 "lost": self.lost,
-                "late_replies": self.late_replies,
                 "rejected": self.rejected,
                 "send_failed": self.send_failed,
             },
@@ -343,6 +376,7 @@ class SchedulerMetrics:
             "load": {
                 "window_s": self.load.window_s,
                 "current": self.load.ratio(now),
+                "mean": self.load.mean(now),
                 "peak": self.load.peak,
                 "total_bits": self.load.total_bits,
             },

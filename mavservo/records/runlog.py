@@ -17,6 +17,8 @@ Directory layout (see ``docs/logs.md``)::
     mavlink.tlog     MAVLink in and out, 8-byte big-endian usec wall timestamp + raw frame
     metrics.json     written at close: scheduler metrics, latency summary, log counters
 
+A run that fails to start keeps ``run.json`` alone, with ``start_failed``: why (:meth:`abandon`).
+
 Times handed in are ``time.monotonic()`` seconds; the files carry wall-clock time, computed with
 the offset captured once at start (and stored in ``run.json`` so a reader can go back).
 
@@ -89,6 +91,7 @@ _BUFFER_LIMIT = 256 * 1024  # a text file's buffer is written out early past thi
 DIR_MODE = 0o700
 FILE_MODE = 0o600
 DEFAULT_MAX_RUN_BYTES = 1024 * 1024 * 1024
+_ABANDON_JOIN_S = 2.0  # the writer polls every _POLL_S; nothing is queued before a start
 
 log = logging.getLogger(__name__)
 
@@ -486,6 +489,30 @@ class RunLog:
         if header_error is not None:
             self._report("header", f"cannot update {RUN_HEADER} at close: {header_error}")
         self._write_metrics(metrics or {})
+
+    def abandon(self, reason: str) -> None:
+        """The run never started: keep only ``run.json``, saying why (``start_failed``).
+
+        A failed start (a missing port, ``/dev/null`` as the adapter) left the full set of
+        empty files, and ``mavservo report`` drew five empty figures from them without
+        saying the run never began. Nothing was recorded, so nothing else is kept."""
+        if self._closed:
+            return
+        self._closed = True
+        self._stopping.set()
+        if self._thread is not None:
+            self._thread.join(_ABANDON_JOIN_S)
+        self._close_files()
+        created = [sink.path for sink in self._files.values()]
+        for fmt in self.formats:
+            created += can_log_files(self.directory, fmt)
+        for path in created:
+            with contextlib.suppress(OSError):
+                path.unlink()
+        self._extra_header["start_failed"] = reason
+        header_error = self._write_header(end_wall=time.time())
+        if header_error is not None:
+            log.warning("cannot record the failed start in %s: %s", RUN_HEADER, header_error)
 
     def outcome(self) -> dict[str, Any]:
         """What became of the run log: complete or not, why, and where ``metrics.json`` is."""

@@ -228,7 +228,8 @@ class Outgoing:
 @dataclass(frozen=True)
 class ReplyMatch:
     """What a decoded reply answered: ``kind`` None means unsolicited (push-style servo),
-    ``"late"`` a reply whose expectation had already timed out (counted lost)."""
+    ``"late"`` a reply whose expectation had already timed out (counted timed out and late,
+    not lost)."""
 
     kind: FrameKind | Literal["late"] | None
     t_tx: float | None

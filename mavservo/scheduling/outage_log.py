@@ -134,6 +134,6 @@ class LateReplies:
         return [
             (
                 logging.WARNING,
-                f"{text}, and were counted lost; if the servo is just slow, {advice}",
+                f"{text} (counted late, not lost); if the servo is just slow, {advice}",
             )
         ]

@@ -401,9 +401,10 @@ class Scheduler:
                 snapshot["servos"][name]["online"] = self._core.is_online(name)
             snapshot["send_failures"] = self._send_failures.to_dict(now)
             snapshot["receive_failures"] = self._receive_failures.to_dict(now)
+        # next to the measured loads, under one name everywhere (summary, metrics.json, report)
+        snapshot["load"]["planned"] = self.worst_case_load
         snapshot["info"].update(
             bus=self.name,
-            worst_case_load=self.worst_case_load,
             max_load=self.timing.max_load,
             bitrate=self.timing.bitrate,
             command_period_s=self.timing.command_period_s,
@@ -544,7 +545,7 @@ class Scheduler:
             if decision.telemetry_tick is not None:
                 metrics.telemetry_ticks.mark(now)
             for servo in decision.lost:
-                metrics.servos[servo].lost += 1
+                metrics.servos[servo].timed_out += 1
             dropped = dict(decision.dropped)
             for servo in decision.went_offline:
                 more, state = self._go_offline(servo, "no reply", dropped.get(servo), now)
@@ -689,6 +690,9 @@ class Scheduler:
                 servo_metrics.latency.add(match.latency_s)
             if match.kind in ("request", None):
                 servo_metrics.telemetry_intervals.mark(t)
+            if match.kind is None:
+                servo_metrics.pushed += 1
+            servo_metrics.state_intervals.mark(t)
             self._states[servo] = state
         self._log(lines)
         self._notify_observer(self._observer.on_rx, self.name, msg, t, servo, state)
