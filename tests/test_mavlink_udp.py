@@ -13,7 +13,7 @@ from pymavlink import mavutil  # noqa: E402
 from test_mavlink_support import RecordingBackend, state  # noqa: E402
 
 from mavservo.mavlink.gimbal import GimbalDevice, GimbalSettings  # noqa: E402
-from mavservo.mavlink.settings import MavlinkSettings, TelemetryRates, SigningSettings  # noqa: E402
+from mavservo.mavlink.settings import MavlinkSettings, SigningSettings, TelemetryRates  # noqa: E402
 from mavservo.mavlink.side import MavlinkSide  # noqa: E402
 
 KEY = bytes(range(32))

@@ -22,8 +22,8 @@ from typing import Any
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mavservo.mavlink.arbitration import CommandHold
-from mavservo.mavlink.bandwidth import LinkBudget, plan_budget
 from mavservo.mavlink.backend import ActuatorBackend
+from mavservo.mavlink.bandwidth import LinkBudget, plan_budget
 from mavservo.mavlink.commands import (
     REFUSAL_LOG_INTERVAL_S,
     Command,
