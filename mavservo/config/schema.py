@@ -202,7 +202,7 @@ class TelemetryRates(StrictModel):
     def _esc_index_starts_a_message(cls, value: int | str) -> int | str:
         if isinstance(value, int) and (value - 1) % 4:
             raise ValueError(
-                f"expected 1, 5, 9, ... 29 (each ESC_TELEMETRY message starts at 4k + 1), got {value}"
+                f"expected 1, 5, 9, ... 29 (an ESC_TELEMETRY message starts at 4k + 1), got {value}"
             )
         return value
 
