@@ -419,8 +419,11 @@ class Telemetry:
                         boot_ms, f"{self.name_prefix}{n}_{suffix}".encode(), float(value)
                     )
                 )
-        # bus load and latency figures (``bus0_load``, ``lat_p99``); a backend may have none
-        for name, value in self._backend.health().items():
+        # where the servos are in ESC_TELEMETRY (``esc_first``: ESC number of servo 1), so a
+        # dashboard maps ESC data back to servos, and bus load and latency figures
+        # (``bus0_load``, ``lat_p99``); a backend may have none of the latter
+        figures = {"esc_first": float(self.esc_first), **self._backend.health()}
+        for name, value in figures.items():
             # a second bridge's figures carry its prefix too (``tbus0_load``), so two bridges'
             # bus loads never read as one; the default keeps the names documented in the README
             label = name if self.name_prefix == DEFAULT_NAME_PREFIX else self.name_prefix + name
