@@ -557,9 +557,15 @@ def test_any_text_gives_a_config_or_a_config_error(text: str):
         assert str(exc).startswith("fuzz.yaml")
 
 
+YAML_WORDS = {"on", "off", "yes", "no", "y", "n", "true", "false", "null"}
+
+
 @settings(max_examples=40, deadline=None)
 @given(
-    st.from_regex(r"[a-z][a-z_]{0,15}", fullmatch=True).filter(lambda k: k not in SERVO_FIELDS),
+    # YAML 1.1 reads on/off/yes/no/y/n/true/false/null as booleans or null, not as key names
+    st.from_regex(r"[a-z][a-z_]{0,15}", fullmatch=True).filter(
+        lambda k: k not in SERVO_FIELDS and k not in YAML_WORDS
+    ),
     st.integers(0, 8),
     st.integers(0, 3),
 )

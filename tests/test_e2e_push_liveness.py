@@ -51,7 +51,10 @@ def mount_control(peer: Peer, pitch: float) -> int | None:
 
 
 def esc_counts(peer: Peer, mark: int) -> list[tuple[int, ...]]:
-    return [tuple(m.count[:3]) for m in peer.since(mark, "ESC_TELEMETRY_1_TO_4")]
+    # the servos' ESC numbers start where the bridge put them (17 by default, above motors)
+    return [
+        tuple(m.count[:3]) for m in peer.since(mark) if m.get_type().startswith("ESC_TELEMETRY_")
+    ]
 
 
 def test_pushing_gimbal_servos_go_offline_in_an_outage_and_refused_demands_never_run() -> None:

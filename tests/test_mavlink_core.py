@@ -340,7 +340,8 @@ def test_telemetry_content_matches_servo_state():
     aos = next(m for m in out if m.get_type() == "ACTUATOR_OUTPUT_STATUS")
     assert aos.active == 0b101
     assert aos.actuator[0] == pytest.approx(0.5) and aos.actuator[2] == pytest.approx(-0.2)
-    esc = next(m for m in out if m.get_type() == "ESC_TELEMETRY_1_TO_4")
+    # the default ESC numbers start at 17 (ESC_TELEMETRY_17_TO_20), above the motors
+    esc = next(m for m in out if m.get_type() == "ESC_TELEMETRY_17_TO_20")
     assert esc.temperature[0] == 41 and esc.current[0] == 125 and esc.rpm[0] == 20
     assert esc.voltage[0] == 2420
     named = {m.name: m.value for m in out if m.get_type() == "NAMED_VALUE_FLOAT"}

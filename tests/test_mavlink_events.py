@@ -17,7 +17,10 @@ from test_mavlink_udp import peer  # noqa: E402
 
 from mavservo.app.monitor import MonitorState  # noqa: E402
 from mavservo.mavlink.core import MavlinkCore  # noqa: E402
-from mavservo.mavlink.settings import MavlinkSettings  # noqa: E402
+from mavservo.mavlink.settings import MavlinkSettings, TelemetryRates  # noqa: E402
+
+#: servo n is ESC n here: these tests are about the grouping of servos into ESC messages
+ESC_FROM_1 = TelemetryRates(esc_first_index=1)
 from mavservo.mavlink.side import MavlinkSide  # noqa: E402
 from mavservo.mavlink.telemetry import REMINDER_S, STATUSTEXT_LENGTH  # noqa: E402
 from mavservo.servos.base import Fault  # noqa: E402
@@ -41,7 +44,7 @@ class WideBackend(RecordingBackend):
 
 def make_core(backend=None):
     backend = backend if backend is not None else RecordingBackend()
-    return MavlinkCore(MavlinkSettings(system_id=1), backend), backend
+    return MavlinkCore(MavlinkSettings(system_id=1, telemetry=ESC_FROM_1), backend), backend
 
 
 def texts(out) -> list[str]:
@@ -109,7 +112,8 @@ def test_long_statustext_is_chunked_and_the_monitor_joins_it_over_udp():
     exact = "x" * (2 * STATUSTEXT_LENGTH)  # fills its chunks: an empty last chunk ends it
     port = free_udp_port()
     side = MavlinkSide(
-        MavlinkSettings(url=f"udpin:127.0.0.1:{port}", system_id=1), RecordingBackend()
+        MavlinkSettings(url=f"udpin:127.0.0.1:{port}", system_id=1, telemetry=ESC_FROM_1),
+        RecordingBackend(),
     )
     gcs = peer(port, 255, 190)
     side.start()

@@ -21,7 +21,9 @@ from test_mavlink_support import RecordingBackend, state  # noqa: E402
 from test_mavlink_udp import peer  # noqa: E402
 
 from mavservo.mavlink.core import MavlinkCore  # noqa: E402
-from mavservo.mavlink.settings import MavlinkSettings  # noqa: E402
+from mavservo.mavlink.settings import MavlinkSettings, TelemetryRates  # noqa: E402
+
+ESC_FROM_1 = TelemetryRates(esc_first_index=1)  # servo n is ESC n: group 1_TO_4
 from mavservo.mavlink.side import MavlinkSide  # noqa: E402
 from mavservo.mavlink.telemetry import Telemetry  # noqa: E402
 from mavservo.servos.rmdx import CMD_STATUS_1, RmdX  # noqa: E402
@@ -63,7 +65,7 @@ def test_unknown_values_encode_in_every_telemetry_message(servo_state):
     backend = RecordingBackend()
     backend.states["aileron"] = servo_state
     backend.states["flap"] = state(6.0, current=1.5)
-    core = MavlinkCore(MavlinkSettings(system_id=1), backend)
+    core = MavlinkCore(MavlinkSettings(system_id=1, telemetry=ESC_FROM_1), backend)
     for msg_id in (375, 11030, 251):
         assert core.telemetry.request(msg_id, 0.0), msg_id
     decoded = roundtrip([m for _, m in core.tick(0.0)])
@@ -86,7 +88,7 @@ def test_a_failing_message_is_left_out_counted_and_logged_once(monkeypatch, capl
     monkeypatch.setattr(Telemetry, "_esc_telemetry", broken)
     backend = RecordingBackend()
     backend.states["aileron"] = state(3.0)
-    core = MavlinkCore(MavlinkSettings(system_id=1), backend)
+    core = MavlinkCore(MavlinkSettings(system_id=1, telemetry=ESC_FROM_1), backend)
     kinds = [m.get_type() for step in range(301) for _, m in core.tick(step * 0.01)]
     assert kinds.count("HEARTBEAT") == 4
     assert "NAMED_VALUE_FLOAT" in kinds and "ACTUATOR_OUTPUT_STATUS" in kinds

@@ -13,7 +13,7 @@ from pymavlink import mavutil  # noqa: E402
 from test_mavlink_support import RecordingBackend, state  # noqa: E402
 
 from mavservo.mavlink.gimbal import GimbalDevice, GimbalSettings  # noqa: E402
-from mavservo.mavlink.settings import MavlinkSettings, SigningSettings  # noqa: E402
+from mavservo.mavlink.settings import MavlinkSettings, SigningSettings, TelemetryRates  # noqa: E402
 from mavservo.mavlink.side import MavlinkSide  # noqa: E402
 
 KEY = bytes(range(32))
@@ -50,6 +50,7 @@ def bridge(request):
         system_id="follow",
         heartbeat_timeout_s=1.0,
         channel_trims_us={9: 1500.0},
+        telemetry=TelemetryRates(esc_first_index=1),  # servo n is ESC n here
         **overrides,
     )
     side = MavlinkSide(settings, backend, gimbals=[gimbal])

@@ -253,6 +253,7 @@ class Bridge:
         if self.runlog is not None:
             self._tap_mavlink(self.mavlink, self.runlog)
         self.mavlink.start()
+        self._note(self._identity_line())
         if self.autopilot_sim is not None:
             self.autopilot_sim.start()
         self._tick_thread = threading.Thread(target=self._tick, name="bridge-tick", daemon=True)
@@ -496,6 +497,24 @@ class Bridge:
         mavlink = self.mavlink
         if mavlink is not None:
             _quietly(lambda: mavlink.announce(text, MAV_SEVERITY_WARNING))
+
+    def _identity_line(self) -> str:
+        """How this bridge shows itself on the vehicle: at start, on the console and in the
+        event list (a second bridge, or the autopilot's own ESCs, must not look the same)."""
+        assert self.mavlink is not None
+        core = self.mavlink.core
+        servos = len(self.config.servos)
+        first = core.telemetry.esc_first
+        plan = core.budget.plan
+        budget = (
+            "no link budget"
+            if plan.budget_bytes_s is None
+            else f"autopilot link {plan.link_bytes_s:,.0f} of {plan.budget_bytes_s:,.0f} B/s"
+        )
+        return (
+            f"MAVLink: servo component {self.config.mavlink.servo_component_id}, servos as ESC "
+            f"{first}-{first + servos - 1}, names {core.telemetry.name_prefix}1_*, {budget}"
+        )
 
     def _note(self, text: str) -> None:
         """Console and event list only (the MAVLink side announces its own link events)."""

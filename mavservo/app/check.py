@@ -22,6 +22,8 @@ from mavservo.config.overlay import LoadedConfig, load_config_with_overlay, over
 from mavservo.config.parameters import current_values
 from mavservo.config.schema import Config, ServoOutputChannel
 from mavservo.control.mapping import ChannelMap, Rejected
+from mavservo.mavlink.bandwidth import plan_budget
+from mavservo.mavlink.telemetry import AUTO_ESC_FIRST
 
 EXIT_OK = 0
 EXIT_INVALID = 2
@@ -48,6 +50,8 @@ def resolved_mapping(config: Config) -> str:
     """A human-readable description of what a validated config does."""
     lines = ["connections:"]
     lines += ["  " + line for line in endpoint_lines(config)]
+    lines += ["", "MAVLink telemetry:"]
+    lines += ["  " + line for line in telemetry_lines(config)]
     lines += ["", "servos:"]
     lines += [
         "  " + row
@@ -133,6 +137,34 @@ def overlay_lines(loaded: LoadedConfig, path: str) -> list[str]:
     ]
     lines.append(f"  `mavservo params --clear {path}` returns to the file's values")
     return lines
+
+
+def telemetry_lines(config: Config) -> list[str]:
+    """Who the bridge is on the vehicle, its ESC numbers and names, and the bytes per second it
+    sends on each link (what a telemetry radio has to carry)."""
+    telemetry = config.mavlink.telemetry
+    servos = len(config.servos)
+    first = AUTO_ESC_FIRST if telemetry.esc_first_index == "auto" else telemetry.esc_first_index
+    last = first + servos - 1
+    moves = " (auto: moves above ESC telemetry the autopilot or another bridge sends)"
+    esc = f"ESC {first}-{last}" if last <= 32 else f"ESC {first}-32 (servos past ESC 32: none)"
+    prefix = telemetry.name_prefix
+    gimbals = ", ".join(str(g.component_id) for g in config.gimbals) or "none"
+    plan = plan_budget(
+        config.mavlink.link_budget_bytes_s,
+        servos=servos,
+        gimbals=len(config.gimbals),
+        health_names=len(config.can.buses) + 6,
+        components=1 + len(config.gimbals),
+        rates=telemetry,
+        signed=config.mavlink.signing is not None,
+    )
+    return [
+        f"components: servos {config.mavlink.servo_component_id}, gimbals {gimbals}",
+        f"servo ESC numbers: {esc}" + (moves if telemetry.esc_first_index == "auto" else ""),
+        f"NAMED_VALUE_FLOAT names: {prefix}1_pos .. {prefix}{servos}_flt",
+        *plan.lines(),
+    ]
 
 
 def _count(n: int, noun: str) -> str:

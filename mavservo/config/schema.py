@@ -189,6 +189,22 @@ class TelemetryRates(StrictModel):
     esc_telemetry_hz: Float = Field(4.0, ge=0, le=100)
     named_value_float_hz: Float = Field(2.0, ge=0, le=100)
     gimbal_attitude_status_hz: Float = Field(10.0, ge=0, le=100)
+    #: ESC index of the first servo in ESC_TELEMETRY_x_TO_y (1, 5, 9, ... 29: the messages carry
+    #: four ESCs each). "auto" starts at 17, above the motors of any common frame, and moves up
+    #: when the autopilot (or another bridge) is heard publishing the same ESC indices.
+    esc_first_index: Literal["auto"] | Annotated[Int, Field(ge=1, le=29)] = "auto"
+    #: First letters of the NAMED_VALUE_FLOAT names (``s1_pos``): a second bridge on the same
+    #: vehicle takes another (``t1_pos``) so a ground station tells them apart.
+    name_prefix: str = Field("s", pattern=r"^[a-z]{1,3}$")
+
+    @field_validator("esc_first_index")
+    @classmethod
+    def _esc_index_starts_a_message(cls, value: int | str) -> int | str:
+        if isinstance(value, int) and (value - 1) % 4:
+            raise ValueError(
+                f"expected 1, 5, 9, ... 29 (an ESC_TELEMETRY message starts at 4k + 1), got {value}"
+            )
+        return value
 
 
 class MavlinkConfig(StrictModel):
@@ -211,6 +227,11 @@ class MavlinkConfig(StrictModel):
     telemetry: TelemetryRates = TelemetryRates()
     #: Output-only endpoints that get a copy of everything the bridge sends (mavservo monitor).
     monitor_outputs: list[str] = []
+    #: Bytes per second the bridge's periodic telemetry may use on the autopilot link, which
+    #: ArduPilot forwards to the ground station's radio (a 57,600-baud radio carries about
+    #: 5.7 kB/s for everything): the telemetry rates on that link are scaled down to fit, the
+    #: monitor outputs keep the configured rates. null: no budget (a wired link).
+    link_budget_bytes_s: Annotated[Float, Field(gt=0)] | None = 1000.0
 
     @field_validator("url")
     @classmethod

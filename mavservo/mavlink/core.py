@@ -23,6 +23,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mavservo.mavlink.arbitration import CommandHold
 from mavservo.mavlink.backend import ActuatorBackend
+from mavservo.mavlink.bandwidth import LinkBudget, plan_budget
 from mavservo.mavlink.commands import (
     REFUSAL_LOG_INTERVAL_S,
     Command,
@@ -36,6 +37,7 @@ from mavservo.mavlink.mirror import Mirror
 from mavservo.mavlink.params import SERVICE_TYPES, ParameterServer, ParameterStore, SetResult
 from mavservo.mavlink.settings import FOLLOW, MavlinkSettings
 from mavservo.mavlink.telemetry import (
+    ESC_MESSAGES,
     MAV_SEVERITY_CRITICAL,
     MAV_SEVERITY_NOTICE,
     MAV_SEVERITY_WARNING,
@@ -51,6 +53,8 @@ MAV_STATE_CRITICAL = 5
 HEARTBEAT_PERIOD_S = 1.0
 COMMAND_TYPES = ("COMMAND_LONG", "COMMAND_INT")
 MIRROR_TYPES = ("SERVO_OUTPUT_RAW", "ACTUATOR_OUTPUT_STATUS")
+#: ESC_TELEMETRY_1_TO_4 .. 29_TO_32 by message name -> group (0 = 1_TO_4)
+ESC_TELEMETRY_TYPES = {cls.msgname: group for group, cls in enumerate(ESC_MESSAGES)}
 
 
 class MavlinkCore:
@@ -93,6 +97,18 @@ class MavlinkCore:
         self._next_heartbeat = {cid: boot_time for cid in self.components}
         self.counters: Counter[str] = Counter()
         self._problem_log = RateLimitedLog(REFUSAL_LOG_INTERVAL_S)
+        #: what of the periodic telemetry also goes on the autopilot link (monitors get all)
+        self.budget = LinkBudget(
+            plan_budget(
+                settings.link_budget_bytes_s,
+                servos=_safe_len(backend.servo_statuses),
+                gimbals=len(self.gimbals),
+                health_names=_safe_len(backend.health),
+                components=len(self.components),
+                rates=settings.telemetry,
+                signed=settings.signing is not None,
+            )
+        )
         #: parameters, and a prompt "not supported" to FTP and mission requests, on every
         #: component (without a store the components serve no parameters but still answer)
         self.parameters = ParameterServer(
@@ -119,6 +135,8 @@ class MavlinkCore:
         if source[0] == self._system_id and source[1] in self.components:
             return []  # our own traffic echoed back by a router
         self.counters["received"] += 1
+        if kind in ESC_TELEMETRY_TYPES and source[0] == self._system_id:
+            self._heard_esc(kind, source)
         if kind == "HEARTBEAT":
             return self._heartbeat(msg, source, now)
         from_autopilot = source == self.watched
@@ -158,6 +176,14 @@ class MavlinkCore:
             if quiet
             else " (repeats counted in rejected_source, one line a second at most)",
         )
+
+    def _heard_esc(self, kind: str, source: tuple[int, int]) -> None:
+        """Another component of this vehicle publishes ESC telemetry: the autopilot (for its
+        motors) or another bridge. The autopilot, and a bridge with a lower component id, keep
+        their ESC numbers; this bridge moves (or warns)."""
+        group = ESC_TELEMETRY_TYPES[kind]
+        yield_to = source == self.watched or source[1] < self.settings.servo_component_id
+        self.telemetry.heard_esc(source, group, yield_to=yield_to)
 
     def _source_allowed(self, source: tuple[int, int]) -> bool:
         allowed = self.settings.allowed_sources
@@ -286,3 +312,12 @@ class _NoParameters:
 
     def set(self, name: str, value: float, sender: tuple[int, int]) -> SetResult:
         raise KeyError(name)
+
+
+def _safe_len(snapshot: Callable[[], Any]) -> int:
+    """How many items a backend snapshot has; 0 when it fails (the tick's guards report a
+    failing backend; building the MAVLink side must not fail on it)."""
+    try:
+        return len(snapshot())
+    except Exception:  # noqa: BLE001 - any failure of the backend: plan for nothing
+        return 0

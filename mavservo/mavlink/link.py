@@ -611,6 +611,16 @@ class _TransportWriter:
         self._link._write(buf)
 
 
+class _MonitorWriter:
+    """File-like object the monitor encoders write into: the monitor outputs only."""
+
+    def __init__(self, link: MavlinkLink) -> None:
+        self._link = link
+
+    def write(self, buf: bytes) -> None:
+        self._link._write_monitors(buf)
+
+
 class MavlinkLink:
     """Transport + per-component encoders + signature-checking decoder + receive thread."""
 
@@ -639,6 +649,10 @@ class MavlinkLink:
         self._conn: Any = None
         self._write_lock = threading.Lock()
         self._encoders: dict[int, mavlink2.MAVLink] = {}
+        #: Monitor outputs get every message, the autopilot link what its budget lets through:
+        #: each has its own encoders, so each sees an unbroken sequence per component (a gap
+        #: would read as lost packets in a ground station).
+        self._monitor_encoders: dict[int, mavlink2.MAVLink] = {}
         self.counters: Counter[str] = Counter()
         self.handler_errors = HandlerErrors()
         self._udp_totals = UdpServerTotals()
@@ -646,6 +660,7 @@ class MavlinkLink:
         self._decoder = self._new_decoder()
         self._scanner = FrameScanner(self._decoder, self.counters)
         self._writer = _TransportWriter(self)
+        self._monitor_writer = _MonitorWriter(self)
         self._loop = BackgroundLoop(self._receive_loop, name="mavlink-rx")
         self.failed_reopens = 0  # in the current outage
         self._reopen_log = RateLimitedLog(REOPEN_WARNING_INTERVAL_S)
@@ -667,13 +682,21 @@ class MavlinkLink:
 
     def add_component(self, component_id: int, system_id: int, link_id: int = 0) -> None:
         """Host a component: its own encoder, sequence counter and signing stream."""
-        encoder = mavlink2.MAVLink(self._writer, srcSystem=system_id, srcComponent=component_id)
+        self._encoders[component_id] = self._encoder(self._writer, system_id, component_id, link_id)
+        self._monitor_encoders[component_id] = self._encoder(
+            self._monitor_writer, system_id, component_id, (link_id + 1) % 256
+        )
+
+    def _encoder(
+        self, writer: Any, system_id: int, component_id: int, link_id: int
+    ) -> mavlink2.MAVLink:
+        encoder = mavlink2.MAVLink(writer, srcSystem=system_id, srcComponent=component_id)
         if self._signing is not None:
             encoder.signing.secret_key = self._signing.key
             encoder.signing.sign_outgoing = True
             encoder.signing.link_id = link_id
             encoder.signing.timestamp = signing_timestamp(time.time())
-        self._encoders[component_id] = encoder
+        return encoder
 
     def open(self) -> None:
         """Open the endpoint; :class:`LinkBusyError` when a UDP server port is taken."""
@@ -712,11 +735,18 @@ class MavlinkLink:
 
     # ------------------------------------------------------------------ output
 
-    def send(self, component_id: int, msg: Any, system_id: int) -> None:
-        """Encode ``msg`` from ``component_id`` (its own sequence number and signature) and send."""
-        encoder = self._encoders[component_id]
+    def send(self, component_id: int, msg: Any, system_id: int, *, to_link: bool = True) -> None:
+        """Encode ``msg`` from ``component_id`` (its own sequence number and signature) and send
+        it to the monitor outputs and, unless ``to_link`` is False, on the link."""
         try:
             with self._write_lock:
+                if self._monitors:
+                    monitor = self._monitor_encoders[component_id]
+                    monitor.srcSystem = system_id
+                    monitor.send(msg)
+                if not to_link:
+                    return
+                encoder = self._encoders[component_id]
                 encoder.srcSystem = system_id
                 encoder.send(msg)
         except (struct.error, ValueError, TypeError, OverflowError):
@@ -729,6 +759,11 @@ class MavlinkLink:
             return
         self.counters["sent"] += 1
 
+    def _write_monitors(self, buf: bytes) -> None:
+        for monitor in self._monitors:
+            with contextlib.suppress(OSError):
+                monitor.write(buf)
+
     def _write(self, buf: bytes) -> None:
         conn = self._conn
         if conn is None:
@@ -736,9 +771,6 @@ class MavlinkLink:
             return
         if self.tap is not None:
             self.tap("out", redact_secrets(bytes(buf)), self._clock())
-        for monitor in self._monitors:
-            with contextlib.suppress(OSError):
-                monitor.write(buf)
         try:
             conn.write(buf)
         except OSError as exc:

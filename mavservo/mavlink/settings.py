@@ -52,6 +52,8 @@ class TelemetryRates:
     esc_telemetry_hz: float = 4.0
     named_value_float_hz: float = 2.0
     gimbal_attitude_status_hz: float = 10.0
+    esc_first_index: int | Literal["auto"] = "auto"
+    name_prefix: str = "s"
 
 
 @dataclass(frozen=True)
@@ -89,6 +91,8 @@ class MavlinkSettings:
     command_period_s: float = 0.05
     #: Extra endpoints that get a copy of every frame the bridge sends (``mavservo monitor``).
     monitor_outputs: tuple[str, ...] = ()
+    #: Bytes/s the periodic telemetry may use on the autopilot link (None: no budget).
+    link_budget_bytes_s: float | None = None
 
     @classmethod
     def from_mapping(
@@ -122,8 +126,9 @@ class MavlinkSettings:
             mirror_actuator_output_status=bool(mirror.get("actuator_output_status", False)),
             actuator_output_status_units=mirror.get("actuator_output_status_units", "pwm"),
             servo_output_port_width=int(raw.get("servo_output_port_width", 16)),
-            telemetry=TelemetryRates(**{k: float(v) for k, v in telemetry.items()}),
+            telemetry=_telemetry(telemetry),
             monitor_outputs=tuple(str(u) for u in raw.get("monitor_outputs") or ()),
+            link_budget_bytes_s=_optional_float(raw.get("link_budget_bytes_s")),
             servo_component_id=int(raw.get("servo_component_id", DEFAULT_SERVO_COMPONENT)),
             channel_trims_us=dict(channel_trims_us or {}),
             command_period_s=defaults.command_period_s
@@ -142,3 +147,20 @@ def _system_id(value: object) -> int | Literal["follow"]:
     if isinstance(value, (int, str)):
         return int(value)
     raise TypeError(f"mavlink.system_id: expected an int or {FOLLOW!r}, got {value!r}")
+
+
+def _telemetry(raw: Mapping[str, Any]) -> TelemetryRates:
+    """The telemetry section: rates as floats, the ESC index and the name prefix as they are."""
+    fields: dict[str, Any] = {}
+    for key, value in raw.items():
+        if key == "esc_first_index":
+            fields[key] = value if value == "auto" else int(value)
+        elif key == "name_prefix":
+            fields[key] = str(value)
+        else:
+            fields[key] = float(value)
+    return TelemetryRates(**fields)
+
+
+def _optional_float(value: object) -> float | None:
+    return None if value is None else float(value)  # type: ignore[arg-type]

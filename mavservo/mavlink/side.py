@@ -88,6 +88,12 @@ class MavlinkSide:
     def stats(self) -> dict[str, Any]:
         with self._lock:
             stats = {**self.core.stats(), "link": self.link.stats()}
+            stats["link_budget"] = {
+                "budget_bytes_s": self.core.budget.plan.budget_bytes_s,
+                "planned_bytes_s": round(self.core.budget.plan.link_bytes_s, 1),
+                "configured_bytes_s": round(self.core.budget.plan.full_bytes_s, 1),
+                **self.core.budget.counters,
+            }
             if self._tick_errors:
                 stats["tick_loop_errors"] = self._tick_errors
             return stats
@@ -130,7 +136,8 @@ class MavlinkSide:
 
     def _send(self, out: list[Outgoing]) -> None:
         system_id = self.core.system_id
+        budget = self.core.budget
         for component_id, msg in out:
-            self.link.send(component_id, msg, system_id)
+            self.link.send(component_id, msg, system_id, to_link=budget.allow(component_id, msg))
             if self.on_sent is not None:
                 self.on_sent(msg, self._clock())

@@ -91,6 +91,10 @@ def _clamp_u8(value: float | None) -> int:
 
 
 ESC_IDS = {cls.id: group for group, cls in enumerate(ESC_MESSAGES)}
+#: ESC number of the first servo with ``esc_first_index: auto``: ESC_TELEMETRY_17_TO_20, above
+#: the motors of every common frame (an octocopter's or quadplane's ESCs are 1..16).
+AUTO_ESC_FIRST = 17
+DEFAULT_NAME_PREFIX = "s"
 
 
 def _problems(status: ServoStatus) -> tuple[bool, Any]:
@@ -159,14 +163,71 @@ class Telemetry:
         self._next_reminder: float | None = None
         self._esc_counts = [0] * len(ESC_MESSAGES)
         self.counters: Counter[str] = Counter()
+        self.name_prefix = rates.name_prefix
+        #: ESC number (1-based) of the first servo; "auto" starts above common motor counts and
+        #: moves when someone else is heard on the same ESC numbers (see :meth:`heard_esc`)
+        self.esc_auto = rates.esc_first_index == "auto"
+        self.esc_first = AUTO_ESC_FIRST if self.esc_auto else int(rates.esc_first_index)
+        self._esc_others: set[int] = set()  # groups someone else publishes
+        self._esc_warned: set[tuple[int, int]] = set()
 
     # ------------------------------------------------------------------ services
 
     def publishes(self, msg_id: int) -> bool:
         """Whether ``msg_id`` is one of ours: an ESC_TELEMETRY group only if a servo is in it."""
         if msg_id in ESC_IDS:
-            return ESC_IDS[msg_id] < _esc_groups(self._backend.servo_statuses())
+            return ESC_IDS[msg_id] in self.esc_groups(self._backend.servo_statuses())
         return msg_id in self._streams
+
+    # ------------------------------------------------------------------ ESC numbers
+
+    def esc_number(self, index: int) -> int:
+        """The ESC number (1-based, as ground stations show it) of the servo at ``index``."""
+        return self.esc_first + index
+
+    def esc_groups(self, statuses: list[ServoStatus]) -> set[int]:
+        """The ESC_TELEMETRY messages (0 = 1_TO_4) the servos fill; ESC numbers past 32 have no
+        message and are not published."""
+        return {
+            (self.esc_number(s.index) - 1) // 4
+            for s in statuses
+            if self.esc_number(s.index) <= 4 * len(ESC_MESSAGES)
+        }
+
+    def heard_esc(self, source: tuple[int, int], group: int, *, yield_to: bool) -> None:
+        """Someone else (``source``) publishes ESC_TELEMETRY group ``group`` on this vehicle.
+
+        A ground station files ESC data by system id only, so the same ESC numbers from two
+        components show one's data as the other's. With ``esc_first_index: auto`` the servos
+        move above every group heard (``yield_to``: the other one has precedence, e.g. the
+        autopilot or a bridge with a lower component id; otherwise the other one moves);
+        with a fixed index, or no room left, a warning says what to set.
+        """
+        self._esc_others.add(group)
+        statuses = self._backend.servo_statuses()
+        if group not in self.esc_groups(statuses) or not yield_to:
+            return
+        if self.esc_auto:
+            first = 4 * (max(self._esc_others) + 1) + 1
+            if first + len(statuses) - 1 <= 4 * len(ESC_MESSAGES):
+                self.esc_first = first
+                self.counters["esc_moved"] += 1
+                last = self.esc_number(len(statuses) - 1)
+                self.announce(
+                    MAV_SEVERITY_NOTICE,
+                    f"servo ESC telemetry moved to ESC {first}-{last}: ESC {4 * group + 1}-"
+                    f"{4 * group + 4} are {source[0]}/{source[1]}'s",
+                )
+                return
+        if (source[1], group) in self._esc_warned:
+            return
+        self._esc_warned.add((source[1], group))
+        self.counters["esc_collisions"] += 1
+        self.announce(
+            MAV_SEVERITY_WARNING,
+            f"ESC {4 * group + 1}-{4 * group + 4} also come from {source[0]}/{source[1]}: set "
+            "mavlink.telemetry.esc_first_index above its ESCs",
+        )
 
     def set_rates(self, rates: TelemetryRates, now: float) -> None:
         """New default rates (a ground station's TEL_*_HZ parameters), in force at once; a
@@ -219,8 +280,9 @@ class Telemetry:
         statuses = self._backend.servo_statuses()
         self._detect_events(statuses, now)
         out = self._drain_texts(now)
+        groups = self.esc_groups(statuses)
         for msg_id, stream in self._streams.items():
-            if msg_id in ESC_IDS and ESC_IDS[msg_id] >= _esc_groups(statuses):
+            if msg_id in ESC_IDS and ESC_IDS[msg_id] not in groups:
                 continue
             if stream.due(now):
                 try:
@@ -309,14 +371,14 @@ class Telemetry:
         )
 
     def _esc_telemetry(self, statuses: list[ServoStatus], group: int) -> list[Any]:
-        """ESC_TELEMETRY for servos ``4 * group`` .. ``4 * group + 3`` (none if it has none)."""
-        if group >= _esc_groups(statuses):
+        """ESC_TELEMETRY for ESC numbers ``4 * group + 1`` .. ``+ 4`` (none if no servo is)."""
+        if group not in self.esc_groups(statuses):
             return []
-        by_index = {s.index: s for s in statuses}
+        by_slot = {self.esc_number(s.index) - 1 - 4 * group: s for s in statuses}
         self._esc_counts[group] = (self._esc_counts[group] + 1) % (UINT16_MAX + 1)
         temps, volts, amps, rpms, counts = [0] * 4, [0] * 4, [0] * 4, [0] * 4, [0] * 4
         for slot in range(4):
-            status = by_index.get(group * 4 + slot)
+            status = by_slot.get(slot)
             # an offline servo's last state is old news: its slot reads as empty (count 0)
             state = status.state if status is not None and status.online else None
             if state is None:
@@ -336,7 +398,9 @@ class Telemetry:
             online, faults = _problems(status)
             flags = faults.value | (0 if online else Fault.NO_REPLY.value)
             out.append(
-                mavlink2.MAVLink_named_value_float_message(boot_ms, f"s{n}_flt".encode(), flags)
+                mavlink2.MAVLink_named_value_float_message(
+                    boot_ms, f"{self.name_prefix}{n}_flt".encode(), flags
+                )
             )
             state = status.state
             if state is None or not online:  # s<n>_flt says NO_REPLY; old values would mislead
@@ -352,24 +416,23 @@ class Telemetry:
             for suffix, value in values:
                 out.append(
                     mavlink2.MAVLink_named_value_float_message(
-                        boot_ms, f"s{n}_{suffix}".encode(), float(value)
+                        boot_ms, f"{self.name_prefix}{n}_{suffix}".encode(), float(value)
                     )
                 )
-        # bus load and latency figures (``bus0_load``, ``lat_p99``); a backend may have none
-        for name, value in self._backend.health().items():
+        # where the servos are in ESC_TELEMETRY (``esc_first``: ESC number of servo 1), so a
+        # dashboard maps ESC data back to servos, and bus load and latency figures
+        # (``bus0_load``, ``lat_p99``); a backend may have none of the latter
+        figures = {"esc_first": float(self.esc_first), **self._backend.health()}
+        for name, value in figures.items():
+            # a second bridge's figures carry its prefix too (``tbus0_load``), so two bridges'
+            # bus loads never read as one; the default keeps the names documented in the README
+            label = name if self.name_prefix == DEFAULT_NAME_PREFIX else self.name_prefix + name
             out.append(
                 mavlink2.MAVLink_named_value_float_message(
-                    boot_ms, name[:10].encode(), float(value)
+                    boot_ms, label[:10].encode(), float(value)
                 )
             )
         return out
-
-
-def _esc_groups(statuses: list[ServoStatus]) -> int:
-    """How many ESC_TELEMETRY messages the servos fill (4 per message, by config position)."""
-    if not statuses:
-        return 0
-    return min(len(ESC_MESSAGES), max(s.index for s in statuses) // 4 + 1)
 
 
 def _names(flags: Any) -> str:
