@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import signal
 import sys
 import threading
@@ -41,13 +42,36 @@ RECOVERY_LOGGERS = ("mavservo.scheduling.runner", "mavservo.transport.resilient_
 EXPECTED_STARTUP_ERRORS = (MavservoError, OSError, can.CanInitializationError)
 
 
+def positive_seconds(text: str) -> float:
+    """``--duration``: a finite number of seconds above 0 (``-1``, ``0``, ``nan`` are refused
+    with a reason rather than ending the run at once or never)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not math.isfinite(value) or value <= 0:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: must be a number of seconds above 0 (leave --duration out to run until "
+            "Ctrl-C or SIGTERM)"
+        )
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="mavservo run",
         description="Run the MAVLink <-> CAN servo bridge (default: the built-in simulation).",
     )
+    parser.add_argument(
+        "config_file",
+        nargs="?",
+        metavar="CONFIG",
+        help="YAML config, as `mavservo check CONFIG` takes it (same as --config)",
+    )
     parser.add_argument("--config", "-c", help="YAML config (default: the built-in sim.yaml)")
-    parser.add_argument("--duration", type=float, help="stop after this many seconds")
+    parser.add_argument(
+        "--duration", type=positive_seconds, help="stop after this many seconds (> 0)"
+    )
     parser.add_argument("--log-dir", help="base directory for run logs (default: logging.dir)")
     parser.add_argument("--no-log", action="store_true", help="write no run log")
     parser.add_argument("--mavlink", help="override mavlink.url (pymavlink connection string)")
@@ -58,7 +82,12 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.config_file is not None:
+        if args.config is not None and args.config != args.config_file:
+            parser.error(f"two configs given: {args.config_file} and --config {args.config}")
+        args.config = args.config_file
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.WARNING,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",
