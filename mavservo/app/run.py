@@ -23,7 +23,7 @@ from typing import Any
 
 import can
 
-from mavservo.app.console import StatusDisplay, format_summary
+from mavservo.app.console import ConsoleFormatter, HeartbeatNotices, StatusDisplay, format_summary
 from mavservo.config import (
     ConfigError,
     OverrideError,
@@ -88,9 +88,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.config is not None and args.config != args.config_file:
             parser.error(f"two configs given: {args.config_file} and --config {args.config}")
         args.config = args.config_file
+    handler = logging.StreamHandler()  # stderr, as before; the format is the console's one
+    handler.setFormatter(ConsoleFormatter())
     logging.basicConfig(
-        level=logging.DEBUG if args.verbose else logging.WARNING,
-        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+        level=logging.DEBUG if args.verbose else logging.WARNING, handlers=[handler]
     )
     if not args.verbose:
         # Their warnings say a servo or a bus went away; the matching "back online" and "sends
@@ -120,8 +121,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         status=display.event,
     )
     stop = threading.Event()
+    received: list[str] = []
 
     def on_signal(signum: int, _frame: Any) -> None:
+        received.append(signal.Signals(signum).name)
         stop.set()
 
     previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
@@ -140,15 +143,38 @@ def main(argv: Sequence[str] | None = None) -> int:
         settle_heap()
         display.started(path, bridge)
         deadline = None if args.duration is None else time.monotonic() + args.duration
+        heartbeats = HeartbeatNotices(
+            started=bridge.started_at or time.monotonic(),
+            warn_after_s=config.mavlink.heartbeat_timeout_s,
+        )
         with display:
             while not stop.is_set():
                 if deadline is not None and time.monotonic() >= deadline:
                     break
                 display.update(bridge.status_rows())
+                _heartbeat_notice(bridge, heartbeats, display)
                 stop.wait(0.2)
-        summary = bridge.stop()
+        summary = bridge.stop(_stop_reason(received, args.duration))
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
     print(format_summary(summary))
     return 0
+
+
+def _heartbeat_notice(bridge: Any, notices: HeartbeatNotices, display: StatusDisplay) -> None:
+    """Show the autopilot's first heartbeat, or warn (rate-limited) while none has come."""
+    watched = bridge.autopilot_heartbeat()
+    if watched is None:
+        return
+    notice = notices.check(*watched, time.monotonic())
+    if notice is not None:
+        level, text = notice
+        display.event(text, level)
+
+
+def _stop_reason(signals: list[str], duration: float | None) -> str:
+    """Why a clean run ends, for the stop line: the signal, or the elapsed ``--duration``."""
+    if signals:
+        return {"SIGINT": "Ctrl-C (SIGINT)"}.get(signals[0], signals[0])
+    return f"end of --duration {duration:g} s" if duration is not None else "stop requested"
