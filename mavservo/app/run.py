@@ -88,10 +88,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.config is not None and args.config != args.config_file:
             parser.error(f"two configs given: {args.config_file} and --config {args.config}")
         args.config = args.config_file
-    handler = logging.StreamHandler()  # stderr, as before; the format is the console's one
-    handler.setFormatter(ConsoleFormatter())
+    to_stderr = logging.StreamHandler()  # stderr, as before; the format is the console's one
+    to_stderr.setFormatter(ConsoleFormatter())
     logging.basicConfig(
-        level=logging.DEBUG if args.verbose else logging.WARNING, handlers=[handler]
+        level=logging.DEBUG if args.verbose else logging.WARNING, handlers=[to_stderr]
     )
     if not args.verbose:
         # Their warnings say a servo or a bus went away; the matching "back online" and "sends
@@ -167,7 +167,8 @@ def _heartbeat_notice(bridge: Any, notices: HeartbeatNotices, display: StatusDis
     watched = bridge.autopilot_heartbeat()
     if watched is None:
         return
-    notice = notices.check(*watched, time.monotonic())
+    source, last_heartbeat = watched
+    notice = notices.check(source, last_heartbeat, time.monotonic())
     if notice is not None:
         level, text = notice
         display.event(text, level)
