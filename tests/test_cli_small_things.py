@@ -15,22 +15,13 @@ import sys
 from pathlib import Path
 
 import pytest
+from test_run_cli import run_mavservo as mavservo
 
 from mavservo.sim.cli import build_parser as sim_parser
 
 REPO = Path(__file__).resolve().parents[1]
 
 MINIMAL = "mavlink: {url: sim}\nservos: [{name: a, profile: rmd-x, can_id: 1}]\n"
-
-
-def mavservo(*args: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [sys.executable, "-m", "mavservo", *args],
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        cwd=REPO,
-    )
 
 
 def test_run_takes_its_config_as_a_positional_argument_like_check(tmp_path: Path) -> None:
