@@ -144,3 +144,62 @@ def test_a_bad_bitrate_is_reported_at_the_bitrate_key(tmp_path: Path) -> None:
     proc = mavservo("check", str(config))
     assert proc.returncode == 2
     assert f"{config}:6: can.buses[0].bitrate: an aa55 adapter supports bitrates" in proc.stderr
+
+
+def _ignore_hangup() -> None:
+    """What ``nohup`` does before it starts the command."""
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)
+
+
+def test_nohup_sim_outlives_a_hangup(tmp_path: Path) -> None:
+    link = tmp_path / "ttyUSBsim"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "mavservo", "sim", "--link", str(link)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=REPO,
+        preexec_fn=_ignore_hangup,
+    )
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().strip() == str(link)
+        proc.send_signal(signal.SIGHUP)
+        with pytest.raises(subprocess.TimeoutExpired):
+            proc.wait(timeout=1.0)  # still running: the hangup stayed ignored
+        assert link.is_symlink()
+        proc.send_signal(signal.SIGTERM)
+        proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(5)
+    assert proc.returncode == 0 and not link.is_symlink()
+
+
+def test_sighup_ends_a_run_cleanly_with_the_failsafe_sent(tmp_path: Path) -> None:
+    """Before, a hangup (terminal or ssh session closed) killed the bridge with no failsafe,
+    no summary and its run log unclosed."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "mavservo", "run", "--log-dir", str(tmp_path), "--quiet"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=REPO,
+    )
+    try:
+        assert proc.stdout is not None
+        line = ""
+        for _ in range(20):  # the "running" line comes after the signal handlers are set
+            line = proc.stdout.readline()
+            if "running" in line or not line:
+                break
+        assert "running" in line
+        proc.send_signal(signal.SIGHUP)
+        out, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(5)
+    assert proc.returncode == 0, err
+    assert "INFO    bridge: stopped (SIGHUP): servos told their failsafe action:" in out
+    assert "mavservo summary" in out

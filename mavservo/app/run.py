@@ -1,10 +1,11 @@
 """``mavservo run``: load a config, run the bridge, show a live status, print a summary.
 
-Exit status: 0 after a clean run (duration elapsed, SIGINT or SIGTERM); 2 for a bad config or bad
-arguments (nothing was touched); 1 when start-up fails for another reason (a port that cannot be
-opened...). An expected start-up failure (a :class:`~mavservo.errors.MavservoError` such as a
-busy port or a missing adapter, an ``OSError``, a python-can interface that cannot open) is one
-clear line; anything else is a bug and prints its traceback too, so it can be reported.
+Exit status: 0 after a clean run (duration elapsed, SIGINT, SIGTERM or SIGHUP); 2 for a bad
+config or bad arguments (nothing was touched); 1 when start-up fails for another reason (a port
+that cannot be opened...). An expected start-up failure (a
+:class:`~mavservo.errors.MavservoError` such as a busy port or a missing adapter, an
+``OSError``, a python-can interface that cannot open) is one clear line; anything else is a bug
+and prints its traceback too, so it can be reported.
 """
 
 from __future__ import annotations
@@ -40,6 +41,17 @@ RECOVERY_LOGGERS = ("mavservo.scheduling.runner", "mavservo.transport.resilient_
 
 #: Start-up failures a user can cause or fix (config, busy or missing devices): one line each.
 EXPECTED_STARTUP_ERRORS = (MavservoError, OSError, can.CanInitializationError)
+
+
+def stop_signals() -> list[signal.Signals]:
+    """SIGINT, SIGTERM and SIGHUP end a run cleanly (failsafe sent, logs closed): by default a
+    hangup (the terminal or ssh session closed) killed the bridge without either. A SIGHUP
+    ignored at start (``nohup mavservo run``) stays ignored."""
+    signals = [signal.SIGINT, signal.SIGTERM]
+    hangup = getattr(signal, "SIGHUP", None)
+    if hangup is not None and signal.getsignal(hangup) is not signal.SIG_IGN:
+        signals.append(hangup)
+    return signals
 
 
 def positive_seconds(text: str) -> float:
@@ -127,7 +139,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         received.append(signal.Signals(signum).name)
         stop.set()
 
-    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    previous = {s: signal.signal(s, on_signal) for s in stop_signals()}
     try:
         try:
             bridge.start()

@@ -44,6 +44,12 @@ STOP_SIGNALS = tuple(
 )
 
 
+def _ignored_hangup(signum: int) -> bool:
+    """A SIGHUP ignored at start (``nohup mavservo sim``) stays ignored: the user asked for it
+    to outlive the terminal."""
+    return signum == getattr(signal, "SIGHUP", None) and signal.getsignal(signum) is signal.SIG_IGN
+
+
 def _ids(text: str) -> list[int]:
     return [int(part, 0) for part in text.split(",") if part.strip()]
 
@@ -314,7 +320,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"mavservo sim: {error}", file=sys.stderr)
         return 2
     stop = threading.Event()
-    previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in STOP_SIGNALS}
+    previous = {
+        sig: signal.signal(sig, lambda *_: stop.set())
+        for sig in STOP_SIGNALS
+        if not _ignored_hangup(sig)
+    }
     emulator.start()
     try:
         print(emulator.path, flush=True)
