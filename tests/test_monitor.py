@@ -319,3 +319,16 @@ def test_too_many_servos_for_the_height_say_so_instead_of_vanishing():
     lines = _screen(state, now=5.1)
     assert len(lines) <= 24
     assert any("more servos: a taller terminal shows them" in line for line in lines), lines
+
+
+def test_plain_lines_print_each_new_statustext_once_with_its_severity_name():
+    state = MonitorState(names=NINE)
+    for msg in _wire(_nine_servo_messages()):
+        state.update(msg, now=1.0)
+    first = [line for line in plain_lines(state, 1.0, texts_shown=0) if " statustext " in line]
+    assert [line.split(" statustext ")[1] for line in first] == [
+        "severity=WARNING text=servo tow_hook fault over_current",
+        "severity=9 text=a severity outside MAV_SEVERITY",
+    ]
+    again = plain_lines(state, 2.0, texts_shown=state.text_count)
+    assert not any(" statustext " in line for line in again)

@@ -132,6 +132,8 @@ class MonitorState:
         }
         self.components: dict[tuple[int, int], ComponentView] = {}
         self.texts: deque[tuple[float, int, str]] = deque(maxlen=STATUSTEXT_TAIL)
+        #: every STATUSTEXT ever completed (the tail above keeps the last few)
+        self.text_count = 0
         self.bus_load: dict[int, float] = {}
         #: ``lat_p*``: MAVLink command receipt -> telemetry published (every stage, in ms)
         self.latency_ms: dict[str, float] = {}
@@ -256,6 +258,7 @@ class MonitorState:
             if text is None:
                 return
         self.texts.append((now, int(msg.severity), text))
+        self.text_count += 1
         if match := _TEXT_FAULT.match(text):
             view = self._servo_by_name(match.group(1))
             names = {n for n in match.group(3).split("|") if n}
@@ -604,14 +607,22 @@ def render(
     return text
 
 
-def plain_lines(state: MonitorState, now: float) -> list[str]:
-    """The same information as plain text lines, for logs and pipes."""
+def plain_lines(state: MonitorState, now: float, texts_shown: int | None = None) -> list[str]:
+    """The same information as plain text lines, for logs and pipes.
+
+    ``texts_shown``: how many STATUSTEXT the caller has printed so far (``state.text_count``
+    at its last call); the ones since then follow as ``statustext severity=WARNING text=...``
+    lines (at most the tail the state keeps). None: no STATUSTEXT lines."""
     stamp = time.strftime("%H:%M:%S")
     lines = [f"{stamp} {state.health_line(now)}"]
     for row in state.servo_rows(now):
         lines.append(f"{stamp} servo " + " ".join(f"{c}={row[c]}" for c in SERVO_COLUMNS))
     for row in state.component_rows(now):
         lines.append(f"{stamp} heartbeat " + " ".join(f"{k}={v}" for k, v in row.items()))
+    if texts_shown is not None:
+        new = min(state.text_count - texts_shown, len(state.texts))
+        for _, severity, text in list(state.texts)[len(state.texts) - new :] if new > 0 else []:
+            lines.append(f"{stamp} statustext severity={severity_name(severity)} text={text}")
     return lines
 
 
@@ -709,6 +720,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         if live is not None:
             live.start(refresh=True)
         next_draw = start
+        texts_shown = 0
         while True:
             now = time.monotonic()
             if deadline is not None and now >= deadline:
@@ -721,8 +733,9 @@ def main(argv: Sequence[str] | None = None) -> int:
                     live.update(_frame(state, now, args.url, console), refresh=True)
                     next_draw = now + refresh_period
                 else:
-                    for line in plain_lines(state, now):
+                    for line in plain_lines(state, now, texts_shown):
                         print(line, flush=True)
+                    texts_shown = state.text_count
                     next_draw = now + plain_period
             wait = max(0.0, min(next_draw, deadline or next_draw) - time.monotonic())
             msg = conn.recv_match(blocking=True, timeout=wait)
