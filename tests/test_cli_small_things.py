@@ -9,9 +9,11 @@ and a bad bitrate reported where they are.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import signal
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -79,27 +81,53 @@ def test_top_level_help_lists_version() -> None:
     assert version.returncode == 0 and version.stdout.startswith("mavservo ")
 
 
-def test_sighup_stops_sim_and_removes_its_link(tmp_path: Path) -> None:
-    link = tmp_path / "ttyUSBsim"
+@contextlib.contextmanager
+def running_sim(link: Path, nohup: bool = False) -> Iterator[subprocess.Popen[str]]:
+    """``mavservo sim --link LINK`` once it has printed the link (so its signal handlers are in
+    place); killed on the way out if a test left it running. ``nohup``: SIGHUP ignored at
+    start, as ``nohup`` does."""
     proc = subprocess.Popen(
         [sys.executable, "-m", "mavservo", "sim", "--link", str(link)],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
         cwd=REPO,
+        preexec_fn=_ignore_hangup if nohup else None,
     )
     try:
-        assert proc.stdout is not None
-        first = proc.stdout.readline().strip()  # printed once the link exists
-        assert first == str(link) and link.is_symlink()
-        proc.send_signal(signal.SIGHUP)
-        _, err = proc.communicate(timeout=20)
+        assert proc.stdout is not None and proc.stdout.readline().strip() == str(link)
+        assert link.is_symlink()
+        yield proc
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait(5)
+
+
+def _ignore_hangup() -> None:
+    """What ``nohup`` does before it starts the command."""
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)
+
+
+def test_sighup_stops_sim_and_removes_its_link(tmp_path: Path) -> None:
+    link = tmp_path / "ttyUSBsim"
+    with running_sim(link) as proc:
+        proc.send_signal(signal.SIGHUP)
+        _, err = proc.communicate(timeout=20)
     assert proc.returncode == 0, err
     assert not link.is_symlink() and not link.exists()
+
+
+def test_nohup_sim_outlives_a_hangup(tmp_path: Path) -> None:
+    link = tmp_path / "ttyUSBsim"
+    with running_sim(link, nohup=True) as proc:
+        proc.send_signal(signal.SIGHUP)
+        with pytest.raises(subprocess.TimeoutExpired):
+            proc.wait(timeout=1.0)  # still running: the hangup stayed ignored
+        assert link.is_symlink()
+        proc.send_signal(signal.SIGTERM)
+        proc.communicate(timeout=20)
+    assert proc.returncode == 0 and not link.is_symlink()
 
 
 def test_check_warns_about_a_servo_no_input_drives(tmp_path: Path) -> None:
@@ -144,36 +172,6 @@ def test_a_bad_bitrate_is_reported_at_the_bitrate_key(tmp_path: Path) -> None:
     proc = mavservo("check", str(config))
     assert proc.returncode == 2
     assert f"{config}:6: can.buses[0].bitrate: an aa55 adapter supports bitrates" in proc.stderr
-
-
-def _ignore_hangup() -> None:
-    """What ``nohup`` does before it starts the command."""
-    signal.signal(signal.SIGHUP, signal.SIG_IGN)
-
-
-def test_nohup_sim_outlives_a_hangup(tmp_path: Path) -> None:
-    link = tmp_path / "ttyUSBsim"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "mavservo", "sim", "--link", str(link)],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        cwd=REPO,
-        preexec_fn=_ignore_hangup,
-    )
-    try:
-        assert proc.stdout is not None and proc.stdout.readline().strip() == str(link)
-        proc.send_signal(signal.SIGHUP)
-        with pytest.raises(subprocess.TimeoutExpired):
-            proc.wait(timeout=1.0)  # still running: the hangup stayed ignored
-        assert link.is_symlink()
-        proc.send_signal(signal.SIGTERM)
-        proc.communicate(timeout=20)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait(5)
-    assert proc.returncode == 0 and not link.is_symlink()
 
 
 def test_sighup_ends_a_run_cleanly_with_the_failsafe_sent(tmp_path: Path) -> None:
