@@ -57,7 +57,14 @@ COMMANDS: dict[str, Command] = {
 def _usage() -> str:
     lines = ["usage: mavservo COMMAND [options]   (mavservo COMMAND --help for details)", ""]
     lines += [f"  {name:<8} {command.help}" for name, command in COMMANDS.items()]
-    lines += ["", "With no command, `mavservo` is `mavservo run` on the built-in simulation."]
+    lines += [
+        "",
+        "options:",
+        "  -h, --help     this help",
+        "  -V, --version  print the version and exit",
+        "",
+        "With no command, `mavservo` is `mavservo run` on the built-in simulation.",
+    ]
     return "\n".join(lines)
 
 

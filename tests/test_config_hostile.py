@@ -207,7 +207,7 @@ def test_run_exits_2_with_the_line_for_hostile_yaml(
 
     path = tmp_path / "hostile.yaml"
     path.write_text(text, encoding="utf-8")
-    assert main(["--config", str(path), "--no-log", "--quiet", "--duration", "0"]) == 2
+    assert main(["--config", str(path), "--no-log", "--quiet", "--duration", "0.1"]) == 2
     err = capsys.readouterr().err
     assert re.search(rf"^{re.escape(str(path))}:\d+: ", err, re.M), err
     assert "Traceback" not in err

@@ -131,7 +131,7 @@ def test_an_unexpected_start_up_failure_prints_its_traceback(
         raise ZeroDivisionError("planted bug")
 
     monkeypatch.setattr(bridge.Bridge, "start", broken_start)
-    assert run.main(["--quiet", "--no-log", "--duration", "0"]) == 1
+    assert run.main(["--quiet", "--no-log", "--duration", "0.1"]) == 1
     err = capsys.readouterr().err
     assert "cannot start: unexpected ZeroDivisionError: planted bug" in err
     assert "Traceback" in err and "broken_start" in err
@@ -145,7 +145,7 @@ def test_an_expected_start_up_failure_is_one_line(
     port = holder.getsockname()[1]
     try:
         code = run.main(
-            ["--quiet", "--no-log", "--duration", "0", "--mavlink", f"udpin:127.0.0.1:{port}"]
+            ["--quiet", "--no-log", "--duration", "0.1", "--mavlink", f"udpin:127.0.0.1:{port}"]
         )
     finally:
         holder.close()

@@ -142,7 +142,9 @@ def test_sigterm_stops_cleanly_with_status_zero(tmp_path: Path) -> None:
             proc.kill()
     assert proc.returncode == 0, err
     assert "mavservo summary" in out
-    assert "failsafe: shutdown, servos to their failsafe" in out
+    # a normal end reads as one, at INFO, still saying what the servos were told
+    assert "INFO    bridge: stopped (SIGTERM): servos told their failsafe action:" in out
+    assert "failsafe: shutdown" not in out
 
 
 def test_bad_config_exits_2_with_file_and_line_and_no_traceback(tmp_path: Path) -> None:

@@ -313,9 +313,8 @@ def test_mavservo_run_says_at_once_that_its_log_failed_and_the_summary_says_inco
     ]
     assert len(events) == 1, proc.stdout  # the bridge's event line (also sent as STATUSTEXT)
     assert "File too large" in events[0]
-    assert proc.stderr.count("ERROR mavservo.records.runlog: run log: cannot write") == 1, (
-        proc.stderr
-    )
+    # the console's one line format: [HH:MM:SS] LEVEL source: text
+    assert proc.stderr.count("ERROR   records.runlog: run log: cannot write") == 1, proc.stderr
     summary = proc.stdout[proc.stdout.index("mavservo summary") :]
     assert "INCOMPLETE" in summary
     [run_dir] = list(tmp_path.iterdir())

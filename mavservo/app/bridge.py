@@ -17,6 +17,7 @@ import logging
 import socket
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
@@ -43,6 +44,7 @@ log = logging.getLogger(__name__)
 
 SIM = "sim"
 MAV_SEVERITY_WARNING = 4
+MAV_SEVERITY_NOTICE = 5
 
 
 def free_udp_port() -> int:
@@ -269,8 +271,12 @@ class Bridge:
         self._started = True
         self.started_at = time.monotonic()
 
-    def stop(self) -> dict[str, Any]:
-        """Failsafe every servo, flush the last frames, close logs and devices; return summary."""
+    def stop(self, reason: str = "stop requested") -> dict[str, Any]:
+        """Failsafe every servo, flush the last frames, close logs and devices; return summary.
+
+        ``reason``: why the run ends (``end of --duration 5 s``, ``SIGTERM``), for the one
+        event line that says so at INFO level with what the servos were told: a normal end
+        must not read as the alarm an autopilot-lost failsafe is."""
         if self._stopped:
             return self.summary()
         self._stopped = True
@@ -278,7 +284,8 @@ class Bridge:
         if self.autopilot_sim is not None:
             _quietly(self.autopilot_sim.stop)
         if self.backend is not None and self._started:
-            self.backend.failsafe_all("shutdown, servos to their failsafe", time.monotonic())
+            self.backend.failsafe_all(reason, time.monotonic(), announce=False)
+            self._stopped_event(reason)
             time.sleep(2 * self.config.scheduler.command_period_s)  # let the failsafe go out
         if self._tick_thread is not None:
             self._tick_thread.join(1.0)
@@ -515,6 +522,26 @@ class Bridge:
             f"MAVLink: servo component {self.config.mavlink.servo_component_id}, servos as ESC "
             f"{first}-{first + servos - 1}, names {core.telemetry.name_prefix}1_*, {budget}"
         )
+
+    def _stopped_event(self, reason: str) -> None:
+        """``stopped (end of --duration 5 s): servos told their failsafe action: hold 6,
+        neutral 3``: console, event list, and a NOTICE STATUSTEXT (not a WARNING)."""
+        actions = Counter(servo.failsafe.action for servo in self.config.servos)
+        told = ", ".join(f"{action} {count}" for action, count in actions.items())
+        text = f"stopped ({reason}): servos told their failsafe action: {told}"
+        self._note(text)
+        mavlink = self.mavlink
+        if mavlink is not None:
+            _quietly(lambda: mavlink.announce(text, MAV_SEVERITY_NOTICE))
+
+    def autopilot_heartbeat(self) -> tuple[tuple[int, int], float | None] | None:
+        """The watched autopilot (system, component) and when its HEARTBEAT was last heard
+        (monotonic s, None while never); None without a MAVLink side."""
+        mavlink = self.mavlink
+        if mavlink is None:
+            return None
+        core = mavlink.core
+        return core.watched, core.watchdog.last_heartbeat
 
     def _note(self, text: str) -> None:
         """Console and event list only (the MAVLink side announces its own link events)."""

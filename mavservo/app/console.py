@@ -2,12 +2,24 @@
 
 On a terminal the status is a rich table refreshed in place; elsewhere (a pipe, a log file,
 systemd's journal) it degrades to plain lines, one block every few seconds, so logs stay readable.
+
+Every event and log line on the console has one format, :func:`console_line`::
+
+    [18:05:40] WARNING scheduling.runner: servo aileron not responding
+    [18:05:41] INFO    bridge: autopilot 1/1: heartbeat heard, 0.4 s after start
+
+the bridge's own events (:meth:`StatusDisplay.event`) and Python logging records
+(:class:`ConsoleFormatter`) alike, so a reader, ``grep`` or a journal sees one clock and one
+place for the level instead of two styles.
 """
 
 from __future__ import annotations
 
+import logging
+import re
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -16,6 +28,72 @@ from rich.live import Live
 from rich.table import Table
 
 PLAIN_EVERY_S = 5.0
+CLOCK_FORMAT = "%H:%M:%S"
+#: Bridge events that report a recovery or a normal step; every other event is a problem.
+_INFO_EVENTS = re.compile(
+    r"responding again|failsafe cleared|link recovered|heartbeat heard|^stopped \(|cleared "
+)
+#: A later "no heartbeat" warning at most this often (the first comes after the link timeout).
+NO_HEARTBEAT_REPEAT_S = 30.0
+
+
+def console_line(level: str, source: str, text: str, when: float | None = None) -> str:
+    """``[HH:MM:SS] LEVEL   source: text``: the one format of every console line."""
+    stamp = time.strftime(CLOCK_FORMAT, time.localtime(when))
+    return f"[{stamp}] {level:<7} {source}: {text}"
+
+
+def event_level(text: str) -> str:
+    """The level of a bridge event: INFO for recoveries and normal steps, WARNING otherwise
+    (the bridge's events are one-line texts; their words are what tells them apart)."""
+    return "INFO" if _INFO_EVENTS.search(text) else "WARNING"
+
+
+class ConsoleFormatter(logging.Formatter):
+    """Python logging records as :func:`console_line` (logger names without ``mavservo.``)."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        source = record.name.removeprefix("mavservo.")
+        line = console_line(record.levelname, source, record.getMessage(), record.created)
+        if record.exc_info:
+            line += "\n" + self.formatException(record.exc_info)
+        return line
+
+
+@dataclass
+class HeartbeatNotices:
+    """Says when the watched autopilot's HEARTBEAT is first heard, and warns while none has
+    come: first after ``warn_after_s`` (the link timeout), then every ``repeat_s`` at most, so a
+    bridge started on the wrong port says so instead of staying silent. Pure: times come in."""
+
+    started: float
+    warn_after_s: float
+    repeat_s: float = NO_HEARTBEAT_REPEAT_S
+    heard: bool = False
+    _next_warning: float | None = None
+
+    def check(
+        self, source: tuple[int, int], last_heartbeat: float | None, now: float
+    ) -> tuple[str, str] | None:
+        """(level, text) to show now, or None. ``last_heartbeat``: when the autopilot at
+        ``source`` (system, component) was last heard, None while never."""
+        who = f"autopilot {source[0]}/{source[1]}"
+        if last_heartbeat is not None:
+            if self.heard:
+                return None
+            self.heard = True
+            after = max(0.0, last_heartbeat - self.started)
+            return "INFO", f"{who}: heartbeat heard, {after:.1f} s after start"
+        if self.heard or now - self.started < self.warn_after_s:
+            return None
+        if self._next_warning is not None and now < self._next_warning:
+            return None
+        self._next_warning = now + self.repeat_s
+        return "WARNING", (
+            f"{who}: no heartbeat in {now - self.started:.0f} s since start; check mavlink.url "
+            "and that the autopilot sends to it (repeated every "
+            f"{self.repeat_s:.0f} s until heard)"
+        )
 
 
 def _num(value: float | None, fmt: str) -> str:
@@ -67,12 +145,14 @@ class StatusDisplay:
         lines = [line, *(f"  {text}" for text in endpoint_lines(bridge.config))]
         print("\n".join(lines), file=self.stream, flush=True)
 
-    def event(self, text: str) -> None:
-        stamp = time.strftime("%H:%M:%S")
+    def event(self, text: str, level: str | None = None) -> None:
+        """One bridge event as a :func:`console_line` (level from its words when not given)."""
+        line = console_line(level or event_level(text), "bridge", text)
         if self.live is not None:
-            self.live.console.print(f"[{stamp}] {text}")
+            # not markup: "[18:05:40]" would read as a style tag
+            self.live.console.print(line, markup=False, highlight=False)
         else:
-            print(f"[{stamp}] {text}", file=self.stream, flush=True)
+            print(line, file=self.stream, flush=True)
 
     def __enter__(self) -> StatusDisplay:
         if self.interactive:

@@ -76,6 +76,20 @@ _TEXT_FAULT = re.compile(r"^servo (\S+) (fault|cleared) (.+)$")
 _TEXT_ONLINE = re.compile(r"^servo (\S+) (not responding|responding again)$")
 
 MAV_TYPE_NAMES = {1: "fixed wing", 2: "quadrotor", 6: "GCS", 26: "gimbal", 33: "servo"}
+#: MAV_SEVERITY, by value: STATUSTEXT severities are shown by name, not as 0..7
+MAV_SEVERITY_NAMES = (
+    "EMERGENCY",
+    "ALERT",
+    "CRITICAL",
+    "ERROR",
+    "WARNING",
+    "NOTICE",
+    "INFO",
+    "DEBUG",
+)
+#: the header's message rate is over this many recent seconds, so it falls to 0 when the bridge
+#: stops instead of keeping the average of the whole session
+RATE_WINDOW_S = 5
 
 
 @dataclass
@@ -118,18 +132,27 @@ class MonitorState:
         }
         self.components: dict[tuple[int, int], ComponentView] = {}
         self.texts: deque[tuple[float, int, str]] = deque(maxlen=STATUSTEXT_TAIL)
+        #: every STATUSTEXT ever completed (the tail above keeps the last few)
+        self.text_count = 0
         self.bus_load: dict[int, float] = {}
         #: ``lat_p*``: MAVLink command receipt -> telemetry published (every stage, in ms)
         self.latency_ms: dict[str, float] = {}
         #: ``rtt_p*``: frame written -> reply decoded, the wire round trip L (ms)
         self.round_trip_ms: dict[str, float] = {}
         self.gimbal: dict[str, Any] = {}
+        #: ESC number of servo 1 (the bridge's ``esc_first`` NAMED_VALUE_FLOAT): ESC data is
+        #: mapped to servos only once it is known (17 by default, moved when the autopilot
+        #: uses those numbers), so ESC 17 never shows as a servo 17 row
+        self.esc_first: int | None = None
         #: (source, id) -> (severity, {chunk_seq: text}) for chunked STATUSTEXT not complete yet
         self._chunks: dict[tuple[int, int, int], tuple[int, dict[int, str]]] = {}
         self.messages = 0
         self.bad_messages = 0
         self.first: float | None = None
         self.last: float | None = None
+        #: [whole second, messages in it] for the last RATE_WINDOW_S + 1 seconds (bounded
+        #: whatever the flood: one bucket per second, not one entry per message)
+        self._per_second: deque[list[int]] = deque(maxlen=RATE_WINDOW_S + 1)
 
     def _servo(self, number: int) -> ServoView:
         view = self.servos.get(number)
@@ -155,6 +178,11 @@ class MonitorState:
         self.messages += 1
         self.first = now if self.first is None else self.first
         self.last = now
+        second = int(math.floor(now))
+        if self._per_second and self._per_second[-1][0] == second:
+            self._per_second[-1][1] += 1
+        else:
+            self._per_second.append([second, 1])
         handler = getattr(self, f"_on_{kind.lower()}", None)
         if handler is not None:
             handler(msg, now)
@@ -195,12 +223,19 @@ class MonitorState:
             self.latency_ms[match.group(1)] = value
         elif match := _NVF_ROUND_TRIP.match(name):
             self.round_trip_ms[match.group(1)] = value
+        elif name == "esc_first" and math.isfinite(value) and 1 <= value <= 32:
+            self.esc_first = int(value)
 
     def _on_esc(self, msg: Any, now: float, first_number: int) -> None:
+        if self.esc_first is None:
+            return  # which ESC is servo 1 is not known yet (``esc_first`` comes every period)
         for slot in range(4):
             if not msg.count[slot] and not msg.temperature[slot] and not msg.current[slot]:
                 continue  # an empty slot: ESC_TELEMETRY carries four, not every one is a servo
-            view = self._servo(first_number + slot)
+            number = first_number + slot - self.esc_first + 1
+            if number < 1:
+                continue  # an ESC below the servos': the autopilot's motors, not ours
+            view = self._servo(number)
             view.temperature_c = float(msg.temperature[slot])
             view.current_a = msg.current[slot] / 100.0
             view.voltage_v = msg.voltage[slot] / 100.0 if msg.voltage[slot] else view.voltage_v
@@ -234,6 +269,7 @@ class MonitorState:
             if text is None:
                 return
         self.texts.append((now, int(msg.severity), text))
+        self.text_count += 1
         if match := _TEXT_FAULT.match(text):
             view = self._servo_by_name(match.group(1))
             names = {n for n in match.group(3).split("|") if n}
@@ -292,7 +328,8 @@ class MonitorState:
             rows.append(
                 {
                     "servo": str(number) if number > 0 else "?",
-                    "name": view.name or "",
+                    # without --config: the bridge's own NAMED_VALUE prefix (s1 for s1_pos)
+                    "name": view.name or (f"s{number}" if number > 0 else ""),
                     "setpoint": _fmt(view.setpoint_deg, "{:+.1f}"),
                     "position": _fmt(view.position_deg, "{:+.2f}"),
                     "normalized": _fmt(view.normalized, "{:+.3f}"),
@@ -321,12 +358,39 @@ class MonitorState:
             )
         return rows
 
+    def message_rate(self, now: float) -> float | None:
+        """Messages a second over the last ``RATE_WINDOW_S`` s before ``now`` (fewer right after
+        the first message); None before any message. 0 once the bridge has gone quiet."""
+        if self.first is None:
+            return None
+        newest = int(math.floor(now))
+        oldest = newest - RATE_WINDOW_S  # whole seconds oldest .. newest - 1, the last complete
+        span = min(float(RATE_WINDOW_S), max(now - self.first, 1e-3))
+        count = sum(n for second, n in self._per_second if oldest <= second < newest)
+        if now - self.first < RATE_WINDOW_S:  # young session: everything so far, over its age
+            count = sum(n for second, n in self._per_second)
+        return count / span
+
+    def link_line(self, now: float) -> str:
+        """``147 msg/s, 832 msgs, 0 bad``; ``silent 12.3 s`` once nothing has come for a while."""
+        rate = self.message_rate(now)
+        parts = []
+        if rate is None:
+            parts.append("no message yet")
+        elif self.last is not None and now - self.last > STALE_AFTER_S:
+            parts.append(f"0 msg/s, silent {now - self.last:.1f} s")
+        else:
+            parts.append(f"{rate:.0f} msg/s")
+        parts.append(f"{self.messages} msgs, {self.bad_messages} bad")
+        return ", ".join(parts)
+
     def health_line(self, now: float) -> str:
         """Link rate, bus load and latency in one line."""
+        return " | ".join([self.link_line(now), *self.figure_parts()])
+
+    def figure_parts(self) -> list[str]:
+        """Bus load, the two latencies and the gimbal, each a self-contained piece."""
         parts = []
-        if self.first is not None and self.last is not None and self.last > self.first:
-            parts.append(f"{self.messages / (self.last - self.first):.0f} msg/s")
-        parts.append(f"{self.messages} msgs, {self.bad_messages} bad")
         if self.bus_load:
             parts.append(
                 "load "
@@ -350,7 +414,7 @@ class MonitorState:
                 f"gimbal r{g['roll']:+.1f} p{g['pitch']:+.1f} y{g['yaw']:+.1f}"
                 f" failure_flags {_gimbal_flags(g['failure_flags'])}"
             )
-        return " | ".join(parts)
+        return parts
 
 
 def _gimbal_flags(flags: int) -> str:
@@ -381,52 +445,195 @@ SERVO_COLUMNS = (
     "age",
     "status",
 )
-SERVO_HEADERS = (
-    "#",
-    "name",
-    "set [deg]",
-    "pos [deg]",
-    "norm",
-    "vel [dps]",
-    "cur [A]",
-    "temp [C]",
-    "faults",
-    "age",
-    "status",
+
+
+@dataclass(frozen=True)
+class ScreenColumn:
+    """One column of the dashboard's servo table: its row key, header and unit (the header's
+    two lines), and width."""
+
+    key: str
+    header: str
+    unit: str
+    width: int
+    left: bool = False
+
+
+#: The servo table at 80 columns (76 characters with names up to 15 characters); the unit is
+#: the header's second line, each width holds the longest value its format makes (``-180.00``,
+#: ``NO REPLY``), so nothing is cut. Narrower terminals lose ``norm`` first, then ``age``.
+SCREEN_COLUMNS = (
+    ScreenColumn("servo", "#", "", 2),
+    ScreenColumn("name", "name", "", 15, left=True),
+    ScreenColumn("setpoint", "set", "deg", 6),
+    ScreenColumn("position", "pos", "deg", 7),
+    ScreenColumn("velocity", "vel", "deg/s", 7),
+    ScreenColumn("normalized", "norm", "-1..1", 6),
+    ScreenColumn("current", "I", "A", 6),
+    ScreenColumn("temperature", "T", "degC", 5),
+    ScreenColumn("age", "age", "s", 5),
+    ScreenColumn("status", "status", "", 8, left=True),
 )
+DROPPED_WHEN_NARROW = ("normalized", "age")
+NAME_WIDTH_MAX = 24
+STATUS_STYLES = {"ok": "", "-": "dim", "FAULT": "yellow"}
 
 
-def render(state: MonitorState, now: float, title: str = "mavservo monitor") -> Any:
-    """The rich renderable for one dashboard frame."""
-    from rich.console import Group
-    from rich.table import Table
+def _fit(text: str, width: int) -> str:
+    """A cell at most ``width`` long: a number too long for its column (a hostile or broken
+    peer's 1e30) in scientific notation, anything else cut with an ellipsis."""
+    if len(text) <= width:
+        return text
+    try:
+        value = float(text.rstrip("s"))
+    except ValueError:
+        return text[: width - 1] + "\u2026"
+    sign = "+" if text.startswith("+") else ""
+    for digits in (3, 2, 1):
+        short = f"{value:{sign}.{digits}g}"
+        if len(short) <= width:
+            return short
+    return "#" * width
+
+
+def _columns(state: MonitorState, now: float, width: int) -> list[ScreenColumn]:
+    """The columns that fit ``width``, the name column as wide as the longest name shown."""
+    rows = state.servo_rows(now)
+    names = max((len(r["name"]) for r in rows), default=4)
+    columns = [
+        ScreenColumn(c.key, c.header, c.unit, min(max(names, 4), NAME_WIDTH_MAX), c.left)
+        if c.key == "name"
+        else c
+        for c in SCREEN_COLUMNS
+    ]
+    for key in DROPPED_WHEN_NARROW:
+        if sum(c.width + 1 for c in columns) - 1 <= width:
+            break
+        columns = [c for c in columns if c.key != key]
+    return columns
+
+
+def _cells(columns: Sequence[ScreenColumn], values: dict[str, str]) -> str:
+    cells = []
+    for column in columns:
+        text = values[column.key]
+        text = _fit(text, column.width)
+        cells.append(text.ljust(column.width) if column.left else text.rjust(column.width))
+    return " ".join(cells).rstrip()
+
+
+def _wrapped(pieces: Sequence[str], width: int, indent: str = "  ") -> list[str]:
+    """Pieces joined by `` | `` into lines of at most ``width``, breaking between pieces."""
+    import textwrap
+
+    lines: list[str] = []
+    for piece in pieces:
+        if lines and len(lines[-1]) + 3 + len(piece) <= width:
+            lines[-1] += " | " + piece
+        else:
+            lines += textwrap.wrap(
+                piece, width, subsequent_indent=indent, break_on_hyphens=False
+            ) or [""]
+    return lines
+
+
+def severity_name(severity: int) -> str:
+    """MAV_SEVERITY by name (``WARNING``); a value outside 0..7 as its number."""
+    return (
+        MAV_SEVERITY_NAMES[severity] if 0 <= severity < len(MAV_SEVERITY_NAMES) else str(severity)
+    )
+
+
+def screen_lines(
+    state: MonitorState, now: float, width: int, height: int, title: str = "mavservo monitor"
+) -> list[tuple[str, str]]:
+    """The dashboard as (line, style) pairs that fit ``width`` x ``height``: title and link rate,
+    the servo table (units in its header), heartbeats, figures, faults, then as many of the
+    latest STATUSTEXT lines as the remaining height holds. Lines never exceed ``width``."""
+    import textwrap
+
+    width = max(width, 20)
+    top = [(line, "bold") for line in _wrapped([title, state.link_line(now)], width)]
+    columns = _columns(state, now, width)
+    table = [
+        (_cells(columns, {c.key: c.header for c in columns}), "bold"),
+        (_cells(columns, {c.key: c.unit for c in columns}), "dim underline"),
+    ]
+    rows = state.servo_rows(now)
+    table += [
+        # the age's unit is in the header
+        (
+            _cells(columns, {**row, "age": row["age"].rstrip("s")}),
+            STATUS_STYLES.get(row["status"], "bold red"),
+        )
+        for row in rows
+    ]
+    if not rows:
+        table.append(("waiting for servo telemetry...", "dim"))
+    heartbeats = [
+        f"{r['component']} {r['type']} {r['age']} {r['status']}" for r in state.component_rows(now)
+    ]
+    below = [
+        (line, "")
+        for line in _wrapped(["heartbeats: " + (" | ".join(heartbeats) or "none yet")], width)
+    ]
+    below += [(line, "") for line in _wrapped(state.figure_parts(), width)]
+    faults = [f"{r['servo']} {r['name']}: {r['faults']}" for r in rows if r["faults"] != "-"]
+    if faults:
+        below += [
+            (line, "yellow") for line in _wrapped(["faults " + faults[0], *faults[1:]], width)
+        ]
+    texts: list[tuple[str, str]] = []
+    for _, severity, text in state.texts:
+        style = "bold red" if severity <= 3 else "yellow" if severity == 4 else ""
+        label = f"[{severity_name(severity)}] {text}"
+        texts += [(line, style) for line in textwrap.wrap(label, width, subsequent_indent="  ")]
+    if not texts:
+        texts = [("no STATUSTEXT yet", "dim")]
+    room = height - len(top) - len(below)
+    if len(table) > room - 1:  # the table first, with a line that says what did not fit
+        shown = max(room - 3, 1)  # two header lines and the "more" line
+        hidden = len(table) - 2 - shown
+        table = table[: 2 + shown]
+        table.append((f"... {hidden} more servos: a taller terminal shows them", "dim"))
+    room -= len(table)
+    return top + table + below + (texts[-room:] if room > 0 else [])
+
+
+def render(
+    state: MonitorState,
+    now: float,
+    title: str = "mavservo monitor",
+    width: int = 80,
+    height: int = 24,
+) -> Any:
+    """The rich renderable for one dashboard frame of ``width`` x ``height`` characters."""
     from rich.text import Text
 
-    servos = Table(title=title, expand=False)
-    for header in SERVO_HEADERS:
-        servos.add_column(header, justify="right")
-    for row in state.servo_rows(now):
-        style = {"ok": "", "-": "dim", "FAULT": "yellow"}.get(row["status"], "bold red")
-        servos.add_row(*(row[c] for c in SERVO_COLUMNS), style=style)
-    if not state.servos:
-        servos.caption = "waiting for servo telemetry..."
-    links = Table(title="link", expand=False)
-    for header in ("sys/comp", "type", "heartbeats", "age", "status"):
-        links.add_column(header, justify="right")
-    for row in state.component_rows(now):
-        links.add_row(*row.values(), style="" if row["status"] == "ok" else "bold red")
-    texts = Text("\n".join(f"[{sev}] {text}" for _, sev, text in state.texts) or "no STATUSTEXT")
-    return Group(servos, links, Text(state.health_line(now)), texts)
+    text = Text(no_wrap=True, overflow="crop")
+    for index, (line, style) in enumerate(screen_lines(state, now, width, height, title)):
+        if index:
+            text.append("\n")
+        text.append(line, style=style or None)
+    return text
 
 
-def plain_lines(state: MonitorState, now: float) -> list[str]:
-    """The same information as plain text lines, for logs and pipes."""
+def plain_lines(state: MonitorState, now: float, texts_shown: int | None = None) -> list[str]:
+    """The same information as plain text lines, for logs and pipes.
+
+    ``texts_shown``: how many STATUSTEXT the caller has printed so far (``state.text_count``
+    at its last call); the ones since then follow as ``statustext severity=WARNING text=...``
+    lines (at most the tail the state keeps). None: no STATUSTEXT lines."""
     stamp = time.strftime("%H:%M:%S")
     lines = [f"{stamp} {state.health_line(now)}"]
     for row in state.servo_rows(now):
         lines.append(f"{stamp} servo " + " ".join(f"{c}={row[c]}" for c in SERVO_COLUMNS))
     for row in state.component_rows(now):
         lines.append(f"{stamp} heartbeat " + " ".join(f"{k}={v}" for k, v in row.items()))
+    if texts_shown is not None:
+        new = min(state.text_count - texts_shown, len(state.texts))
+        for _, severity, text in list(state.texts)[len(state.texts) - new :] if new > 0 else []:
+            lines.append(f"{stamp} statustext severity={severity_name(severity)} text={text}")
     return lines
 
 
@@ -513,12 +720,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     live = (
         None
         if plain
-        else Live(render(state, start), console=console, auto_refresh=False, transient=False)
+        else Live(
+            render(state, start, width=console.width, height=console.height),
+            console=console,
+            auto_refresh=False,
+            transient=False,
+        )
     )
     try:
         if live is not None:
             live.start(refresh=True)
         next_draw = start
+        texts_shown = 0
         while True:
             now = time.monotonic()
             if deadline is not None and now >= deadline:
@@ -528,11 +741,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                 _send_heartbeat(conn, mavutil)
             if now >= next_draw:
                 if live is not None:
-                    live.update(render(state, now, f"mavservo monitor  {args.url}"), refresh=True)
+                    live.update(_frame(state, now, args.url, console), refresh=True)
                     next_draw = now + refresh_period
                 else:
-                    for line in plain_lines(state, now):
+                    for line in plain_lines(state, now, texts_shown):
                         print(line, flush=True)
+                    texts_shown = state.text_count
                     next_draw = now + plain_period
             wait = max(0.0, min(next_draw, deadline or next_draw) - time.monotonic())
             msg = conn.recv_match(blocking=True, timeout=wait)
@@ -543,12 +757,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         pass
     finally:
         if live is not None:
-            live.update(
-                render(state, time.monotonic(), f"mavservo monitor  {args.url}"), refresh=True
-            )
+            live.update(_frame(state, time.monotonic(), args.url, console), refresh=True)
             live.stop()
         conn.close()
     return 0
+
+
+def _frame(state: MonitorState, now: float, url: str, console: Any) -> Any:
+    """One frame at the terminal's current size (it may have been resized since the last)."""
+    return render(state, now, f"mavservo monitor  {url}", console.width, console.height)
 
 
 def _send_heartbeat(conn: Any, mavutil: Any) -> None:

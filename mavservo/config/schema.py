@@ -277,13 +277,16 @@ class BusConfig(StrictModel):
     lightly used, up to 8 ms while it is busy, e.g. under a foreign node's flood)."""
     max_load: Float = Field(0.35, gt=0, le=1)
 
-    @model_validator(mode="after")
-    def _aa55_bitrate_has_a_code(self) -> BusConfig:
+    @field_validator("bitrate")
+    @classmethod
+    def _aa55_bitrate_has_a_code(cls, bitrate: int, info: ValidationInfo) -> int:
+        """A field validator, not a model one, so the error is reported at the ``bitrate`` key's
+        line rather than the bus's (``interface``, declared above, is validated first)."""
         # the codec's table is the one list of what the adapter can do: ask it, keep no copy
-        if self.interface == "aa55" and self.bitrate not in BITRATE_CODES:
+        if info.data.get("interface") == "aa55" and bitrate not in BITRATE_CODES:
             codes = ", ".join(str(rate) for rate in BITRATE_CODES)
-            raise ValueError(f"an aa55 adapter supports bitrates {codes}; got {self.bitrate}")
-        return self
+            raise ValueError(f"an aa55 adapter supports bitrates {codes}; got {bitrate}")
+        return bitrate
 
 
 class CanConfig(StrictModel):

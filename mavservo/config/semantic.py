@@ -99,7 +99,26 @@ def advisories(config: Config) -> list[Finding]:
                     "shorten scheduler.telemetry_period_s",
                 )
             )
+    findings += _undriven_servos(config)
     return findings
+
+
+def _undriven_servos(config: Config) -> list[Finding]:
+    """Servos that no channel and no gimbal axis names: the bridge polls them and sends them
+    their failsafe, but no MAVLink input can ever move them (usually a forgotten channel entry
+    or a misspelt name in one)."""
+    driven = {channel.servo for channel in config.channels}
+    driven |= {name for gimbal in config.gimbals for name in gimbal.axes().values()}
+    return [
+        (
+            ("servos", index, "name"),
+            f"servo {servo.name!r} is driven by no input: no channel and no gimbal axis names it, "
+            "so no MAVLink command can move it; add a 'channels' entry (servo_output or "
+            "actuator) or a gimbal axis for it",
+        )
+        for index, servo in enumerate(config.servos)
+        if servo.name not in driven
+    ]
 
 
 def _duplicates(names: list[str]) -> Iterator[tuple[int, int]]:

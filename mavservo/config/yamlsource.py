@@ -265,8 +265,14 @@ _INDENTATION_SYMPTOMS = (
 )
 
 
+#: PyYAML's wording when a tab starts a token: in practice a tab used to indent a line.
+_TAB_SYMPTOM = "found character '\\t' that cannot start any token"
+
+
 def _syntax_hint(what: str) -> str:
     """A plain-words hint for the errors a mis-indented line produces (PyYAML's text is terse)."""
+    if _TAB_SYMPTOM in what:
+        return " (tabs are not allowed for indentation in YAML; use spaces)"
     if not any(symptom in what for symptom in _INDENTATION_SYMPTOMS):
         return ""
     quoting = "; quote a value that contains ': '" if "mapping values" in what else ""

@@ -327,14 +327,18 @@ class ServoBackend:
         goal, servo.goal_deg = servo.goal_deg, None
         return [f"{servo.name} offline: move to {goal:g} deg stopped; it waits for a fresh command"]
 
-    def failsafe_all(self, reason: str, now: float) -> None:
-        """Shutdown path: every servo to its failsafe action at once (no per-servo delay)."""
+    def failsafe_all(self, reason: str, now: float, *, announce: bool = True) -> None:
+        """Shutdown path: every servo to its failsafe action at once (no per-servo delay).
+
+        ``announce=False``: no ``failsafe: ...`` event; the caller says it in its own words
+        (a normal end of a run is not an alarm)."""
         with self._lock:
             self.in_failsafe = True
             self._failsafe_due.clear()
             for servo in self._servos.values():
                 self._apply_failsafe(servo, now)
-        self._on_event(f"failsafe: {reason}")
+        if announce:
+            self._on_event(f"failsafe: {reason}")
 
     # ------------------------------------------------------------------ internals
 

@@ -38,6 +38,17 @@ from typing import Any
 from .adapter import AdapterEmulator, LineFaults
 from .servo import Faults, Physics, SimServo
 
+#: Signals that end the emulator cleanly (its pty closed, its ``--link`` removed).
+STOP_SIGNALS = tuple(
+    getattr(signal, name) for name in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, name)
+)
+
+
+def _ignored_hangup(signum: int) -> bool:
+    """A SIGHUP ignored at start (``nohup mavservo sim``) stays ignored: the user asked for it
+    to outlive the terminal."""
+    return signum == getattr(signal, "SIGHUP", None) and signal.getsignal(signum) is signal.SIG_IGN
+
 
 def _ids(text: str) -> list[int]:
     return [int(part, 0) for part in text.split(",") if part.strip()]
@@ -46,7 +57,12 @@ def _ids(text: str) -> list[int]:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="mavservo sim",
-        description="Emulate an AA-55 USB-CAN adapter with simulated CAN servos on a pty.",
+        description="Emulate an AA-55 USB-CAN adapter with simulated CAN servos on a pty. The "
+        "first line on standard output is the device path to open (a symlink to the pty: the "
+        "--link path, or one in a temporary directory), so `path=$(mavservo sim ... | head -1)` "
+        "works; a summary line goes to standard error. Runs until Ctrl-C, SIGTERM or SIGHUP, "
+        "then removes the symlink.",
+        epilog="Options given on the command line win over the --config file's settings.",
     )
     parser.add_argument(
         "--config",
@@ -57,29 +73,90 @@ def build_parser() -> argparse.ArgumentParser:
         "--bus", default=None, help="with a mavservo config: the bus to simulate (default: first)"
     )
     parser.add_argument("--servos", type=int, default=None, help="number of servos (default 1)")
-    parser.add_argument("--ids", type=_ids, default=None, help="servo IDs, e.g. 1,2,3")
-    parser.add_argument("--profile", default=None, help="rmd-x | lk | cubemars-ak")
-    parser.add_argument("--bitrate", type=int, default=None)
-    parser.add_argument("--protocol", choices=("variable", "fixed"), default=None)
-    parser.add_argument("--link", default=None, help="path of the device symlink to publish")
-    parser.add_argument("--seed", type=int, default=None)
-    parser.add_argument("--status-rate-hz", type=float, default=None)
+    parser.add_argument(
+        "--ids", type=_ids, default=None, help="servo CAN ids, e.g. 1,2,3 (default 1..--servos)"
+    )
+    parser.add_argument(
+        "--profile", default=None, help="servo profile: rmd-x | lk | cubemars-ak (default rmd-x)"
+    )
+    parser.add_argument(
+        "--bitrate",
+        type=int,
+        default=None,
+        help="CAN bitrate in bit/s until the host's settings frame sets one (default 1000000)",
+    )
+    parser.add_argument(
+        "--protocol",
+        choices=("variable", "fixed"),
+        default=None,
+        help="AA-55 frame format on the serial line (default variable)",
+    )
+    parser.add_argument(
+        "--link",
+        default=None,
+        help="also publish the device as a symlink at this path (removed on exit; default none)",
+    )
+    parser.add_argument(
+        "--seed", type=int, default=None, help="random seed for faults and noise (default 0)"
+    )
+    parser.add_argument(
+        "--status-rate-hz",
+        type=float,
+        default=None,
+        help="push rate of push-style servos (cubemars-ak), in Hz (default 50)",
+    )
     parser.add_argument(
         "--relax-after",
         type=float,
         default=None,
-        help="seconds without command before a servo goes limp",
+        help="seconds without command before a servo goes limp (default: never)",
     )
-    faults = parser.add_argument_group("fault injection (all servos)")
-    faults.add_argument("--drop-reply-prob", type=float, default=None)
-    faults.add_argument("--reply-delay", type=float, default=None, help="seconds")
-    faults.add_argument("--silent-ids", type=_ids, default=None)
-    faults.add_argument("--over-current-ids", type=_ids, default=None)
-    faults.add_argument("--over-temperature-ids", type=_ids, default=None)
-    faults.add_argument("--flip-prob", type=float, default=None, help="per byte, serial line")
-    faults.add_argument("--drop-byte-prob", type=float, default=None)
-    faults.add_argument("--burst-prob", type=float, default=None)
-    faults.add_argument("--line-direction", choices=("to_host", "to_adapter", "both"), default=None)
+    faults = parser.add_argument_group("fault injection (all servos; default: none)")
+    faults.add_argument(
+        "--drop-reply-prob",
+        type=float,
+        default=None,
+        help="probability (0..1) that a servo drops a reply",
+    )
+    faults.add_argument(
+        "--reply-delay", type=float, default=None, help="seconds each reply is delayed"
+    )
+    faults.add_argument(
+        "--silent-ids", type=_ids, default=None, help="CAN ids that never reply, e.g. 2,3"
+    )
+    faults.add_argument(
+        "--over-current-ids", type=_ids, default=None, help="CAN ids reporting over-current"
+    )
+    faults.add_argument(
+        "--over-temperature-ids",
+        type=_ids,
+        default=None,
+        help="CAN ids reporting over-temperature",
+    )
+    faults.add_argument(
+        "--flip-prob",
+        type=float,
+        default=None,
+        help="probability (0..1) per byte on the serial line of a flipped bit",
+    )
+    faults.add_argument(
+        "--drop-byte-prob",
+        type=float,
+        default=None,
+        help="probability (0..1) per byte on the serial line of a lost byte",
+    )
+    faults.add_argument(
+        "--burst-prob",
+        type=float,
+        default=None,
+        help="probability (0..1) per write of a burst of 8 garbage bytes on the serial line",
+    )
+    faults.add_argument(
+        "--line-direction",
+        choices=("to_host", "to_adapter", "both"),
+        default=None,
+        help="which direction of the serial line the line faults hit (default to_host)",
+    )
     return parser
 
 
@@ -228,7 +305,10 @@ def build_emulator(
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run until SIGINT or SIGTERM; exit 0 on a clean stop, 2 on a configuration error."""
+    """Run until SIGINT, SIGTERM or SIGHUP; exit 0 on a clean stop, 2 on a configuration error.
+
+    SIGHUP (the terminal closed, ``ssh`` dropped) stops it like SIGTERM: by default it would
+    kill the process without the ``finally`` below, leaving the ``--link`` symlink dangling."""
     parser = build_parser()
     args = parser.parse_args(argv)
     from mavservo.config import ConfigError
@@ -241,7 +321,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     stop = threading.Event()
     previous = {
-        sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)
+        sig: signal.signal(sig, lambda *_: stop.set())
+        for sig in STOP_SIGNALS
+        if not _ignored_hangup(sig)
     }
     emulator.start()
     try:

@@ -43,7 +43,11 @@ def _positive_keep(text: str) -> int:
 
 
 def build_parser(prog: str = "sitl") -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog=prog,
+        description=f"The simulated autopilot ({prog} stream) or the replay of a recorded .tlog "
+        f"({prog} replay), sending MAVLink to a bridge.",
+    )
     sub = parser.add_subparsers(dest="command", required=True)
 
     s = sub.add_parser("stream", help="run the simulated ArduPilot autopilot stream")
