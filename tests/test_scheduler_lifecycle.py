@@ -16,6 +16,7 @@ from mavservo.scheduling.core import (
     STARTUP_RETRY_S,
     Decision,
     ScheduleCore,
+    SendFailure,
     ServoSpec,
     TimingConfig,
 )
@@ -192,3 +193,16 @@ def test_failsafe_release_turns_the_simulated_rmdx_motor_off(tmp_path: Path) -> 
     assert servos[2].enabled, "failsafe hold: the motor stays on"
     assert summary["servos"]["released"]["frames"]["lifecycle"] >= 2  # 0xB3, then 0x80
     assert summary["servos"]["held"]["frames"]["lifecycle"] == 1  # 0xB3 only
+
+
+def test_a_refused_release_goes_again_at_the_next_command_slot_not_in_a_tight_loop() -> None:
+    core = core_with(ServoSpec("s1", RmdX(1), telemetry_hz=0))
+    core.submit("s1", 5.0, "test", t=99.0)
+    run_answered(core, 100.0)
+    core.release("s1")
+    (release,) = core.step(100.01).frames
+    assert core.send_failed(release) == SendFailure(False, None)
+    assert not core.wants_lifecycle_wake()
+    assert core.next_deadline(100.011) > 100.02  # no tight retry loop
+    assert core.step(100.02).frames == []
+    assert frames(run_answered(core, 100.0 + T_C)) == [("s1", "lifecycle", 0x80)]

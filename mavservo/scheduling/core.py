@@ -71,7 +71,8 @@ Rules (paper section 3.3):
   communication-loss timeout) right before its first command, again before the next command
   after it was offline (it may have been power-cycled) or after a release, and again when the
   profile's ``needs_startup()`` says so, never twice within ``STARTUP_RETRY_S``; a ``release``
-  sends the profile's release frames (motor off) at the next step; :meth:`ScheduleCore.
+  sends the profile's release frames (motor off) at the next step (again at the next command
+  slot if the bus refused them); :meth:`ScheduleCore.
   final_frames` gives what is still pending plus every servo's shutdown frames when the
   scheduler stops. Their replies (``replies_per_lifecycle``) are expected like any other, and
   the bus-load budget counts the start-up frames at ``1 / STARTUP_RETRY_S``.
@@ -309,8 +310,9 @@ class _ServoSlot:
     """Its start-up frames went out since the schedule began, it came back online, or it was
     released (module docstring)."""
     last_startup: float = -math.inf
-    pending_release: bool = False
-    """Release frames to send at the next step."""
+    release_due: float | None = None
+    """When its release frames go out (None: none pending): at once after ``release``, at the
+    next command slot after the bus refused them."""
 
     @property
     def has_unsent_setpoint(self) -> bool:
@@ -551,7 +553,7 @@ class ScheduleCore:
         seq = slot.seq
         slot.latest = Setpoint(seq, angle_deg, source, t, msg)
         slot.released = False
-        slot.pending_release = False
+        slot.release_due = None
         return SetpointResult(True, seq)
 
     def release(self, name: str) -> None:
@@ -560,12 +562,17 @@ class ScheduleCore:
         is preceded by the start-up frames again."""
         slot = self._slots[name]
         slot.released = True
-        slot.pending_release = bool(slot.spec.profile.release_frames())
+        slot.release_due = -math.inf if slot.spec.profile.release_frames() else None
         slot.started = False
 
     def wants_lifecycle_wake(self) -> bool:
-        """True while release frames wait for the next step (the runner is woken for them)."""
-        return any(slot.pending_release for slot in self._slots.values())
+        """True when release frames wait to go at once (the runner is woken for them)."""
+        return self._next_release() == -math.inf
+
+    def _next_release(self) -> float:
+        """When the earliest pending release frames are due (inf: none pending)."""
+        due = [s.release_due for s in self._slots.values() if s.release_due is not None]
+        return min(due, default=math.inf)
 
     def final_frames(self, now: float) -> list[Outgoing]:
         """What goes out when the scheduler stops: pending release frames, then every servo's
@@ -573,8 +580,8 @@ class ScheduleCore:
         out: list[Outgoing] = []
         for name in self._order:
             slot = self._slots[name]
-            if slot.pending_release:
-                slot.pending_release = False
+            if slot.release_due is not None:
+                slot.release_due = None
                 out += self._lifecycle(slot, slot.spec.profile.release_frames(), "release", now)
             out += self._lifecycle(slot, slot.spec.profile.shutdown_frames(), "shutdown", now)
         return out
@@ -616,8 +623,8 @@ class ScheduleCore:
     def _serve_releases(self, now: float, decision: Decision) -> None:
         for name in self._order:
             slot = self._slots[name]
-            if slot.pending_release:
-                slot.pending_release = False
+            if slot.release_due is not None and slot.release_due <= now:
+                slot.release_due = None
                 frames = slot.spec.profile.release_frames()
                 decision.frames += self._lifecycle(slot, frames, "release", now)
 
@@ -815,8 +822,9 @@ class ScheduleCore:
         """
         t = self.timing
         candidates = [self._next_command_slot, self._next_telemetry_tick]
-        if self.wants_lifecycle_wake():
-            candidates.append(now)
+        release_due = self._next_release()
+        if release_due < math.inf:
+            candidates.append(max(now, release_due))
         for slot in self._slots.values():
             if slot.spec.command_mode == "immediate" and slot.has_unsent_setpoint:
                 last = slot.last_command_time
@@ -878,7 +886,7 @@ class ScheduleCore:
             if out.lifecycle == "startup":
                 slot.started = False  # they go again before the next command
             elif out.lifecycle == "release" and slot.released:
-                slot.pending_release = True  # tried again at the next step
+                slot.release_due = self._next_command_slot  # again, not in a tight loop
             return SendFailure(False, None)
         if out.seq is not None and slot.sent_seq == out.seq:
             slot.sent_seq = out.seq - 1
