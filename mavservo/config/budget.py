@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from mavservo.scheduling.busload import FrameFlow, load_ratio, servo_traffic
+from mavservo.scheduling.core import STARTUP_RETRY_S
 
 if TYPE_CHECKING:
     from mavservo.config.schema import BusConfig, Config, SchedulerConfig, ServoConfig
@@ -47,10 +48,8 @@ def telemetry_rate_hz(servo: ServoConfig, timing: SchedulerConfig) -> float:
 
 
 def profile_of(servo: ServoConfig) -> ServoProfile:
-    """The servo's profile instance: the frames it is sent and answers with."""
-    from mavservo.servos import get_profile  # imported late: the profiles are a separate layer
-
-    return get_profile(servo.profile)(servo.can_id)
+    """The servo's profile instance (its id and options): the frames it is sent and answers."""
+    return servo.make_profile()
 
 
 def is_polled(profile: ServoProfile) -> bool:
@@ -69,6 +68,7 @@ def servo_flows(servo: ServoConfig, timing: SchedulerConfig) -> list[FrameFlow]:
         # paces polls only
         status_hz=servo.telemetry_hz,
         max_speed_dps=servo.max_speed_dps,
+        startup_hz=1 / STARTUP_RETRY_S,
     )
     return traffic.flows()
 

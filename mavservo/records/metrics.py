@@ -257,6 +257,8 @@ class ServoMetrics:
     commands_sent: int = 0
     refreshes_sent: int = 0
     requests_sent: int = 0
+    lifecycle_sent: int = 0
+    """Start-up, release and shutdown frames of the servo's profile (``docs/profiles.md``)."""
     received: int = 0
     """Every decoded reply: answers, late answers and pushes."""
     pushed: int = 0
@@ -297,7 +299,11 @@ class ServoMetrics:
                 "commands": self.commands_sent,
                 "refreshes": self.refreshes_sent,
                 "requests": self.requests_sent,
-                "sent": self.commands_sent + self.refreshes_sent + self.requests_sent,
+                "lifecycle": self.lifecycle_sent,
+                "sent": self.commands_sent
+                + self.refreshes_sent
+                + self.requests_sent
+                + self.lifecycle_sent,
                 "received": self.received,
                 "pushed": self.pushed,
                 "timed_out": self.timed_out,
