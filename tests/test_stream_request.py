@@ -293,3 +293,41 @@ def test_disabled_bridge_leaves_the_autopilot_rate_alone() -> None:
             assert ap.interval_s("SERVO_OUTPUT_RAW") == 1.0
         finally:
             ap.stop()
+
+
+# ------------------------------------------------------------------ real ArduPlane traffic
+
+
+def test_recorded_arduplane_link_reads_its_real_rate_and_no_false_reboot() -> None:
+    """tests/data/plane-servos.tlog (real ArduPlane SITL SERIAL1, SERVO_OUTPUT_RAW at 20 Hz after
+    another companion's request) fed to the pure core at its recorded times: the request goes to
+    1/1, the recorded ACK (addressed to that other companion, 1/191) is not taken as ours, the
+    measured rate is the recorded 20 Hz, and the real boot times never look like a reboot."""
+    from pymavlink import mavutil
+
+    from mavservo.mavlink.core import MavlinkCore
+
+    path = Path(__file__).parent / "data" / "plane-servos.tlog"
+    log = mavutil.mavlink_connection(str(path), dialect="ardupilotmega")
+    settings = MavlinkSettings.from_mapping({"heartbeat_timeout_s": 3.0}, command_period_s=0.05)
+    core: MavlinkCore | None = None
+    requests = []
+    for _ in range(10_000):  # the file holds 4,462 messages
+        msg = log.recv_match(blocking=False)
+        if msg is None:
+            break
+        t = msg._timestamp
+        if core is None:
+            core = MavlinkCore(settings, RecordingBackend(), boot_time=t)
+        core.on_message(msg, t)
+        requests += [m for _, m in core.tick(t) if m.get_type() == "COMMAND_LONG"]
+    assert core is not None
+    stream = core.stats()["stream"]
+    figures = stream["streams"]["SERVO_OUTPUT_RAW"]
+    assert (requests[0].target_system, requests[0].target_component) == (1, 1)
+    assert (requests[0].param1, requests[0].param2) == (SERVO_OUTPUT_RAW, 50_000)
+    assert figures["answer"] == "no answer"  # the recorded ACK was for 1/191
+    assert stream["autopilot_restarts"] == 0
+    assert figures["received"] == 1785
+    assert figures["received_hz"] == pytest.approx(20.0, abs=1.0)
+    assert figures["low_rate_windows"] == 0
