@@ -23,6 +23,7 @@ from mavservo.mavlink.settings import MavlinkSettings, StreamRequestSettings
 from mavservo.mavlink.side import MavlinkSide
 from mavservo.mavlink.stream_request import (
     MAX_ATTEMPTS,
+    RESTART_HOLDOFF_S,
     RETRY_S,
     WINDOW_S,
     StreamRequester,
@@ -123,6 +124,21 @@ def test_asked_again_when_the_boot_time_goes_back_but_not_on_a_uint32_wrap() -> 
     streams.on_message(servo_output(1_000_000), 2.05)  # 900 s -> 1 s: rebooted
     assert streams.tick(2.05) == [(1, 1, SERVO_OUTPUT_RAW, 50_000, 0)]
     assert streams.stats()["autopilot_restarts"] == 1
+
+
+def test_spoofed_boot_times_cannot_make_the_bridge_flood_the_autopilot_with_requests() -> None:
+    # an unsigned link: someone sends SERVO_OUTPUT_RAW as 1/1 with boot times jumping back and
+    # forth, 1,000 a second for 10 s
+    streams = requester()
+    streams.on_heartbeat((1, 1), 0.0)
+    sent = streams.tick(0.0)
+    for i in range(10_000):
+        t = 0.001 * i
+        streams.on_message(servo_output(900_000_000 if i % 2 else 1_000_000), t)
+        sent += streams.tick(t)
+    assert len(sent) <= 10 * MAX_ATTEMPTS  # at most one restart per RESTART_HOLDOFF_S
+    assert streams.stats()["autopilot_restarts"] <= 10 / RESTART_HOLDOFF_S + 1
+    assert streams.stats()["restarts_ignored"] > 4_000
 
 
 # ------------------------------------------------------------------ the measurement

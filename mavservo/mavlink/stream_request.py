@@ -39,6 +39,9 @@ WINDOW_S = 5.0
 WARN_INTERVAL_S = 60.0
 #: A boot time that goes back by more than this (s) means the autopilot rebooted.
 REBOOT_BACKSTEP_S = 1.0
+#: Restarts seen closer together than this (s) are counted, not acted on: on an unsigned link a
+#: spoofer alternating boot times would otherwise make the bridge send a request every tick.
+RESTART_HOLDOFF_S = 5.0
 #: SERVO_OUTPUT_RAW.time_usec is a uint32 of microseconds: it wraps every ~71.6 minutes.
 UINT32_US_WRAP_S = 2**32 / 1e6
 
@@ -87,6 +90,8 @@ class StreamRequester:
         }
         self.target: tuple[int, int] | None = None
         self.autopilot_restarts = 0
+        self.restarts_ignored = 0
+        self._last_restart: float | None = None
         self._last_heartbeat: float | None = None
         self._boot_time: dict[str, float] = {}
         self._warn = RateLimitedLog(WARN_INTERVAL_S)
@@ -101,15 +106,13 @@ class StreamRequester:
             self.target = source
             self._start_requests(now, f"autopilot {source[0]}/{source[1]} heard")
         elif gap is not None and gap > self.heartbeat_timeout_s:
-            self.autopilot_restarts += 1
-            self._start_requests(now, f"autopilot back after {gap:.1f} s without a heartbeat")
+            self._restarted(now, f"autopilot back after {gap:.1f} s without a heartbeat")
 
     def on_message(self, msg: Any, now: float) -> None:
         """Any other message of the followed autopilot: count it, watch its boot time."""
         kind = msg.get_type()
         if self._boot_time_went_back(kind, msg):
-            self.autopilot_restarts += 1
-            self._start_requests(now, f"autopilot rebooted ({kind} boot time went back)")
+            self._restarted(now, f"autopilot rebooted ({kind} boot time went back)")
         stream = self.streams.get(kind)
         if stream is not None:
             self._close_window(stream, now)  # a message on the boundary opens the next window
@@ -187,9 +190,22 @@ class StreamRequester:
             }
             for s in self.streams.values()
         }
-        return {"streams": streams, "autopilot_restarts": self.autopilot_restarts}
+        return {
+            "streams": streams,
+            "autopilot_restarts": self.autopilot_restarts,
+            "restarts_ignored": self.restarts_ignored,
+        }
 
     # ------------------------------------------------------------------ internals
+
+    def _restarted(self, now: float, why: str) -> None:
+        """Ask again after a restart, unless the last restart was under RESTART_HOLDOFF_S ago."""
+        if self._last_restart is not None and 0 <= now - self._last_restart < RESTART_HOLDOFF_S:
+            self.restarts_ignored += 1
+            return
+        self._last_restart = now
+        self.autopilot_restarts += 1
+        self._start_requests(now, why)
 
     def _start_requests(self, now: float, why: str) -> None:
         """(Re)start every request and every rate window from now."""
