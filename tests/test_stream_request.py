@@ -168,7 +168,7 @@ def test_disabled_sends_nothing_but_still_measures_and_warns(caplog) -> None:
     with caplog.at_level(logging.WARNING):
         feed(streams, 0.0, 3 * WINDOW_S, 1.0)
     assert streams.stats()["streams"]["SERVO_OUTPUT_RAW"]["requests_sent"] == 0
-    assert streams.stats()["streams"]["SERVO_OUTPUT_RAW"]["answer"] == "not asked (disabled)"
+    assert streams.stats()["streams"]["SERVO_OUTPUT_RAW"]["answer"] == "disabled"
     assert any("below the 15 Hz" in r.message for r in caplog.records)
 
 
@@ -180,6 +180,12 @@ def test_summary_shows_requested_against_received() -> None:
     feed(streams, 0.0, 2 * WINDOW_S, 20.0)
     text = format_summary({"mavlink": {"stream": streams.stats()}})
     assert "autopilot stream SERVO_OUTPUT_RAW: asked 20 Hz (accepted), received 20.0 Hz" in text
+    off = requester(enabled=False)
+    off.on_heartbeat((1, 1), 0.0)
+    feed(off, 0.0, 3 * WINDOW_S, 1.0)
+    text = format_summary({"mavlink": {"stream": off.stats()}})
+    assert "SERVO_OUTPUT_RAW: asked nothing (disabled), received 1.0 Hz" in text
+    assert "below the 15 Hz needed in 2 windows" in text
 
 
 # ------------------------------------------------------------------ the config

@@ -185,7 +185,7 @@ class StreamRequester:
                 "received_hz": None if s.received_hz is None else round(s.received_hz, 2),
                 "received": s.received,
                 "requests_sent": s.requests_sent,
-                "answer": s.result if self.settings.enabled else "not asked (disabled)",
+                "answer": s.result if self.settings.enabled else "disabled",
                 "low_rate_windows": s.low_windows,
             }
             for s in self.streams.values()
