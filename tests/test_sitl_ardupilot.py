@@ -1,7 +1,11 @@
 """ArduPlane SITL scripts: the launcher's command line, and a live run when ArduPilot is here.
 
 The live test needs ``sim_vehicle.py`` or ``arduplane`` (PATH or $ARDUPILOT_HOME); without them it
-is skipped with that reason. Nothing is ever downloaded.
+is skipped with that reason. Nothing is ever downloaded. Run it on loopback only (SITL's
+listeners bind every address) in a network namespace that has only ``lo``::
+
+    ARDUPILOT_HOME=/path/to/ardupilot unshare -n sh -c \
+        'ip link set lo up && python -m pytest -s tests/test_sitl_ardupilot.py'
 """
 
 from __future__ import annotations
@@ -10,17 +14,24 @@ import os
 import shutil
 import signal
 import subprocess
+import time
 from pathlib import Path
 
 import pytest
 from autopilot_support import collect, of_type, peer
-from conftest import free_udp_port
+from conftest import free_udp_port, wait_until
+from test_mavlink_support import RecordingBackend
 
+from mavservo.config.loader import load_config
+from mavservo.mavlink.settings import MavlinkSettings
+from mavservo.mavlink.side import MavlinkSide
+from mavservo.mavlink.stream_request import WINDOW_S
 from mavservo.sim.autopilot.link import mavlink2 as mav
 
 REPO = Path(__file__).resolve().parent.parent
 AUTOPILOT = REPO / "mavservo" / "sim" / "autopilot"  # the simulator and its ArduPilot files
 SCRIPT = AUTOPILOT / "run-arduplane.sh"
+SITL_CONFIG = REPO / "config" / "ardupilot-sitl.yaml"
 
 
 def _parm(path: Path) -> dict[str, float]:
@@ -38,6 +49,8 @@ def test_parameter_files_match_the_recorded_sessions() -> None:
     gimbal = _parm(AUTOPILOT / "arduplane-gimbal.parm")
     assert companion["SERIAL1_PROTOCOL"] == 2
     assert (companion["SERVO9_FUNCTION"], companion["SERVO10_FUNCTION"]) == (0, 1)
+    # stream rates stay at ArduPilot's defaults: the bridge asks for its own (issue 17)
+    assert not [n for n in companion if n.startswith(("SR", "MAV"))]
     assert (gimbal["MNT1_TYPE"], gimbal["SCHED_LOOP_RATE"]) == (6, 100)
     assert gimbal["MNT1_PITCH_MIN"] == -90 and gimbal["MNT1_YAW_MAX"] == 160
 
@@ -113,6 +126,51 @@ def test_launcher_command_line_for_the_arduplane_binary(tmp_path: Path) -> None:
     assert defaults.endswith(f"arduplane-companion.parm,{gimbal_parm}")
 
 
+def test_launcher_takes_the_plane_defaults_of_the_binarys_tree_and_boots_without_a_gcs(
+    tmp_path: Path,
+) -> None:
+    # a current ArduPilot tree: defaults in Tools/autotest/models/, binary in build/sitl/bin/
+    home = tmp_path / "ardupilot"
+    (home / "Tools" / "autotest" / "models").mkdir(parents=True)
+    (home / "Tools" / "autotest" / "models" / "plane.parm").write_text("ARSPD_USE 1\n")
+    (home / "build" / "sitl" / "bin").mkdir(parents=True)
+    fake = home / "build" / "sitl" / "bin" / "arduplane"
+    fake.write_text("#!/bin/sh\nexit 0\n")
+    fake.chmod(0o755)
+    env = _bare_env(tmp_path, False)
+    for with_home in (True, False):  # ARDUPILOT_HOME, or the binary on PATH in its tree
+        run_env = (
+            dict(env, ARDUPILOT_HOME=str(home))
+            if with_home
+            else dict(env, PATH=f"{fake.parent}:{env['PATH']}")
+        )
+        done = subprocess.run(
+            ["bash", str(SCRIPT), "--dry-run"],
+            env=run_env,
+            capture_output=True,
+            text=True,
+            timeout=30,
+        )
+        assert done.returncode == 0, done.stderr
+        words = done.stdout.split()
+        assert words[0] == str(fake)
+        defaults = words[words.index("--defaults") + 1].replace("\\,", ",").split(",")
+        assert defaults == [
+            str(home / "Tools" / "autotest" / "models" / "plane.parm"),
+            str(AUTOPILOT / "arduplane-companion.parm"),
+        ]
+        assert words[words.index("--serial0") + 1] == "tcp:0"  # listens, does not wait
+    waiting = subprocess.run(
+        ["bash", str(SCRIPT), "--dry-run", "--wait-gcs"],
+        env=dict(env, ARDUPILOT_HOME=str(home)),
+        capture_output=True,
+        text=True,
+        timeout=30,
+    )
+    words = waiting.stdout.split()
+    assert words[words.index("--serial0") + 1] == "tcp:0:wait"
+
+
 def _find_ardupilot() -> str | None:
     home = os.environ.get("ARDUPILOT_HOME")
     if home and (Path(home) / "build" / "sitl" / "bin" / "arduplane").exists():
@@ -125,10 +183,15 @@ def _find_ardupilot() -> str | None:
     reason="ArduPilot SITL not installed (no arduplane / sim_vehicle.py on PATH, "
     "no $ARDUPILOT_HOME build); tests never download it",
 )
-@pytest.mark.timeout(180)
+@pytest.mark.timeout(240)
 def test_real_arduplane_streams_servo_outputs_and_obeys_do_set_servo(tmp_path: Path) -> None:
+    """Boots the real ArduPlane with the launcher (no GCS), reads its SERIAL1 as it comes (the
+    parameter files leave the stream rates at ArduPilot's defaults), then runs the bridge's
+    MAVLink side with the shipped SITL config: its own SET_MESSAGE_INTERVAL must bring
+    SERVO_OUTPUT_RAW to the configured rate. SIGTERM must stop SITL cleanly."""
     port = free_udp_port()
     conn = peer(port)
+    started = time.monotonic()
     proc = subprocess.Popen(
         ["bash", str(SCRIPT), "--port", str(port)],
         cwd=tmp_path,
@@ -139,19 +202,55 @@ def test_real_arduplane_streams_servo_outputs_and_obeys_do_set_servo(tmp_path: P
     try:
         boot = collect(conn, 90.0, until=lambda m: m.get_type() == "SERVO_OUTPUT_RAW")
         assert of_type(boot, "SERVO_OUTPUT_RAW"), "no SERVO_OUTPUT_RAW from SITL within 90 s"
+        booted_s = time.monotonic() - started
         hb = of_type(boot, "HEARTBEAT")[0]
         assert hb.autopilot == mav.MAV_AUTOPILOT_ARDUPILOTMEGA
+        unasked = collect(conn, 2 * WINDOW_S)
+        unasked_hz = len(of_type(unasked, "SERVO_OUTPUT_RAW")) / (2 * WINDOW_S)
         conn.mav.command_long_send(1, 1, mav.MAV_CMD_DO_SET_SERVO, 0, 9, 1234, 0, 0, 0, 0, 0)
         after = collect(
             conn, 10.0, until=lambda m: m.get_type() == "SERVO_OUTPUT_RAW" and m.servo9_raw == 1234
         )
         assert of_type(after, "SERVO_OUTPUT_RAW")[-1].servo9_raw == 1234
+        conn.close()
+
+        settings = _bridge_settings(port)
+        wanted = settings.stream_request.rates_hz["SERVO_OUTPUT_RAW"]
+        needed = settings.stream_request.min_hz["SERVO_OUTPUT_RAW"]
+        with MavlinkSide(settings, RecordingBackend()) as side:
+            figures = lambda: side.stats()["stream"]["streams"]["SERVO_OUTPUT_RAW"]  # noqa: E731
+            assert wait_until(lambda: figures()["answer"] == "accepted", timeout=20)
+            assert wait_until(lambda: figures()["received_hz"] is not None, timeout=30)
+            asked = figures()
+        print(
+            f"\nSITL boot to first SERVO_OUTPUT_RAW: {booted_s:.1f} s; SERVO_OUTPUT_RAW unasked "
+            f"{unasked_hz:.1f} Hz; bridge asked {wanted:g} Hz ({asked['answer']}), received "
+            f"{asked['received_hz']} Hz over {WINDOW_S:g} s"
+        )
+        assert unasked_hz < needed, "the default stream already fast: the test shows nothing"
+        assert asked["received_hz"] >= needed
     finally:
         conn.close()
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGTERM)
-            try:
-                proc.wait(20)
-            except subprocess.TimeoutExpired:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait(5)
+        code = _stop(proc)
+    assert code == 0, f"SITL did not stop cleanly on SIGTERM (status {code})"
+
+
+def _bridge_settings(port: int) -> MavlinkSettings:
+    """The MAVLink settings of config/ardupilot-sitl.yaml, on this test's port."""
+    cfg = load_config(SITL_CONFIG)
+    raw = dict(cfg.mavlink.model_dump(mode="python"), url=f"udpin:127.0.0.1:{port}")
+    raw["signing"] = None
+    return MavlinkSettings.from_mapping(raw, command_period_s=cfg.scheduler.command_period_s)
+
+
+def _stop(proc: subprocess.Popen) -> int | None:
+    """SIGTERM, then (bounded) SIGKILL; the exit status SIGTERM gave (None: it had to be killed)."""
+    if proc.poll() is not None:
+        return proc.returncode
+    os.killpg(proc.pid, signal.SIGTERM)
+    try:
+        return proc.wait(20)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait(5)
+        return None

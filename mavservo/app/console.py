@@ -27,6 +27,8 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
+from mavservo.mavlink.stream_request import WINDOW_S
+
 PLAIN_EVERY_S = 5.0
 CLOCK_FORMAT = "%H:%M:%S"
 #: Bridge events that report a recovery or a normal step; every other event is a problem.
@@ -291,7 +293,7 @@ def format_summary(summary: dict[str, Any]) -> str:
     mav = summary.get("mavlink") or {}
     if mav:
         link = mav.get("link", {})
-        counters = {**_flat(mav, exclude=("link",)), **_flat(link)}
+        counters = {**_flat(mav, exclude=("link", "stream")), **_flat(link)}
         shown = [
             f"{k} {v}"
             for k, v in counters.items()
@@ -303,11 +305,37 @@ def format_summary(summary: dict[str, Any]) -> str:
             and not k.startswith("mirror_")  # a flat duplicate of mirror.*
         ]
         lines.append("  mavlink: " + ", ".join(shown))
+        lines += _stream_lines(mav.get("stream") or {})
     for text in summary.get("events", []):
         lines.append(f"  event: {text}")
     if summary.get("run_dir"):
         lines += _run_log_lines(summary["run_dir"], summary.get("runlog") or {})
     return "\n".join(lines)
+
+
+def _stream_lines(stream: dict[str, Any]) -> list[str]:
+    """One line per mirrored stream: the rate asked of the autopilot against the rate received."""
+    lines = []
+    for name, figures in (stream.get("streams") or {}).items():
+        asked = figures.get("requested_hz")
+        received = figures.get("received_hz")
+        low = figures.get("low_rate_windows", 0)
+        lines.append(
+            f"  autopilot stream {name}: asked "
+            f"{'nothing' if asked is None else f'{asked:g} Hz'} ({figures.get('answer')}), "
+            f"received {'-' if received is None else f'{received:.1f} Hz'} (last "
+            f"{WINDOW_S:g} s window), {figures.get('received', 0)} messages"
+            + (
+                f", below the {figures.get('needed_hz', 0):g} Hz needed in {low} windows"
+                if low
+                else ""
+            )
+        )
+    if stream.get("autopilot_restarts"):
+        lines.append(
+            f"  autopilot restarts seen: {stream['autopilot_restarts']} (streams re-asked)"
+        )
+    return lines
 
 
 def _run_log_lines(run_dir: str, outcome: dict[str, Any]) -> list[str]:

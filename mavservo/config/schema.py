@@ -211,6 +211,32 @@ class TelemetryRates(StrictModel):
         return value
 
 
+class StreamRequestConfig(StrictModel):
+    """MAV_CMD_SET_MESSAGE_INTERVAL for the mirrored streams, sent to the followed autopilot.
+
+    ``rate_hz`` null: the scheduler's command rate (1 / ``scheduler.command_period_s``).
+    ``min_rate_hz`` null: 3/4 of the requested rate; below it the bridge warns. ``enabled``
+    false for an autopilot that refuses the request (the rate is still measured and reported).
+    """
+
+    enabled: Bool = True
+    rate_hz: Annotated[Float, Field(gt=0, le=400)] | None = None
+    min_rate_hz: Annotated[Float, Field(gt=0, le=400)] | None = None
+
+    @model_validator(mode="after")
+    def _minimum_not_above_the_request(self) -> StreamRequestConfig:
+        if (
+            self.rate_hz is not None
+            and self.min_rate_hz is not None
+            and self.min_rate_hz > self.rate_hz
+        ):
+            raise ValueError(
+                f"min_rate_hz ({self.min_rate_hz}) must be <= rate_hz ({self.rate_hz}): the "
+                "bridge would warn about the rate it asked for"
+            )
+        return self
+
+
 class MavlinkConfig(StrictModel):
     """The MAVLink side: where the autopilot is and how the bridge presents itself."""
 
@@ -229,6 +255,7 @@ class MavlinkConfig(StrictModel):
     command_hold_s: Float = Field(2.0, ge=0)
     mirror: MirrorConfig = MirrorConfig()
     telemetry: TelemetryRates = TelemetryRates()
+    request_streams: StreamRequestConfig = StreamRequestConfig()
     #: Output-only endpoints that get a copy of everything the bridge sends (mavservo monitor).
     monitor_outputs: list[str] = []
     #: Bytes per second the bridge's periodic telemetry may use on the autopilot link, which

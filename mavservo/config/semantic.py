@@ -56,6 +56,7 @@ def cross_checks(config: Config) -> list[Finding]:
         _channels,
         _gimbals,
         _simulation_names,
+        _stream_request_minimum,
     ):
         findings.extend(check(config))
     return findings
@@ -124,6 +125,19 @@ def _undriven_servos(config: Config) -> list[Finding]:
         for index, servo in enumerate(config.servos)
         if servo.name not in driven
     ]
+
+
+def _stream_request_minimum(config: Config) -> Iterator[Finding]:
+    """``min_rate_hz`` above the rate asked for (by default the command rate) would warn for
+    ever about a stream that arrives exactly as requested."""
+    streams = config.mavlink.request_streams
+    rate = streams.rate_hz or 1.0 / config.scheduler.command_period_s
+    if streams.min_rate_hz is not None and streams.min_rate_hz > rate:
+        yield (
+            ("mavlink", "request_streams", "min_rate_hz"),
+            f"min_rate_hz {streams.min_rate_hz:g} is above the requested rate {rate:g} Hz "
+            "(rate_hz, or 1 / scheduler.command_period_s when unset); lower it",
+        )
 
 
 def _duplicates(names: list[str]) -> Iterator[tuple[int, int]]:

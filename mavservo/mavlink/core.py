@@ -36,6 +36,7 @@ from mavservo.mavlink.failsafe import FailsafeEvent, HeartbeatWatchdog
 from mavservo.mavlink.mirror import Mirror
 from mavservo.mavlink.params import SERVICE_TYPES, ParameterServer, ParameterStore, SetResult
 from mavservo.mavlink.settings import FOLLOW, MavlinkSettings
+from mavservo.mavlink.stream_request import StreamRequester, set_message_interval
 from mavservo.mavlink.telemetry import (
     ESC_MESSAGES,
     MAV_SEVERITY_CRITICAL,
@@ -83,6 +84,7 @@ class MavlinkCore:
         self.mirror = Mirror(backend, settings, self.hold)
         self.telemetry = Telemetry(backend, settings.telemetry, boot_time)
         self.watchdog = HeartbeatWatchdog(settings.heartbeat_timeout_s)
+        self.streams = StreamRequester(settings.stream_request, settings.heartbeat_timeout_s)
         self.commands = CommandHandler(
             backend=backend,
             settings=settings,
@@ -140,6 +142,11 @@ class MavlinkCore:
         if kind == "HEARTBEAT":
             return self._heartbeat(msg, source, now)
         from_autopilot = source == self.watched
+        if from_autopilot:
+            self.streams.on_message(msg, now)
+            if kind == "COMMAND_ACK" and self._acks_our_request(msg):
+                self.streams.on_ack(msg.command, msg.result, now)
+                return []
         if from_autopilot and kind in MIRROR_TYPES:
             if self.watchdog.in_failsafe:
                 self.counters["mirror_ignored_in_failsafe"] += 1
@@ -156,6 +163,14 @@ class MavlinkCore:
             return self.parameters.handle(msg, self._system_id, source)
         self._to_gimbals(msg, now)
         return []
+
+    def _acks_our_request(self, msg: Any) -> bool:
+        """An ACK of our own SET_MESSAGE_INTERVAL (sent from the servo component)."""
+        return (
+            msg.command == mavlink2.MAV_CMD_SET_MESSAGE_INTERVAL
+            and msg.target_system in (0, self._system_id)
+            and msg.target_component in (0, self.settings.servo_component_id)
+        )
 
     def _log_rejected_source(self, kind: str, source: tuple[int, int], now: float) -> None:
         """One line per ``REFUSAL_LOG_INTERVAL_S`` for the whole kind, not one per message.
@@ -200,6 +215,8 @@ class MavlinkCore:
             self._system_id_known = True
             self.watched = source
             log.info("following autopilot system id %d", source[0])
+        if source == self.watched:
+            self.streams.on_heartbeat(source, now)
         if source == self.watched and self.watchdog.heartbeat(now) is FailsafeEvent.RECOVERED:
             self.backend.leave_failsafe(now)
             self.mirror.reset()
@@ -240,11 +257,16 @@ class MavlinkCore:
                 self._next_heartbeat[cid] = max(self._next_heartbeat[cid] + HEARTBEAT_PERIOD_S, now)
                 out.append((cid, self._heartbeat_message(mav_type)))
         servo = self.settings.servo_component_id
+        out.extend((servo, m) for m in self._guarded("streams", self._stream_requests, now))
         out.extend((servo, m) for m in self._guarded("telemetry", self.telemetry.periodic, now))
         out.extend(self._guarded("parameters", self.parameters.periodic))
         for cid, device in self.gimbals.items():
             out.extend((cid, m) for m in self._guarded(f"gimbal {cid}", device.periodic, now))
         return out
+
+    def _stream_requests(self, now: float) -> list[Any]:
+        """SET_MESSAGE_INTERVAL commands due now (sent from the servo component)."""
+        return [set_message_interval(*request) for request in self.streams.tick(now)]
 
     def _guarded(self, part: str, step: Callable[..., Any], *args: Any) -> Any:
         """Run one part of the tick; an exception there costs only that part's output.
@@ -285,6 +307,7 @@ class MavlinkCore:
             "failsafe_count": self.watchdog.failsafe_count,
             "in_failsafe": self.watchdog.in_failsafe,
             "gimbals": self._gimbal_counters(),
+            "stream": self.streams.stats(),
         }
 
     def _gimbal_counters(self) -> dict[str, dict[str, int]]:

@@ -56,6 +56,46 @@ class TelemetryRates:
     name_prefix: str = "s"
 
 
+#: Default warning threshold as a fraction of the requested rate: ArduPilot's 50 Hz loop
+#: delivers a 20 Hz request as 20.0 Hz on average with intervals of 30-70 ms (recorded SITL).
+MIN_RATE_FRACTION = 0.75
+
+
+@dataclass(frozen=True)
+class StreamRequestSettings:
+    """What to ask the autopilot for (:mod:`mavservo.mavlink.stream_request`): ``rates_hz`` by
+    message name; a stream arriving below its ``min_hz`` is a warning.
+
+    ``enabled`` False keeps the measurement and the warning but sends nothing (for autopilots
+    that refuse or mishandle SET_MESSAGE_INTERVAL)."""
+
+    enabled: bool = True
+    rates_hz: Mapping[str, float] = field(default_factory=dict)
+    min_hz: Mapping[str, float] = field(default_factory=dict)
+
+    @classmethod
+    def for_mirror(
+        cls,
+        raw: Mapping[str, Any] | None,
+        mirrored: tuple[str, ...],
+        command_period_s: float,
+    ) -> StreamRequestSettings:
+        """From the validated ``mavlink.request_streams`` section: every mirrored message at
+        ``rate_hz`` (default: the scheduler's command rate, 1 / command_period_s: a faster
+        stream is never carried to a servo, a slower one moves it in steps), warning below
+        ``min_rate_hz`` (default: MIN_RATE_FRACTION of that rate)."""
+        raw = raw or {}
+        rate = raw.get("rate_hz")
+        rate_hz = float(rate) if rate is not None else 1.0 / command_period_s
+        low = raw.get("min_rate_hz")
+        min_hz = float(low) if low is not None else MIN_RATE_FRACTION * rate_hz
+        return cls(
+            enabled=bool(raw.get("enabled", True)),
+            rates_hz={name: rate_hz for name in mirrored},
+            min_hz={name: min_hz for name in mirrored},
+        )
+
+
 @dataclass(frozen=True)
 class MavlinkSettings:
     """Everything the MAVLink side needs to know, in MAVLink units.
@@ -93,6 +133,8 @@ class MavlinkSettings:
     monitor_outputs: tuple[str, ...] = ()
     #: Bytes/s the periodic telemetry may use on the autopilot link (None: no budget).
     link_budget_bytes_s: float | None = None
+    #: SET_MESSAGE_INTERVAL requests for the mirrored streams (none unless built from a config).
+    stream_request: StreamRequestSettings = field(default_factory=StreamRequestSettings)
 
     @classmethod
     def from_mapping(
@@ -110,6 +152,15 @@ class MavlinkSettings:
         )
         system_id = raw.get("system_id", FOLLOW)
         defaults = cls()
+        period = defaults.command_period_s if command_period_s is None else float(command_period_s)
+        mirrored = tuple(
+            name
+            for name, on in (
+                ("SERVO_OUTPUT_RAW", mirror.get("servo_output_raw", True)),
+                ("ACTUATOR_OUTPUT_STATUS", mirror.get("actuator_output_status", False)),
+            )
+            if on
+        )
         return cls(
             url=str(raw.get("url", defaults.url)),
             baud=int(raw.get("baud", defaults.baud)),
@@ -131,9 +182,10 @@ class MavlinkSettings:
             link_budget_bytes_s=_optional_float(raw.get("link_budget_bytes_s")),
             servo_component_id=int(raw.get("servo_component_id", DEFAULT_SERVO_COMPONENT)),
             channel_trims_us=dict(channel_trims_us or {}),
-            command_period_s=defaults.command_period_s
-            if command_period_s is None
-            else float(command_period_s),
+            command_period_s=period,
+            stream_request=StreamRequestSettings.for_mirror(
+                raw.get("request_streams"), mirrored, period
+            ),
         )
 
     def trim_us(self, channel: int) -> float:

@@ -2,14 +2,17 @@
 # Run ArduPlane SITL with its SERIAL1 MAVLink 2 link sent to the mavservo bridge.
 #
 #   mavservo/sim/autopilot/run-arduplane.sh [--gimbal] [--port 14551] [--host 127.0.0.1] [--speedup 1]
-#                         [--no-wipe] [--dry-run] [-- extra args for sim_vehicle.py/arduplane]
+#                         [--wait-gcs] [--no-wipe] [--dry-run] [-- extra args for sim_vehicle.py/arduplane]
 #
 # Uses sim_vehicle.py if it is on PATH (MAVProxy on SERIAL0 as usual, for a GCS), otherwise the
-# arduplane binary (PATH, or $ARDUPILOT_HOME/build/sitl/bin/arduplane) with the autotest plane
-# defaults from $ARDUPILOT_HOME when present. Never downloads or builds anything: when ArduPilot
-# is not installed it says so and exits with status 3. --dry-run prints the command instead of
-# running it (status 0); without ArduPilot that is the sim_vehicle.py command to use once it is
-# installed, with a note on stderr that it is not.
+# arduplane binary ($ARDUPILOT_HOME/build/sitl/bin/arduplane, or PATH) with the autotest plane
+# defaults (Tools/autotest/models/plane.parm; default_params/plane.parm in older trees) from
+# $ARDUPILOT_HOME, or from the tree the binary was built in. The binary's SERIAL0 listens on TCP
+# 5760 + 10 x instance for a GCS without waiting for one (--wait-gcs: SITL's own default, which
+# boots only once a client connects and ignores SIGTERM until then); SIGTERM stops it cleanly.
+# Never downloads or builds anything: when ArduPilot is not installed it says so and exits with
+# status 3. --dry-run prints the command instead of running it (status 0); without ArduPilot that
+# is the sim_vehicle.py command to use once it is installed, with a note on stderr that it is not.
 # Then run the bridge with:  mavservo run --config config/ardupilot-sitl.yaml
 set -euo pipefail
 
@@ -19,6 +22,7 @@ host=127.0.0.1
 speedup=1
 gimbal=0
 wipe=1
+wait_gcs=0
 dry_run=0
 extra=()
 
@@ -29,6 +33,7 @@ while [[ $# -gt 0 ]]; do
     --host) host="$2"; shift ;;
     --speedup) speedup="$2"; shift ;;
     --no-wipe) wipe=0 ;;
+    --wait-gcs) wait_gcs=1 ;;
     --dry-run) dry_run=1 ;;
     --) shift; extra=("$@"); break ;;
     -h|--help) sed -n '2,/^[^#]/{/^#/{s/^# \{0,1\}//;p;};}' "$0"; exit 0 ;;
@@ -44,12 +49,28 @@ fi
 serial1="udpclient:${host}:${port}"
 
 binary=""
-if [[ -n "${ARDUPILOT_HOME:-}" && -x "${ARDUPILOT_HOME}/build/sitl/bin/arduplane" ]]; then
-  binary="${ARDUPILOT_HOME}/build/sitl/bin/arduplane"
-fi
 if command -v arduplane >/dev/null 2>&1; then
   binary="$(command -v arduplane)"
 fi
+if [[ -n "${ARDUPILOT_HOME:-}" && -x "${ARDUPILOT_HOME}/build/sitl/bin/arduplane" ]]; then
+  binary="${ARDUPILOT_HOME}/build/sitl/bin/arduplane"  # an explicit tree wins over PATH
+fi
+
+# The autotest plane defaults of the tree the binary belongs to (models/ today, default_params/
+# before ArduPilot moved them).
+plane_defaults() {
+  local home="${ARDUPILOT_HOME:-}"
+  if [[ -z "$home" && "$binary" == */build/sitl/bin/arduplane ]]; then
+    home="${binary%/build/sitl/bin/arduplane}"
+  fi
+  [[ -n "$home" ]] || return 0
+  for candidate in Tools/autotest/models/plane.parm Tools/autotest/default_params/plane.parm; do
+    if [[ -f "$home/$candidate" ]]; then
+      echo "$home/$candidate"
+      return 0
+    fi
+  done
+}
 
 sim_vehicle_cmd() {
   cmd=(sim_vehicle.py -v ArduPlane --speedup "$speedup" -A "--serial1=${serial1}")
@@ -60,13 +81,18 @@ sim_vehicle_cmd() {
 if command -v sim_vehicle.py >/dev/null 2>&1; then
   sim_vehicle_cmd
 elif [[ -n "$binary" ]]; then
-  defaults=""
-  if [[ -n "${ARDUPILOT_HOME:-}" && -f "${ARDUPILOT_HOME}/Tools/autotest/default_params/plane.parm" ]]; then
-    defaults="${ARDUPILOT_HOME}/Tools/autotest/default_params/plane.parm,"
+  defaults="$(plane_defaults)"
+  if [[ -n "$defaults" ]]; then
+    defaults+=","
+  else
+    echo "run-arduplane.sh: no Tools/autotest/models/plane.parm found (set ARDUPILOT_HOME to the" \
+      "ArduPilot tree); SITL starts without the autotest plane defaults" >&2
   fi
   defaults+="$(IFS=,; echo "${parms[*]}")"
+  serial0="tcp:0"  # SERIAL0 for a GCS, on 5760; ":wait" would hold the boot until one connects
+  if [[ $wait_gcs -eq 1 ]]; then serial0="tcp:0:wait"; fi
   cmd=("$binary" --model plane --speedup "$speedup" --defaults "$defaults"
-       --serial1 "$serial1" -I0)
+       --serial0 "$serial0" --serial1 "$serial1" -I0)
   if [[ $wipe -eq 1 ]]; then cmd+=(-w); fi
 elif [[ $dry_run -eq 1 ]]; then
   # show what to run once ArduPilot is built (Tools/autotest on PATH), and say it is not yet

@@ -68,6 +68,10 @@ GIMBAL_DEVICE_INFORMATION_ID = 283
 REQUEST_INTERVAL_S = 1.0  # ArduPilot re-asks the gimbal device for its information every second
 BOOT_OFFSET_S = 1.0  # the simulated autopilot "booted" this long before the stream starts
 MAX_IDLE_WAIT_S = 0.01
+#: SERVO_OUTPUT_RAW rate of current ArduPlane on SERIAL1 with default parameters (MAV2_RC_CHAN,
+#: measured on a real SITL build): what a companion gets unless it asks with
+#: SET_MESSAGE_INTERVAL. Pass it as ``servo_output_rate_hz`` to rehearse an unconfigured port.
+ARDUPILOT_SERIAL1_SERVO_OUTPUT_HZ = 1.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -174,6 +178,10 @@ class AutopilotStream(Background):
         self._gimbal_target = initial_gimbal or GimbalTarget()
         self._gimbal_logged: GimbalTarget | None = None
         self._dropout_until = 0.0
+        #: monotonic time of the (last) boot: the origin of every boot time sent
+        self._boot_at = 0.0
+        self._reboot_after: float | None = None
+        self.reboots = 0
         self._next_request = 0.0
         self._loop = BackgroundLoop(self._run, name="sitl-autopilot")
         self._conn: Any = None
@@ -195,6 +203,7 @@ class AutopilotStream(Background):
                 self.signing_key, sign_outgoing=True, allow_unsigned_callback=lambda *_: True
             )
         self.t0 = time.monotonic()
+        self._boot_at = self.t0
         self._loop.start()
         return self
 
@@ -217,6 +226,12 @@ class AutopilotStream(Background):
         """Go silent now for ``seconds``: no message of any kind leaves the autopilot."""
         self._actions.put(Dropout(seconds))
 
+    def reboot(self, seconds: float = 1.0) -> None:
+        """Reboot like a real autopilot: silent for ``seconds``, then boot time restarts from
+        zero and every SET_MESSAGE_INTERVAL a companion sent is forgotten (rates back to the
+        defaults given at construction)."""
+        self._reboot_after = seconds  # picked up by the thread
+
     def set_servo(self, channel: int, pwm: int) -> None:
         self._actions.put(SetServo(channel, pwm))
 
@@ -232,6 +247,11 @@ class AutopilotStream(Background):
         self, roll: float = 0.0, pitch: float = 0.0, yaw: float = 0.0, flags: int = 0
     ) -> None:
         self._actions.put(GimbalTarget(roll, pitch, yaw, flags))
+
+    def interval_s(self, name: str) -> float | None:
+        """The period this autopilot now sends ``name`` at (None: off), as SET_MESSAGE_INTERVAL
+        and reboots left it."""
+        return self._intervals.get(name)
 
     # ------------------------------------------------------------------ what was commanded
 
@@ -284,6 +304,7 @@ class AutopilotStream(Background):
                 t = now - self.t0
                 if self.duration_s is not None and t >= self.duration_s:
                     break
+                self._reboot_if_asked(now)
                 self._drain_incoming(now)
                 for event in self.script.due(t):
                     self._apply(event.action, now)
@@ -312,6 +333,15 @@ class AutopilotStream(Background):
         except Exception as exc:  # surfaced to tests through .error instead of dying silently
             self.error = exc
             raise
+
+    def _reboot_if_asked(self, now: float) -> None:
+        seconds, self._reboot_after = self._reboot_after, None
+        if seconds is None:
+            return
+        self._dropout_until = max(self._dropout_until, now + seconds)
+        self._boot_at = now + seconds
+        self._intervals = dict(self._defaults)
+        self.reboots += 1
 
     def _wait(self, timeout: float) -> None:
         port = getattr(self._conn, "port", None)
@@ -392,7 +422,7 @@ class AutopilotStream(Background):
 
     def _send_periodic(self, name: str, now: float) -> None:
         m = self._conn.mav
-        boot_s = now - self.t0 + BOOT_OFFSET_S  # type: ignore[operator]
+        boot_s = now - self._boot_at + BOOT_OFFSET_S
         if name == "HEARTBEAT":
             self._send(
                 name,
@@ -561,7 +591,7 @@ class AutopilotStream(Background):
                         now,
                     )
             elif name == "COMMAND_LONG":
-                if self._addressed_to_me(msg):
+                if self._addressed_to_me(msg) and now >= self._boot_at:  # not while rebooting
                     self._handle_command(msg, now)
             elif (
                 name == "GIMBAL_DEVICE_INFORMATION"
