@@ -10,12 +10,16 @@ from mavservo.errors import MavservoError
 
 from .base import NO_FAULT, UNKNOWN, Fault, ServoProfile, ServoState
 from .cubemars import CubeMarsAK
+from .cubemars_mit import CubeMarsAKMit
+from .damiao import DamiaoDM
 from .rmdx import LkTech, RmdX
 
 PROFILES: dict[str, type[ServoProfile]] = {
     RmdX.name: RmdX,
     LkTech.name: LkTech,
     CubeMarsAK.name: CubeMarsAK,
+    CubeMarsAKMit.name: CubeMarsAKMit,
+    DamiaoDM.name: DamiaoDM,
 }
 
 
@@ -42,6 +46,8 @@ __all__ = [
     "PROFILES",
     "UNKNOWN",
     "CubeMarsAK",
+    "CubeMarsAKMit",
+    "DamiaoDM",
     "Fault",
     "LkTech",
     "RmdX",
