@@ -31,15 +31,21 @@ otherwise ignored.
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 import can
 from pydantic import BaseModel, ConfigDict, Field
 
 from . import mit
 from .base import ServoProfile, ServoState
-from .cubemars import fault_from_error_code
+from .cubemars import error_code_from_faults, fault_from_error_code
+
+if TYPE_CHECKING:
+    from .base import SimMotor
 
 REPLY_LEN = 8
+ZERO_MUTE_S = 1.0
+"""How long the driver stays silent after a set-zero frame (the manual's "about a second")."""
 
 
 class CubeMarsMitOptions(BaseModel):
@@ -72,13 +78,7 @@ class CubeMarsAKMit(ServoProfile):
         super().__init__(can_id)
         self.options = options or CubeMarsMitOptions()
         o = self.options
-        self.ranges = mit.MitRanges(
-            position_rad=mit.Span.symmetric(o.p_max_rad),
-            velocity_rad_s=mit.Span.symmetric(o.v_max_rad_s),
-            torque_nm=mit.Span.symmetric(o.t_max_nm),
-            kp=mit.Span(0.0, 500.0),
-            kd=mit.Span(0.0, 5.0),
-        )
+        self.ranges = ranges_of(o)
         self.max_angle_deg = math.degrees(o.p_max_rad)
         self.min_angle_deg = -self.max_angle_deg
         self.resolution_deg = math.degrees(mit.step(self.ranges.position_rad, mit.POSITION_BITS))
@@ -117,6 +117,13 @@ class CubeMarsAKMit(ServoProfile):
         """Present position as zero (the motor mutes for about a second; never sent alone)."""
         return self._frame(mit.SET_ZERO)
 
+    @classmethod
+    def sim_device(
+        cls, motor: SimMotor, can_id: int, options: CubeMarsMitOptions | None = None
+    ) -> CubeMarsMitDevice:
+        """The simulated driver (built-in simulation, ``mavservo sim``)."""
+        return CubeMarsMitDevice(motor, can_id, options or CubeMarsMitOptions())
+
     def is_reply(self, msg: can.Message) -> bool:
         return (
             not msg.is_extended_id
@@ -139,4 +146,84 @@ class CubeMarsAKMit(ServoProfile):
             current_a=reply.torque_nm / self.options.torque_constant_nm_per_a,
             temperature_c=float(temperature),
             faults=fault_from_error_code(data[7]),
+        )
+
+
+def ranges_of(options: CubeMarsMitOptions) -> mit.MitRanges:
+    """The MIT ranges of the module ``options`` describe."""
+    return mit.MitRanges(
+        position_rad=mit.Span.symmetric(options.p_max_rad),
+        velocity_rad_s=mit.Span.symmetric(options.v_max_rad_s),
+        torque_nm=mit.Span.symmetric(options.t_max_nm),
+        kp=mit.Span(0.0, 500.0),
+        kd=mit.Span(0.0, 5.0),
+    )
+
+
+class CubeMarsMitDevice:
+    """The driver side of an AK module in MIT mode, on a SimMotor.
+
+    Out of motor mode (as it powers up, and after ``FD``) it ignores commands and does not
+    answer them; ``FC`` enters motor mode and is always answered with the state; ``FE`` zeroes
+    the position and mutes the driver for about a second. The communication timeout of this
+    firmware is set with CubeMars' R-Link tool, not over CAN, so the simulated driver has none.
+    """
+
+    pushes = False
+
+    def __init__(self, motor: SimMotor, can_id: int, options: CubeMarsMitOptions) -> None:
+        self.motor = motor
+        self.can_id = can_id
+        self.options = options
+        self.ranges = ranges_of(options)
+        self.muted_until = -math.inf
+
+    def accepts(self, msg: can.Message) -> bool:
+        return (
+            not msg.is_extended_id
+            and not msg.is_remote_frame
+            and msg.arbitration_id == self.can_id
+            and len(msg.data) == 8
+        )
+
+    def handle(self, msg: can.Message, now: float) -> list[can.Message]:
+        data = bytes(msg.data)
+        if mit.is_special(data):
+            code = data[7]
+            if code == mit.ENTER_MOTOR_MODE[7]:
+                self.motor.enable(now)
+            elif code == mit.EXIT_MOTOR_MODE[7]:
+                self.motor.disable(now)
+            elif code == mit.SET_ZERO[7]:
+                self.motor.set_zero(now)
+                self.muted_until = now + ZERO_MUTE_S
+        elif self.motor.enabled:
+            command = mit.unpack_command(data, self.ranges)
+            self.motor.command_position(math.degrees(command.position_rad), None, now)
+        else:
+            return []
+        return [] if now < self.muted_until else [self.reply()]
+
+    def status(self, now: float) -> list[can.Message]:
+        return []
+
+    def tick(self, now: float) -> None:
+        return None
+
+    def reply(self) -> can.Message:
+        motor = self.motor
+        torque = motor.measured_current_a() * self.options.torque_constant_nm_per_a
+        body = mit.pack_reply(
+            self.can_id,
+            math.radians(motor.position_deg),
+            math.radians(motor.velocity_dps),
+            torque,
+            self.ranges,
+        )
+        temperature = max(-128, min(127, round(motor.temperature_c))) & 0xFF
+        error = error_code_from_faults(motor.active_faults)
+        return can.Message(
+            arbitration_id=self.options.master_id,
+            is_extended_id=False,
+            data=body + bytes([temperature, error]),
         )
