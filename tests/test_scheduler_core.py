@@ -41,6 +41,13 @@ class PushServo(ServoProfile):
     def decode(self, msg, timestamp):  # not used by the core
         return None
 
+    def identifiers(self):  # not used by the core
+        return ()
+
+    @classmethod
+    def sim_device(cls, motor, can_id, options):  # not used by the core
+        raise NotImplementedError
+
 
 def rmd(n: int, **kwargs) -> list[ServoSpec]:
     return [ServoSpec(f"s{i}", RmdX(i), **kwargs) for i in range(1, n + 1)]

@@ -32,7 +32,7 @@ from mavservo.records.metrics import round_trip_figures
 from mavservo.records.runlog import RunLog, new_run_dir
 from mavservo.scheduling.core import FrameKind, ServoSpec, TimingConfig
 from mavservo.scheduling.runner import Scheduler, SchedulerObserver
-from mavservo.servos import ServoState, get_profile
+from mavservo.servos import ServoState
 from mavservo.sim.adapter import AdapterEmulator
 from mavservo.sim.servo import simulated_servos
 from mavservo.transport.resilient_bus import ResilientBus
@@ -104,7 +104,7 @@ def servo_specs(config: Config, bus_name: str) -> list[ServoSpec]:
     return [
         ServoSpec(
             name=s.name,
-            profile=get_profile(s.profile)(s.can_id),
+            profile=s.make_profile(),
             command_mode=s.command_mode,
             telemetry_hz=s.telemetry_hz,
             max_speed_dps=s.max_speed_dps,

@@ -47,10 +47,8 @@ def telemetry_rate_hz(servo: ServoConfig, timing: SchedulerConfig) -> float:
 
 
 def profile_of(servo: ServoConfig) -> ServoProfile:
-    """The servo's profile instance: the frames it is sent and answers with."""
-    from mavservo.servos import get_profile  # imported late: the profiles are a separate layer
-
-    return get_profile(servo.profile)(servo.can_id)
+    """The servo's profile instance (its id and options): the frames it is sent and answers."""
+    return servo.make_profile()
 
 
 def is_polled(profile: ServoProfile) -> bool:

@@ -132,7 +132,7 @@ def _pydantic_problems(exc: ValidationError, document: YamlDocument) -> list[Pro
     errors = exc.errors(include_url=False)
     typos = _unknown_keys(errors, document)
     merged: dict[tuple[tuple[str | int, ...], int | None], list[str]] = {}
-    for error in errors:
+    for error in _expand_option_errors(errors):
         loc = tuple(error["loc"])
         if error["type"] == "union_tag_invalid":
             loc = loc + ("source",)
@@ -146,6 +146,22 @@ def _pydantic_problems(exc: ValidationError, document: YamlDocument) -> list[Pro
         if message not in messages:
             messages.append(message)
     return [Problem(path, line, " or ".join(messages)) for (path, line), messages in merged.items()]
+
+
+def _expand_option_errors(errors: list[Any]) -> list[Any]:
+    """A servo's ``options`` problems (checked by its profile's model, see
+    :func:`mavservo.config.schema.options_problems`) become one error per option key, so each
+    is printed on the line of its key."""
+    out: list[Any] = []
+    for error in errors:
+        ctx = error.get("ctx") or {}
+        if error["type"] != "profile_options" or "problems" not in ctx:
+            out.append(error)
+            continue
+        for key, message in ctx["problems"]:
+            loc = (*error["loc"], "options", *key.split("."))
+            out.append({"type": "value_error", "loc": loc, "msg": message, "input": None})
+    return out
 
 
 def _unknown_keys(

@@ -13,19 +13,23 @@ from __future__ import annotations
 import re
 from pathlib import Path
 from typing import Annotated, Any, Literal
+from typing import get_args as typing_args
 
 from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
     Strict,
+    ValidationError,
     ValidationInfo,
     field_validator,
     model_validator,
 )
+from pydantic_core import PydanticCustomError
 
 from mavservo.config.smallfile import SmallFileError, read_small_file
 from mavservo.config.urls import url_problem
+from mavservo.servos import ProfileOptions, ServoProfile, get_profile
 from mavservo.transport.aa55.codec import BITRATE_CODES
 
 #: YAML reads ``yes``/``no``/``on``/``off`` as booleans and a quoted ``"3.0"`` as a string, and
@@ -293,15 +297,17 @@ class FailsafeConfig(StrictModel):
         return self
 
 
-ProfileName = Literal["rmd-x", "lk", "cubemars-ak"]
-
-
 class ServoConfig(StrictModel):
-    """One CAN servo. ``bus`` may be omitted when there is exactly one bus."""
+    """One CAN servo. ``bus`` may be omitted when there is exactly one bus.
+
+    ``profile`` is any name the profile registry knows (built-in or plug-in), ``can_id`` must be
+    in that profile's id range, and ``options`` is checked by the profile's own ``Options``
+    model (:func:`options_problems` gives each problem its key, so the loader prints its line).
+    """
 
     name: Name
-    profile: ProfileName
-    can_id: Int = Field(ge=0, le=0x7FF)
+    profile: str
+    can_id: Int = Field(ge=0, le=0x1FFFFFFF)
     bus: Name | None = None
     max_speed_dps: Float = Field(360.0, gt=0)
     limits_deg: AngleRange = (-180.0, 180.0)
@@ -309,20 +315,53 @@ class ServoConfig(StrictModel):
     command_mode: Literal["periodic", "immediate"] = "periodic"
     telemetry_hz: Float = Field(10.0, gt=0)
     failsafe: FailsafeConfig = FailsafeConfig()
+    options: dict[str, Any] = Field(default_factory=dict)
 
     @field_validator("limits_deg")
     @classmethod
     def _limits_ordered(cls, value: AngleRange) -> AngleRange:
         return _ordered_pair(value, "limits_deg")
 
+    @field_validator("profile")
+    @classmethod
+    def _registered_profile(cls, value: str) -> str:
+        get_profile(value)  # raises with the known names and where plug-ins come from
+        return value
+
     @field_validator("can_id")
     @classmethod
     def _id_fits_profile(cls, value: int, info: ValidationInfo) -> int:
-        profile = info.data.get("profile")
-        top = PROFILE_MAX_CAN_ID.get(profile) if profile else None
-        if top is not None and not 1 <= value <= top:
-            raise ValueError(f"a {profile} servo id must be in 1..{top}, got {value}")
+        name = info.data.get("profile")
+        if name is None:
+            return value  # reported as an unknown profile
+        profile = get_profile(name)
+        if not profile.min_id <= value <= profile.max_id:
+            raise ValueError(
+                f"a {name} servo id must be in {profile.min_id}..{profile.max_id}, got {value}"
+            )
         return value
+
+    @model_validator(mode="after")
+    def _options_valid(self) -> ServoConfig:
+        problems = options_problems(self.profile, self.options)
+        if problems:
+            raise PydanticCustomError(
+                "profile_options",
+                "{summary}",
+                {
+                    "summary": "; ".join(f"options.{k}: {m}" for k, m in problems),
+                    "problems": problems,
+                },
+            )
+        return self
+
+    def profile_options(self) -> ProfileOptions:
+        """The validated ``options`` as the profile's ``Options`` instance."""
+        return get_profile(self.profile).Options.model_validate(self.options)
+
+    def make_profile(self) -> ServoProfile:
+        """A profile instance for this servo: its id and options."""
+        return get_profile(self.profile)(self.can_id, self.profile_options())
 
     @model_validator(mode="after")
     def _angles_inside_limits(self) -> ServoConfig:
@@ -334,9 +373,53 @@ class ServoConfig(StrictModel):
         return self
 
 
-#: Largest servo id each profile can address (RMD/LK: 0x140 + id must stay below 0x180 replies;
-#: CubeMars: the low byte of the extended id).
-PROFILE_MAX_CAN_ID: dict[str, int] = {"rmd-x": 32, "lk": 32, "cubemars-ak": 255}
+def options_problems(profile: str, options: dict[str, Any]) -> list[tuple[str, str]]:
+    """``(key, message)`` for every problem of a servo's ``options`` under its profile's
+    ``Options``: the key, what is wrong, the value found and the allowed keys or range."""
+    model = get_profile(profile).Options
+    try:
+        model.model_validate(options)
+    except ValidationError as exc:
+        return [_option_problem(model, error) for error in exc.errors(include_url=False)]
+    return []
+
+
+def _option_problem(model: type[BaseModel], error: Any) -> tuple[str, str]:
+    key = ".".join(str(part) for part in error["loc"]) or "options"
+    field = model.model_fields.get(str(error["loc"][0])) if error["loc"] else None
+    if error["type"] == "extra_forbidden":
+        allowed = ", ".join(model.model_fields) or "none (this profile takes no options)"
+        return key, f"unknown option {key!r}; allowed options: {allowed}"
+    message = f"{error['msg']}, found {error.get('input')!r}"
+    if field is not None:
+        message += f" (allowed: {_allowed(field)}; default {field.default!r})"
+    return key, message
+
+
+def _allowed(field: Any) -> str:
+    """A field's bounds as ``1..40`` or ``> 0``, its choices, or its type."""
+    low = high = None
+    low_open = high_open = False
+    for rule in field.metadata:
+        for attr, is_low, is_open in (("ge", 1, 0), ("gt", 1, 1), ("le", 0, 0), ("lt", 0, 1)):
+            value = getattr(rule, attr, None)
+            if value is None:
+                continue
+            if is_low:
+                low, low_open = value, bool(is_open)
+            else:
+                high, high_open = value, bool(is_open)
+    annotation = getattr(field.annotation, "__name__", str(field.annotation))
+    choices = [a for a in typing_args(field.annotation) if isinstance(a, str)]
+    if choices:
+        return "one of " + ", ".join(choices)
+    if low is None and high is None:
+        return annotation
+    left = f"{'>' if low_open else '>='} {low}" if low is not None else ""
+    right = f"{'<' if high_open else '<='} {high}" if high is not None else ""
+    if low is not None and high is not None and not low_open and not high_open:
+        return f"{low}..{high}"
+    return " and ".join(part for part in (left, right) if part)
 
 
 # -------------------------------------------------------------------------------------- channels

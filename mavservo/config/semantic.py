@@ -15,28 +15,32 @@ from mavservo.config.schema import (
     ServoConfig,
     ServoOutputChannel,
 )
+from mavservo.servos import FrameId
 
 Finding = tuple[tuple[str | int, ...], str]
 
-#: CubeMars servo-mode command ids are (mode << 8) | id for modes 0..7; replies use 0x29 << 8.
-_CUBEMARS_MODES = range(8)
-_CUBEMARS_REPLY_MODE = 0x29
+
+def can_identifiers(servo: ServoConfig) -> tuple[FrameId, ...]:
+    """Every frame a servo is sent or sends, as its own profile declares them."""
+    return servo.make_profile().identifiers()
 
 
-def can_identifiers(servo: ServoConfig) -> frozenset[tuple[bool, int]]:
-    """Every (extended, arbitration id) a servo sends or answers on, from its profile's layout.
+def first_overlap(
+    mine: tuple[FrameId, ...], theirs: tuple[FrameId, ...], same_family: bool
+) -> tuple[FrameId, FrameId] | None:
+    """The first pair of identifiers some frame could be taken for both of, or None.
 
-    RMD-X requests on 0x140+N and replies on 0x240+N; LK uses 0x140+N both ways; CubeMars uses
-    extended ids (mode << 8) | N. Two servos whose sets intersect cannot share a bus.
+    Any direction counts: one's request that the other would take for its reply is as wrong as
+    two servos pushing on one id. A broadcast every servo of one family shares is not a clash
+    between two servos of that family.
     """
-    n = servo.can_id
-    if servo.profile == "rmd-x":
-        return frozenset({(False, 0x140 + n), (False, 0x240 + n)})
-    if servo.profile == "lk":
-        return frozenset({(False, 0x140 + n)})
-    ids = {(True, (mode << 8) | n) for mode in _CUBEMARS_MODES}
-    ids.add((True, (_CUBEMARS_REPLY_MODE << 8) | n))
-    return frozenset(ids)
+    for a in mine:
+        for b in theirs:
+            if same_family and a.shared and b.shared:
+                continue
+            if a.overlaps(b):
+                return a, b
+    return None
 
 
 def cross_checks(config: Config) -> list[Finding]:
@@ -147,29 +151,37 @@ def _servo_buses(config: Config) -> Iterator[Finding]:
 
 
 def _can_id_collisions(config: Config) -> Iterator[Finding]:
+    """Every pair of servos of one bus whose frames could be taken for each other's."""
     bus_names = {bus.name for bus in config.can.buses}
-    claimed: dict[tuple[str, bool, int], int] = {}
+    seen: list[tuple[int, str, tuple[FrameId, ...]]] = []
     for index, servo in enumerate(config.servos):
         bus = servo.bus if servo.bus is not None else config.can.buses[0].name
         if bus not in bus_names:
             continue  # reported by _servo_buses
-        clash = None
-        for extended, ident in sorted(can_identifiers(servo)):
-            owner = claimed.get((bus, extended, ident))
-            if owner is not None and clash is None:
-                clash = (owner, ident)
-        if clash is not None:
-            owner, ident = clash
+        mine = can_identifiers(servo)
+        for owner, owner_bus, theirs in seen:
             other = config.servos[owner]
-            yield (
-                ("servos", index, "can_id"),
-                f"CAN id {servo.can_id} ({servo.profile}) collides on bus {bus!r} with "
-                f"servos[{owner}] {other.name!r} ({other.profile} id {other.can_id}): both "
-                f"use arbitration id 0x{ident:X}",
-            )
-            continue
-        for extended, ident in can_identifiers(servo):
-            claimed[(bus, extended, ident)] = index
+            clash = owner_bus == bus and first_overlap(mine, theirs, other.profile == servo.profile)
+            if clash:
+                yield (("servos", index, "can_id"), _collision_message(servo, other, owner, clash))
+        seen.append((index, bus, mine))
+
+
+def _collision_message(
+    servo: ServoConfig, other: ServoConfig, owner: int, clash: tuple[FrameId, FrameId]
+) -> str:
+    mine, theirs = clash
+    return (
+        f"servo {servo.name!r} ({servo.profile} id {servo.can_id}) collides on its bus with "
+        f"servos[{owner}] {other.name!r} ({other.profile} id {other.can_id}): its "
+        f"{mine.purpose} {_direction(mine)} on {mine.describe()} and the {theirs.purpose} "
+        f"{_direction(theirs)} of {other.name!r} on {theirs.describe()} can be taken for each "
+        "other; change one of the ids or put them on different buses"
+    )
+
+
+def _direction(frame: FrameId) -> str:
+    return "to the servo" if frame.direction == "to_servo" else "from the servo"
 
 
 def _failsafe_positions(config: Config) -> Iterator[Finding]:

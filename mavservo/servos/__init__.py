@@ -1,45 +1,29 @@
 """Servo profiles: setpoints <-> CAN payloads, pure functions of their inputs.
 
-Adding a servo family is one module with a :class:`ServoProfile` subclass and one entry in
-:data:`PROFILES`; the YAML config names profiles by these short strings.
+A servo family is one module with a :class:`ServoProfile` subclass that describes itself (see
+``docs/profiles.md``): built-in families are listed in :mod:`mavservo.servos.registry`, other
+packages register through the entry-point group ``mavservo.profiles``. The YAML config names
+profiles by their short ``name``.
 """
 
 from __future__ import annotations
 
-from mavservo.errors import MavservoError
-
-from .base import NO_FAULT, UNKNOWN, Fault, ServoProfile, ServoState
+from .base import (
+    NO_FAULT,
+    UNKNOWN,
+    Fault,
+    FrameId,
+    ProfileOptions,
+    ServoProfile,
+    ServoState,
+    SimDevice,
+    SimMotor,
+)
 from .cubemars import CubeMarsAK
 from .cubemars_mit import CubeMarsAKMit
 from .damiao import DamiaoDM
+from .registry import PROFILES, UnknownProfileError, get_profile, load_errors, profiles
 from .rmdx import LkTech, RmdX
-
-PROFILES: dict[str, type[ServoProfile]] = {
-    RmdX.name: RmdX,
-    LkTech.name: LkTech,
-    CubeMarsAK.name: CubeMarsAK,
-    CubeMarsAKMit.name: CubeMarsAKMit,
-    DamiaoDM.name: DamiaoDM,
-}
-
-
-class UnknownProfileError(MavservoError, KeyError, ValueError):
-    """A YAML or CLI name that no profile answers to (a KeyError and a ValueError, so both
-    dictionary-style and validation-style callers catch it)."""
-
-    def __str__(self) -> str:
-        return str(self.args[0]) if self.args else ""
-
-
-def get_profile(name: str) -> type[ServoProfile]:
-    """The profile class for a YAML name; the error lists the names that do exist."""
-    try:
-        return PROFILES[name]
-    except KeyError:
-        known = ", ".join(sorted(PROFILES))
-        message = f"unknown servo profile {name!r}; known profiles: {known}"
-        raise UnknownProfileError(message) from None
-
 
 __all__ = [
     "NO_FAULT",
@@ -49,10 +33,16 @@ __all__ = [
     "CubeMarsAKMit",
     "DamiaoDM",
     "Fault",
+    "FrameId",
     "LkTech",
+    "ProfileOptions",
     "RmdX",
     "ServoProfile",
     "ServoState",
+    "SimDevice",
+    "SimMotor",
     "UnknownProfileError",
     "get_profile",
+    "load_errors",
+    "profiles",
 ]

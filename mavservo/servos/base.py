@@ -1,9 +1,10 @@
 """The common vocabulary of every servo profile: state, faults, and the profile contract.
 
-A profile is the only place that knows what a servo's CAN payload means. Everything above it
-(scheduler, MAVLink telemetry) deals in :class:`ServoState` and :class:`Fault`, so adding a servo
-family never touches those layers. Profiles are pure: no I/O, no threads, no clock; the receive
-time of a reply is handed in by the caller.
+A profile is the only place that knows what a servo's CAN payload means, and it describes itself
+(ids, options, lifecycle frames, telemetry shape, simulated device), so nothing above it (schema,
+``check``, the bus-load budget, the scheduler, the simulator) keeps a copy of its facts. The
+contract is written down in ``docs/profiles.md``. Everything above deals in :class:`ServoState`
+and :class:`Fault`. Profiles are pure: no I/O, no threads, no clock; times are handed in.
 """
 
 from __future__ import annotations
@@ -13,8 +14,10 @@ import math
 from abc import ABC, abstractmethod
 from collections.abc import Hashable
 from dataclasses import dataclass, replace
+from typing import Any, ClassVar, Literal, Protocol
 
 import can
+from pydantic import BaseModel, ConfigDict
 
 UNKNOWN = math.nan
 """Value of a field that no reply has reported yet (NaN, so it never passes for a reading)."""
@@ -80,6 +83,123 @@ class ServoState:
         return replace(self, faults=faults)
 
 
+@dataclass(frozen=True)
+class FrameId:
+    """One CAN identifier a servo is sent or sends, for collision checks (``docs/profiles.md``).
+
+    ``id_mask`` keeps the id bits that identify the frame (-1: all of them); ``first_byte`` is
+    ``(value, mask)`` on ``data[0]`` for families that name the servo in the payload; ``shared``
+    marks a broadcast every servo of the family on the bus shares (not a collision between them).
+    """
+
+    arbitration_id: int
+    extended: bool
+    direction: Literal["to_servo", "from_servo"]
+    purpose: str
+    id_mask: int = -1
+    first_byte: tuple[int, int] | None = None
+    shared: bool = False
+
+    def matches(self, msg: can.Message) -> bool:
+        """True if ``msg`` is a frame this identifier describes."""
+        if bool(msg.is_extended_id) != self.extended:
+            return False
+        mask = self.id_mask & (0x1FFFFFFF if self.extended else 0x7FF)
+        if (msg.arbitration_id ^ self.arbitration_id) & mask:
+            return False
+        if self.first_byte is not None:
+            value, byte_mask = self.first_byte
+            if not msg.data or (msg.data[0] ^ value) & byte_mask:
+                return False
+        return True
+
+    def overlaps(self, other: FrameId) -> bool:
+        """True when some frame could be taken for both (same format, agreeing on every id bit
+        and first-byte bit both keep)."""
+        if self.extended != other.extended:
+            return False
+        mask = self.id_mask & other.id_mask & (0x1FFFFFFF if self.extended else 0x7FF)
+        if (self.arbitration_id ^ other.arbitration_id) & mask:
+            return False
+        if self.first_byte is not None and other.first_byte is not None:
+            (a, a_mask), (b, b_mask) = self.first_byte, other.first_byte
+            if (a ^ b) & a_mask & b_mask:
+                return False
+        return True
+
+    def describe(self) -> str:
+        """``0x141 (std)`` or ``0x2901 (ext)``, plus the byte filter, for messages."""
+        text = f"0x{self.arbitration_id:X} ({'ext' if self.extended else 'std'})"
+        if self.id_mask != -1:
+            text += f" mask 0x{self.id_mask & 0x1FFFFFFF:X}"
+        if self.first_byte is not None:
+            text += f" data[0]=0x{self.first_byte[0]:02X}/0x{self.first_byte[1]:02X}"
+        return text
+
+
+class ProfileOptions(BaseModel):
+    """Base of every profile's per-servo ``options:`` model.
+
+    Unknown keys are refused (a typo must not leave a servo on a default), numbers are strict
+    (YAML ``yes`` is not 1) and finite, instances are immutable. Every field needs a safe default,
+    its unit in its name or description, and bounds (``Field(ge=..., le=...)``).
+    """
+
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
+
+
+class SimMotor(Protocol):
+    """The simulated motor a :class:`SimDevice` drives (``mavservo.sim.servo.SimServo``)."""
+
+    can_id: int
+    position_deg: float
+    velocity_dps: float
+    temperature_c: float
+    enabled: bool
+
+    @property
+    def voltage_v(self) -> float: ...
+
+    @property
+    def active_faults(self) -> Fault: ...
+
+    def measured_current_a(self) -> float: ...
+
+    def command_position(
+        self,
+        angle_deg: float,
+        speed_dps: float | None,
+        now: float,
+        accel_dps2: float | None = None,
+    ) -> None: ...
+
+    def enable(self, now: float) -> None: ...
+
+    def disable(self, now: float) -> None: ...
+
+    def set_zero(self, now: float) -> None: ...
+
+
+class SimDevice(Protocol):
+    """The device side of a profile: what the real servo answers to the frames it accepts."""
+
+    pushes: bool
+    """True: :meth:`status` is called at the servo's telemetry rate."""
+
+    def accepts(self, msg: can.Message) -> bool: ...
+
+    def handle(self, msg: can.Message, now: float) -> list[can.Message]: ...
+
+    def status(self, now: float) -> list[can.Message]: ...
+
+    def tick(self, now: float) -> None: ...
+
+
+def clamp_int(value: float, low: int, high: int) -> int:
+    """``value`` as an int saturated to a field's range (simulated devices fill fields with it)."""
+    return max(low, min(high, int(value)))
+
+
 class ServoProfile(ABC):
     """Translate setpoints into CAN frames and CAN frames into :class:`ServoState`.
 
@@ -89,7 +209,12 @@ class ServoProfile(ABC):
     """
 
     name: str = ""
-    """Short name used in YAML (``rmd-x``, ``lk``, ``cubemars-ak``)."""
+    """Short name used in YAML (``rmd-x``, ``lk``, ``cubemars-ak``), lower case, unique."""
+    Options: ClassVar[type[ProfileOptions]] = ProfileOptions
+    """The per-servo ``options:`` model (no options: the empty base)."""
+    telemetry: ClassVar[Literal["polled", "pushed"]] = "polled"
+    """Polled: the scheduler sends :meth:`telemetry_requests`; pushed: the servo reports on its
+    own at its ``telemetry_hz``, and is offline after silence whether commanded or not."""
     resolution_deg: float = 1.0
     """Finest position step the servo's regular telemetry reply can express."""
     replies_per_command: int = 1
@@ -102,12 +227,53 @@ class ServoProfile(ABC):
     max_angle_deg: float = math.inf
     max_speed_dps: float = math.inf
 
-    def __init__(self, can_id: int) -> None:
+    def __init__(
+        self, can_id: int, options: ProfileOptions | None = None, **overrides: Any
+    ) -> None:
+        """``options``: an instance of :attr:`Options` (None: every default); ``overrides``:
+        option fields by keyword (validated by :attr:`Options`), for tests and scripts."""
         if not self.min_id <= can_id <= self.max_id:
             raise ValueError(f"{self.name}: servo id {can_id} outside {self.min_id}..{self.max_id}")
         self.can_id = can_id
+        self.options = self._options(options, overrides)
         self.last_state: ServoState | None = None
         """The last decoded state, or None before the first reply."""
+
+    @classmethod
+    def _options(cls, options: ProfileOptions | None, overrides: dict[str, Any]) -> Any:
+        """The validated options: ``options`` (or the defaults) with ``overrides`` applied."""
+        if options is not None and not isinstance(options, cls.Options):
+            raise TypeError(f"{cls.name}: options must be {cls.Options.__name__}")
+        if not overrides:
+            return options if options is not None else cls.Options()
+        base = options.model_dump() if options is not None else {}
+        return cls.Options.model_validate({**base, **overrides})
+
+    @abstractmethod
+    def identifiers(self) -> tuple[FrameId, ...]:
+        """Every frame the bridge sends to this servo and the servo sends (collision checks)."""
+
+    def startup_frames(self) -> list[can.Message]:
+        """Sent before the first command and again when :meth:`needs_startup` turns true:
+        enable, mode, the servo's own communication-loss timeout. Default: none."""
+        return []
+
+    def needs_startup(self) -> bool:
+        """True after a decoded reply says the servo is disabled or timed out by itself."""
+        return False
+
+    def release_frames(self) -> list[can.Message]:
+        """Motor off (torque free): what ``failsafe: release`` sends. Empty: cannot release."""
+        return []
+
+    def shutdown_frames(self) -> list[can.Message]:
+        """Sent once when the bridge stops, after the failsafe action. Default: none."""
+        return []
+
+    @classmethod
+    @abstractmethod
+    def sim_device(cls, motor: SimMotor, can_id: int, options: ProfileOptions) -> SimDevice:
+        """The device side for the built-in simulation and ``mavservo sim``."""
 
     def _merge(
         self,

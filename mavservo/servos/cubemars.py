@@ -10,7 +10,12 @@ Wire facts (extended 29-bit IDs, big-endian):
   6 phase imbalance.
 
 Speeds travel as electrical RPM. ``erpm_per_dps`` converts (``pole_pairs / 6`` for a speed in
-the same shaft frame as the position; the default is the AK80-9's 21 pole pairs).
+the same shaft frame as the position). The pole pairs are per model: the ``model`` option names
+an AK model (its pole pairs from :data:`MODEL_POLE_PAIRS`), ``pole_pairs`` overrides it; the
+default is the AK80-9's 21.
+
+Servo mode has no motor-off or enable command, so the profile has no lifecycle frames and
+``failsafe: release`` is refused for it.
 
 Range policy: angles outside the documented +-36000 deg raise ``ValueError``; speed limits
 saturate at what the int16 field can carry; a position command without a speed limit uses
@@ -20,10 +25,22 @@ mode 4 (the servo's own configured speed).
 from __future__ import annotations
 
 import struct
+from typing import Literal
 
 import can
+from pydantic import Field
 
-from .base import NO_FAULT, Fault, ServoProfile, ServoState
+from .base import (
+    NO_FAULT,
+    Fault,
+    FrameId,
+    ProfileOptions,
+    ServoProfile,
+    ServoState,
+    SimDevice,
+    SimMotor,
+    clamp_int,
+)
 
 MODE_POSITION = 4
 MODE_POSITION_SPEED = 6
@@ -39,6 +56,22 @@ ERROR_CODES: dict[int, Fault] = {
 }
 
 DEFAULT_POLE_PAIRS = 21
+
+MODEL_POLE_PAIRS: dict[str, int] = {
+    "AK10-9": 21,
+    "AK60-6": 14,
+    "AK70-10": 21,
+    "AK80-6": 21,
+    "AK80-8": 21,
+    "AK80-9": 21,
+    "AK80-64": 21,
+}
+"""Pole pairs of the AK models (CubeMars AK series manual, motor parameters table)."""
+
+ModelName = Literal["AK10-9", "AK60-6", "AK70-10", "AK80-6", "AK80-8", "AK80-9", "AK80-64"]
+
+COMMAND_MODES = range(8)
+"""Servo-mode command modes 0..7 ((mode << 8) | id): the ids a servo of this id listens on."""
 
 
 def fault_from_error_code(code: int) -> Fault:
@@ -60,10 +93,29 @@ def command_id(mode: int, can_id: int) -> int:
     return (mode << 8) | can_id
 
 
+class CubeMarsOptions(ProfileOptions):
+    """Per-servo options of CubeMars AK servo mode."""
+
+    model: ModelName = Field("AK80-9", description="the AK model: sets the pole pairs")
+    pole_pairs: int | None = Field(
+        None, ge=1, le=64, description="motor pole pairs (null: the model's); speeds are ERPM"
+    )
+    accel_dps2: float = Field(
+        3600.0, gt=0, le=1_000_000, description="acceleration limit sent with a speed (deg/s^2)"
+    )
+
+    def resolved_pole_pairs(self) -> int:
+        """``pole_pairs`` if set, else the model's."""
+        return self.pole_pairs if self.pole_pairs is not None else MODEL_POLE_PAIRS[self.model]
+
+
 class CubeMarsAK(ServoProfile):
     """CubeMars AK servo mode: push-style status, so ``telemetry_requests()`` is empty."""
 
     name = "cubemars-ak"
+    Options = CubeMarsOptions
+    options: CubeMarsOptions
+    telemetry = "pushed"
     resolution_deg = 0.1
     replies_per_command = 1
     """The real servo only pushes at its rate; the simulator also answers each command, and
@@ -72,21 +124,28 @@ class CubeMarsAK(ServoProfile):
     min_id, max_id = 0, 255
     min_angle_deg, max_angle_deg = -36000.0, 36000.0
 
-    def __init__(
-        self,
-        can_id: int,
-        *,
-        erpm_per_dps: float = DEFAULT_POLE_PAIRS / 6,
-        accel_dps2: float = 3600.0,
-    ) -> None:
-        super().__init__(can_id)
-        self.erpm_per_dps = erpm_per_dps
-        self.accel_dps2 = accel_dps2
-        self.max_speed_dps = 32767 * 10 / erpm_per_dps
+    def __init__(self, can_id: int, options: ProfileOptions | None = None, **overrides: object):
+        super().__init__(can_id, options, **overrides)
+        self.erpm_per_dps = erpm_per_dps(self.options)
+        self.accel_dps2 = self.options.accel_dps2
+        self.max_speed_dps = 32767 * 10 / self.erpm_per_dps
 
     @property
     def status_id(self) -> int:
         return STATUS_BASE | self.can_id
+
+    def identifiers(self) -> tuple[FrameId, ...]:
+        """The servo listens on every servo-mode command id of its id; it pushes on 0x29xx."""
+        commands = tuple(
+            FrameId(command_id(mode, self.can_id), True, "to_servo", "command")
+            for mode in COMMAND_MODES
+        )
+        return (*commands, FrameId(self.status_id, True, "from_servo", "push"))
+
+    @classmethod
+    def sim_device(cls, motor: SimMotor, can_id: int, options: ProfileOptions) -> SimDevice:
+        assert isinstance(options, CubeMarsOptions)
+        return CubeMarsDevice(motor, can_id, erpm_per_dps(options))
 
     def position_command(self, angle_deg: float, max_speed_dps: float | None = None) -> can.Message:
         self._check_angle(angle_deg)
@@ -139,3 +198,61 @@ class CubeMarsAK(ServoProfile):
             temperature_c=float(temperature),
             faults=fault_from_error_code(error),
         )
+
+
+def erpm_per_dps(options: CubeMarsOptions) -> float:
+    """Electrical RPM per shaft degree per second: pole pairs / 6."""
+    return options.resolved_pole_pairs() / 6
+
+
+class CubeMarsDevice:
+    """Device side of CubeMars AK servo mode: obeys modes 4 and 6, pushes status (and, as the
+    bridge's simulation always has, answers each command with a status frame)."""
+
+    pushes = True
+
+    def __init__(self, motor: SimMotor, can_id: int, erpm_per_dps: float) -> None:
+        self.motor = motor
+        self.can_id = can_id
+        self.erpm_per_dps = erpm_per_dps
+        self.status_id = STATUS_BASE | can_id
+
+    def accepts(self, msg: can.Message) -> bool:
+        mode = msg.arbitration_id >> 8
+        return (
+            msg.is_extended_id
+            and msg.arbitration_id & 0xFF == self.can_id
+            and (
+                (mode == MODE_POSITION and len(msg.data) == 4)
+                or (mode == MODE_POSITION_SPEED and len(msg.data) == 8)
+            )
+        )
+
+    def handle(self, msg: can.Message, now: float) -> list[can.Message]:
+        data = bytes(msg.data)
+        motor = self.motor
+        if msg.arbitration_id >> 8 == MODE_POSITION:
+            (position,) = struct.unpack(">i", data)
+            motor.command_position(position / 10_000, None, now)
+        else:
+            position, speed, accel = struct.unpack(">ihh", data)
+            per = self.erpm_per_dps
+            motor.command_position(
+                position / 10_000, abs(speed) * 10 / per, now, abs(accel) * 10 / per
+            )
+        return self.status(now)
+
+    def status(self, now: float) -> list[can.Message]:
+        motor = self.motor
+        payload = struct.pack(
+            ">hhhbB",
+            clamp_int(round(motor.position_deg * 10), -32768, 32767),
+            clamp_int(round(motor.velocity_dps * self.erpm_per_dps / 10), -32768, 32767),
+            clamp_int(round(motor.measured_current_a() * 100), -32768, 32767),
+            clamp_int(round(motor.temperature_c), -128, 127),
+            error_code_from_faults(motor.active_faults),
+        )
+        return [can.Message(arbitration_id=self.status_id, is_extended_id=True, data=payload)]
+
+    def tick(self, now: float) -> None:
+        return None

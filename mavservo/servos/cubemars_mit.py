@@ -31,27 +31,22 @@ otherwise ignored.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import ClassVar
 
 import can
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
 from . import mit
-from .base import ServoProfile, ServoState
+from .base import FrameId, ProfileOptions, ServoProfile, ServoState, SimDevice, SimMotor
 from .cubemars import error_code_from_faults, fault_from_error_code
-
-if TYPE_CHECKING:
-    from .base import SimMotor
 
 REPLY_LEN = 8
 ZERO_MUTE_S = 1.0
 """How long the driver stays silent after a set-zero frame (the manual's "about a second")."""
 
 
-class CubeMarsMitOptions(BaseModel):
+class CubeMarsMitOptions(ProfileOptions):
     """Per-servo ``options:`` of an AK module in MIT mode. Defaults are an AK80-9's."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
     master_id: int = Field(0, ge=0, le=0x7FF, description="standard id the driver answers on")
     p_max_rad: float = Field(12.5, gt=0, le=1000, description="position range +-rad")
@@ -71,12 +66,12 @@ class CubeMarsAKMit(ServoProfile):
     replies_per_command = 1
     replies_per_request = 1
     min_id, max_id = 1, 0x7F
-    Options = CubeMarsMitOptions
+    Options: ClassVar[type[ProfileOptions]] = CubeMarsMitOptions
+    options: CubeMarsMitOptions
     telemetry = "polled"
 
-    def __init__(self, can_id: int, options: CubeMarsMitOptions | None = None) -> None:
-        super().__init__(can_id)
-        self.options = options or CubeMarsMitOptions()
+    def __init__(self, can_id: int, options: ProfileOptions | None = None, **overrides: object):
+        super().__init__(can_id, options, **overrides)
         o = self.options
         self.ranges = ranges_of(o)
         self.max_angle_deg = math.degrees(o.p_max_rad)
@@ -118,11 +113,24 @@ class CubeMarsAKMit(ServoProfile):
         return self._frame(mit.SET_ZERO)
 
     @classmethod
-    def sim_device(
-        cls, motor: SimMotor, can_id: int, options: CubeMarsMitOptions | None = None
-    ) -> CubeMarsMitDevice:
+    def sim_device(cls, motor: SimMotor, can_id: int, options: ProfileOptions) -> SimDevice:
         """The simulated driver (built-in simulation, ``mavservo sim``)."""
-        return CubeMarsMitDevice(motor, can_id, options or CubeMarsMitOptions())
+        assert isinstance(options, CubeMarsMitOptions)
+        return CubeMarsMitDevice(motor, can_id, options)
+
+    def identifiers(self) -> tuple[FrameId, ...]:
+        """Commands, polls and special frames on the id; answers on the master id, byte 0 the
+        driver id."""
+        return (
+            FrameId(self.can_id, False, "to_servo", "command"),
+            FrameId(
+                self.options.master_id,
+                False,
+                "from_servo",
+                "reply",
+                first_byte=(self.can_id, 0xFF),
+            ),
+        )
 
     def is_reply(self, msg: can.Message) -> bool:
         return (
@@ -177,6 +185,7 @@ class CubeMarsMitDevice:
         self.options = options
         self.ranges = ranges_of(options)
         self.muted_until = -math.inf
+        motor.enabled = False  # out of motor mode at power-up: it waits for FF x7 FC
 
     def accepts(self, msg: can.Message) -> bool:
         return (

@@ -40,16 +40,22 @@ from __future__ import annotations
 import math
 import struct
 from collections.abc import Hashable
-from typing import TYPE_CHECKING, Literal
+from typing import ClassVar, Literal
 
 import can
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
 from . import mit
-from .base import NO_FAULT, Fault, ServoProfile, ServoState
-
-if TYPE_CHECKING:
-    from .base import SimMotor
+from .base import (
+    NO_FAULT,
+    Fault,
+    FrameId,
+    ProfileOptions,
+    ServoProfile,
+    ServoState,
+    SimDevice,
+    SimMotor,
+)
 
 REGISTER_ID = 0x7FF
 POSITION_VELOCITY_BASE = 0x100
@@ -92,10 +98,8 @@ def status_from_faults(faults: Fault, enabled: bool) -> int:
     return STATUS_ENABLED if enabled else STATUS_DISABLED
 
 
-class DamiaoOptions(BaseModel):
+class DamiaoOptions(ProfileOptions):
     """Per-servo ``options:`` of a Damiao DM-J motor. Defaults are a DM-J4310-2EC's."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
     mode: Literal["mit", "position-velocity"] = Field(
         "mit", description="control mode, written to CTRL_MODE at start-up"
@@ -130,12 +134,12 @@ class DamiaoDM(ServoProfile):
     replies_per_command = 1
     replies_per_request = 1
     min_id, max_id = 1, 0x7F
-    Options = DamiaoOptions
+    Options: ClassVar[type[ProfileOptions]] = DamiaoOptions
+    options: DamiaoOptions
     telemetry = "polled"
 
-    def __init__(self, can_id: int, options: DamiaoOptions | None = None) -> None:
-        super().__init__(can_id)
-        self.options = options or DamiaoOptions()
+    def __init__(self, can_id: int, options: ProfileOptions | None = None, **overrides: object):
+        super().__init__(can_id, options, **overrides)
         o = self.options
         self.ranges = ranges_of(o)
         self.max_angle_deg = math.degrees(o.p_max_rad)
@@ -205,11 +209,37 @@ class DamiaoDM(ServoProfile):
         return self._special(mit.SET_ZERO)
 
     @classmethod
-    def sim_device(
-        cls, motor: SimMotor, can_id: int, options: DamiaoOptions | None = None
-    ) -> DamiaoDevice:
+    def sim_device(cls, motor: SimMotor, can_id: int, options: ProfileOptions) -> SimDevice:
         """The simulated motor (built-in simulation, ``mavservo sim``)."""
-        return DamiaoDevice(motor, can_id, options or DamiaoOptions())
+        assert isinstance(options, DamiaoOptions)
+        return DamiaoDevice(motor, can_id, options)
+
+    def identifiers(self) -> tuple[FrameId, ...]:
+        """Commands (and in MIT mode the special frames) on the CAN id, position-velocity
+        commands on 0x100 + id, register frames on 0x7FF naming the motor in bytes 0-1 (shared
+        by every Damiao motor of the bus), replies on the master id naming it in byte 0's low
+        four bits."""
+        ids = [FrameId(self.command_id, False, "to_servo", "command")]
+        if self.command_id != self.can_id:
+            ids.append(FrameId(self.can_id, False, "to_servo", "lifecycle"))
+        ids += [
+            FrameId(
+                REGISTER_ID,
+                False,
+                "to_servo",
+                "request",
+                first_byte=(self.can_id & 0xFF, 0xFF),
+                shared=True,
+            ),
+            FrameId(
+                self.options.master_id,
+                False,
+                "from_servo",
+                "reply",
+                first_byte=(self.can_id & 0x0F, 0x0F),
+            ),
+        ]
+        return tuple(ids)
 
     # -- frames the motor sends --------------------------------------------------------------
 
@@ -294,6 +324,7 @@ class DamiaoDevice:
         self.can_id = can_id
         self.options = options
         self.ranges = ranges_of(options)
+        motor.enabled = False  # a DM-J powers up disabled: it waits for the enable frame
         self.registers: dict[int, int] = {RID_CTRL_MODE: CTRL_MODE_MIT, RID_TIMEOUT: 0}
         self.communication_lost = False
         self.last_frame_time: float | None = None

@@ -13,7 +13,7 @@ from the ``simulation`` section of a YAML file (options given explicitly win)::
                     direction: to_host}
       servos:
         - id: 1
-          profile: rmd-x        # rmd-x | lk | cubemars-ak
+          profile: rmd-x        # any registered profile (mavservo check --profiles)
           status_rate_hz: 50    # optional, per servo
           physics: {max_speed_dps: 720, max_accel_dps2: 3600, relax_after_s: 2.0, ...}
           faults: {drop_reply_prob: 0.0, reply_delay_s: 0.0, silent: false,
@@ -35,6 +35,7 @@ import threading
 from collections.abc import Sequence
 from typing import Any
 
+from ..servos import get_profile
 from .adapter import AdapterEmulator, LineFaults
 from .servo import Faults, Physics, SimServo
 
@@ -58,7 +59,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--servos", type=int, default=None, help="number of servos (default 1)")
     parser.add_argument("--ids", type=_ids, default=None, help="servo IDs, e.g. 1,2,3")
-    parser.add_argument("--profile", default=None, help="rmd-x | lk | cubemars-ak")
+    parser.add_argument(
+        "--profile", default=None, help="a profile name (`mavservo check --profiles` lists them)"
+    )
     parser.add_argument("--bitrate", type=int, default=None)
     parser.add_argument("--protocol", choices=("variable", "fixed"), default=None)
     parser.add_argument("--link", default=None, help="path of the device symlink to publish")
@@ -137,6 +140,7 @@ def config_section(path: str, bus: str | None = None) -> dict[str, Any]:
                 "physics": physics,
                 "faults": faults,
                 "status_rate_hz": servo.telemetry_hz,
+                "options": dict(servo.options),
             }
         )
     return {
@@ -177,11 +181,13 @@ def build_emulator(
         specs = [{"id": i, "profile": profile} for i in ids]
     elif args.profile:
         for spec in specs:
+            if spec.get("profile") != args.profile:
+                spec.pop("options", None)  # options belong to the profile they were written for
             spec["profile"] = args.profile
 
     servos = []
     for index, spec in enumerate(specs):
-        unknown = set(spec) - {"id", "profile", "physics", "faults", "status_rate_hz"}
+        unknown = set(spec) - {"id", "profile", "physics", "faults", "status_rate_hz", "options"}
         if unknown:
             raise ValueError(f"simulation.servos[{index}]: unknown key(s) {sorted(unknown)}")
         physics = Physics.from_dict(spec.get("physics"))
@@ -196,14 +202,17 @@ def build_emulator(
         faults.silent |= can_id in (args.silent_ids or [])
         faults.over_current |= can_id in (args.over_current_ids or [])
         faults.over_temperature |= can_id in (args.over_temperature_ids or [])
+        profile = str(spec.get("profile", "rmd-x"))
+        options = get_profile(profile).Options.model_validate(spec.get("options") or {})
         servos.append(
             SimServo(
-                spec.get("profile", "rmd-x"),
+                profile,
                 can_id,
                 physics,
                 faults,
                 seed=seed + index,
                 status_rate_hz=float(spec.get("status_rate_hz", rate)),
+                options=options,
             )
         )
 

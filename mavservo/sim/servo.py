@@ -17,30 +17,13 @@ from __future__ import annotations
 
 import math
 import random
-import struct
 from typing import TYPE_CHECKING
 
 import can
 
 from ..config.simulation import Faults, Physics
-from ..servos import get_profile
+from ..servos import ProfileOptions, get_profile
 from ..servos.base import NO_FAULT, Fault
-from ..servos.cubemars import (
-    DEFAULT_POLE_PAIRS,
-    MODE_POSITION,
-    MODE_POSITION_SPEED,
-    STATUS_BASE,
-    error_code_from_faults,
-)
-from ..servos.rmdx import (
-    CMD_MULTI_TURN_ANGLE,
-    CMD_POSITION,
-    CMD_STATUS_1,
-    CMD_STATUS_2,
-    REPLY_BASE_V4,
-    REQUEST_BASE,
-    error_word_from_faults,
-)
 
 if TYPE_CHECKING:
     from ..config import Config
@@ -53,7 +36,8 @@ _STEP_S = 0.001
 
 
 class SimServo:
-    """One simulated servo speaking ``profile`` on ``can_id``.
+    """One simulated servo speaking ``profile`` on ``can_id``: the motor (physics, faults, on or
+    off) behind the profile's own simulated device (``sim_device``, from the registry).
 
     ``receive(msg, now)`` handles a frame seen on the bus and returns the replies it provokes;
     ``poll(now)`` returns status pushes that are due (push-style profiles only), and
@@ -71,20 +55,21 @@ class SimServo:
         seed: int = 0,
         status_rate_hz: float = 50.0,
         reply_latency_s: float = 0.0002,
-        erpm_per_dps: float = DEFAULT_POLE_PAIRS / 6,
+        options: ProfileOptions | None = None,
     ) -> None:
-        get_profile(profile)  # a clear error for unknown names
-        if profile not in _DEVICES:
-            raise ValueError(f"no simulated device for profile {profile!r}")
+        profile_class = get_profile(profile)  # a clear error for unknown names
         self.profile = profile
         self.can_id = can_id
         self.physics = physics or Physics()
         self.faults = faults or Faults()
         self.reply_latency_s = reply_latency_s
         self.status_rate_hz = status_rate_hz
-        self.erpm_per_dps = erpm_per_dps
         self._rng = random.Random(seed)
-        self._device = _DEVICES[profile](self)
+        self.enabled = True
+        """False after the device turned the motor off (release, its own timeout): it coasts."""
+        self.zero_offset_deg = 0.0
+        self.options = options if options is not None else profile_class.Options()
+        self._device = profile_class.sim_device(self, can_id, self.options)
 
         self.time: float | None = None
         self.position_deg = self.physics.initial_position_deg
@@ -105,6 +90,29 @@ class SimServo:
     # -- physics ---------------------------------------------------------------------------
 
     @property
+    def voltage_v(self) -> float:
+        """Supply voltage the servo measures."""
+        return self.physics.voltage_v
+
+    def enable(self, now: float) -> None:
+        """The device turned the motor on: it holds where it is until commanded."""
+        self.advance(now)
+        if not self.enabled:
+            self.enabled = True
+            self.target_deg = self.position_deg
+
+    def disable(self, now: float) -> None:
+        """The device turned the motor off (torque free): it stops driving and coasts to rest."""
+        self.advance(now)
+        self.enabled = False
+
+    def set_zero(self, now: float) -> None:
+        """The present position becomes 0 (a device's set-zero command)."""
+        self.advance(now)
+        self.target_deg -= self.position_deg
+        self.position_deg = 0.0
+
+    @property
     def relaxed(self) -> bool:
         """True while the servo is limp because no command came for ``relax_after_s``."""
         limit = self.physics.relax_after_s
@@ -118,6 +126,8 @@ class SimServo:
         """Motor current implied by the present motion and load (noise-free)."""
         p = self.physics
         if self.relaxed:
+            return 0.0
+        if not self.enabled:
             return 0.0
         moving = abs(self.velocity_dps) > 1e-6
         friction = math.copysign(p.friction_current, self.velocity_dps) if moving else 0.0
@@ -160,7 +170,9 @@ class SimServo:
     def _step(self, h: float) -> None:
         p = self.physics
         self.time = (self.time or 0.0) + h
-        if self.relaxed:
+        if not self.enabled:
+            self._coast(h)
+        elif self.relaxed:
             offset = self.position_deg - p.relax_rest_deg
             drift = min(p.relax_rate_dps, abs(offset) / h)
             self.velocity_dps = -math.copysign(drift, offset) if offset else 0.0
@@ -183,6 +195,13 @@ class SimServo:
             - p.cooling_per_s * (self.temperature_c - p.ambient_c)
         ) * h
 
+    def _coast(self, h: float) -> None:
+        """Torque off: friction brings the motor to rest at the greatest rate the drive could."""
+        decel = self.physics.max_accel_dps2 * h
+        speed = max(0.0, abs(self.velocity_dps) - decel)
+        self.velocity_dps = math.copysign(speed, self.velocity_dps)
+        self.accel_dps2 = 0.0
+
     def command_position(
         self,
         angle_deg: float,
@@ -190,7 +209,8 @@ class SimServo:
         now: float,
         accel_dps2: float | None = None,
     ) -> None:
-        """Apply a decoded position command (called by the protocol devices)."""
+        """Apply a decoded position command (called by the protocol devices; a device whose
+        motor is off turns it on first when the real one would)."""
         self.advance(now)
         self.commands += 1
         self.last_command_time = self.time
@@ -207,8 +227,11 @@ class SimServo:
         if msg.is_remote_frame or not self._device.accepts(msg):
             return []
         self.advance(now)
-        reply = self._device.handle(msg, self.time if self.time is not None else now)
-        return self._emit(reply, now)
+        commands = self.commands
+        replies = self._device.handle(msg, self.time if self.time is not None else now)
+        if self.commands == commands:
+            self.requests += 1
+        return self._emit(replies, now)
 
     def next_push_time(self) -> float | None:
         """When the next unsolicited status push is due; None for polled profiles."""
@@ -217,7 +240,9 @@ class SimServo:
         return self._next_push
 
     def poll(self, now: float) -> list[Reply]:
-        """Status pushes due by ``now`` (at most one: a late caller does not get a flood)."""
+        """Status pushes due by ``now`` (at most one: a late caller does not get a flood); the
+        device's own timers (its communication-loss timeout) run here too."""
+        self._device.tick(now)
         if not self._device.pushes or self.status_rate_hz <= 0:
             return []
         period = 1.0 / self.status_rate_hz
@@ -230,146 +255,21 @@ class SimServo:
         due = self._next_push
         self._next_push = max(due + period, now - period + 1e-9)
         self.advance(now)
-        return self._emit(self._device.status(), due)
+        return self._emit(self._device.status(due), due)
 
-    def _emit(self, reply: can.Message | None, now: float) -> list[Reply]:
-        if reply is None or self.faults.silent:
-            return []
-        if self.faults.drop_reply_prob and self._rng.random() < self.faults.drop_reply_prob:
-            self.replies_dropped += 1
-            return []
-        self.replies += 1
-        due = now + self.reply_latency_s + self.faults.reply_delay_s
-        reply.timestamp = due
-        return [(due, reply)]
-
-
-def _clamp(value: float, low: int, high: int) -> int:
-    return max(low, min(high, int(value)))
-
-
-def _round_half_up(value: float) -> int:
-    return math.floor(value + 0.5)
-
-
-class _RmdDevice:
-    """Device side of RMD-X V4 (``reply_base`` 0x240) and LK / old firmware (0x140)."""
-
-    pushes = False
-    reply_base = REPLY_BASE_V4
-
-    def __init__(self, servo: SimServo) -> None:
-        self.servo = servo
-        self.request_id = REQUEST_BASE + servo.can_id
-        self.reply_id = self.reply_base + servo.can_id
-
-    def accepts(self, msg: can.Message) -> bool:
-        return (
-            not msg.is_extended_id and msg.arbitration_id == self.request_id and len(msg.data) == 8
-        )
-
-    def handle(self, msg: can.Message, now: float) -> can.Message | None:
-        data = bytes(msg.data)
-        command = data[0]
-        servo = self.servo
-        if command == CMD_POSITION:
-            _, _, speed, angle = struct.unpack("<BBHi", data)
-            servo.command_position(angle / 100, float(speed), now)
-            return self._status_2(command)
-        servo.requests += 1
-        if command == CMD_STATUS_2:
-            return self._status_2(command)
-        if command == CMD_MULTI_TURN_ANGLE:
-            angle = _clamp(round(servo.position_deg * 100), -(2**31), 2**31 - 1)
-            return self._reply(struct.pack("<BBBBi", command, 0, 0, 0, angle))
-        if command == CMD_STATUS_1:
-            return self._reply(
-                struct.pack(
-                    "<BbBBHH",
-                    command,
-                    _clamp(round(servo.temperature_c), -128, 127),
-                    0,
-                    0,
-                    _clamp(round(servo.physics.voltage_v * 10), 0, 0xFFFF),
-                    error_word_from_faults(servo.active_faults),
-                )
-            )
-        return None
-
-    def _status_2(self, command: int) -> can.Message:
-        servo = self.servo
-        return self._reply(
-            struct.pack(
-                "<Bbhhh",
-                command,
-                _clamp(round(servo.temperature_c), -128, 127),
-                _clamp(round(servo.measured_current_a() * 100), -32768, 32767),
-                _clamp(round(servo.velocity_dps), -32768, 32767),
-                _clamp(_round_half_up(servo.position_deg), -32768, 32767),
-            )
-        )
-
-    def _reply(self, payload: bytes) -> can.Message:
-        return can.Message(arbitration_id=self.reply_id, is_extended_id=False, data=payload)
-
-
-class _LkDevice(_RmdDevice):
-    reply_base = REQUEST_BASE
-
-
-class _CubeMarsDevice:
-    """Device side of CubeMars AK servo mode: obeys modes 4 and 6, pushes status."""
-
-    pushes = True
-
-    def __init__(self, servo: SimServo) -> None:
-        self.servo = servo
-        self.status_id = STATUS_BASE | servo.can_id
-
-    def accepts(self, msg: can.Message) -> bool:
-        mode = msg.arbitration_id >> 8
-        return (
-            msg.is_extended_id
-            and msg.arbitration_id & 0xFF == self.servo.can_id
-            and (
-                (mode == MODE_POSITION and len(msg.data) == 4)
-                or (mode == MODE_POSITION_SPEED and len(msg.data) == 8)
-            )
-        )
-
-    def handle(self, msg: can.Message, now: float) -> can.Message | None:
-        data = bytes(msg.data)
-        servo = self.servo
-        if msg.arbitration_id >> 8 == MODE_POSITION:
-            (position,) = struct.unpack(">i", data)
-            servo.command_position(position / 10_000, None, now)
-        else:
-            position, speed, accel = struct.unpack(">ihh", data)
-            per = servo.erpm_per_dps
-            servo.command_position(
-                position / 10_000, abs(speed) * 10 / per, now, abs(accel) * 10 / per
-            )
-        return self.status()
-
-    def status(self) -> can.Message:
-        servo = self.servo
-        payload = struct.pack(
-            ">hhhbB",
-            _clamp(round(servo.position_deg * 10), -32768, 32767),
-            _clamp(round(servo.velocity_dps * servo.erpm_per_dps / 10), -32768, 32767),
-            _clamp(round(servo.measured_current_a() * 100), -32768, 32767),
-            _clamp(round(servo.temperature_c), -128, 127),
-            error_code_from_faults(servo.active_faults),
-        )
-        return can.Message(arbitration_id=self.status_id, is_extended_id=True, data=payload)
-
-
-_DEVICES: dict[str, type] = {
-    "rmd-x": _RmdDevice,
-    "lk": _LkDevice,
-    "cubemars-ak": _CubeMarsDevice,
-}
-"""Profile name -> device-side model; a new profile adds its device here."""
+    def _emit(self, replies: list[can.Message], now: float) -> list[Reply]:
+        out: list[Reply] = []
+        for reply in replies:
+            if self.faults.silent:
+                return []
+            if self.faults.drop_reply_prob and self._rng.random() < self.faults.drop_reply_prob:
+                self.replies_dropped += 1
+                continue
+            self.replies += 1
+            due = now + self.reply_latency_s + self.faults.reply_delay_s
+            reply.timestamp = due
+            out.append((due, reply))
+        return out
 
 
 def simulated_servos(config: Config, bus_name: str) -> list[SimServo]:
@@ -388,6 +288,7 @@ def simulated_servos(config: Config, bus_name: str) -> list[SimServo]:
                 Faults.from_dict(faults),
                 seed=index,
                 status_rate_hz=servo.telemetry_hz,
+                options=servo.profile_options(),
             )
         )
     return out
