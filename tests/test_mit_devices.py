@@ -102,7 +102,7 @@ def test_damiao_ignores_commands_of_the_other_mode() -> None:
 def test_damiao_fault_status_and_the_motor_leaving_enabled() -> None:
     options = DamiaoOptions()
     profile = DamiaoDM(4, options)
-    servo = SimServo("damiao-dm", 4, Faults(over_current=True), options=options)
+    servo = SimServo("damiao-dm", 4, faults=Faults(over_current=True), options=options)
     replies = send_all(servo, profile.startup_frames(), 0.0)
     state = profile.decode(replies[-1], 0.0)
     assert state is not None and state.faults == Fault.OVER_CURRENT
@@ -142,7 +142,7 @@ def test_cubemars_mit_lifecycle_and_zero_mute() -> None:
 
 def test_cubemars_mit_fault_codes_reach_the_profile() -> None:
     profile = CubeMarsAKMit(1)
-    servo = SimServo("cubemars-ak-mit", 1, Faults(over_temperature=True))
+    servo = SimServo("cubemars-ak-mit", 1, faults=Faults(over_temperature=True))
     (reply,) = send_all(servo, profile.startup_frames(), 0.0)
     state = profile.decode(reply, 0.0)
     assert state is not None and state.faults == Fault.OVER_TEMPERATURE

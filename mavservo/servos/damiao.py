@@ -147,7 +147,7 @@ class DamiaoDM(ServoProfile):
         self.max_speed_dps = math.degrees(o.v_max_rad_s)
         self.resolution_deg = math.degrees(mit.step(self.ranges.position_rad, mit.POSITION_BITS))
         self._startup_due = False
-        """A decoded status said the motor is disabled or timed out: enable it again."""
+        """The latest feedback said the motor is disabled or timed out: enable it again."""
 
     # -- frames the bridge sends -------------------------------------------------------------
 
@@ -282,8 +282,9 @@ class DamiaoDM(ServoProfile):
             # proof of life, nothing to read: the state stays, stamped now
             return self._merge(timestamp)
         status = data[0] >> 4
-        if status in (STATUS_DISABLED, STATUS_COMMUNICATION_LOST):
-            self._startup_due = True
+        # the latest feedback decides: the answer to a clear-error still says "disabled",
+        # the answer to the enable that follows it no longer does
+        self._startup_due = status in (STATUS_DISABLED, STATUS_COMMUNICATION_LOST)
         reply = mit.unpack_reply(data, self.ranges)
         return self._merge(
             timestamp,

@@ -189,7 +189,8 @@ def pack_reply(
     """The first six reply bytes (the device side): ``head``, position, velocity, torque.
 
     Out-of-range readings saturate here: a real motor past its mapping range reports the end
-    of the range, it does not stop answering.
+    of the range, it does not stop answering. Readings round to the nearest count (a sensor
+    quantises; only the host's set points follow the vendors' truncating routine).
     """
     p = _saturated_field(position_rad, ranges.position_rad, POSITION_BITS)
     v = _saturated_field(velocity_rad_s, ranges.velocity_rad_s, VELOCITY_BITS)
@@ -215,4 +216,6 @@ def unpack_reply(data: bytes, ranges: MitRanges) -> MitReply:
 def _saturated_field(value: float, span: Span, bits: int) -> int:
     if math.isnan(value):
         value = 0.0 if span.low <= 0.0 <= span.high else span.low
-    return to_field(min(span.high, max(span.low, value)), span, bits)
+    value = min(span.high, max(span.low, value))
+    top = (1 << bits) - 1
+    return min(top, max(0, math.floor((value - span.low) * top / (span.high - span.low) + 0.5)))
