@@ -26,6 +26,8 @@ from e2e_support import (
     sim_servo,
 )
 
+from mavservo.servos.damiao import DamiaoDM
+from mavservo.servos.mit import is_special, unpack_command
 from mavservo.sim.autopilot.link import mavlink2
 
 pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")
@@ -96,24 +98,46 @@ def test_mit_families_follow_report_and_refuse_out_of_range() -> None:
                     for value in named_values(peer.since(mark), f"s{n}_pos")[-2:]:
                         assert abs(value - servos[name].position_deg) <= RESOLUTION_DEG, name
 
-            # 72 deg is inside limits_deg but outside this model's +-1 rad (57.3 deg)
-            small = sim_servo(bridge, "dm_small")
-            before = small.commands
-            sent_before = len(recorder.angles("dm_small"))
-            assert peer.command(MAV_CMD_DO_SET_SERVO, [4, 1900]) == MAV_RESULT_DENIED
-            assert peer.command(MAV_CMD_DO_SET_SERVO, [4, 1600]) == MAV_RESULT_ACCEPTED
-            assert wait_until(lambda: small.commands > before, WAIT_S)
-            assert all(abs(a) <= math.degrees(1.0) for a in recorder.angles("dm_small"))
-            assert len(recorder.angles("dm_small")) == sent_before + 1
         finally:
             peer.close()
         summary = bridge.stop()
-    assert summary["backend"]["rejected"] >= 1
-    for name in (*SERVOS, "dm_small"):
+    for name in SERVOS:
         frames = summary["servos"][name]["frames"]
         assert frames["sent"] > 0 and frames["received"] > 0, name
         assert frames["lost"] == 0 and frames["rejected"] == 0, (name, frames)
     assert summary["buses"]["bus0"]["bus_rejected"] == 0
+
+
+def test_a_position_outside_the_models_range_is_denied_counted_and_never_sent() -> None:
+    """72 deg is inside limits_deg but outside this model's +-1 rad (57.3 deg): DENIED, counted
+    in the summary, and no frame for it goes out; the next valid command does."""
+    recorder = Recorder()
+    small = DamiaoDM(4, p_max_rad=1.0)
+    with running(CONFIG, observers=[recorder]) as (bridge, port):
+        peer = Peer(port)
+        try:
+            assert peer.command(MAV_CMD_DO_SET_SERVO, [4, 1900]) == MAV_RESULT_DENIED
+            assert peer.command(MAV_CMD_DO_SET_SERVO, [4, 1600]) == MAV_RESULT_ACCEPTED
+            assert wait_until(lambda: 18.0 in recorder.angles("dm_small"), WAIT_S)
+            assert wait_until(lambda: commanded_angles(recorder, small), WAIT_S)
+        finally:
+            peer.close()
+        summary = bridge.stop()
+    assert recorder.angles("dm_small") == [pytest.approx(18.0)]
+    sent = commanded_angles(recorder, small)
+    assert sent and all(a == pytest.approx(18.0, abs=0.05) for a in sent), sent
+    commands = summary["mavlink"]["commands"]
+    assert commands["result_denied"] == 1, commands
+    assert commands["reason_damiao-dm"] == 1, commands  # counted under the profile's name
+
+
+def commanded_angles(recorder: Recorder, profile: DamiaoDM) -> list[float]:
+    """Angles of the MIT position commands written to ``profile``'s servo (decoded here)."""
+    out = []
+    for kind, arbitration_id, data in recorder.frames("dm_small"):
+        if kind.startswith("command") and arbitration_id == profile.can_id and not is_special(data):
+            out.append(math.degrees(unpack_command(data, profile.ranges).position_rad))
+    return out
 
 
 @pytest.mark.parametrize("name", ["dm_mit", "ak_mit"])
