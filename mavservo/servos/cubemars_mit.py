@@ -45,15 +45,12 @@ ZERO_MUTE_S = 1.0
 """How long the driver stays silent after a set-zero frame (the manual's "about a second")."""
 
 
-class CubeMarsMitOptions(ProfileOptions):
-    """Per-servo ``options:`` of an AK module in MIT mode. Defaults are an AK80-9's."""
+class CubeMarsMitOptions(mit.MitOptions):
+    """Per-servo ``options:`` of an AK module in MIT mode. Defaults are an AK80-9's (manual
+    5.3 table: +-12.5 rad, +-50 rad/s, +-18; torque constant 0.091 N m/A x 9:1 gear)."""
 
-    master_id: int = Field(0, ge=0, le=0x7FF, description="standard id the driver answers on")
-    p_max_rad: float = Field(12.5, gt=0, le=1000, description="position range +-rad")
     v_max_rad_s: float = Field(50.0, gt=0, le=1000, description="velocity range +-rad/s")
     t_max_nm: float = Field(18.0, gt=0, le=1000, description="torque range +-N m")
-    kp: float = Field(20.0, ge=0, le=500, description="MIT stiffness, N m/rad")
-    kd: float = Field(1.0, gt=0, le=5, description="MIT damping, N m s/rad (never 0)")
     torque_constant_nm_per_a: float = Field(
         0.819, gt=0, le=100, description="output torque per amp (AK80-9: 0.091 x 9)"
     )
@@ -73,7 +70,7 @@ class CubeMarsAKMit(ServoProfile):
     def __init__(self, can_id: int, options: ProfileOptions | None = None, **overrides: object):
         super().__init__(can_id, options, **overrides)
         o = self.options
-        self.ranges = ranges_of(o)
+        self.ranges = o.ranges()
         self.max_angle_deg = math.degrees(o.p_max_rad)
         self.min_angle_deg = -self.max_angle_deg
         self.resolution_deg = math.degrees(mit.step(self.ranges.position_rad, mit.POSITION_BITS))
@@ -157,17 +154,6 @@ class CubeMarsAKMit(ServoProfile):
         )
 
 
-def ranges_of(options: CubeMarsMitOptions) -> mit.MitRanges:
-    """The MIT ranges of the module ``options`` describe."""
-    return mit.MitRanges(
-        position_rad=mit.Span.symmetric(options.p_max_rad),
-        velocity_rad_s=mit.Span.symmetric(options.v_max_rad_s),
-        torque_nm=mit.Span.symmetric(options.t_max_nm),
-        kp=mit.Span(0.0, 500.0),
-        kd=mit.Span(0.0, 5.0),
-    )
-
-
 class CubeMarsMitDevice:
     """The driver side of an AK module in MIT mode, on a SimMotor.
 
@@ -183,7 +169,7 @@ class CubeMarsMitDevice:
         self.motor = motor
         self.can_id = can_id
         self.options = options
-        self.ranges = ranges_of(options)
+        self.ranges = options.ranges()
         self.muted_until = -math.inf
         motor.enabled = False  # out of motor mode at power-up: it waits for FF x7 FC
 

@@ -98,19 +98,12 @@ def status_from_faults(faults: Fault, enabled: bool) -> int:
     return STATUS_ENABLED if enabled else STATUS_DISABLED
 
 
-class DamiaoOptions(ProfileOptions):
-    """Per-servo ``options:`` of a Damiao DM-J motor. Defaults are a DM-J4310-2EC's."""
+class DamiaoOptions(mit.MitOptions):
+    """Per-servo ``options:`` of a Damiao DM-J motor. Defaults are a DM-J4310-2EC's (PMAX
+    12.5 rad, VMAX 30 rad/s, TMAX 10 N m, torque constant 0.945 N m/A)."""
 
     mode: Literal["mit", "position-velocity"] = Field(
         "mit", description="control mode, written to CTRL_MODE at start-up"
-    )
-    master_id: int = Field(0, ge=0, le=0x7FF, description="CAN id the motor answers on (MST_ID)")
-    p_max_rad: float = Field(12.5, gt=0, le=1000, description="PMAX: position range +-rad")
-    v_max_rad_s: float = Field(30.0, gt=0, le=1000, description="VMAX: velocity range +-rad/s")
-    t_max_nm: float = Field(10.0, gt=0, le=1000, description="TMAX: torque range +-N m")
-    kp: float = Field(20.0, ge=0, le=500, description="MIT stiffness, N m/rad")
-    kd: float = Field(
-        1.0, gt=0, le=5, description="MIT damping, N m s/rad (never 0: the motor oscillates)"
     )
     comm_timeout_ms: int = Field(
         200,
@@ -121,9 +114,6 @@ class DamiaoOptions(ProfileOptions):
     )
     default_speed_dps: float = Field(
         360.0, gt=0, le=100_000, description="position-velocity mode speed limit, deg/s"
-    )
-    torque_constant_nm_per_a: float = Field(
-        0.945, gt=0, le=100, description="output torque per phase amp (reported current)"
     )
 
 
@@ -141,7 +131,7 @@ class DamiaoDM(ServoProfile):
     def __init__(self, can_id: int, options: ProfileOptions | None = None, **overrides: object):
         super().__init__(can_id, options, **overrides)
         o = self.options
-        self.ranges = ranges_of(o)
+        self.ranges = o.ranges()
         self.max_angle_deg = math.degrees(o.p_max_rad)
         self.min_angle_deg = -self.max_angle_deg
         self.max_speed_dps = math.degrees(o.v_max_rad_s)
@@ -296,17 +286,6 @@ class DamiaoDM(ServoProfile):
         )
 
 
-def ranges_of(options: DamiaoOptions) -> mit.MitRanges:
-    """The MIT ranges a motor configured with ``options`` packs and maps its feedback with."""
-    return mit.MitRanges(
-        position_rad=mit.Span.symmetric(options.p_max_rad),
-        velocity_rad_s=mit.Span.symmetric(options.v_max_rad_s),
-        torque_nm=mit.Span.symmetric(options.t_max_nm),
-        kp=mit.Span(0.0, 500.0),
-        kd=mit.Span(0.0, 5.0),
-    )
-
-
 class DamiaoDevice:
     """The motor side of a DM-J for the simulation: what the real one does, on a SimMotor.
 
@@ -324,7 +303,7 @@ class DamiaoDevice:
         self.motor = motor
         self.can_id = can_id
         self.options = options
-        self.ranges = ranges_of(options)
+        self.ranges = options.ranges()
         motor.enabled = False  # a DM-J powers up disabled: it waits for the enable frame
         self.registers: dict[int, int] = {RID_CTRL_MODE: CTRL_MODE_MIT, RID_TIMEOUT: 0}
         self.communication_lost = False

@@ -34,6 +34,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from pydantic import Field
+
+from .base import ProfileOptions
+
 POSITION_BITS = 16
 VELOCITY_BITS = 12
 GAIN_BITS = 12
@@ -219,3 +223,37 @@ def _saturated_field(value: float, span: Span, bits: int) -> int:
     value = min(span.high, max(span.low, value))
     top = (1 << bits) - 1
     return min(top, max(0, math.floor((value - span.low) * top / (span.high - span.low) + 0.5)))
+
+
+KP_SPAN = Span(0.0, 500.0)
+KD_SPAN = Span(0.0, 5.0)
+"""The gain ranges of the MIT packing (CubeMars and Damiao manuals: kp 0..500, kd 0..5)."""
+
+
+class MitOptions(ProfileOptions):
+    """The per-servo options every MIT-packing family has: the model's ranges (set on the motor
+    by the vendor's tool; both ends of the link must map with the same ones), the gains, the id
+    the motor answers on, and the torque constant that turns the torque field into a current.
+    A family subclasses it with its own model's defaults."""
+
+    master_id: int = Field(0, ge=0, le=0x7FF, description="CAN id the motor answers on")
+    p_max_rad: float = Field(12.5, gt=0, le=1000, description="position range +-rad (PMAX)")
+    v_max_rad_s: float = Field(30.0, gt=0, le=1000, description="velocity range +-rad/s (VMAX)")
+    t_max_nm: float = Field(10.0, gt=0, le=1000, description="torque range +-N m (TMAX)")
+    kp: float = Field(20.0, ge=0, le=500, description="MIT stiffness, N m/rad")
+    kd: float = Field(
+        1.0, gt=0, le=5, description="MIT damping, N m s/rad (never 0: the motor oscillates)"
+    )
+    torque_constant_nm_per_a: float = Field(
+        0.945, gt=0, le=100, description="output torque per amp (the reported current)"
+    )
+
+    def ranges(self) -> MitRanges:
+        """The ranges this motor packs set points and maps its readings with."""
+        return MitRanges(
+            position_rad=Span.symmetric(self.p_max_rad),
+            velocity_rad_s=Span.symmetric(self.v_max_rad_s),
+            torque_nm=Span.symmetric(self.t_max_nm),
+            kp=KP_SPAN,
+            kd=KD_SPAN,
+        )
