@@ -12,6 +12,10 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+import can
+
+from mavservo.servos import RmdX
+
 WAIT_S = 10.0
 """Upper bound of a wait for something that should happen. Generous on purpose: a passing test
 returns as soon as the condition holds, only a failing one waits this long."""
@@ -60,3 +64,12 @@ def wait_for_message(
         if predicate(msg):
             return msg
     return None
+
+
+class RmdXWithoutStartUp(RmdX):
+    """An RMD-X that sends no start-up frame (0xB3): for the tests of the command and poll
+    policy, which count frames exactly; lifecycle frames have tests of their own
+    (tests/test_scheduler_lifecycle.py)."""
+
+    def startup_frames(self) -> list[can.Message]:
+        return []

@@ -216,3 +216,35 @@ def test_a_profile_without_identifiers_or_device_is_refused_by_the_registry() ->
 
     reason = registry._problem("incomplete", Incomplete, {})
     assert reason is not None and "identifiers" in reason
+
+
+@pytest.mark.usefixtures("plugins")
+def test_check_names_a_broken_plugin_and_still_checks_and_lists_the_others(tmp_path) -> None:
+    import io
+
+    from mavservo.app.check import check_main
+
+    config = tmp_path / "ok.yaml"
+    config.write_text("servos:\n  - {name: a, profile: copy-of-rmd-x, can_id: 1}\n")
+    out, err = io.StringIO(), io.StringIO()
+    assert check_main(["--profiles", str(config)], out, err) == 0
+    assert "plug-in profile 'broken-import'" in err.getvalue()
+    assert "ModuleNotFoundError" in err.getvalue()
+    listing = out.getvalue()
+    assert "copy-of-rmd-x" in listing and "rmd-x  (built-in" in listing
+    assert f"{config}: valid" in listing
+
+
+@pytest.mark.usefixtures("plugins")
+def test_run_names_a_broken_plugin_and_runs_with_the_others(tmp_path, capsys) -> None:
+    from conftest import free_udp_port
+
+    from mavservo.app.run import main
+
+    config = tmp_path / "ok.yaml"
+    config.write_text("servos:\n  - {name: a, profile: copy-of-rmd-x, can_id: 1}\n")
+    url = f"udpin:127.0.0.1:{free_udp_port()}"
+    status = main(["--config", str(config), "--duration", "1", "--no-log", "-q", "--mavlink", url])
+    err = capsys.readouterr().err
+    assert status == 0, err
+    assert "warning: plug-in profile 'broken-import'" in err

@@ -13,6 +13,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import pytest
+from conftest import RmdXWithoutStartUp
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -63,7 +64,7 @@ class Outcome:
 
 def drive(wire: Wire, seconds: float, telemetry_period_s: float = 10.0) -> Outcome:
     """Run one RMD-X servo with a new setpoint every slot; return what the core declared."""
-    spec = ServoSpec("s1", RmdX(1))
+    spec = ServoSpec("s1", RmdXWithoutStartUp(1))
     core = ScheduleCore(
         [spec],
         TimingConfig(

@@ -7,9 +7,9 @@ way the runner reports what ``bus.send`` did.
 from __future__ import annotations
 
 import pytest
+from conftest import RmdXWithoutStartUp
 
 from mavservo.scheduling.core import Decision, ScheduleCore, ServoSpec, TimingConfig
-from mavservo.servos import RmdX
 
 T_C = 0.05
 START = 100.0
@@ -21,7 +21,7 @@ def core_with(*specs: ServoSpec, **timing) -> ScheduleCore:
 
 def quiet(name: str = "s1", can_id: int = 1) -> ServoSpec:
     """A servo that is never polled: only commands and refreshes go to it."""
-    return ServoSpec(name, RmdX(can_id), telemetry_hz=0)
+    return ServoSpec(name, RmdXWithoutStartUp(can_id), telemetry_hz=0)
 
 
 def step(core: ScheduleCore, now: float, *, bus_up: bool) -> tuple[Decision, list]:

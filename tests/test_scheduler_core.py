@@ -6,6 +6,7 @@ import math
 
 import can
 import pytest
+from conftest import RmdXWithoutStartUp
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -50,7 +51,7 @@ class PushServo(ServoProfile):
 
 
 def rmd(n: int, **kwargs) -> list[ServoSpec]:
-    return [ServoSpec(f"s{i}", RmdX(i), **kwargs) for i in range(1, n + 1)]
+    return [ServoSpec(f"s{i}", RmdXWithoutStartUp(i), **kwargs) for i in range(1, n + 1)]
 
 
 def core_with(specs, start: float = 100.0, **timing) -> ScheduleCore:
@@ -163,8 +164,9 @@ def test_frames_never_carry_an_older_setpoint_than_one_already_sent(events):
                 assert out.seq >= highest_sent[out.servo]
                 assert out.seq == core.latest(out.servo).seq
                 highest_sent[out.servo] = out.seq
-            if out.servo == "s1" and out.kind != "request":
-                # the minimum spacing holds for every frame to an immediate servo, slots too
+            if out.servo == "s1" and out.kind in ("command", "refresh"):
+                # the minimum spacing holds for every command to an immediate servo, slots too
+                # (its start-up frame goes right before its first command)
                 assert now - last_immediate_send >= 0.02 - 1e-9
                 last_immediate_send = now
 
@@ -319,7 +321,11 @@ def test_release_stops_refresh_until_the_next_setpoint():
     core.submit("s1", 1.0, "test", t=99.0)
     run(core, 100.0)
     core.release("s1")
-    assert [o for k in range(1, 4) for o in run(core, 100.0 + k * T_C).frames] == []
+    released = [o for k in range(1, 4) for o in run(core, 100.0 + k * T_C).frames]
+    # the profile's release frame (RMD-X 0x80, motor off) once, then nothing
+    assert [(o.kind, o.lifecycle, o.msg.data[0]) for o in released] == [
+        ("lifecycle", "release", 0x80)
+    ]
     core.submit("s1", 2.0, "test", t=100.2)
     assert [o.kind for o in run(core, 100.25).frames] == ["command"]
 

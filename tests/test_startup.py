@@ -104,11 +104,16 @@ def test_a_setpoint_queued_before_the_scheduler_starts_goes_out_in_its_first_slo
         scheduler.start()
         assert wait_until(lambda: frames.tx)
         scheduler.stop()
-        servo, kind, seq, _ = frames.tx[0]
+        # the profile's start-up frame (RMD-X 0xB3) goes right before it, in the same slot
+        startup = [f for f in frames.tx if f[1] == "lifecycle"]
+        servo, kind, seq, _ = frames.tx[len(startup)]
         assert (servo, kind, seq) == ("s1", "command", queued.seq)
+        assert [f[:3] for f in startup] == [("s1", "lifecycle", None)]
         first = listener.recv(timeout=WAIT_LIMIT_S)
-        assert first is not None
-        assert first.data == RmdX(1).position_command(12.5).data
+        assert first is not None and first.data[0] == 0xB3
+        command = listener.recv(timeout=WAIT_LIMIT_S)
+        assert command is not None
+        assert command.data == RmdX(1).position_command(12.5).data
     finally:
         scheduler.stop()
         bus.shutdown()

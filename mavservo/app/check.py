@@ -19,7 +19,9 @@ from mavservo.config.budget import BusLoad, bus_loads
 from mavservo.config.endpoints import endpoint_lines
 from mavservo.config.loader import ConfigError, load_config_with_warnings
 from mavservo.config.schema import Config, ServoOutputChannel
+from mavservo.config.schema import allowed_values as _allowed
 from mavservo.control.mapping import ChannelMap, Rejected
+from mavservo.servos import registry
 
 EXIT_OK = 0
 EXIT_INVALID = 2
@@ -113,6 +115,27 @@ def resolved_mapping(config: Config) -> str:
     return "\n".join(lines)
 
 
+def profiles_listing() -> str:
+    """Every usable profile: name, origin, id range, telemetry shape, whether it can release,
+    and each option with its default and allowed values."""
+    lines = ["servo profiles:"]
+    for name, entry in registry.profiles().items():
+        cls = entry.profile
+        can_release = "yes" if cls(cls.min_id).release_frames() else "no"
+        lines.append(
+            f"  {name}  ({entry.origin}; ids {cls.min_id}..{cls.max_id}, {cls.telemetry}, "
+            f"failsafe release: {can_release})"
+        )
+        fields = cls.Options.model_fields
+        if not fields:
+            lines.append("    options: none")
+        for key, field in fields.items():
+            about = f" - {field.description}" if field.description else ""
+            lines.append(f"    {key}: default {field.default!r}, allowed {_allowed(field)}{about}")
+    lines += ["", registry.PLUGIN_HINT]
+    return "\n".join(lines)
+
+
 def _load_line(load: BusLoad) -> str:
     verdict = "OVER BUDGET" if load.over_budget else "ok"
     return (
@@ -144,7 +167,12 @@ def check_main(argv: Sequence[str], out: TextIO | None = None, err: TextIO | Non
     out = out if out is not None else sys.stdout
     err = err if err is not None else sys.stderr
     parser = build_parser()
-    parser.add_argument("configs", nargs="+", metavar="CONFIG", help="YAML config file(s)")
+    parser.add_argument("configs", nargs="*", metavar="CONFIG", help="YAML config file(s)")
+    parser.add_argument(
+        "--profiles",
+        action="store_true",
+        help="list every servo profile (built-in and plug-in), its origin, options and defaults",
+    )
     try:
         # argparse prints --help and usage errors to sys.stdout/sys.stderr itself; a caller that
         # passed its own streams (an embedding tool, a test) gets them there like every line.
@@ -152,6 +180,14 @@ def check_main(argv: Sequence[str], out: TextIO | None = None, err: TextIO | Non
             args = parser.parse_args(list(argv))
     except SystemExit as exc:  # --help (0) or a usage error (2), already printed by argparse
         return EXIT_OK if exc.code == 0 else EXIT_INVALID
+    if not args.configs and not args.profiles:
+        parser.print_usage(err)  # as argparse does for a missing argument
+        print("mavservo check: error: give CONFIG file(s), --profiles, or both", file=err)
+        return EXIT_INVALID
+    for error in registry.load_errors():  # one broken plug-in hides nothing else
+        print(f"warning: {error.describe()}", file=err)
+    if args.profiles:
+        print(profiles_listing(), file=out)
     status = EXIT_OK
     for path in args.configs:
         try:

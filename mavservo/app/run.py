@@ -69,6 +69,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         for name in RECOVERY_LOGGERS:
             logging.getLogger(name).setLevel(logging.INFO)
     path = Path(args.config) if args.config else default_config_path()
+    from mavservo.servos import load_errors
+
+    for error in load_errors():  # a broken plug-in is named; the other profiles still work
+        print(f"mavservo: warning: {error.describe()}", file=sys.stderr)
     try:
         config = apply_overrides(load_config(path), args.mavlink, args.port)
     except ConfigError as exc:

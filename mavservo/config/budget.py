@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from mavservo.scheduling.busload import FrameFlow, load_ratio, servo_traffic
+from mavservo.scheduling.core import STARTUP_RETRY_S
 
 if TYPE_CHECKING:
     from mavservo.config.schema import BusConfig, Config, SchedulerConfig, ServoConfig
@@ -67,6 +68,7 @@ def servo_flows(servo: ServoConfig, timing: SchedulerConfig) -> list[FrameFlow]:
         # paces polls only
         status_hz=servo.telemetry_hz,
         max_speed_dps=servo.max_speed_dps,
+        startup_hz=1 / STARTUP_RETRY_S,
     )
     return traffic.flows()
 

@@ -392,11 +392,11 @@ def _option_problem(model: type[BaseModel], error: Any) -> tuple[str, str]:
         return key, f"unknown option {key!r}; allowed options: {allowed}"
     message = f"{error['msg']}, found {error.get('input')!r}"
     if field is not None:
-        message += f" (allowed: {_allowed(field)}; default {field.default!r})"
+        message += f" (allowed: {allowed_values(field)}; default {field.default!r})"
     return key, message
 
 
-def _allowed(field: Any) -> str:
+def allowed_values(field: Any) -> str:
     """A field's bounds as ``1..40`` or ``> 0``, its choices, or its type."""
     low = high = None
     low_open = high_open = False

@@ -52,6 +52,7 @@ def cross_checks(config: Config) -> list[Finding]:
         _servo_buses,
         _can_id_collisions,
         _failsafe_positions,
+        _failsafe_release,
         _channels,
         _gimbals,
         _simulation_names,
@@ -192,6 +193,18 @@ def _failsafe_positions(config: Config) -> Iterator[Finding]:
             yield (
                 ("servos", index, "failsafe", "position_deg"),
                 f"expected an angle inside limits_deg [{low}, {high}], found {position}",
+            )
+
+
+def _failsafe_release(config: Config) -> Iterator[Finding]:
+    """``release`` promises motor off: refuse it for a family that has no frame for that."""
+    for index, servo in enumerate(config.servos):
+        if servo.failsafe.action == "release" and not servo.make_profile().release_frames():
+            yield (
+                ("servos", index, "failsafe", "action"),
+                f"servo {servo.name!r}: the {servo.profile} profile has no motor-off frame, so "
+                "'release' could only stop sending while the servo keeps holding its last "
+                "target; choose hold, neutral or position (with position_deg)",
             )
 
 

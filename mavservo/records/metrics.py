@@ -241,6 +241,8 @@ class ServoMetrics:
     commands_sent: int = 0
     refreshes_sent: int = 0
     requests_sent: int = 0
+    lifecycle_sent: int = 0
+    """Start-up, release and shutdown frames of the servo's profile (``docs/profiles.md``)."""
     received: int = 0
     lost: int = 0
     late_replies: int = 0
@@ -266,7 +268,11 @@ class ServoMetrics:
                 "commands": self.commands_sent,
                 "refreshes": self.refreshes_sent,
                 "requests": self.requests_sent,
-                "sent": self.commands_sent + self.refreshes_sent + self.requests_sent,
+                "lifecycle": self.lifecycle_sent,
+                "sent": self.commands_sent
+                + self.refreshes_sent
+                + self.requests_sent
+                + self.lifecycle_sent,
                 "received": self.received,
                 "lost": self.lost,
                 "late_replies": self.late_replies,

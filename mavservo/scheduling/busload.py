@@ -139,6 +139,9 @@ class ServoTraffic:
     replies_per_request: int
     reply_dlc: int = 8
     push_hz: float = 0.0
+    lifecycle_hz: float = 0.0
+    lifecycle_shapes: tuple[tuple[bool, int], ...] = ()
+    replies_per_lifecycle: int = 0
 
     def flows(self) -> list[FrameFlow]:
         flows = [FrameFlow(self.command_hz, self.command_extended, self.command_dlc)]
@@ -158,6 +161,14 @@ class ServoTraffic:
                 )
         if self.push_hz:
             flows.append(FrameFlow(self.push_hz, self.command_extended, self.reply_dlc))
+        for extended, dlc in self.lifecycle_shapes:
+            flows.append(FrameFlow(self.lifecycle_hz, extended, dlc))
+            if self.replies_per_lifecycle:
+                flows.append(
+                    FrameFlow(
+                        self.lifecycle_hz * self.replies_per_lifecycle, extended, self.reply_dlc
+                    )
+                )
         return flows
 
 
@@ -168,6 +179,7 @@ def servo_traffic(
     poll_hz: float,
     status_hz: float,
     max_speed_dps: float | None,
+    startup_hz: float = 0.0,
 ) -> ServoTraffic:
     """One servo's worst-case traffic, from its profile's own frames: what the scheduler's
     start-up budget and ``mavservo check`` both count, so that they agree.
@@ -176,9 +188,11 @@ def servo_traffic(
     ``replies_per_*``. The command is shaped as the scheduler sends it, with the speed limit
     (a CubeMars command is 4 bytes without one, 8 with). A polled servo answers ``poll_hz``
     requests; a push-style one (no requests) sends ``status_hz`` status frames on its own.
+    ``startup_hz``: how often the start-up frames may go out (the scheduler's retry limit).
     """
     command = profile.position_command(0.0, max_speed_dps)
     requests = profile.telemetry_requests()
+    startup = profile.startup_frames()
     return ServoTraffic(
         command_hz=command_hz,
         command_extended=bool(command.is_extended_id),
@@ -188,6 +202,9 @@ def servo_traffic(
         request_shapes=tuple((bool(r.is_extended_id), int(r.dlc)) for r in requests),
         replies_per_request=profile.replies_per_request,
         push_hz=0.0 if requests else status_hz,
+        lifecycle_hz=startup_hz,
+        lifecycle_shapes=tuple((bool(f.is_extended_id), int(f.dlc)) for f in startup),
+        replies_per_lifecycle=profile.replies_per_lifecycle,
     )
 
 

@@ -66,6 +66,16 @@ Rules (paper section 3.3):
   pushing servo offline: an uncommanded one, or one whose sends the adapter still took, read
   online with a frozen state for a whole outage (the trial: ``age 21655 ms``, ``online``). It
   comes back with its next push, not with a working send.
+* Lifecycle frames come from the profile and go out through this core like every frame (the
+  runner stays the only writer): a servo's start-up frames (enable, mode, its own
+  communication-loss timeout) right before its first command, again before the next command
+  after it was offline (it may have been power-cycled) or after a release, and again when the
+  profile's ``needs_startup()`` says so, never twice within ``STARTUP_RETRY_S``; a ``release``
+  sends the profile's release frames (motor off) at the next step (again at the next command
+  slot if the bus refused them); :meth:`ScheduleCore.
+  final_frames` gives what is still pending plus every servo's shutdown frames when the
+  scheduler stops. Their replies (``replies_per_lifecycle``) are expected like any other, and
+  the bus-load budget counts the start-up frames at ``1 / STARTUP_RETRY_S``.
 """
 
 from __future__ import annotations
@@ -85,7 +95,11 @@ from . import reply_matching
 from .busload import ServoTraffic, frame_time, message_bits, servo_traffic, worst_case_load
 
 CommandMode = Literal["periodic", "immediate"]
-FrameKind = Literal["command", "refresh", "request"]
+FrameKind = Literal["command", "refresh", "request", "lifecycle"]
+LifecyclePurpose = Literal["startup", "release", "shutdown"]
+STARTUP_RETRY_S = 1.0
+"""Start-up frames go out again at most this often for one servo (``needs_startup`` may stay
+true while a servo refuses to start); the budget counts them at this rate."""
 _REPLY_DLC = 8
 _TIMED_OUT_KEPT = 8
 
@@ -223,6 +237,8 @@ class Outgoing:
     seq: int | None
     expectations: tuple[Expectation, ...] = ()
     setpoint: Setpoint | None = None
+    lifecycle: LifecyclePurpose | None = None
+    """For ``kind == "lifecycle"``: which of the profile's lifecycle lists the frame is from."""
 
 
 @dataclass(frozen=True)
@@ -290,6 +306,13 @@ class _ServoSlot:
     """A pushing servo's report period (None: polled, or pushes nothing)."""
     last_heard: float = 0.0
     """When a pushing servo last reported (or the schedule started): its silence is from here."""
+    started: bool = False
+    """Its start-up frames went out since the schedule began, it came back online, or it was
+    released (module docstring)."""
+    last_startup: float = -math.inf
+    release_due: float | None = None
+    """When its release frames go out (None: none pending): at once after ``release``, at the
+    next command slot after the bus refused them."""
 
     @property
     def has_unsent_setpoint(self) -> bool:
@@ -445,6 +468,7 @@ class ScheduleCore:
                 else spec.telemetry_hz
             ),
             max_speed_dps=spec.max_speed_dps,
+            startup_hz=1 / STARTUP_RETRY_S,
         )
 
     def _check_budget(self, servos: Sequence[ServoSpec]) -> float:
@@ -529,17 +553,81 @@ class ScheduleCore:
         seq = slot.seq
         slot.latest = Setpoint(seq, angle_deg, source, t, msg)
         slot.released = False
+        slot.release_due = None
         return SetpointResult(True, seq)
 
     def release(self, name: str) -> None:
-        """Stop commanding and refreshing a servo until its next setpoint (failsafe release)."""
-        self._slots[name].released = True
+        """Stop commanding and refreshing a servo until its next setpoint (failsafe release),
+        and send its profile's release frames (motor off) at the next step; the next command
+        is preceded by the start-up frames again."""
+        slot = self._slots[name]
+        slot.released = True
+        slot.release_due = -math.inf if slot.spec.profile.release_frames() else None
+        slot.started = False
+
+    def wants_lifecycle_wake(self) -> bool:
+        """True when release frames wait to go at once (the runner is woken for them)."""
+        return self._next_release() == -math.inf
+
+    def _next_release(self) -> float:
+        """When the earliest pending release frames are due (inf: none pending)."""
+        due = [s.release_due for s in self._slots.values() if s.release_due is not None]
+        return min(due, default=math.inf)
+
+    def final_frames(self, now: float) -> list[Outgoing]:
+        """What goes out when the scheduler stops: pending release frames, then every servo's
+        shutdown frames, in configuration order."""
+        out: list[Outgoing] = []
+        for name in self._order:
+            slot = self._slots[name]
+            if slot.release_due is not None:
+                slot.release_due = None
+                out += self._lifecycle(slot, slot.spec.profile.release_frames(), "release", now)
+            out += self._lifecycle(slot, slot.spec.profile.shutdown_frames(), "shutdown", now)
+        return out
 
     def wants_immediate_wake(self, name: str) -> bool:
         slot = self._slots.get(name)
         return bool(slot and slot.spec.command_mode == "immediate" and slot.has_unsent_setpoint)
 
     # ------------------------------------------------------------------------ the policy
+    def _lifecycle(
+        self, slot: _ServoSlot, frames: list[can.Message], purpose: LifecyclePurpose, now: float
+    ) -> list[Outgoing]:
+        """Outgoing lifecycle frames, each expecting the profile's ``replies_per_lifecycle``."""
+        out = []
+        profile = slot.spec.profile
+        for msg in frames:
+            key = exchange_key(profile, msg)
+            expectations = tuple(
+                Expectation("lifecycle", now, now + self.timing.reply_timeout_s, key)
+                for _ in range(profile.replies_per_lifecycle)
+            )
+            slot.expected.extend(expectations)
+            out.append(
+                Outgoing(slot.spec.name, "lifecycle", msg, None, expectations, None, purpose)
+            )
+        return out
+
+    def _start_up_if_needed(self, slot: _ServoSlot, now: float, decision: Decision) -> None:
+        """Put the servo's start-up frames before its command when they are due."""
+        profile = slot.spec.profile
+        if now - slot.last_startup < STARTUP_RETRY_S:
+            return  # the budget counts start-ups at this rate: it is a ceiling
+        if slot.started and not profile.needs_startup():
+            return
+        slot.started = True
+        slot.last_startup = now
+        decision.frames += self._lifecycle(slot, profile.startup_frames(), "startup", now)
+
+    def _serve_releases(self, now: float, decision: Decision) -> None:
+        for name in self._order:
+            slot = self._slots[name]
+            if slot.release_due is not None and slot.release_due <= now:
+                slot.release_due = None
+                frames = slot.spec.profile.release_frames()
+                decision.frames += self._lifecycle(slot, frames, "release", now)
+
     def _command_frame(self, slot: _ServoSlot, kind: FrameKind, now: float) -> Outgoing:
         assert slot.latest is not None
         replies = slot.spec.profile.replies_per_command
@@ -630,12 +718,14 @@ class ScheduleCore:
             if slot.has_unsent_setpoint:
                 if slot.spec.command_mode == "immediate" and not self._spacing_elapsed(slot, now):
                     continue  # the immediate path sends it when the spacing ends
+                self._start_up_if_needed(slot, now, decision)
                 decision.frames.append(self._command_frame(slot, "command", now))
                 if slot.spec.command_mode == "periodic":
                     slot.last_command_time = slot_time
             elif (
                 slot.last_command_time is None or slot_time - slot.last_command_time >= refresh_due
             ) and (slot.spec.command_mode == "periodic" or self._spacing_elapsed(slot, now)):
+                self._start_up_if_needed(slot, now, decision)
                 decision.frames.append(self._command_frame(slot, "refresh", now))
                 if slot.spec.command_mode == "periodic":
                     slot.last_command_time = slot_time
@@ -650,6 +740,7 @@ class ScheduleCore:
             if slot.spec.command_mode != "immediate" or not slot.has_unsent_setpoint:
                 continue
             if self._spacing_elapsed(slot, now):
+                self._start_up_if_needed(slot, now, decision)
                 decision.frames.append(self._command_frame(slot, "command", now))
 
     def _serve_telemetry(self, now: float, decision: Decision) -> None:
@@ -672,11 +763,7 @@ class ScheduleCore:
         # suspension: nothing may still occupy the bus at the next command slot
         # (the command frames of this very step go first and take their own bus time)
         bus_free_until = self._next_command_slot - t.command_guard_s
-        budget = (
-            bus_free_until
-            - now
-            - sum(self._slots[out.servo].command_cost_s for out in decision.frames)
-        )
+        budget = bus_free_until - now - sum(self._frame_cost(out) for out in decision.frames)
         remaining: list[str] = []
         for name in self._poll_round:
             slot = self._slots[name]
@@ -706,11 +793,20 @@ class ScheduleCore:
         decision.deferred_polls = len(remaining)
         self._poll_round = remaining
 
+    def _frame_cost(self, out: Outgoing) -> float:
+        """Bus time of a frame of this step and its replies (a command: its servo's cost)."""
+        if out.kind != "lifecycle":
+            return self._slots[out.servo].command_cost_s
+        bitrate = self.timing.bitrate
+        reply = frame_time(bool(out.msg.is_extended_id), _REPLY_DLC, bitrate)
+        return message_bits(out.msg) / bitrate + len(out.expectations) * reply
+
     def step(self, now: float) -> Decision:
         """Frames to send at ``now`` (commands first) and when to call ``step`` again."""
         decision = Decision(frames=[], next_deadline=math.inf)
         self._expire(now, decision)
         self._expire_silent_pushers(now, decision)
+        self._serve_releases(now, decision)
         self._serve_command_slot(now, decision)
         self._serve_immediate(now, decision)
         self._serve_telemetry(now, decision)
@@ -726,6 +822,9 @@ class ScheduleCore:
         """
         t = self.timing
         candidates = [self._next_command_slot, self._next_telemetry_tick]
+        release_due = self._next_release()
+        if release_due < math.inf:
+            candidates.append(max(now, release_due))
         for slot in self._slots.values():
             if slot.spec.command_mode == "immediate" and slot.has_unsent_setpoint:
                 last = slot.last_command_time
@@ -781,6 +880,14 @@ class ScheduleCore:
         for expectation in out.expectations:
             if expectation in slot.expected:
                 slot.expected.remove(expectation)
+        if out.kind == "lifecycle":
+            # not a miss: the command after it (or the next poll) tells whether the servo is
+            # there, and a bus that is down would otherwise be counted twice per slot
+            if out.lifecycle == "startup":
+                slot.started = False  # they go again before the next command
+            elif out.lifecycle == "release" and slot.released:
+                slot.release_due = self._next_command_slot  # again, not in a tight loop
+            return SendFailure(False, None)
         if out.seq is not None and slot.sent_seq == out.seq:
             slot.sent_seq = out.seq - 1
         went_offline = self._missed(slot, on_send=True)
@@ -792,6 +899,8 @@ class ScheduleCore:
         the expectation it answers (its kind, the oldest of plausible latency)."""
         slot = self._slots[name]
         back_online = slot.missed_in_a_row >= self.timing.offline_after_missed
+        if back_online:
+            slot.started = False  # it may have been power-cycled: start it up again
         slot.missed_in_a_row = 0
         slot.last_heard = max(slot.last_heard, t)
         self._offline_on_sends.discard(name)
@@ -799,7 +908,8 @@ class ScheduleCore:
         if index is not None:
             expectation = slot.expected[index]
             del slot.expected[index]
-            latency = t - expectation.t_tx if expectation.kind != "request" else None
+            timed = expectation.kind in ("command", "refresh")
+            latency = t - expectation.t_tx if timed else None
             return ReplyMatch(expectation.kind, expectation.t_tx, latency, back_online)
         if slot.expected or slot.poll_period is not None or slot.spec.profile.replies_per_request:
             # none of its kind outstanding, or this servo only speaks when asked: an unmatched

@@ -256,6 +256,7 @@ class Scheduler:
         """
         self._stop.set()
         self._wake.set()
+        was_running = bool(self._threads)
         for thread in self._threads:
             thread.join(timeout)
             if thread.is_alive():
@@ -265,7 +266,10 @@ class Scheduler:
                     thread.name,
                     timeout,
                 )
+        stopped = not any(thread.is_alive() for thread in self._threads)
         self._threads = []
+        if was_running and stopped:  # a runner still in bus.send would be a second writer
+            self._send_final_frames()
         now = self._clock()
         with self._lock:
             runs = [("sends", self._send_failures), ("receives", self._receive_failures)]
@@ -278,6 +282,32 @@ class Scheduler:
                     what,
                     *ended,
                 )
+
+    def _send_final_frames(self) -> None:
+        """Pending release frames and the shutdown frames, sent by the stopping thread once the
+        runner is gone (still one writer); a refused one is counted and the rest still go."""
+        with self._lock:
+            frames = self._core.final_frames(self._clock())
+        for out in frames:
+            try:
+                self._bus.send(out.msg)
+            except can.CanError as exc:
+                with self._lock:
+                    self._metrics.servos[out.servo].send_failed += 1
+                log.warning(
+                    "scheduler %s: %s frame to %s refused: %s",
+                    self.name,
+                    out.lifecycle,
+                    out.servo,
+                    exc,
+                )
+                continue
+            t = self._clock()
+            with self._lock:
+                self._account_tx(out, t)
+            self._notify_observer(
+                self._observer.on_tx, self.name, out.msg, t, out.kind, out.servo, out.seq
+            )
 
     def __enter__(self) -> Scheduler:
         self.start()
@@ -327,6 +357,9 @@ class Scheduler:
         """Stop sending and refreshing ``servo`` until its next setpoint (failsafe release)."""
         with self._lock:
             self._core.release(servo)
+            wake = self._core.wants_lifecycle_wake()
+        if wake:
+            self._wake.set()  # the release frames (motor off) go out now, not at the next slot
 
     def state(self, servo: str) -> ServoState | None:
         with self._lock:
@@ -536,7 +569,7 @@ class Scheduler:
             metrics = self._metrics
             metrics.missed_command_slots += decision.missed_slots
             if decision.command_slot is not None and not any(
-                out.kind != "request" for out in decision.frames
+                out.kind in ("command", "refresh") for out in decision.frames
             ):
                 # nothing to write in this slot: it is on time when the loop got round to it
                 # (a slot with frames is timed at its first write, in _send_all)
@@ -596,7 +629,7 @@ class Scheduler:
                 back = self._core.sent(out, t)
                 lines = [line for servo in back for line in self._online_log.online(servo, t)]
                 self._account_tx(out, t)
-                if not slot_marked and out.kind != "request":
+                if not slot_marked and out.kind in ("command", "refresh"):
                     assert decision.command_slot is not None
                     self._metrics.command_slot_served(decision.command_slot, t)
                     slot_marked = True
@@ -611,6 +644,8 @@ class Scheduler:
         servo = self._metrics.servos[out.servo]
         if out.kind == "request":
             servo.requests_sent += 1
+        elif out.kind == "lifecycle":
+            servo.lifecycle_sent += 1
         else:
             if out.kind == "command":
                 servo.commands_sent += 1

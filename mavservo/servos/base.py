@@ -221,6 +221,9 @@ class ServoProfile(ABC):
     """Replies a position command provokes (used for bus-load budgeting)."""
     replies_per_request: int = 1
     """Replies each telemetry request provokes."""
+    replies_per_lifecycle: int = 0
+    """Replies each start-up, release or shutdown frame provokes (the scheduler expects them,
+    so an answer is neither a late reply nor a bad one)."""
     min_id: int = 1
     max_id: int = 32
     min_angle_deg: float = -math.inf

@@ -125,6 +125,8 @@ class RmdX(ServoProfile):
     max_angle_deg = _I32_MAX / 100
     max_speed_dps = 65535.0
     reply_base = REPLY_BASE_V4
+    replies_per_lifecycle = 1
+    """0x80 and 0xB3 are echoed."""
 
     has_comm_timeout = True
     """V4 firmware has 0xB3; LK-Tech does not."""
@@ -223,6 +225,8 @@ class RmdX(ServoProfile):
         if command == CMD_MULTI_TURN_ANGLE:
             (angle,) = struct.unpack_from("<i", data, 4)
             return self._merge(timestamp, position_deg=angle / 100)
+        if command in (CMD_MOTOR_OFF, CMD_COMM_TIMEOUT):
+            return self._merge(timestamp)  # an echo: alive, nothing new to report
         if command == CMD_STATUS_1:
             _, temp, _, _, voltage, error = struct.unpack("<BbBBHH", data)
             return self._merge(

@@ -1,0 +1,1 @@
+"""A worked mavservo servo-profile plug-in (see README.md)."""
