@@ -62,6 +62,8 @@ class CubeMarsAKMit(ServoProfile):
     name = "cubemars-ak-mit"
     replies_per_command = 1
     replies_per_request = 1
+    replies_per_lifecycle = 1
+    """FC and FD are answered with the state."""
     min_id, max_id = 1, 0x7F
     Options: ClassVar[type[ProfileOptions]] = CubeMarsMitOptions
     options: CubeMarsMitOptions

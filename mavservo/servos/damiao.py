@@ -123,6 +123,8 @@ class DamiaoDM(ServoProfile):
     name = "damiao-dm"
     replies_per_command = 1
     replies_per_request = 1
+    replies_per_lifecycle = 1
+    """Every register write and special frame is answered on the master id."""
     min_id, max_id = 1, 0x7F
     Options: ClassVar[type[ProfileOptions]] = DamiaoOptions
     options: DamiaoOptions
