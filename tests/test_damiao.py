@@ -250,3 +250,38 @@ def test_cross_check_lifecycle_and_registers_against_damiao_motor(virtual_pair) 
     ours = {(m.arbitration_id, bytes(m.data)) for m in servo.startup_frames()}
     ours |= {(m.arbitration_id, bytes(m.data)) for m in servo.release_frames()}
     assert ours == theirs
+
+
+COLLIDING = """
+mavlink: {url: sim}
+can:
+  buses:
+    - {name: bus0, interface: aa55, channel: sim}
+servos:
+  - {name: a, profile: damiao-dm, can_id: 1, limits_deg: [-90, 90]}
+  - {name: b, profile: damiao-dm, can_id: 17, limits_deg: [-90, 90]B_OPTIONS}
+  - {name: c, profile: cubemars-ak-mit, can_id: 33, limits_deg: [-90, 90]C_OPTIONS}
+channels: []
+"""
+
+
+def test_check_reports_replies_that_share_a_master_id_and_an_id_nibble() -> None:
+    """Byte 0 carries only the id's low four bits: ids 1 and 17 on one master id cannot be
+    told apart, nor a CubeMars MIT driver 33 (byte 0 = 0x21) from Damiao 1."""
+    from mavservo.config import ConfigError, load_config_text
+
+    text = COLLIDING.replace("B_OPTIONS", "").replace("C_OPTIONS", "")
+    with pytest.raises(ConfigError) as info:
+        load_config_text(text, "rig.yaml")
+    message = str(info.value)
+    assert "servo 'b' (damiao-dm id 17) collides" in message
+    assert "data[0]=0x01/0x0F" in message
+    # one master id per motor separates them
+    fixed = text.replace(
+        "[-90, 90]}\n  - {name: c", "[-90, 90], options: {master_id: 16}}\n  - {name: c"
+    )
+    fixed = fixed.replace(
+        "can_id: 33, limits_deg: [-90, 90]}",
+        "can_id: 33, limits_deg: [-90, 90], options: {master_id: 32}}",
+    )
+    assert len(load_config_text(fixed, "rig.yaml").servos) == 3
