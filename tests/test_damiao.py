@@ -122,8 +122,9 @@ def test_every_status_code_is_a_named_fault(status: int, fault: Fault) -> None:
 
 @pytest.mark.parametrize(("status", "due"), [(0x0, True), (0xD, True), (0x1, False), (0xA, False)])
 def test_disabled_or_timed_out_motor_asks_for_startup_again(status: int, due: bool) -> None:
-    """Disabled (0) and communication lost (D) are re-enabled; a hardware fault stays latched
-    for the operator (re-enabling into over-current would only trip it again)."""
+    """Disabled (0) and communication lost (D) ask for the start-up frames again; a hardware
+    fault does not (enabling into an over-current would only trip it again): the motor is
+    enabled again once it reports plain "disabled", i.e. after the condition ended."""
     servo = DamiaoDM(1)
     servo.decode(frame(0, f"{status:x}1" + "7fff7ff7ff1919"), 0.0)
     assert servo.needs_startup() is due

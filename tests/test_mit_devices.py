@@ -147,3 +147,22 @@ def test_cubemars_mit_fault_codes_reach_the_profile() -> None:
     state = profile.decode(reply, 0.0)
     assert state is not None and state.faults == Fault.OVER_TEMPERATURE
     assert math.isfinite(state.temperature_c)
+
+
+def test_cubemars_mit_own_timeout_stops_the_motor_until_the_next_command() -> None:
+    options = CubeMarsMitOptions(comm_timeout_ms=100)
+    profile = CubeMarsAKMit(2, options)
+    servo = SimServo("cubemars-ak-mit", 2, options=options)
+    send_all(servo, profile.startup_frames(), 0.0)
+    now = settle(servo, profile, 15.0, 0.0, 1.0)
+    servo.poll(now + 0.05)
+    assert servo.enabled
+    servo.poll(now + 0.2)  # 200 ms quiet: torque off, still in motor mode
+    assert not servo.enabled
+    assert len(exchange(servo, profile.position_command(15.0), now + 0.3)) == 1
+    assert servo.enabled
+    # without a timeout option (as shipped) it never stops by itself
+    quiet = SimServo("cubemars-ak-mit", 3)
+    send_all(quiet, CubeMarsAKMit(3).startup_frames(), 0.0)
+    quiet.poll(100.0)
+    assert quiet.enabled

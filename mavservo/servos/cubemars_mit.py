@@ -54,6 +54,13 @@ class CubeMarsMitOptions(mit.MitOptions):
     torque_constant_nm_per_a: float = Field(
         0.819, gt=0, le=100, description="output torque per amp (AK80-9: 0.091 x 9)"
     )
+    comm_timeout_ms: int = Field(
+        0,
+        ge=0,
+        le=60_000,
+        description="the driver's own CAN timeout as set with R-Link (0: none); not writable "
+        "over CAN, so it is not sent: it tells the simulation what the driver does",
+    )
 
 
 class CubeMarsAKMit(ServoProfile):
@@ -161,8 +168,9 @@ class CubeMarsMitDevice:
 
     Out of motor mode (as it powers up, and after ``FD``) it ignores commands and does not
     answer them; ``FC`` enters motor mode and is always answered with the state; ``FE`` zeroes
-    the position and mutes the driver for about a second. The communication timeout of this
-    firmware is set with CubeMars' R-Link tool, not over CAN, so the simulated driver has none.
+    the position and mutes the driver for about a second. With a CAN timeout set (R-Link, the
+    ``comm_timeout_ms`` option) a driver that hears nothing for that long stops driving the
+    motor (torque off) but stays in motor mode: the next command drives it again.
     """
 
     pushes = False
@@ -173,6 +181,8 @@ class CubeMarsMitDevice:
         self.options = options
         self.ranges = options.ranges()
         self.muted_until = -math.inf
+        self.motor_mode = False
+        self.last_frame_time: float | None = None
         motor.enabled = False  # out of motor mode at power-up: it waits for FF x7 FC
 
     def accepts(self, msg: can.Message) -> bool:
@@ -184,17 +194,23 @@ class CubeMarsMitDevice:
         )
 
     def handle(self, msg: can.Message, now: float) -> list[can.Message]:
+        self.tick(now)
+        self.last_frame_time = now
         data = bytes(msg.data)
         if mit.is_special(data):
             code = data[7]
             if code == mit.ENTER_MOTOR_MODE[7]:
+                self.motor_mode = True
                 self.motor.enable(now)
             elif code == mit.EXIT_MOTOR_MODE[7]:
+                self.motor_mode = False
                 self.motor.disable(now)
             elif code == mit.SET_ZERO[7]:
                 self.motor.set_zero(now)
                 self.muted_until = now + ZERO_MUTE_S
-        elif self.motor.enabled:
+        elif self.motor_mode:
+            if not self.motor.enabled:  # after its own timeout: the command drives it again
+                self.motor.enable(now)
             command = mit.unpack_command(data, self.ranges)
             self.motor.command_position(math.degrees(command.position_rad), None, now)
         else:
@@ -205,7 +221,11 @@ class CubeMarsMitDevice:
         return []
 
     def tick(self, now: float) -> None:
-        return None
+        """The driver's own CAN timeout: quiet for longer, it stops driving the motor."""
+        timeout_s = self.options.comm_timeout_ms / 1000
+        quiet = self.last_frame_time is not None and now - self.last_frame_time > timeout_s
+        if timeout_s > 0 and quiet and self.motor.enabled:
+            self.motor.disable(now)
 
     def reply(self) -> can.Message:
         motor = self.motor
