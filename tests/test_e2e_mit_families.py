@@ -81,7 +81,7 @@ def test_mit_families_follow_report_and_refuse_out_of_range() -> None:
                 servos = {name: sim_servo(bridge, name) for name in SERVOS}
                 assert wait_until(
                     lambda s=servos, t=target: all(
-                        abs(x.position_deg - t) < 0.05 and abs(x.velocity_dps) < 0.5
+                        abs(x.position_deg - t) < 0.05 and abs(x.velocity_dps) < 0.1
                         for x in s.values()
                     ),
                     WAIT_S,
