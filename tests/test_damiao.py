@@ -158,7 +158,10 @@ def test_register_answers_are_ours_keep_the_state_and_share_a_key_with_the_write
     assert state is not None and state.timestamp == 2.0
     assert state.position_deg == pytest.approx(math.degrees(-12.5 + 32767 * 25 / 65535))
     assert servo.exchange_key(write) == servo.exchange_key(ack) == ("register", 9)
-    assert servo.exchange_key(servo.telemetry_requests()[0]) is None
+    feedback = frame(0x11, "117fff7ff7ff1919")
+    for request in (servo.telemetry_requests()[0], *servo.startup_frames()[2:]):
+        assert servo.exchange_key(request) == servo.exchange_key(feedback) == "feedback"
+    assert servo.exchange_key(servo.position_command(0.0)) == "feedback"
     assert not servo.needs_startup()  # a register echo (byte 0 = id) is not "disabled"
 
 
@@ -286,3 +289,26 @@ def test_check_reports_replies_that_share_a_master_id_and_an_id_nibble() -> None
         "can_id: 33, limits_deg: [-90, 90], options: {master_id: 32}}",
     )
     assert len(load_config_text(fixed, "rig.yaml").servos) == 3
+
+
+def test_feedback_overtaking_register_writes_is_not_credited_to_them() -> None:
+    """The start-up's register writes go on 0x7FF, the lowest priority: on the bus the
+    clear-error queued after them wins arbitration and its feedback arrives first. That
+    feedback must answer the clear-error, not the oldest outstanding register write."""
+    from dataclasses import dataclass
+
+    from mavservo.scheduling.reply_matching import ReplyMatcher
+
+    @dataclass
+    class Expected:
+        t_tx: float
+        key: object
+
+    servo = DamiaoDM(1)
+    startup = servo.startup_frames()
+    expected = [Expected(0.001 * i, servo.exchange_key(m)) for i, m in enumerate(startup)]
+    feedback = frame(0x000, "017fff7ff7ff1919")  # status 0: the answer to the clear-error
+    picked = ReplyMatcher().pick(expected, 0.005, servo.exchange_key(feedback))
+    assert picked == 2  # the clear-error (FF x7 FB), not the CTRL_MODE write at index 0
+    echo = frame(0x000, "0100550a01000000")
+    assert ReplyMatcher().pick(expected, 0.006, servo.exchange_key(echo)) == 0

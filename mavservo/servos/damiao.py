@@ -256,15 +256,22 @@ class DamiaoDM(ServoProfile):
         return data[0] & 0x0F == self.can_id & 0x0F or self._is_register_reply(data)
 
     def exchange_key(self, msg: can.Message) -> Hashable | None:
-        """Register writes and their answers share ``("register", rid)``; feedback frames and
-        the requests they answer (commands, polls, enable) cannot tell: None."""
+        """``("register", rid)`` for a register read, write or store and its answer;
+        ``"feedback"`` for every other frame: commands, polls and special frames are all
+        answered with a feedback frame.
+
+        Two kinds, not None: the register frames go on 0x7FF, the lowest priority, so on the
+        bus a clear-error or enable queued after them overtakes them, and its feedback would
+        otherwise be credited to the register write (and the echo, coming later, to nothing).
+        """
         data = bytes(msg.data)
-        if len(data) == 8 and msg.arbitration_id == REGISTER_ID and data[2] != REG_REFRESH:
+        to_registers = msg.arbitration_id == REGISTER_ID and len(data) == 8
+        if to_registers and data[2] != REG_REFRESH:
             return ("register", data[3])
-        answer_on_master_id = len(data) == 8 and msg.arbitration_id == self.options.master_id
-        if answer_on_master_id and self._is_register_reply(data):
+        on_master_id = msg.arbitration_id == self.options.master_id and len(data) == 8
+        if on_master_id and self._is_register_reply(data):
             return ("register", data[3])
-        return None
+        return "feedback"
 
     def decode(self, msg: can.Message, timestamp: float) -> ServoState | None:
         if not self.is_reply(msg):
