@@ -61,6 +61,9 @@ def test_declares_itself(name: str) -> None:
     assert cls.min_id <= cls.max_id
     with pytest.raises(ValueError):
         cls(cls.max_id + 1)
+    # the scheduler's liveness rule follows the shape: polled servos are asked, pushed ones not
+    polled = bool(cls(cls.min_id).telemetry_requests())
+    assert polled == (cls.telemetry == "polled"), f"{name}: telemetry shape and requests disagree"
 
 
 @pytest.mark.parametrize("name", NAMES)

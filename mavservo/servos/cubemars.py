@@ -66,7 +66,9 @@ MODEL_POLE_PAIRS: dict[str, int] = {
     "AK80-9": 21,
     "AK80-64": 21,
 }
-"""Pole pairs of the AK models (CubeMars AK series manual, motor parameters table)."""
+"""Pole pairs of the AK models. Only AK80-9 (21), AK70-10 (21) and AK60-6 (14) were checked
+against an independent driver's table; the others are unverified here: check your model's
+datasheet and set ``pole_pairs`` when in doubt (it overrides the model)."""
 
 ModelName = Literal["AK10-9", "AK60-6", "AK70-10", "AK80-6", "AK80-8", "AK80-9", "AK80-64"]
 
