@@ -4,6 +4,12 @@
     PYTHONPATH=. python bench/bench_scheduler.py --seconds 60 --hog      # a busy loop per core
     PYTHONPATH=. python bench/bench_scheduler.py --transport virtual     # in-process bus
     PYTHONPATH=. python bench/bench_scheduler.py --cpu-only --seconds 20 # CPU %, 8 and 32 servos
+    PYTHONPATH=. python bench/bench_scheduler.py --profile rmd-x,damiao-dm,cubemars-ak-mit \
+        --runs 3 --seconds 30                                            # a row per family
+
+``--profile`` takes one servo family or several (comma-separated): every servo of a run is of
+one family, and with several families each run goes round all of them in turn, so each family
+is measured alongside the first one (RMD-X by default: the baseline) on the same machine state.
 
 "pty" runs the full host path: the project's ``aa55`` python-can bus over pyserial on a pty,
 with the USB-CAN adapter emulator and simulated RMD-X servos on the other end. Setpoints change
@@ -32,7 +38,7 @@ from typing import Any
 import can
 
 from mavservo.scheduling.runner import Scheduler, SchedulerObserver, ServoSpec, TimingConfig
-from mavservo.servos import RmdX
+from mavservo.servos import ServoProfile, get_profile
 from mavservo.sim.servo import SimServo
 
 _POLL_REPLIES = (0x9C, 0x9A, 0x92)  # RMD-X status 2, faults, multi-turn angle: answers to polls
@@ -220,7 +226,26 @@ def stop_hogs(hogs: list[subprocess.Popen]) -> None:
         hog.wait(5)
 
 
-def serve_simulator(n_servos: int, bitrate: int, realtime: bool) -> None:
+def bench_profile(name: str, can_id: int) -> ServoProfile:
+    """Servo ``can_id`` of family ``name`` as the bench drives it.
+
+    Families that answer on a shared master id (Damiao, CubeMars MIT) get one master id per
+    servo, so any number of them can share the bus without one claiming another's replies.
+    """
+    profile_class = get_profile(name)
+    fields = profile_class.Options.model_fields
+    if "master_id" in fields:
+        return profile_class(can_id, master_id=0x80 + can_id)
+    return profile_class(can_id)
+
+
+def simulated_servos(name: str, n_servos: int) -> list[SimServo]:
+    return [
+        SimServo(name, i, options=bench_profile(name, i).options) for i in range(1, n_servos + 1)
+    ]
+
+
+def serve_simulator(n_servos: int, bitrate: int, realtime: bool, profile: str) -> None:
     """Child-process mode: run the adapter emulator, print its port, live until stdin closes.
 
     Real servos are not inside the bridge's process; keeping the simulator out of it keeps its
@@ -230,7 +255,7 @@ def serve_simulator(n_servos: int, bitrate: int, realtime: bool) -> None:
 
     if realtime:  # hardware does not share our CPU: keep the hog from starving the servos
         os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(30))
-    sims = [SimServo("rmd-x", i) for i in range(1, n_servos + 1)]
+    sims = simulated_servos(profile, n_servos)
     emulator = AdapterEmulator(sims, bitrate=bitrate).start()
     print(emulator.path, flush=True)
     sys.stdin.read()
@@ -238,13 +263,15 @@ def serve_simulator(n_servos: int, bitrate: int, realtime: bool) -> None:
 
 
 class _ChildSimulator:
-    def __init__(self, n_servos: int, bitrate: int, realtime: bool) -> None:
+    def __init__(self, n_servos: int, bitrate: int, realtime: bool, profile: str) -> None:
         self.process = subprocess.Popen(
             [
                 sys.executable,
                 __file__,
                 "--serve-sim",
                 str(n_servos),
+                "--profile",
+                profile,
                 "--bitrate",
                 str(bitrate),
                 *(["--realtime"] if realtime else []),
@@ -267,10 +294,16 @@ class Transport:
     """Opens the host-side bus and the simulated servos behind it."""
 
     def __init__(
-        self, kind: str, n_servos: int, bitrate: int, in_process: bool, realtime: bool
+        self,
+        kind: str,
+        n_servos: int,
+        bitrate: int,
+        in_process: bool,
+        realtime: bool,
+        profile: str = "rmd-x",
     ) -> None:
         self.kind = kind
-        self.sims = [SimServo("rmd-x", i) for i in range(1, n_servos + 1)]
+        self.sims = simulated_servos(profile, n_servos)
         if kind == "pty":
             from mavservo.sim.adapter import AdapterEmulator
             from mavservo.transport.aa55.bus import AA55Bus
@@ -278,7 +311,7 @@ class Transport:
             if in_process:
                 self.device = AdapterEmulator(self.sims, bitrate=bitrate).start()
             else:
-                self.device = _ChildSimulator(n_servos, bitrate, realtime)
+                self.device = _ChildSimulator(n_servos, bitrate, realtime, profile)
             self.bus: can.BusABC = AA55Bus(self.device.path, bitrate=bitrate)
         else:
             from mavservo.sim.virtual import VirtualServoBus
@@ -292,7 +325,9 @@ class Transport:
         self.device.stop()
 
 
-def run_once(args: argparse.Namespace, n_servos: int, seconds: float) -> dict[str, Any]:
+def run_once(
+    args: argparse.Namespace, n_servos: int, seconds: float, profile: str = "rmd-x"
+) -> dict[str, Any]:
     timing = TimingConfig(
         command_period_s=args.command_period,
         telemetry_period_s=args.telemetry_period,
@@ -304,9 +339,9 @@ def run_once(args: argparse.Namespace, n_servos: int, seconds: float) -> dict[st
         telemetry_phase_s=args.telemetry_phase,
     )
     transport = Transport(
-        args.transport, n_servos, args.bitrate, args.sim_in_process, args.realtime
+        args.transport, n_servos, args.bitrate, args.sim_in_process, args.realtime, profile
     )
-    specs = [ServoSpec(f"s{i}", RmdX(i)) for i in range(1, n_servos + 1)]
+    specs = [ServoSpec(f"s{i}", bench_profile(profile, i)) for i in range(1, n_servos + 1)]
     tracer = IntervalTracer() if args.breakdown else None
     scheduler = Scheduler(transport.bus, specs, timing, name=args.transport, observer=tracer)
     if args.realtime:
@@ -348,6 +383,7 @@ def run_once(args: argparse.Namespace, n_servos: int, seconds: float) -> dict[st
     received = sum(s["frames"]["received"] for s in snapshot["servos"].values())
     ms = 1e3
     result: dict[str, Any] = {
+        "profile": profile,
         "servos": n_servos,
         "seconds": round(elapsed, 1),
         "hog": args.hog,
@@ -376,6 +412,7 @@ def run_once(args: argparse.Namespace, n_servos: int, seconds: float) -> dict[st
         "received": received,
         "cpu_sched_pct": (cpu["runner_s"] + cpu["receiver_s"]) / elapsed * 100,
         "cpu_process_pct": cpu_process / elapsed * 100,
+        "cpu_sched_pct_per_servo": (cpu["runner_s"] + cpu["receiver_s"]) / elapsed * 100 / n_servos,
     }
     if tracer is not None:
         result["breakdown"] = interval_breakdown(tracer, args.telemetry_period)
@@ -466,11 +503,18 @@ def main() -> None:
         action="store_true",
         help="trace every frame and split telemetry intervals by cause",
     )
+    parser.add_argument(
+        "--profile",
+        default="rmd-x",
+        help="servo family, or several comma-separated (each run goes round them in turn)",
+    )
     parser.add_argument("--serve-sim", type=int, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.serve_sim:
-        serve_simulator(args.serve_sim, args.bitrate, args.realtime)
+        serve_simulator(args.serve_sim, args.bitrate, args.realtime, args.profile)
         return
+    for name in args.profile.split(","):
+        get_profile(name)  # an unknown family fails here, before any run
 
     counts = [8, 32] if args.cpu_only else [args.servos]
     hogs = start_hogs() if args.hog else []
@@ -485,14 +529,16 @@ def _run_all(args: argparse.Namespace, counts: list[int], hogs: list[subprocess.
             base = bare_loop(args.seconds, args.command_period, args.spin)
             base["hog"] = args.hog
             print(json.dumps(_rounded(base)), flush=True)
+        profiles = args.profile.split(",")
         for n in counts:
             for _ in range(args.runs):
-                result = run_once(args, n, args.seconds)
-                line = json.dumps(_rounded(result))
-                print(line, flush=True)
-                if args.json:
-                    with open(args.json, "a") as out:
-                        out.write(line + "\n")
+                for profile in profiles:  # alternated, so each family sees the same machine
+                    result = run_once(args, n, args.seconds, profile)
+                    line = json.dumps(_rounded(result))
+                    print(line, flush=True)
+                    if args.json:
+                        with open(args.json, "a") as out:
+                            out.write(line + "\n")
     finally:
         stop_hogs(hogs)
 

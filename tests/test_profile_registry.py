@@ -44,10 +44,10 @@ def plugins(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
 
 def test_unknown_profile_lists_the_known_ones_and_where_plugins_come_from() -> None:
     with pytest.raises(registry.UnknownProfileError) as info:
-        registry.get_profile("damiao-dm")
+        registry.get_profile("dynamixel-x")
     message = str(info.value)
-    assert "'damiao-dm'" in message
-    assert "cubemars-ak, lk, rmd-x" in message
+    assert "'dynamixel-x'" in message
+    assert "cubemars-ak, cubemars-ak-mit, damiao-dm, lk, rmd-x" in message
     assert "'mavservo.profiles' entry points" in message
 
 

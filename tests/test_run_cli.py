@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import gc
+import math
 import re
 import signal
 import statistics
@@ -108,6 +109,9 @@ def assert_positions_followed(name: str, trace: list[dict[str, str]], span: floa
     (RMD-X reports whole degrees).
     """
     rows = [r for r in trace if on(r, name, "state") and r["setpoint_deg"]]
+    # a state may precede the first position reading (Damiao: the echo of a start-up register
+    # write): its position is unknown (NaN), which says nothing about following
+    rows = [r for r in rows if not math.isnan(float(r["position_deg"] or "nan"))]
     assert len(rows) >= 10, f"{name}: {len(rows)} measured states"
     setpoints = [float(r["setpoint_deg"]) for r in rows]
     positions = [float(r["position_deg"]) for r in rows]

@@ -20,6 +20,8 @@ from .base import (
     SimMotor,
 )
 from .cubemars import CubeMarsAK
+from .cubemars_mit import CubeMarsAKMit
+from .damiao import DamiaoDM
 from .registry import PROFILES, UnknownProfileError, get_profile, load_errors, profiles
 from .rmdx import LkTech, RmdX
 
@@ -28,6 +30,8 @@ __all__ = [
     "PROFILES",
     "UNKNOWN",
     "CubeMarsAK",
+    "CubeMarsAKMit",
+    "DamiaoDM",
     "Fault",
     "FrameId",
     "LkTech",

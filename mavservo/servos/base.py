@@ -43,6 +43,14 @@ class Fault(enum.Flag):
     OTHER = enum.auto()
     """An error bit or code the profile does not know by name (never hidden as "no fault")."""
     NO_REPLY = enum.auto()
+    # Members below were added with the Robstride and ODrive profiles; new members go at the
+    # end so the bit values published in ``s<n>_flt`` never move.
+    UNCALIBRATED = enum.auto()
+    """The motor's encoder or motor calibration is missing (Robstride, ODrive)."""
+    DRIVER = enum.auto()
+    """The gate-driver chip or power stage hardware reports a fault."""
+    COMMUNICATION_LOST = enum.auto()
+    """The servo's own communication timeout or watchdog expired and it stopped by itself."""
 
 
 NO_FAULT = Fault(0)

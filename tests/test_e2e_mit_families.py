@@ -1,0 +1,205 @@
+"""Damiao DM-J and CubeMars AK MIT-mode servos through the whole bridge and back.
+
+A GCS-side pymavlink peer sends DO_SET_SERVO over UDP; the bridge drives the aa55 interface on
+the adapter emulator's pty; simulated Damiao motors (MIT and position-velocity mode) and a
+CubeMars AK driver in MIT mode move and answer; their telemetry comes back over MAVLink.
+Checked: the servos follow within the reply's resolution with nothing lost; a position outside
+a model's range is DENIED and counted and never reaches the bus; a servo that falls silent goes
+offline (STATUSTEXT) and comes back; a fault status in a reply reaches STATUSTEXT and the gimbal
+failure flags.
+"""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from conftest import wait_until
+from e2e_support import (
+    MAV_CMD_DO_SET_SERVO,
+    MAV_RESULT_ACCEPTED,
+    Peer,
+    Recorder,
+    named_values,
+    pwm_to_angle,
+    running,
+    sim_servo,
+)
+
+from mavservo.servos.damiao import DamiaoDM
+from mavservo.servos.mit import is_special, unpack_command
+from mavservo.sim.autopilot.link import mavlink2
+
+pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")
+
+MAV_RESULT_DENIED = 2
+WAIT_S = 5.0
+
+CONFIG = """
+  telemetry: {actuator_output_status_hz: 10, named_value_float_hz: 20, esc_telemetry_hz: 0}
+servos:
+  - {name: dm_mit, profile: damiao-dm, can_id: 1, limits_deg: [-90, 90], telemetry_hz: 10,
+     options: {comm_timeout_ms: 500}}
+  - {name: dm_pv, profile: damiao-dm, can_id: 2, limits_deg: [-90, 90], telemetry_hz: 10,
+     max_speed_dps: 720, options: {mode: position-velocity, comm_timeout_ms: 500}}
+  - {name: ak_mit, profile: cubemars-ak-mit, can_id: 3, limits_deg: [-90, 90], telemetry_hz: 10}
+  - {name: dm_small, profile: damiao-dm, can_id: 4, limits_deg: [-90, 90], telemetry_hz: 10,
+     options: {p_max_rad: 1.0}}
+# a reply counts as lost only when it never comes: timing on a loaded machine is not judged here
+scheduler: {reply_timeout_s: 0.5}
+channels:
+  - {servo: dm_mit, source: servo_output, channel: 1, input: {min: 1000, max: 2000},
+     output_deg: [-90, 90]}
+  - {servo: dm_pv, source: servo_output, channel: 2, input: {min: 1000, max: 2000},
+     output_deg: [-90, 90]}
+  - {servo: ak_mit, source: servo_output, channel: 3, input: {min: 1000, max: 2000},
+     output_deg: [-90, 90]}
+  - {servo: dm_small, source: servo_output, channel: 4, input: {min: 1000, max: 2000},
+     output_deg: [-90, 90]}
+"""
+
+RESOLUTION_DEG = math.degrees(25.0 / 65535)
+"""One count of the 16-bit position field over +-12.5 rad (both families' default range)."""
+#: servo -> (NAMED_VALUE_FLOAT index, channel)
+SERVOS = {"dm_mit": (1, 1), "dm_pv": (2, 2), "ak_mit": (3, 3)}
+
+
+def status(bridge, name: str):  # type: ignore[no-untyped-def]
+    return next(s for s in bridge.backend.servo_statuses() if s.name == name)
+
+
+def test_mit_families_follow_report_and_refuse_out_of_range() -> None:
+    recorder = Recorder()
+    with running(CONFIG, observers=[recorder]) as (bridge, port):
+        peer = Peer(port)
+        try:
+            for pwm in (1650, 1210):
+                target = pwm_to_angle(pwm, 1000, 2000, (-90, 90))
+                for name, (_, channel) in SERVOS.items():
+                    result = peer.command(MAV_CMD_DO_SET_SERVO, [channel, pwm])
+                    assert result == MAV_RESULT_ACCEPTED, name
+                servos = {name: sim_servo(bridge, name) for name in SERVOS}
+                assert wait_until(
+                    lambda s=servos, t=target: all(
+                        abs(x.position_deg - t) < 0.05 and abs(x.velocity_dps) < 0.1
+                        for x in s.values()
+                    ),
+                    WAIT_S,
+                ), {n: s.position_deg for n, s in servos.items()}
+                mark = peer.count()
+                assert wait_until(
+                    lambda m=mark: all(
+                        len(named_values(peer.since(m), f"s{n}_pos")) >= 3
+                        for n, _ in SERVOS.values()
+                    ),
+                    WAIT_S,
+                )
+                for name, (n, _) in SERVOS.items():
+                    for value in named_values(peer.since(mark), f"s{n}_pos")[-2:]:
+                        assert abs(value - servos[name].position_deg) <= RESOLUTION_DEG, name
+
+        finally:
+            peer.close()
+        summary = bridge.stop()
+    for name in SERVOS:
+        frames = summary["servos"][name]["frames"]
+        assert frames["sent"] > 0 and frames["received"] > 0, name
+        assert frames["lost"] == 0 and frames["rejected"] == 0, (name, frames)
+    assert summary["buses"]["bus0"]["bus_rejected"] == 0
+
+
+def test_a_position_outside_the_models_range_is_denied_counted_and_never_sent() -> None:
+    """72 deg is inside limits_deg but outside this model's +-1 rad (57.3 deg): DENIED, counted
+    in the summary, and no frame for it goes out; the next valid command does."""
+    recorder = Recorder()
+    small = DamiaoDM(4, p_max_rad=1.0)
+    with running(CONFIG, observers=[recorder]) as (bridge, port):
+        peer = Peer(port)
+        try:
+            assert peer.command(MAV_CMD_DO_SET_SERVO, [4, 1900]) == MAV_RESULT_DENIED
+            assert peer.command(MAV_CMD_DO_SET_SERVO, [4, 1600]) == MAV_RESULT_ACCEPTED
+            assert wait_until(lambda: 18.0 in recorder.angles("dm_small"), WAIT_S)
+            assert wait_until(lambda: commanded_angles(recorder, small), WAIT_S)
+        finally:
+            peer.close()
+        summary = bridge.stop()
+    assert recorder.angles("dm_small") == [pytest.approx(18.0)]
+    sent = commanded_angles(recorder, small)
+    assert sent and all(a == pytest.approx(18.0, abs=0.05) for a in sent), sent
+    commands = summary["mavlink"]["commands"]
+    assert commands["result_denied"] == 1, commands
+    assert commands["reason_damiao-dm"] == 1, commands  # counted under the profile's name
+
+
+def commanded_angles(recorder: Recorder, profile: DamiaoDM) -> list[float]:
+    """Angles of the MIT position commands written to ``profile``'s servo (decoded here)."""
+    out = []
+    for kind, arbitration_id, data in recorder.frames("dm_small"):
+        if kind.startswith("command") and arbitration_id == profile.can_id and not is_special(data):
+            out.append(math.degrees(unpack_command(data, profile.ranges).position_rad))
+    return out
+
+
+@pytest.mark.parametrize("name", ["dm_mit", "ak_mit"])
+def test_a_silent_servo_goes_offline_and_comes_back(name: str) -> None:
+    with running(CONFIG) as (bridge, port):
+        peer = Peer(port)
+        try:
+            peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))  # a GCS: answer me
+            assert wait_until(lambda: status(bridge, name).online, WAIT_S)
+            device = sim_servo(bridge, name)
+            mark = peer.count()
+            device.faults.silent = True
+            assert wait_until(lambda: not status(bridge, name).online, WAIT_S)
+            assert wait_until(
+                lambda: f"servo {name} not responding" in peer.statustexts(mark), WAIT_S
+            )
+            assert status(bridge, "dm_pv").online  # the others keep answering
+            device.faults.silent = False
+            assert wait_until(lambda: status(bridge, name).online, WAIT_S)
+        finally:
+            peer.close()
+
+
+GIMBAL = """
+  telemetry: {gimbal_attitude_status_hz: 20, named_value_float_hz: 0, esc_telemetry_hz: 0,
+              actuator_output_status_hz: 0}
+  mirror: {servo_output_raw: false}
+servos:
+  - {name: pitch, profile: cubemars-ak-mit, can_id: 1, limits_deg: [-90, 30], telemetry_hz: 20}
+  - {name: yaw, profile: damiao-dm, can_id: 2, limits_deg: [-160, 160], telemetry_hz: 20}
+gimbals:
+  - {name: gimbal, component_id: 154, pitch: pitch, yaw: yaw,
+     limits_deg: {pitch: [-90, 30], yaw: [-160, 160]}}
+scheduler: {reply_timeout_s: 0.5, command_period_s: 0.02, telemetry_period_s: 0.05}
+"""
+
+MOTOR_ERROR = mavlink2.GIMBAL_DEVICE_ERROR_FLAGS_MOTOR_ERROR
+
+
+@pytest.mark.parametrize(
+    ("axis", "fault", "text"),
+    [("pitch", "over_current", "over_current"), ("yaw", "over_temperature", "over_temperature")],
+)
+def test_a_fault_status_reaches_statustext_and_gimbal_failure_flags(
+    axis: str, fault: str, text: str
+) -> None:
+    with running(GIMBAL) as (bridge, port):
+        peer = Peer(port)
+        try:
+            peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))
+            assert wait_until(lambda: status(bridge, axis).online, WAIT_S)
+            mark = peer.count()
+            setattr(sim_servo(bridge, axis).faults, fault, True)
+            assert wait_until(
+                lambda: f"servo {axis} fault {text}" in peer.statustexts(mark), WAIT_S
+            ), peer.statustexts(mark)
+            assert wait_until(
+                lambda: any(
+                    m.failure_flags & MOTOR_ERROR
+                    for m in peer.since(mark, "GIMBAL_DEVICE_ATTITUDE_STATUS")
+                ),
+                WAIT_S,
+            )
+        finally:
+            peer.close()
