@@ -187,7 +187,8 @@ def servo_traffic(
     ``profile`` gives the frames (``position_command``, ``telemetry_requests``, a query) and
     ``replies_per_*``. The command is shaped as the scheduler sends it, with the speed limit
     (a CubeMars command is 4 bytes without one, 8 with). A polled servo answers ``poll_hz``
-    requests; a push-style one (no requests) sends ``status_hz`` status frames on its own.
+    requests; a push-style one (no requests) sends ``status_hz`` status frames on its own. Any
+    servo may also send ``profile.unsolicited_hz()`` frames unasked (ODrive's heartbeat).
     ``startup_hz``: how often the start-up frames may go out (the scheduler's retry limit).
     """
     command = profile.position_command(0.0, max_speed_dps)
@@ -201,7 +202,7 @@ def servo_traffic(
         request_hz=poll_hz if requests else 0.0,
         request_shapes=tuple((bool(r.is_extended_id), int(r.dlc)) for r in requests),
         replies_per_request=profile.replies_per_request,
-        push_hz=0.0 if requests else status_hz,
+        push_hz=(0.0 if requests else status_hz) + profile.unsolicited_hz(),
         lifecycle_hz=startup_hz,
         lifecycle_shapes=tuple((bool(f.is_extended_id), int(f.dlc)) for f in startup),
         replies_per_lifecycle=profile.replies_per_lifecycle,

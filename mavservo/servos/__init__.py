@@ -22,6 +22,7 @@ from .base import (
 from .cubemars import CubeMarsAK
 from .cubemars_mit import CubeMarsAKMit
 from .damiao import DamiaoDM
+from .odrive import ODrive
 from .registry import PROFILES, UnknownProfileError, get_profile, load_errors, profiles
 from .rmdx import LkTech, RmdX
 
@@ -35,6 +36,7 @@ __all__ = [
     "Fault",
     "FrameId",
     "LkTech",
+    "ODrive",
     "ProfileOptions",
     "RmdX",
     "ServoProfile",

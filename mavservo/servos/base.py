@@ -273,6 +273,11 @@ class ServoProfile(ABC):
         """Sent once when the bridge stops, after the failsafe action. Default: none."""
         return []
 
+    def unsolicited_hz(self) -> float:
+        """Frames per second the servo sends on its own besides its telemetry (ODrive's
+        heartbeat), which the bus-load budget counts. Default: none."""
+        return 0.0
+
     @classmethod
     @abstractmethod
     def sim_device(cls, motor: SimMotor, can_id: int, options: ProfileOptions) -> SimDevice:

@@ -24,10 +24,18 @@ from .base import ServoProfile
 from .cubemars import CubeMarsAK
 from .cubemars_mit import CubeMarsAKMit
 from .damiao import DamiaoDM
+from .odrive import ODrive
 from .rmdx import LkTech, RmdX
 
 ENTRY_POINT_GROUP = "mavservo.profiles"
-BUILT_IN: tuple[type[ServoProfile], ...] = (RmdX, LkTech, CubeMarsAK, CubeMarsAKMit, DamiaoDM)
+BUILT_IN: tuple[type[ServoProfile], ...] = (
+    RmdX,
+    LkTech,
+    CubeMarsAK,
+    CubeMarsAKMit,
+    DamiaoDM,
+    ODrive,
+)
 PLUGIN_HINT = (
     f"plug-in profiles come from installed packages' {ENTRY_POINT_GROUP!r} entry points "
     "(see docs/profiles.md; `mavservo check --profiles` lists them)"
