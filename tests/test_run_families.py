@@ -1,6 +1,7 @@
-"""``mavservo run`` on the family example configs (Damiao DM-J, CubeMars AK in MIT mode), on the
-built-in simulation as a user starts it: the simulated autopilot drives the servos, they follow,
-telemetry comes back, nothing is lost, and the configs pass ``mavservo check``."""
+"""``mavservo run`` on the family example configs (Damiao DM-J, CubeMars AK in MIT mode,
+ODrive), on the built-in simulation as a user starts it: the simulated autopilot drives the
+servos, they follow, telemetry comes back, nothing is lost, and the configs pass ``mavservo
+check``."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from test_run_cli import REPO, assert_positions_followed, read_trace, run_mavser
 
 from mavservo.config import load_config
 
-FAMILY_CONFIGS = ["damiao.yaml", "cubemars-mit.yaml"]
+FAMILY_CONFIGS = ["damiao.yaml", "cubemars-mit.yaml", "odrive.yaml"]
 
 
 @pytest.mark.parametrize("config_name", FAMILY_CONFIGS)
@@ -39,9 +40,10 @@ def test_family_config_runs_follows_and_loses_nothing(config_name: str, tmp_path
     assert "decoder rejections 0" in out
     config = load_config(path)
     for servo in config.servos:
-        row = re.search(rf"^\s+{servo.name}\s+(\d+)\s+(\d+)\s+(\d+)\s+(\d+)", out, re.M)
+        # columns: sent, recv, pushed, lost, late, rej (a pushing servo's pushed is not lost)
+        row = re.search(rf"^\s+{servo.name}" + r"\s+(\d+)" * 6, out, re.M)
         assert row, f"no summary row for {servo.name}:\n{out}"
-        sent, received, lost, rejected = map(int, row.groups())
+        sent, received, _pushed, lost, _late, rejected = map(int, row.groups())
         assert sent > 0 and received > 0, row.group(0)
         assert lost == 0 and rejected == 0, row.group(0)
     [run_dir] = list(logs.iterdir())
