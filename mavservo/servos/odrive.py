@@ -195,8 +195,12 @@ def arbitration_id(node_id: int, command: int) -> int:
 
 
 def _frame(node_id: int, command: int, data: bytes) -> can.Message:
+    """A frame of the DBC's length: 8 bytes (values zero-padded), Clear_Errors 1."""
+    length = 1 if command == CMD_CLEAR_ERRORS else 8
     return can.Message(
-        arbitration_id=arbitration_id(node_id, command), is_extended_id=False, data=data
+        arbitration_id=arbitration_id(node_id, command),
+        is_extended_id=False,
+        data=data.ljust(length, b"\0"),
     )
 
 
@@ -326,10 +330,10 @@ class ODrive(ServoProfile):
     def sdo_write(self, endpoint: int, fmt: str, value: float | bool) -> can.Message:
         """An RxSdo write of one parameter (value padded to the frame's 8 bytes)."""
         body = struct.pack("<BHB" + fmt, SDO_WRITE, endpoint, 0, value)
-        return self._frame(CMD_RX_SDO, body.ljust(8, b"\0"))
+        return self._frame(CMD_RX_SDO, body)
 
     def set_axis_state_frame(self, state: int) -> can.Message:
-        return self._frame(CMD_SET_AXIS_STATE, struct.pack("<I", state).ljust(8, b"\0"))
+        return self._frame(CMD_SET_AXIS_STATE, struct.pack("<I", state))
 
     def startup_frames(self) -> list[can.Message]:
         """Watchdog (if its endpoint ids are known), clear errors, position control, limits,
