@@ -1,0 +1,237 @@
+"""ODrive axes through the whole bridge and back, over the ``aa55`` interface on the adapter
+emulator's pty.
+
+A GCS-side pymavlink peer sends DO_SET_SERVO over UDP; the bridge enters closed loop on each
+simulated ODrive and drives it with Set_Input_Pos; the axes push encoder estimates and
+heartbeats, and their telemetry comes back over MAVLink. Checked: the axes follow with nothing
+lost; a position outside an axis' own range is DENIED and counted and never reaches the bus; a
+silent axis goes offline (STATUSTEXT) and comes back; an axis error reaches STATUSTEXT and the
+gimbal failure flags; an axis its own watchdog disarmed is reported and re-armed by the bridge.
+"""
+
+from __future__ import annotations
+
+import struct
+
+import pytest
+from conftest import wait_until
+from e2e_support import (
+    MAV_CMD_DO_SET_SERVO,
+    MAV_RESULT_ACCEPTED,
+    Peer,
+    Recorder,
+    named_values,
+    pwm_to_angle,
+    running,
+    sim_servo,
+)
+
+from mavservo.servos.odrive import (
+    CMD_SET_INPUT_POS,
+    STATE_CLOSED_LOOP,
+    WATCHDOG_TIMER_EXPIRED,
+    ODrive,
+)
+from mavservo.sim.autopilot.link import mavlink2
+
+pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")
+
+MAV_RESULT_DENIED = 2
+WAIT_S = 5.0
+
+CONFIG = """
+  telemetry: {actuator_output_status_hz: 10, named_value_float_hz: 20, esc_telemetry_hz: 0}
+servos:
+  - {name: direct, profile: odrive, can_id: 1, limits_deg: [-90, 90], telemetry_hz: 20,
+     options: {watchdog_timeout_s: 0.5, aux_rate_ms: 100}}
+  - {name: geared, profile: odrive, can_id: 2, limits_deg: [-90, 90], telemetry_hz: 20,
+     options: {input_mode: trap-traj, motor_turns_per_rev: 8.0, velocity_limit_turns_s: 8.0,
+               traj_accel_turns_s2: 40.0}}
+  - {name: narrow, profile: odrive, can_id: 3, limits_deg: [-90, 90], telemetry_hz: 20,
+     options: {min_position_deg: -45, max_position_deg: 45}}
+# a reply counts as lost only when it never comes: timing on a loaded machine is not judged here
+scheduler: {reply_timeout_s: 0.5, refresh_interval_s: 0.1}
+channels:
+  - {servo: direct, source: servo_output, channel: 1, input: {min: 1000, max: 2000},
+     output_deg: [-90, 90]}
+  - {servo: geared, source: servo_output, channel: 2, input: {min: 1000, max: 2000},
+     output_deg: [-90, 90]}
+  - {servo: narrow, source: servo_output, channel: 3, input: {min: 1000, max: 2000},
+     output_deg: [-90, 90]}
+"""
+
+#: servo -> (NAMED_VALUE_FLOAT index, channel)
+SERVOS = {"direct": (1, 1), "geared": (2, 2)}
+RESOLUTION_DEG = 0.01
+"""Float32 turns carry far finer steps; this is the reading's travel between two pushes."""
+
+
+def status(bridge, name: str):  # type: ignore[no-untyped-def]
+    return next(s for s in bridge.backend.servo_statuses() if s.name == name)
+
+
+def test_odrive_axes_follow_and_report_with_nothing_lost() -> None:
+    with running(CONFIG) as (bridge, port):
+        peer = Peer(port)
+        try:
+            for pwm in (1650, 1210):
+                target = pwm_to_angle(pwm, 1000, 2000, (-90, 90))
+                for name, (_, channel) in SERVOS.items():
+                    result = peer.command(MAV_CMD_DO_SET_SERVO, [channel, pwm])
+                    assert result == MAV_RESULT_ACCEPTED, name
+                servos = {name: sim_servo(bridge, name) for name in SERVOS}
+                assert wait_until(
+                    lambda s=servos, t=target: all(
+                        abs(x.position_deg - t) < 0.05 and abs(x.velocity_dps) < 0.1
+                        for x in s.values()
+                    ),
+                    WAIT_S,
+                ), {n: s.position_deg for n, s in servos.items()}
+                mark = peer.count()
+                assert wait_until(
+                    lambda m=mark: all(
+                        len(named_values(peer.since(m), f"s{n}_pos")) >= 3
+                        for n, _ in SERVOS.values()
+                    ),
+                    WAIT_S,
+                )
+                for name, (n, _) in SERVOS.items():
+                    for value in named_values(peer.since(mark), f"s{n}_pos")[-2:]:
+                        assert abs(value - servos[name].position_deg) <= RESOLUTION_DEG, name
+            # the auxiliary messages bring temperature back too
+            assert wait_until(
+                lambda: any(v == v for v in named_values(peer.messages(), "s1_tmp")), WAIT_S
+            )
+        finally:
+            peer.close()
+        summary = bridge.stop()
+    for name in SERVOS:
+        frames = summary["servos"][name]["frames"]
+        assert frames["sent"] > 0 and frames["received"] > 0, name
+        assert frames["lost"] == 0 and frames["rejected"] == 0, (name, frames)
+    assert summary["buses"]["bus0"]["bus_rejected"] == 0
+
+
+def commanded_angles(recorder: Recorder, name: str, profile: ODrive) -> list[float]:
+    """Angles of the Set_Input_Pos frames written to ``name`` (decoded here)."""
+    out = []
+    for kind, arbitration_id, data in recorder.frames(name):
+        if kind.startswith("command") and arbitration_id == profile.can_id << 5 | CMD_SET_INPUT_POS:
+            (turns,) = struct.unpack_from("<f", data)
+            out.append(turns * 360 / profile.options.motor_turns_per_rev)
+    return out
+
+
+def test_a_position_outside_the_axis_range_is_denied_counted_and_never_sent() -> None:
+    """72 deg is inside limits_deg but outside this axis' +-45 deg: DENIED, counted under the
+    profile's name, and no frame for it goes out; the next valid command does."""
+    recorder = Recorder()
+    narrow = ODrive(3, min_position_deg=-45.0, max_position_deg=45.0)
+    with running(CONFIG, observers=[recorder]) as (bridge, port):
+        peer = Peer(port)
+        try:
+            assert peer.command(MAV_CMD_DO_SET_SERVO, [3, 1900]) == MAV_RESULT_DENIED
+            assert peer.command(MAV_CMD_DO_SET_SERVO, [3, 1600]) == MAV_RESULT_ACCEPTED
+            assert wait_until(lambda: 18.0 in recorder.angles("narrow"), WAIT_S)
+            assert wait_until(lambda: commanded_angles(recorder, "narrow", narrow), WAIT_S)
+            assert wait_until(
+                lambda: abs(sim_servo(bridge, "narrow").position_deg - 18.0) < 0.05, WAIT_S
+            )
+        finally:
+            peer.close()
+        summary = bridge.stop()
+    assert recorder.angles("narrow") == [pytest.approx(18.0)]
+    sent = commanded_angles(recorder, "narrow", narrow)
+    assert sent and all(a == pytest.approx(18.0, abs=1e-3) for a in sent), sent
+    commands = summary["mavlink"]["commands"]
+    assert commands["result_denied"] == 1, commands
+    assert commands["reason_odrive"] == 1, commands
+
+
+def test_a_silent_axis_goes_offline_and_comes_back() -> None:
+    with running(CONFIG) as (bridge, port):
+        peer = Peer(port)
+        try:
+            peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))  # a GCS: answer me
+            assert wait_until(lambda: status(bridge, "direct").online, WAIT_S)
+            device = sim_servo(bridge, "direct")
+            mark = peer.count()
+            device.faults.silent = True
+            assert wait_until(lambda: not status(bridge, "direct").online, WAIT_S)
+            assert wait_until(
+                lambda: "servo direct not responding" in peer.statustexts(mark), WAIT_S
+            )
+            assert status(bridge, "geared").online  # the others keep pushing
+            device.faults.silent = False
+            assert wait_until(lambda: status(bridge, "direct").online, WAIT_S)
+        finally:
+            peer.close()
+
+
+def test_an_axis_its_watchdog_disarmed_is_reported_and_rearmed() -> None:
+    """The axis disarms as if its watchdog had expired: the heartbeat says IDLE with
+    WATCHDOG_TIMER_EXPIRED, STATUSTEXT names it, and the bridge's start-up (clear errors,
+    closed loop) arms it again, so the next set point moves it."""
+    with running(CONFIG) as (bridge, port):
+        peer = Peer(port)
+        try:
+            peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))
+            assert peer.command(MAV_CMD_DO_SET_SERVO, [1, 1600]) == MAV_RESULT_ACCEPTED
+            servo = sim_servo(bridge, "direct")
+            assert wait_until(lambda: abs(servo.position_deg - 18.0) < 0.05, WAIT_S)
+            mark = peer.count()
+            device = servo._device  # the simulated ODrive behind the motor
+            device._disarm(WATCHDOG_TIMER_EXPIRED, servo.time)
+            assert wait_until(
+                lambda: "servo direct fault communication_lost" in peer.statustexts(mark),
+                WAIT_S,
+            ), peer.statustexts(mark)
+            assert wait_until(lambda: device.state == STATE_CLOSED_LOOP, WAIT_S)
+            assert peer.command(MAV_CMD_DO_SET_SERVO, [1, 1300]) == MAV_RESULT_ACCEPTED
+            assert wait_until(lambda: abs(servo.position_deg + 36.0) < 0.05, WAIT_S)
+        finally:
+            peer.close()
+
+
+GIMBAL = """
+  telemetry: {gimbal_attitude_status_hz: 20, named_value_float_hz: 0, esc_telemetry_hz: 0,
+              actuator_output_status_hz: 0}
+  mirror: {servo_output_raw: false}
+servos:
+  - {name: pitch, profile: odrive, can_id: 1, limits_deg: [-90, 30], telemetry_hz: 20}
+  - {name: yaw, profile: odrive, can_id: 2, limits_deg: [-160, 160], telemetry_hz: 20}
+gimbals:
+  - {name: gimbal, component_id: 154, pitch: pitch, yaw: yaw,
+     limits_deg: {pitch: [-90, 30], yaw: [-160, 160]}}
+scheduler: {reply_timeout_s: 0.5, command_period_s: 0.02, telemetry_period_s: 0.05}
+"""
+
+MOTOR_ERROR = mavlink2.GIMBAL_DEVICE_ERROR_FLAGS_MOTOR_ERROR
+
+
+@pytest.mark.parametrize(
+    ("axis", "fault", "text"),
+    [("pitch", "over_current", "over_current"), ("yaw", "over_temperature", "over_temperature")],
+)
+def test_an_axis_error_reaches_statustext_and_gimbal_failure_flags(
+    axis: str, fault: str, text: str
+) -> None:
+    with running(GIMBAL) as (bridge, port):
+        peer = Peer(port)
+        try:
+            peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))
+            assert wait_until(lambda: status(bridge, axis).online, WAIT_S)
+            mark = peer.count()
+            setattr(sim_servo(bridge, axis).faults, fault, True)
+            assert wait_until(
+                lambda: f"servo {axis} fault {text}" in peer.statustexts(mark), WAIT_S
+            ), peer.statustexts(mark)
+            assert wait_until(
+                lambda: any(
+                    m.failure_flags & MOTOR_ERROR
+                    for m in peer.since(mark, "GIMBAL_DEVICE_ATTITUDE_STATUS")
+                ),
+                WAIT_S,
+            )
+        finally:
+            peer.close()
