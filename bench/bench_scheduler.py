@@ -4,7 +4,7 @@
     PYTHONPATH=. python bench/bench_scheduler.py --seconds 60 --hog      # a busy loop per core
     PYTHONPATH=. python bench/bench_scheduler.py --transport virtual     # in-process bus
     PYTHONPATH=. python bench/bench_scheduler.py --cpu-only --seconds 20 # CPU %, 8 and 32 servos
-    PYTHONPATH=. python bench/bench_scheduler.py --profile rmd-x,damiao-dm,cubemars-ak-mit \
+    PYTHONPATH=. python bench/bench_scheduler.py --profile rmd-x,damiao-dm,cubemars-ak-mit,odrive \
         --runs 3 --seconds 30                                            # a row per family
 
 ``--profile`` takes one servo family or several (comma-separated): every servo of a run is of
