@@ -192,6 +192,8 @@ def test_the_range_and_ids_come_from_the_options() -> None:
         servo.position_command(-11.0)
     with pytest.raises(ValueError):
         ODriveOptions(min_position_deg=10.0, max_position_deg=10.0)
+    with pytest.raises(ValueError, match="must contain 0"):
+        ODriveOptions(min_position_deg=10.0, max_position_deg=20.0)
     ODrive(0), ODrive(62)
     with pytest.raises(ValueError):
         ODrive(63)  # 0x3F: the unaddressed node id of firmware 0.6
@@ -385,3 +387,23 @@ def test_cross_check_our_devices_pushes_with_odrive_can() -> None:
     assert names["Heartbeat"]["Axis_State"] == "CLOSED_LOOP_CONTROL"
     assert names["Heartbeat"]["Axis_Error"] == "NONE"
     assert names["Get_Encoder_Estimates"]["Pos_Estimate"] == pytest.approx(0.125, abs=1e-3)
+
+
+def test_bad_options_in_a_config_are_refused_with_file_and_line() -> None:
+    from mavservo.config import ConfigError, load_config_text
+
+    text = """mavlink: {url: sim}
+can:
+  buses:
+    - {name: bus0, interface: aa55, channel: sim}
+servos:
+  - name: od
+    profile: odrive
+    can_id: 1
+    limits_deg: [-90, 90]
+    options: {watchdog_timeout_endpoint: 200, node: 3}
+channels: []
+"""
+    with pytest.raises(ConfigError) as info:
+        load_config_text(text, "rig.yaml")
+    assert "rig.yaml:10" in str(info.value)

@@ -266,8 +266,11 @@ class ODriveOptions(ProfileOptions):
 
     @model_validator(mode="after")
     def _consistent(self) -> ODriveOptions:
-        if self.min_position_deg >= self.max_position_deg:
+        if not self.min_position_deg < self.max_position_deg:
             raise ValueError("min_position_deg must be below max_position_deg")
+        if not self.min_position_deg <= 0 <= self.max_position_deg:
+            # the bus-load budget sizes a command at 0 deg; an axis' range holds its zero
+            raise ValueError("the range min_position_deg..max_position_deg must contain 0")
         if (self.watchdog_timeout_endpoint is None) != (self.enable_watchdog_endpoint is None):
             raise ValueError(
                 "watchdog_timeout_endpoint and enable_watchdog_endpoint go together "
