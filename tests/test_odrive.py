@@ -94,6 +94,8 @@ def test_watchdog_written_only_with_both_endpoint_ids() -> None:
     assert all(m.arbitration_id != 0x64 for m in ODrive(3).startup_frames())
     with pytest.raises(ValueError, match="go together"):
         ODriveOptions(watchdog_timeout_endpoint=200)
+    with pytest.raises(ValueError, match="must differ"):
+        ODriveOptions(watchdog_timeout_endpoint=200, enable_watchdog_endpoint=200)
 
 
 def test_release_and_shutdown_set_idle() -> None:

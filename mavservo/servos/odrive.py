@@ -276,6 +276,11 @@ class ODriveOptions(ProfileOptions):
                 "watchdog_timeout_endpoint and enable_watchdog_endpoint go together "
                 "(both ids from your firmware's flat_endpoints.json, or neither)"
             )
+        if (
+            self.watchdog_timeout_endpoint is not None
+            and self.watchdog_timeout_endpoint == self.enable_watchdog_endpoint
+        ):
+            raise ValueError("watchdog_timeout_endpoint and enable_watchdog_endpoint must differ")
         return self
 
     def turns(self, angle_deg: float) -> float:
