@@ -239,10 +239,23 @@ def bench_profile(name: str, can_id: int) -> ServoProfile:
     return profile_class(can_id)
 
 
+SIM_PUSH_HZ = 50.0
+"""The rate push-style simulated servos report at; the scheduler is told the same, so its
+liveness rule and its worst-case budget (R_worst_case) count the pushes that really come."""
+
+
 def simulated_servos(name: str, n_servos: int) -> list[SimServo]:
     return [
-        SimServo(name, i, options=bench_profile(name, i).options) for i in range(1, n_servos + 1)
+        SimServo(name, i, options=bench_profile(name, i).options, status_rate_hz=SIM_PUSH_HZ)
+        for i in range(1, n_servos + 1)
     ]
+
+
+def bench_spec(name: str, can_id: int) -> ServoSpec:
+    """The scheduler's view of bench servo ``can_id``: a push-style one pushes at SIM_PUSH_HZ."""
+    profile = bench_profile(name, can_id)
+    pushed = profile.telemetry == "pushed"
+    return ServoSpec(f"s{can_id}", profile, telemetry_hz=SIM_PUSH_HZ if pushed else None)
 
 
 def serve_simulator(n_servos: int, bitrate: int, realtime: bool, profile: str) -> None:
@@ -341,7 +354,7 @@ def run_once(
     transport = Transport(
         args.transport, n_servos, args.bitrate, args.sim_in_process, args.realtime, profile
     )
-    specs = [ServoSpec(f"s{i}", bench_profile(profile, i)) for i in range(1, n_servos + 1)]
+    specs = [bench_spec(profile, i) for i in range(1, n_servos + 1)]
     tracer = IntervalTracer() if args.breakdown else None
     scheduler = Scheduler(transport.bus, specs, timing, name=args.transport, observer=tracer)
     if args.realtime:
