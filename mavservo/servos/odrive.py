@@ -25,8 +25,10 @@ enums of ODrive's own ``odrive`` package (0.6.11):
   :class:`Fault` by :data:`ERROR_FAULTS`; an unknown bit is ``Fault.OTHER``). Any error disarms
   the axis: it goes to IDLE and stays there until told to enter closed loop again;
 * the watchdog (``axis.config.enable_watchdog``, ``axis.config.watchdog_timeout`` in seconds)
-  disarms the axis with WATCHDOG_TIMER_EXPIRED when no frame reached the node for that long.
-  Every Set_Input_Pos the command slot sends (new set point or keep-alive refresh) feeds it.
+  disarms the axis with WATCHDOG_TIMER_EXPIRED when it was not fed for that long. Every
+  Set_Input_Pos the command slot sends (new set point or keep-alive refresh) feeds it (ODrive's
+  open 0.5 firmware feeds it on any CANSimple frame to the node; the simulation does the same),
+  so the refresh interval must stay well inside the timeout.
 
 The watchdog is set at start-up through RxSdo writes when the endpoint ids of those two
 parameters are given (``watchdog_timeout_endpoint``, ``enable_watchdog_endpoint``): ODrive
