@@ -238,7 +238,12 @@ class Bridge:
                 continue
             timing = timing_config(cfg, bus_cfg)
             scheduler = Scheduler(
-                self.buses[bus_cfg.name], specs, timing, observer=observer, name=bus_cfg.name
+                self.buses[bus_cfg.name],
+                specs,
+                timing,
+                observer=observer,
+                name=bus_cfg.name,
+                node_options=bus_cfg.node,
             )
             self.schedulers[bus_cfg.name] = scheduler
             for spec in specs:
@@ -496,6 +501,9 @@ class Bridge:
             next_t += period
             if self.backend is not None:
                 self.backend.tick(time.monotonic())
+            for scheduler in self.schedulers.values():
+                for notice in scheduler.take_notices():
+                    self._event(f"bus {scheduler.name}: {notice}")
             self._stop.wait(max(0.0, next_t - time.monotonic()))
 
     def _event(self, text: str) -> None:

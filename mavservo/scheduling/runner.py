@@ -26,7 +26,8 @@ import math
 import os
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from importlib import metadata
 from pathlib import Path
 from typing import Any, ParamSpec, Protocol, runtime_checkable
 
@@ -46,9 +47,9 @@ from mavservo.scheduling.core import (
     exchange_key,
 )
 from mavservo.scheduling.outage_log import LateReplies, Line, OnlineLog
-from mavservo.servos.base import Fault, ServoState
+from mavservo.servos.base import BusNode, Fault, NodeHealth, ServoProfile, ServoState
 
-from .busload import message_bits
+from .busload import FrameFlow, message_bits
 
 __all__ = [
     "ScheduleError",
@@ -65,6 +66,15 @@ _P = ParamSpec("_P")
 
 StateCallback = Callable[[str, ServoState], None]
 _RECV_TIMEOUT_S = 0.05
+
+
+def _version() -> tuple[int, int]:
+    """mavservo's major and minor version, for a bus node's GetNodeInfo answer."""
+    try:
+        major, minor, *_ = metadata.version("mavservo").split(".")
+        return int(major), int(minor)
+    except (metadata.PackageNotFoundError, ValueError):
+        return (0, 0)
 
 
 class SchedulerObserver(Protocol):
@@ -190,13 +200,24 @@ class Scheduler:
         clock: Callable[[], float] = time.monotonic,
         observer: SchedulerObserver | None = None,
         name: str | None = None,
+        node_options: Mapping[str, Mapping[str, Any]] | None = None,
     ) -> None:
         self.timing = timing or TimingConfig()
         self.name = name or str(bus.channel_info)
         self._bus = bus
         self._clock = clock
         self._observer: SchedulerObserver = observer or _NoObserver()
-        self._core = ScheduleCore(servos, self.timing, start=clock())
+        self._nodes: list[tuple[BusNode, list[str]]] = []
+        self._node_of: dict[str, BusNode] = {}
+        flows = self._make_nodes(servos, node_options or {}, clock())
+        self._core = ScheduleCore(
+            servos,
+            self.timing,
+            start=clock(),
+            packed=frozenset(self._node_of),
+            extra_flows=flows,
+        )
+        self._notices: list[str] = []
         self._specs = {spec.name: spec for spec in servos}
         self._metrics = SchedulerMetrics(
             self._specs,
@@ -230,6 +251,54 @@ class Scheduler:
         if isinstance(bus, RejectReporting) and bus.on_reject is None:
             # an aa55 bus with no rejection callback yet: count its decoder rejections here
             bus.on_reject = self.report_reject
+
+    def _make_nodes(
+        self, servos: Sequence[ServoSpec], options: Mapping[str, Mapping[str, Any]], now: float
+    ) -> list[FrameFlow]:
+        """The bus nodes of families that have one (DroneCAN: the bridge's own node), from the
+        bus-level options keyed by profile name; the frames they add, for the budget."""
+        groups: dict[type[ServoProfile], list[ServoSpec]] = {}
+        for spec in servos:
+            groups.setdefault(type(spec.profile), []).append(spec)
+        flows: list[FrameFlow] = []
+        for cls, group in groups.items():
+            if cls.NodeOptions is None:
+                continue
+            try:
+                node_options = cls.NodeOptions.model_validate(dict(options.get(cls.name, {})))
+                node = cls.bus_node([spec.profile for spec in group], node_options, _version(), now)
+            except ValueError as exc:  # pydantic's ValidationError is one
+                raise ScheduleError(f"bus {self.name}: {cls.name} node: {exc}") from exc
+            if node is None:
+                continue
+            names = [spec.name for spec in group]
+            self._nodes.append((node, names))
+            for spec in group:
+                self._node_of[spec.name] = node
+            hz = max(self._command_hz(spec) for spec in group)
+            flows += [
+                FrameFlow(rate, extended, dlc)
+                for rate, extended, dlc in node.bus_frames_per_second(len(group), hz)
+            ]
+        return flows
+
+    def _command_hz(self, spec: ServoSpec) -> float:
+        hz = 1 / self.timing.command_period_s
+        if spec.command_mode == "immediate":
+            hz = max(hz, 1 / self.timing.immediate_min_spacing_s)
+        return hz
+
+    def take_notices(self) -> list[str]:
+        """Notices of the bus nodes since the last call (another master on a DroneCAN bus),
+        already logged; the bridge sends them as STATUSTEXT."""
+        with self._lock:
+            notices, self._notices = self._notices, []
+        return notices
+
+    @property
+    def nodes(self) -> list[BusNode]:
+        """The bus nodes this scheduler owns (tests, diagnostics)."""
+        return [node for node, _ in self._nodes]
 
     # --------------------------------------------------------------------------- lifecycle
     def start(self) -> None:
@@ -526,8 +595,12 @@ class Scheduler:
         while not self._stop.is_set():
             decision = self._step()
             self._send_all(decision)
+            if self._nodes:
+                self._send_node_frames()
             with self._lock:
                 deadline = self._core.next_deadline(self._clock())
+                for node, _ in self._nodes:
+                    deadline = min(deadline, node.next_due())
             self._cpu["runner_s"] = time.thread_time()
             self._wait_until(deadline)
 
@@ -593,55 +666,121 @@ class Scheduler:
             self._notify_subscribers(servo, state)
         return decision
 
+    def _batches(self, frames: list[Outgoing]) -> list[tuple[list[Outgoing], list[can.Message]]]:
+        """The frames of a step as they go on the wire: each on its own, except the commands of
+        servos that share a bus node, which the node packs together where the first of them
+        stood (DroneCAN: one ArrayCommand for all of them)."""
+        if not self._node_of:
+            return [([out], [out.msg]) for out in frames]
+        batches: list[tuple[list[Outgoing], list[can.Message]]] = []
+        packed: dict[int, tuple[BusNode, int]] = {}
+        for out in frames:
+            node = self._node_of.get(out.servo) if out.kind in ("command", "refresh") else None
+            if node is None:
+                batches.append(([out], [out.msg]))
+                continue
+            if id(node) not in packed:
+                packed[id(node)] = (node, len(batches))
+                batches.append(([], []))
+            batches[packed[id(node)][1]][0].append(out)
+        with self._lock:
+            for node, index in packed.values():
+                outs = batches[index][0]
+                batches[index] = (outs, node.pack([out.msg for out in outs]))
+        return batches
+
     def _send_all(self, decision: Decision) -> None:
         slot_marked = decision.command_slot is None
-        for out in decision.frames:
+        for outs, msgs in self._batches(decision.frames):
             try:
-                self._bus.send(out.msg)
+                for msg in msgs:
+                    self._bus.send(msg)
             except can.CanError as exc:
                 now = self._clock()
-                lines: list[Line] = []
-                state: ServoState | None = None
-                with self._lock:
-                    failure = self._core.send_failed(out)
-                    self._metrics.servos[out.servo].send_failed += 1
-                    first = self._send_failures.failed(now)
-                    if failure.went_offline:
-                        lines, state = self._go_offline(
-                            out.servo, "sends failing", failure.dropped, now
-                        )
-                    elif failure.dropped is not None:
-                        lines = self._dropped(out.servo, failure.dropped, now)
-                if first:
-                    log.warning(
-                        "scheduler %s: send to %s failed: %s (further failed sends are "
-                        "counted, not logged, until one works again)",
-                        self.name,
-                        out.servo,
-                        exc,
-                    )
-                self._log(lines)
-                if state is not None:
-                    self._notify_subscribers(out.servo, state)
+                for out in outs:
+                    self._refused(out, exc, now)
                 continue
             t = self._clock()
             with self._lock:
                 ended = self._send_failures.succeeded(t)
-                back = self._core.sent(out, t)
+                back = [servo for out in outs for servo in self._core.sent(out, t)]
                 lines = [line for servo in back for line in self._online_log.online(servo, t)]
-                self._account_tx(out, t)
-                if not slot_marked and out.kind in ("command", "refresh"):
+                for out in outs:
+                    self._account_tx(out, t, load=len(msgs) == 1 and len(outs) == 1)
+                if len(outs) != 1 or len(msgs) != 1:
+                    for msg in msgs:
+                        self._metrics.load.add(t, message_bits(msg))
+                if not slot_marked and any(out.kind in ("command", "refresh") for out in outs):
                     assert decision.command_slot is not None
                     self._metrics.command_slot_served(decision.command_slot, t)
                     slot_marked = True
             if ended is not None:
                 log.info("scheduler %s: sends work again: %d failed over %.1f s", self.name, *ended)
             self._log(lines)
-            self._notify_observer(
-                self._observer.on_tx, self.name, out.msg, t, out.kind, out.servo, out.seq
-            )
+            # every frame once in the CAN log, each tied to one servo it carries a command to
+            # (new setpoints first: the run log times their write from it); a packed transfer
+            # has fewer frames than commands, and the commands left over are written with it
+            paired = sorted(outs, key=lambda out: out.kind != "command")
+            for index, msg in enumerate(msgs):
+                out = paired[min(index, len(paired) - 1)]
+                self._notify_observer(
+                    self._observer.on_tx, self.name, msg, t, out.kind, out.servo, out.seq
+                )
 
-    def _account_tx(self, out: Outgoing, t: float) -> None:
+    def _refused(self, out: Outgoing, exc: Exception, now: float) -> None:
+        """The bus refused ``out`` (or a frame of the transfer carrying it)."""
+        lines: list[Line] = []
+        state: ServoState | None = None
+        with self._lock:
+            failure = self._core.send_failed(out)
+            self._metrics.servos[out.servo].send_failed += 1
+            first = self._send_failures.failed(now)
+            if failure.went_offline:
+                lines, state = self._go_offline(out.servo, "sends failing", failure.dropped, now)
+            elif failure.dropped is not None:
+                lines = self._dropped(out.servo, failure.dropped, now)
+        if first:
+            log.warning(
+                "scheduler %s: send to %s failed: %s (further failed sends are "
+                "counted, not logged, until one works again)",
+                self.name,
+                out.servo,
+                exc,
+            )
+        self._log(lines)
+        if state is not None:
+            self._notify_subscribers(out.servo, state)
+
+    def _node_health(self, names: list[str]) -> NodeHealth:
+        online = sum(1 for name in names if self._core.is_online(name))
+        if online == len(names):
+            return "ok"
+        return "warning" if online else "error"
+
+    def _send_node_frames(self) -> None:
+        """The bus nodes' own frames (heartbeat, answers), after the step's frames."""
+        now = self._clock()
+        with self._lock:
+            frames = [
+                msg
+                for node, names in self._nodes
+                for msg in node.due(now, self._node_health(names))
+            ]
+        for msg in frames:
+            try:
+                self._bus.send(msg)
+            except can.CanError as exc:
+                with self._lock:
+                    first = self._send_failures.failed(self._clock())
+                if first:
+                    log.warning("scheduler %s: node frame refused: %s", self.name, exc)
+                continue
+            t = self._clock()
+            with self._lock:
+                self._metrics.load.add(t, message_bits(msg))
+            self._notify_observer(self._observer.on_tx, self.name, msg, t, "lifecycle", "", None)
+
+    def _account_tx(self, out: Outgoing, t: float, load: bool = True) -> None:
         servo = self._metrics.servos[out.servo]
         if out.kind == "request":
             servo.requests_sent += 1
@@ -653,7 +792,8 @@ class Scheduler:
             else:
                 servo.refreshes_sent += 1
             servo.command_intervals.mark(t)
-        self._metrics.load.add(t, message_bits(out.msg))
+        if load:
+            self._metrics.load.add(t, message_bits(out.msg))
 
     def _receive(self) -> None:
         self._apply_realtime(max(1, self.timing.realtime_priority - 1), "receiver")
@@ -695,12 +835,24 @@ class Scheduler:
                 self.handle_frame(msg, self._clock())
             self._cpu["receiver_s"] = time.thread_time()
 
+    def _node_receive(self, msg: can.Message, t: float) -> None:
+        """Give a received frame to the bus nodes (caller holds the lock): answers wake the
+        runner, notices are logged once and kept for the bridge."""
+        for node, _ in self._nodes:
+            if node.receive(msg, t):
+                self._wake.set()
+            for notice in node.take_notices():
+                log.warning("scheduler %s: %s", self.name, notice)
+                self._notices.append(notice)
+
     def handle_frame(self, msg: can.Message, t: float) -> ServoState | None:
         """Decode one received frame (called by the receive thread; public for tests and for
         buses that deliver frames through a Notifier instead)."""
         with self._lock:
             if not msg.is_error_frame and not msg.is_fd:
                 self._metrics.load.add(t, message_bits(msg))
+            if self._nodes:
+                self._node_receive(msg, t)
         servo = next(
             (name for name, spec in self._specs.items() if spec.profile.is_reply(msg)), None
         )

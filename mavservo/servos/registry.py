@@ -24,10 +24,12 @@ from .base import ServoProfile
 from .cubemars import CubeMarsAK
 from .cubemars_mit import CubeMarsAKMit
 from .damiao import DamiaoDM
+from .dronecan import DroneCanServo
 from .rmdx import LkTech, RmdX
 
 ENTRY_POINT_GROUP = "mavservo.profiles"
 BUILT_IN: tuple[type[ServoProfile], ...] = (RmdX, LkTech, CubeMarsAK, CubeMarsAKMit, DamiaoDM)
+BUILT_IN += (DroneCanServo,)
 PLUGIN_HINT = (
     f"plug-in profiles come from installed packages' {ENTRY_POINT_GROUP!r} entry points "
     "(see docs/profiles.md; `mavservo check --profiles` lists them)"
