@@ -68,9 +68,11 @@ def test_dronecan_servos_follow_and_a_silent_node_goes_offline_within_3_s_and_co
                     assert peer.command(MAV_CMD_DO_SET_SERVO, [channel, pwm]) == MAV_RESULT_ACCEPTED
                 for name in ("left", "right"):
                     sim = sim_servo(bridge, name)
-                    assert wait_until(lambda s=sim: abs(s.position_deg - target) < 0.3, WAIT_S)
+                    assert wait_until(lambda s=sim, a=target: abs(s.position_deg - a) < 0.3, WAIT_S)
                     assert wait_until(
-                        lambda n=name: abs(status(bridge, n).state.position_deg - target) < 0.3,
+                        lambda n=name, a=target: (
+                            abs(status(bridge, n).state.position_deg - a) < 0.3
+                        ),
                         WAIT_S,
                     ), status(bridge, name)
             # both commands went in one ArrayCommand per slot from the bridge's node
