@@ -195,6 +195,16 @@ class SimDevice(Protocol):
     def tick(self, now: float) -> None: ...
 
 
+class BusNodeError(ValueError):
+    """A bus node refuses its servos: ``servo`` is the index (in the list the node was given)
+    of the servo to change, None for the node's own options; ``key`` the option at fault."""
+
+    def __init__(self, message: str, servo: int | None, key: str) -> None:
+        super().__init__(message)
+        self.servo = servo
+        self.key = key
+
+
 NodeHealth = Literal["ok", "warning", "error"]
 """The bridge's own state as a bus node reports it: every servo of the bus online, some
 offline, all offline."""

@@ -30,7 +30,7 @@ import can
 from pydantic import Field
 
 from . import dronecan_wire as wire
-from .base import NodeHealth, ProfileOptions
+from .base import BusNodeError, NodeHealth, ProfileOptions
 
 _HEALTH = {"ok": wire.HEALTH_OK, "warning": wire.HEALTH_WARNING, "error": wire.HEALTH_ERROR}
 
@@ -61,6 +61,7 @@ class CommandedServo(Protocol):
 
     can_id: int
     bridge_node_id: int
+    options: Any
 
 
 def frames_for_commands(count: int) -> int:
@@ -88,9 +89,25 @@ class BridgeNode:
     ) -> None:
         taken = {servo.can_id for servo in servos}
         if options.node_id in taken:
-            raise ValueError(
-                f"dronecan: the bridge's node id {options.node_id} is also a servo's node id"
+            raise BusNodeError(
+                f"the bridge's DroneCAN node id {options.node_id} is also a servo's node id on "
+                "this bus; every node needs its own id",
+                None,
+                "node_id",
             )
+        actuators: dict[int, int] = {}
+        for index, servo in enumerate(servos):
+            actuator = servo.options.actuator_id
+            if actuator in actuators:
+                first = servos[actuators[actuator]]
+                raise BusNodeError(
+                    f"actuator id {actuator} is already used on this bus by the servo with "
+                    f"node id {first.can_id}: one ArrayCommand carries every actuator of the "
+                    "bus, so both would take the same command",
+                    index,
+                    "options.actuator_id",
+                )
+            actuators[actuator] = index
         self.options = options
         self.node_id = options.node_id
         self.software_version = software_version
