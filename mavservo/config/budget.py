@@ -118,9 +118,7 @@ def node_flows(
 def _bus_load(bus: BusConfig, servos: list[ServoConfig], timing: SchedulerConfig) -> BusLoad:
     flows, packed = node_flows(bus, servos, timing)
     flows += [
-        flow
-        for servo in servos
-        for flow in servo_flows(servo, timing, packed=servo.name in packed)
+        flow for servo in servos for flow in servo_flows(servo, timing, packed=servo.name in packed)
     ]
     return BusLoad(bus.name, bus.bitrate, load_ratio(flows, bus.bitrate), bus.max_load, len(servos))
 

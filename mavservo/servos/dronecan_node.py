@@ -171,7 +171,9 @@ class BridgeNode:
         out, self._queue = self._queue, []
         if now >= self._next_status:
             period = wire.NODE_STATUS_PERIOD_S
-            self._next_status = max(self._next_status + period, now - period / 2)
+            self._next_status += period
+            if self._next_status <= now:  # far behind: no burst to catch up
+                self._next_status = now + period
             out += wire.encode_message(
                 self.status_payload(now),
                 self.node_id,
