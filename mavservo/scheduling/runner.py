@@ -209,6 +209,7 @@ class Scheduler:
         self._observer: SchedulerObserver = observer or _NoObserver()
         self._nodes: list[tuple[BusNode, list[str]]] = []
         self._node_of: dict[str, BusNode] = {}
+        self._node_profiles: list[str] = []
         flows = self._make_nodes(servos, node_options or {}, clock())
         self._core = ScheduleCore(
             servos,
@@ -273,6 +274,7 @@ class Scheduler:
                 continue
             names = [spec.name for spec in group]
             self._nodes.append((node, names))
+            self._node_profiles.append(cls.name)
             for spec in group:
                 self._node_of[spec.name] = node
             hz = max(self._command_hz(spec) for spec in group)
@@ -294,6 +296,10 @@ class Scheduler:
         with self._lock:
             notices, self._notices = self._notices, []
         return notices
+
+    def node_profile(self, index: int) -> str:
+        """The profile name of bus node ``index`` (the key of its ``node:`` options)."""
+        return self._node_profiles[index]
 
     @property
     def nodes(self) -> list[BusNode]:

@@ -239,6 +239,11 @@ class BusNode(Protocol):
         """Things worth telling the operator once (another master on the bus), then forgotten."""
         ...
 
+    def persistent_state(self) -> tuple[int, dict[str, Any]] | None:
+        """``(version, node options to restore)`` worth keeping across restarts (DroneCAN: the
+        allocation table), saved by the bridge whenever the version changes; None: nothing."""
+        ...
+
     def bus_frames_per_second(
         self, servo_count: int, command_hz: float
     ) -> list[tuple[float, bool, int]]:

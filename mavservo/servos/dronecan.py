@@ -89,6 +89,13 @@ class DroneCanOptions(ProfileOptions):
         90.0, ge=-3600, le=3600, description="angle sent as +1 in unitless mode"
     )
 
+    unique_id: str | None = Field(
+        None,
+        pattern=r"^[0-9a-f]{32}$",
+        description="the servo's 16-byte unique id (32 hex digits): it has no static node id "
+        "and gets can_id from the bridge's allocator (node.dronecan.allocator: true)",
+    )
+
     @model_validator(mode="after")
     def _range_ordered(self) -> DroneCanOptions:
         if not self.unitless_min_deg < self.unitless_max_deg:

@@ -22,16 +22,18 @@ dynamic_node_id.Allocation`` for nodes that start without an id, see :mod:`.dron
 
 from __future__ import annotations
 
+import re
 from collections import Counter
 from collections.abc import Sequence
 from typing import Any, Protocol
 
 import can
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from . import dronecan_wire as wire
 from .base import BusNodeError, NodeHealth, ProfileOptions
 
+_HEX32 = re.compile(r"[0-9a-f]{32}")
 _HEALTH = {"ok": wire.HEALTH_OK, "warning": wire.HEALTH_WARNING, "error": wire.HEALTH_ERROR}
 
 
@@ -52,8 +54,23 @@ class NodeOptions(ProfileOptions):
         False, description="serve dynamic node id allocation requests (off: static ids only)"
     )
     allocation_first_id: int = Field(
-        100, ge=1, le=125, description="allocation hands out ids from here down"
+        125, ge=1, le=125, description="allocation hands out ids from here down"
     )
+    allocation_table: dict[str, int] = Field(
+        default_factory=dict,
+        description="unique id (32 hex digits) -> node id the allocator handed out before "
+        "(the bridge keeps it in a file next to the config)",
+    )
+
+    @field_validator("allocation_table")
+    @classmethod
+    def _table_entries(cls, table: dict[str, int]) -> dict[str, int]:
+        for unique_id, node_id in table.items():
+            if not _HEX32.fullmatch(unique_id):
+                raise ValueError(f"unique id {unique_id!r} is not 32 lower-case hex digits")
+            if not 1 <= node_id <= 125:
+                raise ValueError(f"node id {node_id} for {unique_id} is outside 1..125")
+        return table
 
 
 class CommandedServo(Protocol):
@@ -108,6 +125,13 @@ class BridgeNode:
                     "options.actuator_id",
                 )
             actuators[actuator] = index
+            if servo.options.unique_id is not None and not options.allocator:
+                raise BusNodeError(
+                    "a servo with a unique_id gets its node id from the bridge's allocator: "
+                    "set node.dronecan.allocator: true on its bus",
+                    index,
+                    "options.unique_id",
+                )
         self.options = options
         self.node_id = options.node_id
         self.software_version = software_version
@@ -127,7 +151,16 @@ class BridgeNode:
         if options.allocator:
             from .dronecan_alloc import AllocationServer
 
-            self.allocator = AllocationServer(self.node_id, taken, options.allocation_first_id)
+            configured = {
+                bytes.fromhex(servo.options.unique_id): servo.can_id
+                for servo in servos
+                if servo.options.unique_id is not None
+            }
+            static = {s.can_id for s in servos if s.options.unique_id is None}
+            table = {bytes.fromhex(k): v for k, v in options.allocation_table.items()}
+            self.allocator = AllocationServer(
+                self.node_id, configured, static, options.allocation_first_id, table
+            )
 
     @property
     def errors(self) -> Counter[str]:
@@ -193,6 +226,13 @@ class BridgeNode:
     def take_notices(self) -> list[str]:
         notices, self._notices = self._notices, []
         return notices
+
+    def persistent_state(self) -> tuple[int, dict[str, Any]] | None:
+        """``(version, allocation table)`` for the bridge to keep next to the config (None:
+        no allocator); the table comes back through the ``allocation_table`` option."""
+        if self.allocator is None:
+            return None
+        return self.allocator.version, {"allocation_table": self.allocator.table_hex()}
 
     def bus_frames_per_second(
         self, servo_count: int, command_hz: float

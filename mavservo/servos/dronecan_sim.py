@@ -6,6 +6,11 @@ the bus (reassembling multi-frame transfers, so a bad CRC or a lost frame loses 
 on a real node), reports ``uavcan.equipment.actuator.Status`` at its status rate (a two-frame
 transfer) and ``uavcan.protocol.NodeStatus`` once a second, its health WARNING while the motor
 reports a fault. Silencing the simulated servo (``faults: {silent: true}``) silences the node.
+
+A servo with ``options.unique_id`` starts without a node id, as such a node does: it sends only
+anonymous ``dynamic_node_id.Allocation`` requests (its unique id in three parts, the next part
+as soon as the allocator echoes the previous ones, a new first part every second), ignores
+commands, and takes the id the allocator hands out.
 """
 
 from __future__ import annotations
@@ -27,7 +32,9 @@ class DroneCanDevice:
 
     def __init__(self, motor: SimMotor, node_id: int, options: DroneCanOptions) -> None:
         self.motor = motor
-        self.node_id = node_id
+        self.unique_id = bytes.fromhex(options.unique_id) if options.unique_id else None
+        self.node_id: int | None = None if self.unique_id else node_id
+        self._next_request = -math.inf
         self.options = options
         self.start: float | None = None
         self._next_status = -math.inf
@@ -36,15 +43,16 @@ class DroneCanDevice:
         self.commands_seen = 0
 
     def accepts(self, msg: can.Message) -> bool:
-        return (
-            wire.is_message_frame(msg)
-            and wire.message_dtid(msg) == wire.DTID_ARRAY_COMMAND
-            and wire.source_node(msg) not in (0, self.node_id)
-        )
+        if not wire.is_message_frame(msg) or wire.source_node(msg) in (0, self.node_id):
+            return False
+        wanted = wire.DTID_ARRAY_COMMAND if self.node_id else wire.DTID_ALLOCATION
+        return wire.message_dtid(msg) == wanted
 
     def handle(self, msg: can.Message, now: float) -> list[can.Message]:
         received = self._reassembler.push(msg, now)
-        if received is None or received.dtid != wire.DTID_ARRAY_COMMAND:
+        if received is not None and received.dtid == wire.DTID_ALLOCATION:
+            return self._allocation_answer(received.payload)
+        if received is None or received.dtid != wire.DTID_ARRAY_COMMAND or not self.node_id:
             return []
         for command in received.payload.commands:
             if int(command.actuator_id) != self.options.actuator_id:
@@ -72,7 +80,35 @@ class DroneCanDevice:
         self._transfer_ids[dtid] = tid + 1
         return tid
 
+    def _allocation_request(self, part: bytes, first: bool) -> list[can.Message]:
+        assert self.unique_id is not None
+        allocation = wire.lib().uavcan.protocol.dynamic_node_id.Allocation()
+        allocation.node_id = 0  # no preference
+        allocation.first_part_of_unique_id = first
+        allocation.unique_id.from_bytes(part)
+        discriminator = int.from_bytes(self.unique_id[:2], "little")
+        return wire.encode_anonymous(allocation, discriminator, self._tid(wire.DTID_ALLOCATION))
+
+    def _allocation_answer(self, answer: object) -> list[can.Message]:
+        """The allocator echoed part of a unique id, or handed out an id."""
+        if self.node_id is not None or self.unique_id is None:
+            return []
+        echoed = bytes(answer.unique_id.to_bytes())  # type: ignore[attr-defined]
+        if not echoed or not self.unique_id.startswith(echoed):
+            return []  # another node's exchange
+        node_id = int(answer.node_id)  # type: ignore[attr-defined]
+        if len(echoed) == len(self.unique_id):
+            if node_id:
+                self.node_id = node_id
+            return []
+        return self._allocation_request(self.unique_id[len(echoed) : len(echoed) + 6], False)
+
     def status(self, now: float) -> list[can.Message]:
+        if self.node_id is None:
+            if now < self._next_request or self.unique_id is None:
+                return []
+            self._next_request = now + 1.0
+            return self._allocation_request(self.unique_id[:6], True)
         if self.start is None:
             self.start = now
         motor = self.motor
