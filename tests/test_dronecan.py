@@ -324,9 +324,14 @@ def test_node_reports_another_array_command_sender_once() -> None:
         for msg in foreign:
             node.receive(msg, float(t))
     [notice] = node.take_notices()
-    assert "node 10" in notice and "ArrayCommand" in notice
+    assert "node 10" in notice and "actuators 1 (the bridge's)" in notice
     assert node.take_notices() == []
     assert node.foreign_masters == {10}
+    # another controller for other actuators is reported too, as such
+    for msg in library_frames(wire.array_command([(7, 1, 0.1)]), 12, 0):
+        node.receive(msg, 4.0)
+    [notice] = node.take_notices()
+    assert "node 12" in notice and "actuators 7 (not the bridge's)" in notice
 
 
 def test_node_refuses_its_id_on_a_servo_and_duplicate_actuators() -> None:

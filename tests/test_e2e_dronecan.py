@@ -13,6 +13,7 @@ import re
 import time
 from pathlib import Path
 
+import can
 import pytest
 import yaml
 from conftest import wait_until
@@ -130,3 +131,36 @@ def test_shipped_dronecan_config_runs_follows_and_loses_nothing(tmp_path: Path) 
     trace = read_trace(run_dir / "trace.csv")
     for servo in config.servos:
         assert_positions_followed(servo.name, trace, span=20.0)
+
+
+def test_another_array_command_sender_is_reported_once_by_statustext() -> None:
+    """An autopilot commanding the same actuators on the bus: STATUSTEXT once, naming it."""
+    import dronecan
+    from dronecan.transport import Transfer
+
+    with running(CONFIG) as (bridge, port):
+        peer = Peer(port)
+        try:
+            peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))  # a GCS: answer me
+            actuator = dronecan.uavcan.equipment.actuator
+            command = actuator.ArrayCommand(
+                commands=[actuator.Command(actuator_id=2, command_type=1, command_value=0.1)]
+            )
+            scheduler = bridge.schedulers["bus0"]
+            mark = peer.count()
+            for tid in range(5):  # the frames the receive thread would hand over
+                transfer = Transfer(transfer_id=tid, source_node_id=10, payload=command)
+                for frame in transfer.to_frames():
+                    msg = can.Message(
+                        arbitration_id=frame.message_id, is_extended_id=True, data=frame.bytes
+                    )
+                    scheduler.handle_frame(msg, time.monotonic())
+            # STATUSTEXT carries 50 characters: a longer text comes in chunks
+            wanted = "DroneCAN node 10 also sends ArrayCommand for actuators 2"
+            assert wait_until(lambda: wanted in "".join(peer.statustexts(mark)), WAIT_S), (
+                peer.statustexts(mark)
+            )
+            time.sleep(0.5)
+            assert "".join(peer.statustexts(mark)).count(wanted) == 1
+        finally:
+            peer.close()

@@ -18,6 +18,7 @@ from mavservo.scheduling.core import STARTUP_RETRY_S
 if TYPE_CHECKING:
     from mavservo.config.schema import BusConfig, Config, SchedulerConfig, ServoConfig
     from mavservo.servos import ServoProfile
+    from mavservo.servos.base import BusNode
 
 
 @dataclass(frozen=True)
@@ -85,17 +86,16 @@ def bus_loads(config: Config) -> list[BusLoad]:
     return loads
 
 
-def node_flows(
-    bus: BusConfig, servos: list[ServoConfig], timing: SchedulerConfig
-) -> tuple[list[FrameFlow], set[str]]:
-    """The bus nodes' own traffic (DroneCAN: the bridge's NodeStatus and the commands of all
-    its servos packed into shared multi-frame transfers), and the servos whose commands they
-    carry: what the scheduler counts at start-up, computed by the same node."""
+def bus_nodes(
+    bus: BusConfig, servos: list[ServoConfig]
+) -> list[tuple[str, list[ServoConfig], BusNode]]:
+    """The bus nodes the scheduler of ``bus`` will own, with their servos: ``(profile name,
+    servos, node)``, built by the same profile code. A node that refuses its servos (a node id
+    clash) is left out: the semantic checks report it with its line."""
     groups: dict[type[ServoProfile], list[ServoConfig]] = {}
     for servo in servos:
         groups.setdefault(type(profile_of(servo)), []).append(servo)
-    flows: list[FrameFlow] = []
-    packed: set[str] = set()
+    nodes: list[tuple[str, list[ServoConfig], BusNode]] = []
     for cls, group in groups.items():
         if cls.NodeOptions is None:
             continue
@@ -103,9 +103,21 @@ def node_flows(
             options = cls.NodeOptions.model_validate(bus.node.get(cls.name, {}))
             node = cls.bus_node([profile_of(s) for s in group], options, (0, 0), 0.0)
         except ValueError:
-            continue  # a node id clash: the semantic checks report it with its line
-        if node is None:
             continue
+        if node is not None:
+            nodes.append((cls.name, group, node))
+    return nodes
+
+
+def node_flows(
+    bus: BusConfig, servos: list[ServoConfig], timing: SchedulerConfig
+) -> tuple[list[FrameFlow], set[str]]:
+    """The bus nodes' own traffic (DroneCAN: the bridge's NodeStatus and the commands of all
+    its servos packed into shared multi-frame transfers), and the servos whose commands they
+    carry: what the scheduler counts at start-up, computed by the same node."""
+    flows: list[FrameFlow] = []
+    packed: set[str] = set()
+    for _, group, node in bus_nodes(bus, servos):
         packed |= {servo.name for servo in group}
         hz = max(command_rate_hz(servo, timing) for servo in group)
         flows += [
@@ -113,6 +125,10 @@ def node_flows(
             for rate, extended, dlc in node.bus_frames_per_second(len(group), hz)
         ]
     return flows, packed
+
+
+def servos_on(config: Config, bus: BusConfig) -> list[ServoConfig]:
+    return [s for s in config.servos if _bus_name(config, s) == bus.name]
 
 
 def _bus_load(bus: BusConfig, servos: list[ServoConfig], timing: SchedulerConfig) -> BusLoad:

@@ -239,6 +239,10 @@ class BusNode(Protocol):
         """Things worth telling the operator once (another master on the bus), then forgotten."""
         ...
 
+    def describe(self, servo_names: Sequence[str]) -> list[str]:
+        """Lines for ``mavservo check``: what the node is and when its bus may be shared."""
+        ...
+
     def persistent_state(self) -> tuple[int, dict[str, Any]] | None:
         """``(version, node options to restore)`` worth keeping across restarts (DroneCAN: the
         allocation table), saved by the bridge whenever the version changes; None: nothing."""

@@ -134,6 +134,7 @@ class BridgeNode:
                 )
         self.options = options
         self.node_id = options.node_id
+        self.servos = list(servos)
         self.software_version = software_version
         self.start = start
         for servo in servos:
@@ -227,6 +228,30 @@ class BridgeNode:
         notices, self._notices = self._notices, []
         return notices
 
+    def describe(self, servo_names: Sequence[str]) -> list[str]:
+        """The node's identity and the rule for sharing its bus."""
+        actuators = ", ".join(
+            f"{name}={servo.options.actuator_id}"
+            for name, servo in zip(servo_names, self.servos, strict=False)
+        )
+        allocator = (
+            f"on (free ids from {self.options.allocation_first_id} down)"
+            if self.options.allocator
+            else "off (static node ids)"
+        )
+        return [
+            f"node id {self.node_id}, name {self.options.name}, NodeStatus 1 Hz, GetNodeInfo "
+            f"answered; dynamic id allocation {allocator}",
+            f"one ArrayCommand per command slot for actuators {actuators} "
+            f"({frames_for_commands(len(self.servos))} frames)",
+            "sharing the bus: other DroneCAN nodes (an autopilot's GNSS, ESCs, sensors, another "
+            "controller commanding other actuator ids) may share it; no other node may command "
+            "these actuator ids (an autopilot with these servos in its outputs): two masters "
+            "would fight. The bridge reports every other ArrayCommand sender once (STATUSTEXT, "
+            "log), saying whether it commands the bridge's actuators. With the allocator on, no "
+            "other allocation server may run on the bus.",
+        ]
+
     def persistent_state(self) -> tuple[int, dict[str, Any]] | None:
         """``(version, allocation table)`` for the bridge to keep next to the config (None:
         no allocator); the table comes back through the ``allocation_table`` option."""
@@ -271,13 +296,7 @@ class BridgeNode:
                 return received is not None and self.allocator.receive(received, now)
             return False
         if dtid == wire.DTID_ARRAY_COMMAND and source != self.node_id:
-            self.counters["foreign_commands"] += 1
-            if source not in self.foreign_masters:
-                self.foreign_masters.add(source)
-                self._notices.append(
-                    f"DroneCAN node {source} also sends ArrayCommand on this bus: two masters "
-                    "command the servos (an autopilot?); give the servos one master"
-                )
+            self._foreign_command(msg, source, now)
         if dtid == wire.DTID_NODE_STATUS and source == self.node_id:
             self.counters["node_id_conflict"] += 1
             if not self._conflict_noted:
@@ -289,6 +308,29 @@ class BridgeNode:
         if self.allocator is not None and dtid == wire.DTID_NODE_STATUS:
             self.allocator.seen(source, now)
         return False
+
+    def _foreign_command(self, msg: can.Message, source: int, now: float) -> None:
+        """Another node's ArrayCommand: reported once per sender, saying whether it commands
+        the bridge's actuators (two masters) or others (a second controller, maybe intended)."""
+        self.counters["foreign_commands"] += 1
+        received = self._reassembler.push(msg, now)
+        if received is None or source in self.foreign_masters:
+            return
+        self.foreign_masters.add(source)
+        ours = {servo.options.actuator_id for servo in self.servos}
+        theirs = sorted({int(c.actuator_id) for c in received.payload.commands})
+        shared = [a for a in theirs if a in ours]
+        if shared:
+            self._notices.append(
+                f"DroneCAN node {source} also sends ArrayCommand for actuators "
+                f"{', '.join(map(str, shared))} (the bridge's): two masters command these "
+                "servos (an autopilot?); give them one master"
+            )
+        else:
+            self._notices.append(
+                f"DroneCAN node {source} also sends ArrayCommand on this bus, for actuators "
+                f"{', '.join(map(str, theirs))} (not the bridge's)"
+            )
 
     def _node_info_response(self, request: wire.Received, now: float) -> list[can.Message]:
         info = wire.lib().uavcan.protocol.GetNodeInfo.Response()
