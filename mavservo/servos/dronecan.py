@@ -65,6 +65,8 @@ _FEEDBACK = (
     wire.DTID_VOLZ_STATUS,
     wire.DTID_HIMARK_INFO,
 )
+_COMMANDS_REMEMBERED = 16
+"""Recent command frames a profile can name the command of (setpoints waiting for a slot)."""
 PLACEHOLDER_BRIDGE_ID = 127
 """Source id of a command frame built before the bus node adopted the servo (``check``)."""
 
@@ -127,6 +129,8 @@ class DroneCanServo(ServoProfile):
         self.bridge_node_id = PLACEHOLDER_BRIDGE_ID
         """The source id of the command frames: set by the bus node that adopts the servo."""
         self._reassembler = wire.Reassembler()
+        self._payload: Any = None
+        self._sent: dict[bytes, tuple[int, int, float]] = {}
         self._health_faults = NO_FAULT
         self._vendor_faults = NO_FAULT
         self.node_health: int | None = None
@@ -153,9 +157,21 @@ class DroneCanServo(ServoProfile):
         node packs the commands of one slot together and numbers the transfers; DroneCAN
         actuators take no speed limit, so ``max_speed_dps`` is only validated."""
         self._speed_limit(max_speed_dps, 0.0)
-        payload = wire.array_command([self.command_tuple(angle_deg)])
-        (frame,) = wire.encode_message(payload, self.bridge_node_id, 0)
+        command = self.command_tuple(angle_deg)
+        if self._payload is None:
+            self._payload = wire.array_command([command])
+        else:  # one payload object, its value replaced: the package's objects are costly
+            self._payload.commands[0].command_value = command[2]
+        (frame,) = wire.encode_message(self._payload, self.bridge_node_id, 0)
+        if len(self._sent) >= _COMMANDS_REMEMBERED:
+            self._sent.pop(next(iter(self._sent)))
+        self._sent[bytes(frame.data)] = command
         return frame
+
+    def command_of(self, frame: can.Message) -> tuple[int, int, float] | None:
+        """The ``(actuator_id, command_type, value)`` of one of this servo's recent command
+        frames (the bus node packs it without decoding it again), None if not one of them."""
+        return self._sent.get(bytes(frame.data))
 
     def telemetry_requests(self) -> list[can.Message]:
         return []

@@ -80,6 +80,8 @@ class CommandedServo(Protocol):
     bridge_node_id: int
     options: Any
 
+    def command_of(self, frame: can.Message) -> tuple[int, int, float] | None: ...
+
 
 def frames_for_commands(count: int) -> int:
     """Frames of the ArrayCommand transfers carrying ``count`` commands (4 bytes each, 15 per
@@ -179,6 +181,12 @@ class BridgeNode:
         several transfers), numbered with this node's transfer ids."""
         tuples: list[tuple[int, int, float]] = []
         for msg in commands:
+            known = next(
+                (c for c in (s.command_of(msg) for s in self.servos) if c is not None), None
+            )
+            if known is not None:
+                tuples.append(known)
+                continue
             received = wire.Reassembler().push(msg, 0.0)
             if received is None or received.dtid != wire.DTID_ARRAY_COMMAND:
                 self.counters["bad_command_frame"] += 1
