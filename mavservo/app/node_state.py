@@ -80,23 +80,18 @@ class NodeStateKeeper:
     def __init__(self, path: Path, saved: Mapping[str, Any]) -> None:
         self.path = path
         self.document: dict[str, Any] = {k: v for k, v in saved.items() if isinstance(v, dict)}
-        self._versions: dict[tuple[str, int], int] = {}
+        self._versions: dict[tuple[str, str], int] = {}
         self.writes = 0
 
     def update(self, schedulers: Iterable[Scheduler]) -> bool:
         """Write the file if any node's state changed; True if it did."""
         changed = False
         for scheduler in schedulers:
-            for index, node in enumerate(scheduler.nodes):
-                state = node.persistent_state()
-                if state is None:
-                    continue
-                version, values = state
-                key = (scheduler.name, index)
+            for profile, (version, values) in scheduler.node_states():
+                key = (scheduler.name, profile)
                 if self._versions.get(key, 0) >= version:
                     continue
                 self._versions[key] = version
-                profile = scheduler.node_profile(index)
                 self.document.setdefault(scheduler.name, {})[profile] = values
                 changed = True
         if changed:

@@ -297,9 +297,16 @@ class Scheduler:
             notices, self._notices = self._notices, []
         return notices
 
-    def node_profile(self, index: int) -> str:
-        """The profile name of bus node ``index`` (the key of its ``node:`` options)."""
-        return self._node_profiles[index]
+    def node_states(self) -> list[tuple[str, tuple[int, dict[str, Any]]]]:
+        """``(profile name, (version, state))`` of every bus node with something to keep across
+        restarts (the DroneCAN allocation table), read under the lock: the receive thread
+        changes it."""
+        with self._lock:
+            return [
+                (profile, state)
+                for (node, _), profile in zip(self._nodes, self._node_profiles, strict=True)
+                if (state := node.persistent_state()) is not None
+            ]
 
     @property
     def nodes(self) -> list[BusNode]:
@@ -867,6 +874,10 @@ class Scheduler:
         profile = self._specs[servo].profile
         state = profile.decode(msg, t)
         lines: list[Line] = []
+        if state is not None and not profile.completes_report(msg):
+            # the start of a multi-frame report: logged, but neither a reply nor a new state
+            self._notify_observer(self._observer.on_rx, self.name, msg, t, servo, state)
+            return state
         with self._lock:
             servo_metrics = self._metrics.servos[servo]
             if state is None:

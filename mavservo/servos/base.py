@@ -416,6 +416,12 @@ class ServoProfile(ABC):
     def decode(self, msg: can.Message, timestamp: float) -> ServoState | None:
         """State after reply ``msg`` received at ``timestamp``; None if not this servo's reply."""
 
+    def completes_report(self, msg: can.Message) -> bool:
+        """False for a frame of this servo that only starts or continues a multi-frame report
+        (DroneCAN transfers): the scheduler logs it but counts neither a reply nor a new state
+        until the frame that completes it. Default: every frame is a whole report."""
+        return True
+
     def exchange_key(self, msg: can.Message) -> Hashable | None:
         """What a request and the reply that answers it have in common, or None.
 

@@ -30,9 +30,10 @@ servos that take only a normalised command; angles outside that range are refuse
 DENIED), never clamped.
 
 Received frames are reassembled per servo (a Status transfer is two frames); a frame that
-starts or continues a transfer decodes to the last known state (a sign of life), a transfer
-that does not reassemble (CRC, toggle, unknown type, truncation) to None, counted by reason in
-:attr:`DroneCanServo.errors`.
+starts or continues a transfer decodes to the last known state and does not complete a report
+(:meth:`DroneCanServo.completes_report`: the scheduler waits for the transfer's last frame), a
+transfer that does not reassemble (CRC, toggle, unknown type, truncation) decodes to None,
+counted by reason in :attr:`DroneCanServo.errors`.
 """
 
 from __future__ import annotations
@@ -228,6 +229,10 @@ class DroneCanServo(ServoProfile):
             and wire.source_node(msg) == self.can_id
             and wire.message_dtid(msg) in _FEEDBACK
         )
+
+    def completes_report(self, msg: can.Message) -> bool:
+        """Only the last frame of a transfer (end-of-transfer bit in the tail byte) is one."""
+        return bool(msg.data) and bool(msg.data[-1] & 0x40)
 
     def decode(self, msg: can.Message, timestamp: float) -> ServoState | None:
         if not self.is_reply(msg):
