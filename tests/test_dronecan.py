@@ -407,3 +407,21 @@ def test_budget_counts_packed_transfers_status_frames_and_every_nodes_heartbeat(
             vbus, servo_specs(config, bus.name), timing_config(config, bus), node_options=bus.node
         )
         assert scheduler.worst_case_load == pytest.approx(expected)
+
+
+def test_a_simulated_node_with_a_motor_fault_reports_warning_health_which_is_a_fault() -> None:
+    from mavservo.config.simulation import Faults
+    from mavservo.sim.servo import SimServo
+
+    sim = SimServo("dronecan", 5, faults=Faults(over_temperature=True), reply_latency_s=0.0)
+    profile = DroneCanServo(5)
+    sim.poll(0.0)
+    states = [profile.decode(msg, 0.1) for _, msg in sim.poll(0.1)]
+    assert states[-1] is not None and Fault.OTHER in states[-1].faults
+    assert profile.node_health == wire.HEALTH_WARNING
+    sim.faults.over_temperature = False
+    for step in range(2, 40):  # the next NodeStatus, a second later
+        for _, msg in sim.poll(step * 0.05):
+            profile.decode(msg, step * 0.05)
+    assert profile.node_health == wire.HEALTH_OK
+    assert profile.last_state is not None and not profile.last_state.faults
