@@ -27,7 +27,6 @@ import os
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
-from importlib import metadata
 from pathlib import Path
 from typing import Any, ParamSpec, Protocol, runtime_checkable
 
@@ -47,9 +46,10 @@ from mavservo.scheduling.core import (
     exchange_key,
 )
 from mavservo.scheduling.outage_log import LateReplies, Line, OnlineLog
-from mavservo.servos.base import BusNode, Fault, NodeHealth, ServoProfile, ServoState
+from mavservo.servos.base import BusNode, Fault, ServoState
 
-from .busload import FrameFlow, message_bits
+from .bus_nodes import BusNodes
+from .busload import message_bits
 
 __all__ = [
     "ScheduleError",
@@ -66,15 +66,6 @@ _P = ParamSpec("_P")
 
 StateCallback = Callable[[str, ServoState], None]
 _RECV_TIMEOUT_S = 0.05
-
-
-def _version() -> tuple[int, int]:
-    """mavservo's major and minor version, for a bus node's GetNodeInfo answer."""
-    try:
-        major, minor, *_ = metadata.version("mavservo").split(".")
-        return int(major), int(minor)
-    except (metadata.PackageNotFoundError, ValueError):
-        return (0, 0)
 
 
 class SchedulerObserver(Protocol):
@@ -207,18 +198,14 @@ class Scheduler:
         self._bus = bus
         self._clock = clock
         self._observer: SchedulerObserver = observer or _NoObserver()
-        self._nodes: list[tuple[BusNode, list[str]]] = []
-        self._node_of: dict[str, BusNode] = {}
-        self._node_profiles: list[str] = []
-        flows = self._make_nodes(servos, node_options or {}, clock())
+        self._nodes = BusNodes(self.name, servos, self.timing, node_options or {}, clock())
         self._core = ScheduleCore(
             servos,
             self.timing,
             start=clock(),
-            packed=frozenset(self._node_of),
-            extra_flows=flows,
+            packed=frozenset(self._nodes.node_of),
+            extra_flows=self._nodes.flows,
         )
-        self._notices: list[str] = []
         self._specs = {spec.name: spec for spec in servos}
         self._metrics = SchedulerMetrics(
             self._specs,
@@ -253,65 +240,23 @@ class Scheduler:
             # an aa55 bus with no rejection callback yet: count its decoder rejections here
             bus.on_reject = self.report_reject
 
-    def _make_nodes(
-        self, servos: Sequence[ServoSpec], options: Mapping[str, Mapping[str, Any]], now: float
-    ) -> list[FrameFlow]:
-        """The bus nodes of families that have one (DroneCAN: the bridge's own node), from the
-        bus-level options keyed by profile name; the frames they add, for the budget."""
-        groups: dict[type[ServoProfile], list[ServoSpec]] = {}
-        for spec in servos:
-            groups.setdefault(type(spec.profile), []).append(spec)
-        flows: list[FrameFlow] = []
-        for cls, group in groups.items():
-            if cls.NodeOptions is None:
-                continue
-            try:
-                node_options = cls.NodeOptions.model_validate(dict(options.get(cls.name, {})))
-                node = cls.bus_node([spec.profile for spec in group], node_options, _version(), now)
-            except ValueError as exc:  # pydantic's ValidationError is one
-                raise ScheduleError(f"bus {self.name}: {cls.name} node: {exc}") from exc
-            if node is None:
-                continue
-            names = [spec.name for spec in group]
-            self._nodes.append((node, names))
-            self._node_profiles.append(cls.name)
-            for spec in group:
-                self._node_of[spec.name] = node
-            hz = max(self._command_hz(spec) for spec in group)
-            flows += [
-                FrameFlow(rate, extended, dlc)
-                for rate, extended, dlc in node.bus_frames_per_second(len(group), hz)
-            ]
-        return flows
-
-    def _command_hz(self, spec: ServoSpec) -> float:
-        hz = 1 / self.timing.command_period_s
-        if spec.command_mode == "immediate":
-            hz = max(hz, 1 / self.timing.immediate_min_spacing_s)
-        return hz
-
     def take_notices(self) -> list[str]:
         """Notices of the bus nodes since the last call (another master on a DroneCAN bus),
         already logged; the bridge sends them as STATUSTEXT."""
         with self._lock:
-            notices, self._notices = self._notices, []
-        return notices
+            return self._nodes.take_notices()
 
     def node_states(self) -> list[tuple[str, tuple[int, dict[str, Any]]]]:
         """``(profile name, (version, state))`` of every bus node with something to keep across
         restarts (the DroneCAN allocation table), read under the lock: the receive thread
         changes it."""
         with self._lock:
-            return [
-                (profile, state)
-                for (node, _), profile in zip(self._nodes, self._node_profiles, strict=True)
-                if (state := node.persistent_state()) is not None
-            ]
+            return self._nodes.states()
 
     @property
     def nodes(self) -> list[BusNode]:
         """The bus nodes this scheduler owns (tests, diagnostics)."""
-        return [node for node, _ in self._nodes]
+        return [node for _, node, _ in self._nodes.nodes]
 
     # --------------------------------------------------------------------------- lifecycle
     def start(self) -> None:
@@ -611,9 +556,7 @@ class Scheduler:
             if self._nodes:
                 self._send_node_frames()
             with self._lock:
-                deadline = self._core.next_deadline(self._clock())
-                for node, _ in self._nodes:
-                    deadline = min(deadline, node.next_due())
+                deadline = min(self._core.next_deadline(self._clock()), self._nodes.next_due())
             self._cpu["runner_s"] = time.thread_time()
             self._wait_until(deadline)
 
@@ -679,32 +622,11 @@ class Scheduler:
             self._notify_subscribers(servo, state)
         return decision
 
-    def _batches(self, frames: list[Outgoing]) -> list[tuple[list[Outgoing], list[can.Message]]]:
-        """The frames of a step as they go on the wire: each on its own, except the commands of
-        servos that share a bus node, which the node packs together where the first of them
-        stood (DroneCAN: one ArrayCommand for all of them)."""
-        if not self._node_of:
-            return [([out], [out.msg]) for out in frames]
-        batches: list[tuple[list[Outgoing], list[can.Message]]] = []
-        packed: dict[int, tuple[BusNode, int]] = {}
-        for out in frames:
-            node = self._node_of.get(out.servo) if out.kind in ("command", "refresh") else None
-            if node is None:
-                batches.append(([out], [out.msg]))
-                continue
-            if id(node) not in packed:
-                packed[id(node)] = (node, len(batches))
-                batches.append(([], []))
-            batches[packed[id(node)][1]][0].append(out)
-        with self._lock:
-            for node, index in packed.values():
-                outs = batches[index][0]
-                batches[index] = (outs, node.pack([out.msg for out in outs]))
-        return batches
-
     def _send_all(self, decision: Decision) -> None:
         slot_marked = decision.command_slot is None
-        for outs, msgs in self._batches(decision.frames):
+        with self._lock:  # a node packs commands: it shares state with the receive thread
+            batches = self._nodes.batches(decision.frames)
+        for outs, msgs in batches:
             try:
                 for msg in msgs:
                     self._bus.send(msg)
@@ -764,21 +686,11 @@ class Scheduler:
         if state is not None:
             self._notify_subscribers(out.servo, state)
 
-    def _node_health(self, names: list[str]) -> NodeHealth:
-        online = sum(1 for name in names if self._core.is_online(name))
-        if online == len(names):
-            return "ok"
-        return "warning" if online else "error"
-
     def _send_node_frames(self) -> None:
         """The bus nodes' own frames (heartbeat, answers), after the step's frames."""
         now = self._clock()
         with self._lock:
-            frames = [
-                msg
-                for node, names in self._nodes
-                for msg in node.due(now, self._node_health(names))
-            ]
+            frames = self._nodes.due(now, self._core.is_online)
         for msg in frames:
             try:
                 self._bus.send(msg)
@@ -850,13 +762,12 @@ class Scheduler:
 
     def _node_receive(self, msg: can.Message, t: float) -> None:
         """Give a received frame to the bus nodes (caller holds the lock): answers wake the
-        runner, notices are logged once and kept for the bridge."""
-        for node, _ in self._nodes:
-            if node.receive(msg, t):
-                self._wake.set()
-            for notice in node.take_notices():
-                log.warning("scheduler %s: %s", self.name, notice)
-                self._notices.append(notice)
+        runner, notices are logged here and kept for the bridge."""
+        wake, notices = self._nodes.receive(msg, t)
+        if wake:
+            self._wake.set()
+        for notice in notices:
+            log.warning("scheduler %s: %s", self.name, notice)
 
     def handle_frame(self, msg: can.Message, t: float) -> ServoState | None:
         """Decode one received frame (called by the receive thread; public for tests and for
