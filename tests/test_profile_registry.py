@@ -47,7 +47,7 @@ def test_unknown_profile_lists_the_known_ones_and_where_plugins_come_from() -> N
         registry.get_profile("dynamixel-x")
     message = str(info.value)
     assert "'dynamixel-x'" in message
-    assert "cubemars-ak, cubemars-ak-mit, damiao-dm, lk, rmd-x" in message
+    assert ", ".join(sorted(registry.names())) in message
     assert "'mavservo.profiles' entry points" in message
 
 
