@@ -142,6 +142,7 @@ class BridgeNode:
         for servo in servos:
             servo.bridge_node_id = self.node_id
         self._transfer_ids: Counter[int] = Counter()
+        self._payloads: dict[int, Any] = {}
         self._reassembler = wire.Reassembler()
         self._queue: list[can.Message] = []
         self._next_status = start
@@ -198,11 +199,22 @@ class BridgeNode:
         frames: list[can.Message] = []
         step = wire.MAX_COMMANDS_PER_TRANSFER
         for first in range(0, len(tuples), step):
-            payload = wire.array_command(tuples[first : first + step])
+            payload = self._payload(tuples[first : first + step])
             tid = self._next_tid(wire.DTID_ARRAY_COMMAND)
             frames += wire.encode_message(payload, self.node_id, tid, wire.PRIORITY_HIGH)
         self.counters["command_transfers"] += -(-len(tuples) // step)
         return frames
+
+    def _payload(self, commands: list[tuple[int, int, float]]) -> Any:
+        """An ArrayCommand carrying ``commands``: one reused object per length, its fields
+        replaced (the package's objects cost more to build than to encode)."""
+        payload = self._payloads.get(len(commands))
+        if payload is None:
+            payload = self._payloads[len(commands)] = wire.array_command(commands)
+            return payload
+        for item, (actuator, kind, value) in zip(payload.commands, commands, strict=True):
+            item.actuator_id, item.command_type, item.command_value = actuator, kind, value
+        return payload
 
     # ----------------------------------------------------------------------- own traffic
     def status_payload(self, now: float) -> Any:
