@@ -164,3 +164,39 @@ def test_another_array_command_sender_is_reported_once_by_statustext() -> None:
             assert "".join(peer.statustexts(mark)).count(wanted) == 1
         finally:
             peer.close()
+
+
+ALLOCATING = """
+  telemetry: {actuator_output_status_hz: 10, named_value_float_hz: 20, esc_telemetry_hz: 0}
+can:
+  buses:
+    - {name: bus0, interface: aa55, channel: sim,
+       node: {dronecan: {node_id: 100, allocator: true}}}
+servos:
+  - {name: fixed, profile: dronecan, can_id: 11, limits_deg: [-45, 45], telemetry_hz: 10,
+     options: {actuator_id: 1}}
+  - {name: asking, profile: dronecan, can_id: 42, limits_deg: [-45, 45], telemetry_hz: 10,
+     options: {actuator_id: 2, unique_id: 000102030405060708090a0b0c0d0e0f}}
+scheduler: {reply_timeout_s: 0.5}
+channels:
+  - {servo: fixed, source: servo_output, channel: 1, input: {min: 1000, max: 2000},
+     output_deg: [-45, 45]}
+  - {servo: asking, source: servo_output, channel: 2, input: {min: 1000, max: 2000},
+     output_deg: [-45, 45]}
+"""
+
+
+def test_a_simulated_servo_without_an_id_gets_it_from_the_bridge_and_follows() -> None:
+    with running(ALLOCATING) as (bridge, port):
+        peer = Peer(port)
+        try:
+            asking = sim_servo(bridge, "asking")
+            assert wait_until(lambda: asking._device.node_id == 42, WAIT_S)  # noqa: SLF001
+            assert wait_until(lambda: status(bridge, "asking").online, WAIT_S)
+            assert peer.command(MAV_CMD_DO_SET_SERVO, [2, 1750]) == MAV_RESULT_ACCEPTED
+            target = pwm_to_angle(1750, 1000, 2000, (-45, 45))
+            assert wait_until(lambda: abs(asking.position_deg - target) < 0.3, WAIT_S)
+            [node] = bridge.schedulers["bus0"].nodes
+            assert node.allocator.allocations == [("000102030405060708090a0b0c0d0e0f", 42)]
+        finally:
+            peer.close()
