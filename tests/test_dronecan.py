@@ -425,3 +425,14 @@ def test_a_simulated_node_with_a_motor_fault_reports_warning_health_which_is_a_f
             profile.decode(msg, step * 0.05)
     assert profile.node_health == wire.HEALTH_OK
     assert profile.last_state is not None and not profile.last_state.faults
+
+
+def test_another_node_on_the_bridges_id_is_reported_once() -> None:
+    node = BridgeNode([DroneCanServo(11)], NodeOptions(node_id=100), (0, 1), 0.0)
+    status = dronecan.uavcan.protocol.NodeStatus(uptime_sec=1, health=0, mode=0)
+    for tid in range(3):
+        [msg] = library_frames(status, 100, tid)
+        node.receive(msg, float(tid))
+    [notice] = node.take_notices()
+    assert "bridge's node id 100" in notice
+    assert node.counters["node_id_conflict"] == 3
