@@ -50,6 +50,10 @@ def specs() -> list[ServoSpec]:
     ]
 
 
+def scheduler_profiles(scheduler: Scheduler) -> list[DroneCanServo]:
+    return [spec.profile for spec in scheduler._specs.values()]  # noqa: SLF001
+
+
 class Observations:
     """What the independent node saw, filled by its handlers."""
 
@@ -101,6 +105,11 @@ def exercise(
         state = scheduler.state("independent")
         done = (
             seen.node_info is not None
+            and all(
+                p.node_health is not None
+                for p in scheduler_profiles(scheduler)
+                if p.can_id == NODE_ID
+            )
             and len(seen.commands) >= 4
             and state is not None
             and not math.isnan(state.position_deg)
@@ -129,6 +138,8 @@ def exercise(
     assert state.velocity_dps == pytest.approx(math.degrees(-0.5), abs=0.05)
     assert scheduler.is_online("independent")
     assert not state.faults  # its NodeStatus says healthy (the library's node: OK)
+    [profile] = [p for p in scheduler_profiles(scheduler) if p.can_id == NODE_ID]
+    assert (profile.node_health, profile.node_mode) == (0, 0)  # decoded from its NodeStatus
 
 
 def test_independent_library_node_on_a_virtual_bus() -> None:
