@@ -142,6 +142,12 @@ def profiles_listing() -> str:
         for key, field in fields.items():
             about = f" - {field.description}" if field.description else ""
             lines.append(f"    {key}: default {field.default!r}, allowed {_allowed(field)}{about}")
+        if cls.NodeOptions is not None:  # a family with a node on its bus (DroneCAN)
+            lines.append(f"    bus node options (can.buses[].node.{name}):")
+            for key, field in cls.NodeOptions.model_fields.items():
+                about = f" - {field.description}" if field.description else ""
+                default = field.get_default(call_default_factory=True)
+                lines.append(f"      {key}: default {default!r}, allowed {_allowed(field)}{about}")
     lines += ["", registry.PLUGIN_HINT]
     return "\n".join(lines)
 
