@@ -436,3 +436,69 @@ def test_another_node_on_the_bridges_id_is_reported_once() -> None:
     [notice] = node.take_notices()
     assert "bridge's node id 100" in notice
     assert node.counters["node_id_conflict"] == 3
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.sampled_from(["position", "unitless"]),
+            st.floats(min_value=-360, max_value=360, allow_nan=False),
+        ),
+        min_size=1,
+        max_size=40,
+    ),
+    st.integers(0, 200),
+)
+def test_packed_commands_round_trip_through_the_package(
+    commands: list[tuple[str, float]], first_actuator: int
+) -> None:
+    """Any servos and angles: the package reads back every actuator id, type and value (as
+    float16 carries it), in transfers of at most 15, with valid CRCs and toggles."""
+    servos = [
+        DroneCanServo(
+            1 + i,
+            actuator_id=(first_actuator + i) % 256,
+            command=kind,
+            unitless_min_deg=-360,
+            unitless_max_deg=360,
+        )
+        for i, (kind, _) in enumerate(commands)
+    ]
+    node = BridgeNode(servos, NodeOptions(node_id=127), (0, 1), 0.0)
+    frames = node.pack([s.position_command(a) for s, (_, a) in zip(servos, commands, strict=True)])
+    decoded, current = [], []
+    for msg in frames:
+        current.append(msg)
+        if msg.data[-1] & 0x40:
+            transfer = library_decode(current)
+            assert len(transfer.payload.commands) <= 15
+            decoded += list(transfer.payload.commands)
+            current = []
+    assert len(decoded) == len(servos)
+    for servo, (kind, angle), got in zip(servos, commands, decoded, strict=True):
+        assert got.actuator_id == servo.options.actuator_id
+        value = math.radians(angle) if kind == "position" else angle / 360
+        assert got.command_type == (1 if kind == "position" else 0)
+        assert got.command_value == pytest.approx(wire.float16(value), abs=1e-9)
+
+
+@settings(max_examples=100, deadline=None)
+@given(
+    st.floats(min_value=-6.0, max_value=6.0, allow_nan=False),
+    st.one_of(st.just(math.nan), st.floats(min_value=-100, max_value=100)),
+    st.integers(0, 31),
+)
+def test_any_status_from_the_package_decodes_to_its_float16_values(
+    position: float, speed: float, tid: int
+) -> None:
+    profile = DroneCanServo(9, actuator_id=4)
+    state = None
+    for msg in library_frames(status_payload(4, position, speed), 9, tid):
+        state = profile.decode(msg, 1.0)
+    assert state is not None
+    assert state.position_deg == pytest.approx(math.degrees(wire.float16(position)), abs=1e-6)
+    if math.isnan(speed):
+        assert math.isnan(state.velocity_dps)
+    else:
+        assert state.velocity_dps == pytest.approx(math.degrees(wire.float16(speed)), abs=1e-6)
