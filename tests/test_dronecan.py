@@ -293,7 +293,7 @@ def test_node_answers_get_node_info_and_reports_health() -> None:
         payload=dronecan.uavcan.protocol.GetNodeInfo.Request(),
         request_not_response=True,
         service_not_message=True,
-        transfer_priority=16,
+        transfer_priority=20,
     )
     [frame] = request.to_frames()
     asked = can.Message(
@@ -303,6 +303,7 @@ def test_node_answers_get_node_info_and_reports_health() -> None:
     response = library_decode(node.due(12.7, "ok"))
     assert response.service_not_message and not response.request_not_response
     assert (response.dest_node_id, response.transfer_id) == (42, 7)
+    assert response.transfer_priority == 20  # the request's
     assert response.payload.name.decode() == "org.example.bridge"
     assert (response.payload.software_version.major, response.payload.software_version.minor) == (
         3,

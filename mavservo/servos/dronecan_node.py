@@ -363,4 +363,5 @@ class BridgeNode:
             destination=request.source,
             transfer_id=request.transfer_id,
             request=False,
+            priority=request.priority,  # a response keeps its request's priority
         )

@@ -211,6 +211,7 @@ class Received:
     request: bool
     destination: int | None
     full_name: str
+    priority: int = PRIORITY_MEDIUM
 
 
 def _error_reason(exc: Exception) -> str:
@@ -308,4 +309,5 @@ class Reassembler:
             request=bool(transfer.request_not_response),
             destination=transfer.dest_node_id,
             full_name=str(full_name),
+            priority=(arbitration_id >> 24) & 0x1F,
         )
