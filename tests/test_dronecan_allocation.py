@@ -279,3 +279,41 @@ def test_a_corrupt_table_is_reported_and_ignored(tmp_path: Path) -> None:
             assert node.persistent_state() == (0, {"allocation_table": {}})
         finally:
             bridge.stop()
+
+
+def test_independent_anonymous_node_gets_its_id_over_aa55_and_the_adapter_emulator() -> None:
+    from test_dronecan_interop import LibraryNodeOnSimBus, SimBusDriver
+
+    from mavservo.sim.adapter import AdapterEmulator
+
+    driver = SimBusDriver()
+    node, got = passive_client(driver, UID)  # type: ignore[arg-type]
+    participant = LibraryNodeOnSimBus(node, driver)
+    emulator = AdapterEmulator([participant]).start()  # type: ignore[list-item]
+    try:
+        bus = can.Bus(interface="aa55", channel=emulator.path, bitrate=1_000_000)
+        spec = ServoSpec(
+            "servo", DroneCanServo(42, actuator_id=1, unique_id=UID.hex()), telemetry_hz=1
+        )
+        scheduler = Scheduler(
+            bus,
+            [spec],
+            TimingConfig(reply_timeout_s=0.5),
+            node_options={"dronecan": {"node_id": 100, "allocator": True}},
+        )
+        try:
+            with scheduler:
+                deadline = time.monotonic() + 8.0
+                next_request = 0.0
+                for _ in range(800):  # the node runs in the emulator's thread; we only ask
+                    if "id" in got or time.monotonic() > deadline:
+                        break
+                    if time.monotonic() >= next_request:
+                        participant.calls.append(node.start_allocation)
+                        next_request = time.monotonic() + 1.0
+                    time.sleep(0.01)
+                assert got.get("id") == 42
+        finally:
+            bus.shutdown()
+    finally:
+        emulator.stop()
