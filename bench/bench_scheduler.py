@@ -65,6 +65,26 @@ class IntervalTracer(SchedulerObserver):
         self.rx.append((t, servo, msg.data[0] if msg.data else -1, msg.timestamp))
 
 
+class CommandFrameCounter(SchedulerObserver):
+    """Counts the command and refresh frames written (frames per slot: a DroneCAN bus packs
+    every servo's command into shared multi-frame transfers), passing every hook on to
+    ``inner`` (the tracer, when asked for)."""
+
+    def __init__(self, inner: SchedulerObserver | None) -> None:
+        self.inner = inner
+        self.frames = 0
+
+    def on_tx(self, bus, msg, t, kind, servo, seq) -> None:  # noqa: ANN001
+        if kind in ("command", "refresh"):
+            self.frames += 1
+        if self.inner is not None:
+            self.inner.on_tx(bus, msg, t, kind, servo, seq)
+
+    def on_rx(self, bus, msg, t, servo, state) -> None:  # noqa: ANN001
+        if self.inner is not None:
+            self.inner.on_rx(bus, msg, t, servo, state)
+
+
 def _p99(values: list[float]) -> float:
     ordered = sorted(values)
     return ordered[min(len(ordered) - 1, int(0.99 * len(ordered)))] if ordered else math.nan
@@ -230,12 +250,15 @@ def bench_profile(name: str, can_id: int) -> ServoProfile:
     """Servo ``can_id`` of family ``name`` as the bench drives it.
 
     Families that answer on a shared master id (Damiao, CubeMars MIT) get one master id per
-    servo, so any number of them can share the bus without one claiming another's replies.
+    servo, so any number of them can share the bus without one claiming another's replies;
+    DroneCAN servos (one ArrayCommand for all) one actuator id each.
     """
     profile_class = get_profile(name)
     fields = profile_class.Options.model_fields
     if "master_id" in fields:
         return profile_class(can_id, master_id=0x80 + can_id)
+    if "actuator_id" in fields:
+        return profile_class(can_id, actuator_id=can_id)
     return profile_class(can_id)
 
 
@@ -356,7 +379,8 @@ def run_once(
     )
     specs = [bench_spec(profile, i) for i in range(1, n_servos + 1)]
     tracer = IntervalTracer() if args.breakdown else None
-    scheduler = Scheduler(transport.bus, specs, timing, name=args.transport, observer=tracer)
+    counter = CommandFrameCounter(tracer)
+    scheduler = Scheduler(transport.bus, specs, timing, name=args.transport, observer=counter)
     if args.realtime:
         # The setpoint driver shares the interpreter lock with the scheduler: left at normal
         # priority, a hog can preempt it while it holds the GIL and stall the command loop
@@ -409,6 +433,7 @@ def run_once(
         "cmd_p99_dev_ms": tick["abs_deviation"]["p99"] * ms,
         "cmd_max_dev_ms": tick["abs_deviation"]["max"] * ms,
         "missed_slots": snapshot["missed_command_slots"],
+        "frames_per_slot": counter.frames / max(1.0, elapsed / args.command_period),
         "slot_late_p99_ms": snapshot["command_lateness_s"]["p99"] * ms,  # due -> first write
         "tlm_interval_mean_ms": statistics.fmean(window_intervals) * ms,
         "tlm_interval_p1_ms": min(window_intervals) * ms if window_intervals else None,

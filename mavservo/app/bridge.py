@@ -24,6 +24,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import can
 
+from mavservo.app import node_state
 from mavservo.config import BusConfig, Config
 from mavservo.config.overlay import overlay_path
 from mavservo.control.live_parameters import LiveParameters
@@ -200,6 +201,8 @@ class Bridge:
         self.emulators: dict[str, AdapterEmulator] = {}
         self.buses: dict[str, can.BusABC] = {}
         self.schedulers: dict[str, Scheduler] = {}
+        #: what the bus nodes keep across restarts (DroneCAN allocation table), if any
+        self.node_states: node_state.NodeStateKeeper | None = None
         self.autopilot_sim: Any = None
         self.mavlink: MavlinkSide | None = None
         self.backend: ServoBackend | None = None
@@ -232,17 +235,32 @@ class Bridge:
         for bus_cfg in cfg.can.buses:
             self.buses[bus_cfg.name] = self._open_bus(bus_cfg)
         sinks: dict[str, Scheduler] = {}
+        saved: dict[str, Any] = {}
+        state_file = None
+        if self.config_path is not None and any(bus.node for bus in cfg.can.buses):
+            state_file = node_state.state_path(self.config_path)
+            saved = node_state.load(state_file)
         for bus_cfg in cfg.can.buses:
             specs = servo_specs(cfg, bus_cfg.name)
             if not specs:
                 continue
             timing = timing_config(cfg, bus_cfg)
+            node_options: Mapping[str, Any] = bus_cfg.node
+            if state_file is not None:
+                node_options = node_state.bus_node_options(bus_cfg, saved, state_file)
             scheduler = Scheduler(
-                self.buses[bus_cfg.name], specs, timing, observer=observer, name=bus_cfg.name
+                self.buses[bus_cfg.name],
+                specs,
+                timing,
+                observer=observer,
+                name=bus_cfg.name,
+                node_options=node_options,
             )
             self.schedulers[bus_cfg.name] = scheduler
             for spec in specs:
                 sinks[spec.name] = scheduler
+        if state_file is not None:
+            self.node_states = node_state.NodeStateKeeper(state_file, saved)
         self.backend = ServoBackend(
             cfg,
             sinks,
@@ -496,6 +514,11 @@ class Bridge:
             next_t += period
             if self.backend is not None:
                 self.backend.tick(time.monotonic())
+            for scheduler in self.schedulers.values():
+                for notice in scheduler.take_notices():
+                    self._event(f"bus {scheduler.name}: {notice}")
+            if self.node_states is not None:
+                self.node_states.update(self.schedulers.values())
             self._stop.wait(max(0.0, next_t - time.monotonic()))
 
     def _event(self, text: str) -> None:

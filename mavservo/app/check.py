@@ -15,7 +15,7 @@ import sys
 from collections.abc import Sequence
 from typing import TextIO
 
-from mavservo.config.budget import BusLoad, bus_loads
+from mavservo.config.budget import BusLoad, bus_loads, bus_nodes, servos_on
 from mavservo.config.endpoints import endpoint_lines
 from mavservo.config.loader import ConfigError
 from mavservo.config.overlay import LoadedConfig, load_config_with_overlay, overlay_path
@@ -116,6 +116,10 @@ def resolved_mapping(config: Config) -> str:
         for gimbal in config.gimbals:
             axes = ", ".join(f"{axis}={servo}" for axis, servo in gimbal.axes().items())
             lines.append(f"  {gimbal.name} (component {gimbal.component_id}): {axes}")
+    for bus in config.can.buses:
+        for profile, servos, node in bus_nodes(bus, servos_on(config, bus)):
+            lines += ["", f"bus {bus.name}: the bridge's {profile} node"]
+            lines += ["  " + line for line in node.describe([s.name for s in servos])]
     lines += ["", "worst-case bus load (paper eq. 4):"]
     lines += ["  " + _load_line(load) for load in bus_loads(config)]
     return "\n".join(lines)
@@ -138,6 +142,12 @@ def profiles_listing() -> str:
         for key, field in fields.items():
             about = f" - {field.description}" if field.description else ""
             lines.append(f"    {key}: default {field.default!r}, allowed {_allowed(field)}{about}")
+        if cls.NodeOptions is not None:  # a family with a node on its bus (DroneCAN)
+            lines.append(f"    bus node options (can.buses[].node.{name}):")
+            for key, field in cls.NodeOptions.model_fields.items():
+                about = f" - {field.description}" if field.description else ""
+                default = field.get_default(call_default_factory=True)
+                lines.append(f"      {key}: default {default!r}, allowed {_allowed(field)}{about}")
     lines += ["", registry.PLUGIN_HINT]
     return "\n".join(lines)
 

@@ -18,6 +18,7 @@ from mavservo.scheduling.core import STARTUP_RETRY_S
 if TYPE_CHECKING:
     from mavservo.config.schema import BusConfig, Config, SchedulerConfig, ServoConfig
     from mavservo.servos import ServoProfile
+    from mavservo.servos.base import BusNode
 
 
 @dataclass(frozen=True)
@@ -58,11 +59,14 @@ def is_polled(profile: ServoProfile) -> bool:
     return bool(profile.telemetry_requests())
 
 
-def servo_flows(servo: ServoConfig, timing: SchedulerConfig) -> list[FrameFlow]:
-    """Every frame flow one servo causes, from its profile's own frames."""
+def servo_flows(
+    servo: ServoConfig, timing: SchedulerConfig, *, packed: bool = False
+) -> list[FrameFlow]:
+    """Every frame flow one servo causes, from its profile's own frames. ``packed``: its
+    commands travel in its bus node's shared transfer, which :func:`node_flows` counts."""
     traffic = servo_traffic(
         profile_of(servo),
-        command_hz=command_rate_hz(servo, timing),
+        command_hz=0.0 if packed else command_rate_hz(servo, timing),
         poll_hz=telemetry_rate_hz(servo, timing),
         # a push-style servo reports at the rate the config asks for: the telemetry loop
         # paces polls only
@@ -82,8 +86,56 @@ def bus_loads(config: Config) -> list[BusLoad]:
     return loads
 
 
+def bus_nodes(
+    bus: BusConfig, servos: list[ServoConfig]
+) -> list[tuple[str, list[ServoConfig], BusNode]]:
+    """The bus nodes the scheduler of ``bus`` will own, with their servos: ``(profile name,
+    servos, node)``, built by the same profile code. A node that refuses its servos (a node id
+    clash) is left out: the semantic checks report it with its line."""
+    groups: dict[type[ServoProfile], list[ServoConfig]] = {}
+    for servo in servos:
+        groups.setdefault(type(profile_of(servo)), []).append(servo)
+    nodes: list[tuple[str, list[ServoConfig], BusNode]] = []
+    for cls, group in groups.items():
+        if cls.NodeOptions is None:
+            continue
+        try:
+            options = cls.NodeOptions.model_validate(bus.node.get(cls.name, {}))
+            node = cls.bus_node([profile_of(s) for s in group], options, (0, 0), 0.0)
+        except ValueError:
+            continue
+        if node is not None:
+            nodes.append((cls.name, group, node))
+    return nodes
+
+
+def node_flows(
+    bus: BusConfig, servos: list[ServoConfig], timing: SchedulerConfig
+) -> tuple[list[FrameFlow], set[str]]:
+    """The bus nodes' own traffic (DroneCAN: the bridge's NodeStatus and the commands of all
+    its servos packed into shared multi-frame transfers), and the servos whose commands they
+    carry: what the scheduler counts at start-up, computed by the same node."""
+    flows: list[FrameFlow] = []
+    packed: set[str] = set()
+    for _, group, node in bus_nodes(bus, servos):
+        packed |= {servo.name for servo in group}
+        hz = max(command_rate_hz(servo, timing) for servo in group)
+        flows += [
+            FrameFlow(rate, extended, dlc)
+            for rate, extended, dlc in node.bus_frames_per_second(len(group), hz)
+        ]
+    return flows, packed
+
+
+def servos_on(config: Config, bus: BusConfig) -> list[ServoConfig]:
+    return [s for s in config.servos if _bus_name(config, s) == bus.name]
+
+
 def _bus_load(bus: BusConfig, servos: list[ServoConfig], timing: SchedulerConfig) -> BusLoad:
-    flows = [flow for servo in servos for flow in servo_flows(servo, timing)]
+    flows, packed = node_flows(bus, servos, timing)
+    flows += [
+        flow for servo in servos for flow in servo_flows(servo, timing, packed=servo.name in packed)
+    ]
     return BusLoad(bus.name, bus.bitrate, load_ratio(flows, bus.bitrate), bus.max_load, len(servos))
 
 

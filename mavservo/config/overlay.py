@@ -142,6 +142,12 @@ def write_overlay(path: Path, values: Mapping[str, float], config_name: str) -> 
     text = _HEADER.format(config=config_name) + "".join(
         f"{name}: {_number(value)}\n" for name, value in sorted(values.items())
     )
+    write_atomic(path, text)
+
+
+def write_atomic(path: Path, text: str) -> None:
+    """Replace ``path`` with ``text`` atomically and durably (0600): a crash leaves the old
+    file or the new one, never half of one (the overlay, the DroneCAN allocation table)."""
     fd, temporary = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent)
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as handle:

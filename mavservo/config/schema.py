@@ -307,6 +307,30 @@ class BusConfig(StrictModel):
     """aa55 only: least time between two reads of the adapter ("auto": none while the line is
     lightly used, up to 8 ms while it is busy, e.g. under a foreign node's flood)."""
     max_load: Float = Field(0.35, gt=0, le=1)
+    node: dict[str, dict[str, Any]] = Field(default_factory=dict)
+    """The bridge's own node on this bus, per family that has one, keyed by profile name
+    (``node: {dronecan: {node_id: 100}}``); checked by that profile's ``NodeOptions``."""
+
+    @field_validator("node")
+    @classmethod
+    def _node_options_valid(cls, value: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
+        problems: list[str] = []
+        for name, options in value.items():
+            model = get_profile(name).NodeOptions
+            if model is None:
+                problems.append(f"node.{name}: profile {name!r} has no bus node")
+                continue
+            try:
+                model.model_validate(options)
+            except ValidationError as exc:
+                problems += [
+                    f"node.{name}.{'.'.join(str(p) for p in e['loc'])}: {e['msg']}, "
+                    f"found {e.get('input')!r}"
+                    for e in exc.errors(include_url=False)
+                ]
+        if problems:
+            raise ValueError("; ".join(problems))
+        return value
 
     @field_validator("bitrate")
     @classmethod

@@ -15,7 +15,8 @@ from mavservo.config.schema import (
     ServoConfig,
     ServoOutputChannel,
 )
-from mavservo.servos import FrameId
+from mavservo.servos import FrameId, ServoProfile
+from mavservo.servos.base import BusNodeError
 
 Finding = tuple[tuple[str | int, ...], str]
 
@@ -51,6 +52,7 @@ def cross_checks(config: Config) -> list[Finding]:
         _servo_names,
         _servo_buses,
         _can_id_collisions,
+        _bus_nodes,
         _failsafe_positions,
         _failsafe_release,
         _channels,
@@ -199,6 +201,42 @@ def _can_id_collisions(config: Config) -> Iterator[Finding]:
             if clash:
                 yield (("servos", index, "can_id"), _collision_message(servo, other, owner, clash))
         seen.append((index, bus, mine))
+
+
+def _bus_nodes(config: Config) -> Iterator[Finding]:
+    """What a family's bus node refuses (DroneCAN: the bridge's node id taken by a servo, two
+    servos on one actuator id), at the key to change; and ``node:`` options for a family that
+    has no servo on the bus."""
+    for bus_index, bus in enumerate(config.can.buses):
+        members = [
+            (index, servo)
+            for index, servo in enumerate(config.servos)
+            if (servo.bus or config.can.buses[0].name) == bus.name
+        ]
+        groups: dict[type[ServoProfile], list[tuple[int, ServoConfig]]] = {}
+        for index, servo in members:
+            groups.setdefault(type(servo.make_profile()), []).append((index, servo))
+        for name in bus.node:
+            if not any(cls.name == name for cls in groups):
+                yield (
+                    ("can", "buses", bus_index, "node", name),
+                    f"bus {bus.name!r} has no {name} servo: its node options do nothing; "
+                    "remove them or put the servos on this bus",
+                )
+        for cls, group in groups.items():
+            if cls.NodeOptions is None:
+                continue
+            options = cls.NodeOptions.model_validate(bus.node.get(cls.name, {}))
+            try:
+                cls.bus_node([s.make_profile() for _, s in group], options, (0, 0), 0.0)
+            except BusNodeError as exc:
+                if exc.servo is None:
+                    path: tuple[str | int, ...] = ("can", "buses", bus_index, "node", cls.name)
+                    if cls.name in bus.node:
+                        path += tuple(exc.key.split("."))
+                else:
+                    path = ("servos", group[exc.servo][0], *exc.key.split("."))
+                yield (path, f"{exc} (bus {bus.name!r})")
 
 
 def _collision_message(

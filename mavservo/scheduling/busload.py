@@ -142,6 +142,8 @@ class ServoTraffic:
     lifecycle_hz: float = 0.0
     lifecycle_shapes: tuple[tuple[bool, int], ...] = ()
     replies_per_lifecycle: int = 0
+    heartbeat_hz: float = 0.0
+    """A node's own heartbeat (DroneCAN NodeStatus), 8-byte frames besides its status."""
 
     def flows(self) -> list[FrameFlow]:
         flows = [FrameFlow(self.command_hz, self.command_extended, self.command_dlc)]
@@ -161,6 +163,8 @@ class ServoTraffic:
                 )
         if self.push_hz:
             flows.append(FrameFlow(self.push_hz, self.command_extended, self.reply_dlc))
+        if self.heartbeat_hz:
+            flows.append(FrameFlow(self.heartbeat_hz, self.command_extended, self.reply_dlc))
         for extended, dlc in self.lifecycle_shapes:
             flows.append(FrameFlow(self.lifecycle_hz, extended, dlc))
             if self.replies_per_lifecycle:
@@ -194,6 +198,7 @@ def servo_traffic(
     command = profile.position_command(0.0, max_speed_dps)
     requests = profile.telemetry_requests()
     startup = profile.startup_frames()
+    heartbeat = profile.heartbeat_period_s
     return ServoTraffic(
         command_hz=command_hz,
         command_extended=bool(command.is_extended_id),
@@ -202,10 +207,13 @@ def servo_traffic(
         request_hz=poll_hz if requests else 0.0,
         request_shapes=tuple((bool(r.is_extended_id), int(r.dlc)) for r in requests),
         replies_per_request=profile.replies_per_request,
-        push_hz=(0.0 if requests else status_hz) + profile.unsolicited_hz(),
+        # a multi-frame status transfer (DroneCAN Status: two frames) counts every frame
+        push_hz=(0.0 if requests else status_hz * profile.frames_per_push)
+        + profile.unsolicited_hz(),
         lifecycle_hz=startup_hz,
         lifecycle_shapes=tuple((bool(f.is_extended_id), int(f.dlc)) for f in startup),
         replies_per_lifecycle=profile.replies_per_lifecycle,
+        heartbeat_hz=1 / heartbeat if heartbeat else 0.0,
     )
 
 

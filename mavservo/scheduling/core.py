@@ -92,7 +92,15 @@ from mavservo.errors import MavservoError
 from mavservo.servos.base import ServoProfile
 
 from . import reply_matching
-from .busload import ServoTraffic, frame_time, message_bits, servo_traffic, worst_case_load
+from .busload import (
+    FrameFlow,
+    ServoTraffic,
+    frame_time,
+    load_ratio,
+    message_bits,
+    servo_traffic,
+    worst_case_load,
+)
 
 CommandMode = Literal["periodic", "immediate"]
 FrameKind = Literal["command", "refresh", "request", "lifecycle"]
@@ -337,7 +345,17 @@ def _msg_shape(msg: can.Message) -> tuple[bool, int]:
 class ScheduleCore:
     """The dual-loop policy as a state machine driven by ``now`` (see module docstring)."""
 
-    def __init__(self, servos: Sequence[ServoSpec], timing: TimingConfig, start: float) -> None:
+    def __init__(
+        self,
+        servos: Sequence[ServoSpec],
+        timing: TimingConfig,
+        start: float,
+        *,
+        packed: frozenset[str] = frozenset(),
+        extra_flows: Sequence[FrameFlow] = (),
+    ) -> None:
+        """``packed``: servos whose commands a bus node packs together (DroneCAN), counted by
+        the node's ``extra_flows`` (its commands and heartbeat) instead of one frame each."""
         names = [s.name for s in servos]
         if len(set(names)) != len(names):
             raise ScheduleError(f"duplicate servo names on one bus: {names}")
@@ -345,6 +363,8 @@ class ScheduleCore:
             raise ScheduleError("a scheduler needs at least one servo")
         self.timing = timing
         self.start = start
+        self._packed = packed
+        self._extra_flows = tuple(extra_flows)
         self.warnings: list[str] = []
         self._slots: dict[str, _ServoSlot] = {}
         self._order = names
@@ -425,6 +445,8 @@ class ScheduleCore:
         as the budget assumes); None for polled servos and for one configured to push nothing."""
         if spec.profile.telemetry_requests():
             return None
+        if spec.profile.heartbeat_period_s:
+            return spec.profile.heartbeat_period_s  # its own heartbeat says it is alive
         hz = spec.telemetry_hz
         if hz is None:
             return self.timing.telemetry_period_s
@@ -460,7 +482,7 @@ class ScheduleCore:
         period = self._poll_period(spec)  # None: not polled
         return servo_traffic(
             spec.profile,
-            command_hz=self._command_hz(spec),
+            command_hz=0.0 if spec.name in self._packed else self._command_hz(spec),
             poll_hz=0.0 if period is None else 1 / period,
             # a push-style servo sends status on its own at its telemetry_hz
             status_hz=(
@@ -477,6 +499,7 @@ class ScheduleCore:
         traffic = {spec.name: self._traffic(spec) for spec in servos}
         del self.warnings[warnings_before:]  # _poll_period warns again in __init__
         load = worst_case_load(traffic.values(), self.timing.bitrate)
+        load += load_ratio(self._extra_flows, self.timing.bitrate)
         if load > self.timing.max_load:
             per_servo = {
                 name: worst_case_load([t], self.timing.bitrate) for name, t in traffic.items()

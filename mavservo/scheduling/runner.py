@@ -26,7 +26,7 @@ import math
 import os
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any, ParamSpec, Protocol, runtime_checkable
 
@@ -46,8 +46,9 @@ from mavservo.scheduling.core import (
     exchange_key,
 )
 from mavservo.scheduling.outage_log import LateReplies, Line, OnlineLog
-from mavservo.servos.base import Fault, ServoState
+from mavservo.servos.base import BusNode, Fault, ServoState
 
+from .bus_nodes import BusNodes
 from .busload import message_bits
 
 __all__ = [
@@ -190,13 +191,21 @@ class Scheduler:
         clock: Callable[[], float] = time.monotonic,
         observer: SchedulerObserver | None = None,
         name: str | None = None,
+        node_options: Mapping[str, Mapping[str, Any]] | None = None,
     ) -> None:
         self.timing = timing or TimingConfig()
         self.name = name or str(bus.channel_info)
         self._bus = bus
         self._clock = clock
         self._observer: SchedulerObserver = observer or _NoObserver()
-        self._core = ScheduleCore(servos, self.timing, start=clock())
+        self._nodes = BusNodes(self.name, servos, self.timing, node_options or {}, clock())
+        self._core = ScheduleCore(
+            servos,
+            self.timing,
+            start=clock(),
+            packed=frozenset(self._nodes.node_of),
+            extra_flows=self._nodes.flows,
+        )
         self._specs = {spec.name: spec for spec in servos}
         self._metrics = SchedulerMetrics(
             self._specs,
@@ -230,6 +239,24 @@ class Scheduler:
         if isinstance(bus, RejectReporting) and bus.on_reject is None:
             # an aa55 bus with no rejection callback yet: count its decoder rejections here
             bus.on_reject = self.report_reject
+
+    def take_notices(self) -> list[str]:
+        """Notices of the bus nodes since the last call (another master on a DroneCAN bus),
+        already logged; the bridge sends them as STATUSTEXT."""
+        with self._lock:
+            return self._nodes.take_notices()
+
+    def node_states(self) -> list[tuple[str, tuple[int, dict[str, Any]]]]:
+        """``(profile name, (version, state))`` of every bus node with something to keep across
+        restarts (the DroneCAN allocation table), read under the lock: the receive thread
+        changes it."""
+        with self._lock:
+            return self._nodes.states()
+
+    @property
+    def nodes(self) -> list[BusNode]:
+        """The bus nodes this scheduler owns (tests, diagnostics)."""
+        return [node for _, node, _ in self._nodes.nodes]
 
     # --------------------------------------------------------------------------- lifecycle
     def start(self) -> None:
@@ -526,8 +553,10 @@ class Scheduler:
         while not self._stop.is_set():
             decision = self._step()
             self._send_all(decision)
+            if self._nodes:
+                self._send_node_frames()
             with self._lock:
-                deadline = self._core.next_deadline(self._clock())
+                deadline = min(self._core.next_deadline(self._clock()), self._nodes.next_due())
             self._cpu["runner_s"] = time.thread_time()
             self._wait_until(deadline)
 
@@ -595,53 +624,88 @@ class Scheduler:
 
     def _send_all(self, decision: Decision) -> None:
         slot_marked = decision.command_slot is None
-        for out in decision.frames:
+        with self._lock:  # a node packs commands: it shares state with the receive thread
+            batches = self._nodes.batches(decision.frames)
+        for outs, msgs in batches:
             try:
-                self._bus.send(out.msg)
+                for msg in msgs:
+                    self._bus.send(msg)
             except can.CanError as exc:
                 now = self._clock()
-                lines: list[Line] = []
-                state: ServoState | None = None
-                with self._lock:
-                    failure = self._core.send_failed(out)
-                    self._metrics.servos[out.servo].send_failed += 1
-                    first = self._send_failures.failed(now)
-                    if failure.went_offline:
-                        lines, state = self._go_offline(
-                            out.servo, "sends failing", failure.dropped, now
-                        )
-                    elif failure.dropped is not None:
-                        lines = self._dropped(out.servo, failure.dropped, now)
-                if first:
-                    log.warning(
-                        "scheduler %s: send to %s failed: %s (further failed sends are "
-                        "counted, not logged, until one works again)",
-                        self.name,
-                        out.servo,
-                        exc,
-                    )
-                self._log(lines)
-                if state is not None:
-                    self._notify_subscribers(out.servo, state)
+                for out in outs:
+                    self._refused(out, exc, now)
                 continue
             t = self._clock()
             with self._lock:
                 ended = self._send_failures.succeeded(t)
-                back = self._core.sent(out, t)
+                back = [servo for out in outs for servo in self._core.sent(out, t)]
                 lines = [line for servo in back for line in self._online_log.online(servo, t)]
-                self._account_tx(out, t)
-                if not slot_marked and out.kind in ("command", "refresh"):
+                for out in outs:
+                    self._account_tx(out, t, load=len(msgs) == 1 and len(outs) == 1)
+                if len(outs) != 1 or len(msgs) != 1:
+                    for msg in msgs:
+                        self._metrics.load.add(t, message_bits(msg))
+                if not slot_marked and any(out.kind in ("command", "refresh") for out in outs):
                     assert decision.command_slot is not None
                     self._metrics.command_slot_served(decision.command_slot, t)
                     slot_marked = True
             if ended is not None:
                 log.info("scheduler %s: sends work again: %d failed over %.1f s", self.name, *ended)
             self._log(lines)
-            self._notify_observer(
-                self._observer.on_tx, self.name, out.msg, t, out.kind, out.servo, out.seq
-            )
+            # every frame once in the CAN log, each tied to one servo it carries a command to
+            # (new setpoints first: the run log times their write from it); a packed transfer
+            # has fewer frames than commands, and the commands left over are written with it
+            paired = sorted(outs, key=lambda out: out.kind != "command")
+            for index, msg in enumerate(msgs):
+                out = paired[min(index, len(paired) - 1)]
+                self._notify_observer(
+                    self._observer.on_tx, self.name, msg, t, out.kind, out.servo, out.seq
+                )
 
-    def _account_tx(self, out: Outgoing, t: float) -> None:
+    def _refused(self, out: Outgoing, exc: Exception, now: float) -> None:
+        """The bus refused ``out`` (or a frame of the transfer carrying it)."""
+        lines: list[Line] = []
+        state: ServoState | None = None
+        with self._lock:
+            failure = self._core.send_failed(out)
+            self._metrics.servos[out.servo].send_failed += 1
+            first = self._send_failures.failed(now)
+            if failure.went_offline:
+                lines, state = self._go_offline(out.servo, "sends failing", failure.dropped, now)
+            elif failure.dropped is not None:
+                lines = self._dropped(out.servo, failure.dropped, now)
+        if first:
+            log.warning(
+                "scheduler %s: send to %s failed: %s (further failed sends are "
+                "counted, not logged, until one works again)",
+                self.name,
+                out.servo,
+                exc,
+            )
+        self._log(lines)
+        if state is not None:
+            self._notify_subscribers(out.servo, state)
+
+    def _send_node_frames(self) -> None:
+        """The bus nodes' own frames (heartbeat, answers), after the step's frames."""
+        now = self._clock()
+        with self._lock:
+            frames = self._nodes.due(now, self._core.is_online)
+        for msg in frames:
+            try:
+                self._bus.send(msg)
+            except can.CanError as exc:
+                with self._lock:
+                    first = self._send_failures.failed(self._clock())
+                if first:
+                    log.warning("scheduler %s: node frame refused: %s", self.name, exc)
+                continue
+            t = self._clock()
+            with self._lock:
+                self._metrics.load.add(t, message_bits(msg))
+            self._notify_observer(self._observer.on_tx, self.name, msg, t, "lifecycle", "", None)
+
+    def _account_tx(self, out: Outgoing, t: float, load: bool = True) -> None:
         servo = self._metrics.servos[out.servo]
         if out.kind == "request":
             servo.requests_sent += 1
@@ -653,7 +717,8 @@ class Scheduler:
             else:
                 servo.refreshes_sent += 1
             servo.command_intervals.mark(t)
-        self._metrics.load.add(t, message_bits(out.msg))
+        if load:
+            self._metrics.load.add(t, message_bits(out.msg))
 
     def _receive(self) -> None:
         self._apply_realtime(max(1, self.timing.realtime_priority - 1), "receiver")
@@ -693,7 +758,21 @@ class Scheduler:
                     )
             if msg is not None:
                 self.handle_frame(msg, self._clock())
+                if self._nodes:
+                    # A DroneCAN transfer is decoded in pure Python (the dronecan package):
+                    # hand the interpreter lock over after each frame, so the runner, back
+                    # from a write, never waits a whole switch interval (5 ms) for it.
+                    time.sleep(0)
             self._cpu["receiver_s"] = time.thread_time()
+
+    def _node_receive(self, msg: can.Message, t: float) -> None:
+        """Give a received frame to the bus nodes (caller holds the lock): answers wake the
+        runner, notices are logged here and kept for the bridge."""
+        wake, notices = self._nodes.receive(msg, t)
+        if wake:
+            self._wake.set()
+        for notice in notices:
+            log.warning("scheduler %s: %s", self.name, notice)
 
     def handle_frame(self, msg: can.Message, t: float) -> ServoState | None:
         """Decode one received frame (called by the receive thread; public for tests and for
@@ -701,6 +780,8 @@ class Scheduler:
         with self._lock:
             if not msg.is_error_frame and not msg.is_fd:
                 self._metrics.load.add(t, message_bits(msg))
+            if self._nodes:
+                self._node_receive(msg, t)
         servo = next(
             (name for name, spec in self._specs.items() if spec.profile.is_reply(msg)), None
         )
@@ -709,6 +790,10 @@ class Scheduler:
         profile = self._specs[servo].profile
         state = profile.decode(msg, t)
         lines: list[Line] = []
+        if state is not None and not profile.completes_report(msg):
+            # the start of a multi-frame report: logged, but neither a reply nor a new state
+            self._notify_observer(self._observer.on_rx, self.name, msg, t, servo, state)
+            return state
         with self._lock:
             servo_metrics = self._metrics.servos[servo]
             if state is None:

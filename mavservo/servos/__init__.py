@@ -22,6 +22,7 @@ from .base import (
 from .cubemars import CubeMarsAK
 from .cubemars_mit import CubeMarsAKMit
 from .damiao import DamiaoDM
+from .dronecan import DroneCanServo
 from .odrive import ODrive
 from .registry import PROFILES, UnknownProfileError, get_profile, load_errors, profiles
 from .rmdx import LkTech, RmdX
@@ -33,6 +34,7 @@ __all__ = [
     "CubeMarsAK",
     "CubeMarsAKMit",
     "DamiaoDM",
+    "DroneCanServo",
     "Fault",
     "FrameId",
     "LkTech",

@@ -12,7 +12,7 @@ from __future__ import annotations
 import enum
 import math
 from abc import ABC, abstractmethod
-from collections.abc import Hashable
+from collections.abc import Hashable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any, ClassVar, Literal, Protocol
 
@@ -195,6 +195,68 @@ class SimDevice(Protocol):
     def tick(self, now: float) -> None: ...
 
 
+class BusNodeError(ValueError):
+    """A bus node refuses its servos: ``servo`` is the index (in the list the node was given)
+    of the servo to change, None for the node's own options; ``key`` the option at fault."""
+
+    def __init__(self, message: str, servo: int | None, key: str) -> None:
+        super().__init__(message)
+        self.servo = servo
+        self.key = key
+
+
+NodeHealth = Literal["ok", "warning", "error"]
+"""The bridge's own state as a bus node reports it: every servo of the bus online, some
+offline, all offline."""
+
+
+class BusNode(Protocol):
+    """What the servos of one family on one bus share, for families that need it (DroneCAN:
+    the bridge's own node, one broadcast command for every servo, a heartbeat).
+
+    Built by the profile class (:meth:`ServoProfile.bus_node`), owned by the scheduler, which
+    stays the only writer: it asks the node for frames and sends them. Pure, like a profile:
+    times are handed in.
+    """
+
+    def pack(self, commands: Sequence[can.Message]) -> list[can.Message]:
+        """The frames that carry these servos' command frames (one slot's) together."""
+        ...
+
+    def due(self, now: float, health: NodeHealth) -> list[can.Message]:
+        """The node's own frames due by ``now`` (heartbeat, answers to requests it received)."""
+        ...
+
+    def next_due(self) -> float:
+        """When :meth:`due` has something next (the scheduler wakes for it)."""
+        ...
+
+    def receive(self, msg: can.Message, now: float) -> bool:
+        """A received frame; True when it left something to send at once (an answer)."""
+        ...
+
+    def take_notices(self) -> list[str]:
+        """Things worth telling the operator once (another master on the bus), then forgotten."""
+        ...
+
+    def describe(self, servo_names: Sequence[str]) -> list[str]:
+        """Lines for ``mavservo check``: what the node is and when its bus may be shared."""
+        ...
+
+    def persistent_state(self) -> tuple[int, dict[str, Any]] | None:
+        """``(version, node options to restore)`` worth keeping across restarts (DroneCAN: the
+        allocation table), saved by the bridge whenever the version changes; None: nothing."""
+        ...
+
+    def bus_frames_per_second(
+        self, servo_count: int, command_hz: float
+    ) -> list[tuple[float, bool, int]]:
+        """``(frames per second, extended, dlc)`` the node puts on the bus, for the budget: its
+        heartbeat, and the commands of ``servo_count`` servos packed together (the scheduler
+        does not count their per-servo command frames besides)."""
+        ...
+
+
 def clamp_int(value: float, low: int, high: int) -> int:
     """``value`` as an int saturated to a field's range (simulated devices fill fields with it)."""
     return max(low, min(high, int(value)))
@@ -224,6 +286,14 @@ class ServoProfile(ABC):
     replies_per_lifecycle: int = 0
     """Replies each start-up, release or shutdown frame provokes (the scheduler expects them,
     so an answer is neither a late reply nor a bad one)."""
+    heartbeat_period_s: ClassVar[float | None] = None
+    """A pushing family whose nodes send a heartbeat of their own (DroneCAN NodeStatus, 1 Hz):
+    the scheduler's silence limit is ``offline_after_missed`` heartbeats, whatever the status
+    rate. None: ``offline_after_missed`` status periods."""
+    frames_per_push: ClassVar[int] = 1
+    """CAN frames one status push takes (a multi-frame transfer: more than one)."""
+    NodeOptions: ClassVar[type[ProfileOptions] | None] = None
+    """The bus-level ``node:`` options of a family with a :class:`BusNode` (None: no node)."""
     min_id: int = 1
     max_id: int = 32
     min_angle_deg: float = -math.inf
@@ -283,6 +353,18 @@ class ServoProfile(ABC):
     def sim_device(cls, motor: SimMotor, can_id: int, options: ProfileOptions) -> SimDevice:
         """The device side for the built-in simulation and ``mavservo sim``."""
 
+    @classmethod
+    def bus_node(
+        cls,
+        profiles: Sequence[ServoProfile],
+        options: ProfileOptions | None,
+        software_version: tuple[int, int],
+        start: float,
+    ) -> BusNode | None:
+        """The node this family's servos on one bus share (``profiles``: those servos), or
+        None (the default: every servo is addressed on its own)."""
+        return None
+
     def _merge(
         self,
         timestamp: float,
@@ -338,6 +420,12 @@ class ServoProfile(ABC):
     @abstractmethod
     def decode(self, msg: can.Message, timestamp: float) -> ServoState | None:
         """State after reply ``msg`` received at ``timestamp``; None if not this servo's reply."""
+
+    def completes_report(self, msg: can.Message) -> bool:
+        """False for a frame of this servo that only starts or continues a multi-frame report
+        (DroneCAN transfers): the scheduler logs it but counts neither a reply nor a new state
+        until the frame that completes it. Default: every frame is a whole report."""
+        return True
 
     def exchange_key(self, msg: can.Message) -> Hashable | None:
         """What a request and the reply that answers it have in common, or None.

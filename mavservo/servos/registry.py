@@ -24,6 +24,7 @@ from .base import ServoProfile
 from .cubemars import CubeMarsAK
 from .cubemars_mit import CubeMarsAKMit
 from .damiao import DamiaoDM
+from .dronecan import DroneCanServo
 from .odrive import ODrive
 from .rmdx import LkTech, RmdX
 
@@ -35,6 +36,7 @@ BUILT_IN: tuple[type[ServoProfile], ...] = (
     CubeMarsAKMit,
     DamiaoDM,
     ODrive,
+    DroneCanServo,
 )
 PLUGIN_HINT = (
     f"plug-in profiles come from installed packages' {ENTRY_POINT_GROUP!r} entry points "

@@ -1,0 +1,149 @@
+"""The bus nodes one scheduler owns: what the servos of a family on its bus share (DroneCAN:
+the bridge's own node, one ArrayCommand for every servo, a heartbeat), see ``docs/profiles.md``,
+"Bus nodes".
+
+Pure bookkeeping around the profiles' :class:`~mavservo.servos.base.BusNode` objects, no
+threads and no clock: the runner (:mod:`mavservo.scheduling.runner`) calls it under its lock and
+stays the only writer to the bus. It builds the nodes from the bus-level ``node:`` options,
+groups the command frames of a step into what goes on the wire (:meth:`BusNodes.batches`),
+collects the nodes' own frames and notices, and reads their state worth keeping.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from importlib import metadata
+from typing import Any
+
+import can
+
+from mavservo.servos.base import BusNode, NodeHealth, ServoProfile
+
+from .busload import FrameFlow
+from .core import Outgoing, ScheduleError, ServoSpec, TimingConfig
+
+Batch = tuple[list[Outgoing], list[can.Message]]
+"""Frames of a step as they go on the wire: the scheduler's frames and the CAN frames that
+carry them (one each, or one packed transfer for several servos' commands)."""
+
+
+def software_version() -> tuple[int, int]:
+    """mavservo's major and minor version, for a bus node's GetNodeInfo answer."""
+    try:
+        major, minor, *_ = metadata.version("mavservo").split(".")
+        return int(major), int(minor)
+    except (metadata.PackageNotFoundError, ValueError):
+        return (0, 0)
+
+
+def command_hz(spec: ServoSpec, timing: TimingConfig) -> float:
+    """Worst-case commands per second (every slot, or back to back for ``immediate``)."""
+    hz = 1 / timing.command_period_s
+    if spec.command_mode == "immediate":
+        hz = max(hz, 1 / timing.immediate_min_spacing_s)
+    return hz
+
+
+class BusNodes:
+    """The nodes of one bus, their servos and their traffic (module docstring)."""
+
+    def __init__(
+        self,
+        bus: str,
+        servos: Sequence[ServoSpec],
+        timing: TimingConfig,
+        options: Mapping[str, Mapping[str, Any]],
+        now: float,
+    ) -> None:
+        self.nodes: list[tuple[str, BusNode, list[str]]] = []
+        """``(profile name, node, its servos' names)``."""
+        self.node_of: dict[str, BusNode] = {}
+        self.flows: list[FrameFlow] = []
+        """What the nodes put on the bus (their heartbeat, the packed commands), for the
+        budget; the servos in :attr:`node_of` are not counted for their own commands."""
+        self._notices: list[str] = []
+        groups: dict[type[ServoProfile], list[ServoSpec]] = {}
+        for spec in servos:
+            groups.setdefault(type(spec.profile), []).append(spec)
+        for cls, group in groups.items():
+            if cls.NodeOptions is None:
+                continue
+            try:
+                node_options = cls.NodeOptions.model_validate(dict(options.get(cls.name, {})))
+                profiles = [spec.profile for spec in group]
+                node = cls.bus_node(profiles, node_options, software_version(), now)
+            except ValueError as exc:  # pydantic's ValidationError is one
+                raise ScheduleError(f"bus {bus}: {cls.name} node: {exc}") from exc
+            if node is None:
+                continue
+            self.nodes.append((cls.name, node, [spec.name for spec in group]))
+            self.node_of.update((spec.name, node) for spec in group)
+            hz = max(command_hz(spec, timing) for spec in group)
+            self.flows += [
+                FrameFlow(rate, extended, dlc)
+                for rate, extended, dlc in node.bus_frames_per_second(len(group), hz)
+            ]
+
+    def __bool__(self) -> bool:
+        return bool(self.nodes)
+
+    def batches(self, frames: Sequence[Outgoing]) -> list[Batch]:
+        """The frames of a step as they go on the wire: each on its own, except the commands of
+        servos that share a node, which the node packs together where the first of them stood
+        (DroneCAN: one ArrayCommand for all of them)."""
+        if not self.node_of:
+            return [([out], [out.msg]) for out in frames]
+        batches: list[Batch] = []
+        packed: dict[int, tuple[BusNode, int]] = {}
+        for out in frames:
+            node = self.node_of.get(out.servo) if out.kind in ("command", "refresh") else None
+            if node is None:
+                batches.append(([out], [out.msg]))
+                continue
+            if id(node) not in packed:
+                packed[id(node)] = (node, len(batches))
+                batches.append(([], []))
+            batches[packed[id(node)][1]][0].append(out)
+        for node, index in packed.values():
+            outs = batches[index][0]
+            batches[index] = (outs, node.pack([out.msg for out in outs]))
+        return batches
+
+    def due(self, now: float, is_online: Callable[[str], bool]) -> list[can.Message]:
+        """The nodes' own frames due by ``now``, each told its bus's health."""
+        return [
+            msg for _, node, names in self.nodes for msg in node.due(now, _health(names, is_online))
+        ]
+
+    def next_due(self) -> float:
+        return min((node.next_due() for _, node, _ in self.nodes), default=float("inf"))
+
+    def receive(self, msg: can.Message, t: float) -> tuple[bool, list[str]]:
+        """Give a received frame to every node: whether an answer waits, and new notices."""
+        wake = False
+        notices: list[str] = []
+        for _, node, _ in self.nodes:
+            wake = node.receive(msg, t) or wake
+            notices += node.take_notices()
+        self._notices += notices
+        return wake, notices
+
+    def take_notices(self) -> list[str]:
+        notices, self._notices = self._notices, []
+        return notices
+
+    def states(self) -> list[tuple[str, tuple[int, dict[str, Any]]]]:
+        """``(profile name, (version, state))`` of the nodes with state worth keeping."""
+        return [
+            (profile, state)
+            for profile, node, _ in self.nodes
+            if (state := node.persistent_state()) is not None
+        ]
+
+
+def _health(names: list[str], is_online: Callable[[str], bool]) -> NodeHealth:
+    """OK while every servo of the node is online, WARNING while some are, ERROR when none."""
+    online = sum(1 for name in names if is_online(name))
+    if online == len(names):
+        return "ok"
+    return "warning" if online else "error"

@@ -1,0 +1,296 @@
+"""DroneCAN actuators (Hitec, Volz, HiMark, MKS...): one servo node, one actuator.
+
+Wire facts (DroneCAN specification, DSDL ``uavcan.equipment.actuator``; serialization and
+framing by the ``dronecan`` package through :mod:`.dronecan_wire`):
+
+* commands: ``uavcan.equipment.actuator.ArrayCommand`` (1010), a broadcast of up to 15
+  ``(actuator_id, command_type, float16 value)``; the servos of one bus share it, so the
+  bridge's node on that bus (:mod:`.dronecan_node`) packs every command of a slot into one
+  transfer (several past 15) instead of one frame per servo; it is their keep-alive too;
+* feedback: ``uavcan.equipment.actuator.Status`` (1011: position rad, force, speed rad/s),
+  Volz ``com.volz.servo.ActuatorStatus`` (20020: position rad, current 0.025 A, voltage 0.2 V,
+  motor temperature +50 degC), HiMark ``com.himark.servo.ServoInfo`` (2019: position 0.01 deg,
+  voltage 0.01 V, current 0.01 A, motor temperature 0.2 degC - 40, an error status); each is
+  matched to this servo by source node id and actuator id;
+* liveness: ``uavcan.protocol.NodeStatus`` (341), 1 Hz from every node; silent for about 3 s a
+  node is gone (:attr:`DroneCanServo.heartbeat_period_s` makes the scheduler's silence limit
+  ``offline_after_missed`` heartbeats). Its health and mode become faults: a health other
+  than OK, or a mode other than operational or initialization, is :attr:`Fault.OTHER`.
+
+The servo id (``can_id``) is the servo's node id, 1..127. ``actuator_id`` is the number on the
+wire, as the servo is configured: **ArduPilot numbers actuators from 1** (``SERVOn`` with a
+DroneCAN function goes out as actuator ``n``), **PX4 from 0** (its first output is actuator 0),
+so a servo set up for one autopilot keeps that autopilot's number here. One actuator per node
+(what the servos named above are): two servos on one node id would share their NodeStatus,
+and ``check`` reports them as colliding identifiers.
+
+Command types: ``position`` sends radians (``COMMAND_TYPE_POSITION``); ``unitless`` maps
+``[unitless_min_deg, unitless_max_deg]`` onto ``[-1, 1]`` (``COMMAND_TYPE_UNITLESS``), for
+servos that take only a normalised command; angles outside that range are refused (COMMAND_ACK
+DENIED), never clamped.
+
+Received frames are reassembled per servo (a Status transfer is two frames); a frame that
+starts or continues a transfer decodes to the last known state and does not complete a report
+(:meth:`DroneCanServo.completes_report`: the scheduler waits for the transfer's last frame), a
+transfer that does not reassemble (CRC, toggle, unknown type, truncation) decodes to None,
+counted by reason in :attr:`DroneCanServo.errors`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Sequence
+from typing import Any, ClassVar, Literal
+
+import can
+from pydantic import Field, model_validator
+
+from . import dronecan_wire as wire
+from .base import (
+    NO_FAULT,
+    Fault,
+    FrameId,
+    ProfileOptions,
+    ServoProfile,
+    ServoState,
+    SimDevice,
+    SimMotor,
+)
+from .dronecan_node import BridgeNode, NodeOptions
+
+_DTID_MASK = 0xFFFF << 8
+_FEEDBACK = (
+    wire.DTID_NODE_STATUS,
+    wire.DTID_ACTUATOR_STATUS,
+    wire.DTID_VOLZ_STATUS,
+    wire.DTID_HIMARK_INFO,
+)
+_COMMANDS_REMEMBERED = 16
+"""Recent command frames a profile can name the command of (setpoints waiting for a slot)."""
+PLACEHOLDER_BRIDGE_ID = 127
+"""Source id of a command frame built before the bus node adopted the servo (``check``)."""
+
+
+class DroneCanOptions(ProfileOptions):
+    """Per-servo ``options:`` of a DroneCAN actuator."""
+
+    actuator_id: int = Field(
+        1,
+        ge=0,
+        le=255,
+        description="actuator id on the wire as the servo is configured (ArduPilot numbers "
+        "from 1, PX4 from 0)",
+    )
+    command: Literal["position", "unitless"] = Field(
+        "position", description="POSITION in radians, or UNITLESS [-1, 1] over the range below"
+    )
+    unitless_min_deg: float = Field(
+        -90.0, ge=-3600, le=3600, description="angle sent as -1 in unitless mode"
+    )
+    unitless_max_deg: float = Field(
+        90.0, ge=-3600, le=3600, description="angle sent as +1 in unitless mode"
+    )
+
+    unique_id: str | None = Field(
+        None,
+        pattern=r"^[0-9a-f]{32}$",
+        description="the servo's 16-byte unique id (32 hex digits): it has no static node id "
+        "and gets can_id from the bridge's allocator (node.dronecan.allocator: true)",
+    )
+
+    @model_validator(mode="after")
+    def _range_ordered(self) -> DroneCanOptions:
+        if not self.unitless_min_deg < self.unitless_max_deg:
+            raise ValueError("unitless_min_deg must be below unitless_max_deg")
+        return self
+
+
+class DroneCanServo(ServoProfile):
+    """A DroneCAN actuator node; commanded through its bus's ArrayCommand, reporting on its own."""
+
+    name = "dronecan"
+    telemetry = "pushed"
+    replies_per_command = 0
+    replies_per_request = 0
+    min_id, max_id = 1, 127
+    resolution_deg = 0.23
+    """float16 in radians: a step of 2**-8 rad (0.22 deg) between 4 and 8 rad, finer below;
+    position mode is held to +-360 deg (a servo's range, and where float16 still resolves it)."""
+    min_angle_deg, max_angle_deg = -360.0, 360.0
+    heartbeat_period_s: ClassVar[float | None] = wire.NODE_STATUS_PERIOD_S
+    frames_per_push: ClassVar[int] = 2
+    """A Status transfer is two frames (8 payload bytes and the tail byte)."""
+    Options: ClassVar[type[ProfileOptions]] = DroneCanOptions
+    options: DroneCanOptions
+
+    def __init__(self, can_id: int, options: ProfileOptions | None = None, **overrides: Any):
+        super().__init__(can_id, options, **overrides)
+        o = self.options
+        if o.command == "unitless":
+            self.min_angle_deg, self.max_angle_deg = o.unitless_min_deg, o.unitless_max_deg
+        self.bridge_node_id = PLACEHOLDER_BRIDGE_ID
+        """The source id of the command frames: set by the bus node that adopts the servo."""
+        self._reassembler = wire.Reassembler()
+        self._payload: Any = None
+        self._sent: dict[bytes, tuple[int, int, float]] = {}
+        self._health_faults = NO_FAULT
+        self._vendor_faults = NO_FAULT
+        self.node_health: int | None = None
+        self.node_mode: int | None = None
+
+    @property
+    def errors(self) -> Counter[str]:
+        """Transfers from this servo's node that did not decode, by reason."""
+        return self._reassembler.errors
+
+    # ------------------------------------------------------------------------- commands
+    def command_tuple(self, angle_deg: float) -> tuple[int, int, float]:
+        """``(actuator_id, command_type, value)`` for ``angle_deg`` (validated)."""
+        self._check_angle(angle_deg)
+        o = self.options
+        if o.command == "position":
+            return o.actuator_id, wire.COMMAND_TYPE_POSITION, math.radians(angle_deg)
+        span = o.unitless_max_deg - o.unitless_min_deg
+        value = 2.0 * (angle_deg - o.unitless_min_deg) / span - 1.0
+        return o.actuator_id, wire.COMMAND_TYPE_UNITLESS, max(-1.0, min(1.0, value))
+
+    def position_command(self, angle_deg: float, max_speed_dps: float | None = None) -> can.Message:
+        """This servo's command alone as a one-command ArrayCommand (a single frame). The bus
+        node packs the commands of one slot together and numbers the transfers; DroneCAN
+        actuators take no speed limit, so ``max_speed_dps`` is only validated."""
+        self._speed_limit(max_speed_dps, 0.0)
+        command = self.command_tuple(angle_deg)
+        if self._payload is None:
+            self._payload = wire.array_command([command])
+        else:  # one payload object, its value replaced: the package's objects are costly
+            self._payload.commands[0].command_value = command[2]
+        (frame,) = wire.encode_message(self._payload, self.bridge_node_id, 0)
+        if len(self._sent) >= _COMMANDS_REMEMBERED:
+            self._sent.pop(next(iter(self._sent)))
+        self._sent[bytes(frame.data)] = command
+        return frame
+
+    def command_of(self, frame: can.Message) -> tuple[int, int, float] | None:
+        """The ``(actuator_id, command_type, value)`` of one of this servo's recent command
+        frames (the bus node packs it without decoding it again), None if not one of them."""
+        return self._sent.get(bytes(frame.data))
+
+    def telemetry_requests(self) -> list[can.Message]:
+        return []
+
+    @classmethod
+    def sim_device(cls, motor: SimMotor, can_id: int, options: ProfileOptions) -> SimDevice:
+        from .dronecan_sim import DroneCanDevice
+
+        assert isinstance(options, DroneCanOptions)
+        return DroneCanDevice(motor, can_id, options)
+
+    NodeOptions: ClassVar[type[ProfileOptions] | None] = NodeOptions
+
+    @classmethod
+    def bus_node(
+        cls,
+        profiles: Sequence[ServoProfile],
+        options: ProfileOptions | None,
+        software_version: tuple[int, int],
+        start: float,
+    ) -> BridgeNode:
+        """The bridge's own DroneCAN node on a bus with these servos (see :mod:`.dronecan_node`)."""
+        node_options = options if isinstance(options, NodeOptions) else NodeOptions()
+        servos = [p for p in profiles if isinstance(p, DroneCanServo)]
+        return BridgeNode(servos, node_options, software_version, start)
+
+    # ------------------------------------------------------------------------- feedback
+    def identifiers(self) -> tuple[FrameId, ...]:
+        """ArrayCommand (shared by the bus's DroneCAN servos; any source, any priority) out;
+        NodeStatus, Status and the vendor status from this node id in."""
+        command = FrameId(
+            wire.message_id(wire.DTID_ARRAY_COMMAND, 0, 0),
+            True,
+            "to_servo",
+            "command",
+            id_mask=_DTID_MASK | 0x80,
+            shared=True,
+        )
+        pushes = tuple(
+            FrameId(
+                wire.message_id(dtid, self.can_id, 0),
+                True,
+                "from_servo",
+                "push",
+                id_mask=_DTID_MASK | 0xFF,
+            )
+            for dtid in _FEEDBACK
+        )
+        return (command, *pushes)
+
+    def is_reply(self, msg: can.Message) -> bool:
+        return (
+            wire.is_message_frame(msg)
+            and wire.source_node(msg) == self.can_id
+            and wire.message_dtid(msg) in _FEEDBACK
+        )
+
+    def completes_report(self, msg: can.Message) -> bool:
+        """Only the last frame of a transfer (end-of-transfer bit in the tail byte) is one."""
+        return bool(msg.data) and bool(msg.data[-1] & 0x40)
+
+    def decode(self, msg: can.Message, timestamp: float) -> ServoState | None:
+        if not self.is_reply(msg):
+            return None
+        errors_before = sum(self._reassembler.errors.values())
+        received = self._reassembler.push(msg, timestamp)
+        if received is None:
+            if sum(self._reassembler.errors.values()) != errors_before:
+                return None
+            return self._merge(timestamp)  # part of a transfer: alive, nothing new yet
+        return self._apply(received, timestamp)
+
+    def _apply(self, rx: wire.Received, timestamp: float) -> ServoState | None:
+        p = rx.payload
+        actuator = self.options.actuator_id
+        if rx.dtid == wire.DTID_NODE_STATUS:
+            self.node_health, self.node_mode = int(p.health), int(p.mode)
+            healthy = self.node_health == wire.HEALTH_OK
+            running = self.node_mode in (wire.MODE_OPERATIONAL, wire.MODE_INITIALIZATION)
+            self._health_faults = NO_FAULT if healthy and running else Fault.OTHER
+            return self._merge(timestamp, faults=self._health_faults | self._vendor_faults)
+        if rx.dtid == wire.DTID_ACTUATOR_STATUS:
+            if int(p.actuator_id) != actuator:
+                return self._merge(timestamp)
+            return self._merge(
+                timestamp,
+                position_deg=_degrees(p.position),
+                velocity_dps=_degrees(p.speed),
+            )
+        if rx.dtid == wire.DTID_VOLZ_STATUS:
+            if int(p.actuator_id) != actuator:
+                return self._merge(timestamp)
+            raw_temperature = int(p.motor_temperature)
+            return self._merge(
+                timestamp,
+                position_deg=_degrees(p.actual_position),
+                current_a=int(p.current) * 0.025,
+                voltage_v=int(p.voltage) * 0.2,
+                temperature_c=math.nan if raw_temperature == 255 else raw_temperature - 50.0,
+            )
+        if rx.dtid == wire.DTID_HIMARK_INFO:
+            if int(p.servo_id) != actuator:
+                return self._merge(timestamp)
+            self._vendor_faults = NO_FAULT if int(p.error_status) == 0 else Fault.OTHER
+            return self._merge(
+                timestamp,
+                position_deg=int(p.pos_sensor) * 0.01,
+                current_a=int(p.current) * 0.01,
+                voltage_v=int(p.voltage) * 0.01,
+                temperature_c=int(p.motor_temp) * 0.2 - 40.0,
+                faults=self._health_faults | self._vendor_faults,
+            )
+        return self._merge(timestamp)
+
+
+def _degrees(value: Any) -> float:
+    """A float16 field in radians as degrees (NaN, the DSDL's "unknown", stays NaN)."""
+    number = float(value)
+    return math.degrees(number) if math.isfinite(number) else math.nan

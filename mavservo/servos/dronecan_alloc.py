@@ -1,0 +1,136 @@
+"""The server side of DroneCAN dynamic node id allocation (``uavcan.protocol.dynamic_node_id.
+Allocation``, data type 1), for servos that start without a node id.
+
+The exchange (DroneCAN specification, "Dynamic node ID allocation", centralised server; the
+``dronecan`` package's ``CentralizedServer`` follows the same steps): a node without an id sends
+anonymous Allocation messages carrying its 16-byte unique id in three parts (6, 6 and 4 bytes;
+the first flagged ``first_part_of_unique_id``); after each part the server broadcasts what it
+has so far, and after the last one the id it allocates. A query not continued within
+``FOLLOWUP_TIMEOUT`` is forgotten.
+
+Which id: a unique id a servo's ``options.unique_id`` names gets that servo's configured node
+id (so the config says which physical servo is which); one in the table (persisted next to the
+config by the bridge, handed back through ``node.dronecan.allocation_table``) gets its id again;
+anything else gets the node's preferred id if free, else the highest free id from
+``allocation_first_id`` down. Ids of the config's servos, of the bridge and of every node heard
+on the bus are never handed out.
+
+Pure: times are handed in; the table changes are counted in :attr:`AllocationServer.version`
+for the bridge to save.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import can
+
+from . import dronecan_wire as wire
+
+FOLLOWUP_TIMEOUT_S = 0.5
+"""``Allocation.FOLLOWUP_TIMEOUT_MS``: a query not continued within this is forgotten."""
+_STAGE_LENGTHS = (6, 6, 4)
+_MAX_REGULAR_ID = 125
+"""126 and 127 are reserved for tools (the specification's ``MAX_NODE_ID`` for allocation)."""
+
+
+class AllocationServer:
+    """A centralised allocator (module docstring)."""
+
+    def __init__(
+        self,
+        own_id: int,
+        configured: dict[bytes, int],
+        static_ids: set[int],
+        first_id: int,
+        table: dict[bytes, int] | None = None,
+    ) -> None:
+        self.own_id = own_id
+        self.configured = dict(configured)
+        self.table: dict[bytes, int] = dict(table or {})
+        self.reserved = set(static_ids) | set(configured.values()) | {own_id}
+        self.first_id = first_id
+        self.seen_ids: set[int] = set()
+        self.version = 0
+        """Bumped whenever :attr:`table` changes (the bridge saves it then)."""
+        self.allocations: list[tuple[str, int]] = []
+        """``(unique id hex, node id)`` handed out, in order (diagnostics, tests)."""
+        self.ignored = 0
+        self._query = b""
+        self._query_time = 0.0
+        self._queue: list[can.Message] = []
+        self._tid = 0
+
+    def pending(self) -> bool:
+        return bool(self._queue)
+
+    def due(self, now: float) -> list[can.Message]:
+        out, self._queue = self._queue, []
+        return out
+
+    def seen(self, node_id: int, now: float) -> None:
+        """A node with this id is on the bus: never hand its id to another."""
+        self.seen_ids.add(node_id)
+
+    def receive(self, received: wire.Received, now: float) -> bool:
+        """An anonymous Allocation request; True when an answer waits in :meth:`due`."""
+        if received.source != 0 or received.service:
+            self.ignored += 1  # another allocator, or not an allocation request
+            return False
+        message = received.payload
+        try:
+            unique_id = bytes(message.unique_id.to_bytes())
+            preferred = int(message.node_id)
+            first = bool(message.first_part_of_unique_id)
+        except (AttributeError, TypeError, ValueError):
+            self.ignored += 1
+            return False
+        if self._query and now - self._query_time > FOLLOWUP_TIMEOUT_S:
+            self._query = b""
+        stage = len(self._query) // 6 if len(self._query) in (0, 6, 12) else None
+        if first and len(unique_id) == _STAGE_LENGTHS[0]:
+            self._query = unique_id
+        elif not first and stage in (1, 2) and len(unique_id) == _STAGE_LENGTHS[stage]:
+            self._query += unique_id
+        else:
+            self.ignored += 1
+            return False
+        self._query_time = now
+        node_id = 0
+        if len(self._query) == 16:
+            node_id = self._allocate(self._query, preferred)
+            if node_id == 0:
+                self.ignored += 1  # no id left: say nothing (the node keeps asking)
+                self._query = b""
+                return False
+        self._answer(node_id, self._query)
+        if node_id:
+            self._query = b""
+        return True
+
+    def _answer(self, node_id: int, unique_id: bytes) -> None:
+        allocation = wire.lib().uavcan.protocol.dynamic_node_id.Allocation()
+        allocation.node_id = node_id
+        allocation.first_part_of_unique_id = False
+        allocation.unique_id.from_bytes(unique_id)
+        self._queue += wire.encode_message(allocation, self.own_id, self._tid, wire.PRIORITY_LOW)
+        self._tid = (self._tid + 1) & 0x1F
+
+    def _allocate(self, unique_id: bytes, preferred: int) -> int:
+        node_id = self.configured.get(unique_id) or self.table.get(unique_id)
+        if node_id is None:
+            used = self.reserved | self.seen_ids | set(self.table.values())
+            if 1 <= preferred <= _MAX_REGULAR_ID and preferred not in used:
+                node_id = preferred
+            else:
+                node_id = next((i for i in range(self.first_id, 0, -1) if i not in used), 0)
+            if node_id == 0:
+                return 0
+            self.table[unique_id] = node_id
+            self.version += 1
+        self.allocations.append((unique_id.hex(), node_id))
+        return node_id
+
+    def table_hex(self) -> dict[str, Any]:
+        """The table as saved: unique id in hex -> node id."""
+        return {uid.hex(): node_id for uid, node_id in sorted(self.table.items())}

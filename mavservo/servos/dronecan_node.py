@@ -1,0 +1,367 @@
+"""The bridge's own DroneCAN node on one bus: what the DroneCAN servos of that bus share.
+
+A DroneCAN bus expects every participant to be a node: a node id, ``uavcan.protocol.
+NodeStatus`` at 1 Hz (uptime, health, mode) and an answer to ``uavcan.protocol.GetNodeInfo``
+(what ``dronecan-gui-tool`` and an autopilot's node monitor ask). Actuator commands are one
+broadcast for every servo of the bus (``ArrayCommand``, up to 15 per transfer). So one object
+per bus, built by the profile (:meth:`mavservo.servos.dronecan.DroneCanServo.bus_node`) and
+owned by the scheduler, which stays the only writer: it hands the node the command frames of a
+slot to :meth:`BridgeNode.pack`, asks it for its own frames (:meth:`BridgeNode.due`) and gives
+it what it receives (:meth:`BridgeNode.receive`). Pure: no clock, no I/O; times are handed in.
+
+Health: OK while every servo of the bus is online, WARNING while some are offline, ERROR when
+none is (the scheduler tells). Mode: OPERATIONAL.
+
+Bus sharing: an ``ArrayCommand`` from another node means a second master (an autopilot driving
+the same servos): both would fight, silently. The node reports each such node id once
+(:meth:`BridgeNode.take_notices`); the scheduler logs it and the bridge sends it as STATUSTEXT.
+
+Dynamic node id allocation (``allocator: true``): the server side of ``uavcan.protocol.
+dynamic_node_id.Allocation`` for nodes that start without an id, see :mod:`.dronecan_alloc`.
+"""
+
+from __future__ import annotations
+
+import re
+from collections import Counter
+from collections.abc import Sequence
+from typing import Any, Protocol
+
+import can
+from pydantic import Field, field_validator
+
+from . import dronecan_wire as wire
+from .base import BusNodeError, NodeHealth, ProfileOptions
+
+_HEX32 = re.compile(r"[0-9a-f]{32}")
+_HEALTH = {"ok": wire.HEALTH_OK, "warning": wire.HEALTH_WARNING, "error": wire.HEALTH_ERROR}
+
+
+class NodeOptions(ProfileOptions):
+    """The bus-level ``node:`` options of a bus with DroneCAN servos."""
+
+    node_id: int = Field(
+        100, ge=1, le=127, description="the bridge's own node id on this bus (1..127)"
+    )
+    name: str = Field(
+        "org.mavservo.bridge",
+        min_length=1,
+        max_length=80,
+        pattern=r"^[a-z0-9_.-]+$",
+        description="answered to GetNodeInfo (reverse domain name, lower case)",
+    )
+    allocator: bool = Field(
+        False, description="serve dynamic node id allocation requests (off: static ids only)"
+    )
+    allocation_first_id: int = Field(
+        125, ge=1, le=125, description="allocation hands out ids from here down"
+    )
+    allocation_table: dict[str, int] = Field(
+        default_factory=dict,
+        description="unique id (32 hex digits) -> node id the allocator handed out before "
+        "(the bridge keeps it in a file next to the config)",
+    )
+
+    @field_validator("allocation_table")
+    @classmethod
+    def _table_entries(cls, table: dict[str, int]) -> dict[str, int]:
+        for unique_id, node_id in table.items():
+            if not _HEX32.fullmatch(unique_id):
+                raise ValueError(f"unique id {unique_id!r} is not 32 lower-case hex digits")
+            if not 1 <= node_id <= 125:
+                raise ValueError(f"node id {node_id} for {unique_id} is outside 1..125")
+        return table
+
+
+class CommandedServo(Protocol):
+    """What the node needs of a DroneCAN servo profile."""
+
+    can_id: int
+    bridge_node_id: int
+    options: Any
+
+    def command_of(self, frame: can.Message) -> tuple[int, int, float] | None: ...
+
+
+def frames_for_commands(count: int) -> int:
+    """Frames of the ArrayCommand transfers carrying ``count`` commands (4 bytes each, 15 per
+    transfer; a multi-frame transfer adds the 2-byte CRC; every frame carries 7 bytes and
+    the tail byte)."""
+    frames = 0
+    while count > 0:
+        chunk = min(count, wire.MAX_COMMANDS_PER_TRANSFER)
+        payload = 4 * chunk
+        frames += 1 if payload <= 7 else -(-(payload + 2) // 7)
+        count -= chunk
+    return frames
+
+
+class BridgeNode:
+    """The bridge's node on one bus (module docstring)."""
+
+    def __init__(
+        self,
+        servos: Sequence[CommandedServo],
+        options: NodeOptions,
+        software_version: tuple[int, int],
+        start: float,
+    ) -> None:
+        taken = {servo.can_id for servo in servos}
+        if options.node_id in taken:
+            raise BusNodeError(
+                f"the bridge's DroneCAN node id {options.node_id} is also a servo's node id on "
+                "this bus; every node needs its own id",
+                None,
+                "node_id",
+            )
+        actuators: dict[int, int] = {}
+        for index, servo in enumerate(servos):
+            actuator = servo.options.actuator_id
+            if actuator in actuators:
+                first = servos[actuators[actuator]]
+                raise BusNodeError(
+                    f"actuator id {actuator} is already used on this bus by the servo with "
+                    f"node id {first.can_id}: one ArrayCommand carries every actuator of the "
+                    "bus, so both would take the same command",
+                    index,
+                    "options.actuator_id",
+                )
+            actuators[actuator] = index
+            if servo.options.unique_id is not None and not options.allocator:
+                raise BusNodeError(
+                    "a servo with a unique_id gets its node id from the bridge's allocator: "
+                    "set node.dronecan.allocator: true on its bus",
+                    index,
+                    "options.unique_id",
+                )
+        self.options = options
+        self.node_id = options.node_id
+        self.servos = list(servos)
+        self.software_version = software_version
+        self.start = start
+        for servo in servos:
+            servo.bridge_node_id = self.node_id
+        self._transfer_ids: Counter[int] = Counter()
+        self._payloads: dict[int, Any] = {}
+        self._reassembler = wire.Reassembler()
+        self._queue: list[can.Message] = []
+        self._next_status = start
+        self._health = wire.HEALTH_OK
+        self.counters: Counter[str] = Counter()
+        self.foreign_masters: set[int] = set()
+        self._notices: list[str] = []
+        self._conflict_noted = False
+        self.allocator: Any = None
+        if options.allocator:
+            from .dronecan_alloc import AllocationServer
+
+            configured = {
+                bytes.fromhex(servo.options.unique_id): servo.can_id
+                for servo in servos
+                if servo.options.unique_id is not None
+            }
+            static = {s.can_id for s in servos if s.options.unique_id is None}
+            table = {bytes.fromhex(k): v for k, v in options.allocation_table.items()}
+            self.allocator = AllocationServer(
+                self.node_id, configured, static, options.allocation_first_id, table
+            )
+
+    @property
+    def errors(self) -> Counter[str]:
+        """Received transfers addressed to the node that did not decode, by reason."""
+        return self._reassembler.errors
+
+    def _next_tid(self, key: int) -> int:
+        tid = self._transfer_ids[key] & 0x1F
+        self._transfer_ids[key] = tid + 1
+        return tid
+
+    # ---------------------------------------------------------------------------- commands
+    def pack(self, commands: Sequence[can.Message]) -> list[can.Message]:
+        """One ArrayCommand transfer for up to 15 of the servos' one-command frames (more:
+        several transfers), numbered with this node's transfer ids."""
+        tuples: list[tuple[int, int, float]] = []
+        for msg in commands:
+            known = next(
+                (c for c in (s.command_of(msg) for s in self.servos) if c is not None), None
+            )
+            if known is not None:
+                tuples.append(known)
+                continue
+            received = wire.Reassembler().push(msg, 0.0)
+            if received is None or received.dtid != wire.DTID_ARRAY_COMMAND:
+                self.counters["bad_command_frame"] += 1
+                continue
+            tuples += [
+                (int(c.actuator_id), int(c.command_type), float(c.command_value))
+                for c in received.payload.commands
+            ]
+        frames: list[can.Message] = []
+        step = wire.MAX_COMMANDS_PER_TRANSFER
+        for first in range(0, len(tuples), step):
+            payload = self._payload(tuples[first : first + step])
+            tid = self._next_tid(wire.DTID_ARRAY_COMMAND)
+            frames += wire.encode_message(payload, self.node_id, tid, wire.PRIORITY_HIGH)
+        self.counters["command_transfers"] += -(-len(tuples) // step)
+        return frames
+
+    def _payload(self, commands: list[tuple[int, int, float]]) -> Any:
+        """An ArrayCommand carrying ``commands``: one reused object per length, its fields
+        replaced (the package's objects cost more to build than to encode)."""
+        payload = self._payloads.get(len(commands))
+        if payload is None:
+            payload = self._payloads[len(commands)] = wire.array_command(commands)
+            return payload
+        for item, (actuator, kind, value) in zip(payload.commands, commands, strict=True):
+            item.actuator_id, item.command_type, item.command_value = actuator, kind, value
+        return payload
+
+    # ----------------------------------------------------------------------- own traffic
+    def status_payload(self, now: float) -> Any:
+        return wire.node_status(now - self.start, self._health, wire.MODE_OPERATIONAL)
+
+    def due(self, now: float, health: NodeHealth) -> list[can.Message]:
+        self._health = _HEALTH.get(health, wire.HEALTH_ERROR)
+        out, self._queue = self._queue, []
+        if now >= self._next_status:
+            period = wire.NODE_STATUS_PERIOD_S
+            self._next_status += period
+            if self._next_status <= now:  # far behind: no burst to catch up
+                self._next_status = now + period
+            out += wire.encode_message(
+                self.status_payload(now),
+                self.node_id,
+                self._next_tid(wire.DTID_NODE_STATUS),
+                wire.PRIORITY_LOW,
+            )
+            self.counters["node_status"] += 1
+        if self.allocator is not None:
+            out += self.allocator.due(now)
+        return out
+
+    def next_due(self) -> float:
+        if self._queue or (self.allocator is not None and self.allocator.pending()):
+            return -float("inf")
+        return self._next_status
+
+    def take_notices(self) -> list[str]:
+        notices, self._notices = self._notices, []
+        return notices
+
+    def describe(self, servo_names: Sequence[str]) -> list[str]:
+        """The node's identity and the rule for sharing its bus."""
+        actuators = ", ".join(
+            f"{name}={servo.options.actuator_id}"
+            for name, servo in zip(servo_names, self.servos, strict=False)
+        )
+        allocator = (
+            f"on (free ids from {self.options.allocation_first_id} down)"
+            if self.options.allocator
+            else "off (static node ids)"
+        )
+        return [
+            f"node id {self.node_id}, name {self.options.name}, NodeStatus 1 Hz, GetNodeInfo "
+            f"answered; dynamic id allocation {allocator}",
+            f"one ArrayCommand per command slot for actuators {actuators} "
+            f"({frames_for_commands(len(self.servos))} frames)",
+            "sharing the bus: other DroneCAN nodes (an autopilot's GNSS, ESCs, sensors, another "
+            "controller commanding other actuator ids) may share it; no other node may command "
+            "these actuator ids (an autopilot with these servos in its outputs): two masters "
+            "would fight. The bridge reports every other ArrayCommand sender once (STATUSTEXT, "
+            "log), saying whether it commands the bridge's actuators. With the allocator on, no "
+            "other allocation server may run on the bus.",
+        ]
+
+    def persistent_state(self) -> tuple[int, dict[str, Any]] | None:
+        """``(version, allocation table)`` for the bridge to keep next to the config (None:
+        no allocator); the table comes back through the ``allocation_table`` option."""
+        if self.allocator is None:
+            return None
+        return self.allocator.version, {"allocation_table": self.allocator.table_hex()}
+
+    def bus_frames_per_second(
+        self, servo_count: int, command_hz: float
+    ) -> list[tuple[float, bool, int]]:
+        """The node's NodeStatus (1 Hz) and the packed commands of ``servo_count`` servos at
+        ``command_hz``; the profile's per-servo command frames are not counted besides."""
+        return [
+            (1 / wire.NODE_STATUS_PERIOD_S, True, 8),
+            (command_hz * frames_for_commands(servo_count), True, 8),
+        ]
+
+    # -------------------------------------------------------------------------- receiving
+    def receive(self, msg: can.Message, now: float) -> bool:
+        """Answer GetNodeInfo, note foreign ArrayCommands, serve allocation; True when an
+        answer waits to be sent."""
+        if not msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame:
+            return False
+        service = wire.service_fields(msg)
+        if service is not None:
+            if service.destination != self.node_id or not service.request:
+                return False
+            received = self._reassembler.push(msg, now)
+            if received is None:
+                return False
+            if received.dtid == wire.DTID_GET_NODE_INFO:
+                self._queue += self._node_info_response(received, now)
+                self.counters["get_node_info"] += 1
+                return True
+            self.counters["unanswered_service"] += 1
+            return False
+        source = wire.source_node(msg)
+        dtid = wire.message_dtid(msg)
+        if source == 0:
+            if self.allocator is not None and dtid == wire.DTID_ALLOCATION:
+                received = self._reassembler.push(msg, now)
+                return received is not None and self.allocator.receive(received, now)
+            return False
+        if dtid == wire.DTID_ARRAY_COMMAND and source != self.node_id:
+            self._foreign_command(msg, source, now)
+        if dtid == wire.DTID_NODE_STATUS and source == self.node_id:
+            self.counters["node_id_conflict"] += 1
+            if not self._conflict_noted:
+                self._conflict_noted = True
+                self._notices.append(
+                    f"another DroneCAN node sends NodeStatus with the bridge's node id "
+                    f"{self.node_id}: give one of them another id"
+                )
+        if self.allocator is not None and dtid == wire.DTID_NODE_STATUS:
+            self.allocator.seen(source, now)
+        return False
+
+    def _foreign_command(self, msg: can.Message, source: int, now: float) -> None:
+        """Another node's ArrayCommand: reported once per sender, saying whether it commands
+        the bridge's actuators (two masters) or others (a second controller, maybe intended)."""
+        self.counters["foreign_commands"] += 1
+        received = self._reassembler.push(msg, now)
+        if received is None or source in self.foreign_masters:
+            return
+        self.foreign_masters.add(source)
+        ours = {servo.options.actuator_id for servo in self.servos}
+        theirs = sorted({int(c.actuator_id) for c in received.payload.commands})
+        shared = [a for a in theirs if a in ours]
+        if shared:
+            self._notices.append(
+                f"DroneCAN node {source} also sends ArrayCommand for actuators "
+                f"{', '.join(map(str, shared))} (the bridge's): two masters command these "
+                "servos (an autopilot?); give them one master"
+            )
+        else:
+            self._notices.append(
+                f"DroneCAN node {source} also sends ArrayCommand on this bus, for actuators "
+                f"{', '.join(map(str, theirs))} (not the bridge's)"
+            )
+
+    def _node_info_response(self, request: wire.Received, now: float) -> list[can.Message]:
+        info = wire.lib().uavcan.protocol.GetNodeInfo.Response()
+        info.status = self.status_payload(now)
+        info.software_version.major, info.software_version.minor = self.software_version
+        info.name = self.options.name
+        return wire.encode_service(
+            info,
+            source=self.node_id,
+            destination=request.source,
+            transfer_id=request.transfer_id,
+            request=False,
+            priority=request.priority,  # a response keeps its request's priority
+        )

@@ -1,0 +1,202 @@
+"""DroneCAN servos through the whole bridge and back, and ``config/dronecan.yaml`` as shipped.
+
+A GCS-side pymavlink peer sends DO_SET_SERVO over UDP; the bridge drives the aa55 interface on
+the adapter emulator's pty; simulated DroneCAN servo nodes (made with the ``dronecan`` package)
+take their entry of the bridge's ArrayCommand, move, and report Status and NodeStatus, which
+come back over MAVLink. A servo node that falls silent is offline within about 3 s (its
+NodeStatus stops): STATUSTEXT, DO_SET_SERVO TEMPORARILY_REJECTED; it comes back when it speaks.
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from pathlib import Path
+
+import can
+import pytest
+import yaml
+from conftest import wait_until
+from e2e_support import (
+    MAV_CMD_DO_SET_SERVO,
+    MAV_RESULT_ACCEPTED,
+    MAV_RESULT_TEMPORARILY_REJECTED,
+    Peer,
+    pwm_to_angle,
+    running,
+    sim_servo,
+)
+from test_run_cli import REPO, assert_positions_followed, read_trace, run_mavservo
+
+from mavservo.config import load_config
+from mavservo.servos.base import Fault
+from mavservo.sim.autopilot.link import mavlink2
+
+pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")
+
+WAIT_S = 5.0
+CONFIG = """
+  telemetry: {actuator_output_status_hz: 10, named_value_float_hz: 20, esc_telemetry_hz: 0}
+can:
+  buses:
+    - {name: bus0, interface: aa55, channel: sim, node: {dronecan: {node_id: 100}}}
+servos:
+  - {name: left, profile: dronecan, can_id: 11, limits_deg: [-45, 45], telemetry_hz: 10,
+     options: {actuator_id: 1}}
+  - {name: right, profile: dronecan, can_id: 12, limits_deg: [-45, 45], telemetry_hz: 10,
+     options: {actuator_id: 2, command: unitless, unitless_min_deg: -45, unitless_max_deg: 45}}
+scheduler: {reply_timeout_s: 0.5}
+channels:
+  - {servo: left, source: servo_output, channel: 1, input: {min: 1000, max: 2000},
+     output_deg: [-45, 45]}
+  - {servo: right, source: servo_output, channel: 2, input: {min: 1000, max: 2000},
+     output_deg: [-45, 45]}
+"""
+
+
+def status(bridge, name: str):  # type: ignore[no-untyped-def]
+    return next(s for s in bridge.backend.servo_statuses() if s.name == name)
+
+
+def test_dronecan_servos_follow_and_a_silent_node_goes_offline_within_3_s_and_comes_back() -> None:
+    with running(CONFIG) as (bridge, port):
+        peer = Peer(port)
+        try:
+            peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))  # a GCS: answer me
+            for pwm in (1700, 1300):
+                target = pwm_to_angle(pwm, 1000, 2000, (-45, 45))
+                for channel in (1, 2):
+                    assert peer.command(MAV_CMD_DO_SET_SERVO, [channel, pwm]) == MAV_RESULT_ACCEPTED
+                for name in ("left", "right"):
+                    sim = sim_servo(bridge, name)
+                    assert wait_until(lambda s=sim, a=target: abs(s.position_deg - a) < 0.3, WAIT_S)
+                    assert wait_until(
+                        lambda n=name, a=target: (
+                            abs(status(bridge, n).state.position_deg - a) < 0.3
+                        ),
+                        WAIT_S,
+                    ), status(bridge, name)
+            # both commands went in one ArrayCommand per slot from the bridge's node
+            scheduler = bridge.schedulers["bus0"]
+            [node] = scheduler.nodes
+            assert node.counters["command_transfers"] > 0
+            assert node.counters["node_status"] >= 1
+
+            left = sim_servo(bridge, "left")
+            mark = peer.count()
+            left.faults.silent = True
+            silenced = time.monotonic()
+            assert wait_until(lambda: not status(bridge, "left").online, WAIT_S)
+            took = time.monotonic() - silenced
+            assert took < 4.0, took  # NodeStatus at 1 Hz, offline after about 3 s of silence
+            assert Fault.NO_REPLY in status(bridge, "left").state.faults
+            assert status(bridge, "right").online
+            assert wait_until(lambda: "servo left not responding" in peer.statustexts(mark), WAIT_S)
+            assert peer.command(MAV_CMD_DO_SET_SERVO, [1, 1500]) == MAV_RESULT_TEMPORARILY_REJECTED
+            left.faults.silent = False
+            assert wait_until(lambda: status(bridge, "left").online, WAIT_S)
+            assert peer.command(MAV_CMD_DO_SET_SERVO, [1, 1500]) == MAV_RESULT_ACCEPTED
+            assert wait_until(lambda: abs(left.position_deg) < 0.3, WAIT_S)
+        finally:
+            peer.close()
+
+
+def test_shipped_dronecan_config_passes_check() -> None:
+    proc = run_mavservo("check", str(REPO / "config" / "dronecan.yaml"))
+    assert proc.returncode == 0, proc.stderr + proc.stdout
+
+
+def test_shipped_dronecan_config_runs_follows_and_loses_nothing(tmp_path: Path) -> None:
+    document = yaml.safe_load((REPO / "config" / "dronecan.yaml").read_text())
+    document["scheduler"]["reply_timeout_s"] = 0.5
+    document["logging"]["dir"] = str(tmp_path / "runs")
+    path = tmp_path / "dronecan.yaml"
+    path.write_text(yaml.safe_dump(document))
+    logs = tmp_path / "runs"
+    proc = run_mavservo("run", "--config", str(path), "--duration", "8", "--log-dir", str(logs))
+    assert proc.returncode == 0, proc.stderr
+    assert "Traceback" not in proc.stderr
+    out = proc.stdout
+    assert "decoder rejections 0" in out
+    config = load_config(path)
+    for servo in config.servos:
+        row = re.search(
+            rf"^\s+{servo.name}\s+(\d+)\s+(\d+)\s+(\d+)\s+(\d+)\s+\d+\s+(\d+)", out, re.M
+        )
+        assert row, f"no summary row for {servo.name}:\n{out}"
+        sent, received, _pushed, lost, rejected = map(int, row.groups())
+        assert sent > 0 and received > 0, row.group(0)
+        assert lost == 0 and rejected == 0, row.group(0)
+    [run_dir] = list(logs.iterdir())
+    trace = read_trace(run_dir / "trace.csv")
+    for servo in config.servos:
+        assert_positions_followed(servo.name, trace, span=20.0)
+
+
+def test_another_array_command_sender_is_reported_once_by_statustext() -> None:
+    """An autopilot commanding the same actuators on the bus: STATUSTEXT once, naming it."""
+    import dronecan
+    from dronecan.transport import Transfer
+
+    with running(CONFIG) as (bridge, port):
+        peer = Peer(port)
+        try:
+            peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))  # a GCS: answer me
+            actuator = dronecan.uavcan.equipment.actuator
+            command = actuator.ArrayCommand(
+                commands=[actuator.Command(actuator_id=2, command_type=1, command_value=0.1)]
+            )
+            scheduler = bridge.schedulers["bus0"]
+            mark = peer.count()
+            for tid in range(5):  # the frames the receive thread would hand over
+                transfer = Transfer(transfer_id=tid, source_node_id=10, payload=command)
+                for frame in transfer.to_frames():
+                    msg = can.Message(
+                        arbitration_id=frame.message_id, is_extended_id=True, data=frame.bytes
+                    )
+                    scheduler.handle_frame(msg, time.monotonic())
+            # STATUSTEXT carries 50 characters: a longer text comes in chunks
+            wanted = "DroneCAN node 10 also sends ArrayCommand for actuators 2"
+            assert wait_until(lambda: wanted in "".join(peer.statustexts(mark)), WAIT_S), (
+                peer.statustexts(mark)
+            )
+            time.sleep(0.5)
+            assert "".join(peer.statustexts(mark)).count(wanted) == 1
+        finally:
+            peer.close()
+
+
+ALLOCATING = """
+  telemetry: {actuator_output_status_hz: 10, named_value_float_hz: 20, esc_telemetry_hz: 0}
+can:
+  buses:
+    - {name: bus0, interface: aa55, channel: sim,
+       node: {dronecan: {node_id: 100, allocator: true}}}
+servos:
+  - {name: fixed, profile: dronecan, can_id: 11, limits_deg: [-45, 45], telemetry_hz: 10,
+     options: {actuator_id: 1}}
+  - {name: asking, profile: dronecan, can_id: 42, limits_deg: [-45, 45], telemetry_hz: 10,
+     options: {actuator_id: 2, unique_id: 000102030405060708090a0b0c0d0e0f}}
+scheduler: {reply_timeout_s: 0.5}
+channels:
+  - {servo: fixed, source: servo_output, channel: 1, input: {min: 1000, max: 2000},
+     output_deg: [-45, 45]}
+  - {servo: asking, source: servo_output, channel: 2, input: {min: 1000, max: 2000},
+     output_deg: [-45, 45]}
+"""
+
+
+def test_a_simulated_servo_without_an_id_gets_it_from_the_bridge_and_follows() -> None:
+    with running(ALLOCATING) as (bridge, port):
+        peer = Peer(port)
+        try:
+            asking = sim_servo(bridge, "asking")
+            assert wait_until(lambda: asking._device.node_id == 42, WAIT_S)  # noqa: SLF001
+            assert wait_until(lambda: status(bridge, "asking").online, WAIT_S)
+            assert peer.command(MAV_CMD_DO_SET_SERVO, [2, 1750]) == MAV_RESULT_ACCEPTED
+            target = pwm_to_angle(1750, 1000, 2000, (-45, 45))
+            assert wait_until(lambda: abs(asking.position_deg - target) < 0.3, WAIT_S)
+            [node] = bridge.schedulers["bus0"].nodes
+            assert node.allocator.allocations == [("000102030405060708090a0b0c0d0e0f", 42)]
+        finally:
+            peer.close()
