@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import io
 import logging
+import math
 import re
 import subprocess
 import sys
@@ -94,3 +95,25 @@ def test_run_without_an_autopilot_warns_once_per_interval(tmp_path: Path) -> Non
         and " WARNING bridge: autopilot 1/1: no heartbeat in" in (warnings[0])
     )
     assert "heartbeat heard" not in proc.stdout
+
+
+def test_a_field_the_family_never_reports_reads_as_a_dash_not_nan() -> None:
+    """DroneCAN's actuator.Status carries no current or temperature: the profile leaves them
+    UNKNOWN (NaN), and the console shows them as not known, like before the first report."""
+    from mavservo.app.console import status_line
+
+    row = {
+        "servo": "aileron_l",
+        "setpoint_deg": 10.0,
+        "position_deg": 9.5,
+        "velocity_dps": 1.0,
+        "current_a": math.nan,
+        "temperature_c": math.nan,
+        "faults": "",
+        "online": True,
+        "age_s": 0.05,
+    }
+    line = status_line(row)
+    assert "nan" not in line
+    assert "I - A" in line and "T - C" in line
+    assert "pos     9.5 deg" in line

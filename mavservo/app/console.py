@@ -16,6 +16,7 @@ place for the level instead of two styles.
 from __future__ import annotations
 
 import logging
+import math
 import re
 import sys
 import time
@@ -99,7 +100,9 @@ class HeartbeatNotices:
 
 
 def _num(value: float | None, fmt: str) -> str:
-    return "-" if value is None else format(value, fmt)
+    """``value`` formatted, or "-" when it is not known: None (nothing reported yet) or NaN
+    (a field the servo's family never reports, e.g. current on a DroneCAN actuator.Status)."""
+    return "-" if value is None or math.isnan(value) else format(value, fmt)
 
 
 def liveness(row: dict[str, Any]) -> str:
