@@ -240,6 +240,7 @@ class Bridge:
             scheduler = Scheduler(
                 self.buses[bus_cfg.name], specs, timing, observer=observer, name=bus_cfg.name
             )
+            scheduler.on_event = self._event
             self.schedulers[bus_cfg.name] = scheduler
             for spec in specs:
                 sinks[spec.name] = scheduler

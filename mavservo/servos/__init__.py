@@ -24,6 +24,7 @@ from .cubemars_mit import CubeMarsAKMit
 from .damiao import DamiaoDM
 from .registry import PROFILES, UnknownProfileError, get_profile, load_errors, profiles
 from .rmdx import LkTech, RmdX
+from .robstride import Robstride
 
 __all__ = [
     "NO_FAULT",
@@ -37,6 +38,7 @@ __all__ = [
     "LkTech",
     "ProfileOptions",
     "RmdX",
+    "Robstride",
     "ServoProfile",
     "ServoState",
     "SimDevice",

@@ -25,9 +25,11 @@ from .cubemars import CubeMarsAK
 from .cubemars_mit import CubeMarsAKMit
 from .damiao import DamiaoDM
 from .rmdx import LkTech, RmdX
+from .robstride import Robstride
 
 ENTRY_POINT_GROUP = "mavservo.profiles"
 BUILT_IN: tuple[type[ServoProfile], ...] = (RmdX, LkTech, CubeMarsAK, CubeMarsAKMit, DamiaoDM)
+BUILT_IN += (Robstride,)
 PLUGIN_HINT = (
     f"plug-in profiles come from installed packages' {ENTRY_POINT_GROUP!r} entry points "
     "(see docs/profiles.md; `mavservo check --profiles` lists them)"
