@@ -495,7 +495,8 @@ class Robstride(ServoProfile):
                 )
         if self.private and msg.is_extended_id:
             comm_type, field, target = parse_id(msg.arbitration_id)
-            if comm_type in (TYPE_FEEDBACK, TYPE_REPORT) and field & 0xFF == self.can_id:
+            ours = comm_type in (TYPE_FEEDBACK, TYPE_REPORT) and field & 0xFF == self.can_id
+            if ours and target != host:
                 return (
                     f"answers host id 0x{target:02X}, not 0x{host:02X}; set "
                     f"options.host_id: 0x{target:02X}"
