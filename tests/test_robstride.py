@@ -78,10 +78,28 @@ def test_startup_clears_sets_csp_timeout_report_period_enables_and_reports() -> 
         (0x1200FD01, True, "0570000005000000"),  # run_mode = 5 (CSP)
         (0x1200FD01, True, "28700000a00f0000"),  # canTimeout = 4000
         (0x1200FD01, True, "2670000009000000"),  # EPScan_time = 9 (50 ms)
-        (0x0300FD01, True, "0000000000000000"),  # enable
         (0x1200FD01, True, "17700000db0fc940"),  # limit_spd = 2 pi rad/s
         (0x1800FD01, True, "0102030405060100"),  # active reporting on (F_CMD = 1)
+        (0x0300FD01, True, "0000000000000000"),  # enable
     ]
+
+
+def test_a_motor_stopped_but_set_up_gets_just_the_enable() -> None:
+    """On the wire the enable (type 3) beats the stop (type 4) queued before it, and the
+    motor's own timeout stops it too: while its reports (type 0x18, so they are on: it kept its
+    settings) say reset mode without a fault, the start-up is just the enable; a fault, or
+    only type 2 answers (a power-cycled motor reports nothing), get the full one."""
+    servo = Robstride(1)
+    assert len(servo.startup_frames()) == 7
+    servo.decode(ext(0x180001FD, "7fff7fff7fff00fa"), 0.0)  # report, reset mode
+    assert servo.needs_startup()
+    assert frames(servo.startup_frames()) == [(0x0300FD01, True, "0000000000000000")]
+    servo.decode(ext(0x181001FD, "7fff7fff7fff00fa"), 0.1)  # report, reset mode, stall
+    assert len(servo.startup_frames()) == 7
+    servo.decode(ext(0x020001FD, "7fff7fff7fff00fa"), 0.2)  # answer, reset mode
+    assert len(servo.startup_frames()) == 7
+    servo.decode(ext(0x188001FD, "7fff7fff7fff00fa"), 0.3)  # report, run mode
+    assert not servo.needs_startup()
 
 
 def test_release_is_a_plain_stop_and_zero_is_type_6() -> None:
@@ -159,7 +177,7 @@ def test_out_of_range_angles_are_refused_and_speeds_saturate() -> None:
     with pytest.raises(ValueError):
         servo.position_command(math.nan)
     servo.position_command(0.0, 1e9)
-    limit = servo.startup_frames()[5]
+    limit = servo.startup_frames()[4]
     assert struct.unpack_from("<f", bytes(limit.data), 4)[0] == pytest.approx(44.0)  # RS01
 
 
@@ -375,7 +393,7 @@ def test_robstride_dynamics_sends_the_same_frames() -> None:
     sent, bus.channel_handler = bus.channel_handler.sent, None  # its __del__ would disable
     ours = Robstride(1)
     assert frames(sent) == frames(
-        [ours.startup_frames()[4], ours.release_frames()[0], ours.position_command(math.degrees(1))]
+        [ours.startup_frames()[6], ours.release_frames()[0], ours.position_command(math.degrees(1))]
     )
 
 

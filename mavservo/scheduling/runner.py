@@ -587,7 +587,9 @@ class Scheduler:
                 metrics.servos[servo].timed_out += 1
             dropped = dict(decision.dropped)
             for servo in decision.went_offline:
-                if servo not in self._states:  # never answered: say what to check, once
+                sent = self._metrics.servos[servo].lifecycle_sent
+                sent += self._metrics.servos[servo].commands_sent
+                if sent and servo not in self._states:  # spoken to, never heard: what to check
                     hint = self._specs[servo].profile.silence_hint()
                     if hint is not None:
                         advice.append((servo, hint))

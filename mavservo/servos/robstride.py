@@ -289,6 +289,9 @@ class Robstride(ServoProfile):
         self._speed_dps = min(o.default_speed_dps, self.max_speed_dps)
         """The latest speed limit asked for: limit_spd at the next start-up."""
         self._startup_due = False
+        self._stopped_but_set_up = False
+        """The latest frame was an active report in reset mode without faults: the motor kept
+        its settings (reports on) and only needs the enable (see :meth:`startup_frames`)."""
 
     # -- frames the bridge sends -----------------------------------------------------------
 
@@ -324,8 +327,15 @@ class Robstride(ServoProfile):
         return []
 
     def startup_frames(self) -> list[can.Message]:
-        """Clear faults (stop), position mode, the motor's own timeout, the report period,
-        enable, the speed limit, active reporting on (the manual's CSP sequence)."""
+        """Clear faults (stop), position mode, the motor's own timeout, the report period, the
+        speed limit, active reporting on, enable (the manual's CSP sequence).
+
+        On the wire the enable (type 3) wins arbitration over the stop (type 4) and the
+        parameter writes (0x12) queued with it: an adapter with several frames waiting sends
+        it first, and the stop after it leaves the motor stopped (reset mode). So when the
+        latest frame is an active report in reset mode without faults (the motor is set up:
+        its reports are on; its own timeout or that reordering stopped it) the start-up is
+        just the enable. A power-cycled motor has its reports off and gets the full one."""
         self._startup_due = False
         hz = self.telemetry_hz or DEFAULT_REPORT_HZ
         timeout = struct.pack("<I", self.options.comm_timeout_ms * CAN_TIMEOUT_UNITS_PER_MS)
@@ -338,15 +348,18 @@ class Robstride(ServoProfile):
                 self._mit(mit.ENTER_MOTOR_MODE),
                 self._mit(MIT_REPORT_ON),
             ]
+        enable = self.private_frame(TYPE_ENABLE, bytes(8))
+        if self._stopped_but_set_up:
+            return [enable]
         speed = struct.pack("<f", math.radians(max(self._speed_dps, 1e-3)))
         return [
             self.private_frame(TYPE_STOP, b"\x01" + bytes(7)),
             self.param_write(PARAM_RUN_MODE, bytes([RUN_MODE_CSP])),
             self.param_write(PARAM_CAN_TIMEOUT, timeout),
             self.param_write(PARAM_EPSCAN_TIME, report),
-            self.private_frame(TYPE_ENABLE, bytes(8)),
             self.param_write(PARAM_LIMIT_SPD, speed),
             self.private_frame(TYPE_REPORT, bytes([1, 2, 3, 4, 5, 6, 1, 0])),
+            enable,
         ]
 
     def needs_startup(self) -> bool:
@@ -455,10 +468,13 @@ class Robstride(ServoProfile):
         comm_type = parse_id(msg.arbitration_id)[0]
         if comm_type == TYPE_FAULT:
             word = struct.unpack_from("<I", data)[0]
+            self._stopped_but_set_up = False
             return self._merge(timestamp, faults=faults_from_word(word))
         mode = msg.arbitration_id >> 22 & 0x3
         # the latest feedback decides: the answers before the enable still say "reset"
         self._startup_due = mode != MODE_RUN
+        faults = faults_from_id(msg.arbitration_id)
+        self._stopped_but_set_up = comm_type == TYPE_REPORT and mode == MODE_RESET and not faults
         angle, velocity, torque, temperature = struct.unpack(">HHHH", data)
         return self._merge(
             timestamp,
@@ -466,7 +482,7 @@ class Robstride(ServoProfile):
             velocity_dps=math.degrees(from_u16(velocity, self.spec.v_max_rad_s)),
             current_a=from_u16(torque, self.spec.t_max_nm) / self.spec.torque_constant_nm_per_a,
             temperature_c=temperature / 10,
-            faults=faults_from_id(msg.arbitration_id),
+            faults=faults,
         )
 
     # -- when the motor is not heard ----------------------------------------------------------
