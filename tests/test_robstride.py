@@ -446,3 +446,36 @@ def test_robstride_client_parses_our_feedback_and_writes_loc_ref_alike() -> None
     )
     assert parsed.temp == pytest.approx(state.temperature_c)
     assert parsed.angle == pytest.approx(math.radians(state.position_deg), abs=1e-3)
+
+
+def test_an_mit_command_never_reads_as_a_special_frame() -> None:
+    """Six 0xFF lead every MIT special command (F9 reporting, FB clear, FC enable, FD stop or
+    protocol). The bridge's commands carry velocity 0 (byte 2 = 0x7F), so even the top of the
+    position range with the model's largest gains cannot look like one (the profile refuses
+    such a frame anyway)."""
+    for model, kp, kd in (("RS01", 500.0, 5.0), ("RS03", 5000.0, 100.0)):
+        servo = Robstride(1, model=model, protocol="mit", kp=kp, kd=kd)
+        for angle in (math.degrees(12.57), -math.degrees(12.57), 0.0):
+            data = servo.position_command(angle).data
+            assert data[:6] != b"\xff" * 6 and data[2] == 0x7F
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    model=st.sampled_from(sorted(MODELS)),
+    angle=st.floats(-700.0, 700.0),
+    temperature=st.floats(0.0, 150.0),
+)
+def test_mit_feedback_round_trips_through_the_device(
+    model: str, angle: float, temperature: float
+) -> None:
+    """The MIT device answers with the shared packing (:mod:`mavservo.servos.mit`) and the
+    temperature x 10 after it; the profile reads back what it sent, within one count."""
+    profile, sim = started(model=model, protocol="mit")
+    sim.position_deg, sim.temperature_c = angle, temperature
+    for msg in profile.startup_frames():
+        send(profile, sim, msg, 0.0)
+    state = profile.decode(sim._device.feedback(0x02), 0.0)  # type: ignore[attr-defined]  # noqa: SLF001
+    assert state is not None
+    assert state.position_deg == pytest.approx(angle, abs=profile.resolution_deg)
+    assert state.temperature_c == pytest.approx(temperature, abs=0.051)

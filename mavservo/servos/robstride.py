@@ -28,7 +28,9 @@ cycle): standard ids; the MIT packing of :mod:`.mit` on the motor id with the mo
 ``FF x7 FC`` enable, ``FD`` stop, ``FF x6 FF FB`` clear faults, ``FF x6 01 F9`` active
 reporting on; parameter writes on ``0x400 | id`` (same layout, echoed on the same id); answers
 on the host id: ``[id, position 16, velocity 12, torque 12, temperature u16 x 10]``. MIT
-feedback carries no fault bits.
+feedback carries no fault bits and no mode: a motor stopped by its own timeout is not seen as
+stopped (it is started again when it comes back from offline); the private protocol reports
+both, so it is the default.
 
 A motor answers only in the protocol it is set to, so a host speaking the other one hears
 silence: :meth:`Robstride.diagnose` recognises the other protocol's frames from this motor and
@@ -123,7 +125,9 @@ MIT_CLEAR_FAULTS = b"\xff" * 7 + b"\xfb"
 MIT_REPORT_ON = b"\xff" * 6 + b"\x01\xf9"
 MIT_POSITION_RAD = 12.57
 """P_MAX of the MIT section's example code (the manuals' "-12.57 rad ~ 12.57 rad")."""
-MIT_REPLY_LEN = 8
+MIT_RESERVED_PREFIX = b"\xff" * 6
+"""Frames starting with six 0xFF are the MIT special commands (enable, stop, clear, modes,
+reporting, protocol): a position command never goes out looking like one."""
 
 
 @dataclass(frozen=True)
@@ -319,7 +323,10 @@ class Robstride(ServoProfile):
             command = mit.MitCommand(
                 math.radians(angle_deg), 0.0, self.options.kp, self.options.kd, 0.0
             )
-            return self._mit(mit.pack_command(command, self.ranges))
+            data = mit.pack_command(command, self.ranges)
+            if data[:6] == MIT_RESERVED_PREFIX:
+                raise ValueError(f"{self.name}: the command would read as a special frame")
+            return self._mit(data)
         self._speed_dps = speed
         return self.param_write(PARAM_LOC_REF, struct.pack("<f", math.radians(angle_deg)))
 
