@@ -479,3 +479,23 @@ def test_mit_feedback_round_trips_through_the_device(
     assert state is not None
     assert state.position_deg == pytest.approx(angle, abs=profile.resolution_deg)
     assert state.temperature_c == pytest.approx(temperature, abs=0.051)
+
+
+def test_the_scheduler_advises_once_per_servo(caplog: pytest.LogCaptureFixture) -> None:
+    """A frame no servo claims goes to the profiles that can diagnose it; the advice is logged
+    and handed to ``on_event`` (the bridge's STATUSTEXT) once per servo, however often the
+    motor repeats it."""
+    from mavservo.scheduling.runner import Scheduler, ServoSpec
+
+    bus = can.Bus(interface="virtual", channel="robstride-advice", receive_own_messages=False)
+    try:
+        scheduler = Scheduler(bus, [ServoSpec("hip", Robstride(1))], name="b")
+        events: list[str] = []
+        scheduler.on_event = events.append
+        mit_answer = can.Message(arbitration_id=0xFD, is_extended_id=False, data=b"\x01" + bytes(7))
+        for t in range(5):
+            assert scheduler.handle_frame(mit_answer, float(t)) is None
+    finally:
+        bus.shutdown()
+    assert len(events) == 1 and events[0].startswith("servo hip: answers in the MIT protocol")
+    assert any("options.protocol: mit" in r.getMessage() for r in caplog.records)

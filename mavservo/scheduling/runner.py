@@ -46,7 +46,7 @@ from mavservo.scheduling.core import (
     exchange_key,
 )
 from mavservo.scheduling.outage_log import LateReplies, Line, OnlineLog
-from mavservo.servos.base import Fault, ServoState
+from mavservo.servos.base import Fault, ServoProfile, ServoState
 
 from .busload import message_bits
 
@@ -228,6 +228,13 @@ class Scheduler:
         and STATUSTEXT); called from the scheduler's threads, must not block."""
         self._advised: set[str] = set()
         """Servos whose :meth:`_advise` line went out (once per servo and run)."""
+        self._diagnosing = [
+            (spec.name, spec.profile)
+            for spec in servos
+            if type(spec.profile).diagnose is not ServoProfile.diagnose
+        ]
+        """Servos whose profile can say whose an unclaimed frame is (a foreign node's flood
+        costs nothing for the others)."""
         self.spin_s = self.timing.spin_s
         """The spin the runner actually uses (``fifo_spin_s`` once it runs real-time)."""
         for warning in self._core.warnings:
@@ -627,10 +634,10 @@ class Scheduler:
     def _diagnose(self, msg: can.Message) -> None:
         """A frame no servo claims: ask each servo not yet advised whether it is its own in
         another form (:meth:`ServoProfile.diagnose`)."""
-        for name, spec in self._specs.items():
+        for name, profile in self._diagnosing:
             if name in self._advised:
                 continue
-            text = spec.profile.diagnose(msg)
+            text = profile.diagnose(msg)
             if text is not None:
                 self._advise(name, text)
 
