@@ -86,19 +86,21 @@ def test_startup_clears_sets_csp_timeout_report_period_enables_and_reports() -> 
 
 def test_a_motor_stopped_but_set_up_gets_just_the_enable() -> None:
     """On the wire the enable (type 3) beats the stop (type 4) queued before it, and the
-    motor's own timeout stops it too: while its reports (type 0x18, so they are on: it kept its
-    settings) say reset mode without a fault, the start-up is just the enable; a fault, or
-    only type 2 answers (a power-cycled motor reports nothing), get the full one."""
+    motor's own timeout stops it too: while it says reset mode without a fault and its active
+    reports (type 0x18) still come (it kept its settings), the start-up is just the enable; a
+    fault, or reports that stopped (a power-cycled motor reports nothing), get the full one."""
     servo = Robstride(1)
+    servo.telemetry_hz = 20.0  # reports every 50 ms: still coming within 150 ms
     assert len(servo.startup_frames()) == 7
     servo.decode(ext(0x180001FD, "7fff7fff7fff00fa"), 0.0)  # report, reset mode
+    servo.decode(ext(0x020001FD, "7fff7fff7fff00fa"), 0.1)  # answer, reset mode
     assert servo.needs_startup()
     assert frames(servo.startup_frames()) == [(0x0300FD01, True, "0000000000000000")]
-    servo.decode(ext(0x181001FD, "7fff7fff7fff00fa"), 0.1)  # report, reset mode, stall
+    servo.decode(ext(0x181001FD, "7fff7fff7fff00fa"), 0.2)  # report, reset mode, stall
     assert len(servo.startup_frames()) == 7
-    servo.decode(ext(0x020001FD, "7fff7fff7fff00fa"), 0.2)  # answer, reset mode
+    servo.decode(ext(0x020001FD, "7fff7fff7fff00fa"), 5.0)  # answers only: reports stopped
     assert len(servo.startup_frames()) == 7
-    servo.decode(ext(0x188001FD, "7fff7fff7fff00fa"), 0.3)  # report, run mode
+    servo.decode(ext(0x188001FD, "7fff7fff7fff00fa"), 5.1)  # report, run mode
     assert not servo.needs_startup()
 
 
@@ -499,3 +501,30 @@ def test_the_scheduler_advises_once_per_servo(caplog: pytest.LogCaptureFixture) 
         bus.shutdown()
     assert len(events) == 1 and events[0].startswith("servo hip: answers in the MIT protocol")
     assert any("options.protocol: mit" in r.getMessage() for r in caplog.records)
+
+
+def test_start_up_survives_the_enable_winning_arbitration() -> None:
+    """All start-up frames queued at once on the simulated bus: the enable (lowest id) goes
+    first, the stop after it leaves the motor stopped. The motor's reports say so, the next
+    start-up (one retry later) is just the enable, and the motor runs and follows."""
+    from mavservo.sim.canbus import SimCanBus
+
+    profile, sim = started(comm_timeout_ms=0)
+    bus = SimCanBus([sim])
+
+    def play(messages: list[can.Message], t: float, until: float) -> None:
+        for msg in messages:
+            bus.submit(msg, t)
+        for _, reply in bus.run_until(until):
+            profile.decode(reply, reply.timestamp or until)
+
+    first = profile.startup_frames()
+    play(first, 0.0, 0.01)
+    assert not sim.enabled and profile.needs_startup()  # the stop came after the enable
+    play([], 0.01, 0.3)  # active reports keep coming, in reset mode
+    retry = profile.startup_frames()
+    assert frames(retry) == [(0x0300FD01, True, "0000000000000000")]
+    play(retry + [profile.position_command(20.0, 360.0)], 1.0, 1.01)
+    assert sim.enabled and not profile.needs_startup()
+    play([], 1.01, 2.0)
+    assert sim.position_deg == pytest.approx(20.0, abs=0.5)

@@ -260,7 +260,9 @@ def test_reported_position_is_within_the_profile_resolution(position, name):
     requests = profile.telemetry_requests()  # the first poll of a polled profile reads 9C
     if requests:
         [(due, reply)] = servo.receive(requests[0], 0.0)
-    else:  # push-style: the first status push after arming the timer
+    else:  # push-style: started (a Robstride reports once told to), then the first push
+        for frame in profile.startup_frames():
+            servo.receive(frame, 0.0)
         servo.poll(0.0)
         [(due, reply)] = servo.poll(1.0)
     state = profile.decode(reply, due)

@@ -293,9 +293,12 @@ class Robstride(ServoProfile):
         self._speed_dps = min(o.default_speed_dps, self.max_speed_dps)
         """The latest speed limit asked for: limit_spd at the next start-up."""
         self._startup_due = False
-        self._stopped_but_set_up = False
-        """The latest frame was an active report in reset mode without faults: the motor kept
-        its settings (reports on) and only needs the enable (see :meth:`startup_frames`)."""
+        self._clean_reset = False
+        """The latest feedback says reset mode without a fault."""
+        self._last_feedback_t: float | None = None
+        self._last_report_t: float | None = None
+        """When the latest feedback and the latest active report came: reports still coming
+        mean the motor kept its settings (see :meth:`startup_frames`)."""
 
     # -- frames the bridge sends -----------------------------------------------------------
 
@@ -340,9 +343,10 @@ class Robstride(ServoProfile):
         On the wire the enable (type 3) wins arbitration over the stop (type 4) and the
         parameter writes (0x12) queued with it: an adapter with several frames waiting sends
         it first, and the stop after it leaves the motor stopped (reset mode). So when the
-        latest frame is an active report in reset mode without faults (the motor is set up:
-        its reports are on; its own timeout or that reordering stopped it) the start-up is
-        just the enable. A power-cycled motor has its reports off and gets the full one."""
+        latest feedback says reset mode without a fault while its active reports still come
+        (the motor kept its settings; its own timeout or that reordering stopped it), the
+        start-up is just the enable. A power-cycled motor has its reports off, a faulted one
+        needs the clear: both get the full one."""
         self._startup_due = False
         hz = self.telemetry_hz or DEFAULT_REPORT_HZ
         timeout = struct.pack("<I", self.options.comm_timeout_ms * CAN_TIMEOUT_UNITS_PER_MS)
@@ -356,7 +360,7 @@ class Robstride(ServoProfile):
                 self._mit(MIT_REPORT_ON),
             ]
         enable = self.private_frame(TYPE_ENABLE, bytes(8))
-        if self._stopped_but_set_up:
+        if self._clean_reset and self._reports_coming(hz):
             return [enable]
         speed = struct.pack("<f", math.radians(max(self._speed_dps, 1e-3)))
         return [
@@ -368,6 +372,13 @@ class Robstride(ServoProfile):
             self.private_frame(TYPE_REPORT, bytes([1, 2, 3, 4, 5, 6, 1, 0])),
             enable,
         ]
+
+    def _reports_coming(self, hz: float) -> bool:
+        """True when an active report came within three report periods of the latest
+        feedback (times as handed to :meth:`decode`)."""
+        last, report = self._last_feedback_t, self._last_report_t
+        window = 3 * report_period_s(report_counts(hz))
+        return last is not None and report is not None and last - report <= window
 
     def needs_startup(self) -> bool:
         return self._startup_due
@@ -475,13 +486,16 @@ class Robstride(ServoProfile):
         comm_type = parse_id(msg.arbitration_id)[0]
         if comm_type == TYPE_FAULT:
             word = struct.unpack_from("<I", data)[0]
-            self._stopped_but_set_up = False
+            self._clean_reset = False
             return self._merge(timestamp, faults=faults_from_word(word))
         mode = msg.arbitration_id >> 22 & 0x3
         # the latest feedback decides: the answers before the enable still say "reset"
         self._startup_due = mode != MODE_RUN
         faults = faults_from_id(msg.arbitration_id)
-        self._stopped_but_set_up = comm_type == TYPE_REPORT and mode == MODE_RESET and not faults
+        self._clean_reset = mode == MODE_RESET and not faults
+        self._last_feedback_t = timestamp
+        if comm_type == TYPE_REPORT:
+            self._last_report_t = timestamp
         angle, velocity, torque, temperature = struct.unpack(">HHHH", data)
         return self._merge(
             timestamp,
@@ -569,7 +583,6 @@ class RobstrideDevice:
             PARAM_LIMIT_SPD: 2.0,
         }
         self.reporting = False
-        self.last_report: float | None = None
         self.last_frame_time: float | None = None
         self.latched = NO_FAULT
         """Faults that stopped the motor: shown until a stop with the clear flag."""
@@ -615,7 +628,6 @@ class RobstrideDevice:
             self._param(data, now)
         elif comm_type == TYPE_REPORT:
             self.reporting = data[6] == 1
-            self.last_report = now
             return [self.feedback(TYPE_REPORT)]
         return [self.feedback(TYPE_FEEDBACK)]
 
@@ -657,7 +669,6 @@ class RobstrideDevice:
             self.latched = NO_FAULT
         elif data == MIT_REPORT_ON:
             self.reporting = True
-            self.last_report = now
         elif mit.is_special(data):
             pass  # other special frames (modes, ids, protocol): not simulated
         elif self._driving():
@@ -683,15 +694,10 @@ class RobstrideDevice:
             self.motor.disable(now)
 
     def status(self, now: float) -> list[can.Message]:
-        """An active report when reporting is on and its period (EPScan_time) has passed."""
+        """An active report when reporting is on. The simulation calls this at the servo's
+        ``telemetry_hz``, the rate the profile programs as EPScan_time (on its 5 ms grid)."""
         self.tick(now)
-        if not self.reporting:
-            return []
-        period = report_period_s(int(self.params[PARAM_EPSCAN_TIME]))
-        if self.last_report is not None and now - self.last_report < period * 0.999:
-            return []
-        self.last_report = now
-        return [self.feedback(TYPE_REPORT)]
+        return [self.feedback(TYPE_REPORT)] if self.reporting else []
 
     def feedback(self, comm_type: int) -> can.Message:
         """A feedback frame (type 2, or a type 0x18 report) of the motor's present state."""
