@@ -66,10 +66,12 @@ def test_position_command_writes_loc_ref_in_radians() -> None:
     assert frames([msg]) == [(0x1200FD01, True, "16700000" + "0000803f")]  # 1.0 rad
 
 
-def test_startup_clears_sets_csp_timeout_report_period_enables_and_reports() -> None:
-    """The manual's CSP sequence (run_mode 5, enable, limit_spd) after a stop with the clear
-    flag, with canTimeout (200 ms x 20 = 4000 = 0x0FA0) and EPScan_time for 20 Hz (50 ms:
-    1 + (50 - 10) / 5 = 9) written first and active reporting switched on last."""
+def test_startup_sets_up_then_enables_alone() -> None:
+    """The manual's CSP sequence in two steps: a stop with the clear flag, run_mode 5,
+    canTimeout (200 ms x 20 = 4000 = 0x0FA0), EPScan_time for 20 Hz (50 ms: 1 + (50 - 10) / 5
+    = 9), limit_spd, active reporting on; then, once the motor reports reset mode, the enable
+    alone (queued with the others it would win arbitration over the stop and the run_mode
+    write, and the motor would run in operation control mode)."""
     servo = Robstride(1, comm_timeout_ms=200)
     servo.telemetry_hz = 20.0
     servo.position_command(0.0, 360.0)  # the speed limit the scheduler asks for
@@ -80,26 +82,27 @@ def test_startup_clears_sets_csp_timeout_report_period_enables_and_reports() -> 
         (0x1200FD01, True, "2670000009000000"),  # EPScan_time = 9 (50 ms)
         (0x1200FD01, True, "17700000db0fc940"),  # limit_spd = 2 pi rad/s
         (0x1800FD01, True, "0102030405060100"),  # active reporting on (F_CMD = 1)
-        (0x0300FD01, True, "0000000000000000"),  # enable
     ]
+    assert servo.needs_startup()
+    servo.decode(ext(0x180001FD, "7fff7fff7fff00fa"), 0.0)  # report: reset mode, no fault
+    assert servo.needs_startup()
+    assert frames(servo.startup_frames()) == [(0x0300FD01, True, "0000000000000000")]
 
 
-def test_a_motor_stopped_but_set_up_gets_just_the_enable() -> None:
-    """On the wire the enable (type 3) beats the stop (type 4) queued before it, and the
-    motor's own timeout stops it too: while it says reset mode without a fault and its active
-    reports (type 0x18) still come (it kept its settings), the start-up is just the enable; a
-    fault, or reports that stopped (a power-cycled motor reports nothing), get the full one."""
+def test_the_enable_alone_only_for_a_motor_set_up_and_clean() -> None:
+    """Reset mode without a fault while the active reports (type 0x18) still come: just the
+    enable (its own timeout stopped it, or a release); a fault (a clear is due), or reports
+    that stopped (a power-cycled motor reports nothing), get the set-up step again."""
     servo = Robstride(1)
     servo.telemetry_hz = 20.0  # reports every 50 ms: still coming within 150 ms
-    assert len(servo.startup_frames()) == 7
     servo.decode(ext(0x180001FD, "7fff7fff7fff00fa"), 0.0)  # report, reset mode
     servo.decode(ext(0x020001FD, "7fff7fff7fff00fa"), 0.1)  # answer, reset mode
     assert servo.needs_startup()
     assert frames(servo.startup_frames()) == [(0x0300FD01, True, "0000000000000000")]
     servo.decode(ext(0x181001FD, "7fff7fff7fff00fa"), 0.2)  # report, reset mode, stall
-    assert len(servo.startup_frames()) == 7
+    assert len(servo.startup_frames()) == 6
     servo.decode(ext(0x020001FD, "7fff7fff7fff00fa"), 5.0)  # answers only: reports stopped
-    assert len(servo.startup_frames()) == 7
+    assert len(servo.startup_frames()) == 6
     servo.decode(ext(0x188001FD, "7fff7fff7fff00fa"), 5.1)  # report, run mode
     assert not servo.needs_startup()
 
@@ -228,6 +231,15 @@ def started(**options: Any) -> tuple[Robstride, SimServo]:
     return profile, sim
 
 
+def start_up(profile: Robstride, sim: SimServo, now: float) -> None:
+    """The start-up frames, again while the profile asks for them (as the scheduler does)."""
+    for _ in range(3):
+        for msg in profile.startup_frames():
+            assert len(send(profile, sim, msg, now)) == profile.replies_per_lifecycle
+        if not profile.needs_startup():
+            return
+
+
 def send(profile: Robstride, sim: SimServo, msg: can.Message, now: float) -> list[can.Message]:
     replies = [reply for _, reply in sim.receive(msg, now)]
     for reply in replies:
@@ -256,8 +268,7 @@ def test_a_disabled_motor_does_not_move_and_reports_nothing_before_start_up() ->
 
 def test_start_up_enables_moves_and_reports_at_the_programmed_rate() -> None:
     profile, sim = started()
-    for msg in profile.startup_frames():
-        assert len(send(profile, sim, msg, 0.0)) == profile.replies_per_lifecycle
+    start_up(profile, sim, 0.0)
     assert sim.enabled and not profile.needs_startup()
     t = 0.0
     for _ in range(20):  # keep the motor's own timeout fed
@@ -275,21 +286,18 @@ def test_its_own_timeout_stops_it_and_the_reports_ask_for_a_start_up() -> None:
     """canTimeout 100 ms: silent host -> reset mode; the reports go on and say so, so the
     profile asks the scheduler to enable again; after the start-up frames it moves again."""
     profile, sim = started(comm_timeout_ms=100)
-    for msg in profile.startup_frames():
-        send(profile, sim, msg, 0.0)
+    start_up(profile, sim, 0.0)
     send(profile, sim, profile.position_command(10.0, 180.0), 0.0)
     pushes(profile, sim, 0.0, 0.5)
     assert not sim.enabled
     assert profile.needs_startup()
-    for msg in profile.startup_frames():
-        send(profile, sim, msg, 0.6)
+    start_up(profile, sim, 0.6)
     assert sim.enabled and not profile.needs_startup()
 
 
 def test_a_fault_stops_the_motor_and_shows_until_cleared() -> None:
     profile, sim = started()
-    for msg in profile.startup_frames():
-        send(profile, sim, msg, 0.0)
+    start_up(profile, sim, 0.0)
     sim.faults.over_current = True
     reports = pushes(profile, sim, 0.0, 0.3)
     assert reports and profile.last_state is not None
@@ -298,8 +306,7 @@ def test_a_fault_stops_the_motor_and_shows_until_cleared() -> None:
     sim.faults.over_current = False
     pushes(profile, sim, 0.3, 0.5)
     assert Fault.OVER_CURRENT in profile.last_state.faults  # latched until the clear flag
-    for msg in profile.startup_frames():
-        send(profile, sim, msg, 0.6)
+    start_up(profile, sim, 0.6)
     assert profile.last_state.faults == NO_FAULT and sim.enabled
 
 
@@ -395,7 +402,11 @@ def test_robstride_dynamics_sends_the_same_frames() -> None:
     sent, bus.channel_handler = bus.channel_handler.sent, None  # its __del__ would disable
     ours = Robstride(1)
     assert frames(sent) == frames(
-        [ours.startup_frames()[6], ours.release_frames()[0], ours.position_command(math.degrees(1))]
+        [
+            ours.private_frame(3, bytes(8)),
+            ours.release_frames()[0],
+            ours.position_command(math.degrees(1)),
+        ]
     )
 
 
@@ -475,8 +486,7 @@ def test_mit_feedback_round_trips_through_the_device(
     temperature x 10 after it; the profile reads back what it sent, within one count."""
     profile, sim = started(model=model, protocol="mit")
     sim.position_deg, sim.temperature_c = angle, temperature
-    for msg in profile.startup_frames():
-        send(profile, sim, msg, 0.0)
+    start_up(profile, sim, 0.0)
     state = profile.decode(sim._device.feedback(0x02), 0.0)  # type: ignore[attr-defined]  # noqa: SLF001
     assert state is not None
     assert state.position_deg == pytest.approx(angle, abs=profile.resolution_deg)
@@ -503,10 +513,11 @@ def test_the_scheduler_advises_once_per_servo(caplog: pytest.LogCaptureFixture) 
     assert any("options.protocol: mit" in r.getMessage() for r in caplog.records)
 
 
-def test_start_up_survives_the_enable_winning_arbitration() -> None:
-    """All start-up frames queued at once on the simulated bus: the enable (lowest id) goes
-    first, the stop after it leaves the motor stopped. The motor's reports say so, the next
-    start-up (one retry later) is just the enable, and the motor runs and follows."""
+def test_start_up_survives_arbitration_on_the_bus() -> None:
+    """Everything of a step queued at once on the simulated bus, where the lowest id wins:
+    the set-up step with a command, then the enable with a command. Nothing in the first
+    step can overtake the stop, the enable goes alone, and the motor runs in position mode
+    and follows (sent in one burst, the enable went first and the motor ignored positions)."""
     from mavservo.sim.canbus import SimCanBus
 
     profile, sim = started(comm_timeout_ms=0)
@@ -518,13 +529,10 @@ def test_start_up_survives_the_enable_winning_arbitration() -> None:
         for _, reply in bus.run_until(until):
             profile.decode(reply, reply.timestamp or until)
 
-    first = profile.startup_frames()
-    play(first, 0.0, 0.01)
-    assert not sim.enabled and profile.needs_startup()  # the stop came after the enable
-    play([], 0.01, 0.3)  # active reports keep coming, in reset mode
+    play([*profile.startup_frames(), profile.position_command(20.0, 360.0)], 0.0, 0.3)
+    assert not sim.enabled and profile.needs_startup()
     retry = profile.startup_frames()
     assert frames(retry) == [(0x0300FD01, True, "0000000000000000")]
-    play(retry + [profile.position_command(20.0, 360.0)], 1.0, 1.01)
+    play([*retry, profile.position_command(20.0, 360.0)], 1.0, 2.0)
     assert sim.enabled and not profile.needs_startup()
-    play([], 1.01, 2.0)
     assert sim.position_deg == pytest.approx(20.0, abs=0.5)

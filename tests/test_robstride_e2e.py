@@ -63,7 +63,8 @@ def status(bridge, name: str):  # type: ignore[no-untyped-def]
 
 
 def test_both_protocols_follow_report_and_lose_nothing() -> None:
-    with running(CONFIG) as (bridge, port):
+    recorder = Recorder()
+    with running(CONFIG, observers=[recorder]) as (bridge, port):
         peer = Peer(port)
         try:
             for pwm in (1540, 1470):

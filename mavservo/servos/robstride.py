@@ -337,16 +337,20 @@ class Robstride(ServoProfile):
         return []
 
     def startup_frames(self) -> list[can.Message]:
-        """Clear faults (stop), position mode, the motor's own timeout, the report period, the
-        speed limit, active reporting on, enable (the manual's CSP sequence).
+        """Private protocol, in two steps (the manual's CSP sequence): first clear faults
+        (stop), position mode, the motor's own timeout, the report period, the speed limit,
+        active reporting on; then, at the next start-up (the scheduler's retry: the motor
+        reports reset mode), the enable alone.
 
-        On the wire the enable (type 3) wins arbitration over the stop (type 4) and the
-        parameter writes (0x12) queued with it: an adapter with several frames waiting sends
-        it first, and the stop after it leaves the motor stopped (reset mode). So when the
-        latest feedback says reset mode without a fault while its active reports still come
-        (the motor kept its settings; its own timeout or that reordering stopped it), the
-        start-up is just the enable. A power-cycled motor has its reports off, a faulted one
-        needs the clear: both get the full one."""
+        Why two: on the wire the enable (type 3) wins arbitration over the stop (type 4) and
+        the parameter writes (0x12) queued with it. Sent in one burst, an adapter with several
+        frames waiting sends it first: the run-mode write then finds the motor running and is
+        refused (the manual: change modes only when stopped), and the motor runs in operation
+        control mode, ignoring every position. So the enable is sent alone, once the latest
+        feedback says reset mode without a fault while the active reports still come (the
+        motor has its settings). The same rule re-enables a motor its own timeout stopped; a
+        power-cycled motor (reports off) or a faulted one (a clear is due) gets the first step
+        again."""
         self._startup_due = False
         hz = self.telemetry_hz or DEFAULT_REPORT_HZ
         timeout = struct.pack("<I", self.options.comm_timeout_ms * CAN_TIMEOUT_UNITS_PER_MS)
@@ -363,6 +367,7 @@ class Robstride(ServoProfile):
         if self._clean_reset and self._reports_coming(hz):
             return [enable]
         speed = struct.pack("<f", math.radians(max(self._speed_dps, 1e-3)))
+        self._startup_due = True  # the enable follows at the next start-up
         return [
             self.private_frame(TYPE_STOP, b"\x01" + bytes(7)),
             self.param_write(PARAM_RUN_MODE, bytes([RUN_MODE_CSP])),
@@ -370,7 +375,6 @@ class Robstride(ServoProfile):
             self.param_write(PARAM_EPSCAN_TIME, report),
             self.param_write(PARAM_LIMIT_SPD, speed),
             self.private_frame(TYPE_REPORT, bytes([1, 2, 3, 4, 5, 6, 1, 0])),
-            enable,
         ]
 
     def _reports_coming(self, hz: float) -> bool:
