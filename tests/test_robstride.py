@@ -536,3 +536,21 @@ def test_start_up_survives_arbitration_on_the_bus() -> None:
     play([*retry, profile.position_command(20.0, 360.0)], 1.0, 2.0)
     assert sim.enabled and not profile.needs_startup()
     assert sim.position_deg == pytest.approx(20.0, abs=0.5)
+
+
+def test_a_report_between_a_command_and_its_answer_is_a_push_not_a_late_answer() -> None:
+    """The scheduler owes the command an answer (type 2, key "feedback"); an active report
+    (type 0x18, key "report") arriving first is a push, and the answer still matches."""
+    from mavservo.scheduling.core import ScheduleCore, ServoSpec, TimingConfig
+
+    profile = Robstride(1)
+    core = ScheduleCore([ServoSpec("hip", profile)], TimingConfig(), start=0.0)
+    core.submit("hip", 10.0, "test", 0.0)
+    for out in core.step(0.0).frames:  # the set-up step and the command, each answered
+        assert core.on_reply("hip", 0.001, profile.exchange_key(out.msg)).kind is not None
+    core.submit("hip", 20.0, "test", 0.1)
+    assert [o.kind for o in core.step(0.1).frames] == ["command"]
+    report = ext(0x188001FD, "7fff7fff7fff00fa")
+    answer = ext(0x028001FD, "7fff7fff7fff00fa")
+    assert core.on_reply("hip", 0.1005, profile.exchange_key(report)).kind is None
+    assert core.on_reply("hip", 0.101, profile.exchange_key(answer)).kind == "command"
