@@ -587,6 +587,7 @@ class RobstrideDevice:
             PARAM_LIMIT_SPD: 2.0,
         }
         self.reporting = False
+        self.last_report: float | None = None
         self.last_frame_time: float | None = None
         self.latched = NO_FAULT
         """Faults that stopped the motor: shown until a stop with the clear flag."""
@@ -698,10 +699,18 @@ class RobstrideDevice:
             self.motor.disable(now)
 
     def status(self, now: float) -> list[can.Message]:
-        """An active report when reporting is on. The simulation calls this at the servo's
-        ``telemetry_hz``, the rate the profile programs as EPScan_time (on its 5 ms grid)."""
+        """An active report when reporting is on and its period (EPScan_time) has passed.
+        The simulation calls this at the servo's ``telemetry_hz``, the rate the profile
+        programs (on the 5 ms grid, never slower); a simulation that calls faster (a bench's
+        default rate) gets the reports at the programmed period, as from the real motor."""
         self.tick(now)
-        return [self.feedback(TYPE_REPORT)] if self.reporting else []
+        if not self.reporting:
+            return []
+        period = report_period_s(int(self.params[PARAM_EPSCAN_TIME]))
+        if self.last_report is not None and now - self.last_report < period * 0.999:
+            return []
+        self.last_report = now
+        return [self.feedback(TYPE_REPORT)]
 
     def feedback(self, comm_type: int) -> can.Message:
         """A feedback frame (type 2, or a type 0x18 report) of the motor's present state."""
