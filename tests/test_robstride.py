@@ -554,3 +554,33 @@ def test_a_report_between_a_command_and_its_answer_is_a_push_not_a_late_answer()
     answer = ext(0x028001FD, "7fff7fff7fff00fa")
     assert core.on_reply("hip", 0.1005, profile.exchange_key(report)).kind is None
     assert core.on_reply("hip", 0.101, profile.exchange_key(answer)).kind == "command"
+
+
+RIG = """
+can: {buses: [{name: bus0, interface: virtual, channel: rs}]}
+servos:
+  - {name: a, profile: robstride, can_id: 1, limits_deg: [-90, 90], options: A_OPTIONS}
+  - {name: b, profile: robstride, can_id: 2, limits_deg: [-90, 90], options: B_OPTIONS}
+  - {name: c, profile: robstride, can_id: 3, limits_deg: [-90, 90], options: {protocol: mit}}
+  - {name: d, profile: damiao-dm, can_id: 4, limits_deg: [-90, 90], options: {master_id: 0x7D}}
+channels: []
+"""
+
+
+def test_check_finds_collisions_through_the_masked_ids() -> None:
+    """The motor's answers keep fault and mode bits in the id (masked out): motor 1 answering
+    host 2 sends what motor 2 with host 1 is sent (type 0x18), and an MIT motor answering on
+    the standard host id 0x7D names itself in byte 0 as Damiao motor 4 does on its master id
+    0x7D (low nibble); the defaults do not clash."""
+    from mavservo.config import ConfigError, load_config_text
+
+    fine = RIG.replace("A_OPTIONS", "{}").replace("B_OPTIONS", "{}")
+    assert len(load_config_text(fine, "rig.yaml").servos) == 4
+    crossed = RIG.replace("A_OPTIONS", "{host_id: 2}").replace("B_OPTIONS", "{host_id: 1}")
+    with pytest.raises(ConfigError, match="servo 'b' \\(robstride id 2\\) collides"):
+        load_config_text(crossed, "rig.yaml")
+    shared = fine.replace("can_id: 3", "can_id: 20").replace(
+        "{protocol: mit}", "{protocol: mit, host_id: 0x7D}"
+    )  # byte 0 = 0x14: Damiao's motor 4 names itself by the low nibble only
+    with pytest.raises(ConfigError, match="collides"):
+        load_config_text(shared, "rig.yaml")
