@@ -38,7 +38,13 @@ silence: :meth:`Robstride.diagnose` recognises the other protocol's frames from 
 
 Range policy: an angle outside the model's position range (+-4 pi rad: what the feedback can
 express) raises ``ValueError`` before anything is built; speed limits saturate at the model's
-velocity range. MIT mode takes no speed limit (the gains shape the motion).
+velocity range. The speed limit is a parameter of its own (limit_spd), not part of the
+position write: it goes with the set-up step of the start-up, from the latest limit a command
+asked for (the servo's ``max_speed_dps``, constant per servo). MIT mode takes no speed limit
+(the gains shape the motion).
+
+Assumed where the manual is silent: the switch-on frame for active reporting is answered with
+one report (the manual's answer table for type 0x18 is the report itself).
 """
 
 from __future__ import annotations
