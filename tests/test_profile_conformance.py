@@ -30,12 +30,16 @@ def _claimed_by(frame: can.Message, ids: tuple[FrameId, ...], direction: str) ->
 
 
 def _started(name: str, can_id: int) -> tuple[ServoProfile, SimServo]:
-    """A profile and its simulated servo after the start-up frames went out."""
+    """A profile and its simulated servo after the start-up frames went out, again while the
+    profile asks for them, as the scheduler does (Robstride enables in a second step)."""
     profile = registry.get_profile(name)(can_id)
     sim = SimServo(name, can_id, seed=1, reply_latency_s=0.0)
-    for frame in profile.startup_frames():
-        for _, reply in sim.receive(frame, 0.0):
-            profile.decode(reply, 0.0)
+    for _ in range(3):
+        for frame in profile.startup_frames():
+            for _, reply in sim.receive(frame, 0.0):
+                profile.decode(reply, 0.0)
+        if not profile.needs_startup():
+            break
     return profile, sim
 
 

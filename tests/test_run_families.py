@@ -1,7 +1,7 @@
 """``mavservo run`` on the family example configs (Damiao DM-J, CubeMars AK in MIT mode,
-ODrive), on the built-in simulation as a user starts it: the simulated autopilot drives the
-servos, they follow, telemetry comes back, nothing is lost, and the configs pass ``mavservo
-check``."""
+ODrive, Robstride), on the built-in simulation as a user starts it: the simulated autopilot
+drives the servos, they follow, telemetry comes back, nothing is lost, and the configs pass
+``mavservo check``."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from test_run_cli import REPO, assert_positions_followed, read_trace, run_mavser
 
 from mavservo.config import load_config
 
-FAMILY_CONFIGS = ["damiao.yaml", "cubemars-mit.yaml", "odrive.yaml"]
+FAMILY_CONFIGS = ["damiao.yaml", "cubemars-mit.yaml", "odrive.yaml", "robstride.yaml"]
 
 
 @pytest.mark.parametrize("config_name", FAMILY_CONFIGS)

@@ -261,8 +261,11 @@ def test_reported_position_is_within_the_profile_resolution(position, name):
     if requests:
         [(due, reply)] = servo.receive(requests[0], 0.0)
         state = profile.decode(reply, due)
-    else:  # push-style: the first status push after arming the timer, decoded whole (ODrive
-        # adds its heartbeat to the position, DroneCAN's Status spans two frames)
+    else:  # push-style: started (a Robstride reports once told to), then the first push after
+        # arming the timer, decoded whole (ODrive adds its heartbeat, DroneCAN's Status spans two
+        # frames)
+        for frame in profile.startup_frames():
+            servo.receive(frame, 0.0)
         servo.poll(0.0)
         states = [profile.decode(frame, due) for due, frame in servo.poll(1.0)]
         state = next((s for s in reversed(states) if s is not None), None)

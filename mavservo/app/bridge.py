@@ -256,6 +256,7 @@ class Bridge:
                 name=bus_cfg.name,
                 node_options=node_options,
             )
+            scheduler.on_event = self._event
             self.schedulers[bus_cfg.name] = scheduler
             for spec in specs:
                 sinks[spec.name] = scheduler

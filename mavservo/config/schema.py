@@ -436,7 +436,9 @@ class ServoConfig(StrictModel):
 
     def make_profile(self) -> ServoProfile:
         """A profile instance for this servo: its id and options."""
-        return get_profile(self.profile)(self.can_id, self.profile_options())
+        profile = get_profile(self.profile)(self.can_id, self.profile_options())
+        profile.telemetry_hz = self.telemetry_hz
+        return profile
 
     @model_validator(mode="after")
     def _angles_inside_limits(self) -> ServoConfig:

@@ -935,7 +935,12 @@ class ScheduleCore:
             timed = expectation.kind in ("command", "refresh")
             latency = t - expectation.t_tx if timed else None
             return ReplyMatch(expectation.kind, expectation.t_tx, latency, back_online)
-        if slot.expected or slot.poll_period is not None or slot.spec.profile.replies_per_request:
+        outstanding = bool(slot.expected)
+        if outstanding and key is not None and slot.spec.profile.telemetry == "pushed":
+            # a push the profile tells apart (Robstride's active reports) while only answers
+            # of another kind are due: a push, not a late answer
+            outstanding = any(e.key is None or e.key == key for e in slot.expected)
+        if outstanding or slot.poll_period is not None or slot.spec.profile.replies_per_request:
             # none of its kind outstanding, or this servo only speaks when asked: an unmatched
             # reply came after its timeout. (A push-style servo, no requests, also pushes
             # between commands: not late.)

@@ -46,7 +46,7 @@ from mavservo.scheduling.core import (
     exchange_key,
 )
 from mavservo.scheduling.outage_log import LateReplies, Line, OnlineLog
-from mavservo.servos.base import BusNode, Fault, ServoState
+from mavservo.servos.base import BusNode, Fault, ServoProfile, ServoState
 
 from .bus_nodes import BusNodes
 from .busload import message_bits
@@ -232,6 +232,18 @@ class Scheduler:
         self._online_log = OnlineLog()
         self._late_replies = LateReplies(self.timing.reply_timeout_s)
         self.realtime_status = "not requested"
+        self.on_event: Callable[[str], None] | None = None
+        """Where advice about a servo goes besides the log (the bridge: console, event list
+        and STATUSTEXT); called from the scheduler's threads, must not block."""
+        self._advised: set[str] = set()
+        """Servos whose :meth:`_advise` line went out (once per servo and run)."""
+        self._diagnosing = [
+            (spec.name, spec.profile)
+            for spec in servos
+            if type(spec.profile).diagnose is not ServoProfile.diagnose
+        ]
+        """Servos whose profile can say whose an unclaimed frame is (a foreign node's flood
+        costs nothing for the others)."""
         self.spin_s = self.timing.spin_s
         """The spin the runner actually uses (``fifo_spin_s`` once it runs real-time)."""
         for warning in self._core.warnings:
@@ -594,6 +606,7 @@ class Scheduler:
         now = self._clock()
         offline_states: list[tuple[str, ServoState]] = []
         lines: list[Line] = []
+        advice: list[tuple[str, str]] = []
         with self._lock:
             decision = self._core.step(now)
             metrics = self._metrics
@@ -610,6 +623,12 @@ class Scheduler:
                 metrics.servos[servo].timed_out += 1
             dropped = dict(decision.dropped)
             for servo in decision.went_offline:
+                sent = self._metrics.servos[servo].lifecycle_sent
+                sent += self._metrics.servos[servo].commands_sent
+                if sent and servo not in self._states:  # spoken to, never heard: what to check
+                    hint = self._specs[servo].profile.silence_hint()
+                    if hint is not None:
+                        advice.append((servo, hint))
                 more, state = self._go_offline(servo, "no reply", dropped.get(servo), now)
                 lines += more
                 if state is not None:
@@ -618,9 +637,38 @@ class Scheduler:
         for servo in decision.lost:
             self._notify_observer(self._observer.on_lost, self.name, servo, now)
         self._log(lines)
+        for servo, text in advice:
+            self._advise(servo, text)
         for servo, state in offline_states:
             self._notify_subscribers(servo, state)
         return decision
+
+    def _advise(self, servo: str, text: str) -> None:
+        """Say once per servo why it is not heard (a wrong protocol, host id, id...): a WARNING
+        and ``on_event`` (STATUSTEXT through the bridge). Users of other tools lose hours to a
+        motor that answers in a protocol the host does not speak."""
+        with self._lock:
+            if servo in self._advised:
+                return
+            self._advised.add(servo)
+        text = f"servo {servo}: {text}"
+        log.warning("scheduler %s: %s", self.name, text)
+        on_event = self.on_event
+        if on_event is not None:
+            try:
+                on_event(text)
+            except Exception:  # noqa: BLE001 - an observer must not stop the loop
+                log.exception("scheduler %s: on_event failed", self.name)
+
+    def _diagnose(self, msg: can.Message) -> None:
+        """A frame no servo claims: ask each servo not yet advised whether it is its own in
+        another form (:meth:`ServoProfile.diagnose`)."""
+        for name, profile in self._diagnosing:
+            if name in self._advised:
+                continue
+            text = profile.diagnose(msg)
+            if text is not None:
+                self._advise(name, text)
 
     def _send_all(self, decision: Decision) -> None:
         slot_marked = decision.command_slot is None
@@ -786,6 +834,8 @@ class Scheduler:
             (name for name, spec in self._specs.items() if spec.profile.is_reply(msg)), None
         )
         if servo is None:
+            if not msg.is_error_frame:
+                self._diagnose(msg)
             return None
         profile = self._specs[servo].profile
         state = profile.decode(msg, t)

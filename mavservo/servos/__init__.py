@@ -26,6 +26,7 @@ from .dronecan import DroneCanServo
 from .odrive import ODrive
 from .registry import PROFILES, UnknownProfileError, get_profile, load_errors, profiles
 from .rmdx import LkTech, RmdX
+from .robstride import Robstride
 
 __all__ = [
     "NO_FAULT",
@@ -41,6 +42,7 @@ __all__ = [
     "ODrive",
     "ProfileOptions",
     "RmdX",
+    "Robstride",
     "ServoProfile",
     "ServoState",
     "SimDevice",

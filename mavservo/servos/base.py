@@ -335,6 +335,23 @@ class ServoProfile(ABC):
         """True after a decoded reply says the servo is disabled or timed out by itself."""
         return False
 
+    telemetry_hz: float | None = None
+    """The servo's configured ``telemetry_hz`` (None: not configured, e.g. a bare instance),
+    set by the config when it builds the profile: a pushed family that programs its servo's
+    own report period at start-up (Robstride's EPScan_time) takes the rate from here."""
+
+    def diagnose(self, msg: can.Message) -> str | None:
+        """Why ``msg``, a frame no servo of the bus claims, looks like this servo's in a form
+        it is not configured for (another protocol, another host id), as advice naming the
+        option to change; None (the default) when it does not. Called for unclaimed frames
+        until the first advice; the scheduler logs it and announces it once."""
+        return None
+
+    def silence_hint(self) -> str | None:
+        """The likely causes to name when this servo goes offline without ever having
+        answered (wrong protocol, id, bitrate); None (the default): nothing to add."""
+        return None
+
     def release_frames(self) -> list[can.Message]:
         """Motor off (torque free): what ``failsafe: release`` sends. Empty: cannot release."""
         return []

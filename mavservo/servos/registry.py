@@ -27,6 +27,7 @@ from .damiao import DamiaoDM
 from .dronecan import DroneCanServo
 from .odrive import ODrive
 from .rmdx import LkTech, RmdX
+from .robstride import Robstride
 
 ENTRY_POINT_GROUP = "mavservo.profiles"
 BUILT_IN: tuple[type[ServoProfile], ...] = (
@@ -37,6 +38,7 @@ BUILT_IN: tuple[type[ServoProfile], ...] = (
     DamiaoDM,
     ODrive,
     DroneCanServo,
+    Robstride,
 )
 PLUGIN_HINT = (
     f"plug-in profiles come from installed packages' {ENTRY_POINT_GROUP!r} entry points "
