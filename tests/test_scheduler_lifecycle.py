@@ -206,3 +206,51 @@ def test_a_refused_release_goes_again_at_the_next_command_slot_not_in_a_tight_lo
     assert core.next_deadline(100.011) > 100.02  # no tight retry loop
     assert core.step(100.02).frames == []
     assert frames(run_answered(core, 100.0 + T_C)) == [("s1", "lifecycle", 0x80)]
+
+
+def test_a_split_start_up_sends_its_second_step_at_the_next_slot_once() -> None:
+    """Robstride's start-up is two steps (set-up, then the enable alone, so that arbitration
+    cannot put the enable first). The enable goes at the first command slot after the motor's
+    answers and reports say it is set up, not a retry interval later: the motor would ignore a
+    second of commands. Only one early step per start-up: a motor that still is not running
+    gets the next start-up at the retry interval, as every family does."""
+    from mavservo.servos import Robstride
+
+    def report(mode: int, t: float) -> None:  # an active report (type 0x18) from motor 1
+        msg = can.Message(
+            arbitration_id=0x18 << 24 | mode << 22 | 1 << 8 | 0xFD,
+            is_extended_id=True,
+            data=bytes.fromhex("7fff7fff7fff00fa"),
+        )
+        assert profile.decode(msg, t) is not None
+
+    profile = Robstride(1)
+    profile.telemetry_hz = 20.0
+    core = core_with(ServoSpec("hip", profile, telemetry_hz=20.0))
+    run(core, 100.0)
+    enable = (0x0300FD01, True)
+
+    def lifecycle(decision: Decision) -> list[tuple[int, bool]]:
+        return [
+            (out.msg.arbitration_id, bool(out.msg.is_extended_id))
+            for out in decision.frames
+            if out.kind == "lifecycle"
+        ]
+
+    core.submit("hip", 5.0, "test", t=100.01)
+    first = run(core, 100.0 + T_C)
+    assert len(lifecycle(first)) == 6 and enable not in lifecycle(first)
+    report(0, 100.0 + 1.2 * T_C)  # reset mode, no fault, reports coming
+    report(0, 100.0 + 1.8 * T_C)
+    core.submit("hip", 5.5, "test", t=100.0 + 1.9 * T_C)
+    second = run(core, 100.0 + 2 * T_C)
+    assert lifecycle(second) == [enable]  # one slot later, well inside STARTUP_RETRY_S
+    report(0, 100.0 + 2.5 * T_C)  # still reset mode: the enable did not take
+    report(0, 100.0 + 2.9 * T_C)
+    for k in range(3, int(STARTUP_RETRY_S / T_C) + 2):  # slots up to the retry interval
+        now = 100.0 + k * T_C
+        core.submit("hip", 5.0 + k / 10, "test", t=now - 0.01)
+        decision = run(core, now)
+        if now - (100.0 + 2 * T_C) < STARTUP_RETRY_S:
+            assert lifecycle(decision) == [], f"early start-up again at slot {k}"
+        report(0, now + 0.4 * T_C)

@@ -319,6 +319,8 @@ class _ServoSlot:
     """Its start-up frames went out since the schedule began, it came back online, or it was
     released (module docstring)."""
     last_startup: float = -math.inf
+    continued: bool = False
+    """The early next step of its latest start-up went (``ServoProfile.startup_continues``)."""
     release_due: float | None = None
     """When its release frames go out (None: none pending): at once after ``release``, at the
     next command slot after the bus refused them."""
@@ -636,10 +638,12 @@ class ScheduleCore:
     def _start_up_if_needed(self, slot: _ServoSlot, now: float, decision: Decision) -> None:
         """Put the servo's start-up frames before its command when they are due."""
         profile = slot.spec.profile
-        if now - slot.last_startup < STARTUP_RETRY_S:
+        early = slot.started and not slot.continued and profile.startup_continues()
+        if now - slot.last_startup < STARTUP_RETRY_S and not early:
             return  # the budget counts start-ups at this rate: it is a ceiling
         if slot.started and not profile.needs_startup():
             return
+        slot.continued = early  # one early step per start-up; a retry starts over
         slot.started = True
         slot.last_startup = now
         decision.frames += self._lifecycle(slot, profile.startup_frames(), "startup", now)

@@ -335,6 +335,15 @@ class ServoProfile(ABC):
         """True after a decoded reply says the servo is disabled or timed out by itself."""
         return False
 
+    def startup_continues(self) -> bool:
+        """True when the last start-up was a first step whose next step (asked for with
+        :meth:`needs_startup`) may go at the next command slot instead of after the scheduler's
+        retry interval: a start-up that must be split in two so that CAN arbitration cannot
+        reorder it (Robstride: the enable after the mode write) then costs one command slot, not
+        a second of commands the motor ignores. The scheduler allows one such early step per
+        start-up. Default: False."""
+        return False
+
     telemetry_hz: float | None = None
     """The servo's configured ``telemetry_hz`` (None: not configured, e.g. a bare instance),
     set by the config when it builds the profile: a pushed family that programs its servo's

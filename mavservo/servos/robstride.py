@@ -345,8 +345,8 @@ class Robstride(ServoProfile):
     def startup_frames(self) -> list[can.Message]:
         """Private protocol, in two steps (the manual's CSP sequence): first clear faults
         (stop), position mode, the motor's own timeout, the report period, the speed limit,
-        active reporting on; then, at the next start-up (the scheduler's retry: the motor
-        reports reset mode), the enable alone.
+        active reporting on; then, once the motor's answers say reset mode and its
+        reports come, the enable alone, at the next command slot (:meth:`startup_continues`).
 
         Why two: on the wire the enable (type 3) wins arbitration over the stop (type 4) and
         the parameter writes (0x12) queued with it. Sent in one burst, an adapter with several
@@ -392,6 +392,12 @@ class Robstride(ServoProfile):
 
     def needs_startup(self) -> bool:
         return self._startup_due
+
+    def startup_continues(self) -> bool:
+        """The enable alone is what the next start-up sends (the set-up step is answered and
+        the reports come): it goes at the next command slot, not a retry interval later."""
+        hz = self.telemetry_hz or DEFAULT_REPORT_HZ
+        return self.private and self._startup_due and self._clean_reset and self._reports_coming(hz)
 
     def release_frames(self) -> list[can.Message]:
         """Stop: torque off, reset mode."""
