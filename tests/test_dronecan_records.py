@@ -99,3 +99,48 @@ def test_the_bridges_fan_out_passes_writes_on_to_observers_that_take_them() -> N
     _FanOut(Old(), tracer).on_written("bus0", 1.5, "command", "s1", 3)  # type: ignore[arg-type]
     tracer.close_open()
     assert tracer.summary()["stages"]["tx"]["n"] == 1
+
+
+def test_a_two_frame_status_is_one_state_in_the_trace_and_ends_the_round_trip_at_its_end(
+    tmp_path: Path,
+) -> None:
+    """A Status transfer is two frames: the CAN log has both, ``trace.csv`` one state (as
+    ``metrics.json``'s state intervals count one), and the latency's round trip ends at the
+    last frame, when the report is whole (before, the first frame made a state row of the old
+    values and ended the round trip early)."""
+    import math
+
+    import dronecan
+    from dronecan.transport import Transfer
+
+    runlog = RunLog(tmp_path, formats=("asc",), tlog=False)
+    status = dronecan.uavcan.equipment.actuator.Status(
+        actuator_id=1, position=0.5, force=math.nan, speed=0.0, power_rating_pct=0
+    )
+    transfer = Transfer(transfer_id=0, source_node_id=11, payload=status)
+    frames = [
+        can.Message(arbitration_id=f.message_id, is_extended_id=True, data=bytes(f.bytes))
+        for f in transfer.to_frames()
+    ]
+    assert len(frames) == 2
+    with can.Bus(interface="virtual", channel=f"dronecan-status-{id(tmp_path)}") as bus:
+        scheduler = Scheduler(
+            bus,
+            [ServoSpec("s0", DroneCanServo(11, actuator_id=1), telemetry_hz=0)],
+            observer=runlog,
+            name="bus0",
+        )
+        runlog.on_setpoint("s0", 1, 10.0, "test", 1.0)
+        runlog.on_written("bus0", 1.1, "command", "s0", 1)
+        scheduler.handle_frame(frames[0], 1.2)
+        scheduler.handle_frame(frames[1], 1.3)
+        runlog.telemetry_sent("s0", 1.4)
+        metrics = scheduler.metrics()
+    runlog.close()
+    assert metrics["servos"]["s0"]["frames"]["received"] == 1
+    rows = list(csv.DictReader((tmp_path / "trace.csv").open()))
+    states = [row for row in rows if row["event"] == "state"]
+    assert len(states) == 1 and float(states[0]["position_deg"]) > 28
+    (trace,) = list(csv.DictReader((tmp_path / LATENCY_FILE).open()))
+    assert float(trace["t_decoded"]) == 1.3
+    assert len([m for m in read_can_log(tmp_path, "asc") if m.is_rx]) == 2

@@ -87,7 +87,9 @@ class _FanOut(SchedulerObserver):
             if hook is not None:
                 hook(bus, t, kind, servo, seq)
 
-    def on_rx(self, bus: str, msg: can.Message, t: float, servo: str, state: ServoState) -> None:
+    def on_rx(
+        self, bus: str, msg: can.Message, t: float, servo: str, state: ServoState | None
+    ) -> None:
         for observer in self.observers:
             observer.on_rx(bus, msg, t, servo, state)
 

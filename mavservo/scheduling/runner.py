@@ -102,8 +102,11 @@ class SchedulerObserver(Protocol):
         every family alike. Optional: an observer without it is not called."""
         return None
 
-    def on_rx(self, bus: str, msg: can.Message, t: float, servo: str, state: ServoState) -> None:
-        """A reply from ``servo`` was decoded into ``state``."""
+    def on_rx(
+        self, bus: str, msg: can.Message, t: float, servo: str, state: ServoState | None
+    ) -> None:
+        """A reply from ``servo`` was decoded into ``state``; None for a frame that starts or
+        continues a multi-frame report (a DroneCAN Status), which is whole at its last frame."""
         return None
 
     def on_lost(self, bus: str, servo: str, t: float) -> None:
@@ -810,7 +813,9 @@ class Scheduler:
         lines: list[Line] = []
         if state is not None and not profile.completes_report(msg):
             # the start of a multi-frame report: logged, but neither a reply nor a new state
-            self._notify_observer(self._observer.on_rx, self.name, msg, t, servo, state)
+            # (state None for the observer: the run log's trace and the latency's round trip
+            # take the report at its last frame, as the metrics do)
+            self._notify_observer(self._observer.on_rx, self.name, msg, t, servo, None)
             return state
         with self._lock:
             servo_metrics = self._metrics.servos[servo]
