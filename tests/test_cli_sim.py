@@ -109,3 +109,68 @@ def test_every_declared_servo_answers_on_the_emulated_adapter(tmp_path: Path):
                 return bool(states)
 
             assert wait_until(answered, timeout=10.0), f"{profile_name}:{can_id} did not answer"
+
+
+def test_sim_gives_each_dronecan_servo_its_own_actuator_id(tmp_path: Path):
+    """``mavservo sim --profile dronecan --servos 3``: actuator ids 1..3 (ArduPilot's
+    numbering), each node following its own entry of one ArrayCommand built by the ``dronecan``
+    package (before, every node was actuator 1 and all three followed the first entry)."""
+    import math
+    import subprocess
+    import sys
+
+    import dronecan
+    from dronecan.transport import Transfer
+
+    from mavservo.servos.dronecan import DroneCanServo
+
+    process = subprocess.Popen(
+        [sys.executable, "-m", "mavservo", "sim", "--profile", "dronecan", "--servos", "3"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert process.stdout is not None and process.stderr is not None
+        path = process.stdout.readline().strip()
+        summary = process.stderr.readline()
+        assert "servos dronecan:1/a1, dronecan:2/a2, dronecan:3/a3" in summary, summary
+        targets = {1: 10.0, 2: -20.0, 3: 30.0}  # degrees, one per actuator id
+        command = dronecan.uavcan.equipment.actuator.ArrayCommand(
+            commands=[
+                dronecan.uavcan.equipment.actuator.Command(
+                    actuator_id=actuator, command_type=1, command_value=math.radians(deg)
+                )
+                for actuator, deg in targets.items()
+            ]
+        )
+        profiles = {n: DroneCanServo(n, actuator_id=n) for n in targets}
+        reached: set[int] = set()
+        with AA55Bus(channel=path) as bus:
+            deadline = time.monotonic() + 20.0
+            tid = 0
+            while reached != set(targets) and time.monotonic() < deadline:
+                transfer = Transfer(transfer_id=tid % 32, source_node_id=100, payload=command)
+                tid += 1
+                for frame in transfer.to_frames():
+                    bus.send(
+                        can.Message(
+                            arbitration_id=frame.message_id,
+                            is_extended_id=True,
+                            data=bytes(frame.bytes),
+                        )
+                    )
+                for _ in range(20):  # bounded: a few Status frames between two commands
+                    message = bus.recv(0.01)
+                    if message is None:
+                        continue
+                    node = message.arbitration_id & 0x7F
+                    if node not in profiles:
+                        continue
+                    state = profiles[node].decode(message, time.monotonic())
+                    if state is not None and abs(state.position_deg - targets[node]) < 1.0:
+                        reached.add(node)
+        assert reached == set(targets)
+    finally:
+        process.terminate()
+        process.wait(10)

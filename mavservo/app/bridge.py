@@ -81,7 +81,15 @@ class _FanOut(SchedulerObserver):
         for observer in self.observers:
             observer.on_tx(bus, msg, t, kind, servo, seq)
 
-    def on_rx(self, bus: str, msg: can.Message, t: float, servo: str, state: ServoState) -> None:
+    def on_written(self, bus: str, t: float, kind: FrameKind, servo: str, seq: int | None) -> None:
+        for observer in self.observers:
+            hook = getattr(observer, "on_written", None)  # optional (the Protocol says so)
+            if hook is not None:
+                hook(bus, t, kind, servo, seq)
+
+    def on_rx(
+        self, bus: str, msg: can.Message, t: float, servo: str, state: ServoState | None
+    ) -> None:
         for observer in self.observers:
             observer.on_rx(bus, msg, t, servo, state)
 

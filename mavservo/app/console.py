@@ -239,6 +239,8 @@ TIMING_COLUMNS: tuple[tuple[str, int, str, str], ...] = (
     ("state p50", 9, "state_interval_s", "p50"),
 )
 SUMMARY_LEGEND = (
+    "  sent = commands, refreshes, requests for the servo (an entry of a shared transfer"
+    " counts one);\n"
     "  recv = every decoded reply, pushed = sent unasked by a push-style servo;"
     " lost = timed out, never came;\n"
     "  late = came after its timeout; L (ms) = frame written -> reply decoded;"
@@ -284,6 +286,7 @@ def format_summary(summary: dict[str, Any]) -> str:
         rejected = transport.get("rejected", {})
         lines.append(
             f"  bus {name}: {load_text(bus.get('load', {}))}, "
+            f"frames written {bus.get('frames_written', 0)}, "
             f"missed command slots {bus.get('missed_command_slots', 0)} "
             f"(late {bus.get('late_command_slots', 0)}, "
             f"longest gap {_ms_unit(bus.get('longest_command_gap_s'))}), "

@@ -7,6 +7,7 @@ validation, so every field here already has the right type.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator
 
 from mavservo.config.schema import (
@@ -108,6 +109,41 @@ def advisories(config: Config) -> list[Finding]:
                 )
             )
     findings += _undriven_servos(config)
+    findings += _keep_alive_past_timeout(config)
+    return findings
+
+
+def longest_command_gap_s(refresh_interval_s: float, command_period_s: float) -> float:
+    """The longest a servo holding one setpoint goes without a command frame: its refresh goes
+    out on the first command slot at least ``refresh_interval_s - command_period_s / 2`` after
+    the last command (``scheduling.core``), so the interval rounded to whole slots."""
+    slots = math.ceil((refresh_interval_s - command_period_s / 2) / command_period_s - 1e-9)
+    return max(1, slots) * command_period_s
+
+
+def _keep_alive_past_timeout(config: Config) -> list[Finding]:
+    """Servos whose own communication timeout or watchdog (``comm_timeout_s`` of their
+    profile) is not longer than the longest gap between the commands that keep them alive:
+    such a servo stops or disarms by itself while it holds a position."""
+    from mavservo.config.budget import profile_of
+
+    sched = config.scheduler
+    gap = longest_command_gap_s(sched.refresh_interval_s, sched.command_period_s)
+    findings: list[Finding] = []
+    for index, servo in enumerate(config.servos):
+        timeout = profile_of(servo).comm_timeout_s()
+        if timeout is None or gap < timeout:
+            continue
+        findings.append(
+            (
+                ("servos", index, "options"),
+                f"servo {servo.name!r} stops by itself after {timeout * 1000:g} ms without a "
+                f"frame (its own communication timeout or watchdog), but holding a setpoint it "
+                f"gets a command only every {gap * 1000:g} ms (scheduler.refresh_interval_s "
+                f"{sched.refresh_interval_s:g} s in {sched.command_period_s:g} s command slots): "
+                "lower scheduler.refresh_interval_s below the timeout, or raise the timeout",
+            )
+        )
     return findings
 
 

@@ -152,6 +152,13 @@ class LatencyTracer:
             if trace is not None and trace.seq == seq and trace.written is None:
                 trace.written = t
 
+    def on_written(self, bus: str, t: float, kind: str, servo: str | None, seq: int | None) -> None:
+        """Every frame carrying the open seq's command is written: marks the write like
+        :meth:`on_tx`, for each command of a packed transfer too (DroneCAN's ArrayCommand carries
+        8 servos' commands in 5 frames; the scheduler ties each frame to one servo for the CAN
+        log, so ``on_tx`` alone left 3 commands without a write). The first mark stands."""
+        self.on_tx(bus, None, t, kind, servo, seq)
+
     def on_rx(self, bus: str, msg: Any, t: float, servo: str | None, state: Any) -> None:
         """First decoded reply after the write closes the round trip."""
         if servo is None or state is None:

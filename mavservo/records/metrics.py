@@ -255,6 +255,10 @@ class ServoMetrics:
     servo's published state is, and what the report's Figs. 4 and 5 draw from trace.csv."""
     command_intervals: PeriodStats = field(init=False)
     commands_sent: int = 0
+    """Commands sent to the servo: one per frame of its own, or one per shared transfer that
+    carried its entry (a DroneCAN ArrayCommand), however many frames that transfer took; the
+    same for refreshes, requests and lifecycle frames. Frames on the wire are the bus's
+    ``SchedulerMetrics.frames_written``."""
     refreshes_sent: int = 0
     requests_sent: int = 0
     lifecycle_sent: int = 0
@@ -354,6 +358,11 @@ class SchedulerMetrics:
         """Longest time between two served command slots (first writes): the bus silence."""
         self.telemetry_ticks = PeriodStats(telemetry_period_s, window)
         self.missed_command_slots = 0
+        self.frames_written = 0
+        """CAN frames the bus took from the scheduler: every servo frame, every frame of a
+        packed transfer (DroneCAN's ArrayCommand: 8 servos' commands, 5 frames), the bus
+        nodes' own frames. The servos' ``frames.sent`` count commands instead, one per servo
+        per transfer, so on a packed bus their sum is above this."""
         self.bus_rejected = 0
         self.load = LoadMeter(bitrate, load_window_s)
         self.info: dict[str, Any] = {}
@@ -376,6 +385,7 @@ class SchedulerMetrics:
             "command_lateness_s": self.command_lateness.summary(),
             "telemetry_tick": self.telemetry_ticks.summary(),
             "missed_command_slots": self.missed_command_slots,
+            "frames_written": self.frames_written,
             "late_command_slots": self.late_command_slots,
             "longest_command_gap_s": self.longest_command_gap_s,
             "bus_rejected": self.bus_rejected,

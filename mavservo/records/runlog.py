@@ -574,6 +574,11 @@ class RunLog:
             )
         )
 
+    def on_written(self, bus: str, t: float, kind: str, servo: str | None, seq: int | None) -> None:
+        """Every command of a write, packed transfers included: the latency's write mark (the
+        CAN log has the frames from ``on_tx``)."""
+        self.latency.on_written(bus, t, kind, servo, seq)
+
     def on_rx(
         self, bus: str, msg: can.Message, t: float, servo: str | None, state: ServoState | None
     ) -> None:

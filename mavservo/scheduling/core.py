@@ -738,7 +738,10 @@ class ScheduleCore:
         decision.missed_slots = skipped
         decision.command_slot = slot_time
         self._next_command_slot = slot_time + t.command_period_s
-        refresh_due = t.refresh_s - t.command_period_s / 2
+        # less a rounding margin: slot times are sums of periods, and a refresh due exactly on a
+        # slot (refresh_interval_s 0.5 s in 0.2 s slots) waited a whole slot more when the sum
+        # came out a hair short (tests/test_check_keep_alive.py)
+        refresh_due = t.refresh_s - t.command_period_s / 2 - 1e-9
         for name in self._order:
             slot = self._slots[name]
             if slot.released or slot.latest is None:

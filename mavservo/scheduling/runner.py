@@ -94,8 +94,19 @@ class SchedulerObserver(Protocol):
         """``bus.send`` returned for ``msg``; ``t`` is the monotonic time just after the write."""
         return None
 
-    def on_rx(self, bus: str, msg: can.Message, t: float, servo: str, state: ServoState) -> None:
-        """A reply from ``servo`` was decoded into ``state``."""
+    def on_written(self, bus: str, t: float, kind: FrameKind, servo: str, seq: int | None) -> None:
+        """Every frame carrying ``servo``'s ``kind`` frame (its ``seq``) is on the wire, the last
+        of them written at ``t``: called once per servo per write, after the frames' ``on_tx``.
+        A packed transfer (DroneCAN's ArrayCommand: 8 servos' commands in 5 frames) has fewer
+        frames than commands, so ``on_tx`` cannot say which commands it wrote; this does, for
+        every family alike. Optional: an observer without it is not called."""
+        return None
+
+    def on_rx(
+        self, bus: str, msg: can.Message, t: float, servo: str, state: ServoState | None
+    ) -> None:
+        """A reply from ``servo`` was decoded into ``state``; None for a frame that starts or
+        continues a multi-frame report (a DroneCAN Status), which is whole at its last frame."""
         return None
 
     def on_lost(self, bus: str, servo: str, t: float) -> None:
@@ -343,10 +354,14 @@ class Scheduler:
                 continue
             t = self._clock()
             with self._lock:
+                self._metrics.frames_written += 1
                 self._account_tx(out, t)
             self._notify_observer(
                 self._observer.on_tx, self.name, out.msg, t, out.kind, out.servo, out.seq
             )
+            written = getattr(self._observer, "on_written", None)
+            if written is not None:
+                self._notify_observer(written, self.name, t, out.kind, out.servo, out.seq)
 
     def __enter__(self) -> Scheduler:
         self.start()
@@ -690,6 +705,7 @@ class Scheduler:
                 lines = [line for servo in back for line in self._online_log.online(servo, t)]
                 for out in outs:
                     self._account_tx(out, t, load=len(msgs) == 1 and len(outs) == 1)
+                self._metrics.frames_written += len(msgs)
                 if len(outs) != 1 or len(msgs) != 1:
                     for msg in msgs:
                         self._metrics.load.add(t, message_bits(msg))
@@ -701,14 +717,18 @@ class Scheduler:
                 log.info("scheduler %s: sends work again: %d failed over %.1f s", self.name, *ended)
             self._log(lines)
             # every frame once in the CAN log, each tied to one servo it carries a command to
-            # (new setpoints first: the run log times their write from it); a packed transfer
-            # has fewer frames than commands, and the commands left over are written with it
+            # (new setpoints first); a packed transfer has fewer frames than commands, so every
+            # command it carries is then reported written, at its last frame's write
             paired = sorted(outs, key=lambda out: out.kind != "command")
             for index, msg in enumerate(msgs):
                 out = paired[min(index, len(paired) - 1)]
                 self._notify_observer(
                     self._observer.on_tx, self.name, msg, t, out.kind, out.servo, out.seq
                 )
+            written = getattr(self._observer, "on_written", None)
+            if written is not None:
+                for out in outs:
+                    self._notify_observer(written, self.name, t, out.kind, out.servo, out.seq)
 
     def _refused(self, out: Outgoing, exc: Exception, now: float) -> None:
         """The bus refused ``out`` (or a frame of the transfer carrying it)."""
@@ -750,6 +770,7 @@ class Scheduler:
                 continue
             t = self._clock()
             with self._lock:
+                self._metrics.frames_written += 1
                 self._metrics.load.add(t, message_bits(msg))
             self._notify_observer(self._observer.on_tx, self.name, msg, t, "lifecycle", "", None)
 
@@ -842,7 +863,9 @@ class Scheduler:
         lines: list[Line] = []
         if state is not None and not profile.completes_report(msg):
             # the start of a multi-frame report: logged, but neither a reply nor a new state
-            self._notify_observer(self._observer.on_rx, self.name, msg, t, servo, state)
+            # (state None for the observer: the run log's trace and the latency's round trip
+            # take the report at its last frame, as the metrics do)
+            self._notify_observer(self._observer.on_rx, self.name, msg, t, servo, None)
             return state
         with self._lock:
             servo_metrics = self._metrics.servos[servo]

@@ -374,6 +374,12 @@ class ServoProfile(ABC):
         heartbeat), which the bus-load budget counts. Default: none."""
         return 0.0
 
+    def comm_timeout_s(self) -> float | None:
+        """The servo's own communication timeout or watchdog as configured (seconds): it
+        stops or disarms by itself after this long without a frame from the bridge. ``check``
+        warns when the keep-alive is not shorter. Default: None, none declared."""
+        return None
+
     @classmethod
     @abstractmethod
     def sim_device(cls, motor: SimMotor, can_id: int, options: ProfileOptions) -> SimDevice:

@@ -89,6 +89,10 @@ class CubeMarsAKMit(ServoProfile):
     def _frame(self, data: bytes) -> can.Message:
         return can.Message(arbitration_id=self.can_id, is_extended_id=False, data=data)
 
+    def comm_timeout_s(self) -> float | None:
+        """The driver's timeout as set with R-Link (``comm_timeout_ms``; 0: none)."""
+        return self.options.comm_timeout_ms / 1000 or None
+
     def position_command(self, angle_deg: float, max_speed_dps: float | None = None) -> can.Message:
         self._check_angle(angle_deg)
         self._speed_limit(max_speed_dps, 0.0)  # validated; MIT mode has no speed limit

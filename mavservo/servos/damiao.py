@@ -152,6 +152,10 @@ class DamiaoDM(ServoProfile):
     def _frame(self, arbitration_id: int, data: bytes) -> can.Message:
         return can.Message(arbitration_id=arbitration_id, is_extended_id=False, data=data)
 
+    def comm_timeout_s(self) -> float:
+        """The TIMEOUT register start-up writes: the motor disables itself past it."""
+        return self.options.comm_timeout_ms / 1000
+
     def position_command(self, angle_deg: float, max_speed_dps: float | None = None) -> can.Message:
         self._check_angle(angle_deg)
         speed = self._speed_limit(max_speed_dps, self.options.default_speed_dps)

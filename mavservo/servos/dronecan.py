@@ -66,6 +66,7 @@ _FEEDBACK = (
     wire.DTID_VOLZ_STATUS,
     wire.DTID_HIMARK_INFO,
 )
+_FEEDBACK_SET = frozenset(_FEEDBACK)
 _COMMANDS_REMEMBERED = 16
 """Recent command frames a profile can name the command of (setpoints waiting for a slot)."""
 PLACEHOLDER_BRIDGE_ID = 127
@@ -131,7 +132,7 @@ class DroneCanServo(ServoProfile):
             self.min_angle_deg, self.max_angle_deg = o.unitless_min_deg, o.unitless_max_deg
         self.bridge_node_id = PLACEHOLDER_BRIDGE_ID
         """The source id of the command frames: set by the bus node that adopts the servo."""
-        self._reassembler = wire.Reassembler()
+        self._reassembler = wire.Reassembler(reuse_payloads=True)  # _apply is done with each
         self._payload: Any = None
         self._sent: dict[bytes, tuple[int, int, float]] = {}
         self._health_faults = NO_FAULT
@@ -226,10 +227,15 @@ class DroneCanServo(ServoProfile):
         return (command, *pushes)
 
     def is_reply(self, msg: can.Message) -> bool:
+        """A message frame from this node (the low byte is the service bit, clear, and the
+        source id) of a feedback type: asked of every servo for every frame, so arithmetic
+        only (``wire.is_message_frame`` and friends, inlined)."""
+        arbitration_id = msg.arbitration_id
         return (
-            wire.is_message_frame(msg)
-            and wire.source_node(msg) == self.can_id
-            and wire.message_dtid(msg) in _FEEDBACK
+            arbitration_id & 0xFF == self.can_id
+            and msg.is_extended_id
+            and not msg.is_remote_frame
+            and (arbitration_id >> 8) & 0xFFFF in _FEEDBACK_SET
         )
 
     def completes_report(self, msg: can.Message) -> bool:

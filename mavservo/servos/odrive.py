@@ -387,6 +387,10 @@ class ODrive(ServoProfile):
     def shutdown_frames(self) -> list[can.Message]:
         return [self.set_axis_state_frame(STATE_IDLE)]
 
+    def comm_timeout_s(self) -> float | None:
+        """The axis watchdog (``watchdog_timeout_s``; 0: off): it disarms the axis past it."""
+        return self.options.watchdog_timeout_s or None
+
     def unsolicited_hz(self) -> float:
         """The heartbeat, and the iq, temperature and bus messages when their rate is set."""
         hz = 1000.0 / self.options.heartbeat_ms

@@ -73,9 +73,19 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--bus", default=None, help="with a mavservo config: the bus to simulate (default: first)"
     )
-    parser.add_argument("--servos", type=int, default=None, help="number of servos (default 1)")
     parser.add_argument(
-        "--ids", type=_ids, default=None, help="servo CAN ids, e.g. 1,2,3 (default 1..--servos)"
+        "--servos",
+        type=int,
+        default=None,
+        help="number of servos (default 1); servos of a profile with actuator ids (dronecan) get "
+        "actuator ids 1..N in --ids order, ArduPilot's numbering (SERVOn -> actuator n); PX4 "
+        "numbers from 0: give such servos in a --config file's simulation.servos options",
+    )
+    parser.add_argument(
+        "--ids",
+        type=_ids,
+        default=None,
+        help="servo CAN ids, e.g. 1,2,3 (default 1..--servos; DroneCAN: the node ids)",
     )
     parser.add_argument(
         "--profile",
@@ -256,6 +266,12 @@ def build_emulator(
         profile = args.profile or "rmd-x"
         ids = args.ids or list(range(1, (args.servos or 1) + 1))
         specs = [{"id": i, "profile": profile} for i in ids]
+        if "actuator_id" in get_profile(profile).Options.model_fields:
+            # servos addressed by actuator id on a shared broadcast (DroneCAN's ArrayCommand):
+            # all on the default id would all follow one command. 1..N in --ids order, the
+            # ArduPilot numbering (SERVOn -> actuator n) config/dronecan.yaml uses too
+            for number, spec in enumerate(specs, start=1):
+                spec["options"] = {"actuator_id": number}
     elif args.profile:
         for spec in specs:
             if spec.get("profile") != args.profile:
@@ -313,6 +329,12 @@ def build_emulator(
     )
 
 
+def _servo_label(servo: SimServo) -> str:
+    """``profile:can_id``, with the actuator id where the profile has one (``dronecan:11/a1``)."""
+    actuator = getattr(servo.options, "actuator_id", None)
+    return f"{servo.profile}:{servo.can_id}" + ("" if actuator is None else f"/a{actuator}")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run until SIGINT, SIGTERM or SIGHUP; exit 0 on a clean stop, 2 on a configuration error.
 
@@ -337,7 +359,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     emulator.start()
     try:
         print(emulator.path, flush=True)
-        servo_list = ", ".join(f"{s.profile}:{s.can_id}" for s in emulator.servos)
+        servo_list = ", ".join(_servo_label(s) for s in emulator.servos)
         source = ""
         if "bus" in section:
             source = f", bus {section['bus']} of {args.config}"
