@@ -336,7 +336,11 @@ class Reassembler:
         if datatype is not None and all(
             isinstance(field.type, (dsdl.PrimitiveType, dsdl.VoidType)) for field in datatype.fields
         ):
-            entry = (datatype, datatype())
+            kept = datatype()
+            # ``_unpack`` is the package's own (private) unpacking: a release without it takes
+            # the public path below instead of failing every transfer
+            if callable(getattr(kept, "_unpack", None)):
+                entry = (datatype, kept)
         if len(cache) < _MAX_PENDING:  # bounded: ids come off the wire
             cache[dtid] = entry
         return entry
