@@ -21,6 +21,7 @@ for the bridge to save.
 
 from __future__ import annotations
 
+from collections import deque
 from typing import Any
 
 import can
@@ -30,6 +31,7 @@ from . import dronecan_wire as wire
 FOLLOWUP_TIMEOUT_S = 0.5
 """``Allocation.FOLLOWUP_TIMEOUT_MS``: a query not continued within this is forgotten."""
 _STAGE_LENGTHS = (6, 6, 4)
+_ALLOCATIONS_KEPT = 64
 _MAX_REGULAR_ID = 125
 """126 and 127 are reserved for tools (the specification's ``MAX_NODE_ID`` for allocation)."""
 
@@ -47,14 +49,25 @@ class AllocationServer:
     ) -> None:
         self.own_id = own_id
         self.configured = dict(configured)
-        self.table: dict[bytes, int] = dict(table or {})
         self.reserved = set(static_ids) | set(configured.values()) | {own_id}
+        self.table: dict[bytes, int] = {}
+        self.dropped: list[tuple[str, int]] = []
+        """Table entries not kept: the table comes from a file anyone may have edited, and an
+        entry with the bridge's id, a servo's, another entry's, or for a configured unique id
+        would hand an id in use to a second node."""
+        for unique_id, node_id in sorted((table or {}).items()):
+            taken = self.reserved | set(self.table.values())
+            if unique_id in self.configured or node_id in taken or not 1 <= node_id <= 125:
+                self.dropped.append((unique_id.hex(), node_id))
+            else:
+                self.table[unique_id] = node_id
         self.first_id = first_id
         self.seen_ids: set[int] = set()
         self.version = 0
         """Bumped whenever :attr:`table` changes (the bridge saves it then)."""
-        self.allocations: list[tuple[str, int]] = []
-        """``(unique id hex, node id)`` handed out, in order (diagnostics, tests)."""
+        self.allocations: deque[tuple[str, int]] = deque(maxlen=_ALLOCATIONS_KEPT)
+        """The latest ``(unique id hex, node id)`` handed out, in order (diagnostics, tests;
+        bounded: a node may ask again and again)."""
         self.ignored = 0
         self._query = b""
         self._query_time = 0.0

@@ -23,7 +23,7 @@ dynamic_node_id.Allocation`` for nodes that start without an id, see :mod:`.dron
 from __future__ import annotations
 
 import re
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Sequence
 from typing import Any, Protocol
 
@@ -34,6 +34,11 @@ from . import dronecan_wire as wire
 from .base import BusNodeError, NodeHealth, ProfileOptions
 
 _HEX32 = re.compile(r"[0-9a-f]{32}")
+GET_NODE_INFO_PER_S = 4
+"""GetNodeInfo answers per second at most (a tool or node monitor asks once per node it
+sees): each answer is about nine frames for a one-frame request, so an unbounded answer rate
+would let any node on the bus fill it with the bridge's traffic. Requests beyond are counted
+(``get_node_info_limited``) and not answered; the asker asks again."""
 _HEALTH = {"ok": wire.HEALTH_OK, "warning": wire.HEALTH_WARNING, "error": wire.HEALTH_ERROR}
 
 
@@ -145,6 +150,7 @@ class BridgeNode:
         self._payloads: dict[int, Any] = {}
         self._reassembler = wire.Reassembler()
         self._queue: list[can.Message] = []
+        self._info_answers: deque[float] = deque(maxlen=GET_NODE_INFO_PER_S)
         self._next_status = start
         self._health = wire.HEALTH_OK
         self.counters: Counter[str] = Counter()
@@ -165,6 +171,12 @@ class BridgeNode:
             self.allocator = AllocationServer(
                 self.node_id, configured, static, options.allocation_first_id, table
             )
+            if self.allocator.dropped:
+                self._notices.append(
+                    f"DroneCAN allocation table: {len(self.allocator.dropped)} entries ignored "
+                    "(an id of the bridge, of a servo or of another entry): "
+                    + ", ".join(f"{uid}={nid}" for uid, nid in self.allocator.dropped[:4])
+                )
 
     @property
     def errors(self) -> Counter[str]:
@@ -303,6 +315,11 @@ class BridgeNode:
             if received is None:
                 return False
             if received.dtid == wire.DTID_GET_NODE_INFO:
+                answers = self._info_answers
+                if len(answers) == answers.maxlen and now - answers[0] < 1.0:
+                    self.counters["get_node_info_limited"] += 1
+                    return False
+                answers.append(now)
                 self._queue += self._node_info_response(received, now)
                 self.counters["get_node_info"] += 1
                 return True

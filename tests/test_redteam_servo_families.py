@@ -1,0 +1,234 @@
+"""Red team of the ODrive CANSimple and DroneCAN families: hostile CAN frames and tables.
+
+Each test is a finding (it failed before its fix) or a regression guard that can fail. Frames
+are built by the ``dronecan`` package (an independent encoder) or packed by hand for ODrive's
+CANSimple; the bridge's parts are the real ones (profiles, bus node, allocator, telemetry).
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from typing import Any
+
+import can
+import dronecan
+import pytest
+from dronecan.transport import Frame, Transfer
+from test_mavlink_robustness import ESC_FROM_1, roundtrip
+from test_mavlink_support import RecordingBackend
+
+from mavservo.mavlink.core import MavlinkCore
+from mavservo.mavlink.settings import MavlinkSettings
+from mavservo.servos import dronecan_wire as wire
+from mavservo.servos.dronecan import DroneCanServo
+from mavservo.servos.dronecan_alloc import AllocationServer
+from mavservo.servos.dronecan_node import BridgeNode, NodeOptions
+from mavservo.servos.odrive import CMD_ENCODER_ESTIMATES, CMD_HEARTBEAT, ODrive, arbitration_id
+
+Allocation = dronecan.uavcan.protocol.dynamic_node_id.Allocation
+
+
+def to_messages(transfer: Transfer) -> list[can.Message]:
+    return [
+        can.Message(arbitration_id=f.message_id, is_extended_id=True, data=bytes(f.bytes))
+        for f in transfer.to_frames()
+    ]
+
+
+def get_node_info_request(source: int, destination: int, tid: int) -> can.Message:
+    transfer = Transfer(
+        transfer_id=tid & 0x1F,
+        source_node_id=source,
+        dest_node_id=destination,
+        payload=dronecan.uavcan.protocol.GetNodeInfo.Request(),
+        request_not_response=True,
+        service_not_message=True,
+        transfer_priority=16,
+    )
+    [msg] = to_messages(transfer)
+    return msg
+
+
+def responses(frames: list[can.Message]) -> int:
+    """Whole GetNodeInfo responses among ``frames`` (one end-of-transfer frame each)."""
+    return sum(
+        1
+        for m in frames
+        if (fields := wire.service_fields(m)) is not None
+        and not fields.request
+        and m.data[-1] & 0x40
+    )
+
+
+def exchange(server: AllocationServer, uid: bytes, now: float, preferred: int = 0) -> int:
+    """The three anonymous Allocation stages; the node id of the last answer (0: none)."""
+    node_id = 0
+    for start, length in ((0, 6), (6, 6), (12, 4)):
+        allocation = Allocation(node_id=preferred, first_part_of_unique_id=start == 0)
+        allocation.unique_id.from_bytes(uid[start : start + length])
+        [msg] = to_messages(
+            Transfer(transfer_id=0, source_node_id=0, payload=allocation, discriminator=7)
+        )
+        received = wire.Reassembler().push(msg, now)
+        assert received is not None
+        if not server.receive(received, now):
+            return 0
+        transfer = Transfer()
+        transfer.from_frames([Frame(m.arbitration_id, bytes(m.data)) for m in server.due(now)])
+        node_id = int(transfer.payload.node_id)
+    return node_id
+
+
+# ----------------------------------------------------------------------------- GetNodeInfo
+def test_a_get_node_info_flood_is_answered_at_a_bounded_rate_and_counted() -> None:
+    """Finding: every request was answered (one frame in, ~9 frames out): a stranger could fill
+    the bus with the bridge's answers. Now a bounded number per second, the rest counted."""
+    node = BridgeNode([DroneCanServo(11)], NodeOptions(node_id=100), (0, 1), 0.0)
+    node.due(0.0, "ok")
+    out: list[can.Message] = []
+    for i in range(200):
+        node.receive(get_node_info_request(1 + i % 120, 100, i), 1.0 + i * 0.001)
+        out += node.due(1.0 + i * 0.001, "ok")
+    answered = responses(out)
+    assert 1 <= answered <= 8
+    assert node.counters["get_node_info"] == answered
+    assert node.counters["get_node_info_limited"] == 200 - answered
+    # a tool asking once a second later is answered again
+    node.receive(get_node_info_request(42, 100, 1), 3.0)
+    assert responses(node.due(3.0, "ok")) == 1
+
+
+# ------------------------------------------------------------------------------ allocation
+UID_A = bytes(range(0x10, 0x20))
+UID_B = bytes(range(0x30, 0x40))
+
+
+def test_a_hostile_table_never_hands_out_the_bridges_or_a_servos_id() -> None:
+    """Finding: the table (from the file next to the config) was trusted as is: an entry with
+    the bridge's node id, a servo's, or one id for two unique ids was handed out again."""
+    servos = [DroneCanServo(20, actuator_id=1)]
+    table = {UID_A.hex(): 100, UID_B.hex(): 20, bytes(16).hex(): 7, bytes([1] * 16).hex(): 7}
+    node = BridgeNode(
+        servos, NodeOptions(node_id=100, allocator=True, allocation_table=table), (0, 1), 0.0
+    )
+    server = node.allocator
+    assert exchange(server, UID_A, 1.0) not in (0, 100, 20)
+    assert exchange(server, UID_B, 2.0) not in (0, 100, 20)
+    ids = [exchange(server, bytes(16), 3.0), exchange(server, bytes([1] * 16), 4.0)]
+    assert len(set(ids)) == 2 and 0 not in ids
+    assert any("allocation table" in n for n in node.take_notices())
+
+
+def test_repeated_allocations_keep_memory_bounded() -> None:
+    """Finding: every completed exchange was appended to a diagnostics list forever."""
+    server = AllocationServer(100, {}, set(), 125)
+    for i in range(300):
+        assert exchange(server, UID_A, float(i)) == 125
+    assert len(server.allocations) <= 64
+    assert len(server.table) == 1
+
+
+def test_an_allocation_flood_of_new_unique_ids_stops_at_the_free_ids() -> None:
+    """Guard: strangers asking with ever new unique ids exhaust the pool, never the bridge's
+    or a servo's id, and the table stays bounded by the ids there are."""
+    server = AllocationServer(100, {UID_A: 20}, {21}, 125)
+    handed = [exchange(server, i.to_bytes(16, "big"), float(i)) for i in range(1, 140)]
+    given = [h for h in handed if h]
+    assert len(given) == len(set(given)) == 125 - 3
+    assert not {20, 21, 100} & set(given)
+    assert len(server.table) == len(given)
+    assert exchange(server, UID_A, 500.0) == 20  # the configured servo still gets its id
+
+
+# ---------------------------------------------------------------------------- reassembly
+def test_a_flood_of_unfinished_multi_frame_starts_keeps_the_reassembler_bounded() -> None:
+    """Guard: start frames that never finish, from every source and transfer id."""
+    node = BridgeNode([DroneCanServo(11)], NodeOptions(node_id=100), (0, 1), 0.0)
+    servo = DroneCanServo(11)
+    for i in range(20_000):
+        start = bytes(7) + bytes([0x80 | (i & 0x1F)])
+        service = 1 << 7 | 1 << 15 | 100 << 8 | (1 + i // 32 % 127)
+        node.receive(can.Message(arbitration_id=service | i % 4 << 16, data=start), 1.0)
+        status = wire.message_id(wire.DTID_ACTUATOR_STATUS, 11, i % 32)
+        start = bytes(7) + bytes([0x80 | (i // 32 & 0x1F)])
+        servo.decode(can.Message(arbitration_id=status, data=start), 1.0)
+    for reassembler in (node._reassembler, servo._reassembler):
+        assert len(reassembler._pending) <= 64
+        assert reassembler.errors["expired"] > 0
+
+
+def test_toggle_and_crc_errors_from_a_servo_are_counted_and_not_a_state() -> None:
+    """Guard: a corrupted Status transfer is counted by reason and leaves the state alone."""
+    servo = DroneCanServo(11)
+    status = dronecan.uavcan.equipment.actuator.Status(
+        actuator_id=1, position=0.5, force=0, speed=0, power_rating_pct=0
+    )
+    first, last = to_messages(Transfer(transfer_id=3, source_node_id=11, payload=status))
+    bad_crc = bytearray(first.data)
+    bad_crc[0] ^= 0xFF
+    assert servo.decode(can.Message(arbitration_id=first.arbitration_id, data=bad_crc), 1.0)
+    assert servo.decode(last, 1.0) is None
+    bad_toggle = bytearray(last.data)
+    bad_toggle[-1] ^= 0x20
+    servo.decode(first, 2.0)
+    assert (
+        servo.decode(can.Message(arbitration_id=last.arbitration_id, data=bad_toggle), 2.0) is None
+    )
+    assert servo.errors["crc"] == 1 and servo.errors["toggle"] == 1
+    state = servo.last_state
+    assert state is None or math.isnan(state.position_deg)
+
+
+def test_a_stranger_on_the_bridges_node_id_is_counted_and_reported() -> None:
+    """Guard: another node claiming the bridge's node id."""
+    node = BridgeNode([DroneCanServo(11)], NodeOptions(node_id=100), (0, 1), 0.0)
+    status = wire.node_status(5, wire.HEALTH_OK, wire.MODE_OPERATIONAL)
+    for t in range(5):
+        for msg in to_messages(Transfer(transfer_id=t, source_node_id=100, payload=status)):
+            node.receive(msg, float(t))
+    assert node.counters["node_id_conflict"] == 5
+    assert len(node.take_notices()) == 1
+
+
+# ---------------------------------------------------------------------------------- ODrive
+def odrive_push(node_id: int, command: int, data: bytes) -> can.Message:
+    return can.Message(
+        arbitration_id=arbitration_id(node_id, command), is_extended_id=False, data=data
+    )
+
+
+@pytest.mark.parametrize("turns", [math.nan, math.inf, -math.inf, 3.0e38, -3.0e38])
+def test_hostile_encoder_estimates_reach_the_gcs_encodable(turns: float) -> None:
+    """Finding: 3e38 turns became 1e41 deg, which float32 cannot carry: NAMED_VALUE_FLOAT
+    failed to encode (dropped, with a traceback in the log). A huge reading now goes out as
+    an infinity; NaN and infinities keep the last known position."""
+    servo = ODrive(3, motor_turns_per_rev=0.5)
+    servo.decode(odrive_push(3, CMD_ENCODER_ESTIMATES, struct.pack("<ff", 0.25, 0.0)), 1.0)
+    state = servo.decode(
+        odrive_push(3, CMD_ENCODER_ESTIMATES, struct.pack("<ff", turns, turns)), 2.0
+    )
+    assert state is not None
+    if not math.isfinite(turns):
+        assert state.position_deg == pytest.approx(180.0)
+    backend = RecordingBackend()
+    backend.states["aileron"] = state
+    core = MavlinkCore(MavlinkSettings(system_id=1, telemetry=ESC_FROM_1), backend)
+    for msg_id in (375, 11030, 251):
+        assert core.telemetry.request(msg_id, 0.0)
+    decoded = roundtrip([m for _, m in core.tick(0.0)])
+    named: dict[str, Any] = {
+        m.name: m.value for m in decoded if m.get_type() == "NAMED_VALUE_FLOAT"
+    }
+    assert "s1_pos" in named and "s1_vel" in named
+    if math.isfinite(turns):
+        assert named["s1_pos"] == math.copysign(math.inf, turns)
+
+
+def test_an_odrive_heartbeat_from_another_servos_node_id_is_not_this_servos() -> None:
+    """Guard: an ODrive's pushes are matched by node id; another node's never count here."""
+    servo = ODrive(3)
+    heartbeat = struct.pack("<IBBB", 0, 8, 0, 0) + b"\0"
+    assert not servo.is_reply(odrive_push(4, CMD_HEARTBEAT, heartbeat))
+    assert servo.decode(odrive_push(4, CMD_HEARTBEAT, heartbeat), 1.0) is None
+    assert servo.axis_state is None
