@@ -18,6 +18,7 @@ from dronecan.transport import Frame, Transfer
 from test_mavlink_robustness import ESC_FROM_1, roundtrip
 from test_mavlink_support import RecordingBackend
 
+from mavservo.config import ConfigError, load_config_text
 from mavservo.mavlink.core import MavlinkCore
 from mavservo.mavlink.settings import MavlinkSettings
 from mavservo.servos import dronecan_wire as wire
@@ -106,18 +107,20 @@ UID_B = bytes(range(0x30, 0x40))
 
 def test_a_hostile_table_never_hands_out_the_bridges_or_a_servos_id() -> None:
     """Finding: the table (from the file next to the config) was trusted as is: an entry with
-    the bridge's node id, a servo's, or one id for two unique ids was handed out again."""
-    servos = [DroneCanServo(20, actuator_id=1)]
-    table = {UID_A.hex(): 100, UID_B.hex(): 20, bytes(16).hex(): 7, bytes([1] * 16).hex(): 7}
-    node = BridgeNode(
-        servos, NodeOptions(node_id=100, allocator=True, allocation_table=table), (0, 1), 0.0
-    )
-    server = node.allocator
+    the bridge's node id, a servo's, or one id for two unique ids was handed out again. A
+    servo's id passes the options' validation (the file is merged before the servos are
+    known): the node drops the entry and says so."""
+    table = {UID_A: 100, UID_B: 20, bytes(16): 7, bytes([1] * 16): 7}
+    server = AllocationServer(100, {}, {20}, 125, table)
     assert exchange(server, UID_A, 1.0) not in (0, 100, 20)
     assert exchange(server, UID_B, 2.0) not in (0, 100, 20)
     ids = [exchange(server, bytes(16), 3.0), exchange(server, bytes([1] * 16), 4.0)]
     assert len(set(ids)) == 2 and 0 not in ids
-    assert any("allocation table" in n for n in node.take_notices())
+    options = NodeOptions(node_id=100, allocator=True, allocation_table={UID_B.hex(): 20})
+    node = BridgeNode([DroneCanServo(20)], options, (0, 1), 0.0)
+    assert exchange(node.allocator, UID_B, 1.0) not in (0, 20)
+    [notice] = node.take_notices()
+    assert "allocation table: 1 entries ignored" in notice and f"{UID_B.hex()}=20" in notice
 
 
 def test_repeated_allocations_keep_memory_bounded() -> None:
@@ -232,3 +235,37 @@ def test_an_odrive_heartbeat_from_another_servos_node_id_is_not_this_servos() ->
     assert not servo.is_reply(odrive_push(4, CMD_HEARTBEAT, heartbeat))
     assert servo.decode(odrive_push(4, CMD_HEARTBEAT, heartbeat), 1.0) is None
     assert servo.axis_state is None
+
+
+TABLE_CONFIG = """
+mavlink: {endpoint: "udp:127.0.0.1:14550"}
+can:
+  buses:
+    - name: bus0
+      interface: virtual
+      channel: rt
+      node:
+        dronecan:
+          node_id: 100
+          allocator: true
+          allocation_table: TABLE
+servos:
+  - {name: a, profile: dronecan, can_id: 11, options: {actuator_id: 1}}
+channels:
+  - {servo: a, source: servo_output, channel: 1, input: {min: 1000, max: 2000},
+     output_deg: [-45, 45]}
+"""
+
+
+@pytest.mark.parametrize(
+    ("table", "text"),
+    [
+        ("{" + UID_A.hex() + ": 100}", "the bridge's own node id 100"),
+        ("{" + UID_A.hex() + ": 7, " + UID_B.hex() + ": 7}", "node id 7 is in the table twice"),
+    ],
+)
+def test_check_refuses_a_table_that_gives_one_id_twice(table: str, text: str) -> None:
+    """Finding: ``check`` called these tables valid; now a config error with its line."""
+    with pytest.raises(ConfigError) as info:
+        load_config_text(TABLE_CONFIG.replace("TABLE", table), "rig.yaml")
+    assert "rig.yaml:" in str(info.value) and text in str(info.value)

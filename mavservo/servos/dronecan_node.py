@@ -28,7 +28,7 @@ from collections.abc import Sequence
 from typing import Any, Protocol
 
 import can
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 
 from . import dronecan_wire as wire
 from .base import BusNodeError, NodeHealth, ProfileOptions
@@ -75,7 +75,24 @@ class NodeOptions(ProfileOptions):
                 raise ValueError(f"unique id {unique_id!r} is not 32 lower-case hex digits")
             if not 1 <= node_id <= 125:
                 raise ValueError(f"node id {node_id} for {unique_id} is outside 1..125")
+        owners: dict[int, str] = {}
+        for unique_id, node_id in sorted(table.items()):
+            if node_id in owners:
+                raise ValueError(
+                    f"node id {node_id} is in the table twice ({owners[node_id]} and "
+                    f"{unique_id}): two nodes would get one id"
+                )
+            owners[node_id] = unique_id
         return table
+
+    @model_validator(mode="after")
+    def _table_not_own_id(self) -> NodeOptions:
+        for unique_id, node_id in self.allocation_table.items():
+            if node_id == self.node_id:
+                raise ValueError(
+                    f"allocation_table gives {unique_id} the bridge's own node id {node_id}"
+                )
+        return self
 
 
 class CommandedServo(Protocol):
