@@ -1,0 +1,98 @@
+"""Red team of the ODrive and DroneCAN families through a running bridge: hostile frames
+handed to the scheduler as its receive thread would (the bus is shared with anyone), the GCS a
+pymavlink peer over loopback UDP, the servos simulated behind the aa55 interface on the
+adapter emulator's pty.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+import time
+
+import can
+import dronecan
+import pytest
+from conftest import wait_until
+from dronecan.transport import Transfer
+from e2e_support import MAV_CMD_DO_SET_SERVO, MAV_RESULT_ACCEPTED, Peer, running, sim_servo
+from test_e2e_dronecan import CONFIG as DRONECAN_CONFIG
+from test_e2e_odrive import CONFIG as ODRIVE_CONFIG
+
+from mavservo.servos.dronecan_node import GET_NODE_INFO_PER_S
+from mavservo.servos.odrive import CMD_ENCODER_ESTIMATES, arbitration_id
+from mavservo.sim.autopilot.link import mavlink2
+
+pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")
+
+WAIT_S = 5.0
+
+
+def test_a_huge_encoder_estimate_reaches_the_gcs_as_an_infinity_not_an_encode_error() -> None:
+    """Finding: a (spoofed or broken) ODrive encoder estimate of 3e38 turns made NAMED_VALUE_FLOAT
+    fail to encode in the link: dropped, with a traceback in the log."""
+    with running(ODRIVE_CONFIG) as (bridge, port):
+        peer = Peer(port)
+        try:
+            peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))  # a GCS: answer me
+            assert peer.command(MAV_CMD_DO_SET_SERVO, [1, 1600]) == MAV_RESULT_ACCEPTED
+            scheduler = bridge.schedulers["bus0"]
+            assert wait_until(lambda: bridge.backend is not None, WAIT_S)
+            mark = peer.count()
+            hostile = can.Message(
+                arbitration_id=arbitration_id(1, CMD_ENCODER_ESTIMATES),
+                is_extended_id=False,
+                data=struct.pack("<ff", 3.0e38, -3.0e38),
+            )
+
+            def seen_inf() -> bool:
+                scheduler.handle_frame(hostile, time.monotonic())
+                return any(
+                    m.get_type() == "NAMED_VALUE_FLOAT"
+                    and m.name == "s1_pos"
+                    and m.value == math.inf
+                    for m in peer.since(mark)
+                )
+
+            assert wait_until(seen_inf, WAIT_S)
+            assert bridge.mavlink is not None
+            assert bridge.mavlink.link.counters["encode_errors"] == 0
+        finally:
+            peer.close()
+
+
+def test_a_get_node_info_flood_is_bounded_and_commands_go_through() -> None:
+    """A stranger floods the bridge's node with GetNodeInfo requests while the GCS commands:
+    answers stay within GET_NODE_INFO_PER_S (the rest counted), every command is applied."""
+    with running(DRONECAN_CONFIG) as (bridge, port):
+        peer = Peer(port)
+        try:
+            scheduler = bridge.schedulers["bus0"]
+            [node] = scheduler.nodes
+            request = dronecan.uavcan.protocol.GetNodeInfo.Request()
+            started = time.monotonic()
+            for i, pwm in enumerate((1700, 1300, 1600)):
+                for tid in range(100):
+                    transfer = Transfer(
+                        transfer_id=tid & 0x1F,
+                        source_node_id=1 + (tid + 100 * i) % 120,
+                        dest_node_id=100,
+                        payload=request,
+                        request_not_response=True,
+                        service_not_message=True,
+                    )
+                    [frame] = transfer.to_frames()
+                    msg = can.Message(
+                        arbitration_id=frame.message_id, is_extended_id=True, data=frame.bytes
+                    )
+                    scheduler.handle_frame(msg, time.monotonic())
+                assert peer.command(MAV_CMD_DO_SET_SERVO, [1, pwm]) == MAV_RESULT_ACCEPTED
+                target = (pwm - 1500) / 500 * 45
+                left = sim_servo(bridge, "left")
+                assert wait_until(lambda a=target, s=left: abs(s.position_deg - a) < 0.3, WAIT_S)
+            elapsed = time.monotonic() - started
+            answered = node.counters["get_node_info"]
+            assert 1 <= answered <= GET_NODE_INFO_PER_S * (math.ceil(elapsed) + 1)
+            assert node.counters["get_node_info_limited"] == 300 - answered
+        finally:
+            peer.close()
