@@ -23,8 +23,8 @@ from mavservo.mavlink.core import MavlinkCore
 from mavservo.mavlink.settings import MavlinkSettings
 from mavservo.servos import dronecan_wire as wire
 from mavservo.servos.dronecan import DroneCanServo
-from mavservo.servos.dronecan_alloc import AllocationServer
-from mavservo.servos.dronecan_node import BridgeNode, NodeOptions
+from mavservo.servos.dronecan_alloc import ALLOCATION_ANSWERS_PER_S, AllocationServer
+from mavservo.servos.dronecan_node import GET_NODE_INFO_PER_S, BridgeNode, NodeOptions
 from mavservo.servos.odrive import CMD_ENCODER_ESTIMATES, CMD_HEARTBEAT, ODrive, arbitration_id
 
 Allocation = dronecan.uavcan.protocol.dynamic_node_id.Allocation
@@ -269,3 +269,47 @@ def test_check_refuses_a_table_that_gives_one_id_twice(table: str, text: str) ->
     with pytest.raises(ConfigError) as info:
         load_config_text(TABLE_CONFIG.replace("TABLE", table), "rig.yaml")
     assert "rig.yaml:" in str(info.value) and text in str(info.value)
+
+
+def anonymous_first_part(uid: bytes) -> wire.Received:
+    allocation = Allocation(node_id=0, first_part_of_unique_id=True)
+    allocation.unique_id.from_bytes(uid[:6])
+    [msg] = to_messages(
+        Transfer(transfer_id=0, source_node_id=0, payload=allocation, discriminator=7)
+    )
+    received = wire.Reassembler().push(msg, 0.0)
+    assert received is not None
+    return received
+
+
+def test_an_allocation_request_flood_is_answered_at_a_bounded_rate() -> None:
+    """Finding: every anonymous first part was answered (one frame in, one out, from a sender
+    that needs no node id): the answers had no bound. Now at most ALLOCATION_ANSWERS_PER_S,
+    the rest counted; a node asking after the flood is served."""
+    server = AllocationServer(100, {}, set(), 125)
+    answers = 0
+    for i in range(500):
+        if server.receive(anonymous_first_part(i.to_bytes(16, "big")), 1.0 + i * 0.001):
+            answers += len(server.due(1.0 + i * 0.001))
+    assert 1 <= answers <= ALLOCATION_ANSWERS_PER_S
+    assert server.limited == 500 - answers
+    assert exchange(server, UID_A, 10.0) == 125
+
+
+def test_the_budget_counts_the_bounded_answers_of_the_bridges_node() -> None:
+    """The bridge's answers (GetNodeInfo, allocation) are bounded, and the budget counts the
+    bound: a flood cannot put more on the bus than ``check`` said."""
+    plain = BridgeNode([DroneCanServo(11)], NodeOptions(node_id=100), (0, 1), 0.0)
+    allocating = BridgeNode(
+        [DroneCanServo(11)], NodeOptions(node_id=100, allocator=True), (0, 1), 0.0
+    )
+    asked = wire.Received(None, wire.DTID_GET_NODE_INFO, 42, 0, True, True, 100, "", 16)
+    node_info = len(plain._node_info_response(asked, 0.0))
+    assert node_info == plain.node_info_frames()
+    rates = {round(rate, 6) for rate, _, _ in plain.bus_frames_per_second(1, 20.0)}
+    assert GET_NODE_INFO_PER_S * node_info in rates
+    total = sum(rate for rate, _, _ in allocating.bus_frames_per_second(1, 20.0))
+    assert total == pytest.approx(
+        sum(rate for rate, _, _ in plain.bus_frames_per_second(1, 20.0))
+        + ALLOCATION_ANSWERS_PER_S * 3
+    )

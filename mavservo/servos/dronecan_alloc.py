@@ -32,6 +32,14 @@ FOLLOWUP_TIMEOUT_S = 0.5
 """``Allocation.FOLLOWUP_TIMEOUT_MS``: a query not continued within this is forgotten."""
 _STAGE_LENGTHS = (6, 6, 4)
 _ALLOCATIONS_KEPT = 64
+ALLOCATION_ANSWERS_PER_S = 6
+"""Answers per second at most: an allocation takes three, and a node without an id asks again
+after a random pause (the specification's request period), so this serves two nodes a second
+while a flood of anonymous requests (which need no node id to send) cannot fill the bus with
+answers; requests beyond are counted in :attr:`AllocationServer.limited` and not answered."""
+ALLOCATION_ANSWER_FRAMES = 3
+"""Frames of the longest answer (node id and the whole 16-byte unique id, 17 bytes, and the
+transfer CRC: three frames), for the bus-load budget."""
 _MAX_REGULAR_ID = 125
 """126 and 127 are reserved for tools (the specification's ``MAX_NODE_ID`` for allocation)."""
 
@@ -69,6 +77,8 @@ class AllocationServer:
         """The latest ``(unique id hex, node id)`` handed out, in order (diagnostics, tests;
         bounded: a node may ask again and again)."""
         self.ignored = 0
+        self.limited = 0
+        self._answered: deque[float] = deque(maxlen=ALLOCATION_ANSWERS_PER_S)
         self._query = b""
         self._query_time = 0.0
         self._queue: list[can.Message] = []
@@ -89,6 +99,10 @@ class AllocationServer:
         """An anonymous Allocation request; True when an answer waits in :meth:`due`."""
         if received.source != 0 or received.service:
             self.ignored += 1  # another allocator, or not an allocation request
+            return False
+        answered = self._answered
+        if len(answered) == answered.maxlen and now - answered[0] < 1.0:
+            self.limited += 1
             return False
         message = received.payload
         try:
@@ -116,12 +130,13 @@ class AllocationServer:
                 self.ignored += 1  # no id left: say nothing (the node keeps asking)
                 self._query = b""
                 return False
-        self._answer(node_id, self._query)
+        self._answer(node_id, self._query, now)
         if node_id:
             self._query = b""
         return True
 
-    def _answer(self, node_id: int, unique_id: bytes) -> None:
+    def _answer(self, node_id: int, unique_id: bytes, now: float) -> None:
+        self._answered.append(now)
         allocation = wire.lib().uavcan.protocol.dynamic_node_id.Allocation()
         allocation.node_id = node_id
         allocation.first_part_of_unique_id = False

@@ -311,12 +311,25 @@ class BridgeNode:
     def bus_frames_per_second(
         self, servo_count: int, command_hz: float
     ) -> list[tuple[float, bool, int]]:
-        """The node's NodeStatus (1 Hz) and the packed commands of ``servo_count`` servos at
-        ``command_hz``; the profile's per-servo command frames are not counted besides."""
-        return [
+        """The node's NodeStatus (1 Hz), the packed commands of ``servo_count`` servos at
+        ``command_hz`` and its answers at their bounded rates (GetNodeInfo, allocation); the
+        profile's per-servo command frames are not counted besides."""
+        flows = [
             (1 / wire.NODE_STATUS_PERIOD_S, True, 8),
             (command_hz * frames_for_commands(servo_count), True, 8),
+            (GET_NODE_INFO_PER_S * self.node_info_frames(), True, 8),
         ]
+        if self.allocator is not None:
+            from .dronecan_alloc import ALLOCATION_ANSWER_FRAMES, ALLOCATION_ANSWERS_PER_S
+
+            flows.append((ALLOCATION_ANSWERS_PER_S * ALLOCATION_ANSWER_FRAMES, True, 8))
+        return flows
+
+    def node_info_frames(self) -> int:
+        """Frames of this node's GetNodeInfo answer: NodeStatus (7 bytes), software version
+        (15), hardware version with an empty certificate (19), the name (tail array, no length
+        byte), the transfer CRC; 7 bytes a frame."""
+        return -(-(7 + 15 + 19 + len(self.options.name) + 2) // 7)
 
     # -------------------------------------------------------------------------- receiving
     def receive(self, msg: can.Message, now: float) -> bool:
