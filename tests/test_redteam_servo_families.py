@@ -313,3 +313,26 @@ def test_the_budget_counts_the_bounded_answers_of_the_bridges_node() -> None:
         sum(rate for rate, _, _ in plain.bus_frames_per_second(1, 20.0))
         + ALLOCATION_ANSWERS_PER_S * 3
     )
+
+
+def test_floods_are_noticed_once_and_counted_in_the_nodes_stats() -> None:
+    """Finding: the node's counts (limited answers, decode errors by reason, ignored allocation
+    requests) reached neither the log nor the run summary. Now one notice per kind, and
+    :meth:`BridgeNode.stats` (the summary's ``bus <name> node:`` line)."""
+    node = BridgeNode([DroneCanServo(11)], NodeOptions(node_id=100, allocator=True), (0, 1), 0.0)
+    for i in range(50):
+        allocation = Allocation(node_id=0, first_part_of_unique_id=True)
+        allocation.unique_id.from_bytes(i.to_bytes(6, "big"))
+        for msg in to_messages(
+            Transfer(transfer_id=i & 0x1F, source_node_id=0, payload=allocation, discriminator=i)
+        ):
+            node.receive(msg, 1.0)
+        node.receive(get_node_info_request(42, 100, i), 1.0)
+    node.receive(can.Message(arbitration_id=1 << 7 | 1 << 15 | 100 << 8 | 42, data=b"\x40"), 1.0)
+    notices = node.take_notices()
+    assert len(notices) == 2
+    assert any("GetNodeInfo" in n for n in notices) and any("allocation" in n for n in notices)
+    stats = node.stats()
+    assert stats["allocation_limited"] == 50 - ALLOCATION_ANSWERS_PER_S
+    assert stats["get_node_info_limited"] == 50 - GET_NODE_INFO_PER_S
+    assert stats["rx_orphan"] == 1

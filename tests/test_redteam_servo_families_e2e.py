@@ -19,6 +19,7 @@ from e2e_support import MAV_CMD_DO_SET_SERVO, MAV_RESULT_ACCEPTED, Peer, running
 from test_e2e_dronecan import CONFIG as DRONECAN_CONFIG
 from test_e2e_odrive import CONFIG as ODRIVE_CONFIG
 
+from mavservo.app.console import format_summary
 from mavservo.servos.dronecan_node import GET_NODE_INFO_PER_S
 from mavservo.servos.odrive import CMD_ENCODER_ESTIMATES, arbitration_id
 from mavservo.sim.autopilot.link import mavlink2
@@ -94,5 +95,10 @@ def test_a_get_node_info_flood_is_bounded_and_commands_go_through() -> None:
             answered = node.counters["get_node_info"]
             assert 1 <= answered <= GET_NODE_INFO_PER_S * (math.ceil(elapsed) + 1)
             assert node.counters["get_node_info_limited"] == 300 - answered
+            # counted where the operator sees it: the run summary, and one log line (a notice)
+            [counts] = bridge.summary()["buses"]["bus0"]["nodes"]
+            assert counts["get_node_info_limited"] == 300 - answered
+            assert f"get_node_info_limited {300 - answered}" in format_summary(bridge.summary())
+            assert any("faster than" in text for _, text in bridge.events)
         finally:
             peer.close()

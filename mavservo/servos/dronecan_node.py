@@ -174,6 +174,7 @@ class BridgeNode:
         self.foreign_masters: set[int] = set()
         self._notices: list[str] = []
         self._conflict_noted = False
+        self._noted: set[str] = set()
         self.allocator: Any = None
         if options.allocator:
             from .dronecan_alloc import AllocationServer
@@ -273,6 +274,22 @@ class BridgeNode:
             return -float("inf")
         return self._next_status
 
+    def _notice_once(self, kind: str, text: str) -> None:
+        """A notice the first time something of ``kind`` happens (the count goes on)."""
+        if kind not in self._noted:
+            self._noted.add(kind)
+            self._notices.append(text)
+
+    def stats(self) -> dict[str, int]:
+        """Counts for the run summary: the node's own, received transfers that did not decode
+        (``rx_<reason>``) and, with the allocator on, requests it ignored or did not answer."""
+        out = {k: v for k, v in sorted(self.counters.items()) if v}
+        out.update((f"rx_{k}", v) for k, v in sorted(self.errors.items()) if v)
+        if self.allocator is not None:
+            out["allocation_ignored"] = self.allocator.ignored
+            out["allocation_limited"] = self.allocator.limited
+        return out
+
     def take_notices(self) -> list[str]:
         notices, self._notices = self._notices, []
         return notices
@@ -348,6 +365,12 @@ class BridgeNode:
                 answers = self._info_answers
                 if len(answers) == answers.maxlen and now - answers[0] < 1.0:
                     self.counters["get_node_info_limited"] += 1
+                    self._notice_once(
+                        "get_node_info_limited",
+                        f"DroneCAN node {received.source} asks GetNodeInfo faster than "
+                        f"{GET_NODE_INFO_PER_S}/s: the requests beyond are not answered "
+                        "(counted in get_node_info_limited)",
+                    )
                     return False
                 answers.append(now)
                 self._queue += self._node_info_response(received, now)
@@ -360,7 +383,17 @@ class BridgeNode:
         if source == 0:
             if self.allocator is not None and dtid == wire.DTID_ALLOCATION:
                 received = self._reassembler.push(msg, now)
-                return received is not None and self.allocator.receive(received, now)
+                if received is None:
+                    return False
+                limited = self.allocator.limited
+                answered = bool(self.allocator.receive(received, now))
+                if self.allocator.limited != limited:
+                    self._notice_once(
+                        "allocation_limited",
+                        "anonymous DroneCAN allocation requests come faster than the allocator "
+                        "answers: the requests beyond are not answered (counted)",
+                    )
+                return answered
             return False
         if dtid == wire.DTID_ARRAY_COMMAND and source != self.node_id:
             self._foreign_command(msg, source, now)
