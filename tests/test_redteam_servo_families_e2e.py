@@ -6,9 +6,12 @@ adapter emulator's pty.
 
 from __future__ import annotations
 
+import json
 import math
 import struct
 import time
+import uuid
+from pathlib import Path
 
 import can
 import dronecan
@@ -16,10 +19,13 @@ import pytest
 from conftest import wait_until
 from dronecan.transport import Transfer
 from e2e_support import MAV_CMD_DO_SET_SERVO, MAV_RESULT_ACCEPTED, Peer, running, sim_servo
+from test_dronecan_allocation import CONFIG as ALLOCATING
 from test_e2e_dronecan import CONFIG as DRONECAN_CONFIG
 from test_e2e_odrive import CONFIG as ODRIVE_CONFIG
 
+from mavservo.app.bridge import Bridge
 from mavservo.app.console import format_summary
+from mavservo.config import load_config
 from mavservo.servos.dronecan_node import GET_NODE_INFO_PER_S
 from mavservo.servos.odrive import CMD_ENCODER_ESTIMATES, arbitration_id
 from mavservo.sim.autopilot.link import mavlink2
@@ -102,3 +108,32 @@ def test_a_get_node_info_flood_is_bounded_and_commands_go_through() -> None:
             assert any("faster than" in text for _, text in bridge.events)
         finally:
             peer.close()
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "[" * 100_000 + "]" * 100_000,  # finding: RecursionError, the bridge did not start
+        json.dumps(
+            {"bus0": {"dronecan": {"allocation_table": {f"{i:032x}": 7 for i in range(9)}}}}
+        ),
+        json.dumps({"bus0": {"dronecan": {"allocation_table": {f"{1:032x}": 100}}}}),
+    ],
+    ids=["deeply-nested", "one-id-nine-times", "bridge-id"],
+)
+def test_a_hostile_node_state_file_is_ignored_and_the_bridge_starts(
+    tmp_path: Path, text: str, caplog: pytest.LogCaptureFixture
+) -> None:
+    channel = f"dronecan-hostile-{uuid.uuid4().hex}"
+    path = tmp_path / "rig.yaml"
+    path.write_text(ALLOCATING.replace("CHANNEL", channel).replace("LOGS", str(tmp_path / "runs")))
+    (tmp_path / "rig.yaml.nodes.json").write_text(text)
+    bridge = Bridge(load_config(path), config_path=path, log_dir=False).start()
+    try:
+        [node] = bridge.schedulers["bus0"].nodes
+        assert node.persistent_state() == (0, {"allocation_table": {}})
+    finally:
+        bridge.stop()
+    assert any(
+        "node state" in r.getMessage() and "ignored" in r.getMessage() for r in caplog.records
+    )
