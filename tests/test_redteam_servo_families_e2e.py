@@ -21,11 +21,13 @@ from dronecan.transport import Transfer
 from e2e_support import MAV_CMD_DO_SET_SERVO, MAV_RESULT_ACCEPTED, Peer, running, sim_servo
 from test_dronecan_allocation import CONFIG as ALLOCATING
 from test_e2e_dronecan import CONFIG as DRONECAN_CONFIG
+from test_e2e_dronecan import status
 from test_e2e_odrive import CONFIG as ODRIVE_CONFIG
 
 from mavservo.app.bridge import Bridge
 from mavservo.app.console import format_summary
 from mavservo.config import load_config
+from mavservo.servos import dronecan_wire as wire
 from mavservo.servos.dronecan_node import GET_NODE_INFO_PER_S
 from mavservo.servos.odrive import CMD_ENCODER_ESTIMATES, arbitration_id
 from mavservo.sim.autopilot.link import mavlink2
@@ -137,3 +139,32 @@ def test_a_hostile_node_state_file_is_ignored_and_the_bridge_starts(
     assert any(
         "node state" in r.getMessage() and "ignored" in r.getMessage() for r in caplog.records
     )
+
+
+def test_unfinished_status_transfers_from_a_stranger_do_not_keep_a_silent_servo_online() -> None:
+    """Guard: start frames of a Status transfer carrying the silent servo's node id (a stranger,
+    or a broken node) are neither a reply nor a sign of life: the servo goes offline and the
+    frames are counted as rejected. (A stranger sending whole, valid NodeStatus transfers with
+    the servo's id is indistinguishable from the servo: CAN frames carry no sender proof.)"""
+    with running(DRONECAN_CONFIG) as (bridge, port):
+        peer = Peer(port)
+        try:
+            scheduler = bridge.schedulers["bus0"]
+            assert wait_until(lambda: status(bridge, "left").online, WAIT_S)
+            sim_servo(bridge, "left").faults.silent = True
+            status_id = wire.message_id(wire.DTID_ACTUATOR_STATUS, 11, wire.PRIORITY_LOW)
+            tid = 0
+
+            def spoof_start() -> bool:
+                nonlocal tid
+                tid += 1
+                start = bytes(7) + bytes([0x80 | (tid & 0x1F)])
+                scheduler.handle_frame(
+                    can.Message(arbitration_id=status_id, data=start), time.monotonic()
+                )
+                return not status(bridge, "left").online
+
+            assert wait_until(spoof_start, 3 * WAIT_S)
+            assert scheduler.metrics()["servos"]["left"]["frames"]["rejected"] > 0
+        finally:
+            peer.close()
