@@ -336,3 +336,29 @@ def test_floods_are_noticed_once_and_counted_in_the_nodes_stats() -> None:
     assert stats["allocation_limited"] == 50 - ALLOCATION_ANSWERS_PER_S
     assert stats["get_node_info_limited"] == 50 - GET_NODE_INFO_PER_S
     assert stats["rx_orphan"] == 1
+
+
+def node_status_frame(source: int, uptime: int, health: int = wire.HEALTH_OK) -> can.Message:
+    payload = wire.node_status(uptime, health, wire.MODE_OPERATIONAL)
+    [msg] = to_messages(Transfer(transfer_id=uptime & 0x1F, source_node_id=source, payload=payload))
+    return msg
+
+
+def test_a_second_node_speaking_for_a_servo_is_counted_when_its_uptime_disagrees() -> None:
+    """Finding: a stranger's NodeStatus with a servo's node id (a spoofed fault, or a dead
+    servo kept alive) was taken like the servo's own, uncounted. CAN carries no sender proof,
+    but two nodes on one id disagree about the uptime: every NodeStatus whose uptime went back
+    is counted (``uptime_backwards``) and is not a state nor a sign of life. A restart costs
+    one NodeStatus."""
+    servo = DroneCanServo(11)
+    assert servo.decode(node_status_frame(11, 500), 1.0) is not None
+    spoofed = servo.decode(node_status_frame(11, 3, wire.HEALTH_ERROR), 1.5)
+    assert spoofed is None  # the fault the stranger claims is not the servo's state
+    assert servo.decode(node_status_frame(11, 501), 2.0) is not None
+    assert servo.decode(node_status_frame(11, 4, wire.HEALTH_ERROR), 2.5) is None
+    assert servo.errors["uptime_backwards"] == 2
+    state = servo.decode(node_status_frame(11, 502), 3.0)
+    assert state is not None and not state.faults
+    # a restart: its first NodeStatus counted, then followed again
+    assert servo.decode(node_status_frame(11, 0), 4.0) is None
+    assert servo.decode(node_status_frame(11, 1), 5.0) is not None

@@ -15,7 +15,9 @@ framing by the ``dronecan`` package through :mod:`.dronecan_wire`):
 * liveness: ``uavcan.protocol.NodeStatus`` (341), 1 Hz from every node; silent for about 3 s a
   node is gone (:attr:`DroneCanServo.heartbeat_period_s` makes the scheduler's silence limit
   ``offline_after_missed`` heartbeats). Its health and mode become faults: a health other
-  than OK, or a mode other than operational or initialization, is :attr:`Fault.OTHER`.
+  than OK, or a mode other than operational or initialization, is :attr:`Fault.OTHER`. Its
+  uptime only goes up: one that went back (a restart, or a second node on the id) is counted
+  (``uptime_backwards``, a rejected frame) and is no sign of life.
 
 The servo id (``can_id``) is the servo's node id, 1..127. ``actuator_id`` is the number on the
 wire, as the servo is configured: **ArduPilot numbers actuators from 1** (``SERVOn`` with a
@@ -138,6 +140,8 @@ class DroneCanServo(ServoProfile):
         self._vendor_faults = NO_FAULT
         self.node_health: int | None = None
         self.node_mode: int | None = None
+        self.node_uptime: int | None = None
+        """The uptime of the latest NodeStatus (s): it only goes up while one node has this id."""
 
     @property
     def errors(self) -> Counter[str]:
@@ -251,6 +255,13 @@ class DroneCanServo(ServoProfile):
         p = rx.payload
         actuator = self.options.actuator_id
         if rx.dtid == wire.DTID_NODE_STATUS:
+            uptime, last = int(p.uptime_sec), self.node_uptime
+            self.node_uptime = uptime
+            if last is not None and uptime < last:
+                # a restart (one NodeStatus), or two nodes on this id (a stranger speaking for
+                # the servo: every other one): counted, and not a sign of life
+                self._reassembler.errors["uptime_backwards"] += 1
+                return None
             self.node_health, self.node_mode = int(p.health), int(p.mode)
             healthy = self.node_health == wire.HEALTH_OK
             running = self.node_mode in (wire.MODE_OPERATIONAL, wire.MODE_INITIALIZATION)
