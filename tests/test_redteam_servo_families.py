@@ -238,7 +238,7 @@ def test_an_odrive_heartbeat_from_another_servos_node_id_is_not_this_servos() ->
 
 
 TABLE_CONFIG = """
-mavlink: {endpoint: "udp:127.0.0.1:14550"}
+mavlink: {url: "udpin:127.0.0.1:14550"}
 can:
   buses:
     - name: bus0
@@ -362,3 +362,25 @@ def test_a_second_node_speaking_for_a_servo_is_counted_when_its_uptime_disagrees
     # a restart: its first NodeStatus counted, then followed again
     assert servo.decode(node_status_frame(11, 0), 4.0) is None
     assert servo.decode(node_status_frame(11, 1), 5.0) is not None
+
+
+def test_an_unasked_sdo_reply_is_no_state_and_a_shared_bus_keeps_the_families_apart() -> None:
+    """Guard: a TxSdo (0x05) nobody asked for, from the axis' own node id, is not a reply; on
+    a bus shared by both families with the same number (ODrive node 11, DroneCAN node 11),
+    neither takes the other's frames (11-bit against 29-bit identifiers)."""
+    odrive, dronecan_servo = ODrive(11), DroneCanServo(11)
+    sdo = odrive_push(11, 0x05, struct.pack("<BHBf", 0, 7, 0, 1.0))
+    assert not odrive.is_reply(sdo) and odrive.decode(sdo, 1.0) is None
+    heartbeat = odrive_push(11, CMD_HEARTBEAT, struct.pack("<IBBB", 0, 8, 0, 0) + b"\0")
+    assert odrive.is_reply(heartbeat) and not dronecan_servo.is_reply(heartbeat)
+    for msg in [
+        node_status_frame(11, 5),
+        *to_messages(
+            Transfer(
+                source_node_id=11,
+                payload=dronecan.uavcan.equipment.actuator.Status(actuator_id=1, position=0.1),
+            )
+        ),
+    ]:
+        assert dronecan_servo.is_reply(msg) and not odrive.is_reply(msg)
+    assert odrive.last_state is None and odrive.axis_state is None
