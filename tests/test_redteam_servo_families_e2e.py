@@ -26,6 +26,7 @@ from test_e2e_odrive import CONFIG as ODRIVE_CONFIG
 
 from mavservo.app.bridge import Bridge
 from mavservo.app.console import format_summary
+from mavservo.app.report import ReportError, load_run
 from mavservo.config import load_config
 from mavservo.servos import dronecan_wire as wire
 from mavservo.servos.dronecan_node import GET_NODE_INFO_PER_S
@@ -168,3 +169,16 @@ def test_unfinished_status_transfers_from_a_stranger_do_not_keep_a_silent_servo_
             assert scheduler.metrics()["servos"]["left"]["frames"]["rejected"] > 0
         finally:
             peer.close()
+
+
+@pytest.mark.parametrize(
+    "header", ["[]", "[" * 100_000 + "]" * 100_000], ids=["not-a-mapping", "deeply-nested"]
+)
+def test_report_on_a_hostile_run_header_is_an_error_not_a_traceback(
+    tmp_path: Path, header: str
+) -> None:
+    """Finding (next door: the run directory that ``report`` reads): a header that is JSON but
+    not a mapping, or nested too deep for the decoder, raised AttributeError/RecursionError."""
+    (tmp_path / "run.json").write_text(header)
+    with pytest.raises(ReportError, match="run header"):
+        load_run(tmp_path)
