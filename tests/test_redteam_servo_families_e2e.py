@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import struct
 import time
 import uuid
@@ -24,6 +25,7 @@ from test_e2e_dronecan import CONFIG as DRONECAN_CONFIG
 from test_e2e_dronecan import status
 from test_e2e_odrive import CONFIG as ODRIVE_CONFIG
 
+from mavservo.app import node_state
 from mavservo.app.bridge import Bridge
 from mavservo.app.console import format_summary
 from mavservo.app.report import ReportError, load_run
@@ -182,3 +184,33 @@ def test_report_on_a_hostile_run_header_is_an_error_not_a_traceback(
     (tmp_path / "run.json").write_text(header)
     with pytest.raises(ReportError, match="run header"):
         load_run(tmp_path)
+
+
+class _Scheduler:
+    """What NodeStateKeeper reads of a scheduler."""
+
+    name = "bus0"
+
+    def node_states(self) -> list[tuple[str, tuple[int, dict[str, object]]]]:
+        return [("dronecan", (1, {"allocation_table": {f"{1:032x}": 125}}))]
+
+
+def test_the_table_file_symlinked_huge_or_a_fifo_is_never_followed_read_whole_or_hung(
+    tmp_path: Path,
+) -> None:
+    """Guards: a symlink at the table's path is replaced, not written through (the file it
+    names keeps its content); a file over 1 MiB and a FIFO are reported and ignored."""
+    victim = tmp_path / "victim.txt"
+    victim.write_text("keep me")
+    state = tmp_path / "rig.yaml.nodes.json"
+    state.symlink_to(victim)
+    keeper = node_state.NodeStateKeeper(state, node_state.load(state))
+    assert keeper.update([_Scheduler()])  # type: ignore[list-item]
+    assert victim.read_text() == "keep me" and not state.is_symlink()
+    assert json.loads(state.read_text())["bus0"]["dronecan"]["allocation_table"]
+    big = tmp_path / "big.json"
+    big.write_text('{"x": "' + "a" * (2 << 20) + '"}')
+    assert node_state.load(big) == {}
+    fifo = tmp_path / "fifo.json"
+    os.mkfifo(fifo)
+    assert node_state.load(fifo) == {}
