@@ -384,3 +384,24 @@ def test_an_unasked_sdo_reply_is_no_state_and_a_shared_bus_keeps_the_families_ap
     ]:
         assert dronecan_servo.is_reply(msg) and not odrive.is_reply(msg)
     assert odrive.last_state is None and odrive.axis_state is None
+
+
+def test_a_status_for_another_actuator_from_the_servos_node_is_counted_not_taken() -> None:
+    """Finding: a servo set to another actuator id than the config's (it ignores every command
+    the GCS sees ACCEPTED) reported its Status unnoticed: each was a sign of life with nothing
+    in it. Now counted (``other_actuator``; the scheduler's ``rejected``), for Status, Volz
+    and HiMark alike."""
+    servo = DroneCanServo(11, actuator_id=1)
+    equipment = dronecan.uavcan.equipment.actuator
+    payloads = [
+        equipment.Status(actuator_id=3, position=0.5),
+        dronecan.com.volz.servo.ActuatorStatus(actuator_id=3, actual_position=0.5),
+        dronecan.com.himark.servo.ServoInfo(servo_id=3, pos_sensor=100),
+    ]
+    for tid, payload in enumerate(payloads):
+        frames = to_messages(Transfer(transfer_id=tid, source_node_id=11, payload=payload))
+        results = [servo.decode(msg, 1.0 + tid) for msg in frames]
+        assert results[-1] is None
+    assert servo.errors["other_actuator"] == 3
+    state = servo.last_state
+    assert state is None or math.isnan(state.position_deg)

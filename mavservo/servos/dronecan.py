@@ -11,7 +11,8 @@ framing by the ``dronecan`` package through :mod:`.dronecan_wire`):
   Volz ``com.volz.servo.ActuatorStatus`` (20020: position rad, current 0.025 A, voltage 0.2 V,
   motor temperature +50 degC), HiMark ``com.himark.servo.ServoInfo`` (2019: position 0.01 deg,
   voltage 0.01 V, current 0.01 A, motor temperature 0.2 degC - 40, an error status); each is
-  matched to this servo by source node id and actuator id;
+  matched to this servo by source node id and actuator id (another actuator's status from its
+  node is counted as ``other_actuator``, not a state: the servo is set to another id);
 * liveness: ``uavcan.protocol.NodeStatus`` (341), 1 Hz from every node; silent for about 3 s a
   node is gone (:attr:`DroneCanServo.heartbeat_period_s` makes the scheduler's silence limit
   ``offline_after_missed`` heartbeats). Its health and mode become faults: a health other
@@ -269,7 +270,7 @@ class DroneCanServo(ServoProfile):
             return self._merge(timestamp, faults=self._health_faults | self._vendor_faults)
         if rx.dtid == wire.DTID_ACTUATOR_STATUS:
             if int(p.actuator_id) != actuator:
-                return self._merge(timestamp)
+                return self._other_actuator()
             return self._merge(
                 timestamp,
                 position_deg=_degrees(p.position),
@@ -277,7 +278,7 @@ class DroneCanServo(ServoProfile):
             )
         if rx.dtid == wire.DTID_VOLZ_STATUS:
             if int(p.actuator_id) != actuator:
-                return self._merge(timestamp)
+                return self._other_actuator()
             raw_temperature = int(p.motor_temperature)
             return self._merge(
                 timestamp,
@@ -288,7 +289,7 @@ class DroneCanServo(ServoProfile):
             )
         if rx.dtid == wire.DTID_HIMARK_INFO:
             if int(p.servo_id) != actuator:
-                return self._merge(timestamp)
+                return self._other_actuator()
             self._vendor_faults = NO_FAULT if int(p.error_status) == 0 else Fault.OTHER
             return self._merge(
                 timestamp,
@@ -299,6 +300,14 @@ class DroneCanServo(ServoProfile):
                 faults=self._health_faults | self._vendor_faults,
             )
         return self._merge(timestamp)
+
+    def _other_actuator(self) -> None:
+        """A status of another actuator from this servo's node: one actuator per node, so the
+        servo is set to another actuator id than ``options.actuator_id`` (it ignores the
+        bridge's commands) or a stranger speaks for it; counted (``other_actuator``, and the
+        scheduler's ``rejected``), not a state."""
+        self._reassembler.errors["other_actuator"] += 1
+        return None
 
 
 def _degrees(value: Any) -> float:
