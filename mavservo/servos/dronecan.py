@@ -301,7 +301,7 @@ class DroneCanServo(ServoProfile):
             )
         return self._merge(timestamp)
 
-    def _other_actuator(self) -> None:
+    def _other_actuator(self) -> ServoState | None:
         """A status of another actuator from this servo's node: one actuator per node, so the
         servo is set to another actuator id than ``options.actuator_id`` (it ignores the
         bridge's commands) or a stranger speaks for it; counted (``other_actuator``, and the
