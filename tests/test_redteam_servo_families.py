@@ -405,3 +405,41 @@ def test_a_status_for_another_actuator_from_the_servos_node_is_counted_not_taken
     assert servo.errors["other_actuator"] == 3
     state = servo.last_state
     assert state is None or math.isnan(state.position_deg)
+
+
+ODRIVE_CONFIG = """
+mavlink: {url: "udpin:127.0.0.1:14550"}
+can:
+  buses:
+    - {name: bus0, interface: virtual, channel: rt-odrive}
+servos:
+  - name: a
+    profile: odrive
+    can_id: 1
+    options:
+      motor_turns_per_rev: RATIO
+channels:
+  - {servo: a, source: servo_output, channel: 1, input: {min: 1000, max: 2000},
+     output_deg: [-45, 45]}
+"""
+
+
+@pytest.mark.parametrize("ratio", ["1e-300", "1e-40", "0.0009", "0", "-1", ".nan", ".inf", "1001"])
+def test_an_odrive_gear_ratio_at_which_float32_turns_underflow_is_a_config_error(
+    ratio: str,
+) -> None:
+    """Finding: ``motor_turns_per_rev: 1e-300`` was valid, and every Set_Input_Pos then
+    carried 0.0 turns (float32 underflow): each command ACCEPTED and applied as 0 deg."""
+    with pytest.raises(ConfigError) as info:
+        load_config_text(ODRIVE_CONFIG.replace("RATIO", ratio), "rig.yaml")
+    assert "rig.yaml:11:" in str(info.value) and "motor_turns_per_rev" in str(info.value)
+
+
+def test_the_odrive_gear_ratio_bounds_still_command_exactly() -> None:
+    """Guard: at both bounds a command survives float32 (within 0.01 deg)."""
+    for ratio in ("0.001", "1000"):
+        load_config_text(ODRIVE_CONFIG.replace("RATIO", ratio), "rig.yaml")
+        servo = ODrive(1, motor_turns_per_rev=float(ratio))
+        for angle in (0.01, 90.0, -179.99):
+            sent = struct.unpack_from("<f", bytes(servo.position_command(angle).data))[0]
+            assert servo.options.degrees(sent) == pytest.approx(angle, abs=0.01)
