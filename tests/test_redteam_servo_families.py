@@ -7,8 +7,10 @@ CANSimple; the bridge's parts are the real ones (profiles, bus node, allocator, 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import struct
+import types
 from typing import Any
 
 import can
@@ -443,3 +445,27 @@ def test_the_odrive_gear_ratio_bounds_still_command_exactly() -> None:
         for angle in (0.01, 90.0, -179.99):
             sent = struct.unpack_from("<f", bytes(servo.position_command(angle).data))[0]
             assert servo.options.degrees(sent) == pytest.approx(angle, abs=0.01)
+
+
+def test_a_huge_odrive_velocity_on_a_gimbal_axis_still_encodes_the_attitude_status() -> None:
+    """Finding (with the telemetry one): 3e38 turns/s is 1e41 deg/s, whose radians float32
+    cannot carry: GIMBAL_DEVICE_ATTITUDE_STATUS failed to encode (dropped, traceback logged)."""
+    from test_mavlink_gimbal import FollowingBackend, make_device
+
+    servo = ODrive(3)
+    state = servo.decode(
+        odrive_push(3, CMD_ENCODER_ESTIMATES, struct.pack("<ff", 0.1, 3.0e38)), 1.0
+    )
+    assert state is not None
+
+    def statuses(self: FollowingBackend) -> list[Any]:
+        return [
+            dataclasses.replace(s, state=state) if s.state is not None else s
+            for s in FollowingBackend.servo_statuses(self)
+        ]
+
+    device, backend = make_device()
+    backend.servo_statuses = types.MethodType(statuses, backend)  # type: ignore[method-assign]
+    message = device.attitude_status(2.0)
+    [decoded] = roundtrip([message])
+    assert decoded.angular_velocity_y == math.inf
