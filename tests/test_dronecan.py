@@ -389,13 +389,14 @@ def test_two_servos_on_one_node_id_collide() -> None:
 def test_budget_counts_packed_transfers_status_frames_and_every_nodes_heartbeat() -> None:
     """check and the scheduler count the same: 4 servos at 20 Hz in one 3-frame ArrayCommand
     transfer per slot, two frames per Status at 10 Hz each, NodeStatus from 4 servo nodes and
-    the bridge; every frame 29-bit, counted at 8 bytes."""
+    the bridge; the bridge's GetNodeInfo answers at their bound (4 a second, 9 frames each);
+    every frame 29-bit, counted at 8 bytes."""
     from mavservo.app.bridge import servo_specs, timing_config
     from mavservo.config import bus_loads, load_config
     from mavservo.scheduling.busload import frame_bits
 
     config = load_config("config/dronecan.yaml")
-    frames_per_s = 20 * 3 + 4 * 10 * 2 + 5 * 1
+    frames_per_s = 20 * 3 + 4 * 10 * 2 + 5 * 1 + 4 * 9
     expected = frames_per_s * frame_bits(True, 8) / 1_000_000
     [load] = bus_loads(config)
     assert load.load == pytest.approx(expected)

@@ -197,6 +197,6 @@ def test_a_simulated_servo_without_an_id_gets_it_from_the_bridge_and_follows() -
             target = pwm_to_angle(1750, 1000, 2000, (-45, 45))
             assert wait_until(lambda: abs(asking.position_deg - target) < 0.3, WAIT_S)
             [node] = bridge.schedulers["bus0"].nodes
-            assert node.allocator.allocations == [("000102030405060708090a0b0c0d0e0f", 42)]
+            assert list(node.allocator.allocations) == [("000102030405060708090a0b0c0d0e0f", 42)]
         finally:
             peer.close()

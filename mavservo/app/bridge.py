@@ -620,6 +620,10 @@ class Bridge:
             out["buses"][name] = {
                 **{k: v for k, v in metrics.items() if k != "servos"},
                 "transport": bus.stats() if isinstance(bus, StatsReporting) else {},
+                # what the bus nodes (DroneCAN: the bridge's node) counted of hostile traffic
+                "nodes": [
+                    stats() for node in scheduler.nodes if (stats := getattr(node, "stats", None))
+                ],
             }
             out["servos"].update(metrics.get("servos", {}))
         if self.mavlink is not None:

@@ -295,6 +295,9 @@ def format_summary(summary: dict[str, Any]) -> str:
             f"reconnects {transport.get('reconnects', 0)}, "
             f"failed sends {bus.get('send_failures', {}).get('total', 0)}"
         )
+        for node in bus.get("nodes") or []:
+            counts = ", ".join(f"{k} {v}" for k, v in node.items() if v)
+            lines.append(f"  bus {name} node: {counts or 'nothing counted'}")
     lines += _servo_table(summary.get("servos", {}))
     mav = summary.get("mavlink") or {}
     if mav:

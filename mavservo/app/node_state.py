@@ -39,7 +39,8 @@ def load(path: Path) -> dict[str, Any]:
         return {}
     try:
         data = json.loads(read_small_file(path, _MAX_BYTES))
-    except (OSError, SmallFileError, ValueError) as exc:
+    except (OSError, SmallFileError, ValueError, RecursionError) as exc:
+        # RecursionError: JSON nested thousands deep (a hostile file) exhausts the decoder
         log.warning("node state %s ignored: %s", path, exc)
         return {}
     if not isinstance(data, dict):

@@ -112,9 +112,9 @@ def load_run(directory: str | Path) -> Run:
         )
     try:
         header = json.loads(header_path.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as exc:
+    except (OSError, ValueError, RecursionError) as exc:  # RecursionError: nested too deep
         raise ReportError(f"{header_path}: unreadable run header ({exc})") from exc
-    if header.get("format") != "mavservo-run":
+    if not isinstance(header, dict) or header.get("format") != "mavservo-run":
         raise ReportError(f"{header_path}: not a mavservo run header")
     if header.get("start_failed"):
         raise ReportError(
@@ -168,7 +168,9 @@ def load_run(directory: str | Path) -> Run:
     if metrics_path.is_file():
         try:
             metrics = json.loads(metrics_path.read_text(encoding="utf-8"))
-        except json.JSONDecodeError:
+        except (OSError, ValueError, RecursionError):
+            metrics = {}
+        if not isinstance(metrics, dict):
             metrics = {}
 
     rejections = 0

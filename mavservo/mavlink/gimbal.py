@@ -65,6 +65,7 @@ from mavservo.mavlink.quaternion import (
     wrap_180,
     yaw_of,
 )
+from mavservo.mavlink.telemetry import float32_field
 from mavservo.servos.base import Fault
 
 log = logging.getLogger(__name__)
@@ -753,7 +754,7 @@ class GimbalDevice:
             if status is not None and status.state is not None:
                 velocity = status.state.velocity_dps
                 if not math.isnan(velocity):
-                    rates[i] = math.radians(velocity)
+                    rates[i] = float32_field(math.radians(velocity))  # 1e41: an infinity
         delta_yaw = math.nan if self.vehicle_yaw_deg is None else math.radians(self.vehicle_yaw_deg)
         return mav.MAVLink_gimbal_device_attitude_status_message(
             target_system=0,

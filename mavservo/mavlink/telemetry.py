@@ -68,6 +68,7 @@ STATUSTEXT_MAX_CHUNKS = 4
 REMINDER_S = 20.0
 STATUSTEXT_BURST = 4  # per second
 STATUSTEXT_QUEUE = 32
+FLOAT32_MAX = 3.4028234663852886e38
 
 
 def _clamp_u16(value: float | None) -> int:
@@ -79,6 +80,16 @@ def _clamp_u16(value: float | None) -> int:
         if math.isfinite(value)
         else (UINT16_MAX if value > 0 else 0)
     )
+
+
+def float32_field(value: float) -> float:
+    """``value`` as a float32 field can carry it: beyond float32's range (a servo's garbage
+    reading scaled to degrees, 3e38 motor turns) it is an infinity of its sign, which a
+    float32 encodes; the encoder would refuse the value itself and drop the message."""
+    number = float(value)
+    if math.isfinite(number) and abs(number) > FLOAT32_MAX:
+        return math.copysign(math.inf, number)
+    return number
 
 
 def _clamp_u8(value: float | None) -> int:
@@ -364,7 +375,7 @@ class Telemetry:
                 and status.normalized is not None
                 and math.isfinite(status.normalized)
             ):
-                values[status.index] = float(status.normalized)
+                values[status.index] = float32_field(status.normalized)
                 active |= 1 << status.index
         return mavlink2.MAVLink_actuator_output_status_message(
             int((now - self._boot) * 1e6), active, values
@@ -416,7 +427,7 @@ class Telemetry:
             for suffix, value in values:
                 out.append(
                     mavlink2.MAVLink_named_value_float_message(
-                        boot_ms, f"{self.name_prefix}{n}_{suffix}".encode(), float(value)
+                        boot_ms, f"{self.name_prefix}{n}_{suffix}".encode(), float32_field(value)
                     )
                 )
         # where the servos are in ESC_TELEMETRY (``esc_first``: ESC number of servo 1), so a

@@ -11,11 +11,14 @@ framing by the ``dronecan`` package through :mod:`.dronecan_wire`):
   Volz ``com.volz.servo.ActuatorStatus`` (20020: position rad, current 0.025 A, voltage 0.2 V,
   motor temperature +50 degC), HiMark ``com.himark.servo.ServoInfo`` (2019: position 0.01 deg,
   voltage 0.01 V, current 0.01 A, motor temperature 0.2 degC - 40, an error status); each is
-  matched to this servo by source node id and actuator id;
+  matched to this servo by source node id and actuator id (another actuator's status from its
+  node is counted as ``other_actuator``, not a state: the servo is set to another id);
 * liveness: ``uavcan.protocol.NodeStatus`` (341), 1 Hz from every node; silent for about 3 s a
   node is gone (:attr:`DroneCanServo.heartbeat_period_s` makes the scheduler's silence limit
   ``offline_after_missed`` heartbeats). Its health and mode become faults: a health other
-  than OK, or a mode other than operational or initialization, is :attr:`Fault.OTHER`.
+  than OK, or a mode other than operational or initialization, is :attr:`Fault.OTHER`. Its
+  uptime only goes up: one that went back (a restart, or a second node on the id) is counted
+  (``uptime_backwards``, a rejected frame) and is no sign of life.
 
 The servo id (``can_id``) is the servo's node id, 1..127. ``actuator_id`` is the number on the
 wire, as the servo is configured: **ArduPilot numbers actuators from 1** (``SERVOn`` with a
@@ -139,6 +142,8 @@ class DroneCanServo(ServoProfile):
         self._vendor_faults = NO_FAULT
         self.node_health: int | None = None
         self.node_mode: int | None = None
+        self.node_uptime: int | None = None
+        """The uptime of the latest NodeStatus (s): it only goes up while one node has this id."""
 
     @property
     def errors(self) -> Counter[str]:
@@ -257,6 +262,13 @@ class DroneCanServo(ServoProfile):
         p = rx.payload
         actuator = self.options.actuator_id
         if rx.dtid == wire.DTID_NODE_STATUS:
+            uptime, last = int(p.uptime_sec), self.node_uptime
+            self.node_uptime = uptime
+            if last is not None and uptime < last:
+                # a restart (one NodeStatus), or two nodes on this id (a stranger speaking for
+                # the servo: every other one): counted, and not a sign of life
+                self._reassembler.errors["uptime_backwards"] += 1
+                return None
             self.node_health, self.node_mode = int(p.health), int(p.mode)
             healthy = self.node_health == wire.HEALTH_OK
             running = self.node_mode in (wire.MODE_OPERATIONAL, wire.MODE_INITIALIZATION)
@@ -264,7 +276,7 @@ class DroneCanServo(ServoProfile):
             return self._merge(timestamp, faults=self._health_faults | self._vendor_faults)
         if rx.dtid == wire.DTID_ACTUATOR_STATUS:
             if int(p.actuator_id) != actuator:
-                return self._merge(timestamp)
+                return self._other_actuator()
             return self._merge(
                 timestamp,
                 position_deg=_degrees(p.position),
@@ -272,7 +284,7 @@ class DroneCanServo(ServoProfile):
             )
         if rx.dtid == wire.DTID_VOLZ_STATUS:
             if int(p.actuator_id) != actuator:
-                return self._merge(timestamp)
+                return self._other_actuator()
             raw_temperature = int(p.motor_temperature)
             return self._merge(
                 timestamp,
@@ -283,7 +295,7 @@ class DroneCanServo(ServoProfile):
             )
         if rx.dtid == wire.DTID_HIMARK_INFO:
             if int(p.servo_id) != actuator:
-                return self._merge(timestamp)
+                return self._other_actuator()
             self._vendor_faults = NO_FAULT if int(p.error_status) == 0 else Fault.OTHER
             return self._merge(
                 timestamp,
@@ -294,6 +306,14 @@ class DroneCanServo(ServoProfile):
                 faults=self._health_faults | self._vendor_faults,
             )
         return self._merge(timestamp)
+
+    def _other_actuator(self) -> ServoState | None:
+        """A status of another actuator from this servo's node: one actuator per node, so the
+        servo is set to another actuator id than ``options.actuator_id`` (it ignores the
+        bridge's commands) or a stranger speaks for it; counted (``other_actuator``, and the
+        scheduler's ``rejected``), not a state."""
+        self._reassembler.errors["other_actuator"] += 1
+        return None
 
 
 def _degrees(value: Any) -> float:

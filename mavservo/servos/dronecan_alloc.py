@@ -21,6 +21,7 @@ for the bridge to save.
 
 from __future__ import annotations
 
+from collections import deque
 from typing import Any
 
 import can
@@ -30,6 +31,15 @@ from . import dronecan_wire as wire
 FOLLOWUP_TIMEOUT_S = 0.5
 """``Allocation.FOLLOWUP_TIMEOUT_MS``: a query not continued within this is forgotten."""
 _STAGE_LENGTHS = (6, 6, 4)
+_ALLOCATIONS_KEPT = 64
+ALLOCATION_ANSWERS_PER_S = 6
+"""Answers per second at most: an allocation takes three, and a node without an id asks again
+after a random pause (the specification's request period), so this serves two nodes a second
+while a flood of anonymous requests (which need no node id to send) cannot fill the bus with
+answers; requests beyond are counted in :attr:`AllocationServer.limited` and not answered."""
+ALLOCATION_ANSWER_FRAMES = 3
+"""Frames of the longest answer (node id and the whole 16-byte unique id, 17 bytes, and the
+transfer CRC: three frames), for the bus-load budget."""
 _MAX_REGULAR_ID = 125
 """126 and 127 are reserved for tools (the specification's ``MAX_NODE_ID`` for allocation)."""
 
@@ -47,15 +57,28 @@ class AllocationServer:
     ) -> None:
         self.own_id = own_id
         self.configured = dict(configured)
-        self.table: dict[bytes, int] = dict(table or {})
         self.reserved = set(static_ids) | set(configured.values()) | {own_id}
+        self.table: dict[bytes, int] = {}
+        self.dropped: list[tuple[str, int]] = []
+        """Table entries not kept: the table comes from a file anyone may have edited, and an
+        entry with the bridge's id, a servo's, another entry's, or for a configured unique id
+        would hand an id in use to a second node."""
+        for unique_id, node_id in sorted((table or {}).items()):
+            taken = self.reserved | set(self.table.values())
+            if unique_id in self.configured or node_id in taken or not 1 <= node_id <= 125:
+                self.dropped.append((unique_id.hex(), node_id))
+            else:
+                self.table[unique_id] = node_id
         self.first_id = first_id
         self.seen_ids: set[int] = set()
         self.version = 0
         """Bumped whenever :attr:`table` changes (the bridge saves it then)."""
-        self.allocations: list[tuple[str, int]] = []
-        """``(unique id hex, node id)`` handed out, in order (diagnostics, tests)."""
+        self.allocations: deque[tuple[str, int]] = deque(maxlen=_ALLOCATIONS_KEPT)
+        """The latest ``(unique id hex, node id)`` handed out, in order (diagnostics, tests;
+        bounded: a node may ask again and again)."""
         self.ignored = 0
+        self.limited = 0
+        self._answered: deque[float] = deque(maxlen=ALLOCATION_ANSWERS_PER_S)
         self._query = b""
         self._query_time = 0.0
         self._queue: list[can.Message] = []
@@ -76,6 +99,10 @@ class AllocationServer:
         """An anonymous Allocation request; True when an answer waits in :meth:`due`."""
         if received.source != 0 or received.service:
             self.ignored += 1  # another allocator, or not an allocation request
+            return False
+        answered = self._answered
+        if len(answered) == answered.maxlen and now - answered[0] < 1.0:
+            self.limited += 1
             return False
         message = received.payload
         try:
@@ -103,12 +130,13 @@ class AllocationServer:
                 self.ignored += 1  # no id left: say nothing (the node keeps asking)
                 self._query = b""
                 return False
-        self._answer(node_id, self._query)
+        self._answer(node_id, self._query, now)
         if node_id:
             self._query = b""
         return True
 
-    def _answer(self, node_id: int, unique_id: bytes) -> None:
+    def _answer(self, node_id: int, unique_id: bytes, now: float) -> None:
+        self._answered.append(now)
         allocation = wire.lib().uavcan.protocol.dynamic_node_id.Allocation()
         allocation.node_id = node_id
         allocation.first_part_of_unique_id = False

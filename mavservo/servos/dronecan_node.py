@@ -23,17 +23,22 @@ dynamic_node_id.Allocation`` for nodes that start without an id, see :mod:`.dron
 from __future__ import annotations
 
 import re
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Sequence
 from typing import Any, Protocol
 
 import can
-from pydantic import Field, field_validator
+from pydantic import Field, field_validator, model_validator
 
 from . import dronecan_wire as wire
 from .base import BusNodeError, NodeHealth, ProfileOptions
 
 _HEX32 = re.compile(r"[0-9a-f]{32}")
+GET_NODE_INFO_PER_S = 4
+"""GetNodeInfo answers per second at most (a tool or node monitor asks once per node it
+sees): each answer is about nine frames for a one-frame request, so an unbounded answer rate
+would let any node on the bus fill it with the bridge's traffic. Requests beyond are counted
+(``get_node_info_limited``) and not answered; the asker asks again."""
 _HEALTH = {"ok": wire.HEALTH_OK, "warning": wire.HEALTH_WARNING, "error": wire.HEALTH_ERROR}
 
 
@@ -70,7 +75,24 @@ class NodeOptions(ProfileOptions):
                 raise ValueError(f"unique id {unique_id!r} is not 32 lower-case hex digits")
             if not 1 <= node_id <= 125:
                 raise ValueError(f"node id {node_id} for {unique_id} is outside 1..125")
+        owners: dict[int, str] = {}
+        for unique_id, node_id in sorted(table.items()):
+            if node_id in owners:
+                raise ValueError(
+                    f"node id {node_id} is in the table twice ({owners[node_id]} and "
+                    f"{unique_id}): two nodes would get one id"
+                )
+            owners[node_id] = unique_id
         return table
+
+    @model_validator(mode="after")
+    def _table_not_own_id(self) -> NodeOptions:
+        for unique_id, node_id in self.allocation_table.items():
+            if node_id == self.node_id:
+                raise ValueError(
+                    f"allocation_table gives {unique_id} the bridge's own node id {node_id}"
+                )
+        return self
 
 
 class CommandedServo(Protocol):
@@ -145,12 +167,14 @@ class BridgeNode:
         self._payloads: dict[int, Any] = {}
         self._reassembler = wire.Reassembler()
         self._queue: list[can.Message] = []
+        self._info_answers: deque[float] = deque(maxlen=GET_NODE_INFO_PER_S)
         self._next_status = start
         self._health = wire.HEALTH_OK
         self.counters: Counter[str] = Counter()
         self.foreign_masters: set[int] = set()
         self._notices: list[str] = []
         self._conflict_noted = False
+        self._noted: set[str] = set()
         self.allocator: Any = None
         if options.allocator:
             from .dronecan_alloc import AllocationServer
@@ -165,6 +189,12 @@ class BridgeNode:
             self.allocator = AllocationServer(
                 self.node_id, configured, static, options.allocation_first_id, table
             )
+            if self.allocator.dropped:
+                self._notices.append(
+                    f"DroneCAN allocation table: {len(self.allocator.dropped)} entries ignored "
+                    "(an id of the bridge, of a servo or of another entry): "
+                    + ", ".join(f"{uid}={nid}" for uid, nid in self.allocator.dropped[:4])
+                )
 
     @property
     def errors(self) -> Counter[str]:
@@ -244,6 +274,22 @@ class BridgeNode:
             return -float("inf")
         return self._next_status
 
+    def _notice_once(self, kind: str, text: str) -> None:
+        """A notice the first time something of ``kind`` happens (the count goes on)."""
+        if kind not in self._noted:
+            self._noted.add(kind)
+            self._notices.append(text)
+
+    def stats(self) -> dict[str, int]:
+        """Counts for the run summary: the node's own, received transfers that did not decode
+        (``rx_<reason>``) and, with the allocator on, requests it ignored or did not answer."""
+        out = {k: v for k, v in sorted(self.counters.items()) if v}
+        out.update((f"rx_{k}", v) for k, v in sorted(self.errors.items()) if v)
+        if self.allocator is not None:
+            out["allocation_ignored"] = self.allocator.ignored
+            out["allocation_limited"] = self.allocator.limited
+        return out
+
     def take_notices(self) -> list[str]:
         notices, self._notices = self._notices, []
         return notices
@@ -282,12 +328,25 @@ class BridgeNode:
     def bus_frames_per_second(
         self, servo_count: int, command_hz: float
     ) -> list[tuple[float, bool, int]]:
-        """The node's NodeStatus (1 Hz) and the packed commands of ``servo_count`` servos at
-        ``command_hz``; the profile's per-servo command frames are not counted besides."""
-        return [
+        """The node's NodeStatus (1 Hz), the packed commands of ``servo_count`` servos at
+        ``command_hz`` and its answers at their bounded rates (GetNodeInfo, allocation); the
+        profile's per-servo command frames are not counted besides."""
+        flows = [
             (1 / wire.NODE_STATUS_PERIOD_S, True, 8),
             (command_hz * frames_for_commands(servo_count), True, 8),
+            (GET_NODE_INFO_PER_S * self.node_info_frames(), True, 8),
         ]
+        if self.allocator is not None:
+            from .dronecan_alloc import ALLOCATION_ANSWER_FRAMES, ALLOCATION_ANSWERS_PER_S
+
+            flows.append((ALLOCATION_ANSWERS_PER_S * ALLOCATION_ANSWER_FRAMES, True, 8))
+        return flows
+
+    def node_info_frames(self) -> int:
+        """Frames of this node's GetNodeInfo answer: NodeStatus (7 bytes), software version
+        (15), hardware version with an empty certificate (19), the name (tail array, no length
+        byte), the transfer CRC; 7 bytes a frame."""
+        return -(-(7 + 15 + 19 + len(self.options.name) + 2) // 7)
 
     # -------------------------------------------------------------------------- receiving
     def receive(self, msg: can.Message, now: float) -> bool:
@@ -303,6 +362,17 @@ class BridgeNode:
             if received is None:
                 return False
             if received.dtid == wire.DTID_GET_NODE_INFO:
+                answers = self._info_answers
+                if len(answers) == answers.maxlen and now - answers[0] < 1.0:
+                    self.counters["get_node_info_limited"] += 1
+                    self._notice_once(
+                        "get_node_info_limited",
+                        f"DroneCAN node {received.source} asks GetNodeInfo faster than "
+                        f"{GET_NODE_INFO_PER_S}/s: the requests beyond are not answered "
+                        "(counted in get_node_info_limited)",
+                    )
+                    return False
+                answers.append(now)
                 self._queue += self._node_info_response(received, now)
                 self.counters["get_node_info"] += 1
                 return True
@@ -313,7 +383,17 @@ class BridgeNode:
         if source == 0:
             if self.allocator is not None and dtid == wire.DTID_ALLOCATION:
                 received = self._reassembler.push(msg, now)
-                return received is not None and self.allocator.receive(received, now)
+                if received is None:
+                    return False
+                limited = self.allocator.limited
+                answered = bool(self.allocator.receive(received, now))
+                if self.allocator.limited != limited:
+                    self._notice_once(
+                        "allocation_limited",
+                        "anonymous DroneCAN allocation requests come faster than the allocator "
+                        "answers: the requests beyond are not answered (counted)",
+                    )
+                return answered
             return False
         if dtid == wire.DTID_ARRAY_COMMAND and source != self.node_id:
             self._foreign_command(msg, source, now)

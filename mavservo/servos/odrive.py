@@ -219,7 +219,11 @@ class ODriveOptions(ProfileOptions):
         description="how the axis follows a new position (Set_Controller_Mode at start-up)",
     )
     motor_turns_per_rev: float = Field(
-        1.0, gt=0, le=1000, description="motor turns per output revolution (gear ratio)"
+        1.0,
+        ge=0.001,
+        le=1000,
+        description="motor turns per output revolution (gear ratio, 0.001..1000: far below, "
+        "a position in turns underflows float32 and every command would be 0)",
     )
     min_position_deg: float = Field(
         -180.0, ge=-36_000, le=36_000, description="lowest output position accepted, deg"
