@@ -18,21 +18,22 @@ from conftest import wait_until
 from e2e_support import (
     MAV_CMD_DO_SET_SERVO,
     MAV_RESULT_ACCEPTED,
+    MAV_RESULT_DENIED,
     Peer,
     Recorder,
+    assert_fault_reaches_statustext_and_gimbal_flags,
     named_values,
     pwm_to_angle,
     running,
     sim_servo,
+    status,
 )
 
 from mavservo.servos.damiao import DamiaoDM
 from mavservo.servos.mit import is_special, unpack_command
-from mavservo.sim.autopilot.link import mavlink2
 
 pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")
 
-MAV_RESULT_DENIED = 2
 WAIT_S = 5.0
 
 CONFIG = """
@@ -62,10 +63,6 @@ RESOLUTION_DEG = math.degrees(25.0 / 65535)
 """One count of the 16-bit position field over +-12.5 rad (both families' default range)."""
 #: servo -> (NAMED_VALUE_FLOAT index, channel)
 SERVOS = {"dm_mit": (1, 1), "dm_pv": (2, 2), "ak_mit": (3, 3)}
-
-
-def status(bridge, name: str):  # type: ignore[no-untyped-def]
-    return next(s for s in bridge.backend.servo_statuses() if s.name == name)
 
 
 def test_mit_families_follow_report_and_refuse_out_of_range() -> None:
@@ -145,7 +142,7 @@ def test_a_silent_servo_goes_offline_and_comes_back(name: str) -> None:
     with running(CONFIG) as (bridge, port):
         peer = Peer(port)
         try:
-            peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))  # a GCS: answer me
+            peer.gcs_heartbeat()  # a GCS: answer me
             assert wait_until(lambda: status(bridge, name).online, WAIT_S)
             device = sim_servo(bridge, name)
             mark = peer.count()
@@ -174,8 +171,6 @@ gimbals:
 scheduler: {reply_timeout_s: 0.5, command_period_s: 0.02, telemetry_period_s: 0.05}
 """
 
-MOTOR_ERROR = mavlink2.GIMBAL_DEVICE_ERROR_FLAGS_MOTOR_ERROR
-
 
 @pytest.mark.parametrize(
     ("axis", "fault", "text"),
@@ -187,19 +182,9 @@ def test_a_fault_status_reaches_statustext_and_gimbal_failure_flags(
     with running(GIMBAL) as (bridge, port):
         peer = Peer(port)
         try:
-            peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))
-            assert wait_until(lambda: status(bridge, axis).online, WAIT_S)
-            mark = peer.count()
-            setattr(sim_servo(bridge, axis).faults, fault, True)
-            assert wait_until(
-                lambda: f"servo {axis} fault {text}" in peer.statustexts(mark), WAIT_S
-            ), peer.statustexts(mark)
-            assert wait_until(
-                lambda: any(
-                    m.failure_flags & MOTOR_ERROR
-                    for m in peer.since(mark, "GIMBAL_DEVICE_ATTITUDE_STATUS")
-                ),
-                WAIT_S,
+            peer.gcs_heartbeat()
+            assert_fault_reaches_statustext_and_gimbal_flags(
+                bridge, peer, axis, fault, text, WAIT_S
             )
         finally:
             peer.close()

@@ -18,12 +18,15 @@ from conftest import wait_until
 from e2e_support import (
     MAV_CMD_DO_SET_SERVO,
     MAV_RESULT_ACCEPTED,
+    MAV_RESULT_DENIED,
     Peer,
     Recorder,
+    assert_fault_reaches_statustext_and_gimbal_flags,
     named_values,
     pwm_to_angle,
     running,
     sim_servo,
+    status,
 )
 
 from mavservo.servos.odrive import (
@@ -32,11 +35,9 @@ from mavservo.servos.odrive import (
     WATCHDOG_TIMER_EXPIRED,
     ODrive,
 )
-from mavservo.sim.autopilot.link import mavlink2
 
 pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")
 
-MAV_RESULT_DENIED = 2
 WAIT_S = 5.0
 
 CONFIG = """
@@ -64,10 +65,6 @@ channels:
 SERVOS = {"direct": (1, 1), "geared": (2, 2)}
 RESOLUTION_DEG = 0.01
 """Float32 turns carry far finer steps; this is the reading's travel between two pushes."""
-
-
-def status(bridge, name: str):  # type: ignore[no-untyped-def]
-    return next(s for s in bridge.backend.servo_statuses() if s.name == name)
 
 
 def test_odrive_axes_follow_and_report_with_nothing_lost() -> None:
@@ -152,7 +149,7 @@ def test_a_silent_axis_goes_offline_and_comes_back() -> None:
     with running(CONFIG) as (bridge, port):
         peer = Peer(port)
         try:
-            peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))  # a GCS: answer me
+            peer.gcs_heartbeat()  # a GCS: answer me
             assert wait_until(lambda: status(bridge, "direct").online, WAIT_S)
             device = sim_servo(bridge, "direct")
             mark = peer.count()
@@ -175,7 +172,7 @@ def test_an_axis_its_watchdog_disarmed_is_reported_and_rearmed() -> None:
     with running(CONFIG) as (bridge, port):
         peer = Peer(port)
         try:
-            peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))
+            peer.gcs_heartbeat()
             assert peer.command(MAV_CMD_DO_SET_SERVO, [1, 1600]) == MAV_RESULT_ACCEPTED
             servo = sim_servo(bridge, "direct")
             assert wait_until(lambda: abs(servo.position_deg - 18.0) < 0.05, WAIT_S)
@@ -206,8 +203,6 @@ gimbals:
 scheduler: {reply_timeout_s: 0.5, command_period_s: 0.02, telemetry_period_s: 0.05}
 """
 
-MOTOR_ERROR = mavlink2.GIMBAL_DEVICE_ERROR_FLAGS_MOTOR_ERROR
-
 
 @pytest.mark.parametrize(
     ("axis", "fault", "text"),
@@ -219,19 +214,9 @@ def test_an_axis_error_reaches_statustext_and_gimbal_failure_flags(
     with running(GIMBAL) as (bridge, port):
         peer = Peer(port)
         try:
-            peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))
-            assert wait_until(lambda: status(bridge, axis).online, WAIT_S)
-            mark = peer.count()
-            setattr(sim_servo(bridge, axis).faults, fault, True)
-            assert wait_until(
-                lambda: f"servo {axis} fault {text}" in peer.statustexts(mark), WAIT_S
-            ), peer.statustexts(mark)
-            assert wait_until(
-                lambda: any(
-                    m.failure_flags & MOTOR_ERROR
-                    for m in peer.since(mark, "GIMBAL_DEVICE_ATTITUDE_STATUS")
-                ),
-                WAIT_S,
+            peer.gcs_heartbeat()
+            assert_fault_reaches_statustext_and_gimbal_flags(
+                bridge, peer, axis, fault, text, WAIT_S
             )
         finally:
             peer.close()

@@ -20,12 +20,15 @@ from conftest import wait_until
 from e2e_support import (
     MAV_CMD_DO_SET_SERVO,
     MAV_RESULT_ACCEPTED,
+    MAV_RESULT_DENIED,
     Peer,
     Recorder,
+    assert_fault_reaches_statustext_and_gimbal_flags,
     named_values,
     pwm_to_angle,
     running,
     sim_servo,
+    status,
 )
 
 from mavservo.servos.robstride import PARAM_LOC_REF, RobstrideDevice, RobstrideOptions
@@ -33,7 +36,6 @@ from mavservo.sim.autopilot.link import mavlink2
 
 pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")
 
-MAV_RESULT_DENIED = 2
 WAIT_S = 5.0
 
 CONFIG = """
@@ -56,10 +58,6 @@ channels:
 SERVOS = {"rs_private": (1, 1, (-800.0, 800.0)), "rs_mit": (2, 2, (-90.0, 90.0))}
 RESOLUTION_DEG = math.degrees(8 * math.pi / 65535)
 """One count of the private feedback's angle (+-4 pi); the MIT one (+-12.57 rad) is as fine."""
-
-
-def status(bridge, name: str):  # type: ignore[no-untyped-def]
-    return next(s for s in bridge.backend.servo_statuses() if s.name == name)
 
 
 def test_both_protocols_follow_report_and_lose_nothing() -> None:
@@ -140,7 +138,7 @@ def test_a_silent_motor_goes_offline_and_comes_back(name: str) -> None:
     with running(CONFIG) as (bridge, port):
         peer = Peer(port)
         try:
-            peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))  # a GCS: answer me
+            peer.gcs_heartbeat()  # a GCS: answer me
             _, channel, _ = SERVOS[name]
             assert peer.command(MAV_CMD_DO_SET_SERVO, [channel, 1500]) == MAV_RESULT_ACCEPTED
             assert wait_until(lambda: status(bridge, name).online, WAIT_S)
@@ -181,7 +179,7 @@ def test_a_motor_speaking_the_other_protocol_is_named_with_the_cause() -> None:
     with running(CONFIG) as (bridge, port):
         peer = Peer(port)
         try:
-            peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))
+            peer.gcs_heartbeat()
             mark = peer.count()
             device = sim_servo(bridge, "rs_private")
             mit_motor = RobstrideDevice(device, 1, RobstrideOptions(protocol="mit"))
@@ -205,7 +203,7 @@ def test_a_motor_that_never_answers_is_named_with_what_to_check() -> None:
     with running(CONFIG) as (bridge, port):
         peer = Peer(port)
         try:
-            peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))
+            peer.gcs_heartbeat()
             mark = peer.count()
             device = sim_servo(bridge, "rs_mit")
             device._device = RobstrideDevice(device, 2, RobstrideOptions())  # noqa: SLF001
@@ -236,8 +234,6 @@ gimbals:
 scheduler: {reply_timeout_s: 0.5, command_period_s: 0.02, telemetry_period_s: 0.05}
 """
 
-MOTOR_ERROR = mavlink2.GIMBAL_DEVICE_ERROR_FLAGS_MOTOR_ERROR
-
 
 @pytest.mark.parametrize(
     ("axis", "fault", "text"),
@@ -249,7 +245,7 @@ def test_a_fault_bit_reaches_statustext_and_gimbal_failure_flags(
     with running(GIMBAL) as (bridge, port):
         peer = Peer(port)
         try:
-            peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))
+            peer.gcs_heartbeat()
             # a pushing motor reports once started, and it is started before its first command
             attitude = mavlink2.MAVLink_gimbal_device_set_attitude_message(
                 1, 154, 0, [1.0, 0.0, 0.0, 0.0], math.nan, math.nan, math.nan
@@ -257,18 +253,8 @@ def test_a_fault_bit_reaches_statustext_and_gimbal_failure_flags(
             assert wait_until(
                 lambda: peer.send(attitude) or status(bridge, axis).state is not None, WAIT_S
             )
-            assert wait_until(lambda: status(bridge, axis).online, WAIT_S)
-            mark = peer.count()
-            setattr(sim_servo(bridge, axis).faults, fault, True)
-            assert wait_until(
-                lambda: f"servo {axis} fault {text}" in peer.statustexts(mark), WAIT_S
-            ), peer.statustexts(mark)
-            assert wait_until(
-                lambda: any(
-                    m.failure_flags & MOTOR_ERROR
-                    for m in peer.since(mark, "GIMBAL_DEVICE_ATTITUDE_STATUS")
-                ),
-                WAIT_S,
+            assert_fault_reaches_statustext_and_gimbal_flags(
+                bridge, peer, axis, fault, text, WAIT_S
             )
         finally:
             peer.close()
