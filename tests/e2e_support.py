@@ -13,7 +13,7 @@ import contextlib
 import re
 import threading
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -278,6 +278,51 @@ def assert_fault_reaches_statustext_and_gimbal_flags(
     )
 
 
+def assert_servos_follow_pwm(
+    bridge: Bridge,
+    peer: Peer,
+    servos: dict[str, tuple[int, int]],
+    pwm: int,
+    resolution_deg: float,
+    wait_s: float,
+) -> None:
+    """DO_SET_SERVO ``pwm`` on each servo's channel (``servos``: name -> (NAMED_VALUE_FLOAT
+    index, channel), every channel 1000..2000 us onto -90..90 deg): each is ACCEPTED, every
+    simulated servo settles on the target, and the last reported positions match the servo
+    within ``resolution_deg``."""
+    target = pwm_to_angle(pwm, 1000, 2000, (-90, 90))
+    for name, (_, channel) in servos.items():
+        result = peer.command(MAV_CMD_DO_SET_SERVO, [channel, pwm])
+        assert result == MAV_RESULT_ACCEPTED, name
+    sims = {name: sim_servo(bridge, name) for name in servos}
+    assert wait_until(
+        lambda s=sims, t=target: all(
+            abs(x.position_deg - t) < 0.05 and abs(x.velocity_dps) < 0.1 for x in s.values()
+        ),
+        wait_s,
+    ), {n: s.position_deg for n, s in sims.items()}
+    mark = peer.count()
+    assert wait_until(
+        lambda m=mark: all(
+            len(named_values(peer.since(m), f"s{n}_pos")) >= 3 for n, _ in servos.values()
+        ),
+        wait_s,
+    )
+    for name, (n, _) in servos.items():
+        for value in named_values(peer.since(mark), f"s{n}_pos")[-2:]:
+            assert abs(value - sims[name].position_deg) <= resolution_deg, name
+
+
+def assert_nothing_lost(summary: dict[str, Any], servos: Iterable[str]) -> None:
+    """The bridge's stop summary: each of ``servos`` sent and received frames, none lost or
+    rejected, and the bus rejected nothing."""
+    for name in servos:
+        frames = summary["servos"][name]["frames"]
+        assert frames["sent"] > 0 and frames["received"] > 0, name
+        assert frames["lost"] == 0 and frames["rejected"] == 0, (name, frames)
+    assert summary["buses"]["bus0"]["bus_rejected"] == 0
+
+
 def run_example_config_follows_and_loses_nothing(config_name: str, tmp_path: Path) -> None:
     """``mavservo run`` on the shipped ``config/CONFIG_NAME`` for 8 s on the built-in simulation:
     it exits cleanly, every servo's summary row shows frames both ways with none lost or
@@ -335,6 +380,8 @@ __all__ = [
     "Recorder",
     "ServoSpy",
     "assert_fault_reaches_statustext_and_gimbal_flags",
+    "assert_nothing_lost",
+    "assert_servos_follow_pwm",
     "bridge_config",
     "named_values",
     "pwm_to_angle",

@@ -22,8 +22,8 @@ from e2e_support import (
     Peer,
     Recorder,
     assert_fault_reaches_statustext_and_gimbal_flags,
-    named_values,
-    pwm_to_angle,
+    assert_nothing_lost,
+    assert_servos_follow_pwm,
     running,
     sim_servo,
     status,
@@ -71,38 +71,12 @@ def test_mit_families_follow_report_and_refuse_out_of_range() -> None:
         peer = Peer(port)
         try:
             for pwm in (1650, 1210):
-                target = pwm_to_angle(pwm, 1000, 2000, (-90, 90))
-                for name, (_, channel) in SERVOS.items():
-                    result = peer.command(MAV_CMD_DO_SET_SERVO, [channel, pwm])
-                    assert result == MAV_RESULT_ACCEPTED, name
-                servos = {name: sim_servo(bridge, name) for name in SERVOS}
-                assert wait_until(
-                    lambda s=servos, t=target: all(
-                        abs(x.position_deg - t) < 0.05 and abs(x.velocity_dps) < 0.1
-                        for x in s.values()
-                    ),
-                    WAIT_S,
-                ), {n: s.position_deg for n, s in servos.items()}
-                mark = peer.count()
-                assert wait_until(
-                    lambda m=mark: all(
-                        len(named_values(peer.since(m), f"s{n}_pos")) >= 3
-                        for n, _ in SERVOS.values()
-                    ),
-                    WAIT_S,
-                )
-                for name, (n, _) in SERVOS.items():
-                    for value in named_values(peer.since(mark), f"s{n}_pos")[-2:]:
-                        assert abs(value - servos[name].position_deg) <= RESOLUTION_DEG, name
+                assert_servos_follow_pwm(bridge, peer, SERVOS, pwm, RESOLUTION_DEG, WAIT_S)
 
         finally:
             peer.close()
         summary = bridge.stop()
-    for name in SERVOS:
-        frames = summary["servos"][name]["frames"]
-        assert frames["sent"] > 0 and frames["received"] > 0, name
-        assert frames["lost"] == 0 and frames["rejected"] == 0, (name, frames)
-    assert summary["buses"]["bus0"]["bus_rejected"] == 0
+    assert_nothing_lost(summary, SERVOS)
 
 
 def test_a_position_outside_the_models_range_is_denied_counted_and_never_sent() -> None:

@@ -22,8 +22,9 @@ from e2e_support import (
     Peer,
     Recorder,
     assert_fault_reaches_statustext_and_gimbal_flags,
+    assert_nothing_lost,
+    assert_servos_follow_pwm,
     named_values,
-    pwm_to_angle,
     running,
     sim_servo,
     status,
@@ -72,29 +73,7 @@ def test_odrive_axes_follow_and_report_with_nothing_lost() -> None:
         peer = Peer(port)
         try:
             for pwm in (1650, 1210):
-                target = pwm_to_angle(pwm, 1000, 2000, (-90, 90))
-                for name, (_, channel) in SERVOS.items():
-                    result = peer.command(MAV_CMD_DO_SET_SERVO, [channel, pwm])
-                    assert result == MAV_RESULT_ACCEPTED, name
-                servos = {name: sim_servo(bridge, name) for name in SERVOS}
-                assert wait_until(
-                    lambda s=servos, t=target: all(
-                        abs(x.position_deg - t) < 0.05 and abs(x.velocity_dps) < 0.1
-                        for x in s.values()
-                    ),
-                    WAIT_S,
-                ), {n: s.position_deg for n, s in servos.items()}
-                mark = peer.count()
-                assert wait_until(
-                    lambda m=mark: all(
-                        len(named_values(peer.since(m), f"s{n}_pos")) >= 3
-                        for n, _ in SERVOS.values()
-                    ),
-                    WAIT_S,
-                )
-                for name, (n, _) in SERVOS.items():
-                    for value in named_values(peer.since(mark), f"s{n}_pos")[-2:]:
-                        assert abs(value - servos[name].position_deg) <= RESOLUTION_DEG, name
+                assert_servos_follow_pwm(bridge, peer, SERVOS, pwm, RESOLUTION_DEG, WAIT_S)
             # the auxiliary messages bring temperature back too
             assert wait_until(
                 lambda: any(v == v for v in named_values(peer.messages(), "s1_tmp")), WAIT_S
@@ -102,11 +81,7 @@ def test_odrive_axes_follow_and_report_with_nothing_lost() -> None:
         finally:
             peer.close()
         summary = bridge.stop()
-    for name in SERVOS:
-        frames = summary["servos"][name]["frames"]
-        assert frames["sent"] > 0 and frames["received"] > 0, name
-        assert frames["lost"] == 0 and frames["rejected"] == 0, (name, frames)
-    assert summary["buses"]["bus0"]["bus_rejected"] == 0
+    assert_nothing_lost(summary, SERVOS)
 
 
 def commanded_angles(recorder: Recorder, name: str, profile: ODrive) -> list[float]:

@@ -24,6 +24,7 @@ from e2e_support import (
     Peer,
     Recorder,
     assert_fault_reaches_statustext_and_gimbal_flags,
+    assert_nothing_lost,
     named_values,
     pwm_to_angle,
     running,
@@ -94,11 +95,7 @@ def test_both_protocols_follow_report_and_lose_nothing() -> None:
         finally:
             peer.close()
         summary = bridge.stop()
-    for name in SERVOS:
-        frames = summary["servos"][name]["frames"]
-        assert frames["sent"] > 0 and frames["received"] > 0, name
-        assert frames["lost"] == 0 and frames["rejected"] == 0, (name, frames)
-    assert summary["buses"]["bus0"]["bus_rejected"] == 0
+    assert_nothing_lost(summary, SERVOS)
 
 
 def test_a_position_outside_the_models_range_is_denied_counted_and_never_sent() -> None:
