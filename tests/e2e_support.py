@@ -258,6 +258,27 @@ def running(
         bridge.stop()
 
 
+def gimbal_config(pitch_profile: str, yaw_profile: str, yaw_options: str = "") -> str:
+    """Config body for a two-axis gimbal (component 154): pitch on CAN id 1 (-90..30 deg), yaw
+    on CAN id 2 (-160..160 deg), gimbal status at 20 Hz and no other telemetry, so a family's
+    fault test sees GIMBAL_DEVICE_ATTITUDE_STATUS. ``yaw_options``: YAML flow text for the yaw
+    servo's ``options``, empty for none."""
+    options = f",\n     options: {yaw_options}" if yaw_options else ""
+    return f"""
+  telemetry: {{gimbal_attitude_status_hz: 20, named_value_float_hz: 0, esc_telemetry_hz: 0,
+              actuator_output_status_hz: 0}}
+  mirror: {{servo_output_raw: false}}
+servos:
+  - {{name: pitch, profile: {pitch_profile}, can_id: 1, limits_deg: [-90, 30], telemetry_hz: 20}}
+  - {{name: yaw, profile: {yaw_profile}, can_id: 2, limits_deg: [-160, 160],
+     telemetry_hz: 20{options}}}
+gimbals:
+  - {{name: gimbal, component_id: 154, pitch: pitch, yaw: yaw,
+     limits_deg: {{pitch: [-90, 30], yaw: [-160, 160]}}}}
+scheduler: {{reply_timeout_s: 0.5, command_period_s: 0.02, telemetry_period_s: 0.05}}
+"""
+
+
 def assert_fault_reaches_statustext_and_gimbal_flags(
     bridge: Bridge, peer: Peer, axis: str, fault: str, text: str, wait_s: float
 ) -> None:
@@ -383,6 +404,7 @@ __all__ = [
     "assert_nothing_lost",
     "assert_servos_follow_pwm",
     "bridge_config",
+    "gimbal_config",
     "named_values",
     "pwm_to_angle",
     "run_example_config_follows_and_loses_nothing",

@@ -24,6 +24,7 @@ from e2e_support import (
     assert_fault_reaches_statustext_and_gimbal_flags,
     assert_nothing_lost,
     assert_servos_follow_pwm,
+    gimbal_config,
     running,
     sim_servo,
     status,
@@ -132,18 +133,7 @@ def test_a_silent_servo_goes_offline_and_comes_back(name: str) -> None:
             peer.close()
 
 
-GIMBAL = """
-  telemetry: {gimbal_attitude_status_hz: 20, named_value_float_hz: 0, esc_telemetry_hz: 0,
-              actuator_output_status_hz: 0}
-  mirror: {servo_output_raw: false}
-servos:
-  - {name: pitch, profile: cubemars-ak-mit, can_id: 1, limits_deg: [-90, 30], telemetry_hz: 20}
-  - {name: yaw, profile: damiao-dm, can_id: 2, limits_deg: [-160, 160], telemetry_hz: 20}
-gimbals:
-  - {name: gimbal, component_id: 154, pitch: pitch, yaw: yaw,
-     limits_deg: {pitch: [-90, 30], yaw: [-160, 160]}}
-scheduler: {reply_timeout_s: 0.5, command_period_s: 0.02, telemetry_period_s: 0.05}
-"""
+GIMBAL = gimbal_config("cubemars-ak-mit", "damiao-dm")
 
 
 @pytest.mark.parametrize(
