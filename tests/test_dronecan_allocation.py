@@ -192,18 +192,24 @@ def run_client(node: Any, got: dict[str, int], limit_s: float = 8.0) -> int | No
     return got.get("id")
 
 
-def test_independent_anonymous_node_gets_its_id_from_the_bridges_allocator() -> None:
-    channel = f"dronecan-alloc-{uuid.uuid4().hex}"
-    driver = VirtualBusDriver(channel)
-    node, got = passive_client(driver, UID)
-    bus = can.Bus(interface="virtual", channel=channel)
+def allocating_scheduler(bus: can.BusABC) -> Scheduler:
+    """The bridge's scheduler as node 100 with the allocator on, for one servo (node 42) known
+    only by its unique id: both independent-client tests run against this, on different buses."""
     spec = ServoSpec("servo", DroneCanServo(42, actuator_id=1, unique_id=UID.hex()), telemetry_hz=1)
-    scheduler = Scheduler(
+    return Scheduler(
         bus,
         [spec],
         TimingConfig(reply_timeout_s=0.5),
         node_options={"dronecan": {"node_id": 100, "allocator": True}},
     )
+
+
+def test_independent_anonymous_node_gets_its_id_from_the_bridges_allocator() -> None:
+    channel = f"dronecan-alloc-{uuid.uuid4().hex}"
+    driver = VirtualBusDriver(channel)
+    node, got = passive_client(driver, UID)
+    bus = can.Bus(interface="virtual", channel=channel)
+    scheduler = allocating_scheduler(bus)
     try:
         with scheduler:
             assert run_client(node, got) == 42
@@ -292,15 +298,7 @@ def test_independent_anonymous_node_gets_its_id_over_aa55_and_the_adapter_emulat
     emulator = AdapterEmulator([participant]).start()  # type: ignore[list-item]
     try:
         bus = can.Bus(interface="aa55", channel=emulator.path, bitrate=1_000_000)
-        spec = ServoSpec(
-            "servo", DroneCanServo(42, actuator_id=1, unique_id=UID.hex()), telemetry_hz=1
-        )
-        scheduler = Scheduler(
-            bus,
-            [spec],
-            TimingConfig(reply_timeout_s=0.5),
-            node_options={"dronecan": {"node_id": 100, "allocator": True}},
-        )
+        scheduler = allocating_scheduler(bus)
         try:
             with scheduler:
                 deadline = time.monotonic() + 8.0

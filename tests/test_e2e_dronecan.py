@@ -9,13 +9,11 @@ NodeStatus stops): STATUSTEXT, DO_SET_SERVO TEMPORARILY_REJECTED; it comes back 
 
 from __future__ import annotations
 
-import re
 import time
 from pathlib import Path
 
 import can
 import pytest
-import yaml
 from conftest import wait_until
 from e2e_support import (
     MAV_CMD_DO_SET_SERVO,
@@ -23,12 +21,12 @@ from e2e_support import (
     MAV_RESULT_TEMPORARILY_REJECTED,
     Peer,
     pwm_to_angle,
+    run_example_config_follows_and_loses_nothing,
     running,
     sim_servo,
 )
-from test_run_cli import REPO, assert_positions_followed, read_trace, run_mavservo
+from test_run_cli import REPO, run_mavservo
 
-from mavservo.config import load_config
 from mavservo.servos.base import Fault
 from mavservo.sim.autopilot.link import mavlink2
 
@@ -107,30 +105,7 @@ def test_shipped_dronecan_config_passes_check() -> None:
 
 
 def test_shipped_dronecan_config_runs_follows_and_loses_nothing(tmp_path: Path) -> None:
-    document = yaml.safe_load((REPO / "config" / "dronecan.yaml").read_text())
-    document["scheduler"]["reply_timeout_s"] = 0.5
-    document["logging"]["dir"] = str(tmp_path / "runs")
-    path = tmp_path / "dronecan.yaml"
-    path.write_text(yaml.safe_dump(document))
-    logs = tmp_path / "runs"
-    proc = run_mavservo("run", "--config", str(path), "--duration", "8", "--log-dir", str(logs))
-    assert proc.returncode == 0, proc.stderr
-    assert "Traceback" not in proc.stderr
-    out = proc.stdout
-    assert "decoder rejections 0" in out
-    config = load_config(path)
-    for servo in config.servos:
-        row = re.search(
-            rf"^\s+{servo.name}\s+(\d+)\s+(\d+)\s+(\d+)\s+(\d+)\s+\d+\s+(\d+)", out, re.M
-        )
-        assert row, f"no summary row for {servo.name}:\n{out}"
-        sent, received, _pushed, lost, rejected = map(int, row.groups())
-        assert sent > 0 and received > 0, row.group(0)
-        assert lost == 0 and rejected == 0, row.group(0)
-    [run_dir] = list(logs.iterdir())
-    trace = read_trace(run_dir / "trace.csv")
-    for servo in config.servos:
-        assert_positions_followed(servo.name, trace, span=20.0)
+    run_example_config_follows_and_loses_nothing("dronecan.yaml", tmp_path)
 
 
 def test_another_array_command_sender_is_reported_once_by_statustext() -> None:

@@ -18,12 +18,17 @@ from conftest import wait_until
 from e2e_support import (
     MAV_CMD_DO_SET_SERVO,
     MAV_RESULT_ACCEPTED,
+    MAV_RESULT_DENIED,
     Peer,
     Recorder,
+    assert_fault_reaches_statustext_and_gimbal_flags,
+    assert_nothing_lost,
+    assert_servos_follow_pwm,
+    gimbal_config,
     named_values,
-    pwm_to_angle,
     running,
     sim_servo,
+    status,
 )
 
 from mavservo.servos.odrive import (
@@ -32,11 +37,9 @@ from mavservo.servos.odrive import (
     WATCHDOG_TIMER_EXPIRED,
     ODrive,
 )
-from mavservo.sim.autopilot.link import mavlink2
 
 pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")
 
-MAV_RESULT_DENIED = 2
 WAIT_S = 5.0
 
 CONFIG = """
@@ -66,38 +69,12 @@ RESOLUTION_DEG = 0.01
 """Float32 turns carry far finer steps; this is the reading's travel between two pushes."""
 
 
-def status(bridge, name: str):  # type: ignore[no-untyped-def]
-    return next(s for s in bridge.backend.servo_statuses() if s.name == name)
-
-
 def test_odrive_axes_follow_and_report_with_nothing_lost() -> None:
     with running(CONFIG) as (bridge, port):
         peer = Peer(port)
         try:
             for pwm in (1650, 1210):
-                target = pwm_to_angle(pwm, 1000, 2000, (-90, 90))
-                for name, (_, channel) in SERVOS.items():
-                    result = peer.command(MAV_CMD_DO_SET_SERVO, [channel, pwm])
-                    assert result == MAV_RESULT_ACCEPTED, name
-                servos = {name: sim_servo(bridge, name) for name in SERVOS}
-                assert wait_until(
-                    lambda s=servos, t=target: all(
-                        abs(x.position_deg - t) < 0.05 and abs(x.velocity_dps) < 0.1
-                        for x in s.values()
-                    ),
-                    WAIT_S,
-                ), {n: s.position_deg for n, s in servos.items()}
-                mark = peer.count()
-                assert wait_until(
-                    lambda m=mark: all(
-                        len(named_values(peer.since(m), f"s{n}_pos")) >= 3
-                        for n, _ in SERVOS.values()
-                    ),
-                    WAIT_S,
-                )
-                for name, (n, _) in SERVOS.items():
-                    for value in named_values(peer.since(mark), f"s{n}_pos")[-2:]:
-                        assert abs(value - servos[name].position_deg) <= RESOLUTION_DEG, name
+                assert_servos_follow_pwm(bridge, peer, SERVOS, pwm, RESOLUTION_DEG, WAIT_S)
             # the auxiliary messages bring temperature back too
             assert wait_until(
                 lambda: any(v == v for v in named_values(peer.messages(), "s1_tmp")), WAIT_S
@@ -105,11 +82,7 @@ def test_odrive_axes_follow_and_report_with_nothing_lost() -> None:
         finally:
             peer.close()
         summary = bridge.stop()
-    for name in SERVOS:
-        frames = summary["servos"][name]["frames"]
-        assert frames["sent"] > 0 and frames["received"] > 0, name
-        assert frames["lost"] == 0 and frames["rejected"] == 0, (name, frames)
-    assert summary["buses"]["bus0"]["bus_rejected"] == 0
+    assert_nothing_lost(summary, SERVOS)
 
 
 def commanded_angles(recorder: Recorder, name: str, profile: ODrive) -> list[float]:
@@ -152,7 +125,7 @@ def test_a_silent_axis_goes_offline_and_comes_back() -> None:
     with running(CONFIG) as (bridge, port):
         peer = Peer(port)
         try:
-            peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))  # a GCS: answer me
+            peer.gcs_heartbeat()  # a GCS: answer me
             assert wait_until(lambda: status(bridge, "direct").online, WAIT_S)
             device = sim_servo(bridge, "direct")
             mark = peer.count()
@@ -175,7 +148,7 @@ def test_an_axis_its_watchdog_disarmed_is_reported_and_rearmed() -> None:
     with running(CONFIG) as (bridge, port):
         peer = Peer(port)
         try:
-            peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))
+            peer.gcs_heartbeat()
             assert peer.command(MAV_CMD_DO_SET_SERVO, [1, 1600]) == MAV_RESULT_ACCEPTED
             servo = sim_servo(bridge, "direct")
             assert wait_until(lambda: abs(servo.position_deg - 18.0) < 0.05, WAIT_S)
@@ -193,20 +166,7 @@ def test_an_axis_its_watchdog_disarmed_is_reported_and_rearmed() -> None:
             peer.close()
 
 
-GIMBAL = """
-  telemetry: {gimbal_attitude_status_hz: 20, named_value_float_hz: 0, esc_telemetry_hz: 0,
-              actuator_output_status_hz: 0}
-  mirror: {servo_output_raw: false}
-servos:
-  - {name: pitch, profile: odrive, can_id: 1, limits_deg: [-90, 30], telemetry_hz: 20}
-  - {name: yaw, profile: odrive, can_id: 2, limits_deg: [-160, 160], telemetry_hz: 20}
-gimbals:
-  - {name: gimbal, component_id: 154, pitch: pitch, yaw: yaw,
-     limits_deg: {pitch: [-90, 30], yaw: [-160, 160]}}
-scheduler: {reply_timeout_s: 0.5, command_period_s: 0.02, telemetry_period_s: 0.05}
-"""
-
-MOTOR_ERROR = mavlink2.GIMBAL_DEVICE_ERROR_FLAGS_MOTOR_ERROR
+GIMBAL = gimbal_config("odrive", "odrive")
 
 
 @pytest.mark.parametrize(
@@ -219,19 +179,9 @@ def test_an_axis_error_reaches_statustext_and_gimbal_failure_flags(
     with running(GIMBAL) as (bridge, port):
         peer = Peer(port)
         try:
-            peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))
-            assert wait_until(lambda: status(bridge, axis).online, WAIT_S)
-            mark = peer.count()
-            setattr(sim_servo(bridge, axis).faults, fault, True)
-            assert wait_until(
-                lambda: f"servo {axis} fault {text}" in peer.statustexts(mark), WAIT_S
-            ), peer.statustexts(mark)
-            assert wait_until(
-                lambda: any(
-                    m.failure_flags & MOTOR_ERROR
-                    for m in peer.since(mark, "GIMBAL_DEVICE_ATTITUDE_STATUS")
-                ),
-                WAIT_S,
+            peer.gcs_heartbeat()
+            assert_fault_reaches_statustext_and_gimbal_flags(
+                bridge, peer, axis, fault, text, WAIT_S
             )
         finally:
             peer.close()

@@ -20,12 +20,17 @@ from conftest import wait_until
 from e2e_support import (
     MAV_CMD_DO_SET_SERVO,
     MAV_RESULT_ACCEPTED,
+    MAV_RESULT_DENIED,
     Peer,
     Recorder,
+    assert_fault_reaches_statustext_and_gimbal_flags,
+    assert_nothing_lost,
+    gimbal_config,
     named_values,
     pwm_to_angle,
     running,
     sim_servo,
+    status,
 )
 
 from mavservo.servos.robstride import PARAM_LOC_REF, RobstrideDevice, RobstrideOptions
@@ -33,7 +38,6 @@ from mavservo.sim.autopilot.link import mavlink2
 
 pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")
 
-MAV_RESULT_DENIED = 2
 WAIT_S = 5.0
 
 CONFIG = """
@@ -56,10 +60,6 @@ channels:
 SERVOS = {"rs_private": (1, 1, (-800.0, 800.0)), "rs_mit": (2, 2, (-90.0, 90.0))}
 RESOLUTION_DEG = math.degrees(8 * math.pi / 65535)
 """One count of the private feedback's angle (+-4 pi); the MIT one (+-12.57 rad) is as fine."""
-
-
-def status(bridge, name: str):  # type: ignore[no-untyped-def]
-    return next(s for s in bridge.backend.servo_statuses() if s.name == name)
 
 
 def test_both_protocols_follow_report_and_lose_nothing() -> None:
@@ -96,11 +96,7 @@ def test_both_protocols_follow_report_and_lose_nothing() -> None:
         finally:
             peer.close()
         summary = bridge.stop()
-    for name in SERVOS:
-        frames = summary["servos"][name]["frames"]
-        assert frames["sent"] > 0 and frames["received"] > 0, name
-        assert frames["lost"] == 0 and frames["rejected"] == 0, (name, frames)
-    assert summary["buses"]["bus0"]["bus_rejected"] == 0
+    assert_nothing_lost(summary, SERVOS)
 
 
 def test_a_position_outside_the_models_range_is_denied_counted_and_never_sent() -> None:
@@ -140,7 +136,7 @@ def test_a_silent_motor_goes_offline_and_comes_back(name: str) -> None:
     with running(CONFIG) as (bridge, port):
         peer = Peer(port)
         try:
-            peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))  # a GCS: answer me
+            peer.gcs_heartbeat()  # a GCS: answer me
             _, channel, _ = SERVOS[name]
             assert peer.command(MAV_CMD_DO_SET_SERVO, [channel, 1500]) == MAV_RESULT_ACCEPTED
             assert wait_until(lambda: status(bridge, name).online, WAIT_S)
@@ -181,7 +177,7 @@ def test_a_motor_speaking_the_other_protocol_is_named_with_the_cause() -> None:
     with running(CONFIG) as (bridge, port):
         peer = Peer(port)
         try:
-            peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))
+            peer.gcs_heartbeat()
             mark = peer.count()
             device = sim_servo(bridge, "rs_private")
             mit_motor = RobstrideDevice(device, 1, RobstrideOptions(protocol="mit"))
@@ -205,7 +201,7 @@ def test_a_motor_that_never_answers_is_named_with_what_to_check() -> None:
     with running(CONFIG) as (bridge, port):
         peer = Peer(port)
         try:
-            peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))
+            peer.gcs_heartbeat()
             mark = peer.count()
             device = sim_servo(bridge, "rs_mit")
             device._device = RobstrideDevice(device, 2, RobstrideOptions())  # noqa: SLF001
@@ -222,21 +218,7 @@ def test_a_motor_that_never_answers_is_named_with_what_to_check() -> None:
             peer.close()
 
 
-GIMBAL = """
-  telemetry: {gimbal_attitude_status_hz: 20, named_value_float_hz: 0, esc_telemetry_hz: 0,
-              actuator_output_status_hz: 0}
-  mirror: {servo_output_raw: false}
-servos:
-  - {name: pitch, profile: robstride, can_id: 1, limits_deg: [-90, 30], telemetry_hz: 20}
-  - {name: yaw, profile: robstride, can_id: 2, limits_deg: [-160, 160], telemetry_hz: 20,
-     options: {model: RS00}}
-gimbals:
-  - {name: gimbal, component_id: 154, pitch: pitch, yaw: yaw,
-     limits_deg: {pitch: [-90, 30], yaw: [-160, 160]}}
-scheduler: {reply_timeout_s: 0.5, command_period_s: 0.02, telemetry_period_s: 0.05}
-"""
-
-MOTOR_ERROR = mavlink2.GIMBAL_DEVICE_ERROR_FLAGS_MOTOR_ERROR
+GIMBAL = gimbal_config("robstride", "robstride", "{model: RS00}")
 
 
 @pytest.mark.parametrize(
@@ -249,7 +231,7 @@ def test_a_fault_bit_reaches_statustext_and_gimbal_failure_flags(
     with running(GIMBAL) as (bridge, port):
         peer = Peer(port)
         try:
-            peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))
+            peer.gcs_heartbeat()
             # a pushing motor reports once started, and it is started before its first command
             attitude = mavlink2.MAVLink_gimbal_device_set_attitude_message(
                 1, 154, 0, [1.0, 0.0, 0.0, 0.0], math.nan, math.nan, math.nan
@@ -257,18 +239,8 @@ def test_a_fault_bit_reaches_statustext_and_gimbal_failure_flags(
             assert wait_until(
                 lambda: peer.send(attitude) or status(bridge, axis).state is not None, WAIT_S
             )
-            assert wait_until(lambda: status(bridge, axis).online, WAIT_S)
-            mark = peer.count()
-            setattr(sim_servo(bridge, axis).faults, fault, True)
-            assert wait_until(
-                lambda: f"servo {axis} fault {text}" in peer.statustexts(mark), WAIT_S
-            ), peer.statustexts(mark)
-            assert wait_until(
-                lambda: any(
-                    m.failure_flags & MOTOR_ERROR
-                    for m in peer.since(mark, "GIMBAL_DEVICE_ATTITUDE_STATUS")
-                ),
-                WAIT_S,
+            assert_fault_reaches_statustext_and_gimbal_flags(
+                bridge, peer, axis, fault, text, WAIT_S
             )
         finally:
             peer.close()
