@@ -380,10 +380,35 @@ def test_check_errors_carry_file_and_line(
     assert text in message
 
 
-def test_two_servos_on_one_node_id_collide() -> None:
+def test_two_actuators_of_one_node_id_are_no_collision_but_one_actuator_twice_is() -> None:
+    """A node with several outputs (an AP_Periph board): servos on one node id, each on its
+    own actuator id, load; the same actuator id twice is refused (one command for both)."""
     source = CONFIG.replace("NODE", "100").replace("ID_B", "11").replace("ACT_B", "2")
-    with pytest.raises(ConfigError, match="collides"):
-        load_config_text(source, "rig.yaml")
+    config = load_config_text(source, "rig.yaml")
+    assert [s.can_id for s in config.servos] == [11, 11]
+    with pytest.raises(ConfigError, match="actuator id 1 is already used"):
+        load_config_text(source.replace("actuator_id: 2", "actuator_id: 1"), "rig.yaml")
+
+
+def test_servos_of_one_node_take_their_own_status_and_share_its_node_status() -> None:
+    """Two servos on node 11: actuator 2's Status is servo b's alone (a's counts nothing),
+    the node's NodeStatus keeps both alive, an actuator nobody has is counted."""
+    a, b = DroneCanServo(11, actuator_id=1), DroneCanServo(11, actuator_id=2)
+    BridgeNode([a, b], NodeOptions(), (0, 1), 0.0)
+    frames = library_frames(status_payload(actuator_id=2, position=0.5), 11, 0)
+    for msg in frames:
+        assert a.is_reply(msg) and b.is_reply(msg)
+        a.decode(msg, 0.1)
+        state_b = b.decode(msg, 0.1)
+    assert state_b is not None and state_b.position_deg == pytest.approx(math.degrees(0.5), abs=0.1)
+    assert a.errors["other_actuator"] == 0 and a.actuator_reported_at is None
+    assert b.actuator_reported_at == 0.1
+    [heartbeat] = library_frames(dronecan.uavcan.protocol.NodeStatus(uptime_sec=1), 11, 1)
+    assert a.decode(heartbeat, 0.2) is not None and b.decode(heartbeat, 0.2) is not None
+    assert a.is_liveness_only(heartbeat) and not a.is_liveness_only(frames[-1])
+    for msg in library_frames(status_payload(actuator_id=7), 11, 2):
+        a.decode(msg, 0.3)
+    assert a.errors["other_actuator"] == 1
 
 
 def test_budget_counts_packed_transfers_status_frames_and_every_nodes_heartbeat() -> None:

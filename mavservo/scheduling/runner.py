@@ -851,15 +851,34 @@ class Scheduler:
                 self._metrics.load.add(t, message_bits(msg))
             if self._nodes:
                 self._node_receive(msg, t)
-        servo = next(
-            (name for name, spec in self._specs.items() if spec.profile.is_reply(msg)), None
-        )
-        if servo is None:
+        claimants = [name for name, spec in self._specs.items() if spec.profile.is_reply(msg)]
+        if not claimants:
             if not msg.is_error_frame:
                 self._diagnose(msg)
             return None
+        if len(claimants) == 1:
+            servo = claimants[0]
+            return self._accept(servo, msg, t, self._specs[servo].profile.decode(msg, t))
+        # several servos share the sender (a DroneCAN node with several actuators): each
+        # decodes the frame; one actuator's Status is that servo's state and none of the
+        # others' business, the node's NodeStatus everyone's. A frame none of them takes is
+        # rejected once, on the first of them.
+        decoded = [(name, self._specs[name].profile.decode(msg, t)) for name in claimants]
+        taken = any(state is not None for _, state in decoded)
+        first: ServoState | None = None
+        for index, (name, state) in enumerate(decoded):
+            if state is None and (taken or index):
+                continue
+            result = self._accept(name, msg, t, state)
+            first = first if first is not None else result
+        return first
+
+    def _accept(
+        self, servo: str, msg: can.Message, t: float, state: ServoState | None
+    ) -> ServoState | None:
+        """One servo's decoded report of ``msg`` (None: rejected): the scheduler's reply,
+        metrics, observers and subscribers."""
         profile = self._specs[servo].profile
-        state = profile.decode(msg, t)
         lines: list[Line] = []
         if state is not None and not profile.completes_report(msg):
             # the start of a multi-frame report: logged, but neither a reply nor a new state
@@ -867,6 +886,35 @@ class Scheduler:
             # take the report at its last frame, as the metrics do)
             self._notify_observer(self._observer.on_rx, self.name, msg, t, servo, None)
             return state
+        answer = state is not None and not profile.is_liveness_only(msg)
+        with self._lock:
+            servo_metrics = self._metrics.servos[servo]
+            if state is None:
+                servo_metrics.rejected += 1
+                return None
+            match = self._core.on_reply(servo, t, exchange_key(profile, msg), answer=answer)
+            servo_metrics.received += 1
+            if match.back_online:
+                lines += self._online_log.online(servo, t)
+            if match.kind == "late":
+                servo_metrics.late_replies += 1
+                lines += self._late_replies.late(servo, match.late_latency_s)
+            if match.latency_s is not None and math.isfinite(match.latency_s):
+                servo_metrics.latency.add(match.latency_s)
+            if match.kind in ("request", None):
+                servo_metrics.telemetry_intervals.mark(t)
+            if match.kind is None:
+                servo_metrics.pushed += 1
+            servo_metrics.state_intervals.mark(t)
+            self._states[servo] = state
+        self._log(lines)
+        # a sign of life only (NodeStatus) is no answer: the latency's round trip waits for
+        # the servo's own report
+        self._notify_observer(
+            self._observer.on_rx, self.name, msg, t, servo, state if answer else None
+        )
+        self._notify_subscribers(servo, state)
+        return state
         with self._lock:
             servo_metrics = self._metrics.servos[servo]
             if state is None:
