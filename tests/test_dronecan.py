@@ -529,3 +529,40 @@ def test_any_status_from_the_package_decodes_to_its_float16_values(
         assert math.isnan(state.velocity_dps)
     else:
         assert state.velocity_dps == pytest.approx(math.degrees(wire.float16(speed)), abs=1e-6)
+
+
+def test_check_warns_about_actuator_id_0_unless_the_firmware_numbers_from_0() -> None:
+    from mavservo.config.semantic import advisories
+
+    source = CONFIG.replace("NODE", "100").replace("ID_B", "12").replace("ACT_B", "0")
+    [warning] = [
+        text
+        for _, text in advisories(load_config_text(source, "rig.yaml"))
+        if "actuator_id 0" in text
+    ]
+    assert "PX4 numbers actuators from 0" in warning
+    px4 = source.replace("actuator_id: 0", "actuator_id: 0, firmware: px4")
+    assert not [t for _, t in advisories(load_config_text(px4, "rig.yaml")) if "actuator_id 0" in t]
+    with pytest.raises(ConfigError, match="numbers actuators from 1"):
+        load_config_text(
+            source.replace("actuator_id: 0", "actuator_id: 0, firmware: ardupilot, command: pwm"),
+            "rig.yaml",
+        )
+    with pytest.raises(ConfigError, match="unitless and pwm commands only"):
+        load_config_text(source.replace("actuator_id: 0", "firmware: ardupilot"), "rig.yaml")
+
+
+def test_ardupilot_preset_scales_unitless_by_45_degrees_and_pwm_over_the_range() -> None:
+    """AP_Periph reports ``radians(norm * 45)``: with the preset a command of 30 deg is the
+    norm 2/3, which reads back as 30 deg; PWM maps the same range onto pwm_min..max us."""
+    servo = DroneCanServo(20, firmware="ardupilot", command="unitless")
+    actuator_id, kind, value = servo.command_tuple(30.0)
+    assert (actuator_id, kind) == (1, wire.COMMAND_TYPE_UNITLESS)
+    assert math.degrees(math.radians(value * 45)) == pytest.approx(30.0)
+    pwm = DroneCanServo(20, firmware="ardupilot", command="pwm", pwm_min_us=1100, pwm_max_us=1900)
+    assert pwm.command_tuple(-45.0)[1:] == (wire.COMMAND_TYPE_PWM, 1100.0)
+    assert pwm.command_tuple(0.0)[2] == 1500.0 and pwm.command_tuple(45.0)[2] == 1900.0
+    with pytest.raises(ValueError):
+        pwm.command_tuple(50.0)  # outside the range: refused, never clamped
+    generic = DroneCanServo(20, command="unitless")
+    assert generic.command_tuple(30.0)[2] == pytest.approx(1 / 3)  # +-90 deg: reads half on AP

@@ -16,7 +16,9 @@ side a pymavlink peer over UDP on 127.0.0.1. Every wait is bounded.
 
 from __future__ import annotations
 
+import math
 import time
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -28,9 +30,11 @@ from e2e_support import (
     Peer,
     Recorder,
     pwm_to_angle,
+    run_example_config_follows_and_loses_nothing,
     running,
     status,
 )
+from test_run_cli import REPO, run_mavservo
 
 from mavservo.app.bridge import Bridge
 from mavservo.servos.base import Fault
@@ -65,6 +69,12 @@ channels:
         for n in range(1, 5)
     )
 )
+
+
+def position(bridge: Bridge, name: str) -> float:
+    """The bridge's last reported position of ``name`` (NaN before its first report)."""
+    state = status(bridge, name).state
+    return math.nan if state is None else float(state.position_deg)
 
 
 def node_servo(bridge: Bridge, name: str) -> SimServo:
@@ -137,7 +147,7 @@ def test_four_actuators_on_one_node_each_follow_their_own_status_and_go_offline_
                 sim = node_servo(bridge, name)
                 assert wait_until(lambda s=sim, a=target: abs(s.position_deg - a) < 0.3, WAIT_S)
                 assert wait_until(
-                    lambda n=name, a=target: abs(status(bridge, n).state.position_deg - a) < 0.3,
+                    lambda n=name, a=target: abs(position(bridge, n) - a) < 0.3,
                     WAIT_S,
                 ), (name, status(bridge, name))
             # one ArrayCommand per slot carries all four
@@ -165,3 +175,117 @@ def test_four_actuators_on_one_node_each_follow_their_own_status_and_go_offline_
             assert max(back) - min(back) < 0.3, back
         finally:
             peer.close()
+
+
+def ardupilot_board(safety: str, command: str = "unitless", firmware: str = "ardupilot") -> str:
+    """Two outputs of an ArduPilot peripheral (node 20, actuators 1 and 2), bridge node 100."""
+    return f"""
+  telemetry: {{actuator_output_status_hz: 10, named_value_float_hz: 20, esc_telemetry_hz: 0}}
+can:
+  buses:
+    - {{name: bus0, interface: aa55, channel: sim,
+       node: {{dronecan: {{node_id: 100, safety_state: {safety}}}}}}}
+servos:
+  - {{name: s1, profile: dronecan, can_id: 20, limits_deg: [-40, 40], telemetry_hz: 10,
+     options: {{actuator_id: 1, firmware: {firmware}, command: {command}}}}}
+  - {{name: s2, profile: dronecan, can_id: 20, limits_deg: [-40, 40], telemetry_hz: 10,
+     options: {{actuator_id: 2, firmware: {firmware}, command: {command}}}}}
+scheduler: {{reply_timeout_s: 0.5}}
+channels:
+  - {{servo: s1, source: servo_output, channel: 1, input: {{min: 1000, max: 2000}},
+     output_deg: [-40, 40]}}
+  - {{servo: s2, source: servo_output, channel: 2, input: {{min: 1000, max: 2000}},
+     output_deg: [-40, 40]}}
+"""
+
+
+@pytest.mark.parametrize("command", ["unitless", "pwm"])
+def test_an_ardupilot_peripheral_moves_with_the_bridges_safety_state(command: str) -> None:
+    """SAFETY_OFF every 500 ms from the bridge: the peripheral's outputs drive the servos, and
+    its Status (norm x 45 deg, ArduPilot's preset) reads back the angle commanded."""
+    with running(ardupilot_board("safety_off", command)) as (bridge, port):
+        peer = Peer(port)
+        try:
+            peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))
+            for channel, pwm in ((1, 1800), (2, 1300)):
+                assert peer.command(MAV_CMD_DO_SET_SERVO, [channel, pwm]) == MAV_RESULT_ACCEPTED
+            for name, pwm in (("s1", 1800), ("s2", 1300)):
+                target = pwm_to_angle(pwm, 1000, 2000, (-40, 40))
+                sim = node_servo(bridge, name)
+                assert wait_until(lambda s=sim, a=target: abs(s.position_deg - a) < 0.5, WAIT_S)
+                assert wait_until(
+                    lambda n=name, a=target: abs(position(bridge, n) - a) < 0.5,
+                    WAIT_S,
+                ), (name, status(bridge, name))
+            [node] = bridge.schedulers["bus0"].nodes
+            assert wait_until(lambda: node.counters["safety_off"] >= 3, WAIT_S)  # every 500 ms
+        finally:
+            peer.close()
+
+
+def test_without_the_safety_state_an_ardupilot_peripheral_stays_off_and_the_bridge_says_why() -> (
+    None
+):
+    with running(ardupilot_board("none")) as (bridge, port):
+        peer = Peer(port)
+        try:
+            peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))
+            mark = peer.count()
+            assert peer.command(MAV_CMD_DO_SET_SERVO, [1, 1800]) == MAV_RESULT_ACCEPTED
+            target = pwm_to_angle(1800, 1000, 2000, (-40, 40))
+            # the node reports the commanded norm (as AP_Periph does) ...
+            assert wait_until(lambda: abs(position(bridge, "s1") - target) < 0.5, WAIT_S)
+            # ... while its output stays off: the servo never moved
+            sim = node_servo(bridge, "s1")
+            assert abs(sim.position_deg) < 0.5 and sim.commands == 0
+            wanted = "SAFETY_OFF"
+            assert wait_until(lambda: wanted in "".join(peer.statustexts(mark)), WAIT_S), (
+                peer.statustexts(mark)
+            )
+        finally:
+            peer.close()
+
+
+def test_a_node_that_ignores_the_command_type_is_warned_about_once_within_seconds() -> None:
+    """The bridge sends POSITION (generic firmware in its config) to a node that acts on
+    UNITLESS and PWM only: the node stays alive on NodeStatus, no Status ever comes for the
+    actuator; one warning per servo, within a few seconds."""
+    body = ardupilot_board("safety_off", command="position", firmware="generic")
+    with running(body) as (bridge, port):
+        for sim in bridge.emulators["bus0"].servos:  # the real node runs ArduPilot firmware
+            device = sim._device  # noqa: SLF001 - the simulated node's firmware is the fixture
+            device.options = device.options.model_copy(update={"firmware": "ardupilot"})
+            device.node.firmware, device.node.safety_off = "ardupilot", False
+        peer = Peer(port)
+        try:
+            peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))
+            mark = peer.count()
+            started = time.monotonic()
+            for channel in (1, 2):
+                assert peer.command(MAV_CMD_DO_SET_SERVO, [channel, 1800]) == MAV_RESULT_ACCEPTED
+            wanted = "check the command type"
+            assert wait_until(lambda: wanted in "".join(peer.statustexts(mark)), WAIT_S + 2), (
+                peer.statustexts(mark)
+            )
+            assert time.monotonic() - started < 6.0
+            assert status(bridge, "s1").online  # alive on NodeStatus alone
+            time.sleep(1.5)
+            [node] = bridge.schedulers["bus0"].nodes
+            assert node.counters["silent_actuators"] == 2  # once per servo, not again
+        finally:
+            peer.close()
+
+
+def test_shipped_pwm_config_runs_follows_and_loses_nothing(tmp_path: Path) -> None:
+    """``config/dronecan-pwm.yaml``: four PWM outputs of one ArduPilot-style node, the bridge's
+    SafetyState, the simulated autopilot's sweep followed, telemetry back, nothing lost."""
+    run_example_config_follows_and_loses_nothing("dronecan-pwm.yaml", tmp_path)
+
+
+def test_check_prints_the_safety_plan_the_id_convention_and_each_familys_stop() -> None:
+    proc = run_mavservo("check", str(REPO / "config" / "dronecan-pwm.yaml"))
+    assert proc.returncode == 0, proc.stderr + proc.stdout
+    out = proc.stdout
+    assert "SafetyState: SAFETY_OFF every 500 ms from start" in out
+    assert "SAFETY_ON when the bridge stops" in out
+    assert "zeroes its PWM output 200 ms after the last ArrayCommand" in out

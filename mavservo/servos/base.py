@@ -381,6 +381,12 @@ class ServoProfile(ABC):
         warns when the keep-alive is not shorter. Default: None, none declared."""
         return None
 
+    def config_warnings(self) -> list[str]:
+        """Settings of this servo that load but will likely not do what the user means (a
+        numbering convention of the servo's firmware), for ``check``'s warnings. Default:
+        none."""
+        return []
+
     STOP_BEHAVIOUR: ClassVar[str] = "holds its last target (no timeout of its own)"
     """What a servo of the family does by itself when the bridge's frames stop (the bridge
     stopped, the bus or the adapter gone), as its maker documents it: ``check``'s failsafe plan

@@ -262,6 +262,18 @@ class DroneCanServo(ServoProfile):
         """The bus node's SafetyState plan at stop (SAFETY_ON), carried by one of its servos."""
         return list(self.shutdown_hook()) if self.shutdown_hook is not None else []
 
+    def config_warnings(self) -> list[str]:
+        """Actuator id 0 is PX4's first output; an ArduPilot node computes ``1 << (id - 1)``
+        for it (no output, or a wrong one): said unless the firmware is PX4."""
+        o = self.options
+        if o.actuator_id == 0 and o.firmware == "generic":
+            return [
+                "actuator_id 0: PX4 numbers actuators from 0, ArduPilot and most servo vendors "
+                "from 1 (an ArduPilot node has no output 0); set firmware: px4 if the node "
+                "runs PX4, else the id the servo is set to"
+            ]
+        return []
+
     def stop_behaviour(self) -> str:
         if self.options.firmware == "ardupilot":
             return (

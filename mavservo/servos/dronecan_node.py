@@ -67,16 +67,16 @@ class NodeOptions(ProfileOptions):
     allocation_first_id: int = Field(
         125, ge=1, le=125, description="allocation hands out ids from here down"
     )
-    safety_state: Literal["none", "off"] = Field(
+    safety_state: Literal["none", "safety_off"] = Field(
         "none",
         description="ardupilot.indication.SafetyState the bridge broadcasts every 500 ms, as "
-        "ArduPilot's flight controller does: off (SAFETY_OFF from start: ArduPilot peripherals "
-        "drive their outputs) or none (never sent: they keep their outputs off)",
+        "ArduPilot's flight controller does: safety_off (SAFETY_OFF from start: ArduPilot "
+        "peripherals drive their outputs) or none (never sent: they keep their outputs off)",
     )
     safety_on: Literal["stop", "failsafe_and_stop", "never"] = Field(
         "stop",
-        description="with safety_state off: when the bridge turns safety back on (SAFETY_ON: "
-        "outputs off): at stop, also while every servo of the bus is in failsafe "
+        description="with safety_state safety_off: when the bridge turns safety back on "
+        "(SAFETY_ON: outputs off): at stop, also while every servo of the bus is in failsafe "
         "(failsafe_and_stop), or never",
     )
     unique_id: str | None = Field(
@@ -213,7 +213,7 @@ class BridgeNode:
         for servo in servos:
             servo.bridge_node_id = self.node_id
             servo.node_actuators = frozenset(on_node[servo.can_id])
-        self.safety_off = options.safety_state == "off"
+        self.safety_off = options.safety_state == "safety_off"
         """The SafetyState plan: broadcast at all (SAFETY_OFF from start)."""
         self._safety_next = start
         self._safety_sent: bool | None = None
@@ -224,6 +224,9 @@ class BridgeNode:
         self._silent_warned: set[int] = set()
         if self.safety_off and options.safety_on != "never" and servos:
             servos[0].shutdown_hook = self._safety_on_at_stop
+        self.ardupilot_nodes = sorted(
+            {s.can_id for s in servos if s.options.firmware == "ardupilot"}
+        )
         self._transfer_ids: Counter[int] = Counter()
         self._payloads: dict[int, Any] = {}
         self._reassembler = wire.Reassembler()
@@ -234,6 +237,8 @@ class BridgeNode:
         self.counters: Counter[str] = Counter()
         self.foreign_masters: set[int] = set()
         self._notices: list[str] = []
+        if self.ardupilot_nodes and not self.safety_off:
+            self._notices.append(self._safety_warning())
         self._conflict_noted = False
         self._noted: set[str] = set()
         self.allocator: Any = None
@@ -376,6 +381,14 @@ class BridgeNode:
         """SAFETY_ON once as the bridge stops (the plan's ``stop``): outputs off."""
         return self._safety_frames(False)
 
+    def _safety_warning(self) -> str:
+        nodes = ", ".join(map(str, self.ardupilot_nodes))
+        return (
+            f"DroneCAN nodes {nodes} run ArduPilot firmware, which keeps its outputs off until "
+            "it hears SafetyState SAFETY_OFF, and the bridge sends none (safety_state: none): "
+            "their servos will not move; set node.dronecan.safety_state: safety_off"
+        )
+
     def safety_plan(self) -> str:
         """The SafetyState plan, as ``check`` prints it."""
         if not self.safety_off:
@@ -422,6 +435,8 @@ class BridgeNode:
     def next_due(self) -> float:
         if self._queue or (self.allocator is not None and self.allocator.pending()):
             return -float("inf")
+        if self.safety_off:
+            return min(self._next_status, self._safety_next)
         return self._next_status
 
     def _notice_once(self, kind: str, text: str) -> None:
@@ -464,6 +479,11 @@ class BridgeNode:
             f"answered (version {major}.{minor}, unique id {self.unique_id.hex()}); dynamic id "
             f"allocation {allocator}",
             self.safety_plan(),
+            *(
+                [f"warning: {self._safety_warning()}"]
+                if self.ardupilot_nodes and not self.safety_off
+                else []
+            ),
             f"one ArrayCommand per command slot for actuators {actuators} "
             f"({frames_for_commands(len(self.servos))} frames)",
             "sharing the bus: other DroneCAN nodes (an autopilot's GNSS, ESCs, sensors, another "
