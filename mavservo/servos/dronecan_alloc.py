@@ -51,6 +51,10 @@ NEW_IDS_PER_MINUTE = 6
 """New table entries (unique ids the config does not name) a minute, at most: a board of
 servos powering up allocates a handful at once; a stranger inventing unique ids gets six a
 minute, within the cap, instead of the whole pool in a minute."""
+UNCONFIRMED_EXPIRE_S = 10.0
+"""An id handed out whose node never sends a NodeStatus within this long is free again (and
+is never saved): a node starts its NodeStatus as soon as it has an id, a made-up unique id
+never does."""
 _EXPIRE_EVERY_S = 1.0
 _MAX_REGULAR_ID = 125
 """126 and 127 are reserved for tools (the specification's ``MAX_NODE_ID`` for allocation)."""
@@ -92,6 +96,8 @@ class AllocationServer:
         """Node ids heard on the bus -> when last (they expire, see the module docstring)."""
         self._heard: dict[int, float] = dict.fromkeys(self.table.values(), start)
         """Node ids of table entries -> when their node was last heard (loaded ones: start)."""
+        self._confirmed: set[int] = set(self.table.values())
+        """Node ids of table entries whose node has sent a NodeStatus (loaded ones: were)."""
         self._new_ids: deque[float] = deque(maxlen=NEW_IDS_PER_MINUTE)
         self._next_expiry = start
         self.refused = 0
@@ -128,6 +134,9 @@ class AllocationServer:
         """A node with this id is on the bus: never hand its id to another while it is."""
         if node_id in self._heard:
             self._heard[node_id] = now
+            if node_id not in self._confirmed:
+                self._confirmed.add(node_id)
+                self.version += 1  # now worth saving
         elif node_id in self.seen_ids or len(self.seen_ids) < _MAX_REGULAR_ID + 2:
             self.seen_ids[node_id] = now
 
@@ -137,11 +146,17 @@ class AllocationServer:
         for node_id in [n for n, t in self.seen_ids.items() if t < limit]:
             del self.seen_ids[node_id]
             self._pool_empty = False
+        unconfirmed = now - UNCONFIRMED_EXPIRE_S
         stale = [
-            uid for uid, node_id in self.table.items() if self._heard.get(node_id, now) < limit
+            uid
+            for uid, node_id in self.table.items()
+            if self._heard.get(node_id, now)
+            < (limit if node_id in self._confirmed else unconfirmed)
         ]
         for unique_id in stale:
-            del self._heard[self.table.pop(unique_id)]
+            node_id = self.table.pop(unique_id)
+            del self._heard[node_id]
+            self._confirmed.discard(node_id)
             self.expired += 1
             self.version += 1
             self._pool_empty = False
@@ -241,5 +256,10 @@ class AllocationServer:
         return node_id
 
     def table_hex(self) -> dict[str, Any]:
-        """The table as saved: unique id in hex -> node id."""
-        return {uid.hex(): node_id for uid, node_id in sorted(self.table.items())}
+        """The table as saved: unique id in hex -> node id, for nodes that have been heard
+        (an id handed to a unique id that never became a node is not kept across restarts)."""
+        return {
+            uid.hex(): node_id
+            for uid, node_id in sorted(self.table.items())
+            if node_id in self._confirmed
+        }

@@ -94,7 +94,7 @@ class NodeOptions(ProfileOptions):
     )
     allocation_expire_s: float = Field(
         600.0,
-        ge=10.0,
+        ge=5.0,
         le=86400.0,
         description="an allocated id whose node has not been heard for this long is free again "
         "(the table entry goes); a node id heard on the bus stops blocking allocation after "
