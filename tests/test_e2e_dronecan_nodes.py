@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import can
 import pytest
 from conftest import wait_until
 from dronecan.transport import Frame, Transfer
@@ -289,3 +290,44 @@ def test_check_prints_the_safety_plan_the_id_convention_and_each_familys_stop() 
     assert "SafetyState: SAFETY_OFF every 500 ms from start" in out
     assert "SAFETY_ON when the bridge stops" in out
     assert "zeroes its PWM output 200 ms after the last ArrayCommand" in out
+
+
+def test_measured_load_over_max_load_is_warned_naming_other_nodes_traffic() -> None:
+    """A sensor node broadcasting 300 frames/s on a 250 kbit/s bus (about 19 %): the bridge's
+    plan is far below max_load 0.12, the measured load is not; one warning that says the most
+    is other nodes' traffic."""
+    body = """
+  telemetry: {actuator_output_status_hz: 10, named_value_float_hz: 5, esc_telemetry_hz: 0}
+can:
+  buses:
+    - {name: bus0, interface: aa55, channel: sim, bitrate: 250000, max_load: 0.12,
+       node: {dronecan: {node_id: 100}}}
+servos:
+  - {name: s1, profile: dronecan, can_id: 11, limits_deg: [-40, 40], telemetry_hz: 10,
+     options: {actuator_id: 1}}
+scheduler: {reply_timeout_s: 0.5}
+channels:
+  - {servo: s1, source: servo_output, channel: 1, input: {min: 1000, max: 2000},
+     output_deg: [-40, 40]}
+"""
+    sensor = can.Message(
+        arbitration_id=(24 << 24) | (1028 << 8) | 50, is_extended_id=True, data=bytes(8)
+    )
+    with running(body) as (bridge, port):
+        peer = Peer(port)
+        try:
+            peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))
+            mark = peer.count()
+            emulator = bridge.emulators["bus0"]
+            wanted = "most is other nodes' traffic"
+            deadline = time.monotonic() + WAIT_S
+            for _ in range(200):  # 30 frames every 100 ms, until the warning (bounded)
+                emulator.inject([sensor] * 30)
+                time.sleep(0.1)
+                if wanted in "".join(peer.statustexts(mark)) or time.monotonic() > deadline:
+                    break
+            texts = "".join(peer.statustexts(mark))
+            assert wanted in texts, texts
+            assert "is over max_load 12%" in texts
+        finally:
+            peer.close()

@@ -50,6 +50,7 @@ from mavservo.servos.base import BusNode, Fault, ServoProfile, ServoState
 
 from .bus_nodes import BusNodes
 from .busload import message_bits
+from .load_watch import LoadWatch
 
 __all__ = [
     "ScheduleError",
@@ -242,6 +243,9 @@ class Scheduler:
         self._receive_failures = FailureRun()
         self._online_log = OnlineLog()
         self._late_replies = LateReplies(self.timing.reply_timeout_s)
+        self._load_watch = LoadWatch(
+            self.name, self.timing.bitrate, self.timing.load_window_s, self.timing.max_load
+        )
         self.realtime_status = "not requested"
         self.on_event: Callable[[str], None] | None = None
         """Where advice about a servo goes besides the log (the bridge: console, event list
@@ -658,6 +662,17 @@ class Scheduler:
             self._notify_subscribers(servo, state)
         return decision
 
+    def _announce(self, text: str) -> None:
+        """A WARNING and ``on_event`` (STATUSTEXT through the bridge): advice about a servo,
+        the measured load over ``max_load`` (:mod:`.load_watch`, rate-limited there)."""
+        log.warning("scheduler %s: %s", self.name, text)
+        on_event = self.on_event
+        if on_event is not None:
+            try:
+                on_event(text)
+            except Exception:  # noqa: BLE001 - an observer must not stop the loop
+                log.exception("scheduler %s: on_event failed", self.name)
+
     def _advise(self, servo: str, text: str) -> None:
         """Say once per servo why it is not heard (a wrong protocol, host id, id...): a WARNING
         and ``on_event`` (STATUSTEXT through the bridge). Users of other tools lose hours to a
@@ -666,14 +681,7 @@ class Scheduler:
             if servo in self._advised:
                 return
             self._advised.add(servo)
-        text = f"servo {servo}: {text}"
-        log.warning("scheduler %s: %s", self.name, text)
-        on_event = self.on_event
-        if on_event is not None:
-            try:
-                on_event(text)
-            except Exception:  # noqa: BLE001 - an observer must not stop the loop
-                log.exception("scheduler %s: on_event failed", self.name)
+        self._announce(f"servo {servo}: {text}")
 
     def _diagnose(self, msg: can.Message) -> None:
         """A frame no servo claims: ask each servo not yet advised whether it is its own in
@@ -846,12 +854,18 @@ class Scheduler:
     def handle_frame(self, msg: can.Message, t: float) -> ServoState | None:
         """Decode one received frame (called by the receive thread; public for tests and for
         buses that deliver frames through a Notifier instead)."""
+        claimants = [name for name, spec in self._specs.items() if spec.profile.is_reply(msg)]
+        warning = None
         with self._lock:
             if not msg.is_error_frame and not msg.is_fd:
-                self._metrics.load.add(t, message_bits(msg))
+                bits = message_bits(msg)
+                self._metrics.load.add(t, bits)
+                self._load_watch.received(t, bits, bool(claimants))
+                warning = self._load_watch.check(t, self._metrics.load.ratio(t))
             if self._nodes:
                 self._node_receive(msg, t)
-        claimants = [name for name, spec in self._specs.items() if spec.profile.is_reply(msg)]
+        if warning is not None:
+            self._announce(warning)
         if not claimants:
             if not msg.is_error_frame:
                 self._diagnose(msg)
