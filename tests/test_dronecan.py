@@ -566,3 +566,69 @@ def test_ardupilot_preset_scales_unitless_by_45_degrees_and_pwm_over_the_range()
         pwm.command_tuple(50.0)  # outside the range: refused, never clamped
     generic = DroneCanServo(20, command="unitless")
     assert generic.command_tuple(30.0)[2] == pytest.approx(1 / 3)  # +-90 deg: reads half on AP
+
+
+def test_get_node_info_carries_a_unique_id_of_machine_and_bus_and_the_package_version() -> None:
+    """The answer's unique id is the one derived from the machine and the bus (stable across
+    restarts, different for another bus or machine), or the option; the version is mavservo's."""
+    import mavservo
+    from mavservo.scheduling.bus_nodes import node_unique_id, software_version
+
+    uid = node_unique_id("bus0", b"machine-a")
+    assert uid == node_unique_id("bus0", b"machine-a") and len(uid) == 16 and any(uid)
+    assert uid != node_unique_id("bus1", b"machine-a") != node_unique_id("bus0", b"machine-b")
+    assert node_unique_id("bus0") == node_unique_id("bus0")  # this machine's id, stable
+    major, minor, *_ = mavservo.__version__.split(".")
+    assert software_version() == (int(major), int(minor))
+    for options, expected in (
+        (NodeOptions(), uid),
+        (NodeOptions(unique_id="ab" * 16), b"\xab" * 16),
+    ):
+        node = DroneCanServo.bus_node([DroneCanServo(11)], options, software_version(), 0.0, uid)
+        request = Transfer(
+            transfer_id=1,
+            source_node_id=42,
+            dest_node_id=100,
+            payload=dronecan.uavcan.protocol.GetNodeInfo.Request(),
+            request_not_response=True,
+            service_not_message=True,
+        )
+        [frame] = request.to_frames()
+        asked = can.Message(arbitration_id=frame.message_id, is_extended_id=True, data=frame.bytes)
+        assert node.receive(asked, 1.0)
+        response = library_decode([m for m in node.due(1.0, "ok") if m.arbitration_id & 0x80])
+        assert bytes(response.payload.hardware_version.unique_id) == expected
+        version = response.payload.software_version
+        assert (version.major, version.minor) == software_version()
+
+
+def safety_states(frames: list[can.Message]) -> list[int]:
+    return [
+        int(library_decode([m]).payload.status)
+        for m in frames
+        if (m.arbitration_id >> 8) & 0xFFFF == wire.DTID_SAFETY_STATE
+    ]
+
+
+def test_safety_state_every_500_ms_on_at_failsafe_and_at_stop() -> None:
+    """The bus's SafetyState as ArduPilot's flight controller sends it, decoded by the package:
+    SAFETY_OFF every 500 ms; SAFETY_ON at once when every command of a slot is a failsafe one
+    (``failsafe_and_stop``), OFF again when commands are not; SAFETY_ON once at stop."""
+    servos = [DroneCanServo(20, firmware="ardupilot", command="pwm", actuator_id=n) for n in (1, 2)]
+    options = NodeOptions(safety_state="safety_off", safety_on="failsafe_and_stop")
+    node = BridgeNode(servos, options, (0, 1), 0.0)
+    sent = [safety_states(node.due(t / 10, "ok")) for t in range(11)]
+    assert sent == [[255], [], [], [], [], [255], [], [], [], [], [255]]
+    commands = [s.position_command(0.0) for s in servos]
+    node.pack(commands, in_failsafe=True)
+    assert safety_states(node.due(1.05, "ok")) == [0]  # at once
+    node.pack(commands, in_failsafe=False)
+    assert safety_states(node.due(1.1, "ok")) == [255]
+    assert safety_states(servos[0].shutdown_frames()) == [0]
+    assert servos[1].shutdown_frames() == []  # once for the node
+    quiet = BridgeNode([DroneCanServo(20)], NodeOptions(), (0, 1), 0.0)
+    assert safety_states(quiet.due(0.0, "ok")) == [] and not quiet.take_notices()
+    [warning] = BridgeNode(
+        [DroneCanServo(20, firmware="ardupilot", command="unitless")], NodeOptions(), (0, 1), 0.0
+    ).take_notices()
+    assert "SAFETY_OFF" in warning and "will not move" in warning
