@@ -1,4 +1,5 @@
-"""DroneCAN actuators (Hitec, Volz, HiMark, MKS...): one servo node, one actuator.
+"""DroneCAN actuators: single-actuator servos (Hitec, Volz, HiMark, MKS...) and nodes with
+several outputs (ArduPilot's peripheral firmware, AP_Periph), one profile per actuator.
 
 Wire facts (DroneCAN specification, DSDL ``uavcan.equipment.actuator``; serialization and
 framing by the ``dronecan`` package through :mod:`.dronecan_wire`):
@@ -11,26 +12,31 @@ framing by the ``dronecan`` package through :mod:`.dronecan_wire`):
   Volz ``com.volz.servo.ActuatorStatus`` (20020: position rad, current 0.025 A, voltage 0.2 V,
   motor temperature +50 degC), HiMark ``com.himark.servo.ServoInfo`` (2019: position 0.01 deg,
   voltage 0.01 V, current 0.01 A, motor temperature 0.2 degC - 40, an error status); each is
-  matched to this servo by source node id and actuator id (another actuator's status from its
-  node is counted as ``other_actuator``, not a state: the servo is set to another id);
+  matched to this servo by source node id and actuator id (the status of a sibling, another
+  configured servo on the node, is the sibling's; of an actuator nobody configured on the node,
+  counted as ``other_actuator``, not a state: the node is set to another id);
 * liveness: ``uavcan.protocol.NodeStatus`` (341), 1 Hz from every node; silent for about 3 s a
   node is gone (:attr:`DroneCanServo.heartbeat_period_s` makes the scheduler's silence limit
   ``offline_after_missed`` heartbeats). Its health and mode become faults: a health other
   than OK, or a mode other than operational or initialization, is :attr:`Fault.OTHER`. Its
   uptime only goes up: one that went back (a restart, or a second node on the id) is counted
-  (``uptime_backwards``, a rejected frame) and is no sign of life.
+  (``uptime_backwards``, a rejected frame) and is no sign of life. A NodeStatus answers no
+  command (:meth:`DroneCanServo.is_liveness_only`): anyone can send one with the node's id.
 
 The servo id (``can_id``) is the servo's node id, 1..127. ``actuator_id`` is the number on the
 wire, as the servo is configured: **ArduPilot numbers actuators from 1** (``SERVOn`` with a
 DroneCAN function goes out as actuator ``n``), **PX4 from 0** (its first output is actuator 0),
-so a servo set up for one autopilot keeps that autopilot's number here. One actuator per node
-(what the servos named above are): two servos on one node id would share their NodeStatus,
-and ``check`` reports them as colliding identifiers.
+so a servo set up for one autopilot keeps that autopilot's number here; ``options.firmware``
+names the convention (``check`` warns about actuator 0 unless it is PX4's). Several servos may
+share a node id, each on its own actuator id (the bus node refuses one actuator id twice): they
+share the node's pushes (their identifiers are ``shared``), each takes its own.
 
 Command types: ``position`` sends radians (``COMMAND_TYPE_POSITION``); ``unitless`` maps
 ``[unitless_min_deg, unitless_max_deg]`` onto ``[-1, 1]`` (``COMMAND_TYPE_UNITLESS``), for
-servos that take only a normalised command; angles outside that range are refused (COMMAND_ACK
-DENIED), never clamped.
+servos that take only a normalised command; ``pwm`` maps the same range onto
+``[pwm_min_us, pwm_max_us]`` (``COMMAND_TYPE_PWM``, whole microseconds); angles outside that
+range are refused (COMMAND_ACK DENIED), never clamped. ArduPilot peripherals act on UNITLESS and
+PWM only and report ``norm x 45 deg`` (``firmware: ardupilot`` presets the range to +-45 deg).
 
 Received frames are reassembled per servo (a Status transfer is two frames); a frame that
 starts or continues a transfer decodes to the last known state and does not complete a report
