@@ -204,7 +204,8 @@ channels:
 def test_an_ardupilot_peripheral_moves_with_the_bridges_safety_state(command: str) -> None:
     """SAFETY_OFF every 500 ms from the bridge: the peripheral's outputs drive the servos, and
     its Status (norm x 45 deg, ArduPilot's preset) reads back the angle commanded."""
-    with running(ardupilot_board("safety_off", command)) as (bridge, port):
+    wire_log = Wire()
+    with running(ardupilot_board("safety_off", command), observers=[wire_log]) as (bridge, port):
         peer = Peer(port)
         try:
             peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))
@@ -222,6 +223,11 @@ def test_an_ardupilot_peripheral_moves_with_the_bridges_safety_state(command: st
             assert wait_until(lambda: node.counters["safety_off"] >= 3, WAIT_S)  # every 500 ms
         finally:
             peer.close()
+    # the bridge stopped: its last SafetyState written is SAFETY_ON (safety_on: stop)
+    states = [
+        data[0] for arb, data in wire_log.written if (arb >> 8) & 0xFFFF == 20000
+    ]  # ardupilot.indication.SafetyState: one byte and the tail
+    assert states[0] == 255 and states[-1] == 0 and states.count(0) == 1, states
 
 
 def test_without_the_safety_state_an_ardupilot_peripheral_stays_off_and_the_bridge_says_why() -> (
