@@ -26,6 +26,7 @@ import pytest
 from conftest import wait_until
 from dronecan.transport import Transfer
 from e2e_support import MAV_CMD_DO_SET_SERVO, MAV_RESULT_ACCEPTED, Peer, running, status
+from test_e2e_dronecan_nodes import says
 
 from mavservo.app.bridge import Bridge
 from mavservo.servos import dronecan_wire as wire
@@ -102,9 +103,7 @@ def test_made_up_unique_ids_get_a_bounded_pool_and_the_ground_station_hears_when
             assert len(server.table) == 2, server.table  # the cap, not 4
             assert server.refused >= 2
             wanted = "no free node id left"
-            assert wait_until(lambda: wanted in "".join(peer.statustexts(mark)), WAIT_S), (
-                peer.statustexts(mark)
-            )
+            says(peer, mark, wanted, WAIT_S)
             # the made-up ids never speak: nothing of them is saved ...
             assert node.persistent_state() == (server.version, {"allocation_table": {}})
             # ... and they are free again 10 s after they were handed out
@@ -148,9 +147,7 @@ def test_an_array_command_with_the_bridges_own_node_id_is_a_strangers_and_report
             [node] = bridge.schedulers["bus0"].nodes
             assert wait_until(lambda: node.counters["own_id_commands"] == 3, WAIT_S)
             wanted = "with the bridge's own node id 100"
-            assert wait_until(lambda: wanted in "".join(peer.statustexts(mark)), WAIT_S), (
-                peer.statustexts(mark)
-            )
+            says(peer, mark, wanted, WAIT_S)
         finally:
             peer.close()
 

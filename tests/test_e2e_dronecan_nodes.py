@@ -72,6 +72,13 @@ channels:
 )
 
 
+def says(peer: Peer, mark: int, text: str, wait_s: float = WAIT_S) -> None:
+    """The ground station hears ``text`` (STATUSTEXT, chunks joined) within ``wait_s``."""
+    assert wait_until(lambda: text in "".join(peer.statustexts(mark)), wait_s), peer.statustexts(
+        mark
+    )
+
+
 def position(bridge: Bridge, name: str) -> float:
     """The bridge's last reported position of ``name`` (NaN before its first report)."""
     state = status(bridge, name).state
@@ -246,9 +253,7 @@ def test_without_the_safety_state_an_ardupilot_peripheral_stays_off_and_the_brid
             sim = node_servo(bridge, "s1")
             assert abs(sim.position_deg) < 0.5 and sim.commands == 0
             wanted = "SAFETY_OFF"
-            assert wait_until(lambda: wanted in "".join(peer.statustexts(mark)), WAIT_S), (
-                peer.statustexts(mark)
-            )
+            says(peer, mark, wanted, WAIT_S)
         finally:
             peer.close()
 
@@ -271,9 +276,7 @@ def test_a_node_that_ignores_the_command_type_is_warned_about_once_within_second
             for channel in (1, 2):
                 assert peer.command(MAV_CMD_DO_SET_SERVO, [channel, 1800]) == MAV_RESULT_ACCEPTED
             wanted = "check the command type"
-            assert wait_until(lambda: wanted in "".join(peer.statustexts(mark)), WAIT_S + 2), (
-                peer.statustexts(mark)
-            )
+            says(peer, mark, wanted, WAIT_S + 2)
             assert time.monotonic() - started < 6.0
             assert status(bridge, "s1").online  # alive on NodeStatus alone
             time.sleep(1.5)

@@ -929,27 +929,3 @@ class Scheduler:
         )
         self._notify_subscribers(servo, state)
         return state
-        with self._lock:
-            servo_metrics = self._metrics.servos[servo]
-            if state is None:
-                servo_metrics.rejected += 1
-                return None
-            match = self._core.on_reply(servo, t, exchange_key(profile, msg))
-            servo_metrics.received += 1
-            if match.back_online:
-                lines += self._online_log.online(servo, t)
-            if match.kind == "late":
-                servo_metrics.late_replies += 1
-                lines += self._late_replies.late(servo, match.late_latency_s)
-            if match.latency_s is not None and math.isfinite(match.latency_s):
-                servo_metrics.latency.add(match.latency_s)
-            if match.kind in ("request", None):
-                servo_metrics.telemetry_intervals.mark(t)
-            if match.kind is None:
-                servo_metrics.pushed += 1
-            servo_metrics.state_intervals.mark(t)
-            self._states[servo] = state
-        self._log(lines)
-        self._notify_observer(self._observer.on_rx, self.name, msg, t, servo, state)
-        self._notify_subscribers(servo, state)
-        return state
