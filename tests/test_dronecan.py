@@ -469,7 +469,7 @@ def test_another_node_on_the_bridges_id_is_reported_once() -> None:
 @given(
     st.lists(
         st.tuples(
-            st.sampled_from(["position", "unitless"]),
+            st.sampled_from(["position", "unitless", "pwm"]),
             st.floats(min_value=-360, max_value=360, allow_nan=False),
         ),
         min_size=1,
@@ -505,9 +505,15 @@ def test_packed_commands_round_trip_through_the_package(
     assert len(decoded) == len(servos)
     for servo, (kind, angle), got in zip(servos, commands, decoded, strict=True):
         assert got.actuator_id == servo.options.actuator_id
-        value = math.radians(angle) if kind == "position" else angle / 360
-        assert got.command_type == (1 if kind == "position" else 0)
+        value = {
+            "position": math.radians(angle),
+            "unitless": angle / 360,
+            "pwm": float(round(1500 + angle / 360 * 500)),  # 1000..2000 us over +-360 deg
+        }[kind]
+        assert got.command_type == {"position": 1, "unitless": 0, "pwm": 4}[kind]
         assert got.command_value == pytest.approx(wire.float16(value), abs=1e-9)
+        if kind == "pwm":  # whole microseconds, exact in float16 below 2048
+            assert got.command_value == value
 
 
 @settings(max_examples=100, deadline=None)
