@@ -400,7 +400,8 @@ class BridgeNode:
             "stop": "SAFETY_ON when the bridge stops",
             "failsafe_and_stop": "SAFETY_ON while every servo of the bus is in failsafe and "
             "when the bridge stops",
-            "never": "never SAFETY_ON (outputs stay enabled after the bridge stops)",
+            "never": "never SAFETY_ON (outputs stay enabled after the bridge stops; "
+            "ArduPilot peripherals still zero them 200 ms after the last command)",
         }[self.options.safety_on]
         return (
             f"SafetyState: SAFETY_OFF every {SAFETY_PERIOD_S * 1000:g} ms from start (as "
