@@ -638,3 +638,27 @@ def test_safety_state_every_500_ms_on_at_failsafe_and_at_stop() -> None:
         [DroneCanServo(20, firmware="ardupilot", command="unitless")], NodeOptions(), (0, 1), 0.0
     ).take_notices()
     assert "SAFETY_OFF" in warning and "will not move" in warning
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.permutations(range(4)), st.integers(0, 31))
+def test_interleaved_status_transfers_of_one_node_reach_each_servo(
+    order: list[int], tid: int
+) -> None:
+    """Two actuators of node 11 report at once, their frames interleaved in any order that
+    keeps each transfer's own order: each servo takes its own Status (a sibling's is skipped
+    without reassembly), nothing is counted as an error."""
+    a, b = DroneCanServo(11, actuator_id=1), DroneCanServo(11, actuator_id=2)
+    BridgeNode([a, b], NodeOptions(), (0, 1), 0.0)
+    first = library_frames(status_payload(actuator_id=1, position=0.25), 11, tid)
+    second = library_frames(status_payload(actuator_id=2, position=-0.5), 11, (tid + 1) % 32)
+    queues = [list(first), list(second)]
+    frames = [queues[i % 2].pop(0) for i in order if queues[i % 2]]
+    frames += queues[0] + queues[1]
+    for msg in frames:
+        a.decode(msg, 1.0)
+        b.decode(msg, 1.0)
+    assert a.last_state is not None and b.last_state is not None
+    assert a.last_state.position_deg == pytest.approx(math.degrees(0.25), abs=0.1)
+    assert b.last_state.position_deg == pytest.approx(math.degrees(-0.5), abs=0.1)
+    assert not a.errors and not b.errors

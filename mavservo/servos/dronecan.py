@@ -211,6 +211,8 @@ class DroneCanServo(ServoProfile):
         """Actuator ids of every configured servo on this node id (set by the bus node): a
         node with several outputs (an AP_Periph board) reports each of them, and a sibling's
         Status is the sibling's, not a stranger's."""
+        self._skipping: set[tuple[int, int]] = set()
+        """Transfers of a sibling's Status under way (see :meth:`_siblings_status`)."""
         self.node_heard_at: float | None = None
         """When the node's first NodeStatus came (None: not yet)."""
         self.actuator_reported_at: float | None = None
@@ -370,7 +372,7 @@ class DroneCanServo(ServoProfile):
         return bool(msg.data) and bool(msg.data[-1] & 0x40)
 
     def decode(self, msg: can.Message, timestamp: float) -> ServoState | None:
-        if not self.is_reply(msg):
+        if not self.is_reply(msg) or self._siblings_status(msg):
             return None
         errors_before = sum(self._reassembler.errors.values())
         received = self._reassembler.push(msg, timestamp)
@@ -379,6 +381,38 @@ class DroneCanServo(ServoProfile):
                 return None
             return self._merge(timestamp)  # part of a transfer: alive, nothing new yet
         return self._apply(received, timestamp)
+
+    def _siblings_status(self, msg: can.Message) -> bool:
+        """True for a frame of a Status transfer of a sibling's actuator (another servo of
+        this node): the sibling decodes it, this servo skips it without reassembling, so a
+        node with N actuators costs one decode per transfer, not N. The actuator id is the
+        first payload byte, after the two CRC bytes of a multi-frame transfer's first frame;
+        the transfer's other frames follow by (id, transfer id)."""
+        if len(self.node_actuators) < 2:
+            return False
+        data = msg.data
+        if not data or (msg.arbitration_id >> 8) & 0xFFFF != wire.DTID_ACTUATOR_STATUS:
+            return False
+        tail = data[-1]
+        key = (msg.arbitration_id, tail & 0x1F)
+        if tail & 0x80:  # the first frame: whose actuator?
+            self._skipping.discard(key)
+            index = 2 if not tail & 0x40 else 0
+            if len(data) <= index + 1:
+                return False
+            actuator = data[index]
+            if actuator == self.options.actuator_id or actuator not in self.node_actuators:
+                return False
+            if not tail & 0x40:
+                if len(self._skipping) >= 64:  # bounded: ids and transfer ids come off the wire
+                    self._skipping.clear()
+                self._skipping.add(key)
+            return True
+        if key in self._skipping:
+            if tail & 0x40:
+                self._skipping.discard(key)
+            return True
+        return False
 
     def _apply(self, rx: wire.Received, timestamp: float) -> ServoState | None:
         p = rx.payload
