@@ -31,7 +31,7 @@ from test_e2e_dronecan_nodes import says
 from mavservo.app.bridge import Bridge
 from mavservo.servos import dronecan_wire as wire
 from mavservo.servos.dronecan import DroneCanServo
-from mavservo.servos.dronecan_alloc import UNCONFIRMED_EXPIRE_S, AllocationServer
+from mavservo.servos.dronecan_alloc import AllocationServer
 from mavservo.sim.autopilot.link import mavlink2
 
 pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")
@@ -104,17 +104,19 @@ def test_made_up_unique_ids_get_a_bounded_pool_and_the_ground_station_hears_when
         try:
             peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))
             mark = peer.count()
-            attack_allocations(bridge, 4)
             [node] = bridge.schedulers["bus0"].nodes
             server = node.allocator
-            assert len(server.table) == 2, server.table  # the cap, not 4
-            assert server.refused >= 2
+            for n in range(8):  # one exchange at a time until one is refused (bounded)
+                attack_allocations(bridge, 1, first=n)
+                if server.refused:
+                    break
+            assert len(server.table) == 2, server.table  # the cap
+            assert server.refused >= 1
             wanted = "no free node id left"
             says(peer, mark, wanted, WAIT_S)
-            # the made-up ids never speak: nothing of them is saved ...
+            # the made-up ids never speak: nothing of them is saved (and they are free again
+            # UNCONFIRMED_EXPIRE_S after they were handed out: the fake-time test below)
             assert node.persistent_state() == (server.version, {"allocation_table": {}})
-            # ... and they are free again 10 s after they were handed out
-            assert wait_until(lambda: not server.table, UNCONFIRMED_EXPIRE_S + 3)
         finally:
             peer.close()
 
@@ -135,8 +137,11 @@ def test_node_ids_heard_once_stop_blocking_allocation_when_they_fall_silent() ->
         assert not server.table  # nothing free while they all look alive
         # only the config's servo (node 11, reserved anyway) keeps speaking
         assert wait_until(lambda: set(server.seen_ids) <= {11}, 5.0 + 3.0), server.seen_ids
-        attack_allocations(bridge, 1, first=1)
-        assert wait_until(lambda: len(server.table) == 1, WAIT_S)
+        for n in range(1, 4):  # an exchange may meet the answer limit on a loaded machine
+            attack_allocations(bridge, 1, first=n)
+            if wait_until(lambda: len(server.table) == 1, 1.0):
+                break
+        assert len(server.table) == 1, server.table
 
 
 def test_an_array_command_with_the_bridges_own_node_id_is_a_strangers_and_reported() -> None:
