@@ -662,3 +662,18 @@ def test_interleaved_status_transfers_of_one_node_reach_each_servo(
     assert a.last_state.position_deg == pytest.approx(math.degrees(0.25), abs=0.1)
     assert b.last_state.position_deg == pytest.approx(math.degrees(-0.5), abs=0.1)
     assert not a.errors and not b.errors
+
+
+def test_a_nodes_notices_reach_the_bridge_with_no_frame_on_the_bus() -> None:
+    """The safety-state warning is raised at start: it must not wait for a received frame
+    (a bus whose nodes are all dead would never tell)."""
+    from mavservo.scheduling.runner import Scheduler
+
+    servo = DroneCanServo(20, firmware="ardupilot", command="pwm")
+    with can.Bus(interface="virtual", channel="dronecan-notices-quiet") as vbus:
+        scheduler = Scheduler(
+            vbus, [ServoSpec("s1", servo)], TimingConfig(), node_options={"dronecan": {}}
+        )
+        [notice] = scheduler.take_notices()
+        assert "SAFETY_OFF" in notice and "will not move" in notice
+        assert scheduler.take_notices() == []

@@ -161,6 +161,13 @@ class BusNodes:
         self._notices += notices
         return wake, notices
 
+    def collect(self) -> list[str]:
+        """Notices the nodes raised outside :meth:`receive` (at start, in ``due``: a silent
+        actuator, an empty allocation pool), kept for :meth:`take_notices` and returned."""
+        fresh = [notice for _, node, _ in self.nodes for notice in node.take_notices()]
+        self._notices += fresh
+        return fresh
+
     def take_notices(self) -> list[str]:
         notices, self._notices = self._notices, []
         return notices

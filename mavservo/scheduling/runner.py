@@ -268,10 +268,15 @@ class Scheduler:
             bus.on_reject = self.report_reject
 
     def take_notices(self) -> list[str]:
-        """Notices of the bus nodes since the last call (another master on a DroneCAN bus),
-        already logged; the bridge sends them as STATUSTEXT."""
+        """Notices of the bus nodes since the last call (another master on a DroneCAN bus, a
+        safety state no ArduPilot node will move with), logged once (those of received frames
+        as they came, the others here); the bridge sends them as STATUSTEXT."""
         with self._lock:
-            return self._nodes.take_notices()
+            fresh = self._nodes.collect()
+            notices = self._nodes.take_notices()
+        for notice in fresh:
+            log.warning("scheduler %s: %s", self.name, notice)
+        return notices
 
     def node_states(self) -> list[tuple[str, tuple[int, dict[str, Any]]]]:
         """``(profile name, (version, state))`` of every bus node with something to keep across
