@@ -380,10 +380,35 @@ def test_check_errors_carry_file_and_line(
     assert text in message
 
 
-def test_two_servos_on_one_node_id_collide() -> None:
+def test_two_actuators_of_one_node_id_are_no_collision_but_one_actuator_twice_is() -> None:
+    """A node with several outputs (an AP_Periph board): servos on one node id, each on its
+    own actuator id, load; the same actuator id twice is refused (one command for both)."""
     source = CONFIG.replace("NODE", "100").replace("ID_B", "11").replace("ACT_B", "2")
-    with pytest.raises(ConfigError, match="collides"):
-        load_config_text(source, "rig.yaml")
+    config = load_config_text(source, "rig.yaml")
+    assert [s.can_id for s in config.servos] == [11, 11]
+    with pytest.raises(ConfigError, match="actuator id 1 is already used"):
+        load_config_text(source.replace("actuator_id: 2", "actuator_id: 1"), "rig.yaml")
+
+
+def test_servos_of_one_node_take_their_own_status_and_share_its_node_status() -> None:
+    """Two servos on node 11: actuator 2's Status is servo b's alone (a's counts nothing),
+    the node's NodeStatus keeps both alive, an actuator nobody has is counted."""
+    a, b = DroneCanServo(11, actuator_id=1), DroneCanServo(11, actuator_id=2)
+    BridgeNode([a, b], NodeOptions(), (0, 1), 0.0)
+    frames = library_frames(status_payload(actuator_id=2, position=0.5), 11, 0)
+    for msg in frames:
+        assert a.is_reply(msg) and b.is_reply(msg)
+        a.decode(msg, 0.1)
+        state_b = b.decode(msg, 0.1)
+    assert state_b is not None and state_b.position_deg == pytest.approx(math.degrees(0.5), abs=0.1)
+    assert a.errors["other_actuator"] == 0 and a.actuator_reported_at is None
+    assert b.actuator_reported_at == 0.1
+    [heartbeat] = library_frames(dronecan.uavcan.protocol.NodeStatus(uptime_sec=1), 11, 1)
+    assert a.decode(heartbeat, 0.2) is not None and b.decode(heartbeat, 0.2) is not None
+    assert a.is_liveness_only(heartbeat) and not a.is_liveness_only(frames[-1])
+    for msg in library_frames(status_payload(actuator_id=7), 11, 2):
+        a.decode(msg, 0.3)
+    assert a.errors["other_actuator"] == 1
 
 
 def test_budget_counts_packed_transfers_status_frames_and_every_nodes_heartbeat() -> None:
@@ -444,7 +469,7 @@ def test_another_node_on_the_bridges_id_is_reported_once() -> None:
 @given(
     st.lists(
         st.tuples(
-            st.sampled_from(["position", "unitless"]),
+            st.sampled_from(["position", "unitless", "pwm"]),
             st.floats(min_value=-360, max_value=360, allow_nan=False),
         ),
         min_size=1,
@@ -480,9 +505,15 @@ def test_packed_commands_round_trip_through_the_package(
     assert len(decoded) == len(servos)
     for servo, (kind, angle), got in zip(servos, commands, decoded, strict=True):
         assert got.actuator_id == servo.options.actuator_id
-        value = math.radians(angle) if kind == "position" else angle / 360
-        assert got.command_type == (1 if kind == "position" else 0)
+        value = {
+            "position": math.radians(angle),
+            "unitless": angle / 360,
+            "pwm": float(round(1500 + angle / 360 * 500)),  # 1000..2000 us over +-360 deg
+        }[kind]
+        assert got.command_type == {"position": 1, "unitless": 0, "pwm": 4}[kind]
         assert got.command_value == pytest.approx(wire.float16(value), abs=1e-9)
+        if kind == "pwm":  # whole microseconds, exact in float16 below 2048
+            assert got.command_value == value
 
 
 @settings(max_examples=100, deadline=None)
@@ -504,3 +535,145 @@ def test_any_status_from_the_package_decodes_to_its_float16_values(
         assert math.isnan(state.velocity_dps)
     else:
         assert state.velocity_dps == pytest.approx(math.degrees(wire.float16(speed)), abs=1e-6)
+
+
+def test_check_warns_about_actuator_id_0_unless_the_firmware_numbers_from_0() -> None:
+    from mavservo.config.semantic import advisories
+
+    source = CONFIG.replace("NODE", "100").replace("ID_B", "12").replace("ACT_B", "0")
+    [warning] = [
+        text
+        for _, text in advisories(load_config_text(source, "rig.yaml"))
+        if "actuator_id 0" in text
+    ]
+    assert "PX4 numbers actuators from 0" in warning
+    px4 = source.replace("actuator_id: 0", "actuator_id: 0, firmware: px4")
+    assert not [t for _, t in advisories(load_config_text(px4, "rig.yaml")) if "actuator_id 0" in t]
+    with pytest.raises(ConfigError, match="numbers actuators from 1"):
+        load_config_text(
+            source.replace("actuator_id: 0", "actuator_id: 0, firmware: ardupilot, command: pwm"),
+            "rig.yaml",
+        )
+    with pytest.raises(ConfigError, match="unitless and pwm commands only"):
+        load_config_text(source.replace("actuator_id: 0", "firmware: ardupilot"), "rig.yaml")
+
+
+def test_ardupilot_preset_scales_unitless_by_45_degrees_and_pwm_over_the_range() -> None:
+    """AP_Periph reports ``radians(norm * 45)``: with the preset a command of 30 deg is the
+    norm 2/3, which reads back as 30 deg; PWM maps the same range onto pwm_min..max us."""
+    servo = DroneCanServo(20, firmware="ardupilot", command="unitless")
+    actuator_id, kind, value = servo.command_tuple(30.0)
+    assert (actuator_id, kind) == (1, wire.COMMAND_TYPE_UNITLESS)
+    assert math.degrees(math.radians(value * 45)) == pytest.approx(30.0)
+    pwm = DroneCanServo(20, firmware="ardupilot", command="pwm", pwm_min_us=1100, pwm_max_us=1900)
+    assert pwm.command_tuple(-45.0)[1:] == (wire.COMMAND_TYPE_PWM, 1100.0)
+    assert pwm.command_tuple(0.0)[2] == 1500.0 and pwm.command_tuple(45.0)[2] == 1900.0
+    with pytest.raises(ValueError):
+        pwm.command_tuple(50.0)  # outside the range: refused, never clamped
+    generic = DroneCanServo(20, command="unitless")
+    assert generic.command_tuple(30.0)[2] == pytest.approx(1 / 3)  # +-90 deg: reads half on AP
+
+
+def test_get_node_info_carries_a_unique_id_of_machine_and_bus_and_the_package_version() -> None:
+    """The answer's unique id is the one derived from the machine and the bus (stable across
+    restarts, different for another bus or machine), or the option; the version is mavservo's."""
+    import mavservo
+    from mavservo.scheduling.bus_nodes import node_unique_id, software_version
+
+    uid = node_unique_id("bus0", b"machine-a")
+    assert uid == node_unique_id("bus0", b"machine-a") and len(uid) == 16 and any(uid)
+    assert uid != node_unique_id("bus1", b"machine-a") != node_unique_id("bus0", b"machine-b")
+    assert node_unique_id("bus0") == node_unique_id("bus0")  # this machine's id, stable
+    major, minor, *_ = mavservo.__version__.split(".")
+    assert software_version() == (int(major), int(minor))
+    for options, expected in (
+        (NodeOptions(), uid),
+        (NodeOptions(unique_id="ab" * 16), b"\xab" * 16),
+    ):
+        node = DroneCanServo.bus_node([DroneCanServo(11)], options, software_version(), 0.0, uid)
+        request = Transfer(
+            transfer_id=1,
+            source_node_id=42,
+            dest_node_id=100,
+            payload=dronecan.uavcan.protocol.GetNodeInfo.Request(),
+            request_not_response=True,
+            service_not_message=True,
+        )
+        [frame] = request.to_frames()
+        asked = can.Message(arbitration_id=frame.message_id, is_extended_id=True, data=frame.bytes)
+        assert node.receive(asked, 1.0)
+        response = library_decode([m for m in node.due(1.0, "ok") if m.arbitration_id & 0x80])
+        assert bytes(response.payload.hardware_version.unique_id) == expected
+        version = response.payload.software_version
+        assert (version.major, version.minor) == software_version()
+
+
+def safety_states(frames: list[can.Message]) -> list[int]:
+    return [
+        int(library_decode([m]).payload.status)
+        for m in frames
+        if (m.arbitration_id >> 8) & 0xFFFF == wire.DTID_SAFETY_STATE
+    ]
+
+
+def test_safety_state_every_500_ms_on_at_failsafe_and_at_stop() -> None:
+    """The bus's SafetyState as ArduPilot's flight controller sends it, decoded by the package:
+    SAFETY_OFF every 500 ms; SAFETY_ON at once when every command of a slot is a failsafe one
+    (``failsafe_and_stop``), OFF again when commands are not; SAFETY_ON once at stop."""
+    servos = [DroneCanServo(20, firmware="ardupilot", command="pwm", actuator_id=n) for n in (1, 2)]
+    options = NodeOptions(safety_state="safety_off", safety_on="failsafe_and_stop")
+    node = BridgeNode(servos, options, (0, 1), 0.0)
+    sent = [safety_states(node.due(t / 10, "ok")) for t in range(11)]
+    assert sent == [[255], [], [], [], [], [255], [], [], [], [], [255]]
+    commands = [s.position_command(0.0) for s in servos]
+    node.pack(commands, in_failsafe=True)
+    assert safety_states(node.due(1.05, "ok")) == [0]  # at once
+    node.pack(commands, in_failsafe=False)
+    assert safety_states(node.due(1.1, "ok")) == [255]
+    assert safety_states(servos[0].shutdown_frames()) == [0]
+    assert servos[1].shutdown_frames() == []  # once for the node
+    quiet = BridgeNode([DroneCanServo(20)], NodeOptions(), (0, 1), 0.0)
+    assert safety_states(quiet.due(0.0, "ok")) == [] and not quiet.take_notices()
+    [warning] = BridgeNode(
+        [DroneCanServo(20, firmware="ardupilot", command="unitless")], NodeOptions(), (0, 1), 0.0
+    ).take_notices()
+    assert "SAFETY_OFF" in warning and "will not move" in warning
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.permutations(range(4)), st.integers(0, 31))
+def test_interleaved_status_transfers_of_one_node_reach_each_servo(
+    order: list[int], tid: int
+) -> None:
+    """Two actuators of node 11 report at once, their frames interleaved in any order that
+    keeps each transfer's own order: each servo takes its own Status (a sibling's is skipped
+    without reassembly), nothing is counted as an error."""
+    a, b = DroneCanServo(11, actuator_id=1), DroneCanServo(11, actuator_id=2)
+    BridgeNode([a, b], NodeOptions(), (0, 1), 0.0)
+    first = library_frames(status_payload(actuator_id=1, position=0.25), 11, tid)
+    second = library_frames(status_payload(actuator_id=2, position=-0.5), 11, (tid + 1) % 32)
+    queues = [list(first), list(second)]
+    frames = [queues[i % 2].pop(0) for i in order if queues[i % 2]]
+    frames += queues[0] + queues[1]
+    for msg in frames:
+        a.decode(msg, 1.0)
+        b.decode(msg, 1.0)
+    assert a.last_state is not None and b.last_state is not None
+    assert a.last_state.position_deg == pytest.approx(math.degrees(0.25), abs=0.1)
+    assert b.last_state.position_deg == pytest.approx(math.degrees(-0.5), abs=0.1)
+    assert not a.errors and not b.errors
+
+
+def test_a_nodes_notices_reach_the_bridge_with_no_frame_on_the_bus() -> None:
+    """The safety-state warning is raised at start: it must not wait for a received frame
+    (a bus whose nodes are all dead would never tell)."""
+    from mavservo.scheduling.runner import Scheduler
+
+    servo = DroneCanServo(20, firmware="ardupilot", command="pwm")
+    with can.Bus(interface="virtual", channel="dronecan-notices-quiet") as vbus:
+        scheduler = Scheduler(
+            vbus, [ServoSpec("s1", servo)], TimingConfig(), node_options={"dronecan": {}}
+        )
+        [notice] = scheduler.take_notices()
+        assert "SAFETY_OFF" in notice and "will not move" in notice
+        assert scheduler.take_notices() == []

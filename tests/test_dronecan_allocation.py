@@ -52,6 +52,20 @@ def anonymous_request(part: bytes, first: bool, preferred: int = 0, tid: int = 0
     )
 
 
+def node_status_frame(node_id: int, tid: int = 0) -> can.Message:
+    """A NodeStatus from ``node_id``, built by the package: what a node sends once it has an id."""
+    transfer = Transfer(
+        transfer_id=tid,
+        source_node_id=node_id,
+        payload=dronecan.uavcan.protocol.NodeStatus(uptime_sec=1),
+        transfer_priority=30,
+    )
+    [frame] = transfer.to_frames()
+    return can.Message(
+        arbitration_id=frame.message_id, is_extended_id=True, data=bytes(frame.bytes)
+    )
+
+
 def decode(frames: list[can.Message]) -> Any:
     transfer = Transfer()
     transfer.from_frames(
@@ -98,8 +112,12 @@ def test_allocator_hands_out_configured_then_free_ids_in_three_stages() -> None:
     assert exchange(node, OTHER_UID, 2.0, preferred=11).payload.node_id == 11
     third = bytes(range(16))
     assert exchange(node, third, 3.0, preferred=100).payload.node_id == 124  # 100 is the bridge
+    # kept across restarts once the nodes speak (a made-up unique id never does)
+    assert node.persistent_state() == (2, {"allocation_table": {}})
+    for tid, node_id in enumerate((11, 124)):
+        node.receive(node_status_frame(node_id, tid), 3.5)
     assert node.persistent_state() == (
-        2,
+        4,
         {"allocation_table": {OTHER_UID.hex(): 11, third.hex(): 124}},
     )
     # asking again gets the same id
@@ -251,6 +269,7 @@ def test_the_allocation_table_is_kept_next_to_the_config_across_restarts(tmp_pat
         bridge = Bridge(load_config(path), config_path=path, log_dir=False).start()
         try:
             assert run_client(node, got) == 125  # the same id both times
+            driver.send(*_frame(node_status_frame(125)), extended=True)  # it speaks
             deadline = time.monotonic() + 3.0
             while not state_file.exists() and time.monotonic() < deadline:
                 time.sleep(0.05)

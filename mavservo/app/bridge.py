@@ -25,6 +25,7 @@ from typing import Any, Protocol, runtime_checkable
 import can
 
 from mavservo.app import node_state
+from mavservo.app.check import stop_behaviour_lines
 from mavservo.config import BusConfig, Config
 from mavservo.config.overlay import overlay_path
 from mavservo.control.live_parameters import LiveParameters
@@ -562,6 +563,8 @@ class Bridge:
         told = ", ".join(f"{action} {count}" for action, count in actions.items())
         text = f"stopped ({reason}): servos told their failsafe action: {told}"
         self._note(text)
+        for line in stop_behaviour_lines(self.config):
+            self._note(f"then on their own: {line}")
         mavlink = self.mavlink
         if mavlink is not None:
             _quietly(lambda: mavlink.announce(text, MAV_SEVERITY_NOTICE))

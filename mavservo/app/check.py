@@ -120,9 +120,21 @@ def resolved_mapping(config: Config) -> str:
         for profile, servos, node in bus_nodes(bus, servos_on(config, bus)):
             lines += ["", f"bus {bus.name}: the bridge's {profile} node"]
             lines += ["  " + line for line in node.describe([s.name for s in servos])]
+    lines += ["", "when the bridge's frames stop (stopped, bus or adapter gone), each servo:"]
+    lines += ["  " + line for line in stop_behaviour_lines(config)]
     lines += ["", "worst-case bus load (paper eq. 4):"]
     lines += ["  " + _load_line(load) for load in bus_loads(config)]
     return "\n".join(lines)
+
+
+def stop_behaviour_lines(config: Config) -> list[str]:
+    """What the servos do by themselves once no frame comes (their family's documented stop
+    behaviour, ``ServoProfile.stop_behaviour``), servos that behave alike on one line: the
+    failsafe action is what the bridge sends while it runs; this is what follows."""
+    groups: dict[str, list[str]] = {}
+    for servo in config.servos:
+        groups.setdefault(servo.make_profile().stop_behaviour(), []).append(servo.name)
+    return [f"{', '.join(names)}: {text}" for text, names in groups.items()]
 
 
 def profiles_listing() -> str:

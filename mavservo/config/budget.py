@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
+from mavservo.scheduling.bus_nodes import node_unique_id, software_version
 from mavservo.scheduling.busload import FrameFlow, load_ratio, servo_traffic
 from mavservo.scheduling.core import STARTUP_RETRY_S
 
@@ -101,7 +102,13 @@ def bus_nodes(
             continue
         try:
             options = cls.NodeOptions.model_validate(bus.node.get(cls.name, {}))
-            node = cls.bus_node([profile_of(s) for s in group], options, (0, 0), 0.0)
+            node = cls.bus_node(
+                [profile_of(s) for s in group],
+                options,
+                software_version(),
+                0.0,
+                node_unique_id(bus.name),
+            )
         except ValueError:
             continue
         if node is not None:

@@ -108,6 +108,11 @@ def advisories(config: Config) -> list[Finding]:
                     "shorten scheduler.telemetry_period_s",
                 )
             )
+    findings += [
+        (("servos", index, "options"), f"servo {servo.name!r}: {text}")
+        for index, servo in enumerate(config.servos)
+        for text in profile_of(servo).config_warnings()
+    ]
     findings += _undriven_servos(config)
     findings += _keep_alive_past_timeout(config)
     return findings

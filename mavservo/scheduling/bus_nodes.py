@@ -11,8 +11,10 @@ collects the nodes' own frames and notices, and reads their state worth keeping.
 
 from __future__ import annotations
 
+import hashlib
+import socket
 from collections.abc import Callable, Mapping, Sequence
-from importlib import metadata
+from pathlib import Path
 from typing import Any
 
 import can
@@ -27,13 +29,39 @@ Batch = tuple[list[Outgoing], list[can.Message]]
 carry them (one each, or one packed transfer for several servos' commands)."""
 
 
+_MACHINE_ID_FILES = ("/etc/machine-id", "/var/lib/dbus/machine-id")
+
+
 def software_version() -> tuple[int, int]:
-    """mavservo's major and minor version, for a bus node's GetNodeInfo answer."""
+    """mavservo's major and minor version (the package's own ``__version__``, so a source
+    checkout says what it is too), for a bus node's GetNodeInfo answer."""
+    from mavservo import __version__
+
     try:
-        major, minor, *_ = metadata.version("mavservo").split(".")
+        major, minor, *_ = __version__.split(".")
         return int(major), int(minor)
-    except (metadata.PackageNotFoundError, ValueError):
+    except ValueError:
         return (0, 0)
+
+
+def machine_identity() -> bytes:
+    """This machine's id (systemd's ``/etc/machine-id``), else its host name."""
+    for path in _MACHINE_ID_FILES:
+        try:
+            text = Path(path).read_text(encoding="ascii").strip()
+        except (OSError, UnicodeDecodeError):
+            continue
+        if text:
+            return text.encode()
+    return socket.gethostname().encode()
+
+
+def node_unique_id(bus: str, machine: bytes | None = None) -> bytes:
+    """A bus node's 16-byte unique id: stable for one machine and bus across restarts, and
+    different for another machine or another bus (a DroneCAN tool tells two bridges, or two
+    buses of one bridge, apart by it)."""
+    identity = machine if machine is not None else machine_identity()
+    return hashlib.sha256(b"mavservo-bus-node\0" + identity + b"\0" + bus.encode()).digest()[:16]
 
 
 def command_hz(spec: ServoSpec, timing: TimingConfig) -> float:
@@ -71,7 +99,9 @@ class BusNodes:
             try:
                 node_options = cls.NodeOptions.model_validate(dict(options.get(cls.name, {})))
                 profiles = [spec.profile for spec in group]
-                node = cls.bus_node(profiles, node_options, software_version(), now)
+                node = cls.bus_node(
+                    profiles, node_options, software_version(), now, node_unique_id(bus)
+                )
             except ValueError as exc:  # pydantic's ValidationError is one
                 raise ScheduleError(f"bus {bus}: {cls.name} node: {exc}") from exc
             if node is None:
@@ -106,7 +136,10 @@ class BusNodes:
             batches[packed[id(node)][1]][0].append(out)
         for node, index in packed.values():
             outs = batches[index][0]
-            batches[index] = (outs, node.pack([out.msg for out in outs]))
+            failsafe = all(
+                out.setpoint is not None and out.setpoint.source == "failsafe" for out in outs
+            )
+            batches[index] = (outs, node.pack([out.msg for out in outs], failsafe))
         return batches
 
     def due(self, now: float, is_online: Callable[[str], bool]) -> list[can.Message]:
@@ -127,6 +160,13 @@ class BusNodes:
             notices += node.take_notices()
         self._notices += notices
         return wake, notices
+
+    def collect(self) -> list[str]:
+        """Notices the nodes raised outside :meth:`receive` (at start, in ``due``: a silent
+        actuator, an empty allocation pool), kept for :meth:`take_notices` and returned."""
+        fresh = [notice for _, node, _ in self.nodes for notice in node.take_notices()]
+        self._notices += fresh
+        return fresh
 
     def take_notices(self) -> list[str]:
         notices, self._notices = self._notices, []

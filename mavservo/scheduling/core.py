@@ -925,9 +925,13 @@ class ScheduleCore:
         dropped = None if self.is_online(out.servo) else self._drop_unsent(slot)
         return SendFailure(went_offline, dropped)
 
-    def on_reply(self, name: str, t: float, key: Hashable | None = None) -> ReplyMatch:
+    def on_reply(
+        self, name: str, t: float, key: Hashable | None = None, *, answer: bool = True
+    ) -> ReplyMatch:
         """A reply from ``name`` with exchange key ``key`` was decoded at ``t``: match it to
-        the expectation it answers (its kind, the oldest of plausible latency)."""
+        the expectation it answers (its kind, the oldest of plausible latency). ``answer``
+        False: a sign of life only (a DroneCAN NodeStatus, which any node can send with the
+        servo's id): the servo is alive, but nothing is answered and no latency measured."""
         slot = self._slots[name]
         back_online = slot.missed_in_a_row >= self.timing.offline_after_missed
         if back_online:
@@ -935,6 +939,8 @@ class ScheduleCore:
         slot.missed_in_a_row = 0
         slot.last_heard = max(slot.last_heard, t)
         self._offline_on_sends.discard(name)
+        if not answer:
+            return ReplyMatch(None, None, None, back_online)
         index = slot.replies.pick(slot.expected, t, key)
         if index is not None:
             expectation = slot.expected[index]

@@ -50,6 +50,7 @@ from mavservo.servos.base import BusNode, Fault, ServoProfile, ServoState
 
 from .bus_nodes import BusNodes
 from .busload import message_bits
+from .load_watch import LoadWatch
 
 __all__ = [
     "ScheduleError",
@@ -242,6 +243,9 @@ class Scheduler:
         self._receive_failures = FailureRun()
         self._online_log = OnlineLog()
         self._late_replies = LateReplies(self.timing.reply_timeout_s)
+        self._load_watch = LoadWatch(
+            self.name, self.timing.bitrate, self.timing.load_window_s, self.timing.max_load
+        )
         self.realtime_status = "not requested"
         self.on_event: Callable[[str], None] | None = None
         """Where advice about a servo goes besides the log (the bridge: console, event list
@@ -264,10 +268,15 @@ class Scheduler:
             bus.on_reject = self.report_reject
 
     def take_notices(self) -> list[str]:
-        """Notices of the bus nodes since the last call (another master on a DroneCAN bus),
-        already logged; the bridge sends them as STATUSTEXT."""
+        """Notices of the bus nodes since the last call (another master on a DroneCAN bus, a
+        safety state no ArduPilot node will move with), logged once (those of received frames
+        as they came, the others here); the bridge sends them as STATUSTEXT."""
         with self._lock:
-            return self._nodes.take_notices()
+            fresh = self._nodes.collect()
+            notices = self._nodes.take_notices()
+        for notice in fresh:
+            log.warning("scheduler %s: %s", self.name, notice)
+        return notices
 
     def node_states(self) -> list[tuple[str, tuple[int, dict[str, Any]]]]:
         """``(profile name, (version, state))`` of every bus node with something to keep across
@@ -658,6 +667,17 @@ class Scheduler:
             self._notify_subscribers(servo, state)
         return decision
 
+    def _announce(self, text: str) -> None:
+        """A WARNING and ``on_event`` (STATUSTEXT through the bridge): advice about a servo,
+        the measured load over ``max_load`` (:mod:`.load_watch`, rate-limited there)."""
+        log.warning("scheduler %s: %s", self.name, text)
+        on_event = self.on_event
+        if on_event is not None:
+            try:
+                on_event(text)
+            except Exception:  # noqa: BLE001 - an observer must not stop the loop
+                log.exception("scheduler %s: on_event failed", self.name)
+
     def _advise(self, servo: str, text: str) -> None:
         """Say once per servo why it is not heard (a wrong protocol, host id, id...): a WARNING
         and ``on_event`` (STATUSTEXT through the bridge). Users of other tools lose hours to a
@@ -666,14 +686,7 @@ class Scheduler:
             if servo in self._advised:
                 return
             self._advised.add(servo)
-        text = f"servo {servo}: {text}"
-        log.warning("scheduler %s: %s", self.name, text)
-        on_event = self.on_event
-        if on_event is not None:
-            try:
-                on_event(text)
-            except Exception:  # noqa: BLE001 - an observer must not stop the loop
-                log.exception("scheduler %s: on_event failed", self.name)
+        self._announce(f"servo {servo}: {text}")
 
     def _diagnose(self, msg: can.Message) -> None:
         """A frame no servo claims: ask each servo not yet advised whether it is its own in
@@ -846,20 +859,45 @@ class Scheduler:
     def handle_frame(self, msg: can.Message, t: float) -> ServoState | None:
         """Decode one received frame (called by the receive thread; public for tests and for
         buses that deliver frames through a Notifier instead)."""
+        claimants = [name for name, spec in self._specs.items() if spec.profile.is_reply(msg)]
+        warning = None
         with self._lock:
             if not msg.is_error_frame and not msg.is_fd:
-                self._metrics.load.add(t, message_bits(msg))
+                bits = message_bits(msg)
+                self._metrics.load.add(t, bits)
+                self._load_watch.received(t, bits, bool(claimants))
+                warning = self._load_watch.check(t, self._metrics.load.ratio(t))
             if self._nodes:
                 self._node_receive(msg, t)
-        servo = next(
-            (name for name, spec in self._specs.items() if spec.profile.is_reply(msg)), None
-        )
-        if servo is None:
+        if warning is not None:
+            self._announce(warning)
+        if not claimants:
             if not msg.is_error_frame:
                 self._diagnose(msg)
             return None
+        if len(claimants) == 1:
+            servo = claimants[0]
+            return self._accept(servo, msg, t, self._specs[servo].profile.decode(msg, t))
+        # several servos share the sender (a DroneCAN node with several actuators): each
+        # decodes the frame; one actuator's Status is that servo's state and none of the
+        # others' business, the node's NodeStatus everyone's. A frame none of them takes is
+        # rejected once, on the first of them.
+        decoded = [(name, self._specs[name].profile.decode(msg, t)) for name in claimants]
+        taken = any(state is not None for _, state in decoded)
+        first: ServoState | None = None
+        for index, (name, state) in enumerate(decoded):
+            if state is None and (taken or index):
+                continue
+            result = self._accept(name, msg, t, state)
+            first = first if first is not None else result
+        return first
+
+    def _accept(
+        self, servo: str, msg: can.Message, t: float, state: ServoState | None
+    ) -> ServoState | None:
+        """One servo's decoded report of ``msg`` (None: rejected): the scheduler's reply,
+        metrics, observers and subscribers."""
         profile = self._specs[servo].profile
-        state = profile.decode(msg, t)
         lines: list[Line] = []
         if state is not None and not profile.completes_report(msg):
             # the start of a multi-frame report: logged, but neither a reply nor a new state
@@ -867,12 +905,13 @@ class Scheduler:
             # take the report at its last frame, as the metrics do)
             self._notify_observer(self._observer.on_rx, self.name, msg, t, servo, None)
             return state
+        answer = state is not None and not profile.is_liveness_only(msg)
         with self._lock:
             servo_metrics = self._metrics.servos[servo]
             if state is None:
                 servo_metrics.rejected += 1
                 return None
-            match = self._core.on_reply(servo, t, exchange_key(profile, msg))
+            match = self._core.on_reply(servo, t, exchange_key(profile, msg), answer=answer)
             servo_metrics.received += 1
             if match.back_online:
                 lines += self._online_log.online(servo, t)
@@ -888,6 +927,10 @@ class Scheduler:
             servo_metrics.state_intervals.mark(t)
             self._states[servo] = state
         self._log(lines)
-        self._notify_observer(self._observer.on_rx, self.name, msg, t, servo, state)
+        # a sign of life only (NodeStatus) is no answer: the latency's round trip waits for
+        # the servo's own report
+        self._notify_observer(
+            self._observer.on_rx, self.name, msg, t, servo, state if answer else None
+        )
         self._notify_subscribers(servo, state)
         return state

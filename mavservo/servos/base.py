@@ -219,8 +219,9 @@ class BusNode(Protocol):
     times are handed in.
     """
 
-    def pack(self, commands: Sequence[can.Message]) -> list[can.Message]:
-        """The frames that carry these servos' command frames (one slot's) together."""
+    def pack(self, commands: Sequence[can.Message], in_failsafe: bool = False) -> list[can.Message]:
+        """The frames that carry these servos' command frames (one slot's) together;
+        ``in_failsafe``: every one of them is a failsafe setpoint."""
         ...
 
     def due(self, now: float, health: NodeHealth) -> list[can.Message]:
@@ -380,10 +381,40 @@ class ServoProfile(ABC):
         warns when the keep-alive is not shorter. Default: None, none declared."""
         return None
 
+    def config_warnings(self) -> list[str]:
+        """Settings of this servo that load but will likely not do what the user means (a
+        numbering convention of the servo's firmware), for ``check``'s warnings. Default:
+        none."""
+        return []
+
+    STOP_BEHAVIOUR: ClassVar[str] = "holds its last target (no timeout of its own)"
+    """What a servo of the family does by itself when the bridge's frames stop (the bridge
+    stopped, the bus or the adapter gone), as its maker documents it: ``check``'s failsafe plan
+    and the stop summary print it, so "hold" is never promised for a servo that goes limp."""
+
+    def stop_behaviour(self) -> str:
+        """:attr:`STOP_BEHAVIOUR`, with the servo's own timeout when one is configured
+        (:meth:`comm_timeout_s`); a family whose behaviour depends on its options overrides
+        this (DroneCAN: the node's firmware)."""
+        timeout = self.comm_timeout_s()
+        if timeout is None:
+            return self.STOP_BEHAVIOUR
+        return (
+            f"{self.STOP_BEHAVIOUR}; its own timeout stops it {timeout * 1000:g} ms after the "
+            "last frame"
+        )
+
     @classmethod
     @abstractmethod
     def sim_device(cls, motor: SimMotor, can_id: int, options: ProfileOptions) -> SimDevice:
         """The device side for the built-in simulation and ``mavservo sim``."""
+
+    @classmethod
+    def link_sim_devices(cls, devices: Sequence[SimDevice]) -> None:
+        """Let the simulated devices of this family on one bus meet, for a family whose
+        device can carry several servos (a DroneCAN node with several actuators: one node,
+        one heartbeat). Default: every device stands alone."""
+        return None
 
     @classmethod
     def bus_node(
@@ -392,9 +423,11 @@ class ServoProfile(ABC):
         options: ProfileOptions | None,
         software_version: tuple[int, int],
         start: float,
+        unique_id: bytes = bytes(16),
     ) -> BusNode | None:
         """The node this family's servos on one bus share (``profiles``: those servos), or
-        None (the default: every servo is addressed on its own)."""
+        None (the default: every servo is addressed on its own). ``unique_id``: the node's
+        identity on the bus, stable for this machine and bus."""
         return None
 
     def _merge(
@@ -452,6 +485,13 @@ class ServoProfile(ABC):
     @abstractmethod
     def decode(self, msg: can.Message, timestamp: float) -> ServoState | None:
         """State after reply ``msg`` received at ``timestamp``; None if not this servo's reply."""
+
+    def is_liveness_only(self, msg: can.Message) -> bool:
+        """True for a report that only says the servo is alive (a DroneCAN node's NodeStatus,
+        which any node can send with the servo's id): it keeps the servo online and its faults
+        current, but answers no command, so it closes no round trip and adds no latency
+        sample. Default: False, every report is the servo's answer."""
+        return False
 
     def completes_report(self, msg: can.Message) -> bool:
         """False for a frame of this servo that only starts or continues a multi-frame report

@@ -114,6 +114,8 @@ class CubeMarsOptions(ProfileOptions):
 class CubeMarsAK(ServoProfile):
     """CubeMars AK servo mode: push-style status, so ``telemetry_requests()`` is empty."""
 
+    STOP_BEHAVIOUR = "holds its last target (servo mode has no command timeout)"
+
     name = "cubemars-ak"
     Options = CubeMarsOptions
     options: CubeMarsOptions

@@ -66,6 +66,8 @@ class CubeMarsMitOptions(mit.MitOptions):
 class CubeMarsAKMit(ServoProfile):
     """AK module in MIT mode; polled with the enter-motor-mode frame, one answer per frame."""
 
+    STOP_BEHAVIOUR = "holds the last MIT command (position and gains)"
+
     name = "cubemars-ak-mit"
     replies_per_command = 1
     replies_per_request = 1

@@ -120,6 +120,8 @@ class DamiaoOptions(mit.MitOptions):
 class DamiaoDM(ServoProfile):
     """Damiao DM-J motor; polled with the 0x7FF refresh request, answers on the master id."""
 
+    STOP_BEHAVIOUR = "disables its motor past its TIMEOUT register (status: communication lost)"
+
     name = "damiao-dm"
     replies_per_command = 1
     replies_per_request = 1

@@ -15,6 +15,13 @@ anything else gets the node's preferred id if free, else the highest free id fro
 ``allocation_first_id`` down. Ids of the config's servos, of the bridge and of every node heard
 on the bus are never handed out.
 
+Bounds (anyone on the bus can make up unique ids, and an anonymous request needs no node id):
+unique ids the config does not name get at most ``max_entries`` table entries, and at most
+:data:`NEW_IDS_PER_MINUTE` new ones a minute; an entry whose node has not been heard
+(NodeStatus) for ``expire_s`` goes, and so does a node id heard on the bus that has been silent
+that long (it blocked allocation while it was there). When no id can be handed out the server
+says so once (:meth:`AllocationServer.pool_empty_noted`), for the bridge to report.
+
 Pure: times are handed in; the table changes are counted in :attr:`AllocationServer.version`
 for the bridge to save.
 """
@@ -40,6 +47,15 @@ answers; requests beyond are counted in :attr:`AllocationServer.limited` and not
 ALLOCATION_ANSWER_FRAMES = 3
 """Frames of the longest answer (node id and the whole 16-byte unique id, 17 bytes, and the
 transfer CRC: three frames), for the bus-load budget."""
+NEW_IDS_PER_MINUTE = 6
+"""New table entries (unique ids the config does not name) a minute, at most: a board of
+servos powering up allocates a handful at once; a stranger inventing unique ids gets six a
+minute, within the cap, instead of the whole pool in a minute."""
+UNCONFIRMED_EXPIRE_S = 10.0
+"""An id handed out whose node never sends a NodeStatus within this long is free again (and
+is never saved): a node starts its NodeStatus as soon as it has an id, a made-up unique id
+never does."""
+_EXPIRE_EVERY_S = 1.0
 _MAX_REGULAR_ID = 125
 """126 and 127 are reserved for tools (the specification's ``MAX_NODE_ID`` for allocation)."""
 
@@ -54,6 +70,10 @@ class AllocationServer:
         static_ids: set[int],
         first_id: int,
         table: dict[bytes, int] | None = None,
+        *,
+        max_entries: int = 16,
+        expire_s: float = 600.0,
+        start: float = 0.0,
     ) -> None:
         self.own_id = own_id
         self.configured = dict(configured)
@@ -70,7 +90,23 @@ class AllocationServer:
             else:
                 self.table[unique_id] = node_id
         self.first_id = first_id
-        self.seen_ids: set[int] = set()
+        self.max_entries = max_entries
+        self.expire_s = expire_s
+        self.seen_ids: dict[int, float] = {}
+        """Node ids heard on the bus -> when last (they expire, see the module docstring)."""
+        self._heard: dict[int, float] = dict.fromkeys(self.table.values(), start)
+        """Node ids of table entries -> when their node was last heard (loaded ones: start)."""
+        self._confirmed: set[int] = set(self.table.values())
+        """Node ids of table entries whose node has sent a NodeStatus (loaded ones: were)."""
+        self._new_ids: deque[float] = deque(maxlen=NEW_IDS_PER_MINUTE)
+        self._next_expiry = start
+        self.refused = 0
+        """Requests for a new id refused: the cap, the rate, or no id left."""
+        self.expired = 0
+        self.rate_limited = 0
+        """New ids refused for the rate (:data:`NEW_IDS_PER_MINUTE`)."""
+        self._pool_empty = False
+        self._pool_empty_told = False
         self.version = 0
         """Bumped whenever :attr:`table` changes (the bridge saves it then)."""
         self.allocations: deque[tuple[str, int]] = deque(maxlen=_ALLOCATIONS_KEPT)
@@ -88,12 +124,59 @@ class AllocationServer:
         return bool(self._queue)
 
     def due(self, now: float) -> list[can.Message]:
+        if now >= self._next_expiry:
+            self._next_expiry = now + _EXPIRE_EVERY_S
+            self._expire(now)
         out, self._queue = self._queue, []
         return out
 
     def seen(self, node_id: int, now: float) -> None:
-        """A node with this id is on the bus: never hand its id to another."""
-        self.seen_ids.add(node_id)
+        """A node with this id is on the bus: never hand its id to another while it is."""
+        if node_id in self._heard:
+            self._heard[node_id] = now
+            if node_id not in self._confirmed:
+                self._confirmed.add(node_id)
+                self.version += 1  # now worth saving
+        elif node_id in self.seen_ids or len(self.seen_ids) < _MAX_REGULAR_ID + 2:
+            self.seen_ids[node_id] = now
+
+    def _expire(self, now: float) -> None:
+        """Forget seen ids and table entries silent for ``expire_s`` (module docstring)."""
+        limit = now - self.expire_s
+        for node_id in [n for n, t in self.seen_ids.items() if t < limit]:
+            del self.seen_ids[node_id]
+            self._pool_empty = False
+        unconfirmed = now - UNCONFIRMED_EXPIRE_S
+        stale = [
+            uid
+            for uid, node_id in self.table.items()
+            if self._heard.get(node_id, now)
+            < (limit if node_id in self._confirmed else unconfirmed)
+        ]
+        for unique_id in stale:
+            node_id = self.table.pop(unique_id)
+            del self._heard[node_id]
+            self._confirmed.discard(node_id)
+            self.expired += 1
+            self.version += 1
+            self._pool_empty = False
+
+    def pool_empty_noted(self) -> bool:
+        """True once each time the pool runs empty (a request got no id), for a notice."""
+        if self._pool_empty and not self._pool_empty_told:
+            self._pool_empty_told = True
+            return True
+        if not self._pool_empty:
+            self._pool_empty_told = False
+        return False
+
+    def describe_pool(self) -> str:
+        """The state of the pool, for the notice."""
+        return (
+            f"{len(self.table)} of at most {self.max_entries} entries for unknown nodes, "
+            f"{len(self.seen_ids)} node ids heard on the bus; entries and heard ids expire "
+            f"after {self.expire_s:g} s of silence"
+        )
 
     def receive(self, received: wire.Received, now: float) -> bool:
         """An anonymous Allocation request; True when an answer waits in :meth:`due`."""
@@ -125,9 +208,11 @@ class AllocationServer:
         self._query_time = now
         node_id = 0
         if len(self._query) == 16:
-            node_id = self._allocate(self._query, preferred)
+            rate_limited = self.rate_limited
+            node_id = self._allocate(self._query, preferred, now)
             if node_id == 0:
-                self.ignored += 1  # no id left: say nothing (the node keeps asking)
+                self.refused += 1  # no id for it: say nothing (the node keeps asking)
+                self._pool_empty = self.rate_limited == rate_limited
                 self._query = b""
                 return False
         self._answer(node_id, self._query, now)
@@ -144,10 +229,16 @@ class AllocationServer:
         self._queue += wire.encode_message(allocation, self.own_id, self._tid, wire.PRIORITY_LOW)
         self._tid = (self._tid + 1) & 0x1F
 
-    def _allocate(self, unique_id: bytes, preferred: int) -> int:
+    def _allocate(self, unique_id: bytes, preferred: int, now: float) -> int:
         node_id = self.configured.get(unique_id) or self.table.get(unique_id)
         if node_id is None:
-            used = self.reserved | self.seen_ids | set(self.table.values())
+            if len(self.table) >= self.max_entries:
+                return 0
+            new_ids = self._new_ids
+            if len(new_ids) == new_ids.maxlen and now - new_ids[0] < 60.0:
+                self.rate_limited += 1
+                return 0
+            used = self.reserved | set(self.seen_ids) | set(self.table.values())
             if 1 <= preferred <= _MAX_REGULAR_ID and preferred not in used:
                 node_id = preferred
             else:
@@ -155,10 +246,20 @@ class AllocationServer:
             if node_id == 0:
                 return 0
             self.table[unique_id] = node_id
+            self._heard[node_id] = now
+            new_ids.append(now)
             self.version += 1
+        elif node_id in self._heard:
+            self._heard[node_id] = now
+        self._pool_empty = False
         self.allocations.append((unique_id.hex(), node_id))
         return node_id
 
     def table_hex(self) -> dict[str, Any]:
-        """The table as saved: unique id in hex -> node id."""
-        return {uid.hex(): node_id for uid, node_id in sorted(self.table.items())}
+        """The table as saved: unique id in hex -> node id, for nodes that have been heard
+        (an id handed to a unique id that never became a node is not kept across restarts)."""
+        return {
+            uid.hex(): node_id
+            for uid, node_id in sorted(self.table.items())
+            if node_id in self._confirmed
+        }

@@ -25,7 +25,7 @@ from __future__ import annotations
 import re
 from collections import Counter, deque
 from collections.abc import Sequence
-from typing import Any, Protocol
+from typing import Any, Literal, Protocol
 
 import can
 from pydantic import Field, field_validator, model_validator
@@ -40,6 +40,12 @@ sees): each answer is about nine frames for a one-frame request, so an unbounded
 would let any node on the bus fill it with the bridge's traffic. Requests beyond are counted
 (``get_node_info_limited``) and not answered; the asker asks again."""
 _HEALTH = {"ok": wire.HEALTH_OK, "warning": wire.HEALTH_WARNING, "error": wire.HEALTH_ERROR}
+SAFETY_PERIOD_S = 0.5
+"""``ardupilot.indication.SafetyState`` every 500 ms, as ArduPilot's flight controller sends it
+(``AP_DroneCAN``, its 2 Hz safety broadcast); a peripheral that hears nothing keeps its state."""
+SILENT_ACTUATOR_S = 3.0
+"""A servo whose node is alive and which is commanded, but which has sent no report of its
+own actuator for this long, is warned about once (its commands are likely ignored)."""
 
 
 class NodeOptions(ProfileOptions):
@@ -60,6 +66,39 @@ class NodeOptions(ProfileOptions):
     )
     allocation_first_id: int = Field(
         125, ge=1, le=125, description="allocation hands out ids from here down"
+    )
+    safety_state: Literal["none", "safety_off"] = Field(
+        "none",
+        description="ardupilot.indication.SafetyState the bridge broadcasts every 500 ms, as "
+        "ArduPilot's flight controller does: safety_off (SAFETY_OFF from start: ArduPilot "
+        "peripherals drive their outputs) or none (never sent: they keep their outputs off)",
+    )
+    safety_on: Literal["stop", "failsafe_and_stop", "never"] = Field(
+        "stop",
+        description="with safety_state safety_off: when the bridge turns safety back on "
+        "(SAFETY_ON: outputs off): at stop, also while every servo of the bus is in failsafe "
+        "(failsafe_and_stop), or never",
+    )
+    unique_id: str | None = Field(
+        None,
+        pattern=r"^[0-9a-f]{32}$",
+        description="the 16-byte unique id GetNodeInfo answers (32 hex digits); default: "
+        "derived from the machine id and the bus name, stable across restarts",
+    )
+    allocation_max_entries: int = Field(
+        16,
+        ge=0,
+        le=120,
+        description="node ids the allocator hands to unique ids the config does not name, at "
+        "most (a stranger making up unique ids cannot take the whole pool)",
+    )
+    allocation_expire_s: float = Field(
+        600.0,
+        ge=5.0,
+        le=86400.0,
+        description="an allocated id whose node has not been heard for this long is free again "
+        "(the table entry goes); a node id heard on the bus stops blocking allocation after "
+        "the same time",
     )
     allocation_table: dict[str, int] = Field(
         default_factory=dict,
@@ -101,6 +140,10 @@ class CommandedServo(Protocol):
     can_id: int
     bridge_node_id: int
     options: Any
+    node_actuators: frozenset[int]
+    node_heard_at: float | None
+    actuator_reported_at: float | None
+    shutdown_hook: Any
 
     def command_of(self, frame: can.Message) -> tuple[int, int, float] | None: ...
 
@@ -127,6 +170,7 @@ class BridgeNode:
         options: NodeOptions,
         software_version: tuple[int, int],
         start: float,
+        unique_id: bytes = bytes(16),
     ) -> None:
         taken = {servo.can_id for servo in servos}
         if options.node_id in taken:
@@ -161,8 +205,28 @@ class BridgeNode:
         self.servos = list(servos)
         self.software_version = software_version
         self.start = start
+        self.unique_id = bytes.fromhex(options.unique_id) if options.unique_id else unique_id
+        """Answered in GetNodeInfo: the option, else what the bridge derived (machine, bus)."""
+        on_node: dict[int, set[int]] = {}
+        for servo in servos:
+            on_node.setdefault(servo.can_id, set()).add(servo.options.actuator_id)
         for servo in servos:
             servo.bridge_node_id = self.node_id
+            servo.node_actuators = frozenset(on_node[servo.can_id])
+        self.safety_off = options.safety_state == "safety_off"
+        """The SafetyState plan: broadcast at all (SAFETY_OFF from start)."""
+        self._safety_next = start
+        self._safety_sent: bool | None = None
+        self._failsafe = False
+        self._commanded_since: dict[int, float | None] = {}
+        """Servo index -> when the node first saw it commanded (None: in the slot just packed,
+        the time comes with the next :meth:`due`)."""
+        self._silent_warned: set[int] = set()
+        if self.safety_off and options.safety_on != "never" and servos:
+            servos[0].shutdown_hook = self._safety_on_at_stop
+        self.ardupilot_nodes = sorted(
+            {s.can_id for s in servos if s.options.firmware == "ardupilot"}
+        )
         self._transfer_ids: Counter[int] = Counter()
         self._payloads: dict[int, Any] = {}
         self._reassembler = wire.Reassembler()
@@ -173,6 +237,8 @@ class BridgeNode:
         self.counters: Counter[str] = Counter()
         self.foreign_masters: set[int] = set()
         self._notices: list[str] = []
+        if self.ardupilot_nodes and not self.safety_off:
+            self._notices.append(self._safety_warning())
         self._conflict_noted = False
         self._noted: set[str] = set()
         self.allocator: Any = None
@@ -187,7 +253,14 @@ class BridgeNode:
             static = {s.can_id for s in servos if s.options.unique_id is None}
             table = {bytes.fromhex(k): v for k, v in options.allocation_table.items()}
             self.allocator = AllocationServer(
-                self.node_id, configured, static, options.allocation_first_id, table
+                self.node_id,
+                configured,
+                static,
+                options.allocation_first_id,
+                table,
+                max_entries=options.allocation_max_entries,
+                expire_s=options.allocation_expire_s,
+                start=start,
             )
             if self.allocator.dropped:
                 self._notices.append(
@@ -207,14 +280,19 @@ class BridgeNode:
         return tid
 
     # ---------------------------------------------------------------------------- commands
-    def pack(self, commands: Sequence[can.Message]) -> list[can.Message]:
+    def pack(self, commands: Sequence[can.Message], in_failsafe: bool = False) -> list[can.Message]:
         """One ArrayCommand transfer for up to 15 of the servos' one-command frames (more:
-        several transfers), numbered with this node's transfer ids."""
+        several transfers), numbered with this node's transfer ids. ``in_failsafe``: every
+        command is a failsafe setpoint (the SafetyState plan may turn safety on for it)."""
         tuples: list[tuple[int, int, float]] = []
+        self._failsafe = in_failsafe and self.options.safety_on == "failsafe_and_stop"
         for msg in commands:
-            known = next(
-                (c for c in (s.command_of(msg) for s in self.servos) if c is not None), None
-            )
+            known = None
+            for index, servo in enumerate(self.servos):
+                known = servo.command_of(msg)
+                if known is not None:
+                    self._commanded_since.setdefault(index, None)
+                    break
             if known is not None:
                 tuples.append(known)
                 continue
@@ -265,13 +343,101 @@ class BridgeNode:
                 wire.PRIORITY_LOW,
             )
             self.counters["node_status"] += 1
+        out += self._safety_due(now)
+        self._check_silent_actuators(now)
         if self.allocator is not None:
             out += self.allocator.due(now)
+            if self.allocator.pool_empty_noted():
+                self._notices.append(
+                    "DroneCAN allocation: no free node id left to hand out "
+                    f"({self.allocator.describe_pool()}); a new node gets none until entries "
+                    "expire"
+                )
         return out
+
+    # ------------------------------------------------------------------------- safety
+    def _safety_frames(self, off: bool) -> list[can.Message]:
+        self._safety_sent = off
+        self.counters["safety_off" if off else "safety_on"] += 1
+        return wire.encode_message(
+            wire.safety_state(off),
+            self.node_id,
+            self._next_tid(wire.DTID_SAFETY_STATE),
+            wire.PRIORITY_LOW,
+        )
+
+    def _safety_due(self, now: float) -> list[can.Message]:
+        """SafetyState every 500 ms (at once when it changes): SAFETY_OFF, or SAFETY_ON while
+        the plan says failsafe and every commanded servo is in failsafe."""
+        if not self.safety_off:
+            return []
+        off = not self._failsafe
+        if now < self._safety_next and off == self._safety_sent:
+            return []
+        self._safety_next = now + SAFETY_PERIOD_S
+        return self._safety_frames(off)
+
+    def _safety_on_at_stop(self) -> list[can.Message]:
+        """SAFETY_ON once as the bridge stops (the plan's ``stop``): outputs off."""
+        return self._safety_frames(False)
+
+    def _safety_warning(self) -> str:
+        nodes = ", ".join(map(str, self.ardupilot_nodes))
+        return (
+            f"DroneCAN nodes {nodes} run ArduPilot firmware, which keeps its outputs off until "
+            "it hears SafetyState SAFETY_OFF, and the bridge sends none (safety_state: none): "
+            "their servos will not move; set node.dronecan.safety_state: safety_off"
+        )
+
+    def safety_plan(self) -> str:
+        """The SafetyState plan, as ``check`` prints it."""
+        if not self.safety_off:
+            return (
+                "SafetyState: not sent (safety_state: none): ArduPilot peripherals (AP_Periph) "
+                "keep their outputs off; other DroneCAN servos do not care"
+            )
+        on = {
+            "stop": "SAFETY_ON when the bridge stops",
+            "failsafe_and_stop": "SAFETY_ON while every servo of the bus is in failsafe and "
+            "when the bridge stops",
+            "never": "never SAFETY_ON (outputs stay enabled after the bridge stops; "
+            "ArduPilot peripherals still zero them 200 ms after the last command)",
+        }[self.options.safety_on]
+        return (
+            f"SafetyState: SAFETY_OFF every {SAFETY_PERIOD_S * 1000:g} ms from start (as "
+            f"ArduPilot's flight controller); {on}"
+        )
+
+    # ------------------------------------------------------------------------- silence
+    def _check_silent_actuators(self, now: float) -> None:
+        """Warn once per servo whose node is alive and which is commanded but never reports
+        its actuator: the node ignores the command (a command type it does not act on, an
+        actuator id it does not have)."""
+        for index, since in list(self._commanded_since.items()):
+            if since is None:
+                self._commanded_since[index] = now
+                continue
+            servo = self.servos[index]
+            if index in self._silent_warned or servo.actuator_reported_at is not None:
+                continue
+            alive = servo.node_heard_at
+            if alive is None or now - max(since, alive) < SILENT_ACTUATOR_S:
+                continue
+            self._silent_warned.add(index)
+            self.counters["silent_actuators"] += 1
+            options = servo.options
+            self._notices.append(
+                f"DroneCAN node {servo.can_id} is alive but never reports Status for actuator "
+                f"{options.actuator_id}: commands ignored? check the command type (command: "
+                f"{options.command}; ArduPilot peripherals act on unitless and pwm only) and "
+                "the actuator id"
+            )
 
     def next_due(self) -> float:
         if self._queue or (self.allocator is not None and self.allocator.pending()):
             return -float("inf")
+        if self.safety_off:
+            return min(self._next_status, self._safety_next)
         return self._next_status
 
     def _notice_once(self, kind: str, text: str) -> None:
@@ -288,6 +454,9 @@ class BridgeNode:
         if self.allocator is not None:
             out["allocation_ignored"] = self.allocator.ignored
             out["allocation_limited"] = self.allocator.limited
+            out["allocation_refused"] = self.allocator.refused
+            out["allocation_rate_limited"] = self.allocator.rate_limited
+            out["allocation_expired"] = self.allocator.expired
         return out
 
     def take_notices(self) -> list[str]:
@@ -305,9 +474,17 @@ class BridgeNode:
             if self.options.allocator
             else "off (static node ids)"
         )
+        major, minor = self.software_version
         return [
             f"node id {self.node_id}, name {self.options.name}, NodeStatus 1 Hz, GetNodeInfo "
-            f"answered; dynamic id allocation {allocator}",
+            f"answered (version {major}.{minor}, unique id {self.unique_id.hex()}); dynamic id "
+            f"allocation {allocator}",
+            self.safety_plan(),
+            *(
+                [f"warning: {self._safety_warning()}"]
+                if self.ardupilot_nodes and not self.safety_off
+                else []
+            ),
             f"one ArrayCommand per command slot for actuators {actuators} "
             f"({frames_for_commands(len(self.servos))} frames)",
             "sharing the bus: other DroneCAN nodes (an autopilot's GNSS, ESCs, sensors, another "
@@ -336,6 +513,8 @@ class BridgeNode:
             (command_hz * frames_for_commands(servo_count), True, 8),
             (GET_NODE_INFO_PER_S * self.node_info_frames(), True, 8),
         ]
+        if self.safety_off:  # SafetyState: one single-frame transfer (1 byte and the tail)
+            flows.append((1 / SAFETY_PERIOD_S, True, 2))
         if self.allocator is not None:
             from .dronecan_alloc import ALLOCATION_ANSWER_FRAMES, ALLOCATION_ANSWERS_PER_S
 
@@ -386,7 +565,15 @@ class BridgeNode:
                 if received is None:
                     return False
                 limited = self.allocator.limited
+                rate_limited = self.allocator.rate_limited
                 answered = bool(self.allocator.receive(received, now))
+                if self.allocator.rate_limited != rate_limited:
+                    self._notice_once(
+                        "allocation_rate",
+                        "DroneCAN allocation: unknown unique ids ask for new node ids faster "
+                        "than the allocator hands them out: refused (counted in "
+                        "allocation_rate_limited); a stranger making up unique ids?",
+                    )
                 if self.allocator.limited != limited:
                     self._notice_once(
                         "allocation_limited",
@@ -395,7 +582,8 @@ class BridgeNode:
                     )
                 return answered
             return False
-        if dtid == wire.DTID_ARRAY_COMMAND and source != self.node_id:
+        if dtid == wire.DTID_ARRAY_COMMAND:
+            # CAN does not echo a sender's own frames: one with the bridge's id is another's
             self._foreign_command(msg, source, now)
         if dtid == wire.DTID_NODE_STATUS and source == self.node_id:
             self.counters["node_id_conflict"] += 1
@@ -413,6 +601,8 @@ class BridgeNode:
         """Another node's ArrayCommand: reported once per sender, saying whether it commands
         the bridge's actuators (two masters) or others (a second controller, maybe intended)."""
         self.counters["foreign_commands"] += 1
+        if source == self.node_id:
+            self.counters["own_id_commands"] += 1
         received = self._reassembler.push(msg, now)
         if received is None or source in self.foreign_masters:
             return
@@ -420,7 +610,15 @@ class BridgeNode:
         ours = {servo.options.actuator_id for servo in self.servos}
         theirs = sorted({int(c.actuator_id) for c in received.payload.commands})
         shared = [a for a in theirs if a in ours]
-        if shared:
+        if source == self.node_id:
+            self._notices.append(
+                f"another DroneCAN node sends ArrayCommand with the bridge's own node id "
+                f"{source} (CAN does not echo the bridge's frames), for actuators "
+                f"{', '.join(map(str, theirs))}"
+                + (f", the bridge's {', '.join(map(str, shared))}" if shared else "")
+                + ": a spoofed or misconfigured sender (counted in own_id_commands)"
+            )
+        elif shared:
             self._notices.append(
                 f"DroneCAN node {source} also sends ArrayCommand for actuators "
                 f"{', '.join(map(str, shared))} (the bridge's): two masters command these "
@@ -436,6 +634,7 @@ class BridgeNode:
         info = wire.lib().uavcan.protocol.GetNodeInfo.Response()
         info.status = self.status_payload(now)
         info.software_version.major, info.software_version.minor = self.software_version
+        info.hardware_version.unique_id.from_bytes(self.unique_id)
         info.name = self.options.name
         return wire.encode_service(
             info,

@@ -1,11 +1,30 @@
 """The simulated DroneCAN actuator node (built-in simulation, ``mavservo sim``), made with the
 same ``dronecan`` package as the bridge's side.
 
-It does what a DroneCAN servo does: takes its actuator's entry from every ``ArrayCommand`` on
-the bus (reassembling multi-frame transfers, so a bad CRC or a lost frame loses the command as
-on a real node), reports ``uavcan.equipment.actuator.Status`` at its status rate (a two-frame
-transfer) and ``uavcan.protocol.NodeStatus`` once a second, its health WARNING while the motor
-reports a fault. Silencing the simulated servo (``faults: {silent: true}``) silences the node.
+One :class:`DroneCanDevice` per simulated servo (one actuator); the devices of servos that share
+a node id share one :class:`SimNode` (:func:`link_devices`): one NodeStatus, one uptime, one
+safety state and one command timeout for all the node's outputs, as on a board with several
+outputs. A node takes its actuators' entries from every ``ArrayCommand`` on the bus
+(reassembling multi-frame transfers, so a bad CRC or a lost frame loses the command as on a real
+node), reports ``uavcan.equipment.actuator.Status`` for its actuator at its status rate (a
+two-frame transfer) and ``uavcan.protocol.NodeStatus`` once a second, its health WARNING while a
+motor reports a fault. Silencing the simulated servos of a node (``faults: {silent: true}``)
+silences the node.
+
+The node's firmware is the servo's ``options.firmware``:
+
+* ``generic`` / ``px4`` (a Hitec, Volz style servo): acts on POSITION (radians), UNITLESS and
+  PWM over the options' range, holds its last command, reports its motor's position.
+* ``ardupilot``: what ArduPilot's peripheral firmware does with an actuator output (AP_Periph,
+  ``Tools/AP_Periph/can.cpp`` ``handle_act_command`` and ``rc_out.cpp``, read for behaviour):
+  outputs are off (safety on) until ``ardupilot.indication.SafetyState`` says SAFETY_OFF (255;
+  any other value turns safety on again); only UNITLESS (a norm, -1..1) and PWM (us, rounded)
+  commands are acted on, anything else is dropped without a word; actuator ``n`` drives output
+  ``n`` (ids from 1: 0 is no output); 200 ms without a valid command (``SRV_CMD_TIME_OUT``)
+  zeroes every output it was commanded on (the servo goes limp); while commanded, a Status for
+  each commanded actuator at most every 100 ms with ``position = radians(norm * 45)``, force and
+  speed 0 (its simulation convention), whatever the real output does. The attached servo turns
+  the norm into an angle over the options' range (its real travel).
 
 A servo with ``options.unique_id`` starts without a node id, as such a node does: it sends only
 anonymous ``dynamic_node_id.Allocation`` requests (its unique id in three parts, the next part
@@ -17,16 +36,88 @@ from __future__ import annotations
 
 import math
 from collections import Counter
+from collections.abc import Sequence
 
 import can
 
 from . import dronecan_wire as wire
 from .base import NO_FAULT, SimMotor
-from .dronecan import DroneCanOptions
+from .dronecan import ARDUPILOT_COMMAND_TIMEOUT_S, ARDUPILOT_UNITLESS_DEG, DroneCanOptions
+
+ARDUPILOT_STATUS_PERIOD_S = 0.1
+"""AP_Periph's actuator Status period while commanded (10 Hz)."""
+
+
+class SimNode:
+    """What the actuators of one simulated node share (module docstring)."""
+
+    def __init__(self, firmware: str) -> None:
+        self.firmware = firmware
+        self.members: list[DroneCanDevice] = []
+        self.start: float | None = None
+        self.next_node_status = -math.inf
+        self.transfer_ids: Counter[int] = Counter()
+        self.safety_off = firmware != "ardupilot"
+        """ArduPilot: outputs off until SAFETY_OFF; other firmware has no safety state."""
+        self.last_command: float | None = None
+        """ArduPilot: the last ArrayCommand with a command it acts on (its output timeout)."""
+        self.reassembler = wire.Reassembler()
+        self._handled: tuple[int, float] | None = None
+
+    def tid(self, dtid: int) -> int:
+        tid = self.transfer_ids[dtid] & 0x1F
+        self.transfer_ids[dtid] = tid + 1
+        return tid
+
+    def node_status(self, node_id: int, now: float) -> list[can.Message]:
+        """The node's NodeStatus when one is due (whichever member asks first sends it)."""
+        if now < self.next_node_status:
+            return []
+        if self.start is None:
+            self.start = now
+        self.next_node_status = now + wire.NODE_STATUS_PERIOD_S
+        faulty = any(m.motor.active_faults != NO_FAULT for m in self.members)
+        health = wire.HEALTH_WARNING if faulty else wire.HEALTH_OK
+        status = wire.node_status(now - self.start, health, wire.MODE_OPERATIONAL)
+        return wire.encode_message(
+            status, node_id, self.tid(wire.DTID_NODE_STATUS), wire.PRIORITY_LOW
+        )
+
+    def receive(self, msg: can.Message, now: float) -> wire.Received | None:
+        """Reassemble a frame once for the whole node (each member is handed the same frame)."""
+        key = (id(msg), now)
+        if self._handled is not None and self._handled[0] == key[0] and self._handled[1] == now:
+            return None
+        self._handled = key
+        return self.reassembler.push(msg, now)
+
+    def timed_out(self, now: float) -> bool:
+        """ArduPilot: no valid command for ``SRV_CMD_TIME_OUT``: its outputs are zeroed."""
+        return (
+            self.firmware == "ardupilot"
+            and self.last_command is not None
+            and now - self.last_command >= ARDUPILOT_COMMAND_TIMEOUT_S
+        )
+
+
+def link_devices(devices: Sequence[object]) -> None:
+    """Devices of servos on one node id share that node (static ids; a servo that asks for
+    an id by allocation is a node of its own)."""
+    nodes: dict[int, SimNode] = {}
+    for device in devices:
+        if not isinstance(device, DroneCanDevice) or device.unique_id is not None:
+            continue
+        assert device.node_id is not None
+        node = nodes.get(device.node_id)
+        if node is None:
+            nodes[device.node_id] = device.node
+            continue
+        node.members.append(device)
+        device.node = node
 
 
 class DroneCanDevice:
-    """One actuator node on a :class:`SimMotor` (module docstring)."""
+    """One actuator of a simulated node, on a :class:`SimMotor` (module docstring)."""
 
     pushes = True
 
@@ -36,49 +127,115 @@ class DroneCanDevice:
         self.node_id: int | None = None if self.unique_id else node_id
         self._next_request = -math.inf
         self.options = options
-        self.start: float | None = None
-        self._next_status = -math.inf
-        self._transfer_ids: Counter[int] = Counter()
-        self._reassembler = wire.Reassembler()
+        self.node = SimNode(options.firmware)
+        self.node.members.append(self)
+        self._allocation_reassembler = wire.Reassembler()
         self.commands_seen = 0
+        self.norm: float | None = None
+        """ArduPilot: the output's last commanded norm (-1..1), None: never commanded."""
+        self.output_on = False
+        """ArduPilot: the output drives the servo (commanded, safety off, not timed out)."""
+        self._reported_at = -math.inf
+        self._commanded_since_report = False
+
+    @property
+    def ardupilot(self) -> bool:
+        return self.options.firmware == "ardupilot"
 
     def accepts(self, msg: can.Message) -> bool:
         if not wire.is_message_frame(msg) or wire.source_node(msg) in (0, self.node_id):
             return False
-        wanted = wire.DTID_ARRAY_COMMAND if self.node_id else wire.DTID_ALLOCATION
-        return wire.message_dtid(msg) == wanted
+        if not self.node_id:
+            return wire.message_dtid(msg) == wire.DTID_ALLOCATION
+        return wire.message_dtid(msg) in (wire.DTID_ARRAY_COMMAND, wire.DTID_SAFETY_STATE)
 
     def handle(self, msg: can.Message, now: float) -> list[can.Message]:
-        received = self._reassembler.push(msg, now)
-        if received is not None and received.dtid == wire.DTID_ALLOCATION:
-            return self._allocation_answer(received.payload)
-        if received is None or received.dtid != wire.DTID_ARRAY_COMMAND or not self.node_id:
+        if not self.node_id:
+            received = self._allocation_reassembler.push(msg, now)
+            if received is not None and received.dtid == wire.DTID_ALLOCATION:
+                return self._allocation_answer(received.payload)
             return []
+        received = self.node.receive(msg, now)
+        if received is not None:
+            for member in self.node.members:
+                member._take(received, now)
+        return []
+
+    def _take(self, received: wire.Received, now: float) -> None:
+        """A whole transfer the node received, for this member's actuator."""
+        if received.dtid == wire.DTID_SAFETY_STATE:
+            self.node.safety_off = int(received.payload.status) == wire.SAFETY_OFF
+            self._drive(now)
+            return
+        if received.dtid != wire.DTID_ARRAY_COMMAND:
+            return
         for command in received.payload.commands:
+            kind, value = int(command.command_type), float(command.command_value)
+            if self.ardupilot and kind in (wire.COMMAND_TYPE_UNITLESS, wire.COMMAND_TYPE_PWM):
+                self.node.last_command = now  # any command it acts on feeds the timeout
             if int(command.actuator_id) != self.options.actuator_id:
                 continue
-            angle = self._angle(int(command.command_type), float(command.command_value))
+            if self.ardupilot:
+                self._ardupilot_command(kind, value, now)
+                continue
+            angle = self._angle(kind, value)
             if angle is not None:
                 self.commands_seen += 1
                 self.motor.command_position(angle, None, now)
-        return []
 
     def _angle(self, command_type: int, value: float) -> float | None:
+        """A generic servo: its command as an angle over the options' range."""
         if not math.isfinite(value):
             return None
         if command_type == wire.COMMAND_TYPE_POSITION:
             return math.degrees(value)
         if command_type == wire.COMMAND_TYPE_UNITLESS:
-            o = self.options
-            value = max(-1.0, min(1.0, value))
-            span = o.unitless_max_deg - o.unitless_min_deg
-            return o.unitless_min_deg + (value + 1.0) / 2.0 * span
-        return None  # force, speed, PWM: not a position servo's business
+            return self._norm_angle(max(-1.0, min(1.0, value)))
+        if command_type == wire.COMMAND_TYPE_PWM:
+            return self._norm_angle(self._pwm_norm(value))
+        return None  # force, speed: not a position servo's business
+
+    def _norm_angle(self, norm: float) -> float:
+        o = self.options
+        return o.unitless_min_deg + (norm + 1.0) / 2.0 * (o.unitless_max_deg - o.unitless_min_deg)
+
+    def _pwm_norm(self, pulse_us: float) -> float:
+        """A pulse as the -1..1 of the output's range, trim in the middle (ArduPilot's
+        ``SERVOn_MIN/TRIM/MAX``, here ``pwm_min_us``/``pwm_max_us``)."""
+        o = self.options
+        trim = (o.pwm_min_us + o.pwm_max_us) / 2.0
+        half = (o.pwm_max_us - o.pwm_min_us) / 2.0
+        return max(-1.0, min(1.0, (pulse_us - trim) / half))
+
+    def _ardupilot_command(self, kind: int, value: float, now: float) -> None:
+        if self.options.actuator_id == 0 or not math.isfinite(value):
+            return  # output 1 << (0 - 1): none
+        if kind == wire.COMMAND_TYPE_UNITLESS:
+            self.norm = max(-1.0, min(1.0, value))
+        elif kind == wire.COMMAND_TYPE_PWM:
+            self.norm = self._pwm_norm(float(int(value + 0.5)))
+        else:
+            return
+        self.commands_seen += 1
+        self._commanded_since_report = True
+        self._drive(now)
+
+    def _drive(self, now: float) -> None:
+        """ArduPilot: the output drives the servo only when commanded, with safety off and
+        within the command timeout; otherwise PWM 0: the servo goes limp."""
+        if not self.ardupilot or self.norm is None:
+            return
+        on = self.node.safety_off and not self.node.timed_out(now)
+        if on:
+            if not self.output_on:
+                self.motor.enable(now)
+            self.motor.command_position(self._norm_angle(self.norm), None, now)
+        elif self.output_on:
+            self.motor.disable(now)
+        self.output_on = on
 
     def _tid(self, dtid: int) -> int:
-        tid = self._transfer_ids[dtid] & 0x1F
-        self._transfer_ids[dtid] = tid + 1
-        return tid
+        return self.node.tid(dtid)
 
     def _allocation_request(self, part: bytes, first: bool) -> list[can.Message]:
         assert self.unique_id is not None
@@ -109,27 +266,41 @@ class DroneCanDevice:
                 return []
             self._next_request = now + 1.0
             return self._allocation_request(self.unique_id[:6], True)
-        if self.start is None:
-            self.start = now
-        motor = self.motor
-        payload = wire.lib().uavcan.equipment.actuator.Status(
-            actuator_id=self.options.actuator_id,
-            position=math.radians(motor.position_deg),
-            force=math.nan,
-            speed=math.radians(motor.velocity_dps),
-            power_rating_pct=wire.POWER_RATING_UNKNOWN,
-        )
-        out = wire.encode_message(
-            payload, self.node_id, self._tid(wire.DTID_ACTUATOR_STATUS), wire.PRIORITY_MEDIUM
-        )
-        if now >= self._next_status:
-            self._next_status = now + wire.NODE_STATUS_PERIOD_S
-            health = wire.HEALTH_OK if motor.active_faults == NO_FAULT else wire.HEALTH_WARNING
-            status = wire.node_status(now - self.start, health, wire.MODE_OPERATIONAL)
-            out += wire.encode_message(
-                status, self.node_id, self._tid(wire.DTID_NODE_STATUS), wire.PRIORITY_LOW
+        self._drive(now)  # the output timeout runs on the node's own clock
+        out = self._actuator_status(now)
+        return out + self.node.node_status(self.node_id, now)
+
+    def _actuator_status(self, now: float) -> list[can.Message]:
+        assert self.node_id is not None
+        actuator = wire.lib().uavcan.equipment.actuator
+        if self.ardupilot:
+            # only while commanded, at most every 100 ms, the norm x 45 deg
+            if not self._commanded_since_report or self.norm is None:
+                return []
+            if now - self._reported_at < ARDUPILOT_STATUS_PERIOD_S - 1e-9:
+                return []
+            self._reported_at, self._commanded_since_report = now, False
+            payload = actuator.Status(
+                actuator_id=self.options.actuator_id,
+                position=math.radians(self.norm * ARDUPILOT_UNITLESS_DEG),
+                force=0.0,
+                speed=0.0,
+                power_rating_pct=wire.POWER_RATING_UNKNOWN,
             )
-        return out
+            priority = wire.PRIORITY_LOW
+        else:
+            motor = self.motor
+            payload = actuator.Status(
+                actuator_id=self.options.actuator_id,
+                position=math.radians(motor.position_deg),
+                force=math.nan,
+                speed=math.radians(motor.velocity_dps),
+                power_rating_pct=wire.POWER_RATING_UNKNOWN,
+            )
+            priority = wire.PRIORITY_MEDIUM
+        return wire.encode_message(
+            payload, self.node_id, self._tid(wire.DTID_ACTUATOR_STATUS), priority
+        )
 
     def tick(self, now: float) -> None:
         return None

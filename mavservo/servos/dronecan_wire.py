@@ -32,8 +32,10 @@ import can
 HEALTH_OK, HEALTH_WARNING, HEALTH_ERROR, HEALTH_CRITICAL = 0, 1, 2, 3
 MODE_OPERATIONAL, MODE_INITIALIZATION, MODE_MAINTENANCE, MODE_SOFTWARE_UPDATE = 0, 1, 2, 3
 MODE_OFFLINE = 7
-# uavcan.equipment.actuator.Command.command_type
-COMMAND_TYPE_UNITLESS, COMMAND_TYPE_POSITION = 0, 1
+# uavcan.equipment.actuator.Command.command_type (uavcan/equipment/actuator/Command.uavcan)
+COMMAND_TYPE_UNITLESS, COMMAND_TYPE_POSITION, COMMAND_TYPE_PWM = 0, 1, 4
+# ardupilot.indication.SafetyState.status (ardupilot/indication/20000.SafetyState.uavcan)
+SAFETY_ON, SAFETY_OFF = 0, 255
 POWER_RATING_UNKNOWN = 127
 
 # data type ids used here (the library's ``default_dtid`` of each; tests check they agree)
@@ -44,6 +46,7 @@ DTID_GET_NODE_INFO = 1
 DTID_ALLOCATION = 1
 DTID_VOLZ_STATUS = 20020
 DTID_HIMARK_INFO = 2019
+DTID_SAFETY_STATE = 20000
 
 # transfer priorities (libcanard's names): commands high, service answers medium, heartbeat low
 PRIORITY_HIGH, PRIORITY_MEDIUM, PRIORITY_LOW = 8, 16, 24
@@ -179,6 +182,14 @@ def array_command(commands: list[tuple[int, int, float]]) -> Any:
             actuator.Command(actuator_id=a, command_type=t, command_value=v) for a, t, v in commands
         ]
     )
+
+
+def safety_state(off: bool) -> Any:
+    """``ardupilot.indication.SafetyState``: SAFETY_OFF (255) lets an ArduPilot peripheral
+    drive its outputs, anything else (SAFETY_ON, 0) keeps them off."""
+    state = lib().ardupilot.indication.SafetyState()
+    state.status = SAFETY_OFF if off else SAFETY_ON
+    return state
 
 
 def node_status(uptime_s: float, health: int, mode: int, vendor_code: int = 0) -> Any:

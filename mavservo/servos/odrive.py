@@ -301,6 +301,8 @@ class ODriveOptions(ProfileOptions):
 class ODrive(ServoProfile):
     """One ODrive axis (CANSimple node); pushes its state, takes position set points."""
 
+    STOP_BEHAVIOUR = "holds its last target until its axis watchdog, when set, disarms the axis"
+
     name = "odrive"
     telemetry = "pushed"
     replies_per_command = 0

@@ -115,6 +115,11 @@ class RmdX(ServoProfile):
     degrees), None disables either; ``comm_timeout_ms`` goes to the servo at start-up (0xB3).
     """
 
+    STOP_BEHAVIOUR = (
+        "holds its last target; with comm_timeout_ms set (0xB3, V4 firmware) it turns its motor "
+        "off that long after the last frame"
+    )
+
     Options: ClassVar[type[ProfileOptions]] = RmdXOptions
     options: RmdOptions
 

@@ -275,6 +275,11 @@ class Robstride(ServoProfile):
     """A Robstride motor: position mode (CSP) in the private protocol, or the MIT packing after
     a protocol switch; it pushes its state at the servo's telemetry rate (active reporting)."""
 
+    STOP_BEHAVIOUR = (
+        "holds its last target until its own communication timeout, when set in the motor, "
+        "stops it (fault: communication lost)"
+    )
+
     name = "robstride"
     replies_per_command = 1
     replies_per_request = 0

@@ -269,6 +269,14 @@ class AdapterEmulator:
 
     # -- the adapter ---------------------------------------------------------------------------
 
+    def inject(self, frames: Iterable[can.Message]) -> None:
+        """Frames from a foreign node on the bus (an attacker, a second master), queued now:
+        the bus carries them like any node's and the host receives them."""
+        with self._lock:
+            now = self.clock()
+            for msg in frames:
+                self.canbus.inject(msg, now)
+
     def load(self, window: float = 1.0) -> float:
         with self._lock:
             return self.canbus.load(self.clock(), window)

@@ -33,6 +33,9 @@ from .servo import SimServo
 
 HOST = None
 """Source marker for frames submitted by the host side."""
+FOREIGN = object()
+"""Source marker for frames of a node outside the simulation (an attacker, a second master):
+the bus carries them to the host, no simulated servo answers them."""
 
 
 @dataclass(order=True)
@@ -40,7 +43,7 @@ class _Pending:
     ready: float
     seq: int
     msg: can.Message
-    source: SimServo | None
+    source: SimServo | object | None
 
 
 @dataclass
@@ -127,6 +130,11 @@ class SimCanBus:
                 return
             self._host_waiting += 1
         self._pending.append(_Pending(ready, next(self._seq), msg, source))
+
+    def inject(self, msg: can.Message, ready: float) -> None:
+        """Queue a frame of a node outside the simulation (:data:`FOREIGN`): it arbitrates
+        like any frame and reaches the host; no simulated servo answers it."""
+        self._pending.append(_Pending(ready, next(self._seq), msg, FOREIGN))
 
     def set_flood(
         self, arbitration_id: int | None, now: float, dlc: int = 8, extended: bool = False

@@ -37,7 +37,7 @@ from typing import Any
 
 from ..servos import get_profile
 from .adapter import AdapterEmulator, LineFaults
-from .servo import Faults, Physics, SimServo
+from .servo import Faults, Physics, SimServo, share_nodes
 
 #: Signals that end the emulator cleanly (its pty closed, its ``--link`` removed).
 STOP_SIGNALS = tuple(
@@ -320,7 +320,7 @@ def build_emulator(
         if value is not None:
             setattr(line, field, value)
     return AdapterEmulator(
-        servos,
+        share_nodes(servos),
         bitrate=args.bitrate or int(section.get("bitrate", 1_000_000)),
         protocol=args.protocol or section.get("protocol", "variable"),
         line_faults=line,

@@ -23,7 +23,7 @@ import can
 
 from ..config.simulation import Faults, Physics
 from ..servos import ProfileOptions, get_profile
-from ..servos.base import NO_FAULT, Fault
+from ..servos.base import NO_FAULT, Fault, SimDevice
 
 if TYPE_CHECKING:
     from ..config import Config
@@ -291,4 +291,15 @@ def simulated_servos(config: Config, bus_name: str) -> list[SimServo]:
                 options=servo.profile_options(),
             )
         )
-    return out
+    return share_nodes(out)
+
+
+def share_nodes(servos: list[SimServo]) -> list[SimServo]:
+    """Let the devices of one family meet (``ServoProfile.link_sim_devices``): a DroneCAN node
+    with several actuators is one node for the servos on its id."""
+    by_profile: dict[str, list[SimDevice]] = {}
+    for servo in servos:
+        by_profile.setdefault(servo.profile, []).append(servo._device)
+    for profile, devices in by_profile.items():
+        get_profile(profile).link_sim_devices(devices)
+    return servos
