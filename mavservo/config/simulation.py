@@ -47,6 +47,9 @@ class Physics:
     cooling_per_s: float = 0.01
     """Fraction of the excess over ambient shed per second."""
     over_current_a: float = 10.0
+    stall_current_a: float = 4.0
+    """A the drive's current limit lets through while the output is blocked (a jam): what a
+    position loop saturates at, below ``over_current_a`` so the servo itself reports nothing."""
     over_temperature_c: float = 80.0
     voltage_v: float = 24.0
     initial_position_deg: float = 0.0
@@ -75,6 +78,14 @@ class Faults:
     """Report the over-current fault flag regardless of the physics."""
     over_temperature: bool = False
     """Report the over-temperature fault flag regardless of the physics."""
+    jammed_at_deg: float | None = None
+    """An obstruction at this angle: the output cannot pass it (it stops there, and while the
+    position loop pushes against it the current rises to ``stall_current_a``); None: none."""
+    slipping: bool = False
+    """A slipped horn or coupling: the motor turns (velocity and current reported) but the
+    output, whose angle the servo reports, stays where it is."""
+    supply_v: float | None = None
+    """The supply sags (or surges) to this voltage, reported instead of ``physics.voltage_v``."""
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any] | None) -> Faults:
