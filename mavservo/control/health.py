@@ -36,6 +36,9 @@ MIN_DERIVATIVE_SPAN_S = 0.2
 MAX_DERIVATIVE_SPAN_S = 0.6
 #: a gap between two samples longer than this (an outage) is not integrated as one step
 MAX_SAMPLE_GAP_S = 0.5
+#: I^2 t is counted with currents up to this (a reading beyond is garbage or a short), so no
+#: reading can make it overflow
+MAX_CURRENT_A = 1000.0
 #: slipping: the output moves at less than this fraction of the motor's reported speed
 SLIP_RATIO = 0.25
 
@@ -322,10 +325,11 @@ class ServoHealth:
         if output_dps is not None:
             out[Health.SLIPPING] = slipping
 
-        # jammed: told to move, not moving, current near its limit
+        # jammed: told to be elsewhere, not moving, current near its limit (the current is the
+        # evidence, so the plain tolerance will do: a healthy move at that current is moving)
         if error is not None and finite(s.current_a) and speed is not None and finite(speed):
             out[Health.JAMMED] = (
-                off_target
+                abs(error) > lim.tolerance_deg
                 and abs(speed) < lim.stopped_dps
                 and abs(s.current_a) >= lim.jam_current_a
             )
@@ -338,10 +342,13 @@ class ServoHealth:
 
         if finite(s.current_a):
             ic2 = lim.continuous_current_a**2
-            self._i2t = max(0.0, self._i2t + (s.current_a**2 - ic2) * dt)
+            amps = min(abs(s.current_a), MAX_CURRENT_A)  # a garbage reading cannot overflow
             budget = ic2 * lim.overload_s
+            # counted up to the budget: an overload clears half a budget after the current
+            # drops, however long it lasted (like a winding that cannot get hotter than hot)
+            self._i2t = min(budget, max(0.0, self._i2t + (amps**2 - ic2) * dt))
             was = self._debounce[Health.OVERLOAD].active
-            out[Health.OVERLOAD] = self._i2t > (0.5 * budget if was else budget)
+            out[Health.OVERLOAD] = self._i2t >= (0.5 * budget if was else budget)
 
         if finite(s.temperature_c):
             for check, level in (
