@@ -193,6 +193,8 @@ class ServoHealth:
         self._announced: dict[Health, bool] = {}
         self._onset: dict[Health, float] = {}
         self.episodes: dict[str, int] = {}
+        self.judged = 0
+        """States judged so far (a quiet run that judged nothing proves nothing)."""
 
     # ------------------------------------------------------------------ views
 
@@ -229,6 +231,7 @@ class ServoHealth:
             return []  # the same state again (or out of order): nothing new to judge
         dt = 0.0 if last is None else min(sample.t - last.t, MAX_SAMPLE_GAP_S)
         self._last = sample
+        self.judged += 1
         self._remember(sample)
         conditions = self._conditions(sample, dt)
         events: list[HealthEvent] = []
@@ -563,6 +566,7 @@ class HealthWatch:
         """For the end-of-run summary and metrics.json: episodes per servo and check, what is
         active now, and the last events (newest last)."""
         return {
+            "judged": {name: h.judged for name, h in self.servos.items()},
             "episodes": {servo: dict(checks) for servo, checks in self.counts.items()},
             "active": {
                 name: [check_name(c) for c in CHECKS if c in h.active]
