@@ -22,6 +22,7 @@ from mavservo.config.overlay import LoadedConfig, load_config_with_overlay, over
 from mavservo.config.parameters import current_values
 from mavservo.config.schema import Config, ServoOutputChannel
 from mavservo.config.schema import allowed_values as _allowed
+from mavservo.control.health_limits import describe_limits, servo_limits
 from mavservo.control.mapping import ChannelMap, Rejected
 from mavservo.mavlink.bandwidth import plan_budget
 from mavservo.mavlink.telemetry import AUTO_ESC_FIRST
@@ -120,6 +121,9 @@ def resolved_mapping(config: Config) -> str:
         for profile, servos, node in bus_nodes(bus, servos_on(config, bus)):
             lines += ["", f"bus {bus.name}: the bridge's {profile} node"]
             lines += ["  " + line for line in node.describe([s.name for s in servos])]
+    lines += ["", "health checks (servos[].health; docs/health.md):"]
+    for servo in config.servos:  # the thresholds in force, derived or set (issue 33)
+        lines += describe_limits(servo.name, servo_limits(config, servo))
     lines += ["", "worst-case bus load (paper eq. 4):"]
     lines += ["  " + _load_line(load) for load in bus_loads(config)]
     return "\n".join(lines)
@@ -195,7 +199,8 @@ def telemetry_lines(config: Config) -> list[str]:
     return [
         f"components: servos {config.mavlink.servo_component_id}, gimbals {gimbals}",
         f"servo ESC numbers: {esc}" + (moves if telemetry.esc_first_index == "auto" else ""),
-        f"NAMED_VALUE_FLOAT names: {prefix}1_pos .. {prefix}{servos}_flt",
+        f"NAMED_VALUE_FLOAT names: {prefix}1_pos .. {prefix}{servos}_flt "
+        f"(health bits: {prefix}<n>_hlt)",
         *plan.lines(),
     ]
 
