@@ -642,6 +642,7 @@ class Bridge:
                     "current_a": None if state is None else state.current_a,
                     "temperature_c": None if state is None else state.temperature_c,
                     "faults": "" if state is None else _fault_names(state.faults),
+                    "health": _fault_names(status.health),
                     "online": status.online,
                     "age_s": None if state is None else max(0.0, now - state.timestamp),
                 }

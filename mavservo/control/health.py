@@ -464,7 +464,7 @@ class ServoHealth:
 
     def _onset_text(self, check: Health, s: Sample, f: dict[str, float]) -> str:
         lim = self.limits
-        amps = f" at {f['current_a']:.1f} A" if "current_a" in f else ""
+        amps = f" at {abs(f['current_a']):.1f} A" if "current_a" in f else ""
         behind = f.get("error_deg", math.nan)
         if check is Health.TRACKING:
             what = f"not following, {behind:.1f} deg behind for {f.get('for_s', 0.0):.1f} s{amps}"
