@@ -21,12 +21,17 @@ REPO = Path(__file__).resolve().parents[1]
 SHIPPED = sorted((REPO / "config").glob("*.yaml"))
 
 
-def on_simulation(path: Path, profile: str, key_dir: Path) -> Config:
-    """``path`` as shipped, with the autopilot and every bus simulated and ``profile`` played."""
+def on_simulation(
+    path: Path, profile: str, key_dir: Path, replay_file: Path | None = None, speed: float = 1.0
+) -> Config:
+    """``path`` as shipped, with the autopilot and every bus simulated and ``profile`` played
+    (``replay``: the recorded autopilot traffic in ``replay_file``, at ``speed``)."""
     (key_dir / "signing.key").write_text(secrets.token_hex(32) + "\n")
     config = load_config_text(path.read_text(), str(path), base_dir=key_dir)
     buses = [b.model_copy(update={"channel": "sim"}) for b in config.can.buses]
-    autopilot = config.simulation.autopilot.model_copy(update={"profile": profile})
+    autopilot = config.simulation.autopilot.model_copy(
+        update={"profile": profile, "replay_file": replay_file, "speed": speed}
+    )
     return config.model_copy(
         update={
             "mavlink": config.mavlink.model_copy(update={"url": "sim", "monitor_outputs": []}),
