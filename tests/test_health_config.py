@@ -118,3 +118,55 @@ def test_check_shows_the_thresholds_in_force(tmp_path) -> None:
     assert "supply: 11.0-13.0 V" in section
     assert "rudder: health checks off" in section
     assert "_hlt" in text
+
+
+# ------------------------------------------------------------------ the temperature limit's action
+
+
+def test_the_temperature_actions_slow_hold_and_release_in_the_backend() -> None:
+    from test_servo_backend import CONFIG, RecordingSink
+
+    from mavservo.control.servo_backend import ServoBackend
+    from mavservo.mavlink.backend import Outcome
+
+    config = load_config_text(CONFIG, "backend.yaml")
+    sink = RecordingSink()
+    backend = ServoBackend(
+        config, {s.name: sink for s in config.servos}, on_event=lambda _: None, slew_step_s=0.05
+    )
+    # slow: a 30 deg move of a 360 deg/s servo at half speed takes 30 / 180 s, in 0.05 s steps
+    backend.set_health_action("surface", "slow", 0.0, slow_factor=0.5)
+    assert backend.apply_servo_output(1, 1500, "test", 0.0).ok
+    assert backend.apply_servo_output(1, 1900, "test", 0.05).ok
+    assert sink.last("surface") == pytest.approx(9.0)  # 180 deg/s x 0.05 s
+    for k in range(2, 6):
+        backend.tick(0.05 * k)
+    assert sink.last("surface") == pytest.approx(30.0)
+    # hold: stays, refuses new setpoints with a reason; lifted, they go through again
+    backend.set_health_action("surface", "hold", 0.3)
+    result = backend.apply_servo_output(1, 1100, "test", 0.35)
+    assert result.outcome is Outcome.TEMPORARILY_REJECTED and "overheated" in result.reason
+    assert sink.last("surface") == pytest.approx(30.0)
+    backend.set_health_action("surface", None, 0.4)
+    assert backend.apply_servo_output(1, 1100, "test", 0.45).ok
+    assert sink.last("surface") == pytest.approx(-30.0)
+    # release: motor off, setpoints refused until lifted
+    backend.set_health_action("hook", "release", 0.5)
+    assert sink.released == ["hook"]
+    assert backend.apply_servo_output(9, 1700, "test", 0.55).outcome is (
+        Outcome.TEMPORARILY_REJECTED
+    )
+    assert backend.counters["refused_overheated"] == 2
+
+
+def test_new_limits_from_a_parameter_take_effect() -> None:
+    from mavservo.control.health import HealthLimits, HealthWatch, Sample
+
+    watch = HealthWatch({"a": HealthLimits(supply_min_v=20.0, supply_max_v=28.0)})
+    health = watch.servos["a"]
+    watch.reconfigure({"a": HealthLimits(supply_min_v=10.0, supply_max_v=14.0, supply_s=0.0)})
+    assert health.supply_range == (10.0, 14.0)
+    assert health.update(Sample(1.0, 0.0, 0.0, 0.0, 0.1, 30.0, 12.0)) == []
+    assert [e.name for e in health.update(Sample(1.1, 0.0, 0.0, 0.0, 0.1, 30.0, 24.0))] == [
+        "supply"
+    ]

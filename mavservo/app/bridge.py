@@ -485,6 +485,8 @@ class Bridge:
         telemetry rates take it at once (called by the MAVLink thread, under its lock)."""
         assert self.backend is not None and self.mavlink is not None
         self.backend.reconfigure(updated, time.monotonic())
+        if self.health is not None:  # speed limits and slews are in the tracking allowance
+            self.health.reconfigure(health_limits(updated))
         servo_limits = {s.name: s.limits_deg for s in updated.servos}
         fixed_sysid = None if updated.mavlink.system_id == "follow" else updated.mavlink.system_id
         for device, gimbal in zip(self._gimbal_devices, updated.gimbals, strict=True):

@@ -17,6 +17,7 @@ that spacing is counted, not announced, and the next text says how many there we
 from __future__ import annotations
 
 import math
+import threading
 from collections import deque
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -182,12 +183,8 @@ class ServoHealth:
         self._i2t = 0.0
         self._supply_readings: list[float] = []
         self._supply_range: tuple[float, float] | None = None
-        if limits.supply_min_v is not None or limits.supply_max_v is not None:
-            self._supply_range = (
-                limits.supply_min_v if limits.supply_min_v is not None else -math.inf,
-                limits.supply_max_v if limits.supply_max_v is not None else math.inf,
-            )
         self._supply_learn_until: float | None = None
+        self.set_limits(limits)
         self._last_text: dict[Health, float] = {}
         self._unsaid: dict[Health, int] = {}
         self._announced: dict[Health, bool] = {}
@@ -195,6 +192,16 @@ class ServoHealth:
         self.episodes: dict[str, int] = {}
         self.judged = 0
         """States judged so far (a quiet run that judged nothing proves nothing)."""
+
+    def set_limits(self, limits: HealthLimits) -> None:
+        """Thresholds in force from the next state (a learned supply range is kept unless the
+        new limits give one)."""
+        self.limits = limits
+        if limits.supply_min_v is not None or limits.supply_max_v is not None:
+            self._supply_range = (
+                limits.supply_min_v if limits.supply_min_v is not None else -math.inf,
+                limits.supply_max_v if limits.supply_max_v is not None else math.inf,
+            )
 
     # ------------------------------------------------------------------ views
 
@@ -521,12 +528,26 @@ class HealthWatch:
         self.servos = {name: ServoHealth(name, lim) for name, lim in limits.items()}
         self.events: deque[HealthEvent] = deque(maxlen=1000)
         self.counts: dict[str, dict[str, int]] = {}
+        #: the bridge's tick thread updates, any thread may ask for the summary
+        self._lock = threading.Lock()
+
+    def reconfigure(self, limits: dict[str, HealthLimits]) -> None:
+        """New thresholds (a ground station changed a speed limit or a slew): in force from the
+        next state; episodes and their timers carry on."""
+        with self._lock:
+            for name, lim in limits.items():
+                if name in self.servos:
+                    self.servos[name].set_limits(lim)
 
     def flags(self, servo: str) -> Health:
         health = self.servos.get(servo)
         return NO_HEALTH_PROBLEM if health is None else health.active
 
     def update(self, statuses: Iterable[ServoStatus]) -> list[HealthEvent]:
+        with self._lock:
+            return self._update(statuses)
+
+    def _update(self, statuses: Iterable[ServoStatus]) -> list[HealthEvent]:
         events: list[HealthEvent] = []
         for status in statuses:
             health = self.servos.get(status.name)
@@ -565,6 +586,10 @@ class HealthWatch:
     def summary(self) -> dict[str, object]:
         """For the end-of-run summary and metrics.json: episodes per servo and check, what is
         active now, and the last events (newest last)."""
+        with self._lock:
+            return self._summary()
+
+    def _summary(self) -> dict[str, object]:
         return {
             "judged": {name: h.judged for name, h in self.servos.items()},
             "episodes": {servo: dict(checks) for servo, checks in self.counts.items()},
