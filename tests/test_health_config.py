@@ -160,7 +160,8 @@ def test_the_temperature_actions_slow_hold_and_release_in_the_backend() -> None:
 
 
 def test_new_limits_from_a_parameter_take_effect() -> None:
-    from mavservo.control.health import HealthLimits, HealthWatch, Sample
+    from mavservo.control.health import HealthLimits, Sample
+    from mavservo.control.health_watch import HealthWatch
 
     watch = HealthWatch({"a": HealthLimits(supply_min_v=20.0, supply_max_v=28.0)})
     health = watch.servos["a"]

@@ -27,8 +27,9 @@ import can
 from mavservo.app import node_state
 from mavservo.config import BusConfig, Config
 from mavservo.config.overlay import overlay_path
-from mavservo.control.health import HealthEvent, HealthWatch
+from mavservo.control.health import HealthEvent
 from mavservo.control.health_limits import health_limits
+from mavservo.control.health_watch import HealthWatch
 from mavservo.control.live_parameters import LiveParameters
 from mavservo.control.servo_backend import ServoBackend
 from mavservo.mavlink.backend import Health
