@@ -5,7 +5,9 @@ The gimbal's pitch axis is an RMD-X (it reports current, temperature and, every 
 supply voltage) driven by DO_SET_SERVO on channel 2; the peer sees the bridge's ``s1_hlt``
 health bits, its STATUSTEXTs and GIMBAL_DEVICE_ATTITUDE_STATUS. For each fault: the bit, one
 onset text for the episode, the gimbal's failure flag, and, once the fault is removed, all of
-it cleared with exactly one clearing text.
+it cleared with exactly one clearing text. The four faults the simulated servo learns
+(an obstruction, a slipped coupling, a supply sag, overheating under a held load) and a servo
+too slow for its speed limit (not following).
 """
 
 from __future__ import annotations
@@ -56,6 +58,15 @@ def pwm_for(angle_deg: float) -> float:
     return 1000.0 + (angle_deg + 90.0) / 120.0 * 1000.0
 
 
+def weaken(servo: SimServo) -> None:
+    """A servo far slower than its speed limit (a stiff linkage, a failing motor): 5 deg/s."""
+    servo.physics.max_speed_dps = 5.0
+
+
+def strengthen(servo: SimServo) -> None:
+    servo.physics.max_speed_dps = 720.0
+
+
 def jam(servo: SimServo) -> None:
     servo.faults.jammed_at_deg = -10.0
 
@@ -96,6 +107,8 @@ Action = Callable[[SimServo], None]
 
 CASES = {
     # fault: (inject, remove, health bit, onset text, clearing text, gimbal flag)
+    "tracking": (weaken, strengthen, Health.TRACKING, "pitch: not following, ",
+                 "pitch: following again", MOTOR_ERROR),
     "jammed": (jam, unjam, Health.JAMMED, "pitch: jammed at -10.0 deg", "pitch: moving again",
                MOTOR_ERROR),
     "slipping": (slip, grip, Health.SLIPPING, "pitch: slipping, motor", "pitch: no longer slipping",
