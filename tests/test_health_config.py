@@ -171,3 +171,22 @@ def test_new_limits_from_a_parameter_take_effect() -> None:
     assert [e.name for e in health.update(Sample(1.1, 0.0, 0.0, 0.0, 0.1, 30.0, 24.0))] == [
         "supply"
     ]
+
+
+@pytest.mark.parametrize(
+    ("faults", "words"),
+    [
+        ("{jammed_at_deg: yes}", "expected a number"),
+        ('{supply_v: "18"}', "expected a number"),
+        ("{slipping: 1}", "expected true or false"),
+        ("{jammed_at_deg: .nan}", "finite"),
+    ],
+)
+def test_a_simulated_fault_of_the_wrong_type_is_refused_at_its_line(
+    faults: str, words: str
+) -> None:
+    text = SERVO + f"simulation:\n  servos:\n    elevator:\n      faults: {faults}  {MARK}\n"
+    with pytest.raises(ConfigError) as info:
+        load_config_text(text, "bad.yaml")
+    assert f"bad.yaml:{_marked_line(text)}:" in str(info.value)
+    assert words in str(info.value)

@@ -8,6 +8,7 @@ FILE:LINE errors when a config is loaded, without importing the simulator; the s
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from typing import Any
@@ -16,11 +17,29 @@ from typing import Any
 def _from_mapping(cls: type, values: Mapping[str, Any] | None, what: str) -> Any:
     """Build a dataclass from a YAML mapping, naming unknown keys instead of ignoring them."""
     values = dict(values or {})
-    known = {f.name for f in fields(cls)}
-    unknown = sorted(set(values) - known)
+    types = {f.name: str(f.type) for f in fields(cls)}
+    unknown = sorted(set(values) - set(types))
     if unknown:
-        raise ValueError(f"unknown {what} option(s) {unknown}; known: {sorted(known)}")
+        raise ValueError(f"unknown {what} option(s) {unknown}; known: {sorted(types)}")
+    for name, value in values.items():
+        problem = _type_problem(types[name], value)
+        if problem:
+            raise ValueError(f"{what} option {name!r}: {problem}, got {value!r}")
     return cls(**values)
+
+
+def _type_problem(annotation: str, value: Any) -> str | None:
+    """Strict like the rest of the schema: a YAML ``yes`` is not 1 deg, ``"18"`` not 18 V, and
+    a number must be finite."""
+    if value is None:
+        return None if "None" in annotation else "expected a value, not null"
+    if annotation == "bool":
+        return None if isinstance(value, bool) else "expected true or false"
+    if "float" in annotation:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            return "expected a number"
+        return None if math.isfinite(value) else "expected a finite number"
+    return None
 
 
 @dataclass
