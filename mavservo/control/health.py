@@ -153,9 +153,6 @@ class _Debounce:
         self.since = None
         return None
 
-    def pending_s(self, t: float) -> float:
-        return 0.0 if self.since is None else t - self.since
-
     def reset(self) -> None:
         """Forget a condition on its way in (an active episode stays until it clears)."""
         if not self.active:
