@@ -34,6 +34,7 @@ from mavservo.sim.servo import SimServo
 
 MOTOR_ERROR = mavlink2.GIMBAL_DEVICE_ERROR_FLAGS_MOTOR_ERROR
 POWER_ERROR = mavlink2.GIMBAL_DEVICE_ERROR_FLAGS_POWER_ERROR
+CRITICAL, WARNING, NOTICE = 2, 4, 5  # MAV_SEVERITY
 
 BODY = """
   telemetry: {gimbal_attitude_status_hz: 20, named_value_float_hz: 10, esc_telemetry_hz: 0,
@@ -176,6 +177,13 @@ def test_an_injected_fault_is_reported_once_and_cleared(fault: str) -> None:
             # exactly one onset text and one clearing text for the episode
             assert len(texts_with(peer, onset, mark)) == 1, peer.statustexts(mark)
             assert len(texts_with(peer, cleared, mark)) == 1, peer.statustexts(mark)
+            severities = {
+                m.text: m.severity for m in peer.since(mark, "STATUSTEXT") if m.text[:6] == "pitch:"
+            }  # first chunks: the texts start with the servo's name
+            critical = (Health.JAMMED, Health.SLIPPING, Health.OVERHEATED)
+            onset_severity = CRITICAL if bit in critical else WARNING
+            assert [v for k, v in severities.items() if onset in k] == [onset_severity]
+            assert [v for k, v in severities.items() if cleared in k] == [NOTICE]
             if fault == "overheated":
                 assert peer.command(MAV_CMD_DO_SET_SERVO, [2, pwm_for(10.0)]) == (
                     MAV_RESULT_ACCEPTED
