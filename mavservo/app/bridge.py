@@ -28,8 +28,12 @@ from mavservo.app import node_state
 from mavservo.app.check import stop_behaviour_lines
 from mavservo.config import BusConfig, Config
 from mavservo.config.overlay import overlay_path
+from mavservo.control.health import HealthEvent
+from mavservo.control.health_limits import health_limits
+from mavservo.control.health_watch import HealthWatch
 from mavservo.control.live_parameters import LiveParameters
 from mavservo.control.servo_backend import ServoBackend
+from mavservo.mavlink.backend import Health
 from mavservo.mavlink.gimbal import GimbalDevice, settings_from_config
 from mavservo.mavlink.settings import MavlinkSettings, SigningSettings, TelemetryRates
 from mavservo.mavlink.side import MavlinkSide
@@ -45,8 +49,12 @@ from mavservo.transport.resilient_bus import ResilientBus
 log = logging.getLogger(__name__)
 
 SIM = "sim"
+MAV_SEVERITY_CRITICAL = 2
 MAV_SEVERITY_WARNING = 4
 MAV_SEVERITY_NOTICE = 5
+#: health checks whose onset is CRITICAL (the surface does not do what it is told, or the
+#: servo is at its temperature limit); the others are WARNINGs, every clearing a NOTICE
+CRITICAL_HEALTH = Health.JAMMED | Health.SLIPPING | Health.OVERHEATED
 
 
 def free_udp_port() -> int:
@@ -215,6 +223,8 @@ class Bridge:
         self.autopilot_sim: Any = None
         self.mavlink: MavlinkSide | None = None
         self.backend: ServoBackend | None = None
+        #: the bridge's own servo health monitor (docs/health.md)
+        self.health: HealthWatch | None = None
         self.runlog: RunLog | None = None
         self.run_dir: Path | None = None
         self.events: list[tuple[float, str]] = []
@@ -271,6 +281,7 @@ class Bridge:
                 sinks[spec.name] = scheduler
         if state_file is not None:
             self.node_states = node_state.NodeStateKeeper(state_file, saved)
+        self.health = HealthWatch(health_limits(cfg))
         self.backend = ServoBackend(
             cfg,
             sinks,
@@ -278,6 +289,7 @@ class Bridge:
             on_command=self.runlog.mavlink_received if self.runlog is not None else None,
             health=self._health,
             slew_step_s=cfg.scheduler.command_period_s,
+            health_flags=self.health.flags,
         )
         self.mavlink = self._make_mavlink()
         if self.runlog is not None:
@@ -475,6 +487,8 @@ class Bridge:
         telemetry rates take it at once (called by the MAVLink thread, under its lock)."""
         assert self.backend is not None and self.mavlink is not None
         self.backend.reconfigure(updated, time.monotonic())
+        if self.health is not None:  # speed limits and slews are in the tracking allowance
+            self.health.reconfigure(health_limits(updated))
         servo_limits = {s.name: s.limits_deg for s in updated.servos}
         fixed_sysid = None if updated.mavlink.system_id == "follow" else updated.mavlink.system_id
         for device, gimbal in zip(self._gimbal_devices, updated.gimbals, strict=True):
@@ -524,12 +538,44 @@ class Bridge:
             next_t += period
             if self.backend is not None:
                 self.backend.tick(time.monotonic())
+                self._watch_health()
             for scheduler in self.schedulers.values():
                 for notice in scheduler.take_notices():
                     self._event(f"bus {scheduler.name}: {notice}")
             if self.node_states is not None:
                 self.node_states.update(self.schedulers.values())
             self._stop.wait(max(0.0, next_t - time.monotonic()))
+
+    def _watch_health(self) -> None:
+        """Judge the servos' new states (``HealthWatch``) and say what changed."""
+        health, backend = self.health, self.backend
+        if health is None or backend is None:
+            return
+        for event in health.update(backend.servo_statuses()):
+            self._health_event(event)
+
+    def _health_event(self, event: HealthEvent) -> None:
+        """One health transition: console and event list, the run log's trace, STATUSTEXT
+        (once per episode, when the check's text spacing allows), and the temperature
+        limit's action. The fault bit (``s<n>_hlt``) and a gimbal's failure flags follow from
+        the servo's status by themselves."""
+        self._note(event.text)
+        if self.runlog is not None:
+            self.runlog.health_event(event.servo, event.name, event.active, event.figures, event.t)
+        if event.check is Health.OVERHEATED and self.backend is not None and self.health:
+            limits = self.health.servos[event.servo].limits
+            action = self.health.temperature_action(event.servo)
+            self.backend.set_health_action(
+                event.servo, action, time.monotonic(), slow_factor=limits.slow_factor
+            )
+        mavlink = self.mavlink
+        if mavlink is None or not event.announce:
+            return
+        severity = MAV_SEVERITY_NOTICE
+        if event.active:
+            critical = event.check & CRITICAL_HEALTH
+            severity = MAV_SEVERITY_CRITICAL if critical else MAV_SEVERITY_WARNING
+        _quietly(lambda: mavlink.announce(event.text, severity))
 
     def _event(self, text: str) -> None:
         """An event of the servo side: console, event list, and STATUSTEXT to the autopilot."""
@@ -602,6 +648,7 @@ class Bridge:
                     "current_a": None if state is None else state.current_a,
                     "temperature_c": None if state is None else state.temperature_c,
                     "faults": "" if state is None else _fault_names(state.faults),
+                    "health": _fault_names(status.health),
                     "online": status.online,
                     "age_s": None if state is None else max(0.0, now - state.timestamp),
                 }
@@ -633,6 +680,8 @@ class Bridge:
             out["mavlink"] = _quietly(self.mavlink.stats) or {}
         if self.backend is not None:
             out["backend"] = dict(self.backend.counters)
+        if self.health is not None:
+            out["health"] = self.health.summary()
         return out
 
 

@@ -22,6 +22,7 @@ from mavservo.config.overlay import LoadedConfig, load_config_with_overlay, over
 from mavservo.config.parameters import current_values
 from mavservo.config.schema import Config, ServoOutputChannel
 from mavservo.config.schema import allowed_values as _allowed
+from mavservo.control.health_limits import describe_limits, servo_limits
 from mavservo.control.mapping import ChannelMap, Rejected
 from mavservo.mavlink.bandwidth import plan_budget
 from mavservo.mavlink.telemetry import AUTO_ESC_FIRST
@@ -122,6 +123,9 @@ def resolved_mapping(config: Config) -> str:
             lines += ["  " + line for line in node.describe([s.name for s in servos])]
     lines += ["", "when the bridge's frames stop (stopped, bus or adapter gone), each servo:"]
     lines += ["  " + line for line in stop_behaviour_lines(config)]
+    lines += ["", "health checks (servos[].health; docs/health.md):"]
+    for servo in config.servos:  # the thresholds in force, derived or set (issue 33)
+        lines += describe_limits(servo.name, servo_limits(config, servo))
     lines += ["", "worst-case bus load (paper eq. 4):"]
     lines += ["  " + _load_line(load) for load in bus_loads(config)]
     return "\n".join(lines)
@@ -207,7 +211,8 @@ def telemetry_lines(config: Config) -> list[str]:
     return [
         f"components: servos {config.mavlink.servo_component_id}, gimbals {gimbals}",
         f"servo ESC numbers: {esc}" + (moves if telemetry.esc_first_index == "auto" else ""),
-        f"NAMED_VALUE_FLOAT names: {prefix}1_pos .. {prefix}{servos}_flt",
+        f"NAMED_VALUE_FLOAT names: {prefix}1_pos .. {prefix}{servos}_flt "
+        f"(health bits: {prefix}<n>_hlt)",
         *plan.lines(),
     ]
 

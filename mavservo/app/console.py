@@ -35,6 +35,9 @@ CLOCK_FORMAT = "%H:%M:%S"
 #: Bridge events that report a recovery or a normal step; every other event is a problem.
 _INFO_EVENTS = re.compile(
     r"responding again|failsafe cleared|link recovered|heartbeat heard|^stopped \(|cleared "
+    # a health check clearing (mavservo/control/health.py, its clearing texts)
+    r"|: following again|: moving again|: no longer slipping|: overload over|: temperature back"
+    r"|: supply back"
 )
 #: A later "no heartbeat" warning at most this often (the first comes after the link timeout).
 NO_HEARTBEAT_REPEAT_S = 30.0
@@ -123,6 +126,7 @@ def status_line(row: dict[str, Any]) -> str:
         f"I {_num(row['current_a'], '5.2f')} A  T {_num(row['temperature_c'], '5.1f')} C  "
         f"age {_num(None if row['age_s'] is None else row['age_s'] * 1000, '5.0f')} ms"
         + (f"  faults {row['faults']}" if row["faults"] else "")
+        + (f"  health {row['health']}" if row.get("health") else "")
     )
 
 
@@ -208,7 +212,7 @@ class StatusDisplay:
                 _num(r["current_a"], ".2f"),
                 _num(r["temperature_c"], ".1f"),
                 _num(None if r["age_s"] is None else r["age_s"] * 1000, ".0f"),
-                r["faults"],
+                " ".join(part for part in (r["faults"], r.get("health", "")) if part),
             )
         return table
 
@@ -315,11 +319,31 @@ def format_summary(summary: dict[str, Any]) -> str:
         ]
         lines.append("  mavlink: " + ", ".join(shown))
         lines += _stream_lines(mav.get("stream") or {})
+    lines += _health_lines(summary.get("health") or {})
     for text in summary.get("events", []):
         lines.append(f"  event: {text}")
     if summary.get("run_dir"):
         lines += _run_log_lines(summary["run_dir"], summary.get("runlog") or {})
     return "\n".join(lines)
+
+
+def _health_lines(health: dict[str, Any]) -> list[str]:
+    """The health monitor's run (docs/health.md): episodes per servo and check, what is still
+    active at the end, and how many states it judged (a quiet run that judged nothing is not)."""
+    if not health:
+        return []
+    judged = sum((health.get("judged") or {}).values())
+    episodes = health.get("episodes") or {}
+    found = "; ".join(
+        f"{servo} " + ", ".join(f"{check} {n}" for check, n in checks.items())
+        for servo, checks in episodes.items()
+    )
+    lines = [
+        f"  health: {judged} states judged, " + (f"episodes: {found}" if found else "no events")
+    ]
+    for servo, checks in (health.get("active") or {}).items():
+        lines.append(f"  health: {servo} still {', '.join(checks)} at the end")
+    return lines
 
 
 def _stream_lines(stream: dict[str, Any]) -> list[str]:

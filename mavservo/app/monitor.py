@@ -29,7 +29,9 @@ What it understands (all optional; missing ones show as "-"):
 * STATUSTEXT (tail of the last lines; MAVLink 2 chunks (``id`` != 0) are joined back into one
   text; ``servo NAME fault ...``/``cleared``/``not responding`` also set the fault column of
   the servo that NAME belongs to, once its name is known);
-* GIMBAL_DEVICE_ATTITUDE_STATUS (roll/pitch/yaw and failure flags, by name).
+* GIMBAL_DEVICE_ATTITUDE_STATUS (roll/pitch/yaw and failure flags, by name);
+* NAMED_VALUE_FLOAT ``s<n>_hlt``, the bridge's own health findings (docs/health.md: jammed,
+  slipping, tracking, ...), shown in the fault column after the servo's own faults.
 """
 
 from __future__ import annotations
@@ -68,6 +70,7 @@ GIMBAL_FAILURE_FLAGS = {
 
 _NVF_SERVO = re.compile(r"^s(\d+)_(pos|vel|cur|tmp|sp)$")
 _NVF_FAULTS = re.compile(r"^s(\d+)_flt$")
+_NVF_HEALTH = re.compile(r"^s(\d+)_hlt$")
 _NVF_BUS = re.compile(r"^bus(\d+)_load$")
 _NVF_LATENCY = re.compile(r"^lat_(p50|p95|p99)$")
 _NVF_ROUND_TRIP = re.compile(r"^rtt_(p50|p95|p99)$")
@@ -106,6 +109,8 @@ class ServoView:
     temperature_c: float | None = None
     voltage_v: float | None = None
     faults: set[str] = field(default_factory=set)
+    #: what the bridge's health monitor finds (``s<n>_hlt``: jammed, slipping, ...)
+    health: set[str] = field(default_factory=set)
     responding: bool | None = None
     updated: float | None = None
 
@@ -217,6 +222,8 @@ class MonitorState:
                 view.updated = now
         elif match := _NVF_FAULTS.match(name):
             self._on_fault_bits(self._servo(int(match.group(1))), value)
+        elif match := _NVF_HEALTH.match(name):
+            self._on_health_bits(self._servo(int(match.group(1))), value)
         elif match := _NVF_BUS.match(name):
             self.bus_load[int(match.group(1))] = value
         elif match := _NVF_LATENCY.match(name):
@@ -313,6 +320,16 @@ class MonitorState:
 
     # -- rows out ------------------------------------------------------------------------------
 
+    @staticmethod
+    def _on_health_bits(view: ServoView, value: float) -> None:
+        """``s<n>_hlt``: the bridge's health findings (docs/health.md), the whole current set."""
+        from mavservo.mavlink.backend import Health
+
+        if not math.isfinite(value) or value < 0:
+            return
+        bits = Health(int(value) & sum(h.value for h in Health))
+        view.health = {h.name.lower() for h in Health if h.name and h in bits}
+
     def servo_rows(self, now: float) -> list[dict[str, str]]:
         """One dict of display strings per servo, in servo number order."""
         rows = []
@@ -321,7 +338,7 @@ class MonitorState:
             age = view.age(now)
             if view.responding is False or (age is not None and age > STALE_AFTER_S):
                 status = "STALE" if view.responding is not False else "NO REPLY"
-            elif view.faults:
+            elif view.faults or view.health:
                 status = "FAULT"
             else:
                 status = "ok" if age is not None else "-"
@@ -336,7 +353,7 @@ class MonitorState:
                     "velocity": _fmt(view.velocity_dps, "{:+.1f}"),
                     "current": _fmt(view.current_a, "{:.2f}"),
                     "temperature": _fmt(view.temperature_c, "{:.0f}"),
-                    "faults": "|".join(sorted(view.faults)) or "-",
+                    "faults": "|".join(sorted(view.faults) + sorted(view.health)) or "-",
                     "age": _fmt(age, "{:.2f}s"),
                     "status": status,
                 }

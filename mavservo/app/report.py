@@ -660,6 +660,35 @@ def _event_lines(metrics: dict[str, Any]) -> list[str]:
     return [*lines, ""]
 
 
+def health_lines(metrics: dict[str, Any]) -> list[str]:
+    """The bridge's own servo health checks (docs/health.md), from ``metrics.json``'s
+    ``health``: episodes per servo and check, and each transition with its text."""
+    health = metrics.get("health")
+    if not isinstance(health, dict):
+        return []
+    lines = ["## Servo health", ""]
+    judged = health.get("judged") or {}
+    episodes = health.get("episodes") or {}
+    lines.append(
+        f"{sum(judged.values()) if judged else 0} states judged; "
+        + (
+            "episodes: "
+            + "; ".join(
+                f"{servo} " + ", ".join(f"{check} {n}" for check, n in checks.items())
+                for servo, checks in episodes.items()
+            )
+            if episodes
+            else "no health events"
+        )
+    )
+    lines.append("")
+    for event in health.get("events") or []:
+        state = "onset" if event.get("active") else "cleared"
+        said = "" if event.get("announced", True) else " (not announced: text spacing)"
+        lines.append(f"- {state}: {event.get('text', '')}{said}")
+    return [*lines, ""]
+
+
 def write_markdown(
     run: Run,
     out_dir: Path,
@@ -695,6 +724,7 @@ def write_markdown(
         *bus_table(run, series),
         "",
         *_event_lines(run.metrics),
+        *health_lines(run.metrics),
         "## Figures",
         "",
     ]

@@ -8,6 +8,7 @@ FILE:LINE errors when a config is loaded, without importing the simulator; the s
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from typing import Any
@@ -16,11 +17,29 @@ from typing import Any
 def _from_mapping(cls: type, values: Mapping[str, Any] | None, what: str) -> Any:
     """Build a dataclass from a YAML mapping, naming unknown keys instead of ignoring them."""
     values = dict(values or {})
-    known = {f.name for f in fields(cls)}
-    unknown = sorted(set(values) - known)
+    types = {f.name: str(f.type) for f in fields(cls)}
+    unknown = sorted(set(values) - set(types))
     if unknown:
-        raise ValueError(f"unknown {what} option(s) {unknown}; known: {sorted(known)}")
+        raise ValueError(f"unknown {what} option(s) {unknown}; known: {sorted(types)}")
+    for name, value in values.items():
+        problem = _type_problem(types[name], value)
+        if problem:
+            raise ValueError(f"{what} option {name!r}: {problem}, got {value!r}")
     return cls(**values)
+
+
+def _type_problem(annotation: str, value: Any) -> str | None:
+    """Strict like the rest of the schema: a YAML ``yes`` is not 1 deg, ``"18"`` not 18 V, and
+    a number must be finite."""
+    if value is None:
+        return None if "None" in annotation else "expected a value, not null"
+    if annotation == "bool":
+        return None if isinstance(value, bool) else "expected true or false"
+    if "float" in annotation:
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            return "expected a number"
+        return None if math.isfinite(value) else "expected a finite number"
+    return None
 
 
 @dataclass
@@ -47,6 +66,9 @@ class Physics:
     cooling_per_s: float = 0.01
     """Fraction of the excess over ambient shed per second."""
     over_current_a: float = 10.0
+    stall_current_a: float = 4.0
+    """A the drive's current limit lets through while the output is blocked (a jam): what a
+    position loop saturates at, below ``over_current_a`` so the servo itself reports nothing."""
     over_temperature_c: float = 80.0
     voltage_v: float = 24.0
     initial_position_deg: float = 0.0
@@ -75,6 +97,14 @@ class Faults:
     """Report the over-current fault flag regardless of the physics."""
     over_temperature: bool = False
     """Report the over-temperature fault flag regardless of the physics."""
+    jammed_at_deg: float | None = None
+    """An obstruction at this angle: the output cannot pass it (it stops there, and while the
+    position loop pushes against it the current rises to ``stall_current_a``); None: none."""
+    slipping: bool = False
+    """A slipped horn or coupling: the motor turns (velocity and current reported) but the
+    output, whose angle the servo reports, stays where it is."""
+    supply_v: float | None = None
+    """The supply sags (or surges) to this voltage, reported instead of ``physics.voltage_v``."""
 
     @classmethod
     def from_dict(cls, values: Mapping[str, Any] | None) -> Faults:

@@ -13,6 +13,7 @@ Slew limiting needs time to pass, so a goal further away than one step is approa
 from __future__ import annotations
 
 import logging
+import math
 import threading
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -20,7 +21,14 @@ from typing import Protocol
 
 from mavservo.config import Config
 from mavservo.control.mapping import ChannelMap, Rejected, clamp, slew_limit
-from mavservo.mavlink.backend import ACCEPTED, ApplyResult, Outcome, ServoStatus
+from mavservo.mavlink.backend import (
+    ACCEPTED,
+    NO_HEALTH_PROBLEM,
+    ApplyResult,
+    Health,
+    Outcome,
+    ServoStatus,
+)
 from mavservo.scheduling.core import SetpointResult
 from mavservo.servos.base import ServoState
 
@@ -72,6 +80,10 @@ class _Servo:
     #: the last accepted input (``servo_output`` or ``actuator``, channel or index, value), so a
     #: new mapping (a PARAM_SET of the trim) can send the servo where that input maps now
     last_input: tuple[str, int, float] | None = None
+    max_speed_dps: float = 360.0
+    #: what the health monitor's temperature limit imposes (``slow``, ``hold``, ``release``)
+    health_action: str | None = None
+    slow_factor: float = 1.0
 
 
 class ServoBackend:
@@ -89,6 +101,7 @@ class ServoBackend:
         on_command: Callable[[str, float], None] | None = None,
         health: Callable[[], dict[str, float]] | None = None,
         slew_step_s: float | None = None,
+        health_flags: Callable[[str], Health] | None = None,
     ) -> None:
         self._lock = threading.RLock()
         #: the longest time one slew step may cover (the tick period): a servo that sat still
@@ -97,6 +110,8 @@ class ServoBackend:
         #: ``on_command(servo, t_received)`` for each accepted MAVLink request (latency stage 1)
         self._on_command = on_command
         self._health = health
+        #: the bridge's health monitor: each servo's Health bits, for its status
+        self._health_flags = health_flags
         self._on_event = on_event or (lambda line: log.info("%s", line))
         self._servos: dict[str, _Servo] = {
             servo_config.name: _Servo(
@@ -131,6 +146,7 @@ class ServoBackend:
             servo.failsafe_delay_s = servo_config.failsafe.timeout_s
             servo.channel_map = None
             servo.max_slew_dps = None
+            servo.max_speed_dps = servo_config.max_speed_dps
         # A servo may be mapped from both sources, each with its own input range: keep the
         # map with the source, and the first map on the servo for reporting measured positions.
         self._by_channel.clear()
@@ -253,6 +269,11 @@ class ServoBackend:
                         normalized=normalized,
                         servo_channel=servo.servo_channel,
                         actuator_index=servo.actuator_index,
+                        health=(
+                            self._health_flags(servo.name)
+                            if self._health_flags is not None
+                            else NO_HEALTH_PROBLEM
+                        ),
                     )
                 )
         return out
@@ -287,6 +308,28 @@ class ServoBackend:
         return dict(self._health()) if self._health is not None else {}
 
     # ------------------------------------------------------------------ bridge API
+
+    def set_health_action(
+        self, name: str, action: str | None, now: float, slow_factor: float = 0.5
+    ) -> None:
+        """The health monitor's temperature limit for ``name`` (None: lifted).
+
+        ``slow``: the servo's moves are slew-limited to ``slow_factor`` of its speed limit;
+        ``hold``: it stays where it was last sent and new setpoints are refused (a reason in
+        the ACK); ``release``: motor off and new setpoints refused until the limit is lifted.
+        Failsafe moves go through either way: they are what the crew configured for a lost link.
+        """
+        with self._lock:
+            servo = self._servos.get(name)
+            if servo is None:
+                return
+            servo.health_action = action
+            servo.slow_factor = slow_factor if action == "slow" else 1.0
+            if action == "hold" and servo.sent_deg is not None:
+                servo.goal_deg = servo.sent_deg
+            elif action == "release":
+                servo.sink.release(name)
+                servo.goal_deg = None
 
     def tick(self, now: float) -> None:
         """Carry out failsafe actions that fell due, and advance slew-limited servos one step
@@ -360,6 +403,14 @@ class ServoBackend:
     def _set_goal(self, servo: _Servo, angle_deg: float, source: str, now: float) -> ApplyResult:
         angle, clamped = clamp(angle_deg, servo.limits_deg)
         with self._lock:
+            if servo.health_action in ("hold", "release"):
+                refused = self.counters.get("refused_overheated", 0)
+                self.counters["refused_overheated"] = refused + 1
+                verb = "holding" if servo.health_action == "hold" else "released"
+                return ApplyResult(
+                    Outcome.TEMPORARILY_REJECTED,
+                    f"servo {servo.name} overheated: {verb} until it cools",
+                )
             if clamped:
                 self.counters["clamped"] += 1
             servo.goal_deg = angle
@@ -375,15 +426,14 @@ class ServoBackend:
     def _send_step(self, servo: _Servo, now: float) -> ApplyResult:
         assert servo.goal_deg is not None
         step = servo.goal_deg
-        if (
-            servo.max_slew_dps is not None
-            and servo.sent_deg is not None
-            and servo.sent_at is not None
-        ):
+        max_slew = servo.max_slew_dps
+        if servo.slow_factor < 1.0:  # an overheated servo's lowered speed limit
+            max_slew = servo.slow_factor * min(servo.max_speed_dps, max_slew or math.inf)
+        if max_slew is not None and servo.sent_deg is not None and servo.sent_at is not None:
             dt = now - servo.sent_at
             if self._slew_step_s is not None:
                 dt = min(dt, self._slew_step_s)
-            step = slew_limit(servo.sent_deg, servo.goal_deg, dt, servo.max_slew_dps)
+            step = slew_limit(servo.sent_deg, servo.goal_deg, dt, max_slew)
             if step == servo.sent_deg:
                 return ACCEPTED  # no time has passed yet; the next tick moves it
         # t=None: the scheduler stamps it on arrival. Calls come in under this backend's lock, so

@@ -43,6 +43,31 @@ class ApplyResult:
 ACCEPTED = ApplyResult(Outcome.ACCEPTED)
 
 
+class Health(enum.Flag):
+    """What the bridge's own health monitor (``mavservo.control.health``) finds wrong with a
+    servo from what it was told and what it measures, apart from the faults the servo reports
+    itself (:class:`~mavservo.servos.base.Fault`). Published as ``s<n>_hlt``; new members go at
+    the end so the bit values never move."""
+
+    TRACKING = enum.auto()
+    """Not where it was told to be, for longer than the commanded motion allows."""
+    JAMMED = enum.auto()
+    """Told to move, not moving, current at its limit: blocked."""
+    SLIPPING = enum.auto()
+    """The motor turns but the output does not follow, or the output moves on its own."""
+    OVERLOAD = enum.auto()
+    """Current above the continuous rating for longer than its I^2 t budget."""
+    HOT = enum.auto()
+    """Temperature at or above the warning level."""
+    OVERHEATED = enum.auto()
+    """Temperature at or above the limit (the configured action is in force)."""
+    SUPPLY = enum.auto()
+    """Supply voltage outside its range."""
+
+
+NO_HEALTH_PROBLEM = Health(0)
+
+
 @dataclass(frozen=True)
 class ServoStatus:
     """What the MAVLink side may report about one servo.
@@ -59,6 +84,7 @@ class ServoStatus:
     normalized: float | None
     servo_channel: int | None  # MAVLink servo output channel it mirrors, if any
     actuator_index: int | None  # DO_SET_ACTUATOR index, if any
+    health: Health = NO_HEALTH_PROBLEM  # what the bridge's health monitor finds (s<n>_hlt)
 
 
 @runtime_checkable

@@ -32,8 +32,8 @@ SIGNATURE_BYTES = 13
 EVENT_RESERVE = 0.1
 #: ArduPilot's mount driver wants the gimbal's attitude status at least this often.
 GIMBAL_STATUS_FLOOR_HZ = 5.0
-#: NAMED_VALUE_FLOAT names per servo each period: flt, pos, vel, cur, tmp, sp.
-NAMES_PER_SERVO = 6
+#: NAMED_VALUE_FLOAT names per servo each period: flt, hlt, pos, vel, cur, tmp, sp.
+NAMES_PER_SERVO = 7
 
 
 def frame_bytes(message_class: Any, signed: bool) -> int:

@@ -50,7 +50,7 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from mavservo.mavlink.backend import ActuatorBackend, ApplyResult, Outcome, ServoStatus
+from mavservo.mavlink.backend import ActuatorBackend, ApplyResult, Health, Outcome, ServoStatus
 from mavservo.mavlink.gimbal_manager import (
     SAME_COMPONENT_DEVICE_ID,
     ControlSlots,
@@ -101,6 +101,18 @@ FAULT_TO_FAILURE_FLAG: dict[Fault, int] = {
     Fault.POWER: POWER_ERROR,
 }
 """Servo faults with a specific gimbal failure flag; any other fault reports MOTOR_ERROR."""
+
+HEALTH_TO_FAILURE_FLAG: dict[Health, int] = {
+    Health.TRACKING: MOTOR_ERROR,
+    Health.JAMMED: MOTOR_ERROR,
+    Health.SLIPPING: MOTOR_ERROR,
+    Health.OVERLOAD: MOTOR_ERROR,
+    Health.OVERHEATED: MOTOR_ERROR,
+    Health.SUPPLY: POWER_ERROR,
+}
+"""The bridge's own health findings on an axis (issue 33; docs/health.md) as failure flags, so
+ArduPilot's mount reports the gimbal unhealthy; a temperature warning (``HOT``) is a warning,
+not a failure, and sets none."""
 
 CMD_DO_MOUNT_CONTROL = mav.MAV_CMD_DO_MOUNT_CONTROL  # 205
 CMD_DO_GIMBAL_MANAGER_PITCHYAW = mav.MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW  # 1000
@@ -723,6 +735,9 @@ class GimbalDevice:
             for fault in Fault:
                 if fault in status.state.faults:
                     flags |= FAULT_TO_FAILURE_FLAG.get(fault, MOTOR_ERROR)
+            for check, flag in HEALTH_TO_FAILURE_FLAG.items():
+                if check in status.health:
+                    flags |= flag
         for axis in self._clamped_axes:
             flags |= AT_LIMIT_FLAG[axis]
         return flags

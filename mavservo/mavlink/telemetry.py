@@ -12,7 +12,8 @@ carriers ground stations already understand (DESIGN.md, "MAVLink facts"):
   ``s<n>_tmp`` (degC), ``s<n>_sp`` (setpoint, deg, once there is one), ``s<n>_flt`` (the
   :class:`~mavservo.servos.base.Fault` bits as a number, NO_REPLY set while the servo is
   offline, so a late ground station or monitor learns current problems without waiting for an
-  event), n = config position + 1 (all within the 10-character limit);
+  event), ``s<n>_hlt`` (the bridge's own health findings, :class:`~mavservo.mavlink.backend.
+  Health` bits, docs/health.md), n = config position + 1 (all within the 10-character limit);
 * STATUSTEXT (253): fault onset and clearance, servo offline / back online (also when the very
   first state is already bad), link events; every active problem is repeated every
   ``REMINDER_S`` for ground stations that connect later; texts longer than 50 characters go out
@@ -411,6 +412,13 @@ class Telemetry:
             out.append(
                 mavlink2.MAVLink_named_value_float_message(
                     boot_ms, f"{self.name_prefix}{n}_flt".encode(), flags
+                )
+            )
+            # health (issue 33): what the bridge finds itself, kept even while offline (an
+            # episode clears only when the servo is back and the condition is gone)
+            out.append(
+                mavlink2.MAVLink_named_value_float_message(
+                    boot_ms, f"{self.name_prefix}{n}_hlt".encode(), status.health.value
                 )
             )
             state = status.state

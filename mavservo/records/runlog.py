@@ -96,7 +96,7 @@ _ABANDON_JOIN_S = 2.0  # the writer polls every _POLL_S; nothing is queued befor
 log = logging.getLogger(__name__)
 
 # Event codes on the queue (small ints keep the tuples cheap to build on the caller's thread).
-_TX, _RX, _SETPOINT, _LOST, _REJECT, _MAV_IN, _MAV_OUT, _LATENCY = range(8)
+_TX, _RX, _SETPOINT, _LOST, _REJECT, _MAV_IN, _MAV_OUT, _LATENCY, _HEALTH = range(9)
 _CATEGORY = {
     _TX: "can",
     _RX: "can",
@@ -106,6 +106,7 @@ _CATEGORY = {
     _MAV_IN: "mavlink",
     _MAV_OUT: "mavlink",
     _LATENCY: "latency",
+    _HEALTH: "trace",
 }
 
 
@@ -613,6 +614,14 @@ class RunLog:
             )
         )
 
+    def health_event(
+        self, servo: str, check: str, active: bool, figures: Mapping[str, float], t: float
+    ) -> None:
+        """A health check of ``servo`` started (``active``) or cleared at ``t``: a
+        ``trace.csv`` row, event ``health:<check>`` or ``health-cleared:<check>``, with the
+        figures it was judged on (mavservo/control/health.py)."""
+        self._put((_HEALTH, servo, check, active, dict(figures), t))
+
     def mavlink_received(self, servo: str, t: float) -> None:
         """The link received a command for ``servo`` at ``t`` (starts its latency trace)."""
         self.latency.mavlink_received(servo, t)
@@ -787,6 +796,17 @@ class RunLog:
             self._files["tlog"].write(struct.pack(">Q", usec) + raw)
         elif code == _LATENCY:
             self._csv["latency"].writerow(item[1].csv_row())
+        elif code == _HEALTH:
+            _, servo, check, active, figures, t = item
+            event = f"health:{check}" if active else f"health-cleared:{check}"
+            self._csv["trace"].writerow(
+                [f"{t:.6f}", servo, event, _num(self._last_setpoint.get(servo))]
+                + [
+                    _num(figures.get(key))
+                    for key in ("position_deg", "velocity_dps", "current_a", "temperature_c")
+                ]
+                + [""]
+            )
 
     def _write_frame(self, item: tuple[Any, ...]) -> None:
         code, bus, arb_id, extended, remote, dlc, data, t = item[:8]

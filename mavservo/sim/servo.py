@@ -7,6 +7,13 @@ current that follows acceleration, friction and load, temperature that rises wit
 squared and cools toward ambient, and a limp drift when no command has arrived for
 ``relax_after_s`` (what the scheduler's keep-alive refresh exists to prevent).
 
+Mechanical faults the servo does not report itself, for the bridge's health monitor to find
+(``simulation.servos.<name>.faults``): an obstruction (``jammed_at_deg``: the output stops there
+and, while the position loop pushes against it, the current rises to ``stall_current_a``), a
+slipped coupling (``slipping``: the motor turns, the output and its reported angle stay) and a
+sagging supply (``supply_v``); heating under a held load is in the physics already
+(``load_current``, ``heating_c_per_a2s``).
+
 Nothing here reads a clock or does I/O: every call takes ``now`` (seconds, any monotonic base)
 and the randomness (dropped replies, current noise) comes from a seeded generator, so a run is
 reproducible. The simulated bus (:mod:`mavservo.sim.canbus`) and the adapter emulator decide
@@ -81,6 +88,11 @@ class SimServo:
         self.accel_limit_dps2 = self.physics.max_accel_dps2
         self.last_command_time: float | None = None
         self._next_push: float | None = None
+        self.motor_position_deg = self.position_deg
+        """Where the motor shaft is: the output's angle unless the coupling slips."""
+        self.blocked = False
+        """True while the output rests on the obstruction and the loop pushes into it."""
+        self._jam_side = 0.0
 
         self.commands = 0
         self.requests = 0
@@ -91,8 +103,9 @@ class SimServo:
 
     @property
     def voltage_v(self) -> float:
-        """Supply voltage the servo measures."""
-        return self.physics.voltage_v
+        """Supply voltage the servo measures (an injected sag replaces the nominal one)."""
+        sag = self.faults.supply_v
+        return self.physics.voltage_v if sag is None else float(sag)
 
     def enable(self, now: float) -> None:
         """The device turned the motor on: it holds where it is until commanded."""
@@ -110,6 +123,7 @@ class SimServo:
         """The present position becomes 0 (a device's set-zero command)."""
         self.advance(now)
         self.target_deg -= self.position_deg
+        self.motor_position_deg -= self.position_deg
         self.position_deg = 0.0
 
     @property
@@ -129,6 +143,9 @@ class SimServo:
             return 0.0
         if not self.enabled:
             return 0.0
+        if self.blocked:  # the loop saturates against the obstruction: the drive's limit
+            push = math.copysign(p.stall_current_a, self.target_deg - self.position_deg)
+            return push + p.load_current
         moving = abs(self.velocity_dps) > 1e-6
         friction = math.copysign(p.friction_current, self.velocity_dps) if moving else 0.0
         return (
@@ -188,12 +205,37 @@ class SimServo:
             wanted = math.copysign(wanted, error)
             self.accel_dps2 = max(-accel, min(accel, (wanted - self.velocity_dps) / h))
             self.velocity_dps += self.accel_dps2 * h
-        self.position_deg += self.velocity_dps * h
+        self._move(self.velocity_dps * h)
         current = self.current_a
         self.temperature_c += (
             p.heating_c_per_a2s * current * current
             - p.cooling_per_s * (self.temperature_c - p.ambient_c)
         ) * h
+
+    def _move(self, delta_deg: float) -> None:
+        """Turn the motor by ``delta_deg``; the output follows unless it slips or is blocked."""
+        self.motor_position_deg += delta_deg
+        self.blocked = False
+        if self.faults.slipping:
+            return  # the output, and the angle the servo reports, stay
+        new = self.position_deg + delta_deg
+        jam = self.faults.jammed_at_deg
+        if jam is None:
+            self.position_deg = new
+            return
+        if self.position_deg != jam:
+            self._jam_side = math.copysign(1.0, self.position_deg - jam)
+        elif not self._jam_side:  # it starts on the obstruction: blocked toward its target
+            self._jam_side = -math.copysign(1.0, self.target_deg - jam)
+        if (new - jam) * self._jam_side > 0:
+            self.position_deg = new
+            return
+        self.position_deg = float(jam)
+        self.motor_position_deg = float(jam)
+        self.velocity_dps = 0.0
+        self.accel_dps2 = 0.0
+        pushing = (self.target_deg - jam) * self._jam_side
+        self.blocked = self.enabled and not self.relaxed and pushing < -0.05
 
     def _coast(self, h: float) -> None:
         """Torque off: friction brings the motor to rest at the greatest rate the drive could."""
