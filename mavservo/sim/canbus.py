@@ -115,6 +115,14 @@ class SimCanBus:
         self._host_waiting = 0
         self.host_dropped = 0
         """Frames from the host dropped because that queue was full (bus never free)."""
+        self.nodes_bitrate: int | None = None
+        """The rate the servos' controllers run at (None: whatever ``bitrate`` is). When the
+        host's adapter is set to another rate, neither side decodes the other: the host's
+        frames reach no servo and the servos' frames reach the host as nothing (an injected
+        wrong-bitrate mistake; a real controller sees error frames, which AA-55 and LAWICEL
+        adapters do not pass on)."""
+        self.bitrate_mismatches = 0
+        """Frames lost to that mismatch, either way."""
         self.frames = 0
         self.busy_s = 0.0
         self._busy: deque[tuple[float, float]] = deque(maxlen=load_history)
@@ -246,6 +254,9 @@ class SimCanBus:
             frame.deliver(end, to_host, finished=True)
             return
         self.frames += 1
+        if self.nodes_bitrate is not None and self.nodes_bitrate != self.bitrate:
+            self.bitrate_mismatches += 1
+            return
         if frame.source is HOST:
             for servo in self.servos:
                 for due, reply in servo.receive(frame.msg, end):
