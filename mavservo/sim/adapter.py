@@ -98,6 +98,7 @@ class AdapterEmulator(PtyAdapter):
             self._handle_items(self.decoder.flush(), now)
 
     def _from_host(self, data: bytes, now: float) -> None:
+        data = self._line_to_adapter(data)
         self._handle_items(self.decoder.feed(data, now), now, data)
 
     def _handle_items(self, items: list[Any], now: float, chunk: bytes = b"") -> None:

@@ -35,12 +35,20 @@ HOST = None
 """Source marker for frames submitted by the host side."""
 
 
+class ForeignNode:
+    """Source marker of frames from a node that is neither the host nor a simulated servo (an
+    autopilot's own traffic on a shared bus): they reach the host, no servo answers them."""
+
+
+FOREIGN = ForeignNode()
+
+
 @dataclass(order=True)
 class _Pending:
     ready: float
     seq: int
     msg: can.Message
-    source: SimServo | None
+    source: SimServo | ForeignNode | None
 
 
 @dataclass
@@ -127,7 +135,9 @@ class SimCanBus:
         self.busy_s = 0.0
         self._busy: deque[tuple[float, float]] = deque(maxlen=load_history)
 
-    def submit(self, msg: can.Message, ready: float, source: SimServo | None = HOST) -> None:
+    def submit(
+        self, msg: can.Message, ready: float, source: SimServo | ForeignNode | None = HOST
+    ) -> None:
         """Queue ``msg`` for transmission; it may start no earlier than ``ready``."""
         if source is HOST:
             if self._host_waiting >= self.host_queue:

@@ -247,8 +247,13 @@ class PtyAdapter:
     # -- the wire format (subclasses) ----------------------------------------------------------
 
     def _from_host(self, data: bytes, now: float) -> None:
-        """Bytes the host wrote (already through the line faults)."""
+        """Bytes the host wrote, as it wrote them: the subclass passes them through
+        :meth:`_line_to_adapter` (a wrapper may read the clean bytes, see sim/child.py)."""
         raise NotImplementedError
+
+    def _line_to_adapter(self, data: bytes) -> bytes:
+        """``data`` after the injected line faults of the host-to-adapter direction."""
+        return self.line.corrupt(data) if self.line.applies_to("to_adapter") else data
 
     def _to_host(self, frames: list[tuple[float, can.Message]]) -> None:
         """Frames that finished on the bus, to be written to the host."""
@@ -283,8 +288,6 @@ class PtyAdapter:
                     now = self.clock()
                     if data:
                         last_rx = now
-                        if self.line.applies_to("to_adapter"):
-                            data = self.line.corrupt(data)
                         self._from_host(data, now)
                     else:
                         self._on_idle(now, now - last_rx)

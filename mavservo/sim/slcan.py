@@ -152,6 +152,7 @@ class SlcanEmulator(PtyAdapter):
         self._discarding = False
 
     def _from_host(self, data: bytes, now: float) -> None:
+        data = self._line_to_adapter(data)
         replies: list[bytes] = []
         for byte in data:
             if byte == 0x0D:
