@@ -1,0 +1,109 @@
+"""Whose is a frame: every family's profile, at every id of its range and in every mode the
+doctor knows, asked ``is_reply`` and ``decode`` (the profiles' own reading of their frames), plus
+the ODrive heartbeat and DroneCAN NodeStatus (:mod:`.wire_facts`).
+
+A CAN frame does not say who sent it, and families overlap (RMD-X and LK share 0x240 + id; the
+MIT packing answers on a master id): a frame can have several candidates. The doctor prefers the
+configured servos' reading and names the others as alternatives.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import can
+
+from mavservo.servos import ServoProfile, get_profile
+
+from .families import facts
+from .wire_facts import NodeStatus, ODriveHeartbeat, node_status, odrive_heartbeat
+
+log = logging.getLogger(__name__)
+
+
+def options_key(options: Mapping[str, Any]) -> tuple[tuple[str, Any], ...]:
+    """Options as a hashable, order-free key."""
+    return tuple(sorted((str(k), repr(v)) for k, v in options.items()))
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One reading of a frame: a ``profile`` motor at ``can_id`` with ``options``."""
+
+    profile: str
+    can_id: int
+    options: tuple[tuple[str, Any], ...]
+    raw_options: Mapping[str, Any]
+    instance: ServoProfile
+
+    @property
+    def key(self) -> tuple[str, int, tuple[tuple[str, Any], ...]]:
+        return (self.profile, self.can_id, self.options)
+
+
+def make_candidate(profile: str, can_id: int, options: Mapping[str, Any]) -> Candidate | None:
+    """A candidate, or None when the profile refuses that id or those options."""
+    cls = get_profile(profile)
+    try:
+        instance = cls(can_id, cls.Options.model_validate(dict(options)))
+    except Exception:  # noqa: BLE001 - a combination the profile does not take is no candidate
+        return None
+    return Candidate(profile, can_id, options_key(options), dict(options), instance)
+
+
+def family_variants(
+    profile: str, configured: Iterable[Mapping[str, Any]] = ()
+) -> list[dict[str, Any]]:
+    """The option sets to try for ``profile``: the configured ones first, then the modes the
+    doctor knows (each only once)."""
+    out: list[dict[str, Any]] = []
+    seen: set[Any] = set()
+    for options in [*configured, *facts(profile).variants]:
+        key = options_key(options)
+        if key not in seen:
+            seen.add(key)
+            out.append(dict(options))
+    return out
+
+
+class Recogniser:
+    """Candidates of every family given, over their id ranges (or ``ids``)."""
+
+    def __init__(
+        self,
+        families: Mapping[str, Sequence[Mapping[str, Any]]],
+        ids: Mapping[str, Iterable[int]] | None = None,
+    ) -> None:
+        self.candidates: list[Candidate] = []
+        for profile, configured in families.items():
+            cls = get_profile(profile)
+            id_range = (ids or {}).get(profile) or range(cls.min_id, cls.max_id + 1)
+            for options in family_variants(profile, configured):
+                for can_id in id_range:
+                    candidate = make_candidate(profile, can_id, options)
+                    if candidate is not None:
+                        self.candidates.append(candidate)
+
+    def whose(self, msg: can.Message) -> list[Candidate]:
+        """Every candidate whose profile reads ``msg`` as its own (decoded, not refused)."""
+        if msg.is_error_frame:
+            return []
+        out = []
+        for candidate in self.candidates:
+            try:
+                if candidate.instance.is_reply(msg) and (
+                    candidate.instance.decode(msg, 0.0) is not None
+                    or not candidate.instance.completes_report(msg)
+                ):
+                    out.append(candidate)
+            except Exception as exc:  # noqa: BLE001 - a hostile frame must not stop the doctor
+                log.debug("%s %d: %s", candidate.profile, candidate.can_id, exc)
+        return out
+
+
+def announcements(msg: can.Message) -> ODriveHeartbeat | NodeStatus | None:
+    """An ODrive heartbeat or a DroneCAN NodeStatus, the frames that say "I am here"."""
+    return node_status(msg) or odrive_heartbeat(msg)

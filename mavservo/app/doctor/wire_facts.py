@@ -1,0 +1,138 @@
+"""Frames the doctor reads without any servo profile: ODrive's heartbeat and DroneCAN's
+NodeStatus, the two "I am here" messages of their families (both pushed by every node on its
+own, so they are heard while listening only).
+
+Written from the vendors' documents, not from the profiles:
+
+* ODrive CANSimple (ODrive docs, "CAN Protocol", v0.6): 11-bit id ``node_id << 5 | cmd_id``;
+  ``Heartbeat`` is cmd 0x01, little-endian ``Axis_Error`` u32, ``Axis_State`` u8,
+  ``Procedure_Result`` u8, ``Trajectory_Done_Flag`` u8, sent every ``heartbeat_msg_rate_ms``
+  (100 ms by default). The error bits are ``ODrive.Error`` and the states ``ODrive.AxisState``
+  of the same document's API reference (the DBC ODrive publishes carries the same value tables;
+  tests/test_doctor.py checks this table against it).
+* DroneCAN (DSDL ``uavcan.protocol.NodeStatus``, data type id 341): a single-frame message
+  transfer; 29-bit id ``priority << 24 | dtid << 8 | source node`` (service bit 7 clear);
+  payload ``uptime_sec`` u32 LE, then ``health`` u2, ``mode`` u3, ``sub_mode`` u3 in one byte
+  (most significant bits first), ``vendor_specific_status_code`` u16; the tail byte last.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+
+import can
+
+ODRIVE_HEARTBEAT = 0x01
+
+#: ODrive.AxisState (ODrive API reference, v0.6).
+ODRIVE_AXIS_STATES = {
+    0: "UNDEFINED",
+    1: "IDLE",
+    2: "STARTUP_SEQUENCE",
+    3: "FULL_CALIBRATION_SEQUENCE",
+    4: "MOTOR_CALIBRATION",
+    6: "ENCODER_INDEX_SEARCH",
+    7: "ENCODER_OFFSET_CALIBRATION",
+    8: "CLOSED_LOOP_CONTROL",
+    9: "LOCKIN_SPIN",
+    10: "ENCODER_DIR_FIND",
+    11: "HOMING",
+    12: "ENCODER_HALL_POLARITY_CALIBRATION",
+    13: "ENCODER_HALL_PHASE_CALIBRATION",
+}
+
+#: ODrive.Error bits (ODrive API reference, v0.6).
+ODRIVE_ERRORS = {
+    0x00000001: "INITIALIZING",
+    0x00000002: "SYSTEM_LEVEL",
+    0x00000004: "TIMING_ERROR",
+    0x00000008: "MISSING_ESTIMATE",
+    0x00000010: "BAD_CONFIG",
+    0x00000020: "DRV_FAULT",
+    0x00000040: "MISSING_INPUT",
+    0x00000100: "DC_BUS_OVER_VOLTAGE",
+    0x00000200: "DC_BUS_UNDER_VOLTAGE",
+    0x00000400: "DC_BUS_OVER_CURRENT",
+    0x00000800: "DC_BUS_OVER_REGEN_CURRENT",
+    0x00001000: "CURRENT_LIMIT_VIOLATION",
+    0x00002000: "MOTOR_OVER_TEMP",
+    0x00004000: "INVERTER_OVER_TEMP",
+    0x00008000: "VELOCITY_LIMIT_VIOLATION",
+    0x00010000: "POSITION_LIMIT_VIOLATION",
+    0x01000000: "WATCHDOG_TIMER_EXPIRED",
+    0x02000000: "ESTOP_REQUESTED",
+    0x04000000: "SPINOUT_DETECTED",
+    0x08000000: "BRAKE_RESISTOR_DISARMED",
+    0x10000000: "THERMISTOR_DISCONNECTED",
+    0x40000000: "CALIBRATION_ERROR",
+}
+
+CLOSED_LOOP_CONTROL = 8
+IDLE = 1
+
+
+@dataclass(frozen=True)
+class ODriveHeartbeat:
+    node_id: int
+    axis_error: int
+    axis_state: int
+
+    @property
+    def state_name(self) -> str:
+        return ODRIVE_AXIS_STATES.get(self.axis_state, f"state {self.axis_state}")
+
+    @property
+    def error_names(self) -> list[str]:
+        names = [name for bit, name in ODRIVE_ERRORS.items() if self.axis_error & bit]
+        unknown = self.axis_error & ~sum(ODRIVE_ERRORS)
+        return names + ([f"0x{unknown:08X}"] if unknown else [])
+
+
+def odrive_heartbeat(msg: can.Message) -> ODriveHeartbeat | None:
+    """``msg`` as an ODrive heartbeat, or None when it cannot be one."""
+    if msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame:
+        return None
+    if msg.arbitration_id & 0x1F != ODRIVE_HEARTBEAT or len(msg.data) < 5:
+        return None
+    axis_error, axis_state = struct.unpack_from("<IB", bytes(msg.data))
+    if axis_state not in ODRIVE_AXIS_STATES:
+        return None
+    return ODriveHeartbeat(msg.arbitration_id >> 5, axis_error, axis_state)
+
+
+NODE_STATUS_DTID = 341
+HEALTH = ("OK", "WARNING", "ERROR", "CRITICAL")
+MODES = {
+    0: "OPERATIONAL",
+    1: "INITIALIZATION",
+    2: "MAINTENANCE",
+    3: "SOFTWARE_UPDATE",
+    7: "OFFLINE",
+}
+
+
+@dataclass(frozen=True)
+class NodeStatus:
+    node_id: int
+    uptime_s: int
+    health: str
+    mode: str
+
+
+def node_status(msg: can.Message) -> NodeStatus | None:
+    """``msg`` as a single-frame DroneCAN NodeStatus, or None."""
+    arbitration_id = msg.arbitration_id
+    if not msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame:
+        return None
+    if arbitration_id & 0x80 or (arbitration_id >> 8) & 0xFFFF != NODE_STATUS_DTID:
+        return None
+    data = bytes(msg.data)
+    if len(data) != 8 or data[-1] & 0xC0 != 0xC0:  # start and end of transfer: one frame
+        return None
+    node_id = arbitration_id & 0x7F
+    if node_id == 0:
+        return None
+    uptime, packed = struct.unpack_from("<IB", data)
+    mode = (packed >> 3) & 0x7
+    return NodeStatus(node_id, uptime, HEALTH[packed >> 6], MODES.get(mode, f"mode {mode}"))
