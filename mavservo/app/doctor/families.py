@@ -29,8 +29,10 @@ EXIT_MOTOR_MODE = bytes([0xFF] * 7 + [0xFD])
 ROBSTRIDE_GET_ID = 0x00
 ROBSTRIDE_HOST_ID = 0xFD
 
-#: Robstride private protocol: types that enable (3) or drive (1) the motor.
-ROBSTRIDE_ENABLE = 0x03
+#: Robstride private protocol (RS0x manual, "communication type 4: stop"): torque off,
+#: answered with a feedback frame (type 2). It changes the run state of a running motor, so
+#: it is sent only with ``--allow-enable``, to a motor that answers no read.
+ROBSTRIDE_STOP = 0x04
 
 
 @dataclass(frozen=True)
@@ -74,6 +76,13 @@ def _robstride_identity(can_id: int, options: Mapping[str, Any]) -> list[can.Mes
             is_extended_id=True,
         )
     ]
+
+
+def _robstride_stop(can_id: int, options: Mapping[str, Any]) -> can.Message:
+    host = int(options.get("host_id", ROBSTRIDE_HOST_ID))
+    return can.Message(
+        arbitration_id=ROBSTRIDE_STOP << 24 | host << 8 | can_id, data=bytes(8), is_extended_id=True
+    )
 
 
 def _mit_enable(
@@ -182,11 +191,14 @@ FACTS: dict[str, FamilyFacts] = {
         mode_fix=_robstride_mode,
         identity=_robstride_identity,
         enable=lambda can_id, options: (
-            _mit_enable(can_id, options) if options.get("protocol") == "mit" else ([], [])
+            _mit_enable(can_id, options)
+            if options.get("protocol") == "mit"
+            else ([_robstride_stop(can_id, options)], [])
         ),
         probe_note=(
-            "in the MIT protocol a Robstride answers only its commands and enable, which the "
-            "doctor sends only with --allow-enable"
+            "a Robstride that does not answer 'get device id' (some firmware, the simulation) "
+            "and one in the MIT protocol answer only a stop or enable, which the doctor sends "
+            "only with --allow-enable"
         ),
         silence=(
             "a Robstride answers 'get device id' (type 0) in its private protocol at 1 Mbit/s: "

@@ -87,18 +87,22 @@ class Recogniser:
                     if candidate is not None:
                         self.candidates.append(candidate)
 
-    def whose(self, msg: can.Message) -> list[Candidate]:
-        """Every candidate whose profile reads ``msg`` as its own (decoded, not refused)."""
+    def whose(self, msg: can.Message) -> list[tuple[Candidate, bool]]:
+        """Every candidate whose profile reads ``msg`` as its own, and whether the frame gave
+        a whole state (False: the start of a multi-frame report, which says less)."""
         if msg.is_error_frame:
             return []
         out = []
         for candidate in self.candidates:
             try:
-                if candidate.instance.is_reply(msg) and (
-                    candidate.instance.decode(msg, 0.0) is not None
-                    or not candidate.instance.completes_report(msg)
-                ):
-                    out.append(candidate)
+                profile = candidate.instance
+                if not profile.is_reply(msg):
+                    continue
+                complete = profile.completes_report(msg)
+                if profile.decode(msg, 0.0) is not None and complete:
+                    out.append((candidate, True))
+                elif not complete:
+                    out.append((candidate, False))
             except Exception as exc:  # noqa: BLE001 - a hostile frame must not stop the doctor
                 log.debug("%s %d: %s", candidate.profile, candidate.can_id, exc)
         return out

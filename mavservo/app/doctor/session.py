@@ -31,8 +31,15 @@ from mavservo.transport.bus_factory import (
 )
 
 from .families import facts
-from .recognise import Candidate, Recogniser, announcements, family_variants, make_candidate
-from .wire_facts import NodeStatus, ODriveHeartbeat
+from .recognise import (
+    Candidate,
+    Recogniser,
+    announcements,
+    family_variants,
+    make_candidate,
+    options_key,
+)
+from .wire_facts import NodeStatus, ODriveHeartbeat, actuator_status
 
 log = logging.getLogger(__name__)
 
@@ -110,6 +117,8 @@ class Sighting:
     bitrate: int
     how: str
     frames: int = 0
+    states: int = 0
+    """Frames that decoded to a whole state (what proves it is this servo)."""
     alternatives: set[str] = field(default_factory=set)
 
 
@@ -129,13 +138,15 @@ class BusFindings:
     heartbeats: dict[int, ODriveHeartbeat] = field(default_factory=dict)
     node_statuses: dict[int, NodeStatus] = field(default_factory=dict)
     unknown_ids: Counter[tuple[int, bool]] = field(default_factory=Counter)
+    actuators: dict[int, set[int]] = field(default_factory=dict)
+    """DroneCAN node -> the actuator ids its actuator Status reports carry."""
     probed_bitrates: list[int] = field(default_factory=list)
     sent: int = 0
     enable_sent: int = 0
     scan_s: float | None = None
     scanned: int = 0
 
-    def seen(self, candidate: Candidate, bitrate: int, how: str) -> Sighting:
+    def seen(self, candidate: Candidate, bitrate: int, how: str, complete: bool) -> Sighting:
         key = (*candidate.key, bitrate)
         sighting = self.sightings.get(key)  # type: ignore[arg-type]
         if sighting is None:
@@ -146,6 +157,7 @@ class BusFindings:
         elif how == "answered":
             sighting.how = how
         sighting.frames += 1
+        sighting.states += complete
         return sighting
 
 
@@ -180,6 +192,7 @@ class BusDoctor:
                 configured.setdefault(sibling, [])
         self._families = dict(configured)
         self.recogniser = Recogniser(self._families)
+        self._configured = {(s.profile, s.can_id, options_key(s.options)) for s in self.servos}
         self._forbidden = forbidden_frames(self.recogniser.candidates)
 
     # -- the steps -----------------------------------------------------------------------------
@@ -262,19 +275,26 @@ class BusDoctor:
     def _read(self, msg: can.Message, bitrate: int, how: str) -> None:
         said = announcements(msg)
         candidates = self.recogniser.whose(msg)
-        if said is not None and candidates and all(c.profile != "odrive" for c in candidates):
+        mine = [(c, whole) for c, whole in candidates if c.key in self._configured]
+        if mine:  # a configured servo's reading wins over the look-alikes (Damiao's 4-bit id)
+            candidates = mine
+        heartbeat = isinstance(said, ODriveHeartbeat)
+        if heartbeat and candidates and all(c.profile != "odrive" for c, _ in candidates):
             said = None  # another family's frame that merely fits the heartbeat's layout
         if isinstance(said, ODriveHeartbeat):
             self.findings.heartbeats[said.node_id] = said
         elif isinstance(said, NodeStatus):
             self.findings.node_statuses[said.node_id] = said
+        status_of = actuator_status(msg)
+        if status_of is not None:
+            self.findings.actuators.setdefault(status_of[0], set()).add(status_of[1])
         if not candidates:
             if said is None:
                 self.findings.unknown_ids[(msg.arbitration_id, msg.is_extended_id)] += 1
             return
-        names = {f"{c.profile} {c.can_id}" for c in candidates}
-        for candidate in candidates:
-            sighting = self.findings.seen(candidate, bitrate, how)
+        names = {f"{c.profile} {c.can_id}" for c, _ in candidates}
+        for candidate, complete in candidates:
+            sighting = self.findings.seen(candidate, bitrate, how, complete)
             sighting.alternatives |= names - {f"{candidate.profile} {candidate.can_id}"}
 
     def _probe_servos(self, bitrate: int) -> bool:

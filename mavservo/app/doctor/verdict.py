@@ -64,7 +64,11 @@ def judge(findings: BusFindings, servos: list[ServoConfig]) -> list[Verdict]:
     rate = findings.working_bitrate
     for servo in servos:
         verdict = Verdict(servo, ok=False, entry=_entry(servo))
-        sightings = [s for s in findings.sightings.values() if rate is None or s.bitrate == rate]
+        sightings = [
+            s
+            for s in findings.sightings.values()
+            if (rate is None or s.bitrate == rate) and s.states > 0
+        ]
         exact = [
             s
             for s in sightings
@@ -179,24 +183,45 @@ def _family_notes(findings: BusFindings, servo: ServoConfig, verdict: Verdict) -
                 "FULL_CALIBRATION_SEQUENCE and save the configuration)"
             )
     if servo.profile == "dronecan":
-        status = findings.node_statuses.get(servo.can_id)
-        if status is None:
-            return
+        _dronecan_notes(findings, servo, verdict)
+
+
+def _dronecan_notes(findings: BusFindings, servo: ServoConfig, verdict: Verdict) -> None:
+    """A DroneCAN node is its servo only when its actuator Status carries the configured
+    actuator id: NodeStatus says the node lives, not that it drives this actuator."""
+    status = findings.node_statuses.get(servo.can_id)
+    if status is not None:
         verdict.notes.append(
             f"DroneCAN node {status.node_id}: health {status.health}, mode {status.mode}, "
             f"up {status.uptime_s} s"
         )
-        if not verdict.ok and verdict.cause.startswith("silent"):
-            actuator = servo.options.get("actuator_id", "?")
-            verdict.cause = (
-                f"node {servo.can_id} is alive (NodeStatus {status.health}, {status.mode}) but "
-                f"sends no actuator Status for actuator {actuator}"
-            )
-            verdict.fix = (
-                "it ignores this command type or actuator id: ArduPilot's AP_Periph takes only "
-                "UNITLESS and PWM commands (set `options: {command: unitless}`) and numbers "
-                "actuators from 1, PX4 from 0 (check `actuator_id`)"
-            )
+    actuator = servo.options.get("actuator_id", 1)
+    reported = sorted(findings.actuators.get(servo.can_id, ()))
+    if actuator in reported:
+        return
+    if reported:
+        verdict.ok = False
+        verdict.cause = (
+            f"wrong actuator id: node {servo.can_id} is alive and reports actuator "
+            f"{', '.join(map(str, reported))}, configured {actuator}"
+        )
+        verdict.fix = (
+            f"set `options: {{actuator_id: {reported[0]}}}` (ArduPilot numbers actuators from "
+            "1, PX4 from 0), or change the node's actuator id"
+        )
+        verdict.entry["options"] = {**servo.options, "actuator_id": reported[0]}
+    elif status is not None:
+        verdict.ok = False
+        verdict.cause = (
+            f"node {servo.can_id} is alive (NodeStatus {status.health}, {status.mode}) but "
+            f"sends no actuator Status for actuator {actuator}"
+        )
+        verdict.fix = (
+            "a node reports the actuators it is commanded with, and ignores command types it "
+            "does not take: ArduPilot's AP_Periph takes only UNITLESS and PWM (set `options: "
+            "{command: unitless}`) and numbers actuators from 1, PX4 from 0 (check "
+            "`actuator_id`); the doctor sends no command without --allow-enable"
+        )
 
 
 def extra_entries(findings: BusFindings, verdicts: list[Verdict]) -> list[dict[str, Any]]:

@@ -101,6 +101,28 @@ def odrive_heartbeat(msg: can.Message) -> ODriveHeartbeat | None:
     return ODriveHeartbeat(msg.arbitration_id >> 5, axis_error, axis_state)
 
 
+ACTUATOR_STATUS_DTID = 1011
+
+
+def actuator_status(msg: can.Message) -> tuple[int, int] | None:
+    """``(node id, actuator id)`` of the first frame of a DroneCAN
+    ``uavcan.equipment.actuator.Status`` (DSDL 1011: ``actuator_id`` u8 first; 8 bytes of
+    payload, so a two-frame transfer whose first frame starts with the 2-byte transfer CRC)."""
+    arbitration_id = msg.arbitration_id
+    if not msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame or arbitration_id & 0x80:
+        return None
+    if (arbitration_id >> 8) & 0xFFFF != ACTUATOR_STATUS_DTID:
+        return None
+    data = bytes(msg.data)
+    if len(data) < 2 or not data[-1] & 0x80:  # not the start of a transfer
+        return None
+    single = bool(data[-1] & 0x40)
+    at = 0 if single else 2
+    if len(data) - 1 <= at or arbitration_id & 0x7F == 0:
+        return None
+    return arbitration_id & 0x7F, data[at]
+
+
 NODE_STATUS_DTID = 341
 HEALTH = ("OK", "WARNING", "ERROR", "CRITICAL")
 MODES = {
