@@ -300,6 +300,20 @@ class MavlinkConfig(StrictModel):
 # ------------------------------------------------------------------------------------------- CAN
 
 
+def raise_option_problems(problems: list[tuple[str, str]]) -> None:
+    """Raise an ``options`` mapping's ``(key, message)`` problems as one error the loader
+    splits again, so that each is reported on its own key's line."""
+    if problems:
+        raise PydanticCustomError(
+            "profile_options",
+            "{summary}",
+            {
+                "summary": "; ".join(f"options.{k}: {m}" for k, m in problems),
+                "problems": problems,
+            },
+        )
+
+
 class BusConfig(StrictModel):
     """One CAN bus: the project's ``aa55`` adapter, or any python-can interface."""
 
@@ -367,16 +381,7 @@ class BusConfig(StrictModel):
     @model_validator(mode="after")
     def _options_accepted(self) -> BusConfig:
         """Each problem on its own key's line (the loader expands ``profile_options``)."""
-        problems = option_problems(self.interface, self.options)
-        if problems:
-            raise PydanticCustomError(
-                "profile_options",
-                "{summary}",
-                {
-                    "summary": "; ".join(f"options.{k}: {m}" for k, m in problems),
-                    "problems": problems,
-                },
-            )
+        raise_option_problems(option_problems(self.interface, self.options))
         return self
 
     @field_validator("bitrate")
@@ -465,16 +470,7 @@ class ServoConfig(StrictModel):
 
     @model_validator(mode="after")
     def _options_valid(self) -> ServoConfig:
-        problems = options_problems(self.profile, self.options)
-        if problems:
-            raise PydanticCustomError(
-                "profile_options",
-                "{summary}",
-                {
-                    "summary": "; ".join(f"options.{k}: {m}" for k, m in problems),
-                    "problems": problems,
-                },
-            )
+        raise_option_problems(options_problems(self.profile, self.options))
         return self
 
     def profile_options(self) -> ProfileOptions:

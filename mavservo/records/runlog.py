@@ -571,18 +571,7 @@ class RunLog:
         self, bus: str, msg: can.Message, t: float, kind: str, servo: str | None, seq: int | None
     ) -> None:
         self.latency.on_tx(bus, msg, t, kind, servo, seq)
-        self._put(
-            (
-                _TX,
-                bus,
-                msg.arbitration_id,
-                msg.is_extended_id,
-                msg.is_remote_frame,
-                msg.dlc,
-                bytes(msg.data),
-                t,
-            )
-        )
+        self._put((_TX, bus, *_frame_fields(msg), t))
 
     def on_written(self, bus: str, t: float, kind: str, servo: str | None, seq: int | None) -> None:
         """Every command of a write, packed transfers included: the latency's write mark (the
@@ -597,37 +586,12 @@ class RunLog:
             if state is not None:
                 self._put((_STATE, servo, state, t))
             return
-        self._put(
-            (
-                _RX,
-                bus,
-                msg.arbitration_id,
-                msg.is_extended_id,
-                msg.is_remote_frame,
-                msg.dlc,
-                bytes(msg.data),
-                t,
-                servo,
-                state,
-            )
-        )
+        self._put((_RX, bus, *_frame_fields(msg), t, servo, state))
 
     def on_bus_frame(self, bus: str, msg: can.Message, t: float) -> None:
         """Any frame the adapter delivered at ``t`` (a servo's, a foreign node's, one no
         profile accepts, an error frame): into the CAN logs when ``can_frames`` is ``all``."""
-        self._put(
-            (
-                _BUS_RX,
-                bus,
-                msg.arbitration_id,
-                msg.is_extended_id,
-                msg.is_remote_frame,
-                msg.dlc,
-                bytes(msg.data),
-                t,
-                msg.is_error_frame,
-            )
-        )
+        self._put((_BUS_RX, bus, *_frame_fields(msg), t, msg.is_error_frame))
 
     def on_lost(self, bus: str, servo: str | None, t: float) -> None:
         self.latency.on_lost(bus, servo, t)
@@ -918,6 +882,11 @@ class RunLog:
             return
         self._outcome["metrics_path"] = None
         self._report("metrics", f"{METRICS_FILE} could not be written: {'; '.join(errors)}")
+
+
+def _frame_fields(msg: can.Message) -> tuple[int, bool, bool, int, bytes]:
+    """What the CAN logs keep of a frame, copied (the caller may reuse its message)."""
+    return (msg.arbitration_id, msg.is_extended_id, msg.is_remote_frame, msg.dlc, bytes(msg.data))
 
 
 def _num(value: Any) -> str:

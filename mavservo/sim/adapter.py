@@ -84,8 +84,9 @@ class AdapterEmulator(PtyAdapter):
         super().__init__(
             servos,
             bitrate=bitrate,
-            line=LineCorrupter(line_faults or LineFaults(), seed),
+            line_faults=line_faults,
             link_path=link_path,
+            seed=seed,
             clock=clock,
             nodes_bitrate=nodes_bitrate,
         )

@@ -150,15 +150,16 @@ class PtyAdapter:
         servos: Iterable[SimServo],
         *,
         bitrate: int = 1_000_000,
-        line: LineCorrupter | None = None,
+        line_faults: LineFaults | None = None,
         link_path: str | None = None,
+        seed: int = 0,
         clock: Callable[[], float] = time.monotonic,
         nodes_bitrate: int | None = None,
     ) -> None:
         self.canbus = SimCanBus(servos, bitrate)
         self.canbus.nodes_bitrate = nodes_bitrate
         self.clock = clock
-        self.line = line or LineCorrupter(LineFaults())
+        self.line = LineCorrupter(line_faults or LineFaults(), seed)
         self._own_dir = None if link_path else tempfile.mkdtemp(prefix="mavservo-sim-")
         self.path = link_path or os.path.join(self._own_dir or "", "ttyUSBsim0")
         self._master: int | None = None

@@ -29,7 +29,7 @@ from collections.abc import Callable, Iterable
 
 import can
 
-from .pty_adapter import LineCorrupter, LineFaults, PtyAdapter
+from .pty_adapter import LineFaults, PtyAdapter
 from .servo import SimServo
 
 OK = b"\r"
@@ -136,8 +136,9 @@ class SlcanEmulator(PtyAdapter):
         super().__init__(
             servos,
             bitrate=bitrate,
-            line=LineCorrupter(line_faults or LineFaults(), seed),
+            line_faults=line_faults,
             link_path=link_path,
+            seed=seed,
             clock=clock,
             nodes_bitrate=nodes_bitrate,
         )
