@@ -5,6 +5,7 @@ back from the doctor's CAN log)."""
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from pathlib import Path
 from typing import Any
@@ -13,14 +14,29 @@ import can
 import pytest
 import yaml
 from conftest import wait_until
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from test_run_cli import REPO
 
 from mavservo.app.bridge import Bridge
 from mavservo.app.doctor import main as doctor_main
 from mavservo.app.doctor.families import ENTER_MOTOR_MODE
-from mavservo.app.doctor.wire_facts import ODRIVE_AXIS_STATES, ODRIVE_ERRORS, node_status
+from mavservo.app.doctor.recognise import Recogniser, announcements
+from mavservo.app.doctor.session import BusDoctor
+from mavservo.app.doctor.wire_facts import (
+    ODRIVE_AXIS_STATES,
+    ODRIVE_ERRORS,
+    actuator_status,
+    node_status,
+    odrive_version,
+    odrive_version_request,
+    robstride_device_id,
+)
 from mavservo.config import load_config
+from mavservo.sim.bus_simulation import wired_servos
 from mavservo.sim.servo import SimServo
+from mavservo.sim.slcan import SlcanEmulator
+from mavservo.transport.bus_factory import BusRequest, OpenedBus, open_bus
 
 
 def run_doctor(
@@ -264,3 +280,90 @@ def test_node_status_decoding_matches_the_dronecan_package() -> None:
         "INITIALIZATION",
     )
     assert node_status(can.Message(arbitration_id=42, is_extended_id=False)) is None
+
+
+def test_odrive_version_answer_matches_the_dbc() -> None:
+    cantools = pytest.importorskip("cantools")
+    odrive_can = pytest.importorskip("odrive_can")
+    dbc = Path(odrive_can.__file__).parent / "dbc" / "odrive-cansimple-0.6.10.dbc"
+    message = cantools.database.load_file(str(dbc)).get_message_by_name("Axis0_Get_Version")
+    data = message.encode(
+        {
+            "Protocol_Version": 2,
+            "Hw_Version_Major": 3,
+            "Hw_Version_Minor": 6,
+            "Hw_Version_Variant": 56,
+            "Fw_Version_Major": 0,
+            "Fw_Version_Minor": 6,
+            "Fw_Version_Revision": 10,
+            "Fw_Version_Unreleased": 0,
+        }
+    )
+    answer = can.Message(arbitration_id=3 << 5 | message.frame_id, data=data, is_extended_id=False)
+    assert odrive_version(answer) == (3, "hardware 3.6-56, firmware 0.6.10")
+    request = odrive_version_request(3)
+    assert request.is_remote_frame and request.arbitration_id == 0x60
+
+
+def test_robstride_device_id_answer() -> None:
+    answer = can.Message(
+        arbitration_id=0 << 24 | 0x07 << 8 | 0xFE, data=bytes(range(8)), is_extended_id=True
+    )
+    assert robstride_device_id(answer) == (7, "MCU id 0x0001020304050607")
+    feedback = can.Message(arbitration_id=2 << 24 | 0x07 << 8 | 0xFD, data=bytes(8))
+    assert robstride_device_id(feedback) is None
+
+
+@given(
+    st.integers(0, 0x1FFFFFFF),
+    st.booleans(),
+    st.booleans(),
+    st.booleans(),
+    st.binary(max_size=8),
+)
+@settings(max_examples=300, deadline=None)
+def test_hostile_frames_never_break_the_recognisers(
+    arbitration_id: int, extended: bool, remote: bool, error: bool, data: bytes
+) -> None:
+    """Whatever a bus delivers, the doctor's readers answer or say no; they never raise."""
+    msg = can.Message(
+        arbitration_id=arbitration_id if extended else arbitration_id & 0x7FF,
+        is_extended_id=extended,
+        is_remote_frame=remote,
+        is_error_frame=error,
+        data=b"" if remote else data,
+        dlc=len(data),
+        check=False,
+    )
+    for read in (announcements, actuator_status, odrive_version, robstride_device_id):
+        read(msg)
+    _RECOGNISER.whose(msg)
+
+
+_RECOGNISER = Recogniser(
+    {name: [] for name in ("rmd-x", "lk", "cubemars-ak", "damiao-dm", "odrive", "dronecan")},
+    ids={"cubemars-ak": range(0, 8), "damiao-dm": range(1, 8), "dronecan": range(1, 8)},
+)
+
+
+def test_doctor_listens_listen_only_before_it_sends_anything() -> None:
+    """On the simulated slcan adapter: the first open is LAWICEL ``L`` (listen-only), and no
+    frame reaches the bus from the host until the probes."""
+    config = load_config(REPO / "config" / "slcan.yaml")
+    bus = config.can.buses[0]
+    emulator = SlcanEmulator(wired_servos(config, bus.name)).start()
+    sent_while_listening: list[int] = []
+    try:
+
+        def opener(request: BusRequest) -> OpenedBus:
+            if request.listen_only:
+                sent_while_listening.append(emulator.frames_from_host)
+            return open_bus(dataclasses.replace(request, channel=emulator.path))
+
+        doctor = BusDoctor(bus, config.servos, opener, lambda *a: None, listen_s=0.3)
+        assert doctor._listen(bus.bitrate)
+        assert emulator.listen_opens == 1 and emulator.frames_from_host == 0
+        assert wait_until(lambda: emulator.mode == "closed", 2.0)  # python-can sent C at close
+    finally:
+        emulator.stop()
+    assert sent_while_listening == [0]

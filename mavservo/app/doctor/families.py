@@ -18,6 +18,8 @@ from typing import Any
 
 import can
 
+from .wire_facts import odrive_version_request
+
 #: The MIT packing's special frames (CubeMars AK manual, "MIT mode" table; Damiao DM-J manual,
 #: "MIT control": the same bytes): enter motor mode (enable) and exit (disable).
 ENTER_MOTOR_MODE = bytes([0xFF] * 7 + [0xFC])
@@ -207,6 +209,7 @@ FACTS: dict[str, FamilyFacts] = {
     ),
     "odrive": FamilyFacts(
         "odrive",
+        identity=lambda can_id, options: [odrive_version_request(can_id)],
         silence=(
             "an ODrive sends a heartbeat every 100 ms unasked: silence means another bitrate "
             "(`odrv0.can.config.baud_rate`), CAN not enabled on the axis "

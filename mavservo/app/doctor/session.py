@@ -39,7 +39,13 @@ from .recognise import (
     make_candidate,
     options_key,
 )
-from .wire_facts import NodeStatus, ODriveHeartbeat, actuator_status
+from .wire_facts import (
+    NodeStatus,
+    ODriveHeartbeat,
+    actuator_status,
+    odrive_version,
+    robstride_device_id,
+)
 
 log = logging.getLogger(__name__)
 
@@ -139,6 +145,8 @@ class BusFindings:
     heartbeats: dict[int, ODriveHeartbeat] = field(default_factory=dict)
     node_statuses: dict[int, NodeStatus] = field(default_factory=dict)
     unknown_ids: Counter[tuple[int, bool]] = field(default_factory=Counter)
+    identities: dict[tuple[str, int], str] = field(default_factory=dict)
+    """(family, id) -> what an identity read said (ODrive version, Robstride MCU id)."""
     actuators: dict[int, set[int]] = field(default_factory=dict)
     """DroneCAN node -> the actuator ids its actuator Status reports carry."""
     probed_bitrates: list[int] = field(default_factory=list)
@@ -286,6 +294,10 @@ class BusDoctor:
             self.findings.heartbeats[said.node_id] = said
         elif isinstance(said, NodeStatus):
             self.findings.node_statuses[said.node_id] = said
+        for family, read in (("odrive", odrive_version), ("robstride", robstride_device_id)):
+            identity = read(msg)
+            if identity is not None:
+                self.findings.identities[(family, identity[0])] = identity[1]
         status_of = actuator_status(msg)
         if status_of is not None:
             self.findings.actuators.setdefault(status_of[0], set()).add(status_of[1])

@@ -120,6 +120,9 @@ def judge(findings: BusFindings, servos: list[ServoConfig]) -> list[Verdict]:
             verdict.entry["can_id"] = heard.can_id
         else:
             verdict.cause, verdict.fix = _silence(findings, servo)
+        identity = findings.identities.get((servo.profile, servo.can_id))
+        if identity is not None:
+            verdict.notes.append(identity)
         _family_notes(findings, servo, verdict)
         verdicts.append(verdict)
     return verdicts

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import can
 
+ODRIVE_GET_VERSION = 0x00
 ODRIVE_HEARTBEAT = 0x01
 
 #: ODrive.AxisState (ODrive API reference, v0.6).
@@ -121,6 +122,40 @@ def actuator_status(msg: can.Message) -> tuple[int, int] | None:
     if len(data) - 1 <= at or arbitration_id & 0x7F == 0:
         return None
     return arbitration_id & 0x7F, data[at]
+
+
+def odrive_version_request(node_id: int) -> can.Message:
+    """``Get_Version`` (cmd 0x00) asked with a remote frame: a read (ODrive CAN protocol,
+    message table; the answer's layout is the DBC's ``Get_Version``)."""
+    return can.Message(
+        arbitration_id=node_id << 5 | ODRIVE_GET_VERSION,
+        is_remote_frame=True,
+        dlc=8,
+        is_extended_id=False,
+    )
+
+
+def odrive_version(msg: can.Message) -> tuple[int, str] | None:
+    """``(node id, "hardware 3.6-56, firmware 0.6.10")`` from a ``Get_Version`` answer."""
+    if msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame or len(msg.data) != 8:
+        return None
+    if msg.arbitration_id & 0x1F != ODRIVE_GET_VERSION:
+        return None
+    _, hw_major, hw_minor, variant, fw_major, fw_minor, fw_rev, unreleased = bytes(msg.data)
+    firmware = f"{fw_major}.{fw_minor}.{fw_rev}" + (" (unreleased)" if unreleased else "")
+    return msg.arbitration_id >> 5, f"hardware {hw_major}.{hw_minor}-{variant}, firmware {firmware}"
+
+
+def robstride_device_id(msg: can.Message) -> tuple[int, str] | None:
+    """``(motor id, "MCU id 0x...")`` from a Robstride private-protocol answer to "get device
+    id" (RS0x manual, communication type 0: id ``0 << 24 | motor_id << 8 | 0xFE``, the 64-bit
+    MCU unique id in the data)."""
+    arbitration_id = msg.arbitration_id
+    if not msg.is_extended_id or msg.is_remote_frame or len(msg.data) != 8:
+        return None
+    if arbitration_id >> 24 != 0 or arbitration_id & 0xFF != 0xFE:
+        return None
+    return (arbitration_id >> 8) & 0xFF, f"MCU id 0x{bytes(msg.data).hex()}"
 
 
 NODE_STATUS_DTID = 341
