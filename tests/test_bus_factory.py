@@ -259,3 +259,10 @@ def test_mavservo_run_through_python_can_slcan_drives_servos_and_loses_nothing(
     """config/slcan.yaml as shipped: python-can's slcan interface, the simulated LAWICEL
     adapter, servos that follow the simulated autopilot, telemetry back, 0 lost."""
     run_example_config_follows_and_loses_nothing("slcan.yaml", tmp_path)
+
+
+def test_an_aa55_key_given_as_an_option_is_refused() -> None:
+    """``serial_baud`` has its own key on an aa55 bus: one setting, one place."""
+    text = _bus_yaml("aa55", "        serial_baud: 115200\n", channel="sim")
+    with pytest.raises(ConfigError, match=r"bus.yaml:7:.*own `serial_baud:` key"):
+        load_config_text(text, "bus.yaml")

@@ -35,9 +35,11 @@ def describe_bus(bus: BusConfig) -> str:
     if is_simulated(bus):
         adapter = "AA-55 adapter" if bus.interface == "aa55" else f"{bus.interface} adapter"
         return f"built-in simulation ({adapter} emulator on a pty, simulated servos) @ {rate}"
+    options = ", ".join(f"{k}={v!r}" for k, v in bus.options.items())
+    extra = f", options {options}" if options else ""
     if bus.interface == "aa55":
-        return f"aa55 {bus.channel} @ {rate} (serial {bus.serial_baud} baud)"
-    return f"{bus.interface} {bus.channel} @ {rate}"
+        return f"aa55 {bus.channel} @ {rate} (serial {bus.serial_baud} baud{extra})"
+    return f"{bus.interface} {bus.channel} @ {rate}" + (f" ({extra[2:]})" if extra else "")
 
 
 def endpoint_lines(config: Config) -> list[str]:

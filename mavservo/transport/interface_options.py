@@ -35,6 +35,15 @@ RESERVED = {
     "on_reject": "set by the bridge (the run log's rejections)",
 }
 
+#: Keys an interface's bus has its own YAML key for, per interface.
+OWN_KEYS = {
+    "aa55": {
+        "serial_baud": "use the bus's own `serial_baud:` key",
+        "protocol": "use the bus's own `protocol:` key",
+        "read_interval_s": "use the bus's own `read_interval_s:` key",
+    }
+}
+
 #: BusABC's own keyword arguments, accepted by every interface.
 _BUS_ABC = ("can_filters",)
 
@@ -57,8 +66,9 @@ class InterfaceOptions:
         out: list[tuple[str, str]] = []
         for key, value in options.items():
             key = str(key)
-            if key in RESERVED:
-                out.append((key, f"{key!r} is not an option here: {RESERVED[key]}"))
+            reserved = RESERVED.get(key) or OWN_KEYS.get(self.interface, {}).get(key)
+            if reserved:
+                out.append((key, f"{key!r} is not an option here: {reserved}"))
                 continue
             if key not in self.parameters:
                 out.append((key, self._unknown(key)))

@@ -120,6 +120,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"mavservo doctor: invalid configuration\n{exc}", file=sys.stderr)
         return EXIT_INVALID
+    if args.ids is not None and not args.scan:
+        print("mavservo doctor: --ids goes with --scan FAMILY", file=sys.stderr)
+        return EXIT_INVALID
     scans: list[tuple[str, range]] = []
     for family in args.scan:
         try:
@@ -134,7 +137,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     all_ok = True
     try:
         for index, bus in enumerate(config.can.buses):
-            servos = [s for s in config.servos if config.bus_of(s).name == bus.name]
             findings, verdicts = diagnose_bus(
                 config,
                 index,
@@ -146,7 +148,6 @@ def main(argv: Sequence[str] | None = None) -> int:
             )
             all_ok &= print_bus(findings, verdicts)
             print_yaml(config, bus.name, findings, verdicts)
-            del servos
     finally:
         frame_log.close()
     return EXIT_OK if all_ok else EXIT_PROBLEMS
