@@ -60,7 +60,7 @@ def one_scan(family: str, can_id: int, interface: str) -> tuple[float, bool, int
                 )
             )
 
-        doctor = BusDoctor(bus, config.servos, opener, lambda *a: None, out=lambda s: None)
+        doctor = BusDoctor(bus, config.servos, opener, lambda *a: None)
         cls = get_profile(family)
         started = time.perf_counter()
         doctor.scan(family, range(cls.min_id, cls.max_id + 1), 1_000_000)
@@ -69,6 +69,54 @@ def one_scan(family: str, can_id: int, interface: str) -> tuple[float, bool, int
         return elapsed, found, doctor.findings.scanned
     finally:
         simulator.stop()
+
+
+def recognition_rate(frames: int = 20_000) -> dict[str, float]:
+    """Frames/s the doctor reads while listening to a busy shared bus: every family's profile
+    at every id as candidates (the sim.yaml families), a mix of servo replies and a foreign
+    node's frames on 64 ids with changing data."""
+    import random
+
+    import can
+
+    from mavservo.app.doctor.recognise import Recogniser
+
+    rng = random.Random(1)
+    families = {
+        name: []
+        for name in (
+            "rmd-x",
+            "lk",
+            "cubemars-ak",
+            "cubemars-ak-mit",
+            "damiao-dm",
+            "odrive",
+            "dronecan",
+            "robstride",
+        )
+    }
+    started = time.perf_counter()
+    recogniser = Recogniser(families)
+    build_s = time.perf_counter() - started
+    stream = []
+    for k in range(frames):
+        if k % 4 == 0:
+            data = bytes([0x9C]) + bytes(rng.randrange(256) for _ in range(7))
+            stream.append(can.Message(arbitration_id=0x241, data=data, is_extended_id=False))
+        else:
+            data = bytes(rng.randrange(256) for _ in range(8))
+            stream.append(
+                can.Message(arbitration_id=0x500 + k % 64, data=data, is_extended_id=False)
+            )
+    started = time.perf_counter()
+    for msg in stream:
+        recogniser.whose(msg)
+    elapsed = time.perf_counter() - started
+    return {
+        "candidates": len(recogniser.candidates),
+        "build_s": round(build_s, 3),
+        "frames_per_s": round(frames / elapsed),
+    }
 
 
 def main() -> int:
@@ -93,6 +141,7 @@ def main() -> int:
                 "max_s": round(max(times), 3),
                 "found_every_run": found,
             }
+    recognition = [recognition_rate() for _ in range(args.runs)]
     commit = subprocess.run(
         ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, check=False
     ).stdout.strip()
@@ -107,6 +156,13 @@ def main() -> int:
                 f"Python {platform.python_version()}",
                 "commit": commit,
                 "results": results,
+                "listen_recognition": {
+                    "candidates": recognition[0]["candidates"],
+                    "build_s_median": statistics.median(r["build_s"] for r in recognition),
+                    "frames_per_s_median": statistics.median(
+                        r["frames_per_s"] for r in recognition
+                    ),
+                },
             },
             indent=2,
         )

@@ -367,3 +367,18 @@ def test_doctor_listens_listen_only_before_it_sends_anything() -> None:
     finally:
         emulator.stop()
     assert sent_while_listening == [0]
+
+
+def test_an_adapter_that_is_not_there_is_said_once(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    missing = tmp_path / "ttyUSB9"
+    path = write_config(
+        tmp_path,
+        f"can:\n  buses:\n    - {{name: bus0, interface: aa55, channel: '{missing}'}}\n"
+        "servos:\n  - {name: a, profile: rmd-x, can_id: 1}\n",
+    )
+    code, out, _ = run_doctor(capsys, path, tmp_path)
+    assert code == 1
+    assert out.count("cannot open the adapter") == 1 and "no adapter there" in out, out
+    assert "what bus bus0 needs" not in out  # nothing learnt, nothing to paste

@@ -147,7 +147,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                 scans=scans,
             )
             all_ok &= print_bus(findings, verdicts)
-            print_yaml(config, bus.name, findings, verdicts)
+            if findings.open_error is None:
+                print_yaml(config, bus.name, findings, verdicts)
     finally:
         frame_log.close()
     return EXIT_OK if all_ok else EXIT_PROBLEMS
@@ -207,6 +208,9 @@ def print_bus(findings: BusFindings, verdicts: list[Verdict]) -> bool:
         print(f"  {bitrate_text(bitrate)}: the adapter refused it ({why})")
     ok = True
     rate = findings.working_bitrate
+    if findings.open_error is not None:
+        print(f"  cannot open the adapter: {findings.open_error}")
+        return False
     if rate is None:
         ok = False
         print(

@@ -69,8 +69,19 @@ def family_variants(
     return out
 
 
+#: Distinct frame heads whose candidates are remembered: a hostile stream of random ids cannot
+#: grow the cache past this (frames beyond it are recognised without it).
+MAX_HEADS = 4096
+
+
 class Recogniser:
-    """Candidates of every family given, over their id ranges (or ``ids``)."""
+    """Candidates of every family given, over their id ranges (or ``ids``).
+
+    Asking ~1,200 profiles about every frame of a busy bus would cost seconds per second, so
+    the candidates whose ``is_reply`` accepts a frame are remembered by the frame's head (id,
+    format, length, first byte: what every family's ``is_reply`` looks at); only they decode
+    the next frames with that head.
+    """
 
     def __init__(
         self,
@@ -86,14 +97,22 @@ class Recogniser:
                     candidate = make_candidate(profile, can_id, options)
                     if candidate is not None:
                         self.candidates.append(candidate)
+        self._heads: dict[tuple[int, bool, bool, int, bytes], list[Candidate]] = {}
 
     def whose(self, msg: can.Message) -> list[tuple[Candidate, bool]]:
         """Every candidate whose profile reads ``msg`` as its own, and whether the frame gave
         a whole state (False: the start of a multi-frame report, which says less)."""
         if msg.is_error_frame:
             return []
+        data = bytes(msg.data)
+        head = (msg.arbitration_id, msg.is_extended_id, msg.is_remote_frame, msg.dlc, data[:1])
+        replying = self._heads.get(head)
+        if replying is None:
+            replying = [c for c in self.candidates if self._is_reply(c, msg)]
+            if len(self._heads) < MAX_HEADS:
+                self._heads[head] = replying
         out = []
-        for candidate in self.candidates:
+        for candidate in replying:
             try:
                 profile = candidate.instance
                 if not profile.is_reply(msg):
@@ -106,6 +125,13 @@ class Recogniser:
             except Exception as exc:  # noqa: BLE001 - a hostile frame must not stop the doctor
                 log.debug("%s %d: %s", candidate.profile, candidate.can_id, exc)
         return out
+
+    @staticmethod
+    def _is_reply(candidate: Candidate, msg: can.Message) -> bool:
+        try:
+            return bool(candidate.instance.is_reply(msg))
+        except Exception:  # noqa: BLE001 - a hostile frame must not stop the doctor
+            return False
 
 
 def announcements(msg: can.Message) -> ODriveHeartbeat | NodeStatus | None:

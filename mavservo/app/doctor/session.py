@@ -140,8 +140,12 @@ class BusFindings:
     error_frames: dict[int, int] = field(default_factory=dict)
     unsupported: dict[int, str] = field(default_factory=dict)
     """Bitrates the adapter refused, and why."""
+    open_error: str | None = None
+    """Why the adapter did not open at all (at the configured bitrate): nothing else ran."""
     working_bitrate: int | None = None
-    sightings: dict[tuple[str, int, Any], Sighting] = field(default_factory=dict)
+    sightings: dict[tuple[str, int, tuple[tuple[str, Any], ...], int], Sighting] = field(
+        default_factory=dict
+    )
     heartbeats: dict[int, ODriveHeartbeat] = field(default_factory=dict)
     node_statuses: dict[int, NodeStatus] = field(default_factory=dict)
     unknown_ids: Counter[tuple[int, bool]] = field(default_factory=Counter)
@@ -157,12 +161,12 @@ class BusFindings:
 
     def seen(self, candidate: Candidate, bitrate: int, how: str, complete: bool) -> Sighting:
         key = (*candidate.key, bitrate)
-        sighting = self.sightings.get(key)  # type: ignore[arg-type]
+        sighting = self.sightings.get(key)
         if sighting is None:
             sighting = Sighting(
                 candidate.profile, candidate.can_id, dict(candidate.raw_options), bitrate, how
             )
-            self.sightings[key] = sighting  # type: ignore[index]
+            self.sightings[key] = sighting
         elif how == "answered":
             sighting.how = how
         sighting.frames += 1
@@ -183,7 +187,6 @@ class BusDoctor:
         listen_s: float = 1.5,
         allow_enable: bool = False,
         try_bitrates: bool = True,
-        out: Callable[[str], None] = print,
     ) -> None:
         self.bus = bus
         self.servos = list(servos)
@@ -192,7 +195,6 @@ class BusDoctor:
         self.listen_s = listen_s
         self.allow_enable = allow_enable
         self.try_bitrates = try_bitrates
-        self.out = out
         self.findings = BusFindings(bus, has_listen_only(bus.interface))
         configured: dict[str, list[Mapping[str, Any]]] = defaultdict(list)
         for servo in self.servos:
@@ -214,6 +216,10 @@ class BusDoctor:
             if self._listen(bitrate):
                 self.findings.working_bitrate = bitrate
                 break
+            if bitrate == self.bus.bitrate and bitrate in self.findings.unsupported:
+                # no device, busy, no permission: trying other bitrates would say it 8 times
+                self.findings.open_error = self.findings.unsupported.pop(bitrate)
+                return self.findings
         if self.findings.working_bitrate is None:
             # nothing pushes on this bus: ask the configured servos, at each rate in turn
             for bitrate in rates:
