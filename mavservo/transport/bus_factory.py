@@ -41,6 +41,11 @@ LISTEN_ONLY: dict[str, dict[str, Any]] = {
     "pcan": {"state": can.BusState.PASSIVE},
 }
 
+#: Interfaces whose bitrate python-can does not set: SocketCAN takes it from the link (``ip link
+#: set can0 type can bitrate N``), the software buses have none. Opening them "at" another
+#: bitrate changes nothing, so the doctor does not search bitrates on them.
+BITRATE_SET_OUTSIDE = frozenset({"socketcan", "socketcand", "virtual", "udp_multicast"})
+
 #: The standard CAN bitrates a bus is tried at when nothing is heard at the configured one,
 #: most common first (CiA 301's table; 1 Mbit/s and 500 kbit/s are what servo families ship at).
 STANDARD_BITRATES = (1_000_000, 500_000, 250_000, 125_000, 800_000, 100_000, 50_000, 20_000)

@@ -27,7 +27,13 @@ from mavservo.config.endpoints import bitrate_text, describe_bus
 from mavservo.config.loader import default_config_path
 from mavservo.servos import UnknownProfileError, get_profile
 from mavservo.sim.bus_simulation import simulator_factory
-from mavservo.transport.bus_factory import SIM_CHANNEL, BusRequest, OpenedBus, open_bus
+from mavservo.transport.bus_factory import (
+    BITRATE_SET_OUTSIDE,
+    SIM_CHANNEL,
+    BusRequest,
+    OpenedBus,
+    open_bus,
+)
 
 from .session import BusDoctor, BusFindings
 from .verdict import Verdict, extra_entries, judge
@@ -211,7 +217,16 @@ def print_bus(findings: BusFindings, verdicts: list[Verdict]) -> bool:
     if findings.open_error is not None:
         print(f"  cannot open the adapter: {findings.open_error}")
         return False
-    if rate is None:
+    if rate is None and bus.interface in BITRATE_SET_OUTSIDE:
+        ok = False
+        link = bus.channel
+        print(
+            f"  no valid traffic and no answer; a {bus.interface} bus gets its bitrate outside "
+            "python-can, so the doctor cannot try others: for SocketCAN try each (`sudo ip link "
+            f"set {link} down; sudo ip link set {link} up type can bitrate 500000`) and run it "
+            f"again; `ip -details -statistics link show {link}` shows bus-off and error counters"
+        )
+    elif rate is None:
         ok = False
         print(
             "  no valid traffic and no answer at any bitrate tried: check power, CAN_H/CAN_L, "

@@ -24,6 +24,7 @@ import can
 from mavservo.config import BusConfig, ServoConfig
 from mavservo.servos import get_profile
 from mavservo.transport.bus_factory import (
+    BITRATE_SET_OUTSIDE,
     STANDARD_BITRATES,
     BusRequest,
     OpenedBus,
@@ -196,6 +197,8 @@ class BusDoctor:
         self.allow_enable = allow_enable
         self.try_bitrates = try_bitrates
         self.findings = BusFindings(bus, has_listen_only(bus.interface))
+        if bus.interface in BITRATE_SET_OUTSIDE:
+            self.try_bitrates = False  # the link's bitrate is not ours to change
         configured: dict[str, list[Mapping[str, Any]]] = defaultdict(list)
         for servo in self.servos:
             configured[servo.profile].append(servo.options)
