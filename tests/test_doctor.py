@@ -382,3 +382,22 @@ def test_an_adapter_that_is_not_there_is_said_once(
     assert code == 1
     assert out.count("cannot open the adapter") == 1 and "no adapter there" in out, out
     assert "what bus bus0 needs" not in out  # nothing learnt, nothing to paste
+
+
+def test_robstride_in_the_other_protocol_found_with_allow_enable(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """A Robstride switched to MIT under a private-protocol config answers nothing safe: without
+    the flag the doctor says it may be in MIT; with it, it names the protocol and the fix."""
+    path = write_config(
+        tmp_path,
+        "servos:\n  - {name: hip, profile: robstride, can_id: 1, options: {protocol: private}}\n"
+        "simulation:\n  servos:\n    hip: {options: {protocol: mit}}\n",
+    )
+    code, out, _ = run_doctor(capsys, path, tmp_path, "--no-bitrate-search", listen=0.4)
+    assert code == 1 and "silent" in out and "MIT protocol" in out, out
+    code, out, _ = run_doctor(
+        capsys, path, tmp_path / "enabled", "--no-bitrate-search", "--allow-enable", listen=0.4
+    )
+    assert "wrong mode: heard robstride (protocol: mit) from id 1" in out, out
+    assert suggested(out)["servos"][0]["options"] == {"protocol": "mit"}
