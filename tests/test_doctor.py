@@ -81,6 +81,17 @@ FAMILIES = [
 ]
 
 
+#: What the doctor learns beyond "it answers" (state, identity, mode registers).
+IDENTIFIED = {
+    "damiao.yaml": [
+        "CTRL_MODE register: mit",
+        "it answers in mit mode, configured position-velocity",  # the simulated DM-J powers up in MIT
+    ],
+    "odrive.yaml": ["ODrive heartbeat: IDLE, errors: none"],
+    "dronecan.yaml": ["DroneCAN node 11: NodeStatus OK, OPERATIONAL"],
+}
+
+
 @pytest.mark.parametrize(("config_name", "flags"), FAMILIES)
 def test_doctor_finds_every_family_as_configured(
     config_name: str, flags: tuple[str, ...], capsys: pytest.CaptureFixture[str], tmp_path: Path
@@ -90,6 +101,8 @@ def test_doctor_finds_every_family_as_configured(
     assert code == 0, out
     for servo in load_config(path).servos:
         assert f"{servo.name:<12} {servo.profile} id {servo.can_id}: OK" in out, out
+    for phrase in IDENTIFIED.get(config_name, ()):
+        assert phrase in out, (phrase, out)
     if not flags:
         assert_nothing_enabled_or_moved(path, log)
 

@@ -18,7 +18,7 @@ from typing import Any
 
 import can
 
-from .wire_facts import odrive_version_request
+from .wire_facts import damiao_mode_request, odrive_version_request
 
 #: The MIT packing's special frames (CubeMars AK manual, "MIT mode" table; Damiao DM-J manual,
 #: "MIT control": the same bytes): enter motor mode (enable) and exit (disable).
@@ -180,6 +180,7 @@ FACTS: dict[str, FamilyFacts] = {
     ),
     "damiao-dm": FamilyFacts(
         "damiao-dm",
+        identity=lambda can_id, options: [damiao_mode_request(can_id)],
         variants=({"mode": "mit"}, {"mode": "position-velocity"}),
         mode_fix=_damiao_mode,
         silence=(

@@ -44,6 +44,7 @@ from .wire_facts import (
     NodeStatus,
     ODriveHeartbeat,
     actuator_status,
+    damiao_mode,
     odrive_version,
     robstride_device_id,
 )
@@ -150,6 +151,8 @@ class BusFindings:
     heartbeats: dict[int, ODriveHeartbeat] = field(default_factory=dict)
     node_statuses: dict[int, NodeStatus] = field(default_factory=dict)
     unknown_ids: Counter[tuple[int, bool]] = field(default_factory=Counter)
+    damiao_modes: dict[int, str] = field(default_factory=dict)
+    """Damiao motor id -> its CTRL_MODE register as read."""
     identities: dict[tuple[str, int], str] = field(default_factory=dict)
     """(family, id) -> what an identity read said (ODrive version, Robstride MCU id)."""
     actuators: dict[int, set[int]] = field(default_factory=dict)
@@ -314,6 +317,9 @@ class BusDoctor:
             if said is None:
                 self.findings.unknown_ids[(msg.arbitration_id, msg.is_extended_id)] += 1
             return
+        mode = damiao_mode(msg)
+        if mode is not None and any(c.profile == "damiao-dm" for c, _ in candidates):
+            self.findings.damiao_modes[mode[0]] = mode[1]
         names = {f"{c.profile} {c.can_id}" for c, _ in candidates}
         for candidate, complete in candidates:
             sighting = self.findings.seen(candidate, bitrate, how, complete)

@@ -187,6 +187,16 @@ def _family_notes(findings: BusFindings, servo: ServoConfig, verdict: Verdict) -
             )
     if servo.profile == "dronecan":
         _dronecan_notes(findings, servo, verdict)
+    if servo.profile == "damiao-dm" and servo.can_id in findings.damiao_modes:
+        register = findings.damiao_modes[servo.can_id]
+        wanted = servo.options.get("mode", "mit")
+        verdict.notes.append(f"CTRL_MODE register: {register}")
+        if register != wanted:
+            verdict.notes.append(
+                f"it answers in {register} mode, configured {wanted}: the bridge writes "
+                "CTRL_MODE at start-up; if the motor keeps the old mode, write and store it "
+                "with Damiao's tool (or set `options: {mode: " + register + "}`)"
+            )
 
 
 def _dronecan_notes(findings: BusFindings, servo: ServoConfig, verdict: Verdict) -> None:

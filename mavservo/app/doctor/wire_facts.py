@@ -158,6 +158,32 @@ def robstride_device_id(msg: can.Message) -> tuple[int, str] | None:
     return (arbitration_id >> 8) & 0xFF, f"MCU id 0x{bytes(msg.data).hex()}"
 
 
+DAMIAO_REGISTER_ID = 0x7FF
+DAMIAO_READ = 0x33
+DAMIAO_CTRL_MODE = 10
+#: CTRL_MODE values (Damiao DM-J manual, register table: rid 10).
+DAMIAO_MODES = {1: "mit", 2: "position-velocity", 3: "velocity", 4: "force-position"}
+
+
+def damiao_mode_request(can_id: int) -> can.Message:
+    """A read of the CTRL_MODE register on 0x7FF: ``[id lo, id hi, 0x33, 10, 0, 0, 0, 0]``
+    (Damiao DM-J manual, "register read"; a read changes nothing)."""
+    data = bytes([can_id & 0xFF, can_id >> 8, DAMIAO_READ, DAMIAO_CTRL_MODE, 0, 0, 0, 0])
+    return can.Message(arbitration_id=DAMIAO_REGISTER_ID, data=data, is_extended_id=False)
+
+
+def damiao_mode(msg: can.Message) -> tuple[int, str] | None:
+    """``(motor id, mode name)`` from the answer to that read (on the master id, the same
+    four-byte head, the value u32 LE after it)."""
+    data = bytes(msg.data)
+    if msg.is_extended_id or msg.is_remote_frame or len(data) != 8:
+        return None
+    if data[2] != DAMIAO_READ or data[3] != DAMIAO_CTRL_MODE:
+        return None
+    value = struct.unpack_from("<I", data, 4)[0]
+    return data[0] | data[1] << 8, DAMIAO_MODES.get(value, f"mode {value}")
+
+
 NODE_STATUS_DTID = 341
 HEALTH = ("OK", "WARNING", "ERROR", "CRITICAL")
 MODES = {
