@@ -85,7 +85,8 @@ FAMILIES = [
 IDENTIFIED = {
     "damiao.yaml": [
         "CTRL_MODE register: mit",
-        "it answers in mit mode, configured position-velocity",  # the simulated DM-J powers up in MIT
+        # the simulated DM-J powers up in MIT mode, as a real one leaves the factory
+        "it answers in mit mode, configured position-velocity",
     ],
     "odrive.yaml": ["ODrive heartbeat: IDLE, errors: none"],
     "dronecan.yaml": ["DroneCAN node 11: NodeStatus OK, OPERATIONAL"],
