@@ -85,7 +85,7 @@ FAMILIES = [
 IDENTIFIED = {
     "damiao.yaml": [
         "CTRL_MODE register: mit",
-        # the simulated DM-J powers up in MIT mode, as a real one leaves the factory
+        # the simulated DM-J powers up in MIT mode
         "it answers in mit mode, configured position-velocity",
     ],
     "odrive.yaml": ["ODrive heartbeat: IDLE, errors: none"],
