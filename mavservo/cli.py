@@ -45,6 +45,9 @@ COMMANDS: dict[str, Command] = {
     "monitor": Command(
         "mavservo.app.monitor", "main", "live terminal dashboard of a running bridge"
     ),
+    "doctor": Command(
+        "mavservo.app.doctor", "main", "read-only diagnosis of a real bus: bitrate, ids, modes"
+    ),
     "params": Command(
         "mavservo.app.params", "main", "MAVLink parameters of a config: list, overlay, metadata"
     ),

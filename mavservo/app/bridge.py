@@ -20,7 +20,7 @@ import time
 from collections import Counter
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
-from typing import Any, Protocol, runtime_checkable
+from typing import Any
 
 import can
 
@@ -42,9 +42,10 @@ from mavservo.records.runlog import RunLog, new_run_dir
 from mavservo.scheduling.core import FrameKind, ServoSpec, TimingConfig
 from mavservo.scheduling.runner import Scheduler, SchedulerObserver
 from mavservo.servos import ServoState
-from mavservo.sim.adapter import AdapterEmulator
-from mavservo.sim.servo import simulated_servos
-from mavservo.transport.resilient_bus import ResilientBus
+from mavservo.sim.bus_simulation import simulator_factory
+from mavservo.sim.pty_adapter import PtyAdapter
+from mavservo.transport.bus_factory import BusRequest, OpenedBus, open_bus
+from mavservo.transport.counters import transport_stats
 
 log = logging.getLogger(__name__)
 
@@ -109,16 +110,6 @@ class _FanOut(SchedulerObserver):
     def on_reject(self, bus: str, reason: str, raw_bytes: bytes, t: float) -> None:
         for observer in self.observers:
             observer.on_reject(bus, reason, raw_bytes, t)
-
-
-@runtime_checkable
-class StatsReporting(Protocol):
-    """A bus that counts what its transport saw (the aa55 bus, the auto-reconnect wrapper);
-    other python-can buses report nothing."""
-
-    def stats(self) -> dict[str, Any]:
-        """Transport counters since start-up, for the summary and the run log."""
-        ...
 
 
 def servo_specs(config: Config, bus_name: str) -> list[ServoSpec]:
@@ -215,8 +206,9 @@ class Bridge:
         self._observers = tuple(observers)
         self.config_path = config_path
         self._status = status or (lambda line: log.info("%s", line))
-        self.emulators: dict[str, AdapterEmulator] = {}
+        self.emulators: dict[str, PtyAdapter] = {}
         self.buses: dict[str, can.BusABC] = {}
+        self._opened: list[OpenedBus] = []
         self.schedulers: dict[str, Scheduler] = {}
         #: what the bus nodes keep across restarts (DroneCAN allocation table), if any
         self.node_states: node_state.NodeStateKeeper | None = None
@@ -334,10 +326,8 @@ class Bridge:
             _quietly(self.mavlink.stop)
         for scheduler in self.schedulers.values():
             _quietly(scheduler.stop)
-        for bus in self.buses.values():
-            _quietly(bus.shutdown)
-        for emulator in self.emulators.values():
-            _quietly(emulator.stop)
+        for opened in self._opened:
+            _quietly(opened.close)
         runlog = self.runlog
         if runlog is not None and not self._started:  # nothing ran: say why, record nothing
             reason = self._start_error or "stopped before start-up finished"
@@ -375,6 +365,7 @@ class Bridge:
         self.runlog = RunLog(
             self.run_dir,
             formats=cfg.can_formats,
+            can_frames=cfg.can_frames,
             rotate_bytes=int((cfg.rotate_mb or 1e6) * 1024 * 1024),
             buses=buses,
             servos=servos,
@@ -384,36 +375,35 @@ class Bridge:
             on_problem=self._event,  # a full disk is said at once: console and STATUSTEXT
         )
 
-    def _open_bus(self, bus_cfg: Any) -> can.BusABC:
+    def _open_bus(self, bus_cfg: BusConfig) -> can.BusABC:
+        """The transport layer's factory opens it (a device, or its simulation for ``sim``);
+        with ``logging.can_frames: all`` the run log gets every frame the adapter delivers."""
         name = bus_cfg.name
-        channel = bus_cfg.channel
+        options: dict[str, Any] = dict(bus_cfg.options)
         if bus_cfg.interface == "aa55":
-            if channel == SIM:
-                emulator = AdapterEmulator(
-                    simulated_servos(self.config, name),
-                    bitrate=bus_cfg.bitrate,
-                    protocol=bus_cfg.protocol,
-                )
-                self.emulators[name] = emulator.start()
-                channel = emulator.path
+            options = {
+                "serial_baud": bus_cfg.serial_baud,
+                "protocol": bus_cfg.protocol,
+                "read_interval_s": bus_cfg.read_interval_s,
+                **options,
+            }
+        request = BusRequest(name, bus_cfg.interface, bus_cfg.channel, bus_cfg.bitrate, options)
+        runlog = self.runlog
+        tap = None
+        if runlog is not None and self.config.logging.can_frames == "all":
 
-            def open_aa55() -> can.BusABC:
-                return can.Bus(
-                    interface="aa55",
-                    channel=channel,
-                    bitrate=bus_cfg.bitrate,
-                    serial_baud=bus_cfg.serial_baud,
-                    protocol=bus_cfg.protocol,
-                    read_interval_s=bus_cfg.read_interval_s,
-                    on_reject=lambda reason, raw: self._rejected(name, reason, raw),
-                )
+            def tap(msg: can.Message, t: float) -> None:
+                runlog.on_bus_frame(name, msg, t)
 
-            return ResilientBus(open_aa55, name=name, on_event=self._event)
-
-        def open_other() -> can.BusABC:
-            return can.Bus(interface=bus_cfg.interface, channel=channel, bitrate=bus_cfg.bitrate)
-
-        return ResilientBus(open_other, name=name, on_event=self._event)
+        opened = open_bus(
+            request,
+            simulate=simulator_factory(self.config, self.emulators),
+            on_event=self._event,
+            on_reject=lambda reason, raw: self._rejected(name, reason, raw),
+            on_frame=tap,
+        )
+        self._opened.append(opened)
+        return opened.bus
 
     def _rejected(self, bus_name: str, reason: object, raw: bytes) -> None:
         scheduler = self.schedulers.get(bus_name)
@@ -669,7 +659,7 @@ class Bridge:
             bus = self.buses.get(name)
             out["buses"][name] = {
                 **{k: v for k, v in metrics.items() if k != "servos"},
-                "transport": bus.stats() if isinstance(bus, StatsReporting) else {},
+                "transport": transport_stats(bus),
                 # what the bus nodes (DroneCAN: the bridge's node) counted of hostile traffic
                 "nodes": [
                     stats() for node in scheduler.nodes if (stats := getattr(node, "stats", None))

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from mavservo.config.schema import BusConfig, Config
 from mavservo.config.urls import SIM, describe_url
+from mavservo.transport.bus_factory import SIMULATED_INTERFACES
 
 
 def bitrate_text(bitrate: int) -> str:
@@ -22,8 +23,9 @@ def bitrate_text(bitrate: int) -> str:
 
 
 def is_simulated(bus: BusConfig) -> bool:
-    """True when the bridge emulates this bus's adapter (an ``aa55`` bus on channel ``sim``)."""
-    return bus.interface == "aa55" and bus.channel == SIM
+    """True when the bridge emulates this bus's adapter (an ``aa55`` or ``slcan`` bus on
+    channel ``sim``)."""
+    return bus.interface in SIMULATED_INTERFACES and bus.channel == SIM
 
 
 def describe_bus(bus: BusConfig) -> str:
@@ -31,10 +33,13 @@ def describe_bus(bus: BusConfig) -> str:
     kbit/s``, or the built-in simulation."""
     rate = bitrate_text(bus.bitrate)
     if is_simulated(bus):
-        return f"built-in simulation (adapter emulator on a pty, simulated servos) @ {rate}"
+        adapter = "AA-55 adapter" if bus.interface == "aa55" else f"{bus.interface} adapter"
+        return f"built-in simulation ({adapter} emulator on a pty, simulated servos) @ {rate}"
+    options = ", ".join(f"{k}={v!r}" for k, v in bus.options.items())
+    extra = f", options {options}" if options else ""
     if bus.interface == "aa55":
-        return f"aa55 {bus.channel} @ {rate} (serial {bus.serial_baud} baud)"
-    return f"{bus.interface} {bus.channel} @ {rate}"
+        return f"aa55 {bus.channel} @ {rate} (serial {bus.serial_baud} baud{extra})"
+    return f"{bus.interface} {bus.channel} @ {rate}" + (f" ({extra[2:]})" if extra else "")
 
 
 def endpoint_lines(config: Config) -> list[str]:

@@ -32,6 +32,12 @@ from mavservo.config.smallfile import SmallFileError, read_small_file
 from mavservo.config.urls import url_problem
 from mavservo.servos import ProfileOptions, ServoProfile, get_profile
 from mavservo.transport.aa55.codec import BITRATE_CODES
+from mavservo.transport.bus_factory import SIM_CHANNEL, SIMULATED_INTERFACES
+from mavservo.transport.interface_options import (
+    UnknownInterfaceError,
+    interface_options,
+    option_problems,
+)
 
 #: YAML reads ``yes``/``no``/``on``/``off`` as booleans and a quoted ``"3.0"`` as a string, and
 #: pydantic's lax mode would quietly turn them into 1, 1.0 and 3.0 (and ``"no"`` into False), so
@@ -295,6 +301,20 @@ class MavlinkConfig(StrictModel):
 # ------------------------------------------------------------------------------------------- CAN
 
 
+def raise_option_problems(problems: list[tuple[str, str]]) -> None:
+    """Raise an ``options`` mapping's ``(key, message)`` problems as one error the loader
+    splits again, so that each is reported on its own key's line."""
+    if problems:
+        raise PydanticCustomError(
+            "profile_options",
+            "{summary}",
+            {
+                "summary": "; ".join(f"options.{k}: {m}" for k, m in problems),
+                "problems": problems,
+            },
+        )
+
+
 class BusConfig(StrictModel):
     """One CAN bus: the project's ``aa55`` adapter, or any python-can interface."""
 
@@ -308,6 +328,10 @@ class BusConfig(StrictModel):
     """aa55 only: least time between two reads of the adapter ("auto": none while the line is
     lightly used, up to 8 ms while it is busy, e.g. under a foreign node's flood)."""
     max_load: Float = Field(0.35, gt=0, le=1)
+    options: dict[str, Any] = Field(default_factory=dict)
+    """Passed to the python-can interface as keyword arguments (slcan's ``tty_baudrate``, a
+    PCAN's ``fd``...), checked against what that interface declares (see
+    :mod:`mavservo.transport.interface_options`)."""
     node: dict[str, dict[str, Any]] = Field(default_factory=dict)
     """The bridge's own node on this bus, per family that has one, keyed by profile name
     (``node: {dronecan: {node_id: 100}}``); checked by that profile's ``NodeOptions``."""
@@ -332,6 +356,34 @@ class BusConfig(StrictModel):
         if problems:
             raise ValueError("; ".join(problems))
         return value
+
+    @field_validator("interface")
+    @classmethod
+    def _known_interface(cls, interface: str) -> str:
+        try:
+            interface_options(interface)
+        except UnknownInterfaceError as exc:
+            raise ValueError(str(exc)) from None
+        return interface
+
+    @field_validator("channel")
+    @classmethod
+    def _simulation_exists(cls, channel: str | int, info: ValidationInfo) -> str | int:
+        interface = info.data.get("interface")
+        simulated = interface is None or interface in SIMULATED_INTERFACES
+        if channel == SIM_CHANNEL and not simulated:
+            names = " and ".join(SIMULATED_INTERFACES)
+            raise ValueError(
+                f"channel 'sim' is the built-in simulation, which only {names} have; give "
+                f"the {interface} device (e.g. can0, PCAN_USBBUS1)"
+            )
+        return channel
+
+    @model_validator(mode="after")
+    def _options_accepted(self) -> BusConfig:
+        """Each problem on its own key's line (the loader expands ``profile_options``)."""
+        raise_option_problems(option_problems(self.interface, self.options))
+        return self
 
     @field_validator("bitrate")
     @classmethod
@@ -421,16 +473,7 @@ class ServoConfig(StrictModel):
 
     @model_validator(mode="after")
     def _options_valid(self) -> ServoConfig:
-        problems = options_problems(self.profile, self.options)
-        if problems:
-            raise PydanticCustomError(
-                "profile_options",
-                "{summary}",
-                {
-                    "summary": "; ".join(f"options.{k}: {m}" for k, m in problems),
-                    "problems": problems,
-                },
-            )
+        raise_option_problems(options_problems(self.profile, self.options))
         return self
 
     def profile_options(self) -> ProfileOptions:
@@ -728,6 +771,19 @@ class SimServoConfig(StrictModel):
 
     physics: dict[str, SimValue] = {}
     faults: dict[str, SimValue] = {}
+    #: Injected wiring mistakes (``mavservo doctor`` finds them): the id, the protocol (a
+    #: profile name: ``cubemars`` for a CubeMars left in servo mode under a ``cubemars_mit``
+    #: config) and the options (``protocol: mit``) the simulated servo really has.
+    can_id: Int | None = Field(None, ge=0, le=0x1FFFFFFF)
+    profile: str | None = None
+    options: dict[str, Any] | None = None
+
+    @field_validator("profile")
+    @classmethod
+    def _wired_profile(cls, value: str | None) -> str | None:
+        if value is not None:
+            get_profile(value)
+        return value
 
     @field_validator("physics")
     @classmethod
@@ -755,6 +811,9 @@ class SimulationConfig(StrictModel):
 
     autopilot: SimAutopilotConfig = SimAutopilotConfig()
     servos: dict[str, SimServoConfig] = {}
+    #: The bitrate the simulated servos of a bus really run at, by bus name (an injected
+    #: wrong-bitrate mistake: the adapter is set to the bus's ``bitrate``, they to this).
+    bus_bitrates: dict[str, Annotated[Int, Field(gt=0)]] = {}
 
 
 # --------------------------------------------------------------------------------------- logging
@@ -767,6 +826,10 @@ class LoggingConfig(StrictModel):
     #: Both by default, as the README promises: ASC for reading by eye and diffing, BLF for
     #: exact timestamps and CAN tools (a config without ``logging:`` wrote only ASC).
     can_formats: list[Literal["asc", "blf", "csv", "log", "trc"]] = ["asc", "blf"]
+    #: ``all``: every frame the adapter delivers (foreign nodes, frames no profile accepts,
+    #: error frames where the interface reports them) and every frame sent; ``servos``: the
+    #: frames sent and those matched to a configured servo (the logs before issue 29).
+    can_frames: Literal["all", "servos"] = "all"
     rotate_mb: Float | None = Field(50.0, gt=0)
     #: Every file of a run together stops growing here (the run log said nothing and filled
     #: 104 MB in 25 minutes, only the CAN logs rotated); 1 GiB is ~4 h of the built-in sim.

@@ -10,7 +10,8 @@ a slow disk costs log lines, never command slots. The counts land in ``metrics.j
 Directory layout (see ``docs/logs.md``)::
 
     run.json         header: versions, config path, start wall time, monotonic->wall offset, buses
-    can.asc/.blf     every TX and RX CAN frame (python-can writers, rotated by size)
+    can.asc/.blf     every CAN frame sent and every one the adapter delivered (``can_frames:
+                     all``; ``servos``: only the servos'), python-can writers, rotated
     rejections.log   decoder rejections with the offending bytes
     trace.csv        setpoints and decoded servo states, for the report's figures
     latency.csv      one row per command, stage by stage (mavservo.records.latency)
@@ -96,10 +97,18 @@ _ABANDON_JOIN_S = 2.0  # the writer polls every _POLL_S; nothing is queued befor
 log = logging.getLogger(__name__)
 
 # Event codes on the queue (small ints keep the tuples cheap to build on the caller's thread).
-_TX, _RX, _SETPOINT, _LOST, _REJECT, _MAV_IN, _MAV_OUT, _LATENCY, _HEALTH = range(9)
+#: Events the writer handles between two hand-overs of the interpreter lock (~1.5 ms of
+#: ASC + BLF work at ~24 us a frame).
+_YIELD_EVERY = 64
+
+(_TX, _RX, _SETPOINT, _LOST, _REJECT, _MAV_IN, _MAV_OUT, _LATENCY, _HEALTH, _BUS_RX, _STATE) = (
+    range(11)
+)
 _CATEGORY = {
     _TX: "can",
     _RX: "can",
+    _BUS_RX: "can",
+    _STATE: "trace",
     _SETPOINT: "trace",
     _LOST: "trace",
     _REJECT: "rejections",
@@ -414,7 +423,14 @@ class RunLog:
         max_run_bytes: int = DEFAULT_MAX_RUN_BYTES,
         on_problem: Callable[[str], None] | None = None,
         fallback_dir: str | os.PathLike[str] | None = None,
+        can_frames: str = "servos",
     ) -> None:
+        if can_frames not in ("all", "servos"):
+            raise ValueError(f"can_frames must be 'all' or 'servos', not {can_frames!r}")
+        #: ``all``: the CAN logs take every received frame from :meth:`on_bus_frame` (the
+        #: bus's tap) and the scheduler's ``on_rx`` adds only the decoded state to the trace;
+        #: ``servos``: only the frames the scheduler matched to a servo (``on_rx``).
+        self.can_frames = can_frames
         self.directory = Path(directory)
         self.directory.mkdir(mode=DIR_MODE, parents=True, exist_ok=True)
         self.formats = tuple(f.lower().lstrip(".") for f in formats)
@@ -562,18 +578,7 @@ class RunLog:
         self, bus: str, msg: can.Message, t: float, kind: str, servo: str | None, seq: int | None
     ) -> None:
         self.latency.on_tx(bus, msg, t, kind, servo, seq)
-        self._put(
-            (
-                _TX,
-                bus,
-                msg.arbitration_id,
-                msg.is_extended_id,
-                msg.is_remote_frame,
-                msg.dlc,
-                bytes(msg.data),
-                t,
-            )
-        )
+        self._put((_TX, bus, *_frame_fields(msg), t))
 
     def on_written(self, bus: str, t: float, kind: str, servo: str | None, seq: int | None) -> None:
         """Every command of a write, packed transfers included: the latency's write mark (the
@@ -584,20 +589,16 @@ class RunLog:
         self, bus: str, msg: can.Message, t: float, servo: str | None, state: ServoState | None
     ) -> None:
         self.latency.on_rx(bus, msg, t, servo, state)
-        self._put(
-            (
-                _RX,
-                bus,
-                msg.arbitration_id,
-                msg.is_extended_id,
-                msg.is_remote_frame,
-                msg.dlc,
-                bytes(msg.data),
-                t,
-                servo,
-                state,
-            )
-        )
+        if self.can_frames == "all":  # the frame itself came through on_bus_frame
+            if state is not None:
+                self._put((_STATE, servo, state, t))
+            return
+        self._put((_RX, bus, *_frame_fields(msg), t, servo, state))
+
+    def on_bus_frame(self, bus: str, msg: can.Message, t: float) -> None:
+        """Any frame the adapter delivered at ``t`` (a servo's, a foreign node's, one no
+        profile accepts, an error frame): into the CAN logs when ``can_frames`` is ``all``."""
+        self._put((_BUS_RX, bus, *_frame_fields(msg), t, msg.is_error_frame))
 
     def on_lost(self, bus: str, servo: str | None, t: float) -> None:
         self.latency.on_lost(bus, servo, t)
@@ -748,7 +749,14 @@ class RunLog:
         last_flush = time.monotonic()
         while True:
             stopping = self._stopping.is_set()  # read before draining: nothing is left behind
+            burst = 0
             while self._queue:
+                burst += 1
+                if burst % _YIELD_EVERY == 0:
+                    # hand the interpreter lock over: a drain of thousands of frames (every
+                    # frame of a busy bus) would otherwise hold it a whole switch interval
+                    # (5 ms) while the scheduler waits to write its command slot
+                    time.sleep(0)
                 item = self._queue.popleft()
                 if self.capped:
                     self.dropped["cap"] += 1
@@ -775,8 +783,11 @@ class RunLog:
 
     def _write(self, item: tuple[Any, ...]) -> None:
         code = item[0]
-        if code in (_TX, _RX):
+        if code in (_TX, _RX, _BUS_RX):
             self._write_frame(item)
+        elif code == _STATE:
+            _, servo, state, t = item
+            self._write_state(servo, state, t)
         elif code == _SETPOINT:
             _, servo, angle, t = item
             self._last_setpoint[servo] = angle
@@ -817,7 +828,8 @@ class RunLog:
             is_remote_frame=remote,
             dlc=dlc,
             data=data,
-            is_rx=code == _RX,
+            is_rx=code != _TX,
+            is_error_frame=code == _BUS_RX and item[8],
             channel=self._bus_entry(bus)["channel"],
             check=False,
         )
@@ -829,20 +841,24 @@ class RunLog:
             except OSError as exc:
                 self._file_failed(Path(logger.base_filename).name, exc)
         if code == _RX and item[9] is not None:
-            servo, state = item[8], item[9]
-            self._csv["trace"].writerow(
-                [
-                    f"{t:.6f}",
-                    servo or "",
-                    "state",
-                    _num(self._last_setpoint.get(servo)),
-                    _num(state.position_deg),
-                    _num(state.velocity_dps),
-                    _num(state.current_a),
-                    _num(state.temperature_c),
-                    _faults(state.faults),
-                ]
-            )
+            self._write_state(item[8], item[9], t)
+
+    def _write_state(self, servo: str | None, state: ServoState, t: float) -> None:
+        """A decoded servo state as a ``trace.csv`` row."""
+        setpoint = self._last_setpoint.get(servo) if servo is not None else None
+        self._csv["trace"].writerow(
+            [
+                f"{t:.6f}",
+                servo or "",
+                "state",
+                _num(setpoint),
+                _num(state.position_deg),
+                _num(state.velocity_dps),
+                _num(state.current_a),
+                _num(state.temperature_c),
+                _faults(state.faults),
+            ]
+        )
 
     # -- header and metrics ----------------------------------------------------------------
 
@@ -899,6 +915,11 @@ class RunLog:
             return
         self._outcome["metrics_path"] = None
         self._report("metrics", f"{METRICS_FILE} could not be written: {'; '.join(errors)}")
+
+
+def _frame_fields(msg: can.Message) -> tuple[int, bool, bool, int, bytes]:
+    """What the CAN logs keep of a frame, copied (the caller may reuse its message)."""
+    return (msg.arbitration_id, msg.is_extended_id, msg.is_remote_frame, msg.dlc, bytes(msg.data))
 
 
 def _num(value: Any) -> str:

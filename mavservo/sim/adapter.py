@@ -6,11 +6,8 @@ with the project's codec, carries the frames over :class:`~mavservo.sim.canbus.S
 simulated servos, and writes their replies back in AA-55. Any AA-55 client works against it,
 python-can's own ``seeedstudio`` interface included.
 
-The port is published as a stable symlink (``<dir>/ttyUSBsim0`` -> ``/dev/pts/N``) so that
-"pulling the USB cable" (:meth:`AdapterEmulator.unplug`: close the pty, remove the link) and
-"plugging it back" (:meth:`AdapterEmulator.replug`: a new pty, the link re-pointed) look to the
-host the way a real hot-plug does. Line corruption (bit flips, dropped bytes, garbage bursts) is
-injected on the serial side, seeded.
+The port, hot-plug and line corruption are :class:`~mavservo.sim.pty_adapter.PtyAdapter`'s,
+shared with the simulated slcan adapter.
 
 Modes follow a CAN controller's: ``normal``; ``loopback`` (frames from the host are echoed back
 to it and still transmitted, bus traffic is not received); ``silent`` (listen only: nothing is
@@ -20,130 +17,28 @@ transmitted); ``loopback_silent`` (echo only). The filter accepts a received fra
 
 from __future__ import annotations
 
-import contextlib
-import errno
-import os
-import random
-import select
-import tempfile
-import threading
 import time
-import tty
-from collections import deque
-from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass, fields
+from collections.abc import Callable, Iterable
 from typing import Any
 
 import can
 
-from mavservo.threads import BackgroundLoop
 from mavservo.transport.aa55 import codec as aa55
 
-from .canbus import SimCanBus
+from .pty_adapter import DIRECTIONS, LagMeter, LineCorrupter, LineFaults, PtyAdapter
 from .servo import SimServo
 
-_MAX_WAIT_S = 0.002
+__all__ = [
+    "DIRECTIONS",
+    "AdapterEmulator",
+    "LagMeter",
+    "LineCorrupter",
+    "LineFaults",
+    "host_decoder",
+]
+
 _IDLE_FLUSH_S = 0.005
 """Line idle this long with a partial candidate pending: it was a false start or truncated."""
-
-DIRECTIONS = ("to_host", "to_adapter", "both")
-
-
-@dataclass
-class LineFaults:
-    """Corruption of the serial line between host and adapter (seeded, per direction)."""
-
-    flip_prob: float = 0.0
-    """Per byte: probability one random bit is flipped."""
-    drop_byte_prob: float = 0.0
-    """Per byte: probability the byte is lost."""
-    burst_prob: float = 0.0
-    """Per write: probability a burst of random garbage is inserted at a random place."""
-    burst_len: int = 8
-    direction: str = "to_host"
-    """Which way the corruption applies: ``to_host``, ``to_adapter`` or ``both``."""
-
-    def __post_init__(self) -> None:
-        if self.direction not in DIRECTIONS:
-            raise ValueError(f"line fault direction must be one of {DIRECTIONS}")
-
-    @classmethod
-    def from_dict(cls, values: Mapping[str, Any] | None) -> LineFaults:
-        values = dict(values or {})
-        unknown = sorted(set(values) - {f.name for f in fields(cls)})
-        if unknown:
-            raise ValueError(f"unknown line fault option(s) {unknown}")
-        return cls(**values)
-
-    @property
-    def active(self) -> bool:
-        return bool(self.flip_prob or self.drop_byte_prob or self.burst_prob)
-
-
-class LineCorrupter:
-    """Applies :class:`LineFaults` to byte chunks, reproducibly for a given seed."""
-
-    def __init__(self, faults: LineFaults, seed: int = 0) -> None:
-        self.faults = faults
-        self._rng = random.Random(seed)
-        self.flipped = 0
-        self.dropped = 0
-        self.bursts = 0
-
-    def applies_to(self, direction: str) -> bool:
-        return self.faults.active and self.faults.direction in (direction, "both")
-
-    def corrupt(self, data: bytes) -> bytes:
-        f, rng = self.faults, self._rng
-        out = bytearray()
-        for byte in data:
-            if f.drop_byte_prob and rng.random() < f.drop_byte_prob:
-                self.dropped += 1
-                continue
-            if f.flip_prob and rng.random() < f.flip_prob:
-                byte ^= 1 << rng.randrange(8)
-                self.flipped += 1
-            out.append(byte)
-        if f.burst_prob and rng.random() < f.burst_prob:
-            at = rng.randrange(len(out) + 1)
-            out[at:at] = bytes(rng.randrange(256) for _ in range(f.burst_len))
-            self.bursts += 1
-        return bytes(out)
-
-
-class LagMeter:
-    """How late the adapter thread handles bus events (a lagging simulator, not the host).
-
-    A servo reply is due on the wire at a known time; if the thread gets there ``lag`` seconds
-    later, the host sees the reply that much later. Spikes above ``spike_s`` are kept (bounded)
-    with their monotonic time so a bench can line them up with the host's lost replies.
-    """
-
-    def __init__(self, spike_s: float = 0.005, keep: int = 1000) -> None:
-        self.spike_s = spike_s
-        self.max_s = 0.0
-        self.samples = 0
-        self.spikes: deque[tuple[float, float]] = deque(maxlen=keep)
-        self.spike_count = 0
-
-    def add(self, now: float, lag: float) -> None:
-        self.samples += 1
-        self.max_s = max(self.max_s, lag)
-        if lag > self.spike_s:
-            self.spike_count += 1
-            self.spikes.append((now, lag))
-
-    def take(self) -> dict[str, Any]:
-        """The figures since the last call, then start again."""
-        out = {
-            "max_s": self.max_s,
-            "samples": self.samples,
-            "spikes": self.spike_count,
-            "spike_times": list(self.spikes),
-        }
-        self.max_s, self.samples, self.spike_count = 0.0, 0, 0
-        self.spikes.clear()
-        return out
 
 
 def host_decoder(protocol: aa55.ProtocolName) -> aa55.Decoder:
@@ -156,13 +51,15 @@ def host_decoder(protocol: aa55.ProtocolName) -> aa55.Decoder:
     return aa55.Decoder(protocol, resolve_overlaps=False)
 
 
-class AdapterEmulator:
+class AdapterEmulator(PtyAdapter):
     """An AA-55 USB-CAN adapter on a pty, carrying frames to simulated servos.
 
     ``path`` is what a host opens (the stable symlink). Until the host sends a settings frame
     the adapter runs with the constructor's ``bitrate`` and ``protocol``, as a real one keeps
     its last configuration.
     """
+
+    thread_name = "sim-usbcan-adapter"
 
     def __init__(
         self,
@@ -174,157 +71,35 @@ class AdapterEmulator:
         link_path: str | None = None,
         seed: int = 0,
         clock: Callable[[], float] = time.monotonic,
+        nodes_bitrate: int | None = None,
     ) -> None:
-        self.canbus = SimCanBus(servos, bitrate)
-        self.clock = clock
         self.decoder = host_decoder(protocol)
         self.protocol: aa55.ProtocolName = protocol
         self.mode = "normal"
         self.filter_id = 0
         self.mask = 0
         self.settings: aa55.AdapterSettings | None = None
-        self.line = LineCorrupter(line_faults or LineFaults(), seed)
-        self._own_dir = None if link_path else tempfile.mkdtemp(prefix="mavservo-sim-")
-        self.path = link_path or os.path.join(self._own_dir or "", "ttyUSBsim0")
-        self._master: int | None = None
-        self._slave: int | None = None
-        self.device: str | None = None
-        """The /dev/pts/N the link points to now (None while unplugged)."""
-        self._lock = threading.RLock()
-        self._loop = BackgroundLoop(self._run, name="sim-usbcan-adapter")
-        self.error: BaseException | None = None
-
-        self.frames_from_host = 0
-        self.frames_to_host = 0
         self.frames_filtered = 0
         self.settings_received = 0
-        self.bytes_overflowed = 0
-        self.plug_count = 0
-        self.lag = LagMeter()
+        super().__init__(
+            servos,
+            bitrate=bitrate,
+            line_faults=line_faults,
+            link_path=link_path,
+            seed=seed,
+            clock=clock,
+            nodes_bitrate=nodes_bitrate,
+        )
 
-    # -- lifecycle ---------------------------------------------------------------------------
+    def _on_plug(self) -> None:
+        self.decoder = host_decoder(self.protocol)
 
-    @property
-    def servos(self) -> list[SimServo]:
-        return self.canbus.servos
-
-    @property
-    def bitrate(self) -> int:
-        return self.canbus.bitrate
-
-    @property
-    def plugged(self) -> bool:
-        return self._master is not None
-
-    def start(self) -> AdapterEmulator:
-        """Create the port and run the adapter in a background thread."""
-        self.replug()
-        self._loop.start()
-        return self
-
-    def stop(self, timeout: float = 2.0) -> None:
-        self._loop.stop(timeout)
-        self.unplug()
-        if self._own_dir is not None:
-            with contextlib.suppress(OSError):
-                os.rmdir(self._own_dir)
-
-    def __enter__(self) -> AdapterEmulator:
-        # ``with X(...).start() as x`` is the usual spelling: a second start would run a second
-        # loop on the same state
-        return self if self._loop.started else self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
-
-    def unplug(self) -> None:
-        """Pull the USB cable: the pty goes away and the link disappears."""
-        with self._lock:
-            for fd in (self._master, self._slave):
-                if fd is not None:
-                    with contextlib.suppress(OSError):
-                        os.close(fd)
-            self._master = self._slave = None
-            self.device = None
-            with contextlib.suppress(FileNotFoundError):
-                os.unlink(self.path)
-
-    def replug(self) -> None:
-        """Plug the cable (back) in: a fresh pty, the link re-pointed at it, settings kept."""
-        with self._lock:
-            if self._master is not None:
-                self.unplug()
-            master, slave = os.openpty()
-            tty.setraw(slave)
-            os.set_blocking(master, False)
-            self._master, self._slave = master, slave
-            self.device = os.ttyname(slave)
-            temporary = f"{self.path}.{os.getpid()}.tmp"
-            with contextlib.suppress(FileNotFoundError):
-                os.unlink(temporary)
-            os.symlink(self.device, temporary)
-            os.replace(temporary, self.path)
-            self.decoder = host_decoder(self.protocol)
-            self.plug_count += 1
-
-    # -- the adapter ---------------------------------------------------------------------------
-
-    def inject(self, frames: Iterable[can.Message]) -> None:
-        """Frames from a foreign node on the bus (an attacker, a second master), queued now:
-        the bus carries them like any node's and the host receives them."""
-        with self._lock:
-            now = self.clock()
-            for msg in frames:
-                self.canbus.inject(msg, now)
-
-    def load(self, window: float = 1.0) -> float:
-        with self._lock:
-            return self.canbus.load(self.clock(), window)
-
-    def _run(self) -> None:
-        last_rx = self.clock()
-        try:
-            while not self._loop.stopping:
-                with self._lock:
-                    master = self._master
-                    next_event = self.canbus.next_event_time()
-                now = self.clock()
-                wait = _MAX_WAIT_S if next_event is None else next_event - now
-                wait = max(0.0, min(_MAX_WAIT_S, wait))
-                if master is None:
-                    self._loop.wait(wait)
-                    data = b""
-                else:
-                    data = self._read(master, wait)
-                with self._lock:
-                    now = self.clock()
-                    if data:
-                        last_rx = now
-                        self._from_host(data, now)
-                    elif self.decoder.pending and now - last_rx > _IDLE_FLUSH_S:
-                        self._handle_items(self.decoder.flush(), now)
-                    due = self.canbus.next_event_time()
-                    if due is not None and due <= now:
-                        self.lag.add(now, now - due)
-                    self._to_host(self.canbus.run_until(now))
-        except BaseException as error:  # kept for tests and the CLI to report
-            self.error = error
-
-    def _read(self, master: int, wait: float) -> bytes:
-        try:
-            ready, _, _ = select.select([master], [], [], wait)
-            if ready:
-                return os.read(master, 4096)
-        except (OSError, ValueError) as error:
-            # EIO: no process holds the slave open; EBADF: unplugged under us.
-            if isinstance(error, OSError) and error.errno not in (errno.EIO, errno.EBADF):
-                raise
-            self._loop.wait(wait)
-        return b""
+    def _on_idle(self, now: float, idle_s: float) -> None:
+        if self.decoder.pending and idle_s > _IDLE_FLUSH_S:
+            self._handle_items(self.decoder.flush(), now)
 
     def _from_host(self, data: bytes, now: float) -> None:
-        if self.line.applies_to("to_adapter"):
-            data = self.line.corrupt(data)
+        data = self._line_to_adapter(data)
         self._handle_items(self.decoder.feed(data, now), now, data)
 
     def _handle_items(self, items: list[Any], now: float, chunk: bytes = b"") -> None:
@@ -382,17 +157,3 @@ class AdapterEmulator:
 
     def _write_frame(self, msg: can.Message) -> None:
         self._write(aa55.encode(msg, self.protocol), 1)
-
-    def _write(self, data: bytes, frames: int) -> None:
-        if self._master is None:
-            return
-        if self.line.applies_to("to_host"):
-            data = self.line.corrupt(data)
-        self.frames_to_host += frames
-        try:
-            written = os.write(self._master, data)
-        except BlockingIOError:
-            written = 0
-        except OSError:
-            return
-        self.bytes_overflowed += len(data) - written

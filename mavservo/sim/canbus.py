@@ -33,9 +33,14 @@ from .servo import SimServo
 
 HOST = None
 """Source marker for frames submitted by the host side."""
-FOREIGN = object()
-"""Source marker for frames of a node outside the simulation (an attacker, a second master):
-the bus carries them to the host, no simulated servo answers them."""
+
+
+class ForeignNode:
+    """Source marker of frames from a node that is neither the host nor a simulated servo (an
+    autopilot's own traffic on a shared bus): they reach the host, no servo answers them."""
+
+
+FOREIGN = ForeignNode()
 
 
 @dataclass(order=True)
@@ -43,7 +48,7 @@ class _Pending:
     ready: float
     seq: int
     msg: can.Message
-    source: SimServo | object | None
+    source: SimServo | ForeignNode | None
 
 
 @dataclass
@@ -118,11 +123,21 @@ class SimCanBus:
         self._host_waiting = 0
         self.host_dropped = 0
         """Frames from the host dropped because that queue was full (bus never free)."""
+        self.nodes_bitrate: int | None = None
+        """The rate the servos' controllers run at (None: whatever ``bitrate`` is). When the
+        host's adapter is set to another rate, neither side decodes the other: the host's
+        frames reach no servo and the servos' frames reach the host as nothing (an injected
+        wrong-bitrate mistake; a real controller sees error frames, which AA-55 and LAWICEL
+        adapters do not pass on)."""
+        self.bitrate_mismatches = 0
+        """Frames lost to that mismatch, either way."""
         self.frames = 0
         self.busy_s = 0.0
         self._busy: deque[tuple[float, float]] = deque(maxlen=load_history)
 
-    def submit(self, msg: can.Message, ready: float, source: SimServo | None = HOST) -> None:
+    def submit(
+        self, msg: can.Message, ready: float, source: SimServo | ForeignNode | None = HOST
+    ) -> None:
         """Queue ``msg`` for transmission; it may start no earlier than ``ready``."""
         if source is HOST:
             if self._host_waiting >= self.host_queue:
@@ -254,6 +269,9 @@ class SimCanBus:
             frame.deliver(end, to_host, finished=True)
             return
         self.frames += 1
+        if self.nodes_bitrate is not None and self.nodes_bitrate != self.bitrate:
+            self.bitrate_mismatches += 1
+            return
         if frame.source is HOST:
             for servo in self.servos:
                 for due, reply in servo.receive(frame.msg, end):

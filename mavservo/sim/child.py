@@ -43,7 +43,7 @@ import can
 from mavservo.transport.aa55 import codec as aa55
 
 from .adapter import AdapterEmulator, LineCorrupter, LineFaults, host_decoder
-from .canbus import HOST
+from .canbus import HOST, ForeignNode
 from .servo import SimServo
 
 
@@ -208,7 +208,9 @@ class _Arrivals:
             self._remember_sent(data)
             from_host_original(data, now)
 
-        def submit(msg: can.Message, ready: float, source: SimServo | None = HOST) -> None:
+        def submit(
+            msg: can.Message, ready: float, source: SimServo | ForeignNode | None = HOST
+        ) -> None:
             if source is HOST:
                 key = frame_key(msg)
                 self.arrived += 1

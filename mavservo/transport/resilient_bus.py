@@ -22,17 +22,25 @@ from typing import Any
 
 import can
 
+from mavservo.transport.counters import TransportCounters, transport_stats
+
 log = logging.getLogger(__name__)
 
 #: At most one "reopen failed" warning per this many seconds of one outage (the first at once).
 REOPEN_WARNING_INTERVAL_S = 30.0
 
 
-class ResilientBus(can.BusABC):
+class ResilientBus(can.BusABC, TransportCounters):
     """Wraps ``factory()`` (which opens the real bus) with reconnect-with-backoff.
 
     ``on_event(text)`` is called on loss and on recovery (the bridge turns it into STATUSTEXT).
-    ``initial_backoff_s`` doubles per failed attempt up to ``max_backoff_s``.
+    ``initial_backoff_s`` doubles per failed attempt up to ``max_backoff_s``. ``path``: what
+    the factory opens, named in warnings (default: the opened bus's ``channel_info``).
+    ``on_frame(msg, t)``: every frame the adapter delivers, with the monotonic time it was
+    taken, before any filtering (the run log's "every frame"); called on the receiving
+    thread, must not block. The inner bus is read only through python-can's documented
+    ``BusABC`` attributes and the :class:`TransportCounters` contract, so a foreign bus's extra
+    attributes (a ``stats`` that is not a method) are never touched.
     """
 
     def __init__(
@@ -44,6 +52,8 @@ class ResilientBus(can.BusABC):
         initial_backoff_s: float = 0.1,
         max_backoff_s: float = 2.0,
         clock: Callable[[], float] = time.monotonic,
+        path: str | None = None,
+        on_frame: Callable[[can.Message, float], None] | None = None,
     ) -> None:
         self._factory = factory
         self.name = name
@@ -54,7 +64,8 @@ class ResilientBus(can.BusABC):
         self._lock = threading.Lock()
         self._bus: can.BusABC | None = factory()  # the first open must work: errors surface
         #: what the factory opens (the serial device of an AA-55 adapter), named in warnings
-        self.path = _device_name(self._bus, name)
+        self.path = path or str(self._bus.channel_info or name)
+        self.on_frame = on_frame
         self.failed_reopens = 0  # in the current outage
         self._reopen_warned_at: float | None = None
         self._backoff = initial_backoff_s
@@ -63,9 +74,9 @@ class ResilientBus(can.BusABC):
         self.reconnects = 0
         self._retired: dict[str, Any] = {}  # counters of the buses closed so far
         self.down_since: float | None = None
-        self.channel_info = f"{getattr(self._bus, 'channel_info', name)} (auto-reconnect)"
-        self._protocol = getattr(self._bus, "protocol", can.CanProtocol.CAN_20)
-        super().__init__(channel=getattr(self._bus, "channel", name))
+        self.channel_info = f"{self._bus.channel_info or name} (auto-reconnect)"
+        self._protocol = self._bus.protocol
+        super().__init__(channel=self.path)
 
     @property
     def connected(self) -> bool:
@@ -97,10 +108,14 @@ class ResilientBus(can.BusABC):
                 time.sleep(max(0.0, min(wait, self._next_attempt - self._clock(), 0.1)))
                 return None, False
         try:
-            return bus.recv(timeout), False
+            msg = bus.recv(timeout)
         except (can.CanOperationError, OSError) as exc:
             self._lost(bus, exc)
             return None, False
+        tap = self.on_frame
+        if msg is not None and tap is not None:
+            tap(msg, self._clock())
+        return msg, False
 
     def _lost(self, bus: can.BusABC, exc: BaseException) -> None:
         with self._lock:
@@ -113,8 +128,7 @@ class ResilientBus(can.BusABC):
             self._next_attempt = self.down_since + self._backoff
             self.failed_reopens = 0
             self._reopen_warned_at = None
-        if hasattr(bus, "stats"):
-            _add_counts(self._retired, bus.stats())
+        _add_counts(self._retired, transport_stats(bus))
         try:
             bus.shutdown()
         except Exception as close_exc:  # a vanished device may fail to close
@@ -164,8 +178,8 @@ class ResilientBus(can.BusABC):
         its own from zero), plus the link's own."""
         inner = self._bus
         totals = _add_counts({}, self._retired)
-        if inner is not None and hasattr(inner, "stats"):
-            _add_counts(totals, inner.stats())
+        if inner is not None:
+            _add_counts(totals, transport_stats(inner))
         return {
             **totals,
             "connected": inner is not None,
@@ -178,15 +192,6 @@ class ResilientBus(can.BusABC):
         bus, self._bus = self._bus, None
         if bus is not None:
             bus.shutdown()
-
-
-def _device_name(bus: can.BusABC, default: str) -> str:
-    """The serial path a bus was opened on (AA-55), else its ``channel_info`` (other buses
-    keep objects, not names, in ``channel``)."""
-    channel = getattr(bus, "channel", None)
-    if isinstance(channel, str):
-        return channel
-    return str(getattr(bus, "channel_info", default))
 
 
 def _add_counts(total: dict[str, Any], more: dict[str, Any]) -> dict[str, Any]:

@@ -26,6 +26,7 @@ import serial
 
 from mavservo.errors import DeviceMissingError, EndpointBusyError
 from mavservo.transport.aa55 import codec as aa55
+from mavservo.transport.counters import TransportCounters
 
 log = logging.getLogger(__name__)
 
@@ -140,7 +141,7 @@ def _open_error(channel: str, exc: BaseException) -> can.CanInitializationError:
     return can.CanInitializationError(f"aa55: cannot open {channel}: {exc}")
 
 
-class AA55Bus(can.BusABC):
+class AA55Bus(can.BusABC, TransportCounters):
     """A CAN bus behind an AA-55 USB-CAN adapter on a serial port.
 
     :param channel: serial device (``/dev/ttyUSB0``, ``COM3``) or any pyserial URL.

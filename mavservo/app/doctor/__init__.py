@@ -1,0 +1,302 @@
+"""``mavservo doctor [CONFIG]``: a read-only diagnosis of the buses a config names.
+
+For each bus it listens (listen-only where the adapter can), finds the bitrate with valid
+traffic, says who is on the bus, probes each configured servo with requests that change nothing,
+scans a family's id range with ``--scan FAMILY``, names the likely cause and fix of every
+silent servo, and prints a ``servos:`` block that ``mavservo check`` accepts. Every frame it
+sent and heard goes to ``doctor-<time>.asc`` in the config's log directory, so what it did can
+be checked afterwards. Buses on ``channel: sim`` are diagnosed on their simulation, with the
+mistakes ``simulation:`` injects. See docs/doctor.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import can
+import yaml
+
+from mavservo.config import Config, ConfigError, load_config
+from mavservo.config.endpoints import bitrate_text, describe_bus
+from mavservo.config.loader import default_config_path
+from mavservo.servos import UnknownProfileError, get_profile
+from mavservo.sim.bus_simulation import simulator_factory
+from mavservo.transport.bus_factory import (
+    BITRATE_SET_OUTSIDE,
+    SIM_CHANNEL,
+    BusRequest,
+    OpenedBus,
+    open_bus,
+)
+
+from .session import BusDoctor, BusFindings
+from .verdict import Verdict, extra_entries, judge
+
+EXIT_OK, EXIT_PROBLEMS, EXIT_INVALID = 0, 1, 2
+
+
+def _id_range(text: str) -> range:
+    low, _, high = text.partition("-")
+    try:
+        start, end = int(low, 0), int(high or low, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an id range like 1-32") from None
+    if not 0 <= start <= end <= 0x1FFFFFFF:
+        raise argparse.ArgumentTypeError(f"{text!r}: ids must rise, from 0")
+    return range(start, end + 1)
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="mavservo doctor",
+        description="Read-only diagnosis of a config's CAN buses: bitrate, who is on the bus, "
+        "why a servo is silent, and a servos: block that works.",
+    )
+    parser.add_argument("config", nargs="?", help="config file (default: the built-in one)")
+    parser.add_argument(
+        "--scan",
+        action="append",
+        default=[],
+        metavar="FAMILY",
+        help="also probe FAMILY's whole id range (safe requests only); repeatable",
+    )
+    parser.add_argument("--ids", type=_id_range, help="the id range of --scan, e.g. 1-32")
+    parser.add_argument(
+        "--allow-enable",
+        action="store_true",
+        help="may send enable frames (then the matching disable) to motors that answer "
+        "nothing else (CubeMars/Robstride in MIT mode); never sent without it",
+    )
+    parser.add_argument(
+        "--listen", type=float, default=1.5, metavar="S", help="seconds of listening per bitrate"
+    )
+    parser.add_argument(
+        "--no-bitrate-search",
+        action="store_true",
+        help="stay at the configured bitrate instead of trying the standard ones",
+    )
+    parser.add_argument("--log-dir", help="where doctor-<time>.asc goes (default: logging.dir)")
+    return parser
+
+
+class FrameLog:
+    """Every frame the doctor sent (TX) and heard (RX), in one ASC file (python-can's writer),
+    the channel numbering the config's buses."""
+
+    def __init__(self, path: Path) -> None:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        self.path = path
+        self._writer = can.ASCWriter(str(path))
+        self.frames = 0
+
+    def record(self, channel: int) -> Callable[[can.Message, bool, int], None]:
+        def write(msg: can.Message, rx: bool, bitrate: int) -> None:
+            copy = can.Message(
+                timestamp=time.time(),
+                arbitration_id=msg.arbitration_id,
+                is_extended_id=msg.is_extended_id,
+                is_remote_frame=msg.is_remote_frame,
+                is_error_frame=msg.is_error_frame,
+                dlc=msg.dlc,
+                data=msg.data,
+                is_rx=rx,
+                channel=channel,
+                check=False,
+            )
+            self._writer.on_message_received(copy)
+            self.frames += 1
+
+        return write
+
+    def close(self) -> None:
+        self._writer.stop()
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    path = Path(args.config) if args.config else default_config_path()
+    try:
+        config = load_config(path)
+    except ConfigError as exc:
+        print(f"mavservo doctor: invalid configuration\n{exc}", file=sys.stderr)
+        return EXIT_INVALID
+    if args.ids is not None and not args.scan:
+        print("mavservo doctor: --ids goes with --scan FAMILY", file=sys.stderr)
+        return EXIT_INVALID
+    scans: list[tuple[str, range]] = []
+    for family in args.scan:
+        try:
+            cls = get_profile(family)
+        except UnknownProfileError as exc:
+            print(f"mavservo doctor: --scan: {exc}", file=sys.stderr)
+            return EXIT_INVALID
+        scans.append((family, args.ids or range(cls.min_id, cls.max_id + 1)))
+    log_dir = Path(args.log_dir) if args.log_dir else config.logging.dir
+    frame_log = FrameLog(log_dir / f"doctor-{time.strftime('%Y%m%d-%H%M%S')}.asc")
+    print(f"mavservo doctor: {path}; every frame sent and heard: {frame_log.path}")
+    all_ok = True
+    try:
+        for index, bus in enumerate(config.can.buses):
+            findings, verdicts = diagnose_bus(
+                config,
+                index,
+                frame_log,
+                listen_s=args.listen,
+                allow_enable=args.allow_enable,
+                try_bitrates=not args.no_bitrate_search,
+                scans=scans,
+            )
+            all_ok &= print_bus(findings, verdicts)
+            if findings.open_error is None:
+                print_yaml(config, bus.name, findings, verdicts)
+    finally:
+        frame_log.close()
+    return EXIT_OK if all_ok else EXIT_PROBLEMS
+
+
+def diagnose_bus(
+    config: Config,
+    index: int,
+    frame_log: FrameLog,
+    *,
+    listen_s: float,
+    allow_enable: bool,
+    try_bitrates: bool,
+    scans: Sequence[tuple[str, range]] = (),
+) -> tuple[BusFindings, list[Verdict]]:
+    """Run the doctor on ``config``'s bus ``index`` (its simulation for ``channel: sim``)."""
+    bus = config.can.buses[index]
+    servos = [s for s in config.servos if config.bus_of(s).name == bus.name]
+    simulator = None
+    if bus.channel == SIM_CHANNEL:
+        simulator = simulator_factory(config)(bus.name, bus.interface, bus.bitrate)
+
+    def open_request(request: BusRequest) -> OpenedBus:
+        if simulator is not None:
+            request = dataclasses.replace(request, channel=simulator.path)
+        return open_bus(request)
+
+    doctor = BusDoctor(
+        bus,
+        servos,
+        open_request,
+        frame_log.record(index),
+        listen_s=listen_s,
+        allow_enable=allow_enable,
+        try_bitrates=try_bitrates,
+    )
+    try:
+        findings = doctor.run(scans)
+    finally:
+        if simulator is not None:
+            simulator.stop()
+    return findings, judge(findings, servos)
+
+
+def print_bus(findings: BusFindings, verdicts: list[Verdict]) -> bool:
+    """The bus's report; True when the bus and all its servos are as configured."""
+    bus = findings.bus
+    print(f"\nbus {bus.name}: {describe_bus(bus)}")
+    mode = "listen-only" if findings.listen_only else "normal mode (no listen-only on this adapter)"
+    for bitrate, frames in findings.listened.items():
+        errors = findings.error_frames.get(bitrate, 0)
+        print(
+            f"  listened {mode} at {bitrate_text(bitrate)}: {frames} valid frames, "
+            f"{errors} error frames"
+        )
+    for bitrate, why in findings.unsupported.items():
+        print(f"  {bitrate_text(bitrate)}: the adapter refused it ({why})")
+    ok = True
+    rate = findings.working_bitrate
+    if findings.open_error is not None:
+        print(f"  cannot open the adapter: {findings.open_error}")
+        return False
+    if rate is None and bus.interface in BITRATE_SET_OUTSIDE:
+        ok = False
+        link = bus.channel
+        print(
+            f"  no valid traffic and no answer; a {bus.interface} bus gets its bitrate outside "
+            "python-can, so the doctor cannot try others: for SocketCAN try each (`sudo ip link "
+            f"set {link} down; sudo ip link set {link} up type can bitrate 500000`) and run it "
+            f"again; `ip -details -statistics link show {link}` shows bus-off and error counters"
+        )
+    elif rate is None:
+        ok = False
+        print(
+            "  no valid traffic and no answer at any bitrate tried: check power, CAN_H/CAN_L, "
+            "a 120 ohm terminator at each end, and that the adapter is on this bus"
+        )
+    elif rate != bus.bitrate:
+        ok = False
+        print(
+            f"  WRONG BITRATE: nothing at the configured {bitrate_text(bus.bitrate)}, valid "
+            f"traffic at {bitrate_text(rate)}; fix: `bitrate: {rate}` for bus {bus.name} "
+            f"(or set every node to {bitrate_text(bus.bitrate)})"
+        )
+    else:
+        print(f"  bitrate {bitrate_text(rate)}: valid traffic")
+    _print_who(findings)
+    for verdict in verdicts:
+        servo = verdict.servo
+        head = f"  {servo.name:<12} {servo.profile} id {servo.can_id}: "
+        if verdict.ok:
+            print(head + "OK, " + "; ".join(verdict.notes))
+        else:
+            ok = False
+            print(head + verdict.cause)
+            if verdict.fix:
+                print(f"  {'':<12} fix: {verdict.fix}")
+            for note in verdict.notes:
+                print(f"  {'':<12} {note}")
+    if findings.scan_s is not None:
+        print(
+            f"  probed {findings.scanned} ids in {findings.scan_s:.2f} s "
+            f"({findings.sent} requests sent, {findings.enable_sent} enable frames)"
+        )
+    return ok
+
+
+def _print_who(findings: BusFindings) -> None:
+    heard = sorted(
+        {(s.profile, s.can_id, s.how) for s in findings.sightings.values()},
+        key=lambda k: (k[0], k[1]),
+    )
+    if heard:
+        print("  on the bus: " + ", ".join(f"{p} {i} ({how})" for p, i, how in heard))
+    for node, beat in sorted(findings.heartbeats.items()):
+        errors = ", ".join(beat.error_names) or "no errors"
+        print(f"  ODrive node {node}: heartbeat, {beat.state_name}, {errors}")
+    for node, status in sorted(findings.node_statuses.items()):
+        print(
+            f"  DroneCAN node {node}: NodeStatus {status.health}, {status.mode}, "
+            f"up {status.uptime_s} s"
+        )
+    if findings.unknown_ids:
+        ids = ", ".join(
+            f"0x{i:X}{'x' if ext else ''} ({n})"
+            for (i, ext), n in findings.unknown_ids.most_common(8)
+        )
+        print(f"  frames no family reads: {ids}")
+
+
+def print_yaml(
+    config: Config, bus_name: str, findings: BusFindings, verdicts: list[Verdict]
+) -> None:
+    """The corrected ``servos:`` (and ``can:``, when the bitrate was wrong) of this bus."""
+    document: dict[str, Any] = {}
+    bus = findings.bus
+    if findings.working_bitrate is not None and findings.working_bitrate != bus.bitrate:
+        buses = [b.model_dump(mode="json", exclude_unset=True) for b in config.can.buses]
+        for entry in buses:
+            if entry.get("name", "bus0") == bus_name:
+                entry["bitrate"] = findings.working_bitrate
+        document["can"] = {"buses": buses}
+    document["servos"] = [v.entry for v in verdicts] + extra_entries(findings, verdicts)
+    print(f"\n# mavservo doctor: what bus {bus_name} needs (paste into your config)")
+    print(yaml.safe_dump(document, sort_keys=False, default_flow_style=None).rstrip())

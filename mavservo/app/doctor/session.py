@@ -1,0 +1,434 @@
+"""The doctor's work on one bus: listen, find the bitrate, probe, scan, and keep what it saw.
+
+Safe by default: it listens first, listen-only where the adapter has such a mode (AA-55 silent
+mode, LAWICEL ``L``, PCAN passive), at the configured bitrate and then at each standard one
+until valid traffic is heard; it sends only the profiles' telemetry polls (queries that change
+nothing) and the identity reads of :mod:`.families`, and refuses, in :class:`SafeSender`, any
+frame a profile would send to start, release or move its motor. ``--allow-enable`` adds the
+families' enable frames (each followed by the frame that undoes it), for the motors that answer
+nothing else (CubeMars and Robstride in MIT mode).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import time
+from collections import Counter, defaultdict
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import can
+
+from mavservo.config import BusConfig, ServoConfig
+from mavservo.servos import get_profile
+from mavservo.transport.bus_factory import (
+    BITRATE_SET_OUTSIDE,
+    STANDARD_BITRATES,
+    BusRequest,
+    OpenedBus,
+    has_listen_only,
+)
+
+from .families import facts
+from .recognise import (
+    Candidate,
+    Recogniser,
+    announcements,
+    family_variants,
+    make_candidate,
+    options_key,
+)
+from .wire_facts import (
+    NodeStatus,
+    ODriveHeartbeat,
+    actuator_status,
+    damiao_mode,
+    odrive_version,
+    robstride_device_id,
+)
+
+log = logging.getLogger(__name__)
+
+#: How long the replies to one batch of probes are waited for (a servo answers within ~1 ms;
+#: a USB adapter's latency and a loaded host add a few more).
+REPLY_WAIT_S = 0.05
+#: Probes sent before their replies are collected (a scan's batch): at 1 Mbit/s 16 requests
+#: and their replies take ~4 ms of bus time, well inside the wait.
+BATCH = 16
+
+
+class UnsafeFrameError(RuntimeError):
+    """A frame that would start, release or move a motor, without ``--allow-enable``."""
+
+
+class SafeSender:
+    """Sends the doctor's frames, refusing every frame a profile uses to start, release or
+    move a motor (compared whole) unless ``allow_enable``; records all it sends."""
+
+    def __init__(
+        self,
+        bus: can.BusABC,
+        record: Callable[[can.Message, bool], None],
+        forbidden: set[tuple[int, bool, bytes]],
+    ) -> None:
+        self.bus = bus
+        self.record = record
+        self.forbidden = forbidden
+        self.sent = 0
+
+    def send(self, msg: can.Message, *, enabling: bool = False) -> bool:
+        if not enabling and _signature(msg) in self.forbidden:
+            raise UnsafeFrameError(f"refused: {msg} would start, release or move a motor")
+        try:
+            self.bus.send(msg, timeout=0.1)
+        except can.CanError as exc:
+            log.debug("send failed: %s", exc)
+            return False
+        self.sent += 1
+        self.record(msg, False)
+        return True
+
+
+def _signature(msg: can.Message) -> tuple[int, bool, bytes]:
+    return (msg.arbitration_id, msg.is_extended_id, bytes(msg.data))
+
+
+def forbidden_frames(candidates: Iterable[Candidate]) -> set[tuple[int, bool, bytes]]:
+    """Every candidate's start-up, release and shutdown frames and a position command (asked
+    of a fresh profile: asking may change a profile's state, e.g. a released CubeMars stops
+    polling)."""
+    out: set[tuple[int, bool, bytes]] = set()
+    for candidate in candidates:
+        fresh = make_candidate(candidate.profile, candidate.can_id, candidate.raw_options)
+        if fresh is None:
+            continue
+        profile = fresh.instance
+        frames: list[can.Message] = []
+        for source in (profile.startup_frames, profile.release_frames, profile.shutdown_frames):
+            with contextlib.suppress(Exception):  # a profile that cannot say forbids nothing
+                frames += source()
+        with contextlib.suppress(Exception):
+            frames.append(profile.position_command(0.0))
+        out.update(_signature(f) for f in frames)
+    return out
+
+
+@dataclass
+class Sighting:
+    """A motor the doctor heard or that answered: ``how`` is ``heard`` (unasked) or
+    ``answered`` (a probe's reply); ``bitrate`` where."""
+
+    profile: str
+    can_id: int
+    options: dict[str, Any]
+    bitrate: int
+    how: str
+    frames: int = 0
+    states: int = 0
+    """Frames that decoded to a whole state (what proves it is this servo)."""
+    alternatives: set[str] = field(default_factory=set)
+
+
+@dataclass
+class BusFindings:
+    """Everything the doctor learnt of one bus."""
+
+    bus: BusConfig
+    listen_only: bool
+    listened: dict[int, int] = field(default_factory=dict)
+    """Bitrate -> valid frames heard while listening."""
+    error_frames: dict[int, int] = field(default_factory=dict)
+    unsupported: dict[int, str] = field(default_factory=dict)
+    """Bitrates the adapter refused, and why."""
+    open_error: str | None = None
+    """Why the adapter did not open at all (at the configured bitrate): nothing else ran."""
+    working_bitrate: int | None = None
+    sightings: dict[tuple[str, int, tuple[tuple[str, Any], ...], int], Sighting] = field(
+        default_factory=dict
+    )
+    heartbeats: dict[int, ODriveHeartbeat] = field(default_factory=dict)
+    node_statuses: dict[int, NodeStatus] = field(default_factory=dict)
+    unknown_ids: Counter[tuple[int, bool]] = field(default_factory=Counter)
+    damiao_modes: dict[int, str] = field(default_factory=dict)
+    """Damiao motor id -> its CTRL_MODE register as read."""
+    identities: dict[tuple[str, int], str] = field(default_factory=dict)
+    """(family, id) -> what an identity read said (ODrive version, Robstride MCU id)."""
+    actuators: dict[int, set[int]] = field(default_factory=dict)
+    """DroneCAN node -> the actuator ids its actuator Status reports carry."""
+    probed_bitrates: list[int] = field(default_factory=list)
+    sent: int = 0
+    enable_sent: int = 0
+    scan_s: float | None = None
+    scanned: int = 0
+
+    def seen(self, candidate: Candidate, bitrate: int, how: str, complete: bool) -> Sighting:
+        key = (*candidate.key, bitrate)
+        sighting = self.sightings.get(key)
+        if sighting is None:
+            sighting = Sighting(
+                candidate.profile, candidate.can_id, dict(candidate.raw_options), bitrate, how
+            )
+            self.sightings[key] = sighting
+        elif how == "answered":
+            sighting.how = how
+        sighting.frames += 1
+        sighting.states += complete
+        return sighting
+
+
+class BusDoctor:
+    """Diagnoses one bus of a config (see module)."""
+
+    def __init__(
+        self,
+        bus: BusConfig,
+        servos: Sequence[ServoConfig],
+        open_request: Callable[[BusRequest], OpenedBus],
+        record: Callable[[can.Message, bool, int], None],
+        *,
+        listen_s: float = 1.5,
+        allow_enable: bool = False,
+        try_bitrates: bool = True,
+    ) -> None:
+        self.bus = bus
+        self.servos = list(servos)
+        self._open = open_request
+        self._record = record
+        self.listen_s = listen_s
+        self.allow_enable = allow_enable
+        self.try_bitrates = try_bitrates
+        self.findings = BusFindings(bus, has_listen_only(bus.interface))
+        if bus.interface in BITRATE_SET_OUTSIDE:
+            self.try_bitrates = False  # the link's bitrate is not ours to change
+        configured: dict[str, list[Mapping[str, Any]]] = defaultdict(list)
+        for servo in self.servos:
+            configured[servo.profile].append(servo.options)
+            for sibling in facts(servo.profile).siblings:
+                configured.setdefault(sibling, [])
+        self._families = dict(configured)
+        self.recogniser = Recogniser(self._families)
+        self._configured = {(s.profile, s.can_id, options_key(s.options)) for s in self.servos}
+        self._forbidden = forbidden_frames(self.recogniser.candidates)
+
+    # -- the steps -----------------------------------------------------------------------------
+
+    def run(self, scan: Iterable[tuple[str, Iterable[int]]] = ()) -> BusFindings:
+        rates = [self.bus.bitrate] + [r for r in STANDARD_BITRATES if r != self.bus.bitrate]
+        if not self.try_bitrates:
+            rates = rates[:1]
+        for bitrate in rates:
+            if self._listen(bitrate):
+                self.findings.working_bitrate = bitrate
+                break
+            if bitrate == self.bus.bitrate and bitrate in self.findings.unsupported:
+                # no device, busy, no permission: trying other bitrates would say it 8 times
+                self.findings.open_error = self.findings.unsupported.pop(bitrate)
+                return self.findings
+        if self.findings.working_bitrate is None:
+            # nothing pushes on this bus: ask the configured servos, at each rate in turn
+            for bitrate in rates:
+                if self._probe_servos(bitrate) and self._answered_at(bitrate):
+                    self.findings.working_bitrate = bitrate
+                    break
+        else:
+            self._probe_servos(self.findings.working_bitrate)
+        bitrate = self.findings.working_bitrate or self.bus.bitrate
+        self._scan_for_the_silent(bitrate)
+        for profile, ids in scan:
+            self.scan(profile, ids, bitrate)
+        return self.findings
+
+    def _answered_at(self, bitrate: int) -> bool:
+        return any(s.bitrate == bitrate for s in self.findings.sightings.values())
+
+    def _request(self, bitrate: int, listen_only: bool) -> BusRequest:
+        options: dict[str, Any] = dict(self.bus.options)
+        if self.bus.interface == "aa55":
+            options = {
+                "serial_baud": self.bus.serial_baud,
+                "protocol": self.bus.protocol,
+                **options,
+            }
+        return BusRequest(
+            self.bus.name, self.bus.interface, self.bus.channel, bitrate, options, listen_only
+        )
+
+    def _opened(self, bitrate: int, listen_only: bool) -> OpenedBus | None:
+        try:
+            return self._open(self._request(bitrate, listen_only))
+        except (can.CanError, ValueError, OSError) as exc:
+            self.findings.unsupported[bitrate] = str(exc)
+            return None
+
+    def _listen(self, bitrate: int) -> bool:
+        """Listen ``listen_s`` at ``bitrate``: True when valid frames were heard."""
+        opened = self._opened(bitrate, listen_only=True)
+        if opened is None:
+            return False
+        try:
+            valid = self._collect(opened.bus, bitrate, self.listen_s, "heard")
+        finally:
+            opened.close()
+        self.findings.listened[bitrate] = valid
+        return valid > 0
+
+    def _collect(self, bus: can.BusABC, bitrate: int, seconds: float, how: str) -> int:
+        """Receive for ``seconds``; each frame recorded and read. Valid frames counted."""
+        valid = 0
+        deadline = time.monotonic() + seconds
+        for _ in range(200_000):  # bounded: a saturated 1 Mbit/s bus is ~8,000 frames/s
+            left = deadline - time.monotonic()
+            if left <= 0:
+                break
+            msg = bus.recv(min(left, 0.05))
+            if msg is None:
+                continue
+            self._record(msg, True, bitrate)
+            if msg.is_error_frame:
+                self.findings.error_frames[bitrate] = self.findings.error_frames.get(bitrate, 0) + 1
+                continue
+            valid += 1
+            self._read(msg, bitrate, how)
+        return valid
+
+    def _read(self, msg: can.Message, bitrate: int, how: str) -> None:
+        said = announcements(msg)
+        candidates = self.recogniser.whose(msg)
+        mine = [(c, whole) for c, whole in candidates if c.key in self._configured]
+        if mine:  # a configured servo's reading wins over the look-alikes (Damiao's 4-bit id)
+            candidates = mine
+        heartbeat = isinstance(said, ODriveHeartbeat)
+        if heartbeat and candidates and all(c.profile != "odrive" for c, _ in candidates):
+            said = None  # another family's frame that merely fits the heartbeat's layout
+        if isinstance(said, ODriveHeartbeat):
+            self.findings.heartbeats[said.node_id] = said
+        elif isinstance(said, NodeStatus):
+            self.findings.node_statuses[said.node_id] = said
+        for family, read in (("odrive", odrive_version), ("robstride", robstride_device_id)):
+            identity = read(msg)
+            if identity is not None:
+                self.findings.identities[(family, identity[0])] = identity[1]
+        status_of = actuator_status(msg)
+        if status_of is not None:
+            self.findings.actuators.setdefault(status_of[0], set()).add(status_of[1])
+        if not candidates:
+            if said is None:
+                self.findings.unknown_ids[(msg.arbitration_id, msg.is_extended_id)] += 1
+            return
+        mode = damiao_mode(msg)
+        if mode is not None and any(c.profile == "damiao-dm" for c, _ in candidates):
+            self.findings.damiao_modes[mode[0]] = mode[1]
+        names = {f"{c.profile} {c.can_id}" for c, _ in candidates}
+        for candidate, complete in candidates:
+            sighting = self.findings.seen(candidate, bitrate, how, complete)
+            sighting.alternatives |= names - {f"{candidate.profile} {candidate.can_id}"}
+
+    def _probe_servos(self, bitrate: int) -> bool:
+        """Ask every configured servo (and its other modes at its id) what the profiles
+        allow; False when the adapter would not open at ``bitrate``."""
+        probes: list[Candidate] = []
+        for servo in self.servos:
+            for profile in (servo.profile, *facts(servo.profile).siblings):
+                configured = [servo.options] if profile == servo.profile else []
+                for options in family_variants(profile, configured):
+                    candidate = make_candidate(profile, servo.can_id, options)
+                    if candidate is not None:
+                        probes.append(candidate)
+        opened = self._opened(bitrate, listen_only=False)
+        if opened is None:
+            return False
+        self.findings.probed_bitrates.append(bitrate)
+        try:
+            self._probe(opened, probes, bitrate)
+        finally:
+            opened.close()
+        return True
+
+    def _probe(self, opened: OpenedBus, probes: Sequence[Candidate], bitrate: int) -> None:
+        forbidden = self._forbidden | forbidden_frames(probes)
+        sender = SafeSender(opened.bus, lambda msg, rx: self._record(msg, rx, bitrate), forbidden)
+        frames: list[can.Message] = []
+        unique: set[tuple[int, bool, bytes]] = set()
+        for candidate in probes:  # two modes often share a read (the same frame): sent once
+            for msg in safe_requests(candidate, forbidden):
+                if _signature(msg) not in unique:
+                    unique.add(_signature(msg))
+                    frames.append(msg)
+        for start in range(0, len(frames), BATCH):
+            for msg in frames[start : start + BATCH]:
+                sender.send(msg)
+            self._collect(opened.bus, bitrate, REPLY_WAIT_S, "answered")
+        if self.allow_enable:
+            self._enable_probes(sender, opened, probes, bitrate)
+        self.findings.sent += sender.sent
+
+    def _enable_probes(
+        self, sender: SafeSender, opened: OpenedBus, probes: Sequence[Candidate], bitrate: int
+    ) -> None:
+        """``--allow-enable``: the silent ones that answer only when enabled, enabled once
+        and disabled again at once."""
+        found = {(s.profile, s.can_id) for s in self.findings.sightings.values()}
+        for candidate in probes:
+            enable = facts(candidate.profile).enable
+            if enable is None or (candidate.profile, candidate.can_id) in found:
+                continue
+            on, off = enable(candidate.can_id, candidate.raw_options)
+            for msg in on:
+                sender.send(msg, enabling=True)
+                self.findings.enable_sent += 1
+            self._collect(opened.bus, bitrate, REPLY_WAIT_S, "answered")
+            for msg in off:
+                sender.send(msg, enabling=True)
+            self._collect(opened.bus, bitrate, REPLY_WAIT_S / 2, "answered")
+
+    def _silent(self) -> list[ServoConfig]:
+        found = {(s.profile, s.can_id) for s in self.findings.sightings.values()}
+        return [s for s in self.servos if (s.profile, s.can_id) not in found]
+
+    def _scan_for_the_silent(self, bitrate: int) -> None:
+        """A configured servo that said nothing: its family's whole id range (a motor that
+        answers on another id is the commonest wiring mistake after the bitrate)."""
+        families = sorted({s.profile for s in self._silent()})
+        for profile in families:
+            cls = get_profile(profile)
+            self.scan(profile, range(cls.min_id, cls.max_id + 1), bitrate)
+
+    def scan(self, profile: str, ids: Iterable[int], bitrate: int) -> None:
+        """Probe ``profile`` at every id of ``ids`` (its modes too), safe requests only."""
+        configured = [s.options for s in self.servos if s.profile == profile]
+        probes = [
+            c
+            for options in family_variants(profile, configured)
+            for can_id in ids
+            if (c := make_candidate(profile, can_id, options)) is not None
+        ]
+        forbidden = self._forbidden | forbidden_frames(probes)
+        if not any(safe_requests(c, forbidden) for c in probes):
+            return  # a family that answers nothing safe (MIT mode): listening said all
+        opened = self._opened(bitrate, listen_only=False)
+        if opened is None:
+            return
+        started = time.monotonic()
+        try:
+            self._probe(opened, probes, bitrate)
+        finally:
+            opened.close()
+        self.findings.scan_s = (self.findings.scan_s or 0.0) + time.monotonic() - started
+        self.findings.scanned += len(probes)
+
+
+def safe_requests(
+    candidate: Candidate, forbidden: set[tuple[int, bool, bytes]]
+) -> list[can.Message]:
+    """The telemetry polls of the profile (queries, ``ServoProfile.telemetry_requests``) and
+    the family's identity reads, less any frame that starts, releases or moves a motor: a
+    family whose poll is its enable (CubeMars MIT mode polls with enter-motor-mode) is not
+    polled."""
+    try:
+        polls = list(candidate.instance.telemetry_requests())
+    except Exception:  # noqa: BLE001 - a profile that cannot poll is not polled
+        polls = []
+    frames = polls + facts(candidate.profile).identity(candidate.can_id, candidate.raw_options)
+    return [f for f in frames if _signature(f) not in forbidden]

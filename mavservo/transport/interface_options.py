@@ -1,0 +1,170 @@
+"""What a python-can interface accepts as keyword arguments, to check a bus's ``options:``.
+
+python-can passes unknown keyword arguments of most interfaces on to ``BusABC`` silently, so a
+typo (``tty_baudrat: 921600``) would be ignored and the adapter opened with its default. This
+module reads the interface class's constructor signature and the parameters its docstring
+documents (``inspect``: the interface's own declaration, no copy of it kept here), names
+unknown keys with the closest accepted one, and checks a value against the parameter's
+annotation where that is a plain type (bool, int, float, str). The keys the bus has its own
+YAML key for (``channel``, ``bitrate``) are refused, so one setting is never given in two
+places. An interface whose module cannot be imported here (a vendor library missing on this
+machine) is not checked: the config stays loadable by ``mavservo check`` on a laptop, and the
+bus's open says what is missing.
+"""
+
+from __future__ import annotations
+
+import difflib
+import inspect
+import re
+import types
+import typing
+from collections.abc import Mapping
+from functools import lru_cache
+from typing import Any, Union
+
+import can
+from can.interface import _get_class_for_interface
+
+#: Keys with a YAML key of their own on the bus (or set by the bridge itself).
+RESERVED = {
+    "channel": "use the bus's own `channel:` key",
+    "bitrate": "use the bus's own `bitrate:` key",
+    "interface": "use the bus's own `interface:` key",
+    "bustype": "use the bus's own `interface:` key",
+    "on_reject": "set by the bridge (the run log's rejections)",
+}
+
+#: Keys an interface's bus has its own YAML key for, per interface.
+OWN_KEYS = {
+    "aa55": {
+        "serial_baud": "use the bus's own `serial_baud:` key",
+        "protocol": "use the bus's own `protocol:` key",
+        "read_interval_s": "use the bus's own `read_interval_s:` key",
+    }
+}
+
+#: BusABC's own keyword arguments, accepted by every interface.
+_BUS_ABC = ("can_filters",)
+
+_PLAIN = (bool, int, float, str)
+
+#: ``:param bool fd:`` / ``:param fd:`` in an interface's docstring: keyword arguments it reads
+#: from ``**kwargs`` (PCAN's ``fd``, ``f_clock``, ...), documented but not in its signature.
+_DOC_PARAM = re.compile(r":param\s+(?:[\w\[\], .|]+\s+)?(\w+)\s*:")
+
+
+class InterfaceOptions:
+    """An interface's keyword parameters and their plain types (None: any value)."""
+
+    def __init__(self, interface: str, parameters: Mapping[str, type | tuple[type, ...] | None]):
+        self.interface = interface
+        self.parameters = dict(parameters)
+
+    def problems(self, options: Mapping[str, Any]) -> list[tuple[str, str]]:
+        """``(key, message)`` for every option the interface would not take as given."""
+        out: list[tuple[str, str]] = []
+        for key, value in options.items():
+            key = str(key)
+            reserved = RESERVED.get(key) or OWN_KEYS.get(self.interface, {}).get(key)
+            if reserved:
+                out.append((key, f"{key!r} is not an option here: {reserved}"))
+                continue
+            if key not in self.parameters:
+                out.append((key, self._unknown(key)))
+                continue
+            kinds = self.parameters[key]
+            if kinds is not None and not _fits(value, kinds):
+                names = " or ".join(k.__name__ for k in _as_tuple(kinds))
+                out.append(
+                    (key, f"{key!r} of interface {self.interface!r} takes {names}, found {value!r}")
+                )
+        return out
+
+    def _unknown(self, key: str) -> str:
+        accepted = sorted(self.parameters)
+        close = difflib.get_close_matches(key, accepted, n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        return (
+            f"unknown option {key!r} for python-can interface {self.interface!r}{hint}; "
+            f"it accepts: {', '.join(accepted) or 'none'}"
+        )
+
+
+def _as_tuple(kinds: type | tuple[type, ...]) -> tuple[type, ...]:
+    return kinds if isinstance(kinds, tuple) else (kinds,)
+
+
+def _fits(value: Any, kinds: type | tuple[type, ...]) -> bool:
+    for kind in _as_tuple(kinds):
+        if kind is bool and isinstance(value, bool):
+            return True
+        if kind is int and isinstance(value, int) and not isinstance(value, bool):
+            return True
+        if kind is float and isinstance(value, (int, float)) and not isinstance(value, bool):
+            return True
+        if kind is str and isinstance(value, str):
+            return True
+    return False
+
+
+def _plain_kinds(annotation: Any) -> type | tuple[type, ...] | None:
+    """The plain types an annotation allows, None when it allows anything else too."""
+    if annotation in _PLAIN:
+        return typing.cast(type, annotation)
+    origin = typing.get_origin(annotation)
+    if origin is Union or origin is types.UnionType:
+        members = [a for a in typing.get_args(annotation) if a is not type(None)]
+        if members and all(a in _PLAIN for a in members):
+            return tuple(members)
+    return None
+
+
+class UnknownInterfaceError(ValueError):
+    """No python-can interface of that name (installed entry points included)."""
+
+
+@lru_cache(maxsize=64)
+def interface_options(interface: str) -> InterfaceOptions | None:
+    """The options ``interface`` accepts; None when its module cannot be imported here.
+
+    Raises :class:`UnknownInterfaceError` for a name python-can does not know.
+    """
+    if interface not in can.interfaces.VALID_INTERFACES:
+        known = ", ".join(sorted(can.interfaces.VALID_INTERFACES))
+        close = difflib.get_close_matches(interface, can.interfaces.VALID_INTERFACES, n=1)
+        hint = f" (did you mean {close[0]!r}?)" if close else ""
+        raise UnknownInterfaceError(
+            f"unknown python-can interface {interface!r}{hint}; known: {known}"
+        )
+    try:
+        bus_class = _get_class_for_interface(interface)
+    except (can.CanInterfaceNotImplementedError, ImportError):
+        return None
+    parameters: dict[str, type | tuple[type, ...] | None] = dict.fromkeys(_BUS_ABC)
+    try:
+        hints = typing.get_type_hints(bus_class.__init__)
+    except Exception:  # noqa: BLE001 - an annotation this Python cannot evaluate: no types
+        hints = {}
+    for name, parameter in inspect.signature(bus_class.__init__).parameters.items():
+        if name == "self" or parameter.kind in (parameter.VAR_KEYWORD, parameter.VAR_POSITIONAL):
+            continue
+        parameters[name] = _plain_kinds(hints.get(name))
+    for name in _DOC_PARAM.findall(inspect.getdoc(bus_class.__init__) or ""):
+        parameters.setdefault(name, None)
+    for varargs in ("args", "kwargs"):
+        parameters.pop(varargs, None)
+    for reserved in RESERVED:
+        parameters.pop(reserved, None)
+    return InterfaceOptions(interface, parameters)
+
+
+def option_problems(interface: str, options: Mapping[str, Any]) -> list[tuple[str, str]]:
+    """``(key, message)`` for each problem of ``options`` under ``interface`` (see module)."""
+    try:
+        accepted = interface_options(interface)
+    except UnknownInterfaceError:
+        return []  # the interface key itself is reported, not each option
+    if accepted is None:
+        return [(str(k), RESERVED[str(k)]) for k in options if str(k) in RESERVED]
+    return accepted.problems(options)
