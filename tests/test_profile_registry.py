@@ -148,7 +148,8 @@ def test_rmdx_start_up_frame_sets_the_servos_own_communication_timeout() -> None
     [frame] = RmdX(3, comm_timeout_ms=250).startup_frames()
     assert (frame.arbitration_id, frame.is_extended_id) == (0x143, False)
     assert bytes(frame.data) == bytes.fromhex("B3000000FA000000")  # 250 ms, little-endian u32
-    assert registry.get_profile("lk")(3).startup_frames() == [], "LK-Tech has no 0xB3"
+    lk_startup = [bytes(f.data) for f in registry.get_profile("lk")(3).startup_frames()]
+    assert lk_startup == [bytes.fromhex("8800000000000000")], "LK-Tech: motor on, no 0xB3"
 
 
 def test_rmdx_release_turns_the_simulated_motor_off_and_a_command_runs_it_again() -> None:

@@ -1,0 +1,14 @@
+"""Every built-in family's simulated device, registered by profile name (:mod:`.sim_registry`).
+
+Imported by the package, so a profile's ``sim_device`` finds its device wherever the profile is
+used; the devices themselves live in ``<family>_sim`` modules that import nothing of their
+profiles.
+"""
+
+from __future__ import annotations
+
+from . import lk_sim, rmdx_sim
+from .sim_registry import register
+
+register("rmd-x", rmdx_sim.RmdXV4Device)
+register("lk", lk_sim.LkMotorDevice)
