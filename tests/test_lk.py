@@ -14,20 +14,13 @@ from vectors_support import checked, load, profile_mismatches
 from mavservo.servos import Fault, LkTech, RmdX
 from mavservo.servos import lk as lk_module
 
-VECTORS = checked("lk", "profile")
-
 
 def _frame(hexdata: str, arb_id: int = 0x141) -> can.Message:
     return can.Message(arbitration_id=arb_id, is_extended_id=False, data=bytes.fromhex(hexdata))
 
 
-@pytest.mark.parametrize(("document", "vector"), VECTORS, ids=[v["name"] for _, v in VECTORS])
-def test_lk_profile_matches_the_reference_vector(document, vector) -> None:
-    assert profile_mismatches(document, vector) == []
-
-
 def test_a_decoder_reading_iq_as_0_01_a_fails_the_vectors(monkeypatch) -> None:
-    """The old reading (iq x 0.01 A) against the same file: the vectors catch it."""
+    """The old reading (iq x 0.01 A) against the file tests/test_vectors.py runs: caught."""
     monkeypatch.setitem(lk_module.IQ_FULL_SCALE_A, "MF", 2048 * 0.01)
     document = load("lk")
     failures = [m for _, v in checked("lk", "profile") for m in profile_mismatches(document, v)]
