@@ -27,10 +27,12 @@ id; the motor answers with ``data`` = its own id (bits 15..8) and ``target`` = t
 cycle): standard ids; the MIT packing of :mod:`.mit` on the motor id with the model's ranges;
 ``FF x7 FC`` enable, ``FD`` stop, ``FF x6 FF FB`` clear faults, ``FF x6 01 F9`` active
 reporting on; parameter writes on ``0x400 | id`` (same layout, echoed on the same id); answers
-on the host id: ``[id, position 16, velocity 12, torque 12, temperature u16 x 10]``. MIT
-feedback carries no fault bits and no mode: a motor stopped by its own timeout is not seen as
-stopped (it is started again when it comes back from offline); the private protocol reports
-both, so it is the default.
+on the host id: ``[id, position 16, velocity 12, torque 12, temperature u16 x 10]``; while the
+motor is faulted it answers a fault report instead: ``[id, fault word u16 LE, 0, 0, 0, 0, 0]``
+(bit 14 overload, 7 uncalibrated, 3 encoder, 2 under-voltage, 1 driver, 0 over-temperature:
+RobStride's sample program), so a state report means no fault. MIT feedback carries no mode: a
+motor stopped by its own timeout is not seen as stopped (it is started again when it comes back
+from offline); the private protocol reports it, so it is the default.
 
 A motor answers only in the protocol it is set to, so a host speaking the other one hears
 silence: :meth:`Robstride.diagnose` recognises the other protocol's frames from this motor and
@@ -130,7 +132,21 @@ MIT_PARAM_WRITE_BASE = 0x400
 MIT_CLEAR_FAULTS = b"\xff" * 7 + b"\xfb"
 MIT_REPORT_ON = b"\xff" * 6 + b"\x01\xf9"
 MIT_POSITION_RAD = 12.57
-"""P_MAX of the MIT section's example code (the manuals' "-12.57 rad ~ 12.57 rad")."""
+"""P_MAX of every model's manual, MIT section (its example code and "-12.57 rad ~ 12.57 rad",
+the RS00..RS06 manuals alike; RobStride Dynamics' own robstride_dynamics package maps 4 pi,
+which rounds to it). RobStride's sample program maps +-12.5 (the CyberGear heritage): a motor
+whose firmware does is configured with the ``mit_position_max_rad`` option."""
+MIT_FAULT_WORD_BITS: dict[int, Fault] = {
+    0: Fault.OVER_TEMPERATURE,
+    1: Fault.DRIVER,  # driver fault
+    2: Fault.LOW_VOLTAGE,
+    3: Fault.ENCODER,
+    7: Fault.UNCALIBRATED,
+    14: Fault.STALL,  # overload
+}
+"""The fault word of an MIT fault report (bytes 1..2 little-endian, bytes 3..7 zero: RobStride's
+sample program); other bits are OTHER."""
+MIT_FAULT_REPORT_TAIL = bytes(5)
 MIT_RESERVED_PREFIX = b"\xff" * 6
 """Frames starting with six 0xFF are the MIT special commands (enable, stop, clear, modes,
 reporting, protocol): a position command never goes out looking like one."""
@@ -146,6 +162,8 @@ class Model:
     kp_max: float
     kd_max: float
     torque_constant_nm_per_a: float
+    mit_position_rad: float = MIT_POSITION_RAD
+    """The MIT packing's position range (+-), per model: every manual says 12.57."""
 
 
 MODELS: dict[str, Model] = {
@@ -185,6 +203,24 @@ def faults_from_word(word: int) -> Fault:
         if word >> bit & 1:
             faults |= FAULT_WORD_BITS.get(bit, Fault.OTHER)
     return faults
+
+
+def faults_from_mit_word(word: int) -> Fault:
+    """The named faults of an MIT fault report's word; an undocumented bit is OTHER."""
+    faults = NO_FAULT
+    for bit in range(16):
+        if word >> bit & 1:
+            faults |= MIT_FAULT_WORD_BITS.get(bit, Fault.OTHER)
+    return faults
+
+
+def mit_word_from_faults(faults: Fault) -> int:
+    """The MIT fault word for ``faults`` (the simulated device): each fault's first bit."""
+    word = 0
+    for bit, fault in MIT_FAULT_WORD_BITS.items():
+        if fault in faults:
+            word |= 1 << bit
+    return word
 
 
 def report_counts(hz: float) -> int:
@@ -234,6 +270,13 @@ class RobstrideOptions(ProfileOptions):
     kd: float = Field(
         1.0, gt=0, le=100, description="MIT damping, N m s/rad (never 0: the motor oscillates)"
     )
+    mit_position_max_rad: float | None = Field(
+        None,
+        ge=1.0,
+        le=100.0,
+        description="MIT packing position range +-rad (null: the model's, 12.57 per the "
+        "manuals; 12.5 for firmware that maps like RobStride's sample program)",
+    )
 
     @model_validator(mode="after")
     def _gains_fit_the_model(self) -> RobstrideOptions:
@@ -249,11 +292,18 @@ class RobstrideOptions(ProfileOptions):
     def spec(self) -> Model:
         return MODELS[self.model]
 
+    @property
+    def mit_position_rad(self) -> float:
+        """The MIT position range in use: the option, else the model's."""
+        if self.mit_position_max_rad is not None:
+            return self.mit_position_max_rad
+        return self.spec.mit_position_rad
+
     def mit_ranges(self) -> mit.MitRanges:
         """The MIT packing ranges of this model (MIT protocol)."""
         spec = self.spec
         return mit.MitRanges(
-            position_rad=mit.Span.symmetric(MIT_POSITION_RAD),
+            position_rad=mit.Span.symmetric(self.mit_position_rad),
             velocity_rad_s=mit.Span.symmetric(spec.v_max_rad_s),
             torque_nm=mit.Span.symmetric(spec.t_max_nm),
             kp=mit.Span(0.0, spec.kp_max),
@@ -291,7 +341,7 @@ class Robstride(ServoProfile):
         self.spec = o.spec
         self.ranges = o.mit_ranges()
         self.private = o.protocol == "private"
-        limit = POSITION_RANGE_RAD if self.private else MIT_POSITION_RAD
+        limit = POSITION_RANGE_RAD if self.private else o.mit_position_rad
         self.max_angle_deg = math.degrees(limit)
         self.min_angle_deg = -self.max_angle_deg
         self.max_speed_dps = math.degrees(self.spec.v_max_rad_s)
@@ -491,6 +541,9 @@ class Robstride(ServoProfile):
         if not self.private:
             if msg.arbitration_id != self.options.host_id:
                 return self._merge(timestamp)  # a parameter echo: proof of life only
+            if data[3:] == MIT_FAULT_REPORT_TAIL:  # a fault report, not a state
+                word = int.from_bytes(data[1:3], "little")
+                return self._merge(timestamp, faults=faults_from_mit_word(word))
             reply = mit.unpack_reply(data, self.ranges)
             return self._merge(
                 timestamp,
@@ -498,6 +551,7 @@ class Robstride(ServoProfile):
                 velocity_dps=math.degrees(reply.velocity_rad_s),
                 current_a=reply.torque_nm / self.spec.torque_constant_nm_per_a,
                 temperature_c=struct.unpack_from(">H", data, 6)[0] / 10,
+                faults=NO_FAULT,  # a state report: the motor reports no fault
             )
         comm_type = parse_id(msg.arbitration_id)[0]
         if comm_type == TYPE_FAULT:
@@ -731,6 +785,11 @@ class RobstrideDevice:
         temperature = max(0, min(0xFFFF, round(motor.temperature_c * 10)))
         host = self.options.host_id
         if not self.private:
+            faults = self.latched | motor.active_faults
+            if faults:  # while faulted the motor reports its fault word, not its state
+                word = mit_word_from_faults(faults)
+                data = bytes([self.can_id]) + word.to_bytes(2, "little") + MIT_FAULT_REPORT_TAIL
+                return can.Message(arbitration_id=host, is_extended_id=False, data=data)
             body = mit.pack_reply(
                 self.can_id,
                 math.radians(motor.position_deg),
