@@ -14,7 +14,8 @@ communication protocol":
 * special codes on the same id: ``FF x7 FC`` enter motor control mode (required before any
   command; it also makes the motor answer with its state, which is the poll used here),
   ``FD`` exit (torque off), ``FE`` set the present position as zero;
-* the driver answers ``[driver id, position 16, speed 12, current 12, temperature, error]``,
+* the driver answers ``[driver id, position 16, speed 12, current 12]`` (DLC 6, the manual's
+  MIT reply table) or with ``temperature, error`` after it (DLC 8, drivers that add them),
   mapped with the same ranges, on identifier ``0x00`` (the manual's "0X00 + Drive ID" table
   header; the master id is an option for drivers configured otherwise), error codes as in
   servo mode: 1 over-temperature, 2 over-current, 3 over-voltage, 4 under-voltage, 5 encoder,
@@ -31,7 +32,7 @@ otherwise ignored.
 from __future__ import annotations
 
 import math
-from typing import ClassVar
+from typing import ClassVar, Literal
 
 import can
 from pydantic import Field
@@ -40,7 +41,9 @@ from . import mit
 from .base import FrameId, ProfileOptions, ServoProfile, ServoState, SimDevice, SimMotor
 from .cubemars import error_code_from_faults, fault_from_error_code
 
-REPLY_LEN = 8
+REPLY_LENGTHS = (6, 8)
+"""The manual's MIT reply table gives DLC 6 (position, speed, current); drivers that add the
+temperature and error code send 8. Both are this driver's answer."""
 ZERO_MUTE_S = 1.0
 """How long the driver stays silent after a set-zero frame (the manual's "about a second")."""
 
@@ -60,6 +63,12 @@ class CubeMarsMitOptions(mit.MitOptions):
         le=60_000,
         description="the driver's own CAN timeout as set with R-Link (0: none); not writable "
         "over CAN, so it is not sent: it tells the simulation what the driver does",
+    )
+    reply_bytes: Literal[6, 8] = Field(
+        8,
+        description="the driver's answer length: 6 (position, speed, current: the manual's "
+        "MIT reply table) or 8 (plus temperature and error code); both are decoded, so it "
+        "only tells the simulation what the driver sends",
     )
 
 
@@ -147,7 +156,7 @@ class CubeMarsAKMit(ServoProfile):
             not msg.is_extended_id
             and not msg.is_remote_frame
             and msg.arbitration_id == self.options.master_id
-            and len(msg.data) == REPLY_LEN
+            and len(msg.data) in REPLY_LENGTHS
             and msg.data[0] == self.can_id
         )
 
@@ -156,14 +165,15 @@ class CubeMarsAKMit(ServoProfile):
             return None
         data = bytes(msg.data)
         reply = mit.unpack_reply(data, self.ranges)
-        temperature = data[6] - 256 if data[6] >= 0x80 else data[6]
+        short = len(data) < 8  # no temperature, no error code: those keep their last value
+        temperature = None if short else float(data[6] - 256 if data[6] >= 0x80 else data[6])
         return self._merge(
             timestamp,
             position_deg=math.degrees(reply.position_rad),
             velocity_dps=math.degrees(reply.velocity_rad_s),
             current_a=reply.torque_nm / self.options.torque_constant_nm_per_a,
-            temperature_c=float(temperature),
-            faults=fault_from_error_code(data[7]),
+            temperature_c=temperature,
+            faults=None if short else fault_from_error_code(data[7]),
         )
 
 
@@ -243,8 +253,7 @@ class CubeMarsMitDevice:
         )
         temperature = max(-128, min(127, round(motor.temperature_c))) & 0xFF
         error = error_code_from_faults(motor.active_faults)
+        tail = bytes([temperature, error]) if self.options.reply_bytes == 8 else b""
         return can.Message(
-            arbitration_id=self.options.master_id,
-            is_extended_id=False,
-            data=body + bytes([temperature, error]),
+            arbitration_id=self.options.master_id, is_extended_id=False, data=body + tail
         )
