@@ -7,8 +7,9 @@ profiles.
 
 from __future__ import annotations
 
-from . import lk_sim, rmdx_sim
+from . import cubemars_sim, lk_sim, rmdx_sim
 from .sim_registry import register
 
 register("rmd-x", rmdx_sim.RmdXV4Device)
 register("lk", lk_sim.LkMotorDevice)
+register("cubemars-ak", cubemars_sim.AkServoModeDevice)
