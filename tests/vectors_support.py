@@ -22,6 +22,7 @@ A vector file::
         before: [{id: 0x141, data: "80 00 00 00 00 00 00 00"}]   # frames the device hears first
         motor: {current_a: 1.0}       # simulator only: motor readings ``means`` does not carry
         simulator: false              # a profile-only vector (say why in ``why``)
+        absent: true                  # simulator: the request gets no answer at all
         profile: false                # a simulator-only vector
 
 ``means`` takes ServoState fields (``faults`` as a list of Fault names) and profile attributes
@@ -205,7 +206,8 @@ def simulator_mismatches(document: dict[str, Any], vector: dict[str, Any]) -> li
             return [f"{name}: the device was not told to move by {_describe(frame)}"]
         target, speed = motor.commands[-1]
         problems = []
-        if "target_deg" in means and not _same(target, means["target_deg"], 1e-6):
+        tolerance = float(vector.get("tolerance", TOLERANCE))
+        if "target_deg" in means and not _same(target, means["target_deg"], tolerance):
             problems.append(f"{name}: target {target}, the document says {means['target_deg']}")
         if "speed_dps" in means and (speed is None or not _same(speed, means["speed_dps"], 1e-6)):
             problems.append(f"{name}: speed {speed}, the document says {means['speed_dps']}")
@@ -220,6 +222,8 @@ def simulator_mismatches(document: dict[str, Any], vector: dict[str, Any]) -> li
         device.tick(1.0)
         replies = device.status(1.0)
     described = [_describe(reply) for reply in replies]
+    if vector.get("absent"):  # the device must not send it
+        return [f"{name}: the device answers {described}"] if replies else []
     if _describe(expected) not in described:
         return [f"{name}: the device answers {described}, the document says {_describe(expected)}"]
     return []

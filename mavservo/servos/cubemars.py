@@ -97,14 +97,6 @@ def fault_from_error_code(code: int) -> Fault:
     return ERROR_CODES.get(code, Fault.OTHER)
 
 
-def error_code_from_faults(faults: Fault) -> int:
-    """The single code a servo reports for a fault set: the first documented one present."""
-    for code, fault in ERROR_CODES.items():
-        if fault in faults:
-            return code
-    return 0
-
-
 def command_id(mode: int, can_id: int) -> int:
     return (mode << 8) | can_id
 

@@ -39,7 +39,8 @@ from pydantic import Field
 
 from . import mit
 from .base import FrameId, ProfileOptions, ServoProfile, ServoState, SimDevice, SimMotor
-from .cubemars import error_code_from_faults, fault_from_error_code
+from .cubemars import fault_from_error_code
+from .sim_registry import simulated_device
 
 REPLY_LENGTHS = (6, 8)
 """The manual's MIT reply table gives DLC 6 (position, speed, current); drivers that add the
@@ -134,8 +135,7 @@ class CubeMarsAKMit(ServoProfile):
     @classmethod
     def sim_device(cls, motor: SimMotor, can_id: int, options: ProfileOptions) -> SimDevice:
         """The simulated driver (built-in simulation, ``mavservo sim``)."""
-        assert isinstance(options, CubeMarsMitOptions)
-        return CubeMarsMitDevice(motor, can_id, options)
+        return simulated_device(cls, motor, can_id, options)
 
     def identifiers(self) -> tuple[FrameId, ...]:
         """Commands, polls and special frames on the id; answers on the master id, byte 0 the
@@ -174,86 +174,4 @@ class CubeMarsAKMit(ServoProfile):
             current_a=reply.torque_nm / self.options.torque_constant_nm_per_a,
             temperature_c=temperature,
             faults=None if short else fault_from_error_code(data[7]),
-        )
-
-
-class CubeMarsMitDevice:
-    """The driver side of an AK module in MIT mode, on a SimMotor.
-
-    Out of motor mode (as it powers up, and after ``FD``) it ignores commands and does not
-    answer them; ``FC`` enters motor mode and is always answered with the state; ``FE`` zeroes
-    the position and mutes the driver for about a second. With a CAN timeout set (R-Link, the
-    ``comm_timeout_ms`` option) a driver that hears nothing for that long stops driving the
-    motor (torque off) but stays in motor mode: the next command drives it again.
-    """
-
-    pushes = False
-
-    def __init__(self, motor: SimMotor, can_id: int, options: CubeMarsMitOptions) -> None:
-        self.motor = motor
-        self.can_id = can_id
-        self.options = options
-        self.ranges = options.ranges()
-        self.muted_until = -math.inf
-        self.motor_mode = False
-        self.last_frame_time: float | None = None
-        motor.enabled = False  # out of motor mode at power-up: it waits for FF x7 FC
-
-    def accepts(self, msg: can.Message) -> bool:
-        return (
-            not msg.is_extended_id
-            and not msg.is_remote_frame
-            and msg.arbitration_id == self.can_id
-            and len(msg.data) == 8
-        )
-
-    def handle(self, msg: can.Message, now: float) -> list[can.Message]:
-        self.tick(now)
-        self.last_frame_time = now
-        data = bytes(msg.data)
-        if mit.is_special(data):
-            code = data[7]
-            if code == mit.ENTER_MOTOR_MODE[7]:
-                self.motor_mode = True
-                self.motor.enable(now)
-            elif code == mit.EXIT_MOTOR_MODE[7]:
-                self.motor_mode = False
-                self.motor.disable(now)
-            elif code == mit.SET_ZERO[7]:
-                self.motor.set_zero(now)
-                self.muted_until = now + ZERO_MUTE_S
-        elif self.motor_mode:
-            if not self.motor.enabled:  # after its own timeout: the command drives it again
-                self.motor.enable(now)
-            command = mit.unpack_command(data, self.ranges)
-            self.motor.command_position(math.degrees(command.position_rad), None, now)
-        else:
-            return []
-        return [] if now < self.muted_until else [self.reply()]
-
-    def status(self, now: float) -> list[can.Message]:
-        return []
-
-    def tick(self, now: float) -> None:
-        """The driver's own CAN timeout: quiet for longer, it stops driving the motor."""
-        timeout_s = self.options.comm_timeout_ms / 1000
-        quiet = self.last_frame_time is not None and now - self.last_frame_time > timeout_s
-        if timeout_s > 0 and quiet and self.motor.enabled:
-            self.motor.disable(now)
-
-    def reply(self) -> can.Message:
-        motor = self.motor
-        torque = motor.measured_current_a() * self.options.torque_constant_nm_per_a
-        body = mit.pack_reply(
-            self.can_id,
-            math.radians(motor.position_deg),
-            math.radians(motor.velocity_dps),
-            torque,
-            self.ranges,
-        )
-        temperature = max(-128, min(127, round(motor.temperature_c))) & 0xFF
-        error = error_code_from_faults(motor.active_faults)
-        tail = bytes([temperature, error]) if self.options.reply_bytes == 8 else b""
-        return can.Message(
-            arbitration_id=self.options.master_id, is_extended_id=False, data=body + tail
         )
