@@ -209,7 +209,9 @@ def simulator_mismatches(document: dict[str, Any], vector: dict[str, Any]) -> li
         tolerance = float(vector.get("tolerance", TOLERANCE))
         if "target_deg" in means and not _same(target, means["target_deg"], tolerance):
             problems.append(f"{name}: target {target}, the document says {means['target_deg']}")
-        if "speed_dps" in means and (speed is None or not _same(speed, means["speed_dps"], 1e-6)):
+        if "speed_dps" in means and (
+            speed is None or not _same(speed, means["speed_dps"], tolerance)
+        ):
             problems.append(f"{name}: speed {speed}, the document says {means['speed_dps']}")
         return problems
     expected = _frame(vector["reply"])
