@@ -7,7 +7,15 @@ profiles.
 
 from __future__ import annotations
 
-from . import cubemars_mit_sim, cubemars_sim, damiao_sim, lk_sim, odrive_sim, rmdx_sim
+from . import (
+    cubemars_mit_sim,
+    cubemars_sim,
+    damiao_sim,
+    lk_sim,
+    odrive_sim,
+    rmdx_sim,
+    robstride_sim,
+)
 from .sim_registry import register
 
 register("rmd-x", rmdx_sim.RmdXV4Device)
@@ -16,3 +24,4 @@ register("cubemars-ak", cubemars_sim.AkServoModeDevice)
 register("cubemars-ak-mit", cubemars_mit_sim.AkMitModeDevice)
 register("damiao-dm", damiao_sim.DmJMotorDevice)
 register("odrive", odrive_sim.OdriveAxisDevice)
+register("robstride", robstride_sim.RsMotorDevice)
