@@ -7,6 +7,8 @@ from __future__ import annotations
 import pytest
 from vectors_support import VECTORS, checked, profile_mismatches, simulator_mismatches
 
+from mavservo.servos.registry import BUILT_IN
+
 FAMILIES = sorted(path.stem for path in VECTORS.glob("*.yaml"))
 PROFILE_SIDE = [pair for family in FAMILIES for pair in checked(family, "profile")]
 SIMULATOR_SIDE = [pair for family in FAMILIES for pair in checked(family, "simulator")]
