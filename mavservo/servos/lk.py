@@ -105,6 +105,13 @@ class LkOptions(ProfileOptions):
     encoder_bits: Literal[14, 15, 16] = Field(
         14, description="bits of the encoder count in closed-loop replies (one turn)"
     )
+    gear_ratio: float = Field(
+        1.0,
+        ge=1.0,
+        le=100.0,
+        description="reduction between the rotor, whose single-turn encoder count the replies "
+        "carry, and the output (1: direct drive; i-series models: their ratio)",
+    )
     status_1: Literal["bus", "legacy"] = Field(
         "bus",
         description="9A layout: bus (voltage 0.01 V, current, motor state) or legacy "
@@ -129,8 +136,10 @@ class LkTech(ServoProfile):
     """LK-Tech MF / MG / MS (module docstring); replies on the request id ``0x140 + id``.
 
     Position: 92 gives the absolute multi-turn angle (0.01 deg), read at the first poll and
-    every ``multi_turn_poll_every``; between, the single-turn encoder count of 9C / A4 replies
-    is unwrapped to the turn nearest the last known position. Because request and reply share
+    every ``multi_turn_poll_every``; between, the rotor's single-turn encoder count of 9C / A4
+    replies is unwrapped to the turn nearest the last known position (through ``gear_ratio``
+    on a geared model), so the position is right as long as the output moves less than half a
+    rotor turn between two replies. Because request and reply share
     an id, a loopback echo of our own request would look like a reply: use loopback adapter
     mode with this profile only to test the adapter itself.
     """
@@ -148,7 +157,7 @@ class LkTech(ServoProfile):
 
     def __init__(self, can_id: int, options: ProfileOptions | None = None, **overrides: object):
         super().__init__(can_id, options, **overrides)
-        self.resolution_deg = 360.0 / (1 << self.options.encoder_bits)
+        self.resolution_deg = 360.0 / (1 << self.options.encoder_bits) / self.options.gear_ratio
         full_scale = IQ_FULL_SCALE_A[self.options.model]
         self.amps_per_count = None if full_scale is None else full_scale / IQ_FULL_SCALE_COUNT
         self.polls = 0
@@ -271,10 +280,11 @@ class LkTech(ServoProfile):
         )
 
     def _unwrap(self, encoder: int) -> float:
-        """The single-turn encoder count as the angle nearest the last known position (the
-        first reading without one: in -180..180)."""
+        """The rotor's single-turn encoder count as the output angle nearest the last known
+        position (the first reading without one: the rotor turn nearest 0)."""
         turn = 1 << self.options.encoder_bits
-        single = (encoder % turn) * 360.0 / turn
+        gear = self.options.gear_ratio
+        rotor = (encoder % turn) * 360.0 / turn
         last = self.last_state.position_deg if self.last_state is not None else math.nan
-        reference = 0.0 if math.isnan(last) else last
-        return single + 360.0 * round((reference - single) / 360.0)
+        reference = 0.0 if math.isnan(last) else last * gear  # in rotor degrees
+        return (rotor + 360.0 * round((reference - rotor) / 360.0)) / gear

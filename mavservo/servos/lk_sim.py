@@ -67,6 +67,8 @@ class LkMotorDevice:
         self.frame_id = REQUEST_ID_BASE + can_id
         self.model: str = setup.get("model", "MF")
         self.counts_per_turn = 1 << int(setup.get("encoder_bits", 14))
+        self.reduction = float(setup.get("gear_ratio", 1.0))
+        """Rotor turns per output turn: the encoder sits on the rotor."""
         self.legacy_state_1 = setup.get("status_1", "bus") == "legacy"
         self.on = True
         """Motor state: on from power-up, off after 0x80 until 0x88."""
@@ -146,7 +148,7 @@ class LkMotorDevice:
             if full_scale is None
             else _field(motor.measured_current_a() * 2048 / full_scale, -2048, 2048)
         )
-        turn = motor.position_deg % 360.0
+        turn = (motor.position_deg * self.reduction) % 360.0  # the rotor's angle
         count = _field(turn * self.counts_per_turn / 360.0, 0, self.counts_per_turn)
         body = (
             _field(motor.temperature_c, -128, 127).to_bytes(1, "little", signed=True)
