@@ -21,7 +21,7 @@ import math
 import can
 
 from .base import Fault, ProfileOptions, SimMotor
-from .mit_sim import SPECIAL, DriveRanges, command_setpoints, feedback_body
+from .mit_sim import SPECIAL, command_setpoints, configured_ranges, feedback_body
 
 _ENTER, _EXIT, _ZERO = 0xFC, 0xFD, 0xFE
 _MUTE_AFTER_ZERO_S = 1.0
@@ -45,11 +45,7 @@ class AkMitModeDevice:
         self.motor = motor
         self.can_id = can_id
         self.master_id = int(setup.get("master_id", 0))
-        self.ranges = DriveRanges(
-            float(setup.get("p_max_rad", 12.5)),
-            float(setup.get("v_max_rad_s", 50.0)),
-            float(setup.get("t_max_nm", 18.0)),
-        )
+        self.ranges = configured_ranges(setup, v_max=50.0, t_max=18.0)
         self.nm_per_amp = float(setup.get("torque_constant_nm_per_a", 0.819))
         self.timeout_s = int(setup.get("comm_timeout_ms", 0)) / 1000
         self.long_reply = int(setup.get("reply_bytes", 8)) == 8

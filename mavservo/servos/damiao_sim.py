@@ -26,7 +26,7 @@ import struct
 import can
 
 from .base import Fault, ProfileOptions, SimMotor
-from .mit_sim import SPECIAL, DriveRanges, command_setpoints, feedback_body
+from .mit_sim import SPECIAL, command_setpoints, configured_ranges, feedback_body
 
 _REGISTERS_ID = 0x7FF
 _POSITION_VELOCITY = 0x100
@@ -54,11 +54,7 @@ class DmJMotorDevice:
         self.motor = motor
         self.can_id = can_id
         self.master_id = int(setup.get("master_id", 0))
-        self.ranges = DriveRanges(
-            float(setup.get("p_max_rad", 12.5)),
-            float(setup.get("v_max_rad_s", 30.0)),
-            float(setup.get("t_max_nm", 10.0)),
-        )
+        self.ranges = configured_ranges(setup, v_max=30.0, t_max=10.0)
         self.nm_per_amp = float(setup.get("torque_constant_nm_per_a", 0.945))
         self.registers = {_CTRL_MODE: _MIT, _TIMEOUT: 0}
         self.communication_lost = False

@@ -27,6 +27,19 @@ class DriveRanges:
     kd_max: float = 5.0
 
 
+def configured_ranges(setup: dict[str, object], v_max: float, t_max: float) -> DriveRanges:
+    """The ranges a drive was set to (the servo's ``p_max_rad`` / ``v_max_rad_s`` /
+    ``t_max_nm`` options), the model's defaults where the options do not say."""
+
+    def number(key: str, default: float) -> float:
+        value = setup.get(key)
+        return float(value) if isinstance(value, (int, float)) else default
+
+    return DriveRanges(
+        number("p_max_rad", 12.5), number("v_max_rad_s", v_max), number("t_max_nm", t_max)
+    )
+
+
 def uint_to_float(raw: int, low: float, high: float, bits: int) -> float:
     return raw * (high - low) / ((1 << bits) - 1) + low
 
