@@ -60,6 +60,14 @@ def test_motor_on_goes_out_at_start_up_and_again_after_a_9a_says_off() -> None:
     assert bytes(off.data) == bytes.fromhex("80" + "00" * 7)
 
 
+def test_clear_errors_goes_before_motor_on_only_when_asked() -> None:
+    assert [f.data[0] for f in LkTech(1, clear_errors_on_start=True).startup_frames()] == [
+        0x9B,
+        0x88,
+    ]
+    assert [f.data[0] for f in LkTech(1).startup_frames()] == [0x88]
+
+
 def test_polls_read_the_multi_turn_angle_first_then_interleave() -> None:
     profile = LkTech(2, fault_poll_every=4, multi_turn_poll_every=3)
     commands = []

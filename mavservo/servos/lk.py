@@ -117,6 +117,11 @@ class LkOptions(ProfileOptions):
         description="9A layout: bus (voltage 0.01 V, current, motor state) or legacy "
         "(voltage 0.1 V in bytes 3..4; the English V2.35 table)",
     )
+    clear_errors_on_start: bool = Field(
+        False,
+        description="send 0x9B (clear error flags) before motor on at start-up, so an error "
+        "whose cause is gone no longer blocks the motor (off: a latched error stays visible)",
+    )
     default_speed_dps: float = Field(
         360.0, gt=0, le=65535, description="speed limit of a command that names none (deg/s)"
     )
@@ -182,8 +187,10 @@ class LkTech(ServoProfile):
 
     def startup_frames(self) -> list[can.Message]:
         """Motor on (0x88): an LK motor turned off (0x80, a release or shutdown) answers but
-        does not move until it hears it; harmless on a motor that is on."""
-        return [self._request(CMD_MOTOR_RUN)]
+        does not move until it hears it; harmless on a motor that is on. With
+        ``clear_errors_on_start``, clear error flags (0x9B) first."""
+        clear = [self._request(CMD_CLEAR_ERRORS)] if self.options.clear_errors_on_start else []
+        return [*clear, self._request(CMD_MOTOR_RUN)]
 
     def needs_startup(self) -> bool:
         """A 9A said the motor is off (power-cycled into off, another host's 0x80)."""
