@@ -102,8 +102,8 @@ class LkOptions(ProfileOptions):
     model: Literal["MF", "MG", "MS"] = Field(
         "MF", description="model line: the iq scale (MF 16.5 A, MG 33 A full scale; MS: none)"
     )
-    encoder_bits: Literal[14, 15, 16] = Field(
-        14, description="bits of the encoder count in closed-loop replies (one turn)"
+    encoder_bits: int = Field(
+        14, ge=14, le=16, description="bits of the encoder count in closed-loop replies (one turn)"
     )
     gear_ratio: float = Field(
         1.0,
