@@ -5,13 +5,13 @@ the adapter emulator's pty; simulated LK motors (written from LK's document: off
 until 0x88) move and answer. Checked: at rest the reported position equals the commanded angle
 within the encoder's resolution, current and voltage are plausible for the model, no fault is
 reported; after a ``release`` failsafe a new command goes out after motor on (0x88) and the
-motor moves (the simulated motor refuses to without it); the shipped config runs and follows.
+motor moves (the simulated motor refuses to without it). The shipped config's own run:
+``tests/test_run_families.py``.
 """
 
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import pytest
 import yaml
@@ -23,7 +23,6 @@ from e2e_support import (
     Recorder,
     ServoSpy,
     pwm_to_angle,
-    run_example_config_follows_and_loses_nothing,
     running,
     sim_servo,
     status,
@@ -107,7 +106,3 @@ def test_lk_motors_report_what_they_were_told_and_come_back_after_release() -> N
     assert after.index(0x88) < after.index(0xA4)
     for name in SERVOS:
         assert summary["servos"][name]["frames"]["rejected"] == 0, name
-
-
-def test_the_shipped_lk_config_runs_and_follows(tmp_path: Path) -> None:
-    run_example_config_follows_and_loses_nothing("lk.yaml", tmp_path)
