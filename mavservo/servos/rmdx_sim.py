@@ -1,6 +1,6 @@
-"""A simulated MyActuator RMD-X servo (protocol V4), written from MyActuator's "RMD-X Servo Motor
-Control Protocol" V4 document (sources: ``docs/profiles.md``), not from the ``rmd-x`` profile:
-it imports nothing of it.
+"""A simulated MyActuator RMD-X servo (protocol V4), written from MyActuator's "Servo Motor
+Control Protocol" V4.2 (2024.05; sources: ``docs/profiles.md``), not from the ``rmd-x``
+profile: it imports nothing of it.
 
 What the device does, as the document states it (requests on ``0x140 + id``, replies on
 ``0x240 + id``, 8 data bytes, little-endian):
