@@ -87,7 +87,8 @@ def test_is_reply_checks_id_byte_and_master_id() -> None:
     assert servo.is_reply(reply("037fff7ff7ff2300", 0x10))
     assert not servo.is_reply(reply("047fff7ff7ff2300", 0x10))
     assert not servo.is_reply(reply("037fff7ff7ff2300", 0x00))
-    assert not servo.is_reply(reply("037fff7ff7ff", 0x10))
+    assert servo.is_reply(reply("037fff7ff7ff", 0x10))  # DLC 6: the manual's reply table
+    assert not servo.is_reply(reply("037fff7ff7", 0x10))
 
 
 @pytest.mark.parametrize("angle", [math.degrees(12.5) + 0.1, math.nan, -math.inf])

@@ -27,7 +27,6 @@ from mavservo.servos.odrive import (
     ERROR_FAULTS,
     ODrive,
     ODriveOptions,
-    error_from_faults,
     fault_from_error,
 )
 
@@ -159,7 +158,6 @@ def test_unknown_error_bits_are_other_and_not_calibrated_is_uncalibrated() -> No
     servo = ODrive(1)
     state = servo.decode(frame(0x21, "00000000" + "010e0000"), 0.0)  # IDLE, NOT_CALIBRATED
     assert state is not None and state.faults == Fault.UNCALIBRATED
-    assert error_from_faults(Fault.OVER_CURRENT | Fault.OVER_TEMPERATURE) == 0x3000
 
 
 def test_is_reply_takes_only_this_nodes_pushes() -> None:

@@ -122,7 +122,7 @@ def test_options_reach_the_profile_the_budget_and_the_simulated_device() -> None
     [servo] = config.servos
     profile = servo.make_profile()
     assert isinstance(profile, CubeMarsAK)
-    assert profile.erpm_per_dps == pytest.approx(14 / 6)  # the AK60-6's 14 pole pairs
+    assert profile.erpm_per_dps == pytest.approx(14 * 6 / 6)  # AK60-6: 14 pole pairs, 6:1
     sim = SimServo("cubemars-ak", 2, options=servo.profile_options())
     sim.receive(profile.position_command(90.0, 100.0), 0.0)
     [(_, status)] = sim.poll(0.05) or sim.poll(0.2)
@@ -132,23 +132,25 @@ def test_options_reach_the_profile_the_budget_and_the_simulated_device() -> None
 
 
 def test_cubemars_velocity_decodes_with_the_models_pole_pairs() -> None:
-    """One status frame, two models: 1000 ERPM is 1000 / (pole pairs / 6) deg/s (item 5)."""
+    """One status frame, two models: 1000 rotor ERPM is 1000 / (pole pairs x gear / 6) output
+    deg/s (item 5; issue 27 finding 4: the gear ratio)."""
     frame = can.Message(
         arbitration_id=0x2902, is_extended_id=True, data=struct.pack(">hhhbB", 0, 100, 0, 25, 0)
     )
     ak80 = CubeMarsAK(2).decode(frame, 0.0)
     ak60 = CubeMarsAK(2, model="AK60-6").decode(frame, 0.0)
     assert ak80 is not None and ak60 is not None
-    assert ak80.velocity_dps == pytest.approx(1000 / (21 / 6))
-    assert ak60.velocity_dps == pytest.approx(1000 / (14 / 6))
-    assert CubeMarsAK(2, model="AK60-6", pole_pairs=7).erpm_per_dps == pytest.approx(7 / 6)
+    assert ak80.velocity_dps == pytest.approx(1000 / (21 * 9 / 6))
+    assert ak60.velocity_dps == pytest.approx(1000 / (14 * 6 / 6))
+    assert CubeMarsAK(2, model="AK60-6", pole_pairs=7).erpm_per_dps == pytest.approx(7 * 6 / 6)
 
 
 def test_rmdx_start_up_frame_sets_the_servos_own_communication_timeout() -> None:
     [frame] = RmdX(3, comm_timeout_ms=250).startup_frames()
     assert (frame.arbitration_id, frame.is_extended_id) == (0x143, False)
     assert bytes(frame.data) == bytes.fromhex("B3000000FA000000")  # 250 ms, little-endian u32
-    assert registry.get_profile("lk")(3).startup_frames() == [], "LK-Tech has no 0xB3"
+    lk_startup = [bytes(f.data) for f in registry.get_profile("lk")(3).startup_frames()]
+    assert lk_startup == [bytes.fromhex("8800000000000000")], "LK-Tech: motor on, no 0xB3"
 
 
 def test_rmdx_release_turns_the_simulated_motor_off_and_a_command_runs_it_again() -> None:

@@ -477,7 +477,7 @@ def test_an_mit_command_never_reads_as_a_special_frame() -> None:
 @given(
     model=st.sampled_from(sorted(MODELS)),
     angle=st.floats(-700.0, 700.0),
-    temperature=st.floats(0.0, 150.0),
+    temperature=st.floats(0.0, 79.0),  # hotter is an over-temperature: a fault report
 )
 def test_mit_feedback_round_trips_through_the_device(
     model: str, angle: float, temperature: float

@@ -33,7 +33,8 @@ from e2e_support import (
     status,
 )
 
-from mavservo.servos.robstride import PARAM_LOC_REF, RobstrideDevice, RobstrideOptions
+from mavservo.servos.robstride import PARAM_LOC_REF, RobstrideOptions
+from mavservo.servos.robstride_sim import RsMotorDevice
 from mavservo.sim.autopilot.link import mavlink2
 
 pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")
@@ -180,7 +181,7 @@ def test_a_motor_speaking_the_other_protocol_is_named_with_the_cause() -> None:
             peer.gcs_heartbeat()
             mark = peer.count()
             device = sim_servo(bridge, "rs_private")
-            mit_motor = RobstrideDevice(device, 1, RobstrideOptions(protocol="mit"))
+            mit_motor = RsMotorDevice(device, 1, RobstrideOptions(protocol="mit"))
             mit_motor.reporting = True  # left on by an earlier session
             device._device = mit_motor  # noqa: SLF001 - the motor switched protocol
             assert peer.command(MAV_CMD_DO_SET_SERVO, [1, 1510]) == MAV_RESULT_ACCEPTED
@@ -204,7 +205,7 @@ def test_a_motor_that_never_answers_is_named_with_what_to_check() -> None:
             peer.gcs_heartbeat()
             mark = peer.count()
             device = sim_servo(bridge, "rs_mit")
-            device._device = RobstrideDevice(device, 2, RobstrideOptions())  # noqa: SLF001
+            device._device = RsMotorDevice(device, 2, RobstrideOptions())  # noqa: SLF001
             assert peer.command(MAV_CMD_DO_SET_SERVO, [2, 1510]) == MAV_RESULT_ACCEPTED
             assert wait_until(
                 lambda: any(

@@ -1,7 +1,7 @@
 """``mavservo run`` on the family example configs (Damiao DM-J, CubeMars AK in MIT mode,
-ODrive, Robstride), on the built-in simulation as a user starts it: the simulated autopilot
-drives the servos, they follow, telemetry comes back, nothing is lost, and the configs pass
-``mavservo check``."""
+ODrive, Robstride, LK-Tech), on the built-in simulation as a user starts it: the simulated
+autopilot drives the servos, they follow, telemetry comes back, nothing is lost, and the configs
+pass ``mavservo check``."""
 
 from __future__ import annotations
 
@@ -11,7 +11,13 @@ import pytest
 from e2e_support import run_example_config_follows_and_loses_nothing
 from test_run_cli import REPO, run_mavservo
 
-FAMILY_CONFIGS = ["damiao.yaml", "cubemars-mit.yaml", "odrive.yaml", "robstride.yaml"]
+FAMILY_CONFIGS = [
+    "damiao.yaml",
+    "cubemars-mit.yaml",
+    "odrive.yaml",
+    "robstride.yaml",
+    "lk.yaml",
+]
 
 
 @pytest.mark.parametrize("config_name", FAMILY_CONFIGS)

@@ -150,11 +150,12 @@ def test_cubemars_mode_4_position_is_big_endian_deg_times_1e4():
 
 
 def test_cubemars_mode_6_carries_speed_and_acceleration_in_erpm():
-    # -45 deg -> -450000 = 0xFFF92230; 360 dps * 21/6 = 1260 ERPM -> 126;
-    # 3600 dps^2 * 3.5 = 12600 ERPM/s -> 1260 = 0x04EC
+    # -45 deg -> -450000 = 0xFFF92230; speeds are rotor ERPM, positions output degrees: an
+    # AK80-9 (21 pole pairs, 9:1) turns 1 output deg/s at 21 x 9 / 6 = 31.5 ERPM, so
+    # 360 dps -> 11340 ERPM -> 1134 = 0x046E; 3600 dps^2 -> 113400 ERPM/s -> 11340 = 0x2C4C
     msg = CubeMarsAK(104).position_command(-45.0, 360)
     assert msg.arbitration_id == 0x668
-    assert bytes(msg.data) == bytes.fromhex("FF F9 22 30 00 7E 04 EC")
+    assert bytes(msg.data) == bytes.fromhex("FF F9 22 30 04 6E 2C 4C")
 
 
 def test_cubemars_status_decodes_with_named_error_code():
@@ -163,7 +164,7 @@ def test_cubemars_status_decodes_with_named_error_code():
     state = profile.decode(_ext(0x2968, "03 84 FF F6 00 C8 2D 02"), 3.0)
     assert state is not None
     assert state.position_deg == pytest.approx(90.0)
-    assert state.velocity_dps == pytest.approx(-100 / 3.5)
+    assert state.velocity_dps == pytest.approx(-100 / 31.5)  # rotor ERPM of an AK80-9
     assert state.current_a == pytest.approx(2.0)
     assert state.temperature_c == 45.0
     assert state.faults == Fault.OVER_CURRENT

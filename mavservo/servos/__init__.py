@@ -8,6 +8,7 @@ profiles by their short ``name``.
 
 from __future__ import annotations
 
+from . import simulators  # noqa: F401  (fills sim_registry with the built-in devices)
 from .base import (
     NO_FAULT,
     UNKNOWN,
@@ -23,9 +24,10 @@ from .cubemars import CubeMarsAK
 from .cubemars_mit import CubeMarsAKMit
 from .damiao import DamiaoDM
 from .dronecan import DroneCanServo
+from .lk import LkTech
 from .odrive import ODrive
 from .registry import PROFILES, UnknownProfileError, get_profile, load_errors, profiles
-from .rmdx import LkTech, RmdX
+from .rmdx import RmdX
 from .robstride import Robstride
 
 __all__ = [

@@ -9,10 +9,13 @@ Wire facts (extended 29-bit IDs, big-endian):
   error codes 1 over-temperature, 2 over-current, 3 over-voltage, 4 under-voltage, 5 encoder,
   6 phase imbalance.
 
-Speeds travel as electrical RPM. ``erpm_per_dps`` converts (``pole_pairs / 6`` for a speed in
-the same shaft frame as the position). The pole pairs are per model: the ``model`` option names
-an AK model (its pole pairs from :data:`MODEL_POLE_PAIRS`), ``pole_pairs`` overrides it; the
-default is the AK80-9's 21.
+Speeds travel as electrical RPM of the motor's rotor (the manual's servo-mode tables: speed
+"ERPM", electrical speed), positions as degrees of the output (after the module's gearbox). So
+one output degree per second is ``pole_pairs x gear_ratio / 6`` ERPM (``erpm_per_dps``): an
+AK80-9 (21 pole pairs, 9:1) turns 1 output deg/s at 31.5 ERPM. Both are per model: the
+``model`` option names an AK model (its pole pairs from :data:`MODEL_POLE_PAIRS`, its ratio from
+:data:`MODEL_GEAR_RATIO`: the number after the dash), ``pole_pairs`` and ``gear_ratio``
+override them; the default is an AK80-9.
 
 Servo mode has no motor-off or enable command, so the profile has no lifecycle frames and
 ``failsafe: release`` is refused for it.
@@ -39,8 +42,8 @@ from .base import (
     ServoState,
     SimDevice,
     SimMotor,
-    clamp_int,
 )
+from .sim_registry import simulated_device
 
 MODE_POSITION = 4
 MODE_POSITION_SPEED = 6
@@ -70,6 +73,17 @@ MODEL_POLE_PAIRS: dict[str, int] = {
 against an independent driver's table; the others are unverified here: check your model's
 datasheet and set ``pole_pairs`` when in doubt (it overrides the model)."""
 
+MODEL_GEAR_RATIO: dict[str, float] = {
+    "AK10-9": 9.0,
+    "AK60-6": 6.0,
+    "AK70-10": 10.0,
+    "AK80-6": 6.0,
+    "AK80-8": 8.0,
+    "AK80-9": 9.0,
+    "AK80-64": 64.0,
+}
+"""Reduction ratio of each AK module (its name: AK80-9 is 9:1; the manual's product tables)."""
+
 ModelName = Literal["AK10-9", "AK60-6", "AK70-10", "AK80-6", "AK80-8", "AK80-9", "AK80-64"]
 
 COMMAND_MODES = range(8)
@@ -83,14 +97,6 @@ def fault_from_error_code(code: int) -> Fault:
     return ERROR_CODES.get(code, Fault.OTHER)
 
 
-def error_code_from_faults(faults: Fault) -> int:
-    """The single code a servo reports for a fault set: the first documented one present."""
-    for code, fault in ERROR_CODES.items():
-        if fault in faults:
-            return code
-    return 0
-
-
 def command_id(mode: int, can_id: int) -> int:
     return (mode << 8) | can_id
 
@@ -102,6 +108,13 @@ class CubeMarsOptions(ProfileOptions):
     pole_pairs: int | None = Field(
         None, ge=1, le=64, description="motor pole pairs (null: the model's); speeds are ERPM"
     )
+    gear_ratio: float | None = Field(
+        None,
+        ge=1.0,
+        le=1000.0,
+        description="output gear reduction (null: the model's, e.g. 9 for an AK80-9); speeds "
+        "are rotor ERPM, positions output degrees",
+    )
     accel_dps2: float = Field(
         3600.0, gt=0, le=1_000_000, description="acceleration limit sent with a speed (deg/s^2)"
     )
@@ -109,6 +122,10 @@ class CubeMarsOptions(ProfileOptions):
     def resolved_pole_pairs(self) -> int:
         """``pole_pairs`` if set, else the model's."""
         return self.pole_pairs if self.pole_pairs is not None else MODEL_POLE_PAIRS[self.model]
+
+    def resolved_gear_ratio(self) -> float:
+        """``gear_ratio`` if set, else the model's."""
+        return self.gear_ratio if self.gear_ratio is not None else MODEL_GEAR_RATIO[self.model]
 
 
 class CubeMarsAK(ServoProfile):
@@ -148,8 +165,7 @@ class CubeMarsAK(ServoProfile):
 
     @classmethod
     def sim_device(cls, motor: SimMotor, can_id: int, options: ProfileOptions) -> SimDevice:
-        assert isinstance(options, CubeMarsOptions)
-        return CubeMarsDevice(motor, can_id, erpm_per_dps(options))
+        return simulated_device(cls, motor, can_id, options)
 
     def position_command(self, angle_deg: float, max_speed_dps: float | None = None) -> can.Message:
         self._check_angle(angle_deg)
@@ -205,58 +221,5 @@ class CubeMarsAK(ServoProfile):
 
 
 def erpm_per_dps(options: CubeMarsOptions) -> float:
-    """Electrical RPM per shaft degree per second: pole pairs / 6."""
-    return options.resolved_pole_pairs() / 6
-
-
-class CubeMarsDevice:
-    """Device side of CubeMars AK servo mode: obeys modes 4 and 6, pushes status (and, as the
-    bridge's simulation always has, answers each command with a status frame)."""
-
-    pushes = True
-
-    def __init__(self, motor: SimMotor, can_id: int, erpm_per_dps: float) -> None:
-        self.motor = motor
-        self.can_id = can_id
-        self.erpm_per_dps = erpm_per_dps
-        self.status_id = STATUS_BASE | can_id
-
-    def accepts(self, msg: can.Message) -> bool:
-        mode = msg.arbitration_id >> 8
-        return (
-            msg.is_extended_id
-            and msg.arbitration_id & 0xFF == self.can_id
-            and (
-                (mode == MODE_POSITION and len(msg.data) == 4)
-                or (mode == MODE_POSITION_SPEED and len(msg.data) == 8)
-            )
-        )
-
-    def handle(self, msg: can.Message, now: float) -> list[can.Message]:
-        data = bytes(msg.data)
-        motor = self.motor
-        if msg.arbitration_id >> 8 == MODE_POSITION:
-            (position,) = struct.unpack(">i", data)
-            motor.command_position(position / 10_000, None, now)
-        else:
-            position, speed, accel = struct.unpack(">ihh", data)
-            per = self.erpm_per_dps
-            motor.command_position(
-                position / 10_000, abs(speed) * 10 / per, now, abs(accel) * 10 / per
-            )
-        return self.status(now)
-
-    def status(self, now: float) -> list[can.Message]:
-        motor = self.motor
-        payload = struct.pack(
-            ">hhhbB",
-            clamp_int(round(motor.position_deg * 10), -32768, 32767),
-            clamp_int(round(motor.velocity_dps * self.erpm_per_dps / 10), -32768, 32767),
-            clamp_int(round(motor.measured_current_a() * 100), -32768, 32767),
-            clamp_int(round(motor.temperature_c), -128, 127),
-            error_code_from_faults(motor.active_faults),
-        )
-        return [can.Message(arbitration_id=self.status_id, is_extended_id=True, data=payload)]
-
-    def tick(self, now: float) -> None:
-        return None
+    """Rotor electrical RPM per output degree per second: pole pairs x gear ratio / 6."""
+    return options.resolved_pole_pairs() * options.resolved_gear_ratio() / 6

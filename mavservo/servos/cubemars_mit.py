@@ -14,7 +14,8 @@ communication protocol":
 * special codes on the same id: ``FF x7 FC`` enter motor control mode (required before any
   command; it also makes the motor answer with its state, which is the poll used here),
   ``FD`` exit (torque off), ``FE`` set the present position as zero;
-* the driver answers ``[driver id, position 16, speed 12, current 12, temperature, error]``,
+* the driver answers ``[driver id, position 16, speed 12, current 12]`` (DLC 6, the manual's
+  MIT reply table) or with ``temperature, error`` after it (DLC 8, drivers that add them),
   mapped with the same ranges, on identifier ``0x00`` (the manual's "0X00 + Drive ID" table
   header; the master id is an option for drivers configured otherwise), error codes as in
   servo mode: 1 over-temperature, 2 over-current, 3 over-voltage, 4 under-voltage, 5 encoder,
@@ -31,16 +32,19 @@ otherwise ignored.
 from __future__ import annotations
 
 import math
-from typing import ClassVar
+from typing import ClassVar, Literal
 
 import can
 from pydantic import Field
 
 from . import mit
 from .base import FrameId, ProfileOptions, ServoProfile, ServoState, SimDevice, SimMotor
-from .cubemars import error_code_from_faults, fault_from_error_code
+from .cubemars import fault_from_error_code
+from .sim_registry import simulated_device
 
-REPLY_LEN = 8
+REPLY_LENGTHS = (6, 8)
+"""The manual's MIT reply table gives DLC 6 (position, speed, current); drivers that add the
+temperature and error code send 8. Both are this driver's answer."""
 ZERO_MUTE_S = 1.0
 """How long the driver stays silent after a set-zero frame (the manual's "about a second")."""
 
@@ -60,6 +64,12 @@ class CubeMarsMitOptions(mit.MitOptions):
         le=60_000,
         description="the driver's own CAN timeout as set with R-Link (0: none); not writable "
         "over CAN, so it is not sent: it tells the simulation what the driver does",
+    )
+    reply_bytes: Literal[6, 8] = Field(
+        8,
+        description="the driver's answer length: 6 (position, speed, current: the manual's "
+        "MIT reply table) or 8 (plus temperature and error code); both are decoded, so it "
+        "only tells the simulation what the driver sends",
     )
 
 
@@ -127,8 +137,7 @@ class CubeMarsAKMit(ServoProfile):
     @classmethod
     def sim_device(cls, motor: SimMotor, can_id: int, options: ProfileOptions) -> SimDevice:
         """The simulated driver (built-in simulation, ``mavservo sim``)."""
-        assert isinstance(options, CubeMarsMitOptions)
-        return CubeMarsMitDevice(motor, can_id, options)
+        return simulated_device(cls, motor, can_id, options)
 
     def identifiers(self) -> tuple[FrameId, ...]:
         """Commands, polls and special frames on the id; answers on the master id, byte 0 the
@@ -149,7 +158,7 @@ class CubeMarsAKMit(ServoProfile):
             not msg.is_extended_id
             and not msg.is_remote_frame
             and msg.arbitration_id == self.options.master_id
-            and len(msg.data) == REPLY_LEN
+            and len(msg.data) in REPLY_LENGTHS
             and msg.data[0] == self.can_id
         )
 
@@ -158,95 +167,13 @@ class CubeMarsAKMit(ServoProfile):
             return None
         data = bytes(msg.data)
         reply = mit.unpack_reply(data, self.ranges)
-        temperature = data[6] - 256 if data[6] >= 0x80 else data[6]
+        short = len(data) < 8  # no temperature, no error code: those keep their last value
+        temperature = None if short else float(data[6] - 256 if data[6] >= 0x80 else data[6])
         return self._merge(
             timestamp,
             position_deg=math.degrees(reply.position_rad),
             velocity_dps=math.degrees(reply.velocity_rad_s),
             current_a=reply.torque_nm / self.options.torque_constant_nm_per_a,
-            temperature_c=float(temperature),
-            faults=fault_from_error_code(data[7]),
-        )
-
-
-class CubeMarsMitDevice:
-    """The driver side of an AK module in MIT mode, on a SimMotor.
-
-    Out of motor mode (as it powers up, and after ``FD``) it ignores commands and does not
-    answer them; ``FC`` enters motor mode and is always answered with the state; ``FE`` zeroes
-    the position and mutes the driver for about a second. With a CAN timeout set (R-Link, the
-    ``comm_timeout_ms`` option) a driver that hears nothing for that long stops driving the
-    motor (torque off) but stays in motor mode: the next command drives it again.
-    """
-
-    pushes = False
-
-    def __init__(self, motor: SimMotor, can_id: int, options: CubeMarsMitOptions) -> None:
-        self.motor = motor
-        self.can_id = can_id
-        self.options = options
-        self.ranges = options.ranges()
-        self.muted_until = -math.inf
-        self.motor_mode = False
-        self.last_frame_time: float | None = None
-        motor.enabled = False  # out of motor mode at power-up: it waits for FF x7 FC
-
-    def accepts(self, msg: can.Message) -> bool:
-        return (
-            not msg.is_extended_id
-            and not msg.is_remote_frame
-            and msg.arbitration_id == self.can_id
-            and len(msg.data) == 8
-        )
-
-    def handle(self, msg: can.Message, now: float) -> list[can.Message]:
-        self.tick(now)
-        self.last_frame_time = now
-        data = bytes(msg.data)
-        if mit.is_special(data):
-            code = data[7]
-            if code == mit.ENTER_MOTOR_MODE[7]:
-                self.motor_mode = True
-                self.motor.enable(now)
-            elif code == mit.EXIT_MOTOR_MODE[7]:
-                self.motor_mode = False
-                self.motor.disable(now)
-            elif code == mit.SET_ZERO[7]:
-                self.motor.set_zero(now)
-                self.muted_until = now + ZERO_MUTE_S
-        elif self.motor_mode:
-            if not self.motor.enabled:  # after its own timeout: the command drives it again
-                self.motor.enable(now)
-            command = mit.unpack_command(data, self.ranges)
-            self.motor.command_position(math.degrees(command.position_rad), None, now)
-        else:
-            return []
-        return [] if now < self.muted_until else [self.reply()]
-
-    def status(self, now: float) -> list[can.Message]:
-        return []
-
-    def tick(self, now: float) -> None:
-        """The driver's own CAN timeout: quiet for longer, it stops driving the motor."""
-        timeout_s = self.options.comm_timeout_ms / 1000
-        quiet = self.last_frame_time is not None and now - self.last_frame_time > timeout_s
-        if timeout_s > 0 and quiet and self.motor.enabled:
-            self.motor.disable(now)
-
-    def reply(self) -> can.Message:
-        motor = self.motor
-        torque = motor.measured_current_a() * self.options.torque_constant_nm_per_a
-        body = mit.pack_reply(
-            self.can_id,
-            math.radians(motor.position_deg),
-            math.radians(motor.velocity_dps),
-            torque,
-            self.ranges,
-        )
-        temperature = max(-128, min(127, round(motor.temperature_c))) & 0xFF
-        error = error_code_from_faults(motor.active_faults)
-        return can.Message(
-            arbitration_id=self.options.master_id,
-            is_extended_id=False,
-            data=body + bytes([temperature, error]),
+            temperature_c=temperature,
+            faults=None if short else fault_from_error_code(data[7]),
         )

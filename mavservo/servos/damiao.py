@@ -56,6 +56,7 @@ from .base import (
     SimDevice,
     SimMotor,
 )
+from .sim_registry import simulated_device
 
 REGISTER_ID = 0x7FF
 POSITION_VELOCITY_BASE = 0x100
@@ -87,15 +88,6 @@ def fault_from_status(status: int) -> Fault:
     if status in (STATUS_DISABLED, STATUS_ENABLED):
         return NO_FAULT
     return STATUS_FAULTS.get(status, Fault.OTHER)
-
-
-def status_from_faults(faults: Fault, enabled: bool) -> int:
-    """The status a motor with ``faults`` reports (the simulated device): the first
-    documented code present, else enabled or disabled."""
-    for code, fault in STATUS_FAULTS.items():
-        if fault in faults:
-            return code
-    return STATUS_ENABLED if enabled else STATUS_DISABLED
 
 
 class DamiaoOptions(mit.MitOptions):
@@ -209,8 +201,7 @@ class DamiaoDM(ServoProfile):
     @classmethod
     def sim_device(cls, motor: SimMotor, can_id: int, options: ProfileOptions) -> SimDevice:
         """The simulated motor (built-in simulation, ``mavservo sim``)."""
-        assert isinstance(options, DamiaoOptions)
-        return DamiaoDevice(motor, can_id, options)
+        return simulated_device(cls, motor, can_id, options)
 
     def identifiers(self) -> tuple[FrameId, ...]:
         """Commands (and in MIT mode the special frames) on the CAN id, position-velocity
@@ -299,111 +290,3 @@ class DamiaoDM(ServoProfile):
             temperature_c=float(max(data[6], data[7])),
             faults=fault_from_status(status),
         )
-
-
-class DamiaoDevice:
-    """The motor side of a DM-J for the simulation: what the real one does, on a SimMotor.
-
-    It starts as it leaves the factory: MIT mode, no communication timeout, disabled. It answers
-    every frame addressed to it with a feedback frame on the master id (register frames with
-    their echo), moves only while enabled and only on commands of its present mode, leaves the
-    enabled state on a fault (the fault's status shows while the condition lasts) and, once
-    the TIMEOUT register is set, when no frame came for that long: then it reports status D
-    until a clear-error frame, and refuses to enable before it.
-    """
-
-    pushes = False
-
-    def __init__(self, motor: SimMotor, can_id: int, options: DamiaoOptions) -> None:
-        self.motor = motor
-        self.can_id = can_id
-        self.options = options
-        self.ranges = options.ranges()
-        motor.enabled = False  # a DM-J powers up disabled: it waits for the enable frame
-        self.registers: dict[int, int] = {RID_CTRL_MODE: CTRL_MODE_MIT, RID_TIMEOUT: 0}
-        self.communication_lost = False
-        self.last_frame_time: float | None = None
-
-    def accepts(self, msg: can.Message) -> bool:
-        if msg.is_extended_id or msg.is_remote_frame or len(msg.data) != 8:
-            return False
-        if msg.arbitration_id == REGISTER_ID:
-            return bytes(msg.data[:2]) == struct.pack("<H", self.can_id)
-        return msg.arbitration_id in (self.can_id, POSITION_VELOCITY_BASE + self.can_id)
-
-    def handle(self, msg: can.Message, now: float) -> list[can.Message]:
-        self.tick(now)
-        self.last_frame_time = now
-        data = bytes(msg.data)
-        if msg.arbitration_id == REGISTER_ID:
-            return [self._register(data)]
-        if mit.is_special(data) and msg.arbitration_id == self.can_id:
-            self._special(data[7], now)
-        elif self.motor.enabled and not self.motor.active_faults:
-            self._command(msg.arbitration_id, data, now)
-        return [self.feedback()]
-
-    def _register(self, data: bytes) -> can.Message:
-        operation, rid = data[2], data[3]
-        if operation == REG_REFRESH:
-            return self.feedback()
-        if operation == REG_WRITE:
-            self.registers[rid] = struct.unpack_from("<I", data, 4)[0]
-        value = struct.pack("<I", self.registers.get(rid, 0))
-        return self._answer(data[:4] + value)
-
-    def _special(self, code: int, now: float) -> None:
-        if code == mit.ENTER_MOTOR_MODE[7]:
-            if not self.communication_lost and not self.motor.active_faults:
-                self.motor.enable(now)
-        elif code == mit.EXIT_MOTOR_MODE[7]:
-            self.motor.disable(now)
-        elif code == mit.SET_ZERO[7]:
-            self.motor.set_zero(now)
-        elif code == mit.CLEAR_ERROR[7]:
-            self.communication_lost = False
-
-    def _command(self, arbitration_id: int, data: bytes, now: float) -> None:
-        mode = self.registers.get(RID_CTRL_MODE)
-        if arbitration_id == self.can_id and mode == CTRL_MODE_MIT:
-            command = mit.unpack_command(data, self.ranges)
-            self.motor.command_position(math.degrees(command.position_rad), None, now)
-        elif arbitration_id != self.can_id and mode == CTRL_MODE_POSITION_VELOCITY:
-            position, velocity = struct.unpack("<ff", data)
-            if math.isfinite(position) and math.isfinite(velocity) and velocity != 0:
-                speed = math.degrees(abs(velocity))
-                self.motor.command_position(math.degrees(position), speed, now)
-
-    def status(self, now: float) -> list[can.Message]:
-        return []
-
-    def tick(self, now: float) -> None:
-        """The motor's own timers: its communication timeout, and a fault tripping it."""
-        if self.motor.enabled and self.motor.active_faults:
-            self.motor.disable(now)
-        timeout_s = self.registers.get(RID_TIMEOUT, 0) / TIMEOUT_UNITS_PER_MS / 1000
-        quiet = self.last_frame_time is not None and now - self.last_frame_time > timeout_s
-        if self.motor.enabled and timeout_s > 0 and quiet:
-            self.motor.disable(now)
-            self.communication_lost = True
-
-    def feedback(self) -> can.Message:
-        motor = self.motor
-        if self.communication_lost:
-            status = STATUS_COMMUNICATION_LOST
-        else:
-            status = status_from_faults(motor.active_faults, motor.enabled)
-        torque = motor.measured_current_a() * self.options.torque_constant_nm_per_a
-        head = status << 4 | self.can_id & 0x0F
-        body = mit.pack_reply(
-            head,
-            math.radians(motor.position_deg),
-            math.radians(motor.velocity_dps),
-            torque,
-            self.ranges,
-        )
-        temperature = max(0, min(255, round(motor.temperature_c)))
-        return self._answer(body + bytes([temperature, temperature]))
-
-    def _answer(self, data: bytes) -> can.Message:
-        return can.Message(arbitration_id=self.options.master_id, is_extended_id=False, data=data)

@@ -74,6 +74,7 @@ from .base import (
     SimDevice,
     SimMotor,
 )
+from .sim_registry import simulated_device
 
 NODE_MASK = 0x7E0
 """The id bits that name the node (the upper six of eleven)."""
@@ -180,16 +181,6 @@ def fault_from_error(error: int) -> Fault:
     if rest:
         faults |= Fault.OTHER
     return faults
-
-
-def error_from_faults(faults: Fault) -> int:
-    """The axis error bits a simulated ODrive reports for a motor's fault set."""
-    error = 0
-    if Fault.OVER_CURRENT in faults:
-        error |= CURRENT_LIMIT_VIOLATION
-    if Fault.OVER_TEMPERATURE in faults:
-        error |= MOTOR_OVER_TEMP
-    return error
 
 
 def arbitration_id(node_id: int, command: int) -> int:
@@ -407,8 +398,7 @@ class ODrive(ServoProfile):
     @classmethod
     def sim_device(cls, motor: SimMotor, can_id: int, options: ProfileOptions) -> SimDevice:
         """The simulated ODrive (built-in simulation, ``mavservo sim``)."""
-        assert isinstance(options, ODriveOptions)
-        return ODriveDevice(motor, can_id, options)
+        return simulated_device(cls, motor, can_id, options)
 
     def identifiers(self) -> tuple[FrameId, ...]:
         """Each frame sent and pushed, then the node's whole block: the ODrive takes any frame
@@ -483,170 +473,3 @@ class ODrive(ServoProfile):
         # or homing the ODrive runs by itself must not be cut short by a closed-loop request.
         self._startup_due = state == STATE_IDLE
         return self._merge(timestamp, faults=self._faults(error))
-
-
-class ODriveDevice:
-    """The ODrive side of one axis for the simulation, on a SimMotor.
-
-    It powers up IDLE (motor off) and moves only in CLOSED_LOOP_CONTROL with position control
-    selected, at its velocity limit (passthrough, pos-filter) or along a trapezoidal trajectory
-    (trap-traj). It answers nothing; it pushes encoder estimates at the servo's telemetry rate
-    (``status``) with a heartbeat every ``heartbeat_ms`` (and iq, temperature and bus values
-    every ``aux_rate_ms`` when set). A motor fault disarms the axis (IDLE, the fault's error bit
-    in the heartbeat) and arming is refused while it lasts; so does the watchdog when no frame
-    came for ``watchdog_timeout_s`` (WATCHDOG_TIMER_EXPIRED) until the next closed-loop request.
-    The watchdog is the options' (as set with odrivetool), or what RxSdo writes to the
-    configured endpoint ids set.
-    """
-
-    pushes = True
-
-    def __init__(self, motor: SimMotor, can_id: int, options: ODriveOptions) -> None:
-        self.motor = motor
-        self.can_id = can_id
-        self.options = options
-        self.state = STATE_IDLE
-        motor.enabled = False
-        self.control_mode = CONTROL_MODE_POSITION
-        self.input_mode = INPUT_MODES["passthrough"]
-        self.velocity_limit = options.velocity_limit_turns_s
-        self.traj_velocity = options.velocity_limit_turns_s
-        self.traj_accel = options.traj_accel_turns_s2
-        self.disarm_reason = 0
-        self.procedure_result = PROCEDURE_SUCCESS
-        self.watchdog_timeout_s = options.watchdog_timeout_s
-        self.watchdog_enabled = options.watchdog_timeout_s > 0
-        self.last_feed: float | None = None
-        self.next_heartbeat: float | None = None
-        self.next_aux: float | None = None
-        self.trajectory_done = True
-
-    def accepts(self, msg: can.Message) -> bool:
-        return (
-            not msg.is_extended_id
-            and not msg.is_remote_frame
-            and msg.arbitration_id >> 5 == self.can_id
-            and msg.arbitration_id & 0x1F not in PUSHES
-        )
-
-    def handle(self, msg: can.Message, now: float) -> list[can.Message]:
-        self.tick(now)
-        self.last_feed = now  # any frame to the node feeds the watchdog
-        data = bytes(msg.data)
-        command = msg.arbitration_id & 0x1F
-        if command == CMD_SET_AXIS_STATE and len(data) >= 4:
-            self._request_state(struct.unpack_from("<I", data)[0], now)
-        elif command == CMD_SET_INPUT_POS and len(data) >= 8:
-            self._input_pos(struct.unpack_from("<f", data)[0], now)
-        elif command == CMD_SET_CONTROLLER_MODE and len(data) >= 8:
-            self.control_mode, self.input_mode = struct.unpack_from("<II", data)
-        elif command == CMD_SET_LIMITS and len(data) >= 8:
-            self.velocity_limit = self._positive(data, 0, self.velocity_limit)
-        elif command == CMD_SET_TRAJ_VEL_LIMIT and len(data) >= 4:
-            self.traj_velocity = self._positive(data, 0, self.traj_velocity)
-        elif command == CMD_SET_TRAJ_ACCEL_LIMITS and len(data) >= 8:
-            self.traj_accel = self._positive(data, 0, self.traj_accel)
-        elif command == CMD_CLEAR_ERRORS:
-            self.disarm_reason = 0
-            self.procedure_result = PROCEDURE_SUCCESS
-        elif command == CMD_RX_SDO and len(data) >= 8 and data[0] == SDO_WRITE:
-            self._sdo_write(struct.unpack_from("<H", data, 1)[0], data[4:])
-        return []
-
-    @staticmethod
-    def _positive(data: bytes, offset: int, old: float) -> float:
-        (value,) = struct.unpack_from("<f", data, offset)
-        return value if math.isfinite(value) and value > 0 else old
-
-    def _sdo_write(self, endpoint: int, value: bytes) -> None:
-        if endpoint == self.options.watchdog_timeout_endpoint:
-            (timeout,) = struct.unpack_from("<f", value)
-            if math.isfinite(timeout) and timeout >= 0:
-                self.watchdog_timeout_s = timeout
-        elif endpoint == self.options.enable_watchdog_endpoint:
-            self.watchdog_enabled = value[0] != 0
-
-    def _request_state(self, state: int, now: float) -> None:
-        if state == STATE_IDLE:
-            self._disarm(0, now)
-        elif state == STATE_CLOSED_LOOP:
-            active = error_from_faults(self.motor.active_faults)
-            if active:
-                self.disarm_reason |= active
-                self.procedure_result = PROCEDURE_DISARMED
-                return
-            self.disarm_reason = 0
-            self.procedure_result = PROCEDURE_SUCCESS
-            self.state = STATE_CLOSED_LOOP
-            self.motor.enable(now)
-
-    def _input_pos(self, turns: float, now: float) -> None:
-        if self.state != STATE_CLOSED_LOOP or self.control_mode != CONTROL_MODE_POSITION:
-            return
-        if not math.isfinite(turns):
-            return
-        o = self.options
-        if self.input_mode == INPUT_MODES["trap-traj"]:
-            speed = o.degrees(min(self.traj_velocity, self.velocity_limit))
-            self.motor.command_position(o.degrees(turns), speed, now, o.degrees(self.traj_accel))
-        else:
-            self.motor.command_position(o.degrees(turns), o.degrees(self.velocity_limit), now)
-        self.trajectory_done = False
-
-    def _disarm(self, reason: int, now: float) -> None:
-        self.disarm_reason |= reason
-        self.state = STATE_IDLE
-        self.motor.disable(now)
-
-    def tick(self, now: float) -> None:
-        """The axis' own checks: a motor fault or an expired watchdog disarms it."""
-        if self.state != STATE_CLOSED_LOOP:
-            return
-        active = error_from_faults(self.motor.active_faults)
-        if active:
-            self._disarm(active, now)
-            return
-        timeout = self.watchdog_timeout_s
-        if self.watchdog_enabled and timeout > 0 and self.last_feed is not None:
-            expiry = self.last_feed + timeout
-            if now > expiry:
-                self._disarm(WATCHDOG_TIMER_EXPIRED, expiry)
-
-    def status(self, now: float) -> list[can.Message]:
-        """Encoder estimates every call, the heartbeat and auxiliary messages when due."""
-        self.tick(now)
-        o = self.options
-        motor = self.motor
-        frames = [
-            self._push(
-                CMD_ENCODER_ESTIMATES,
-                struct.pack("<ff", o.turns(motor.position_deg), o.turns(motor.velocity_dps)),
-            )
-        ]
-        if self.next_heartbeat is None or now >= self.next_heartbeat - 1e-9:
-            self.next_heartbeat = now + o.heartbeat_ms / 1000.0
-            frames.append(self._push(CMD_HEARTBEAT, self.heartbeat()))
-        if o.aux_rate_ms and (self.next_aux is None or now >= self.next_aux - 1e-9):
-            self.next_aux = now + o.aux_rate_ms / 1000.0
-            temperature = motor.temperature_c
-            frames += [
-                self._push(CMD_GET_IQ, struct.pack("<ff", 0.0, motor.measured_current_a())),
-                self._push(CMD_GET_TEMPERATURE, struct.pack("<ff", temperature, temperature)),
-                self._push(CMD_GET_BUS_VOLTAGE_CURRENT, struct.pack("<ff", motor.voltage_v, 0.0)),
-            ]
-        return frames
-
-    def heartbeat(self) -> bytes:
-        active = error_from_faults(self.motor.active_faults)
-        if self.state == STATE_CLOSED_LOOP and abs(self.motor.velocity_dps) < 1e-3:
-            self.trajectory_done = True
-        return struct.pack(
-            "<IBBBx",
-            active | self.disarm_reason,
-            self.state,
-            self.procedure_result,
-            int(self.trajectory_done),
-        )
-
-    def _push(self, command: int, data: bytes) -> can.Message:
-        return _frame(self.can_id, command, data)

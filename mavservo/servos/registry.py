@@ -25,8 +25,9 @@ from .cubemars import CubeMarsAK
 from .cubemars_mit import CubeMarsAKMit
 from .damiao import DamiaoDM
 from .dronecan import DroneCanServo
+from .lk import LkTech
 from .odrive import ODrive
-from .rmdx import LkTech, RmdX
+from .rmdx import RmdX
 from .robstride import Robstride
 
 ENTRY_POINT_GROUP = "mavservo.profiles"

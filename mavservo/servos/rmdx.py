@@ -1,9 +1,12 @@
-"""MyActuator RMD-X (protocol V4.x) and the LK-Tech / older-firmware variant.
+"""MyActuator RMD-X servos with protocol V4.x firmware.
+
+Older MyActuator firmware and LK-Tech motors (:mod:`.lk`) answer on the request id in another
+layout (raw iq counts, an encoder count instead of degrees, another 9A): this profile does not
+decode them.
 
 Wire facts (standard 11-bit IDs, little-endian, 8-byte payloads, one reply per request):
 
-* requests go to ``0x140 + id``; V4 firmware replies on ``0x240 + id``, LK-Tech and older RMD
-  firmware reply on ``0x140 + id`` (the only difference between the two profiles here);
+* requests go to ``0x140 + id``; V4 firmware replies on ``0x240 + id``;
 * ``A4`` absolute position: ``[A4, 00, max speed u16 dps, angle i32 0.01 deg]``;
 * ``9C`` read status 2; replies to A4 and 9C:
   ``[cmd, temperature i8 degC, iq i16 0.01 A, speed i16 dps, angle i16 whole degrees]``;
@@ -12,8 +15,9 @@ Wire facts (standard 11-bit IDs, little-endian, 8-byte payloads, one reply per r
 * ``80`` motor off (V4 "motor shutdown": output off, running state cleared; the next closed-loop
   command runs it again), echoed in the reply; the release and shutdown frame;
 * ``B3`` (V4) communication-loss protection: ``time u32 ms`` in bytes 4..7, echoed; when no frame
-  arrives for that long the servo turns its motor off by itself; 0 disables it. LK-Tech has no
-  such command, so the ``lk`` profile sends none.
+  arrives for that long the servo turns its motor off by itself; 0 disables it;
+* ``77`` brake release, ``78`` brake lock (V4, models with a holding brake), echoed: such a
+  model does not move while its brake holds, and the brake locks when it powers off.
 
 Range policy: an angle that is not finite or does not fit the i32 0.01-deg field raises
 ``ValueError``; a speed limit saturates at the u16 field maximum (65535 dps) and is never sent
@@ -38,10 +42,12 @@ from .base import (
     ServoState,
     SimDevice,
     SimMotor,
-    clamp_int,
 )
+from .sim_registry import simulated_device
 
 CMD_MOTOR_OFF = 0x80
+CMD_BRAKE_RELEASE = 0x77
+CMD_BRAKE_LOCK = 0x78
 CMD_COMM_TIMEOUT = 0xB3
 CMD_POSITION = 0xA4
 CMD_STATUS_2 = 0x9C
@@ -76,13 +82,8 @@ def faults_from_error_word(word: int) -> Fault:
     return faults | Fault.OTHER if word else faults
 
 
-def error_word_from_faults(faults: Fault) -> int:
-    """Inverse of :func:`faults_from_error_word` for the named bits (used by the simulator)."""
-    return sum(bit for bit, fault in ERROR_BITS.items() if fault in faults)
-
-
-class RmdOptions(ProfileOptions):
-    """Per-servo options of the RMD-X and LK profiles."""
+class RmdXOptions(ProfileOptions):
+    """Per-servo options of the RMD-X profile."""
 
     default_speed_dps: float = Field(
         360.0, gt=0, le=65535, description="speed limit of a command that names none (deg/s)"
@@ -93,17 +94,21 @@ class RmdOptions(ProfileOptions):
     multi_turn_poll_every: int | None = Field(
         None, ge=1, le=1000, description="every Nth poll reads 92 (0.01-deg angle); null: never"
     )
-
-
-class RmdXOptions(RmdOptions):
-    """RMD-X V4 adds the servo's own communication-loss timeout (0xB3)."""
-
     comm_timeout_ms: int = Field(
         1000,
         ge=0,
         le=60_000,
         description="the servo turns its motor off after this long without a frame (0: never)",
     )
+    brake: bool = Field(
+        False,
+        description="the model has a holding brake: 0x77 releases it at start-up (before the "
+        "first command), 0x78 locks it on release and shutdown",
+    )
+
+
+RmdOptions = RmdXOptions
+"""The former name (the LK options now live in :mod:`.lk`)."""
 
 
 class RmdX(ServoProfile):
@@ -121,7 +126,7 @@ class RmdX(ServoProfile):
     )
 
     Options: ClassVar[type[ProfileOptions]] = RmdXOptions
-    options: RmdOptions
+    options: RmdXOptions
 
     name = "rmd-x"
     resolution_deg = 1.0
@@ -131,10 +136,7 @@ class RmdX(ServoProfile):
     max_speed_dps = 65535.0
     reply_base = REPLY_BASE_V4
     replies_per_lifecycle = 1
-    """0x80 and 0xB3 are echoed."""
-
-    has_comm_timeout = True
-    """V4 firmware has 0xB3; LK-Tech does not."""
+    """0x80, 0xB3, 0x77 and 0x78 are echoed."""
 
     def __init__(self, can_id: int, options: ProfileOptions | None = None, **overrides: object):
         super().__init__(can_id, options, **overrides)
@@ -163,22 +165,33 @@ class RmdX(ServoProfile):
         )
 
     def startup_frames(self) -> list[can.Message]:
-        """V4: the servo's own communication-loss timeout (0xB3), so it turns its motor off by
-        itself when the companion dies."""
-        if not self.has_comm_timeout:
-            return []
-        timeout_ms = getattr(self.options, "comm_timeout_ms", 0)
-        return [self._request(struct.pack("<BBBBI", CMD_COMM_TIMEOUT, 0, 0, 0, timeout_ms))]
+        """The servo's own communication-loss timeout (0xB3), so it turns its motor off by
+        itself when the companion dies; with a holding brake, then brake release (0x77): the
+        V4 manual's brake model does not move while its brake holds."""
+        timeout_ms = self.options.comm_timeout_ms
+        frames = [self._request(struct.pack("<BBBBI", CMD_COMM_TIMEOUT, 0, 0, 0, timeout_ms))]
+        if self.options.brake:
+            frames.append(self._request(bytes([CMD_BRAKE_RELEASE]) + bytes(7)))
+        return frames
 
     def release_frames(self) -> list[can.Message]:
-        """Motor off (0x80): torque free until the next position command."""
-        return [self._request(bytes([CMD_MOTOR_OFF, 0, 0, 0, 0, 0, 0, 0]))]
+        """Motor off (0x80): torque free until the next position command; with a holding
+        brake, then brake lock (0x78), so the load is held rather than dropped."""
+        frames = [self._request(bytes([CMD_MOTOR_OFF, 0, 0, 0, 0, 0, 0, 0]))]
+        if self.options.brake:
+            frames.append(self._request(bytes([CMD_BRAKE_LOCK]) + bytes(7)))
+        return frames
+
+    def shutdown_frames(self) -> list[can.Message]:
+        """With a holding brake: brake lock (0x78) when the bridge stops (the manual: the brake
+        also locks when the servo powers off). Without: none."""
+        if not self.options.brake:
+            return []
+        return [self._request(bytes([CMD_BRAKE_LOCK]) + bytes(7))]
 
     @classmethod
     def sim_device(cls, motor: SimMotor, can_id: int, options: ProfileOptions) -> SimDevice:
-        return RmdDevice(
-            motor, REQUEST_BASE + can_id, cls.reply_base + can_id, cls.has_comm_timeout
-        )
+        return simulated_device(cls, motor, can_id, options)
 
     def position_command(self, angle_deg: float, max_speed_dps: float | None = None) -> can.Message:
         self._check_angle(angle_deg)
@@ -230,7 +243,7 @@ class RmdX(ServoProfile):
         if command == CMD_MULTI_TURN_ANGLE:
             (angle,) = struct.unpack_from("<i", data, 4)
             return self._merge(timestamp, position_deg=angle / 100)
-        if command in (CMD_MOTOR_OFF, CMD_COMM_TIMEOUT):
+        if command in (CMD_MOTOR_OFF, CMD_COMM_TIMEOUT, CMD_BRAKE_RELEASE, CMD_BRAKE_LOCK):
             return self._merge(timestamp)  # an echo: alive, nothing new to report
         if command == CMD_STATUS_1:
             _, temp, _, _, voltage, error = struct.unpack("<BbBBHH", data)
@@ -256,117 +269,3 @@ class RmdX(ServoProfile):
         ):
             return last.position_deg
         return whole_degrees
-
-
-class LkTech(RmdX):
-    """LK-Tech and older RMD firmware: same payloads, reply on the request ID ``0x140 + id``,
-    no communication-loss timeout command.
-
-    Because request and reply share an ID, a loopback echo of our own request would look like
-    a reply; only use loopback adapter mode with this profile for testing the adapter itself.
-    """
-
-    name = "lk"
-    Options = RmdOptions
-    reply_base = REQUEST_BASE
-    has_comm_timeout = False
-
-
-def _round_half_up(value: float) -> int:
-    return math.floor(value + 0.5)
-
-
-class RmdDevice:
-    """Device side of RMD-X V4 (replies on 0x240 + id) and LK / old firmware (0x140 + id).
-
-    0x80 turns the motor off (a released motor does not move); a position command runs it
-    again. With a communication-loss timeout set (0xB3, V4 only), a servo that hears nothing
-    for that long turns its motor off by itself.
-    """
-
-    pushes = False
-
-    def __init__(
-        self, motor: SimMotor, request_id: int, reply_id: int, has_comm_timeout: bool
-    ) -> None:
-        self.motor = motor
-        self.request_id = request_id
-        self.reply_id = reply_id
-        self.has_comm_timeout = has_comm_timeout
-        self.comm_timeout_s = 0.0
-        self.last_frame_at: float | None = None
-
-    def accepts(self, msg: can.Message) -> bool:
-        return (
-            not msg.is_extended_id and msg.arbitration_id == self.request_id and len(msg.data) == 8
-        )
-
-    def tick(self, now: float) -> None:
-        if (
-            self.comm_timeout_s > 0
-            and self.last_frame_at is not None
-            and now - self.last_frame_at > self.comm_timeout_s
-            and self.motor.enabled
-        ):
-            self.motor.disable(now)
-
-    def handle(self, msg: can.Message, now: float) -> list[can.Message]:
-        self.tick(now)
-        self.last_frame_at = now
-        data = bytes(msg.data)
-        command = data[0]
-        motor = self.motor
-        if command == CMD_POSITION:
-            _, _, speed, angle = struct.unpack("<BBHi", data)
-            if not motor.enabled:
-                motor.enable(now)
-            motor.command_position(angle / 100, float(speed), now)
-            return [self._status_2(command)]
-        if command == CMD_MOTOR_OFF:
-            motor.disable(now)
-            return [self._reply(data)]
-        if command == CMD_COMM_TIMEOUT and self.has_comm_timeout:
-            (timeout_ms,) = struct.unpack_from("<I", data, 4)
-            self.comm_timeout_s = timeout_ms / 1000
-            return [self._reply(data)]
-        if command == CMD_STATUS_2:
-            return [self._status_2(command)]
-        if command == CMD_MULTI_TURN_ANGLE:
-            angle = clamp_int(round(motor.position_deg * 100), -(2**31), 2**31 - 1)
-            return [self._reply(struct.pack("<BBBBi", command, 0, 0, 0, angle))]
-        if command == CMD_STATUS_1:
-            return [self._status_1(command)]
-        return []
-
-    def status(self, now: float) -> list[can.Message]:
-        return []
-
-    def _status_1(self, command: int) -> can.Message:
-        motor = self.motor
-        return self._reply(
-            struct.pack(
-                "<BbBBHH",
-                command,
-                clamp_int(round(motor.temperature_c), -128, 127),
-                0,
-                0,
-                clamp_int(round(motor.voltage_v * 10), 0, 0xFFFF),
-                error_word_from_faults(motor.active_faults),
-            )
-        )
-
-    def _status_2(self, command: int) -> can.Message:
-        motor = self.motor
-        return self._reply(
-            struct.pack(
-                "<Bbhhh",
-                command,
-                clamp_int(round(motor.temperature_c), -128, 127),
-                clamp_int(round(motor.measured_current_a() * 100), -32768, 32767),
-                clamp_int(round(motor.velocity_dps), -32768, 32767),
-                clamp_int(_round_half_up(motor.position_deg), -32768, 32767),
-            )
-        )
-
-    def _reply(self, payload: bytes) -> can.Message:
-        return can.Message(arbitration_id=self.reply_id, is_extended_id=False, data=payload)

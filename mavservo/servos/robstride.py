@@ -27,10 +27,12 @@ id; the motor answers with ``data`` = its own id (bits 15..8) and ``target`` = t
 cycle): standard ids; the MIT packing of :mod:`.mit` on the motor id with the model's ranges;
 ``FF x7 FC`` enable, ``FD`` stop, ``FF x6 FF FB`` clear faults, ``FF x6 01 F9`` active
 reporting on; parameter writes on ``0x400 | id`` (same layout, echoed on the same id); answers
-on the host id: ``[id, position 16, velocity 12, torque 12, temperature u16 x 10]``. MIT
-feedback carries no fault bits and no mode: a motor stopped by its own timeout is not seen as
-stopped (it is started again when it comes back from offline); the private protocol reports
-both, so it is the default.
+on the host id: ``[id, position 16, velocity 12, torque 12, temperature u16 x 10]``; while the
+motor is faulted it answers a fault report instead: ``[id, fault word u16 LE, 0, 0, 0, 0, 0]``
+(bit 14 overload, 7 uncalibrated, 3 encoder, 2 under-voltage, 1 driver, 0 over-temperature:
+RobStride's sample program), so a state report means no fault. MIT feedback carries no mode: a
+motor stopped by its own timeout is not seen as stopped (it is started again when it comes back
+from offline); the private protocol reports it, so it is the default.
 
 A motor answers only in the protocol it is set to, so a host speaking the other one hears
 silence: :meth:`Robstride.diagnose` recognises the other protocol's frames from this motor and
@@ -69,6 +71,7 @@ from .base import (
     SimDevice,
     SimMotor,
 )
+from .sim_registry import simulated_device
 
 # -- private protocol ----------------------------------------------------------------------
 TYPE_GET_ID = 0x00
@@ -130,7 +133,21 @@ MIT_PARAM_WRITE_BASE = 0x400
 MIT_CLEAR_FAULTS = b"\xff" * 7 + b"\xfb"
 MIT_REPORT_ON = b"\xff" * 6 + b"\x01\xf9"
 MIT_POSITION_RAD = 12.57
-"""P_MAX of the MIT section's example code (the manuals' "-12.57 rad ~ 12.57 rad")."""
+"""P_MAX of every model's manual, MIT section (its example code and "-12.57 rad ~ 12.57 rad",
+the RS00..RS06 manuals alike; RobStride Dynamics' own robstride_dynamics package maps 4 pi,
+which rounds to it). RobStride's sample program maps +-12.5 (the CyberGear heritage): a motor
+whose firmware does is configured with the ``mit_position_max_rad`` option."""
+MIT_FAULT_WORD_BITS: dict[int, Fault] = {
+    0: Fault.OVER_TEMPERATURE,
+    1: Fault.DRIVER,  # driver fault
+    2: Fault.LOW_VOLTAGE,
+    3: Fault.ENCODER,
+    7: Fault.UNCALIBRATED,
+    14: Fault.STALL,  # overload
+}
+"""The fault word of an MIT fault report (bytes 1..2 little-endian, bytes 3..7 zero: RobStride's
+sample program); other bits are OTHER."""
+MIT_FAULT_REPORT_TAIL = bytes(5)
 MIT_RESERVED_PREFIX = b"\xff" * 6
 """Frames starting with six 0xFF are the MIT special commands (enable, stop, clear, modes,
 reporting, protocol): a position command never goes out looking like one."""
@@ -146,6 +163,8 @@ class Model:
     kp_max: float
     kd_max: float
     torque_constant_nm_per_a: float
+    mit_position_rad: float = MIT_POSITION_RAD
+    """The MIT packing's position range (+-), per model: every manual says 12.57."""
 
 
 MODELS: dict[str, Model] = {
@@ -169,21 +188,21 @@ def faults_from_id(arbitration_id: int) -> Fault:
     return faults
 
 
-def id_bits_from_faults(faults: Fault) -> int:
-    """Feedback id bits for ``faults`` (the simulated device): each fault's first bit."""
-    bits = 0
-    for bit, fault in FEEDBACK_FAULT_BITS.items():
-        if fault in faults:
-            bits |= 1 << bit
-    return bits
-
-
 def faults_from_word(word: int) -> Fault:
     """The named faults of a type 0x15 fault word; an undocumented bit is ``Fault.OTHER``."""
     faults = NO_FAULT
     for bit in range(32):
         if word >> bit & 1:
             faults |= FAULT_WORD_BITS.get(bit, Fault.OTHER)
+    return faults
+
+
+def faults_from_mit_word(word: int) -> Fault:
+    """The named faults of an MIT fault report's word; an undocumented bit is OTHER."""
+    faults = NO_FAULT
+    for bit in range(16):
+        if word >> bit & 1:
+            faults |= MIT_FAULT_WORD_BITS.get(bit, Fault.OTHER)
     return faults
 
 
@@ -234,6 +253,13 @@ class RobstrideOptions(ProfileOptions):
     kd: float = Field(
         1.0, gt=0, le=100, description="MIT damping, N m s/rad (never 0: the motor oscillates)"
     )
+    mit_position_max_rad: float | None = Field(
+        None,
+        ge=1.0,
+        le=100.0,
+        description="MIT packing position range +-rad (null: the model's, 12.57 per the "
+        "manuals; 12.5 for firmware that maps like RobStride's sample program)",
+    )
 
     @model_validator(mode="after")
     def _gains_fit_the_model(self) -> RobstrideOptions:
@@ -249,11 +275,18 @@ class RobstrideOptions(ProfileOptions):
     def spec(self) -> Model:
         return MODELS[self.model]
 
+    @property
+    def mit_position_rad(self) -> float:
+        """The MIT position range in use: the option, else the model's."""
+        if self.mit_position_max_rad is not None:
+            return self.mit_position_max_rad
+        return self.spec.mit_position_rad
+
     def mit_ranges(self) -> mit.MitRanges:
         """The MIT packing ranges of this model (MIT protocol)."""
         spec = self.spec
         return mit.MitRanges(
-            position_rad=mit.Span.symmetric(MIT_POSITION_RAD),
+            position_rad=mit.Span.symmetric(self.mit_position_rad),
             velocity_rad_s=mit.Span.symmetric(spec.v_max_rad_s),
             torque_nm=mit.Span.symmetric(spec.t_max_nm),
             kp=mit.Span(0.0, spec.kp_max),
@@ -296,7 +329,7 @@ class Robstride(ServoProfile):
         self.spec = o.spec
         self.ranges = o.mit_ranges()
         self.private = o.protocol == "private"
-        limit = POSITION_RANGE_RAD if self.private else MIT_POSITION_RAD
+        limit = POSITION_RANGE_RAD if self.private else o.mit_position_rad
         self.max_angle_deg = math.degrees(limit)
         self.min_angle_deg = -self.max_angle_deg
         self.max_speed_dps = math.degrees(self.spec.v_max_rad_s)
@@ -422,8 +455,7 @@ class Robstride(ServoProfile):
     @classmethod
     def sim_device(cls, motor: SimMotor, can_id: int, options: ProfileOptions) -> SimDevice:
         """The simulated motor (built-in simulation, ``mavservo sim``)."""
-        assert isinstance(options, RobstrideOptions)
-        return RobstrideDevice(motor, can_id, options)
+        return simulated_device(cls, motor, can_id, options)
 
     def identifiers(self) -> tuple[FrameId, ...]:
         """Private: the host's frames ``type << 24 | host << 8 | id`` (exact), the motor's
@@ -496,6 +528,9 @@ class Robstride(ServoProfile):
         if not self.private:
             if msg.arbitration_id != self.options.host_id:
                 return self._merge(timestamp)  # a parameter echo: proof of life only
+            if data[3:] == MIT_FAULT_REPORT_TAIL:  # a fault report, not a state
+                word = int.from_bytes(data[1:3], "little")
+                return self._merge(timestamp, faults=faults_from_mit_word(word))
             reply = mit.unpack_reply(data, self.ranges)
             return self._merge(
                 timestamp,
@@ -503,6 +538,7 @@ class Robstride(ServoProfile):
                 velocity_dps=math.degrees(reply.velocity_rad_s),
                 current_a=reply.torque_nm / self.spec.torque_constant_nm_per_a,
                 temperature_c=struct.unpack_from(">H", data, 6)[0] / 10,
+                faults=NO_FAULT,  # a state report: the motor reports no fault
             )
         comm_type = parse_id(msg.arbitration_id)[0]
         if comm_type == TYPE_FAULT:
@@ -574,187 +610,3 @@ class Robstride(ServoProfile):
 
 DEFAULT_REPORT_HZ = 10.0
 """Report rate when the servo's telemetry rate is not given (the config's default)."""
-
-
-class RobstrideDevice:
-    """The motor side for the simulation: what the real one does, on a SimMotor.
-
-    It powers up as it leaves the factory: reset mode (torque off), active reporting off,
-    operation-control run mode, no communication timeout. It answers only frames of its
-    protocol addressed to it; moves only in run mode and in position mode (CSP) for private
-    position commands; a fault stops it (reset mode) and the fault bits show while the condition
-    lasts, until a stop with the clear flag; its own communication timeout stops it (reset mode,
-    as the real one) with active reports going on, so the host sees the mode and enables again.
-    """
-
-    pushes = True
-
-    def __init__(self, motor: SimMotor, can_id: int, options: RobstrideOptions) -> None:
-        self.motor = motor
-        self.can_id = can_id
-        self.options = options
-        self.spec = options.spec
-        self.ranges = options.mit_ranges()
-        self.private = options.protocol == "private"
-        motor.enabled = False
-        self.params: dict[int, int | float] = {
-            PARAM_RUN_MODE: 0,
-            PARAM_EPSCAN_TIME: 1,
-            PARAM_CAN_TIMEOUT: 0,
-            PARAM_LIMIT_SPD: 2.0,
-        }
-        self.reporting = False
-        self.last_report: float | None = None
-        self.last_frame_time: float | None = None
-        self.latched = NO_FAULT
-        """Faults that stopped the motor: shown until a stop with the clear flag."""
-
-    # -- what it hears ---------------------------------------------------------------------
-
-    def accepts(self, msg: can.Message) -> bool:
-        if msg.is_remote_frame or len(msg.data) != 8:
-            return False
-        if self.private:
-            if not msg.is_extended_id:
-                return False
-            comm_type, _, target = parse_id(msg.arbitration_id)
-            return target == self.can_id and comm_type in (
-                TYPE_ENABLE,
-                TYPE_STOP,
-                TYPE_SET_ZERO,
-                TYPE_PARAM_WRITE,
-                TYPE_REPORT,
-            )
-        return not msg.is_extended_id and msg.arbitration_id in (
-            self.can_id,
-            MIT_PARAM_WRITE_BASE | self.can_id,
-        )
-
-    def handle(self, msg: can.Message, now: float) -> list[can.Message]:
-        self.tick(now)
-        self.last_frame_time = now
-        data = bytes(msg.data)
-        if not self.private:
-            return self._handle_mit(msg.arbitration_id, data, now)
-        comm_type = parse_id(msg.arbitration_id)[0]
-        if comm_type == TYPE_ENABLE:
-            if not self.latched and not self.motor.active_faults:
-                self.motor.enable(now)
-        elif comm_type == TYPE_STOP:
-            self.motor.disable(now)
-            if data[0] == 1:
-                self.latched = NO_FAULT
-        elif comm_type == TYPE_SET_ZERO and data[0] == 1:
-            self.motor.set_zero(now)
-        elif comm_type == TYPE_PARAM_WRITE:
-            self._param(data, now)
-        elif comm_type == TYPE_REPORT:
-            self.reporting = data[6] == 1
-            return [self.feedback(TYPE_REPORT)]
-        return [self.feedback(TYPE_FEEDBACK)]
-
-    def _param(self, data: bytes, now: float) -> None:
-        index = struct.unpack_from("<H", data)[0]
-        if index == PARAM_RUN_MODE:
-            if not self.motor.enabled:  # the manual: change modes only when stopped
-                self.params[index] = data[4]
-        elif index in (PARAM_EPSCAN_TIME,):
-            self.params[index] = struct.unpack_from("<H", data, 4)[0]
-        elif index == PARAM_CAN_TIMEOUT:
-            self.params[index] = struct.unpack_from("<I", data, 4)[0]
-        elif index in (PARAM_LOC_REF, PARAM_LIMIT_SPD):
-            value = struct.unpack_from("<f", data, 4)[0]
-            if not math.isfinite(value):
-                return
-            self.params[index] = value
-            position_mode = self.params[PARAM_RUN_MODE] == RUN_MODE_CSP
-            if index == PARAM_LOC_REF and position_mode and self._driving():
-                speed = math.degrees(abs(float(self.params[PARAM_LIMIT_SPD])))
-                self.motor.command_position(math.degrees(value), max(speed, 1e-3), now)
-
-    def _handle_mit(self, arbitration_id: int, data: bytes, now: float) -> list[can.Message]:
-        if arbitration_id != self.can_id:  # a parameter write: applied and echoed
-            index = struct.unpack_from("<H", data)[0]
-            if index in (PARAM_EPSCAN_TIME,):
-                self.params[index] = struct.unpack_from("<H", data, 4)[0]
-            elif index == PARAM_CAN_TIMEOUT:
-                self.params[index] = struct.unpack_from("<I", data, 4)[0]
-            return [can.Message(arbitration_id=arbitration_id, is_extended_id=False, data=data)]
-        if data == mit.ENTER_MOTOR_MODE:
-            if not self.latched and not self.motor.active_faults:
-                self.motor.enable(now)
-        elif data == mit.EXIT_MOTOR_MODE:
-            self.motor.disable(now)
-        elif data == mit.SET_ZERO:
-            self.motor.set_zero(now)
-        elif data == MIT_CLEAR_FAULTS:
-            self.latched = NO_FAULT
-        elif data == MIT_REPORT_ON:
-            self.reporting = True
-        elif mit.is_special(data):
-            pass  # other special frames (modes, ids, protocol): not simulated
-        elif self._driving():
-            command = mit.unpack_command(data, self.ranges)
-            self.motor.command_position(math.degrees(command.position_rad), None, now)
-        return [self.feedback(TYPE_FEEDBACK)]
-
-    def _driving(self) -> bool:
-        return self.motor.enabled and not self.motor.active_faults
-
-    # -- its own timers and reports --------------------------------------------------------
-
-    def tick(self, now: float) -> None:
-        """A fault stops the motor; so does its own communication timeout (reset mode)."""
-        faults = self.motor.active_faults
-        if faults:
-            self.latched |= faults
-            if self.motor.enabled:
-                self.motor.disable(now)
-        timeout_s = int(self.params[PARAM_CAN_TIMEOUT]) / CAN_TIMEOUT_UNITS_PER_MS / 1000
-        quiet = self.last_frame_time is not None and now - self.last_frame_time > timeout_s
-        if self.motor.enabled and timeout_s > 0 and quiet:
-            self.motor.disable(now)
-
-    def status(self, now: float) -> list[can.Message]:
-        """An active report when reporting is on and its period (EPScan_time) has passed.
-        The simulation calls this at the servo's ``telemetry_hz``, the rate the profile
-        programs (on the 5 ms grid, never slower); a simulation that calls faster (a bench's
-        default rate) gets the reports at the programmed period, as from the real motor."""
-        self.tick(now)
-        if not self.reporting:
-            return []
-        period = report_period_s(int(self.params[PARAM_EPSCAN_TIME]))
-        if self.last_report is not None and now - self.last_report < period * 0.999:
-            return []
-        self.last_report = now
-        return [self.feedback(TYPE_REPORT)]
-
-    def feedback(self, comm_type: int) -> can.Message:
-        """A feedback frame (type 2, or a type 0x18 report) of the motor's present state."""
-        motor = self.motor
-        torque = motor.measured_current_a() * self.spec.torque_constant_nm_per_a
-        temperature = max(0, min(0xFFFF, round(motor.temperature_c * 10)))
-        host = self.options.host_id
-        if not self.private:
-            body = mit.pack_reply(
-                self.can_id,
-                math.radians(motor.position_deg),
-                math.radians(motor.velocity_dps),
-                torque,
-                self.ranges,
-            )
-            data = body + struct.pack(">H", temperature)
-            return can.Message(arbitration_id=host, is_extended_id=False, data=data)
-        mode = MODE_RUN if motor.enabled else MODE_RESET
-        faults = self.latched | motor.active_faults
-        arbitration_id = (
-            comm_type << 24 | mode << 22 | id_bits_from_faults(faults) | self.can_id << 8 | host
-        )
-        data = struct.pack(
-            ">HHHH",
-            to_u16(math.radians(motor.position_deg), POSITION_RANGE_RAD),
-            to_u16(math.radians(motor.velocity_dps), self.spec.v_max_rad_s),
-            to_u16(torque, self.spec.t_max_nm),
-            temperature,
-        )
-        return can.Message(arbitration_id=arbitration_id, is_extended_id=True, data=data)
