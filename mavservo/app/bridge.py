@@ -25,6 +25,7 @@ from typing import Any, Protocol, runtime_checkable
 import can
 
 from mavservo.app import node_state
+from mavservo.app.component_metadata import metadata_files
 from mavservo.config import BusConfig, Config
 from mavservo.config.overlay import overlay_path
 from mavservo.control.live_parameters import LiveParameters
@@ -466,7 +467,12 @@ class Bridge:
             apply=self._apply_parameters,
         )
         return MavlinkSide(
-            settings, self.backend, gimbals, on_event=self._note, parameters=self.parameters
+            settings,
+            self.backend,
+            gimbals,
+            on_event=self._note,
+            parameters=self.parameters,
+            metadata_files=metadata_files(cfg),  # gcs: parameter metadata over FTP (issue 30)
         )
 
     def _apply_parameters(self, updated: Config) -> None:
