@@ -34,6 +34,7 @@ from mavservo.mavlink.commands import (
 from mavservo.mavlink.component import MAV_TYPE_GIMBAL, MAV_TYPE_SERVO, HostedComponent
 from mavservo.mavlink.failsafe import FailsafeEvent, HeartbeatWatchdog
 from mavservo.mavlink.ftp import UNBUDGETED_BYTES_S
+from mavservo.mavlink.gimbal_discovery import GimbalDiscoveryWatch
 from mavservo.mavlink.metadata_service import MetadataService
 from mavservo.mavlink.mirror import Mirror
 from mavservo.mavlink.params import SERVICE_TYPES, ParameterServer, ParameterStore, SetResult
@@ -99,6 +100,8 @@ class MavlinkCore:
             gimbals=self.gimbals,
             component_metadata=lambda cid: self.metadata.component_metadata(cid, self._now),
         )
+        #: a hosted gimbal the autopilot never looks for is said, with the fix (issue 30)
+        self.discovery = GimbalDiscoveryWatch(self.gimbals)
         self._now = boot_time
         self._next_heartbeat = {cid: boot_time for cid in self.components}
         self.counters: Counter[str] = Counter()
@@ -150,6 +153,10 @@ class MavlinkCore:
         if source[0] == self._system_id and source[1] in self.components:
             return []  # our own traffic echoed back by a router
         self.counters["received"] += 1
+        if source == self.watched:
+            for text in self.discovery.on_autopilot_message(msg, now):
+                log.info("%s", text)
+                self.telemetry.announce(MAV_SEVERITY_NOTICE, text)
         if kind in ESC_TELEMETRY_TYPES and source[0] == self._system_id:
             self._heard_esc(kind, source)
         if kind == "HEARTBEAT":
@@ -273,11 +280,20 @@ class MavlinkCore:
             self.counters["failsafe_entered"] += 1
             self.commands.cancel_all()
             self.backend.enter_failsafe("autopilot heartbeat lost", now)
+            self.discovery.lost_autopilot()
             self.telemetry.announce(
                 MAV_SEVERITY_CRITICAL, "servo bridge: autopilot lost, servos in failsafe"
             )
         if not self.watchdog.in_failsafe:
             self._guarded("commands", lambda: self.commands.tick(now))
+            for gimbal, text in self.discovery.due(now):
+                self.counters["gimbal_not_found"] += 1
+                log.warning(
+                    "%s (ArduPilot: MNT1_TYPE 6; it looks for component %d only then)",
+                    text,
+                    gimbal,
+                )
+                self.telemetry.announce(MAV_SEVERITY_WARNING, text)
         for cid, mav_type in self.components.items():
             if now >= self._next_heartbeat[cid]:
                 self._next_heartbeat[cid] = max(self._next_heartbeat[cid] + HEARTBEAT_PERIOD_S, now)
@@ -336,6 +352,7 @@ class MavlinkCore:
             "in_failsafe": self.watchdog.in_failsafe,
             "gimbals": self._gimbal_counters(),
             "stream": self.streams.stats(),
+            "gimbal_discovery": self.discovery.stats(),
         }
 
     def _gimbal_counters(self) -> dict[str, dict[str, int]]:
