@@ -15,6 +15,7 @@ import sys
 from collections.abc import Sequence
 from typing import TextIO
 
+from mavservo.app.fleet_check import clashes
 from mavservo.config.budget import BusLoad, bus_loads, bus_nodes, servos_on
 from mavservo.config.endpoints import endpoint_lines
 from mavservo.config.loader import ConfigError
@@ -245,6 +246,7 @@ def check_main(argv: Sequence[str], out: TextIO | None = None, err: TextIO | Non
     if args.profiles:
         print(profiles_listing(), file=out)
     status = EXIT_OK
+    valid: list[tuple[str, Config]] = []
     for path in args.configs:
         try:
             loaded = load_config_with_overlay(path)
@@ -253,6 +255,7 @@ def check_main(argv: Sequence[str], out: TextIO | None = None, err: TextIO | Non
             status = EXIT_INVALID
             continue
         config, warnings = loaded.config, loaded.warnings
+        valid.append((path, config))
         print(f"{path}: valid\n", file=out)
         if loaded.overlay:
             print("\n".join(overlay_lines(loaded, path)) + "\n", file=out)
@@ -263,4 +266,18 @@ def check_main(argv: Sequence[str], out: TextIO | None = None, err: TextIO | Non
             print(file=out)
         print(resolved_mapping(config), file=out)
         print(file=out)
+    if len(valid) > 1:
+        # gcs (issue 30): bridges meant for one vehicle must not fight over an identity
+        found = clashes(valid)
+        if found:
+            print(f"clashes between the {len(valid)} configs (one vehicle):", file=err)
+            for line in found:
+                print("  " + line, file=err)
+            status = EXIT_INVALID
+        else:
+            print(
+                f"no clash between the {len(valid)} configs: components, name prefixes, "
+                "mapped channels, ESC numbers, endpoints and adapters differ",
+                file=out,
+            )
     return status

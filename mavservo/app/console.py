@@ -35,6 +35,7 @@ CLOCK_FORMAT = "%H:%M:%S"
 #: Bridge events that report a recovery or a normal step; every other event is a problem.
 _INFO_EVENTS = re.compile(
     r"responding again|failsafe cleared|link recovered|heartbeat heard|^stopped \(|cleared "
+    r"|^MAVLink: servo component "  # the identity line: who the bridge is, not a problem
 )
 #: A later "no heartbeat" warning at most this often (the first comes after the link timeout).
 NO_HEARTBEAT_REPEAT_S = 30.0
@@ -315,6 +316,8 @@ def format_summary(summary: dict[str, Any]) -> str:
         ]
         lines.append("  mavlink: " + ", ".join(shown))
         lines += _stream_lines(mav.get("stream") or {})
+    if summary.get("identity"):
+        lines.append(f"  identity at the end: {summary['identity']}")
     for text in summary.get("events", []):
         lines.append(f"  event: {text}")
     if summary.get("run_dir"):
