@@ -195,7 +195,9 @@ def test_no_stream_rate_advice_once_the_autopilot_is_silent(caplog) -> None:
     streams.on_heartbeat((1, 1), 0.0)
     streams.tick(0.0)
     streams.on_ack(mav.MAV_CMD_SET_MESSAGE_INTERVAL, mav.MAV_RESULT_ACCEPTED, 0.0)
-    end = feed(streams, 0.0, 2 * WINDOW_S, 20.0)
+    # it dies 3.5 s into a window, its last heartbeat 2 s before the window closes (still
+    # "heard" then): that window reads low (14 Hz), and only the silence after explains it
+    end = feed(streams, 0.0, 2 * WINDOW_S + 3.5, 20.0)
     with caplog.at_level(logging.INFO):
         for i in range(int(6 * WINDOW_S / 0.1)):  # 30 s of silence, the tick goes on
             streams.tick(end + i * 0.1)

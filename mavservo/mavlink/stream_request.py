@@ -84,6 +84,7 @@ class _Stream:
     low_windows: int = 0
     reasks: int = 0
     last_reask: float | None = None
+    verdict_due: float | None = None
 
 
 class StreamRequester:
@@ -163,6 +164,7 @@ class StreamRequester:
         confirmation); also closes rate windows (and warns)."""
         for stream in self.streams.values():
             self._close_window(stream, now)
+            self._judge(stream, now)
         if not self.settings.enabled or self.target is None:
             return []
         out = []
@@ -232,6 +234,7 @@ class StreamRequester:
             stream.window_start = now
             stream.window_count = 0
             stream.received_hz = None  # the rate of before the (re)start is not this one's
+            stream.verdict_due = None
 
     def _autopilot_heard(self, now: float) -> bool:
         return (
@@ -267,6 +270,19 @@ class StreamRequester:
             )
         if stream.received_hz < stream.min_hz:
             stream.low_windows += 1
+        # the verdict waits one heartbeat timeout: a window cut short by the autopilot dying
+        # reads low, and advice about its stream rate would then be wrong advice
+        if stream.verdict_due is None:
+            stream.verdict_due = now + self.heartbeat_timeout_s
+
+    def _judge(self, stream: _Stream, now: float) -> None:
+        """A low window's warning and re-ask, once it is clear the autopilot still talks."""
+        if stream.verdict_due is None or now < stream.verdict_due:
+            return
+        stream.verdict_due = None
+        if not self._autopilot_heard(now) or stream.received_hz is None:
+            return
+        if stream.received_hz < stream.min_hz:
             self._warn_low(stream, now)
         self._reask_if_low(stream, now)
 
