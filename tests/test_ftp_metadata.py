@@ -296,3 +296,68 @@ def _component_metadata(conn: Any, component: int) -> tuple[Any, str]:
 
 
 logging.getLogger("pymavlink").setLevel(logging.WARNING)
+
+
+# ------------------------------------------------------------------------------ the core
+
+
+def _core(**settings: Any) -> Any:
+    from test_mavlink_support import RecordingBackend
+
+    from mavservo.mavlink.core import MavlinkCore
+    from mavservo.mavlink.settings import MavlinkSettings
+
+    files = {140: {"general.json": b"{}"}}
+    core = MavlinkCore(
+        MavlinkSettings(system_id=1, link_budget_bytes_s=None, **settings),
+        RecordingBackend(),
+        boot_time=0.0,
+        metadata_files=files,
+    )
+    return core
+
+
+def _ftp_message(target_component: int) -> Any:
+    from test_mavlink_support import wire
+
+    from mavservo.sim.autopilot.link import mavlink2
+
+    payload = list(request(ftp.OP_OPEN_FILE_RO, data=b"general.json"))
+    return wire(
+        mavlink2.MAVLink_file_transfer_protocol_message(0, 1, target_component, payload), GCS
+    )
+
+
+def test_the_core_answers_the_addressed_component_only_never_a_broadcast() -> None:
+    core = _core()
+    assert core.on_message(_ftp_message(0), 0.0) == []  # broadcast: nobody answers
+    assert [m for _cid, m in core.tick(0.01) if m.get_type() == "FILE_TRANSFER_PROTOCOL"] == []
+    core.on_message(_ftp_message(140), 0.02)
+    replies = [(cid, m) for cid, m in core.tick(0.03) if m.get_type() == "FILE_TRANSFER_PROTOCOL"]
+    assert [(cid, parse(bytes(m.payload))[2]) for cid, m in replies] == [(140, ftp.OP_ACK)]
+    assert (replies[0][1].target_system, replies[0][1].target_component) == GCS
+
+
+def test_on_a_signed_link_unsigned_ftp_gets_no_answer() -> None:
+    from mavservo.mavlink.settings import SigningSettings
+
+    core = _core(signing=SigningSettings(key=bytes(32), accept_unsigned=True))
+    core.on_message(_ftp_message(140), 0.0)  # unsigned (wire() does not sign)
+    assert [m for _cid, m in core.tick(0.01) if m.get_type() == "FILE_TRANSFER_PROTOCOL"] == []
+    assert core.counters["ftp_unsigned_refused"] == 1
+
+
+def test_a_burst_ending_on_a_full_packet_gets_an_eof_at_its_offset() -> None:
+    """A file of exactly two packets: the second is full and ends the burst, the client asks
+    on from the end and must get EOF carrying that offset (pymavlink matches it by offset)."""
+    content = bytes(range(239)) * 2
+    server = FtpServer({"f.bin": content})
+    server.handle(request(ftp.OP_OPEN_FILE_RO, data=b"f.bin"), GCS, 0.0)
+    answers(server)
+    server.handle(request(ftp.OP_BURST_READ_FILE, seq=10, size=239), GCS, 0.0)
+    packets = answers(server)
+    assert [(p[3], p[5]) for p in packets] == [(239, 0), (239, 1)]
+    assert [p[0] for p in packets] == [11, 12]  # the burst's own advancing sequence
+    server.handle(request(ftp.OP_BURST_READ_FILE, seq=13, size=239, offset=478), GCS, 0.0)
+    ((seq, _s, opcode, _size, req, _b, offset, data),) = answers(server)
+    assert (seq, opcode, req, offset, data) == (14, ftp.OP_NAK, 15, 478, bytes([ftp.ERR_EOF]))
