@@ -69,6 +69,9 @@ def test_check_names_each_clash_between_two_bridges(tmp_path: Path) -> None:
     out, err = io.StringIO(), io.StringIO()
     assert check_main([str(a), str(b)], out=out, err=err) == EXIT_OK, err.getvalue()
     assert "no clash between the 2 configs" in out.getvalue()
+    # each plans within its 500 B/s, and check adds them up for the radio both share
+    total = re.search(r"together: 2 bridges put ([\d,]+) B/s", out.getvalue())
+    assert total and 500 < int(total.group(1).replace(",", "")) <= 1000
 
 
 # ------------------------------------------------------------------------ the router

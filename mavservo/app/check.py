@@ -24,7 +24,7 @@ from mavservo.config.parameters import current_values
 from mavservo.config.schema import Config, ServoOutputChannel
 from mavservo.config.schema import allowed_values as _allowed
 from mavservo.control.mapping import ChannelMap, Rejected
-from mavservo.mavlink.bandwidth import plan_budget
+from mavservo.mavlink.bandwidth import BudgetPlan, plan_budget
 from mavservo.mavlink.telemetry import AUTO_ESC_FIRST
 from mavservo.servos import registry
 
@@ -184,21 +184,26 @@ def telemetry_lines(config: Config) -> list[str]:
     esc = f"ESC {first}-{last}" if last <= 32 else f"ESC {first}-32 (servos past ESC 32: none)"
     prefix = telemetry.name_prefix
     gimbals = ", ".join(str(g.component_id) for g in config.gimbals) or "none"
-    plan = plan_budget(
-        config.mavlink.link_budget_bytes_s,
-        servos=servos,
-        gimbals=len(config.gimbals),
-        health_names=len(config.can.buses) + 6,
-        components=1 + len(config.gimbals),
-        rates=telemetry,
-        signed=config.mavlink.signing is not None,
-    )
+    plan = link_plan(config)
     return [
         f"components: servos {config.mavlink.servo_component_id}, gimbals {gimbals}",
         f"servo ESC numbers: {esc}" + (moves if telemetry.esc_first_index == "auto" else ""),
         f"NAMED_VALUE_FLOAT names: {prefix}1_pos .. {prefix}{servos}_flt",
         *plan.lines(),
     ]
+
+
+def link_plan(config: Config) -> BudgetPlan:
+    """The autopilot link's periodic load of a config, as the running bridge plans it."""
+    return plan_budget(
+        config.mavlink.link_budget_bytes_s,
+        servos=len(config.servos),
+        gimbals=len(config.gimbals),
+        health_names=len(config.can.buses) + 6,
+        components=1 + len(config.gimbals),
+        rates=config.mavlink.telemetry,
+        signed=config.mavlink.signing is not None,
+    )
 
 
 def _count(n: int, noun: str) -> str:
@@ -267,7 +272,15 @@ def check_main(argv: Sequence[str], out: TextIO | None = None, err: TextIO | Non
         print(resolved_mapping(config), file=out)
         print(file=out)
     if len(valid) > 1:
-        # gcs (issue 30): bridges meant for one vehicle must not fight over an identity
+        # gcs (issue 30): bridges meant for one vehicle must not fight over an identity, and
+        # share one radio: their link loads add up
+        plans = [link_plan(config) for _path, config in valid]
+        print(
+            f"together: {len(valid)} bridges put {sum(p.link_bytes_s for p in plans):,.0f} B/s "
+            "of periodic telemetry on the autopilot link and the ground station's (each "
+            "link_budget_bytes_s is per bridge: split the radio's share between them)",
+            file=out,
+        )
         found = clashes(valid)
         if found:
             print(f"clashes between the {len(valid)} configs (one vehicle):", file=err)
