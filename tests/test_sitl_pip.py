@@ -15,11 +15,10 @@ import os
 import re
 import shutil
 import subprocess
-import sys
-import sysconfig
 from pathlib import Path
 
 import pytest
+from venv_support import child_env, pip_install
 
 REPO = Path(__file__).resolve().parents[1]
 DOC = REPO / "docs" / "sitl.md"
@@ -78,35 +77,9 @@ def test_docs_sitl_from_a_pip_install_never_rebuilds_or_fetches_and_runs(tmp_pat
             symlinks=True,
             ignore=shutil.ignore_patterns("__pycache__"),
         )
-    venv = tmp_path / "venv"
-    subprocess.run([sys.executable, "-m", "venv", "--without-pip", str(venv)], check=True)
-    python = venv / "bin" / "python"
-    purelib = subprocess.run(
-        [str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
-        capture_output=True,
-        text=True,
-        check=True,
-    ).stdout.strip()
-    # the dependencies (pymavlink, python-can, ...) from this interpreter; mavservo from pip
-    Path(purelib, "deps.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
-    subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "pip",
-            "--python",
-            str(python),
-            "install",
-            "--quiet",
-            "--no-deps",
-            "--no-build-isolation",
-            "--no-index",
-            str(source),
-        ],
-        check=True,
-        cwd=tmp_path,
-        timeout=120,
-    )
+    python = child_env(tmp_path / "venv")
+    pip_install(python, source, tmp_path)
+    venv_bin = python.parent
 
     # a stand-in ArduPilot tree, as ArduPilot's docs leave it: Tools/autotest on PATH, built
     tree = tmp_path / "ardupilot"
@@ -131,7 +104,7 @@ def test_docs_sitl_from_a_pip_install_never_rebuilds_or_fetches_and_runs(tmp_pat
         "HOME": str(home),
         "PATH": os.pathsep.join(
             [
-                str(venv / "bin"),
+                str(venv_bin),
                 str(autotest),
                 str(fakebin),
                 "/usr/sbin",
