@@ -58,8 +58,13 @@ def test_check_names_each_clash_between_two_bridges(tmp_path: Path) -> None:
     a.write_text(bridge_yaml(14551, 140, "s", (1, 2)))
     b.write_text(bridge_yaml(14561, 140, "s", (2, 3)))  # same component, prefix; channel 2
     out, err = io.StringIO(), io.StringIO()
-    assert check_main([str(a), str(b)], out=out, err=err) == EXIT_INVALID
+    assert check_main(["--one-vehicle", str(a), str(b)], out=out, err=err) == EXIT_INVALID
     text = err.getvalue()
+    # unrelated files checked together: the same clashes, named as a warning
+    warned = io.StringIO()
+    assert check_main([str(a), str(b)], out=io.StringIO(), err=warned) == EXIT_OK
+    named = warned.getvalue().replace("warning:", "error:").split("  (--one-vehicle")[0]
+    assert named == text
     assert f"{a} and {b}: both use MAVLink component 140" in text
     assert "both name their values 's1_pos'" in text
     assert "servo output channel 2 is mapped on both" in text
@@ -67,7 +72,9 @@ def test_check_names_each_clash_between_two_bridges(tmp_path: Path) -> None:
 
     b.write_text(bridge_yaml(14561, 141, "t", (3,)))
     out, err = io.StringIO(), io.StringIO()
-    assert check_main([str(a), str(b)], out=out, err=err) == EXIT_OK, err.getvalue()
+    assert check_main(["--one-vehicle", str(a), str(b)], out=out, err=err) == EXIT_OK, (
+        err.getvalue()
+    )
     assert "no clash between the 2 configs" in out.getvalue()
     # each plans within its 500 B/s, and check adds them up for the radio both share
     total = re.search(r"together: 2 bridges put ([\d,]+) B/s", out.getvalue())

@@ -231,6 +231,12 @@ def check_main(argv: Sequence[str], out: TextIO | None = None, err: TextIO | Non
     parser = build_parser()
     parser.add_argument("configs", nargs="*", metavar="CONFIG", help="YAML config file(s)")
     parser.add_argument(
+        "--one-vehicle",
+        action="store_true",
+        help="the configs are bridges of one vehicle: a clash between them (component id, "
+        "name prefix, mapped channel, ESC numbers, endpoint, adapter) fails the check",
+    )
+    parser.add_argument(
         "--profiles",
         action="store_true",
         help="list every servo profile (built-in and plug-in), its origin, options and defaults",
@@ -283,10 +289,18 @@ def check_main(argv: Sequence[str], out: TextIO | None = None, err: TextIO | Non
         )
         found = clashes(valid)
         if found:
-            print(f"clashes between the {len(valid)} configs (one vehicle):", file=err)
+            fatal = args.one_vehicle
+            print(
+                f"{'error' if fatal else 'warning'}: if these {len(valid)} configs run on one "
+                "vehicle, they clash:",
+                file=err,
+            )
             for line in found:
                 print("  " + line, file=err)
-            status = EXIT_INVALID
+            if fatal:
+                status = EXIT_INVALID
+            else:
+                print("  (--one-vehicle makes this an error)", file=err)
         else:
             print(
                 f"no clash between the {len(valid)} configs: components, name prefixes, "

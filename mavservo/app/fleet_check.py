@@ -1,4 +1,5 @@
-"""``mavservo check a.yaml b.yaml``: what two bridges on one vehicle would fight over.
+"""``mavservo check [--one-vehicle] a.yaml b.yaml``: what two bridges on one vehicle would fight
+over (named as warnings; with ``--one-vehicle`` as errors).
 
 Several bridges share one vehicle behind a MAVLink router (README, "More than one bridge on a
 vehicle"); each must have its own identity. Checked for every pair of files given together:
