@@ -30,8 +30,13 @@ def request_info(component: int = 154) -> object:
     return mavlink2.MAVLink_command_long_message(1, component, 512, 0, 283, 0, 0, 0, 0, 0, 0)
 
 
+def ardupilot(autopilot: int = 3) -> object:
+    return mavlink2.MAVLink_heartbeat_message(1, autopilot, 0, 0, 3, 3)
+
+
 def test_the_watch_warns_once_past_the_search_window_and_not_before() -> None:
     late = GimbalDiscoveryWatch([154])
+    late.on_autopilot_message(ardupilot(), 100.0)
     late.on_autopilot_message(attitude(75.0), 100.0)
     assert late.due(100.0 + GRACE_S - 0.1) == []
     ((gimbal, text),) = late.due(100.0 + GRACE_S)
@@ -42,15 +47,22 @@ def test_the_watch_warns_once_past_the_search_window_and_not_before() -> None:
     ]
 
     booting = GimbalDiscoveryWatch([154])  # powered up together: the autopilot is at 2 s
+    booting.on_autopilot_message(ardupilot(), 0.0)
     booting.on_autopilot_message(attitude(2.0), 0.0)
     assert booting.due(GRACE_S) == [] and booting.due(12.9) == []
     assert booting.on_autopilot_message(request_info(), 9.0) == []  # it asks at its 10 s
     assert booting.due(60.0) == []
 
     other = GimbalDiscoveryWatch([154])  # a command to another component proves nothing
+    other.on_autopilot_message(ardupilot(), 0.0)
     other.on_autopilot_message(attitude(75.0), 0.0)
     other.on_autopilot_message(request_info(171), 0.5)
     assert len(other.due(GRACE_S)) == 1
+
+    px4 = GimbalDiscoveryWatch([154])  # ArduPilot's search window is no advice for PX4
+    px4.on_autopilot_message(ardupilot(autopilot=12), 0.0)
+    px4.on_autopilot_message(attitude(75.0), 0.0)
+    assert px4.due(60.0) == []
 
 
 @pytest.mark.parametrize("looking", [False, True], ids=["stopped-looking", "looking"])

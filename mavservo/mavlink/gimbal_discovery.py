@@ -8,7 +8,8 @@ gimbal's component), then streams GIMBAL_DEVICE_SET_ATTITUDE and
 AUTOPILOT_STATE_FOR_GIMBAL_DEVICE. A bridge started after that window is never found: ArduPilot
 still ACKs MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW as ACCEPTED and nothing moves, without a word.
 
-So for each hosted gimbal this watch waits until the autopilot has been heard for
+So for each hosted gimbal of an ArduPilot vehicle (its HEARTBEAT says so) this watch waits
+until the autopilot has been heard for
 :data:`GRACE_S` and is at least :data:`SEARCH_STARTS_S` + :data:`GRACE_S` past its own boot (its
 boot time read from the messages it sends), and if by then the autopilot has neither asked the
 gimbal for anything nor sent it a setpoint, it returns one warning with the fix (the log and a
@@ -31,6 +32,8 @@ GRACE_S = 5.0
 #: What the autopilot sends a gimbal it has found.
 _GIMBAL_TRAFFIC = ("GIMBAL_DEVICE_SET_ATTITUDE", "AUTOPILOT_STATE_FOR_GIMBAL_DEVICE")
 _COMMANDS = ("COMMAND_LONG", "COMMAND_INT")
+#: MAV_AUTOPILOT_ARDUPILOTMEGA (minimal.xml): the HEARTBEAT of an ArduPilot vehicle.
+MAV_AUTOPILOT_ARDUPILOTMEGA = 3
 
 
 def not_found_text(component_id: int) -> str:
@@ -51,12 +54,16 @@ class GimbalDiscoveryWatch:
         self._uptime: tuple[float, float] | None = None  # (autopilot boot time s, our time)
         self._found: set[int] = set()
         self._warned: set[int] = set()
+        #: the search window is ArduPilot's: another autopilot gets no advice about it
+        self._ardupilot = False
 
     def on_autopilot_message(self, msg: Any, now: float) -> list[str]:
         """A message from the watched autopilot (HEARTBEAT included). Returns notices."""
         if self._heard_since is None:
             self._heard_since = now
         kind = msg.get_type()
+        if kind == "HEARTBEAT":
+            self._ardupilot = int(msg.autopilot) == MAV_AUTOPILOT_ARDUPILOTMEGA
         boot = boot_time_s(kind, msg)
         if boot is not None:
             self._uptime = (boot, now)
@@ -75,7 +82,9 @@ class GimbalDiscoveryWatch:
 
     def due(self, now: float) -> list[tuple[int, str]]:
         """(gimbal, warning) for each gimbal the autopilot should have found by now."""
-        if not self.gimbal_ids or self._heard_since is None or now - self._heard_since < GRACE_S:
+        if not self.gimbal_ids or not self._ardupilot or self._heard_since is None:
+            return []
+        if now - self._heard_since < GRACE_S:
             return []
         if self._uptime is not None:
             boot, at = self._uptime
