@@ -361,3 +361,32 @@ def test_a_burst_ending_on_a_full_packet_gets_an_eof_at_its_offset() -> None:
     server.handle(request(ftp.OP_BURST_READ_FILE, seq=13, size=239, offset=478), GCS, 0.0)
     ((seq, _s, opcode, _size, req, _b, offset, data),) = answers(server)
     assert (seq, opcode, req, offset, data) == (14, ftp.OP_NAK, 15, 478, bytes([ftp.ERR_EOF]))
+
+
+def test_every_components_answers_share_one_byte_window() -> None:
+    """The servo and a gimbal component answer on one link: both transfers together stay in
+    the share, not twice it."""
+    from mavservo.mavlink.metadata_service import MetadataService
+
+    content = bytes(range(256)) * 8
+    service = MetadataService(
+        [140, 154], {140: {"a": content}, 154: {"a": content}}, bytes_per_s=600, boot_time=0.0
+    )
+    for cid in (140, 154):
+        service.servers[cid].handle(request(ftp.OP_OPEN_FILE_RO, data=b"a"), GCS, 0.0)
+    sent: list[tuple[float, int]] = []
+    for step in range(1000):  # 10 s of 10 ms ticks
+        now = step * 0.01
+        for cid, msg in service.periodic(now):
+            payload = bytes(msg.payload)
+            sent.append((now, ftp.frame_bytes(payload)))
+            reply = parse(payload)
+            if reply[4] == ftp.OP_OPEN_FILE_RO or (reply[4] == ftp.OP_BURST_READ_FILE and reply[5]):
+                offset = 0 if reply[4] == ftp.OP_OPEN_FILE_RO else reply[6] + reply[3]
+                service.servers[cid].handle(
+                    request(ftp.OP_BURST_READ_FILE, size=239, offset=offset), GCS, now
+                )
+    assert {cid for cid in (140, 154) if service.servers[cid].counters["burst_bytes"]} == {140, 154}
+    frame = ftp.frame_bytes(bytes([1]) * ftp.PAYLOAD_BYTES)
+    for start, _ in sent:
+        assert sum(size for t, size in sent if start <= t < start + 1.0) <= max(600, frame)

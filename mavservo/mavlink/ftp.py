@@ -112,6 +112,27 @@ def normalize_path(raw: bytes) -> str | None:
     return text.decode("ascii").lstrip("/")
 
 
+class ByteWindow:
+    """At most ``bytes_per_s`` in every 1-second window (sliding, not an average): one per
+    link, shared by every component's server, so two components' transfers take the share
+    once. The allowance is at least one full frame, or nothing could ever go."""
+
+    def __init__(self, bytes_per_s: float) -> None:
+        full_frame = float(frame_bytes(bytes([1]) * PAYLOAD_BYTES))
+        self.allowance = max(1.0, float(bytes_per_s), full_frame)
+        self._sent: deque[tuple[float, int]] = deque()
+        self._total = 0
+
+    def fits(self, size: int, now: float) -> bool:
+        while self._sent and now - self._sent[0][0] >= 1.0:
+            self._total -= self._sent.popleft()[1]
+        return self._total + size <= self.allowance
+
+    def take(self, size: int, now: float) -> None:
+        self._sent.append((now, size))
+        self._total += size
+
+
 @dataclass
 class _Burst:
     offset: int
@@ -135,11 +156,11 @@ class FtpServer:
 
     files: Mapping[str, bytes]
     bytes_per_s: float = UNBUDGETED_BYTES_S
+    #: the link's window, when several servers share one link (else the server's own)
+    window: ByteWindow | None = None
     counters: Counter[str] = field(default_factory=Counter)
     _sessions: dict[int, _Session] = field(default_factory=dict)
     _queue: deque[tuple[Sender, bytes]] = field(default_factory=deque)
-    _sent: deque[tuple[float, int]] = field(default_factory=deque)  # the last second's frames
-    _in_window: int = 0
     _next_burst: int = 0
 
     def __post_init__(self) -> None:
@@ -148,6 +169,8 @@ class FtpServer:
                 raise ValueError(f"served name {name!r} is not a plain ASCII name")
         self.files = dict(self.files)
         self.bytes_per_s = max(1.0, float(self.bytes_per_s))
+        if self.window is None:
+            self.window = ByteWindow(self.bytes_per_s)
 
     # ------------------------------------------------------------------ input
 
@@ -306,20 +329,18 @@ class FtpServer:
         """Replies due at ``now`` within the byte rate: queued answers first, then burst data
         of the open sessions in turn. Each is (the requester, the 251-byte payload)."""
         self._expire(now)
-        while self._sent and now - self._sent[0][0] >= 1.0:
-            self._in_window -= self._sent.popleft()[1]
-        allowance = max(self.bytes_per_s, float(frame_bytes(bytes([1]) * PAYLOAD_BYTES)))
+        window = self.window
+        assert window is not None
         out: list[tuple[Sender, bytes]] = []
         while True:
             item = self._queue[0] if self._queue else self._next_burst_packet(peek=True)
-            if item is None or self._in_window + frame_bytes(item[1]) > allowance:
+            if item is None or not window.fits(frame_bytes(item[1]), now):
                 return out
             if self._queue:
                 self._queue.popleft()
             else:
                 self._next_burst_packet(peek=False)
-            self._sent.append((now, frame_bytes(item[1])))
-            self._in_window += frame_bytes(item[1])
+            window.take(frame_bytes(item[1]), now)
             self.counters["sent_bytes"] += frame_bytes(item[1])
             out.append(item)
 

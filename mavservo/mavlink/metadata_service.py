@@ -21,7 +21,7 @@ from typing import Any
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mavservo.mavlink.commands import Outgoing
-from mavservo.mavlink.ftp import FtpServer, crc32
+from mavservo.mavlink.ftp import ByteWindow, FtpServer, crc32
 from mavservo.mavlink.wip_messages import ComponentMetadata
 
 #: The general metadata file's name on every component that serves metadata.
@@ -47,8 +47,8 @@ class MetadataService:
     """COMPONENT_METADATA answers and the FTP servers of the hosted components.
 
     ``files``: component id -> (served name -> content); a component with a
-    :data:`GENERAL_FILE` answers COMPONENT_METADATA. ``bytes_per_s``: the byte rate each
-    component's FTP answers may take of the link.
+    :data:`GENERAL_FILE` answers COMPONENT_METADATA. ``bytes_per_s``: the byte rate the FTP
+    answers of all components together may take of the link.
     """
 
     def __init__(
@@ -60,8 +60,9 @@ class MetadataService:
         boot_time: float,
     ) -> None:
         self._boot = boot_time
+        window = ByteWindow(bytes_per_s)  # one link: every component's answers share it
         self.servers = {
-            cid: FtpServer(dict(files.get(cid, {})), bytes_per_s=bytes_per_s)
+            cid: FtpServer(dict(files.get(cid, {})), bytes_per_s=bytes_per_s, window=window)
             for cid in component_ids
         }
 
