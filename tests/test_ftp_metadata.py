@@ -243,7 +243,8 @@ def test_a_real_ftp_client_reads_the_metadata_component_metadata_points_at(
             general, uri = _component_metadata(conn, component)
             assert uri == f"mftp://[;comp={component}]/general.json"
             client = MAVFTP(conn, 1, component)
-            assert client.cmd_get(["/general.json", str(tmp_path / "general.json")]).error_code == 0
+            general_path = "/" + uri.split("]/", 1)[1]  # the file the message points at
+            assert client.cmd_get([general_path, str(tmp_path / "general.json")]).error_code == 0
             result = client.process_ftp_reply("OpenFileRO", timeout=20)
             assert result.error_code == 0, result
             body = (tmp_path / "general.json").read_bytes()
