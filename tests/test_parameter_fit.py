@@ -45,3 +45,20 @@ def test_the_metadata_describes_the_same_list() -> None:
     table = parameter_table(config)
     described = [p["name"] for p in parameter_metadata(table)["parameters"]]
     assert described == [p.name for p in table] and "SRV2_TRIM" not in described
+
+
+def test_the_metadata_file_validates_against_mavlinks_parameter_schema() -> None:
+    """``mavservo params --metadata`` and the FTP server write the same JSON; parameter.schema.json
+    (tests/data/component_metadata) wants ``version`` 3 or more, which version 1 failed."""
+    import json
+    from pathlib import Path
+
+    import jsonschema
+
+    schema = json.loads(
+        (
+            Path(__file__).parent / "data" / "component_metadata" / "parameter.schema.json"
+        ).read_text()
+    )
+    table = parameter_table(load_config_text(CONFIG, "<test>"))
+    jsonschema.validate(parameter_metadata(table), schema)
