@@ -391,3 +391,16 @@ def test_every_components_answers_share_one_byte_window() -> None:
     frame = ftp.frame_bytes(bytes([1]) * ftp.PAYLOAD_BYTES)
     for start, _ in sent:
         assert sum(size for t, size in sent if start <= t < start + 1.0) <= max(600, frame)
+
+
+def test_a_repeated_component_metadata_request_is_answered_again() -> None:
+    """The answer was lost on the radio: the GCS asks again and must get the message, not only
+    another ACK (the command retry rule applies to commands that act, not to requests)."""
+    from test_mavlink_support import command_long, wire
+
+    core = _core()
+    request_397 = wire(command_long((1, 140), 512, 397), GCS)
+    for at in (0.0, 0.2):
+        out = core.on_message(request_397, at)
+        kinds = [m.get_type() for _cid, m in out]
+        assert kinds == ["COMMAND_ACK", "COMPONENT_METADATA"], kinds

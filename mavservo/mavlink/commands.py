@@ -337,7 +337,16 @@ class CommandHandler:
     def _with_retry_check(self, cmd: Command, now: float, ack: bool = True) -> list[Outgoing]:
         outputs = self._outputs(cmd)
         recent = self._retries.find(cmd, outputs, now)
-        if recent is not None:
+        # a repeated REQUEST_MESSAGE that was answered is answered again, message and all: it
+        # applies nothing, and its requester repeats it because the answer was lost (a GCS
+        # fetching COMPONENT_METADATA over a lossy radio would otherwise get only ACKs until
+        # the window passed); a refused one keeps its refusal like any retry
+        answer_again = (
+            recent is not None
+            and cmd.command == MAV_CMD_REQUEST_MESSAGE
+            and recent.result is Outcome.ACCEPTED
+        )
+        if recent is not None and not answer_again:
             self.counters["retry_not_reapplied"] += 1
             log.info(
                 "command %d from %s is a retry: ACK %s again, not applied",
