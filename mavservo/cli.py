@@ -39,8 +39,12 @@ COMMANDS: dict[str, Command] = {
     "sitl": Command(
         "mavservo.sim.autopilot.cli",
         "main",
-        "simulated autopilot stream, or replay of a .tlog",
+        "simulated autopilot stream, replay of a .tlog, or a built ArduPlane SITL",
         takes_prog=True,
+    ),
+    # gcs (issue 30): the example configs after a pip install
+    "examples": Command(
+        "mavservo.app.examples", "main", "write the example configs to a folder", takes_prog=True
     ),
     "monitor": Command(
         "mavservo.app.monitor", "main", "live terminal dashboard of a running bridge"

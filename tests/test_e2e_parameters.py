@@ -261,5 +261,6 @@ def test_mavproxy_fetches_sets_and_shows_with_no_time_out(tmp_path: Path) -> Non
         assert "SRV2_MIN 99 refused" in output, output
         lowered = output.lower()
         assert "timeout" not in lowered and "timed out" not in lowered, output
-        assert bridge.mavlink.stats()["parameters"].get("ftp_refused", 0) >= 1
+        # MAVProxy first asks FTP for @PARAM/param.pck: "file not found" at once, then the list
+        assert bridge.mavlink.stats()["ftp"]["140"].get("not_found", 0) >= 1
     assert "SRV1_TRIM: 3" in overlay_path(path).read_text()

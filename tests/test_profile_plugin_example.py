@@ -9,58 +9,28 @@ this environment's site directory) and installs the example with ``--no-deps
 
 from __future__ import annotations
 
-import os
 import shutil
-import site
 import subprocess
 import sys
 import textwrap
-import venv
 from pathlib import Path
 
 import pytest
 from conftest import free_udp_port
+from venv_support import TIMEOUT_S, child_env, pip_install
 
 REPO = Path(__file__).resolve().parent.parent
 EXAMPLE = REPO / "examples" / "mavservo-example-servo"
-TIMEOUT_S = 180
 
 
 @pytest.fixture(scope="module")
 def plugin_python(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A temporary environment's python with the example plug-in installed."""
     env_dir = tmp_path_factory.mktemp("plugin-env")
-    venv.EnvBuilder(system_site_packages=True, with_pip=False).create(env_dir)
-    python = env_dir / "bin" / "python"
-    purelib = subprocess.run(
-        [str(python), "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"],
-        capture_output=True,
-        text=True,
-        check=True,
-        timeout=TIMEOUT_S,
-    ).stdout.strip()
-    ours = [p for p in site.getsitepackages() if Path(p).is_dir()]
-    lines = "".join(f"import site; site.addsitedir({p!r})\n" for p in ours)
-    (Path(purelib) / "zz_parent_env.pth").write_text(lines)
+    python = child_env(env_dir)
     source = env_dir / "example"  # built from a copy: the build leaves files behind
     shutil.copytree(EXAMPLE, source, ignore=shutil.ignore_patterns("build", "*.egg-info"))
-    subprocess.run(
-        [
-            str(python),
-            "-m",
-            "pip",
-            "install",
-            "--quiet",
-            "--no-deps",
-            "--no-build-isolation",
-            "--no-index",
-            str(source),
-        ],
-        check=True,
-        timeout=TIMEOUT_S,
-        cwd=env_dir,
-        env={**os.environ, "PIP_NO_INPUT": "1"},
-    )
+    pip_install(python, source, env_dir)
     return python
 
 

@@ -81,14 +81,14 @@ def test_launcher_says_clearly_when_ardupilot_is_missing(tmp_path: Path) -> None
         timeout=30,
     )
     assert done.returncode == 3
-    assert "not installed" in done.stderr and "never" in done.stderr
+    assert "not built" in done.stderr and "never" in done.stderr
     assert done.stdout == ""
 
 
 def test_dry_run_without_ardupilot_shows_the_command_to_use_once_it_is_installed(
     tmp_path: Path,
 ) -> None:
-    # docs/sitl.md: "--dry-run  # show the command instead of running it", installed or not
+    # docs/sitl.md: "--dry-run  # the SITL command it would run", built or not
     done = subprocess.run(
         ["bash", str(SCRIPT), "--dry-run", "--gimbal", "--port", "14600", "--", "--console"],
         env=_bare_env(tmp_path, False),
@@ -97,16 +97,51 @@ def test_dry_run_without_ardupilot_shows_the_command_to_use_once_it_is_installed
         timeout=30,
     )
     assert done.returncode == 0, done.stderr
-    assert "not installed" in done.stderr
+    assert "not built" in done.stderr
     words = done.stdout.split()
-    assert words[:3] == ["sim_vehicle.py", "-v", "ArduPlane"]
-    assert "--serial1=udpclient:127.0.0.1:14600" in words
-    param_files = [w.split("=", 1)[1] for w in words if w.startswith("--add-param-file=")]
-    assert param_files == [
+    assert words[0] == "ARDUPILOT_HOME/build/sitl/bin/arduplane"  # never sim_vehicle.py
+    assert words[words.index("--serial1") + 1] == "udpclient:127.0.0.1:14600"
+    defaults = words[words.index("--defaults") + 1].replace("\\,", ",").split(",")
+    assert defaults == [
         str(AUTOPILOT / "arduplane-companion.parm"),
         str(AUTOPILOT / "arduplane-gimbal.parm"),
     ]
     assert words[-2:] == ["-w", "--console"]
+
+
+def test_sim_vehicle_on_path_only_finds_its_trees_binary_and_is_never_run(tmp_path: Path) -> None:
+    """ArduPilot's docs put Tools/autotest on PATH; sim_vehicle.py there rebuilds the tree and
+    fetches submodules. The launcher takes the tree's built binary instead, or says it is not
+    built, and never runs sim_vehicle.py."""
+    home = tmp_path / "ardupilot"
+    autotest = home / "Tools" / "autotest"
+    (autotest / "models").mkdir(parents=True)
+    (autotest / "models" / "plane.parm").write_text("ARSPD_USE 1\n")
+    marker = tmp_path / "sim_vehicle-ran"
+    (autotest / "sim_vehicle.py").write_text(f"#!/bin/sh\ntouch {marker}\nexit 1\n")
+    (autotest / "sim_vehicle.py").chmod(0o755)
+    env = _bare_env(tmp_path, False)
+    env["PATH"] = f"{autotest}:{env['PATH']}"
+    unbuilt = subprocess.run(
+        ["bash", str(SCRIPT)], env=env, capture_output=True, text=True, timeout=30
+    )
+    assert unbuilt.returncode == 3 and f"no build/sitl/bin/arduplane in {home}" in unbuilt.stderr
+    (home / "build" / "sitl" / "bin").mkdir(parents=True)
+    fake = home / "build" / "sitl" / "bin" / "arduplane"
+    fake.write_text("#!/bin/sh\nexit 0\n")
+    fake.chmod(0o755)
+    done = subprocess.run(
+        ["bash", str(SCRIPT), "--dry-run"], env=env, capture_output=True, text=True, timeout=30
+    )
+    assert done.returncode == 0, done.stderr
+    words = done.stdout.split()
+    assert words[0] == str(fake)
+    assert words[words.index("--defaults") + 1].replace("\\,", ",").split(",")[0] == str(
+        autotest / "models" / "plane.parm"
+    )
+    ran = subprocess.run(["bash", str(SCRIPT)], env=env, capture_output=True, timeout=30)
+    assert ran.returncode == 0
+    assert not marker.exists()
 
 
 def test_launcher_command_line_for_the_arduplane_binary(tmp_path: Path) -> None:

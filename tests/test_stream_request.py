@@ -23,6 +23,7 @@ from mavservo.mavlink.settings import MavlinkSettings, StreamRequestSettings
 from mavservo.mavlink.side import MavlinkSide
 from mavservo.mavlink.stream_request import (
     MAX_ATTEMPTS,
+    REASK_INTERVAL_S,
     RESTART_HOLDOFF_S,
     RETRY_S,
     WINDOW_S,
@@ -45,13 +46,17 @@ def servo_output(time_usec: int) -> SimpleNamespace:
 
 
 def feed(streams: StreamRequester, start: float, seconds: float, hz: float) -> float:
-    """``hz`` SERVO_OUTPUT_RAW a second for ``seconds`` from ``start`` (boot time = t); the
-    requester ticks after every message. Returns the end time."""
+    """``hz`` SERVO_OUTPUT_RAW a second for ``seconds`` from ``start`` (boot time = t), with the
+    autopilot's heartbeat every second; the requester ticks after every message. Returns the
+    end time."""
     n = int(seconds * hz)
     for i in range(n):
         t = start + i / hz
+        if i % max(1, round(hz)) == 0:  # the autopilot's 1 Hz heartbeat: it is heard
+            streams.on_heartbeat((1, 1), t)
         streams.on_message(servo_output(int(t * 1e6)), t)
-        streams.tick(t)
+        if streams.tick(t):  # an autopilot that ACKs every request (and may still ignore it)
+            streams.on_ack(mav.MAV_CMD_SET_MESSAGE_INTERVAL, mav.MAV_RESULT_ACCEPTED, t)
     return start + n / hz
 
 
@@ -160,6 +165,44 @@ def test_received_rate_is_measured_and_a_low_rate_warned_once_a_minute(caplog) -
     feed(streams, end, 3 * WINDOW_S, 20.0)  # now as asked
     figures = streams.stats()["streams"]["SERVO_OUTPUT_RAW"]
     assert figures["received_hz"] == pytest.approx(20.0, rel=0.05)
+
+
+def test_a_rate_that_falls_after_it_was_accepted_is_asked_again_at_a_bounded_pace(
+    caplog,
+) -> None:
+    """Behind a router a second bridge asks the same port for 10 Hz and wins: the first one
+    sees its accepted 20 Hz stay at 10 and asks again, at most every REASK_INTERVAL_S."""
+    streams = requester()
+    streams.on_heartbeat((1, 1), 0.0)
+    streams.tick(0.0)
+    streams.on_ack(mav.MAV_CMD_SET_MESSAGE_INTERVAL, mav.MAV_RESULT_ACCEPTED, 0.0)
+    end = feed(streams, 0.0, 2 * WINDOW_S, 20.0)
+    assert streams.stats()["streams"]["SERVO_OUTPUT_RAW"]["asked_again"] == 0
+    with caplog.at_level(logging.INFO):
+        end = feed(streams, end, 6 * WINDOW_S, 10.0)  # 30 s at the other bridge's rate
+    figures = streams.stats()["streams"]["SERVO_OUTPUT_RAW"]
+    assert 1 <= figures["asked_again"] <= 30 / REASK_INTERVAL_S + 1
+    assert figures["requests_sent"] == 1 + figures["asked_again"]
+    assert any("ask the same rate on every bridge" in r.message for r in caplog.records)
+    feed(streams, end, 4 * WINDOW_S, 20.0)  # the re-ask took: no more
+    assert streams.stats()["streams"]["SERVO_OUTPUT_RAW"]["asked_again"] == figures["asked_again"]
+
+
+def test_no_stream_rate_advice_once_the_autopilot_is_silent(caplog) -> None:
+    """The autopilot died: nothing arrives, and that is not a stream-rate problem to advise
+    about (the failsafe says what happened)."""
+    streams = requester()
+    streams.on_heartbeat((1, 1), 0.0)
+    streams.tick(0.0)
+    streams.on_ack(mav.MAV_CMD_SET_MESSAGE_INTERVAL, mav.MAV_RESULT_ACCEPTED, 0.0)
+    # it dies 3.5 s into a window, its last heartbeat 2 s before the window closes (still
+    # "heard" then): that window reads low (14 Hz), and only the silence after explains it
+    end = feed(streams, 0.0, 2 * WINDOW_S + 3.5, 20.0)
+    with caplog.at_level(logging.INFO):
+        for i in range(int(6 * WINDOW_S / 0.1)):  # 30 s of silence, the tick goes on
+            streams.tick(end + i * 0.1)
+    assert not any("arrives at" in r.message for r in caplog.records)
+    assert streams.stats()["streams"]["SERVO_OUTPUT_RAW"]["asked_again"] == 0
 
 
 def test_disabled_sends_nothing_but_still_measures_and_warns(caplog) -> None:

@@ -26,6 +26,7 @@ import can
 
 from mavservo.app import node_state
 from mavservo.app.check import stop_behaviour_lines
+from mavservo.app.component_metadata import metadata_files
 from mavservo.config import BusConfig, Config
 from mavservo.config.overlay import overlay_path
 from mavservo.control.health import HealthEvent
@@ -220,6 +221,7 @@ class Bridge:
         self.runlog: RunLog | None = None
         self.run_dir: Path | None = None
         self.events: list[tuple[float, str]] = []
+        self._identity_shown: str | None = None
         self._log_dir = log_dir
         self._stop = threading.Event()
         self._tick_thread: threading.Thread | None = None
@@ -287,7 +289,8 @@ class Bridge:
         if self.runlog is not None:
             self._tap_mavlink(self.mavlink, self.runlog)
         self.mavlink.start()
-        self._note(self._identity_line())
+        self._identity_shown = self._identity_line()
+        self._note(self._identity_shown)
         if self.autopilot_sim is not None:
             self.autopilot_sim.start()
         self._tick_thread = threading.Thread(target=self._tick, name="bridge-tick", daemon=True)
@@ -469,7 +472,12 @@ class Bridge:
             apply=self._apply_parameters,
         )
         return MavlinkSide(
-            settings, self.backend, gimbals, on_event=self._note, parameters=self.parameters
+            settings,
+            self.backend,
+            gimbals,
+            on_event=self._note,
+            parameters=self.parameters,
+            metadata_files=metadata_files(cfg),  # gcs: parameter metadata over FTP (issue 30)
         )
 
     def _apply_parameters(self, updated: Config) -> None:
@@ -534,6 +542,7 @@ class Bridge:
                     self._event(f"bus {scheduler.name}: {notice}")
             if self.node_states is not None:
                 self.node_states.update(self.schedulers.values())
+            self._note_identity_change()  # gcs (issue 30)
             self._stop.wait(max(0.0, next_t - time.monotonic()))
 
     def _watch_health(self) -> None:
@@ -566,6 +575,16 @@ class Bridge:
             critical = event.check & CRITICAL_HEALTH
             severity = MAV_SEVERITY_CRITICAL if critical else MAV_SEVERITY_WARNING
         _quietly(lambda: mavlink.announce(event.text, severity))
+
+    def _note_identity_change(self) -> None:
+        """The ESC numbers move when another component publishes the same ones: the console,
+        the event list and the summary then say the numbers sent now, not those of the start."""
+        if self.mavlink is None:
+            return
+        line = self._identity_line()
+        if line != self._identity_shown:
+            self._identity_shown = line
+            self._note(line)
 
     def _event(self, text: str) -> None:
         """An event of the servo side: console, event list, and STATUSTEXT to the autopilot."""
@@ -652,6 +671,7 @@ class Bridge:
             "buses": {},
             "servos": {},
             "events": [text for _, text in self.events[-20:]],
+            "identity": self._identity_shown,
             "run_dir": None if self.run_dir is None else str(self.run_dir),
         }
         for name, scheduler in self.schedulers.items():

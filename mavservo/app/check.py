@@ -15,6 +15,7 @@ import sys
 from collections.abc import Sequence
 from typing import TextIO
 
+from mavservo.app.fleet_check import clashes
 from mavservo.config.budget import BusLoad, bus_loads, bus_nodes, servos_on
 from mavservo.config.endpoints import endpoint_lines
 from mavservo.config.loader import ConfigError
@@ -24,7 +25,7 @@ from mavservo.config.schema import Config, ServoOutputChannel
 from mavservo.config.schema import allowed_values as _allowed
 from mavservo.control.health_limits import describe_limits, servo_limits
 from mavservo.control.mapping import ChannelMap, Rejected
-from mavservo.mavlink.bandwidth import plan_budget
+from mavservo.mavlink.bandwidth import BudgetPlan, plan_budget
 from mavservo.mavlink.telemetry import AUTO_ESC_FIRST
 from mavservo.servos import registry
 
@@ -199,15 +200,7 @@ def telemetry_lines(config: Config) -> list[str]:
     esc = f"ESC {first}-{last}" if last <= 32 else f"ESC {first}-32 (servos past ESC 32: none)"
     prefix = telemetry.name_prefix
     gimbals = ", ".join(str(g.component_id) for g in config.gimbals) or "none"
-    plan = plan_budget(
-        config.mavlink.link_budget_bytes_s,
-        servos=servos,
-        gimbals=len(config.gimbals),
-        health_names=len(config.can.buses) + 6,
-        components=1 + len(config.gimbals),
-        rates=telemetry,
-        signed=config.mavlink.signing is not None,
-    )
+    plan = link_plan(config)
     return [
         f"components: servos {config.mavlink.servo_component_id}, gimbals {gimbals}",
         f"servo ESC numbers: {esc}" + (moves if telemetry.esc_first_index == "auto" else ""),
@@ -215,6 +208,19 @@ def telemetry_lines(config: Config) -> list[str]:
         f"(health bits: {prefix}<n>_hlt)",
         *plan.lines(),
     ]
+
+
+def link_plan(config: Config) -> BudgetPlan:
+    """The autopilot link's periodic load of a config, as the running bridge plans it."""
+    return plan_budget(
+        config.mavlink.link_budget_bytes_s,
+        servos=len(config.servos),
+        gimbals=len(config.gimbals),
+        health_names=len(config.can.buses) + 6,
+        components=1 + len(config.gimbals),
+        rates=config.mavlink.telemetry,
+        signed=config.mavlink.signing is not None,
+    )
 
 
 def _count(n: int, noun: str) -> str:
@@ -242,6 +248,12 @@ def check_main(argv: Sequence[str], out: TextIO | None = None, err: TextIO | Non
     parser = build_parser()
     parser.add_argument("configs", nargs="*", metavar="CONFIG", help="YAML config file(s)")
     parser.add_argument(
+        "--one-vehicle",
+        action="store_true",
+        help="the configs are bridges of one vehicle: a clash between them (component id, "
+        "name prefix, mapped channel, ESC numbers, endpoint, adapter) fails the check",
+    )
+    parser.add_argument(
         "--profiles",
         action="store_true",
         help="list every servo profile (built-in and plug-in), its origin, options and defaults",
@@ -262,6 +274,7 @@ def check_main(argv: Sequence[str], out: TextIO | None = None, err: TextIO | Non
     if args.profiles:
         print(profiles_listing(), file=out)
     status = EXIT_OK
+    valid: list[tuple[str, Config]] = []
     for path in args.configs:
         try:
             loaded = load_config_with_overlay(path)
@@ -270,6 +283,7 @@ def check_main(argv: Sequence[str], out: TextIO | None = None, err: TextIO | Non
             status = EXIT_INVALID
             continue
         config, warnings = loaded.config, loaded.warnings
+        valid.append((path, config))
         print(f"{path}: valid\n", file=out)
         if loaded.overlay:
             print("\n".join(overlay_lines(loaded, path)) + "\n", file=out)
@@ -280,4 +294,34 @@ def check_main(argv: Sequence[str], out: TextIO | None = None, err: TextIO | Non
             print(file=out)
         print(resolved_mapping(config), file=out)
         print(file=out)
+    if len(valid) > 1:
+        # gcs (issue 30): bridges meant for one vehicle must not fight over an identity, and
+        # share one radio: their link loads add up
+        plans = [link_plan(config) for _path, config in valid]
+        print(
+            f"together: {len(valid)} bridges put {sum(p.link_bytes_s for p in plans):,.0f} B/s "
+            "of periodic telemetry on the autopilot link and the ground station's (each "
+            "link_budget_bytes_s is per bridge: split the radio's share between them)",
+            file=out,
+        )
+        found = clashes(valid)
+        if found:
+            fatal = args.one_vehicle
+            print(
+                f"{'error' if fatal else 'warning'}: if these {len(valid)} configs run on one "
+                "vehicle, they clash:",
+                file=err,
+            )
+            for line in found:
+                print("  " + line, file=err)
+            if fatal:
+                status = EXIT_INVALID
+            else:
+                print("  (--one-vehicle makes this an error)", file=err)
+        else:
+            print(
+                f"no clash between the {len(valid)} configs: components, name prefixes, "
+                "mapped channels, ESC numbers, endpoints and adapters differ",
+                file=out,
+            )
     return status

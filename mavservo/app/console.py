@@ -38,6 +38,7 @@ _INFO_EVENTS = re.compile(
     # a health check clearing (mavservo/control/health.py, its clearing texts)
     r"|: following again|: moving again|: no longer slipping|: overload over|: temperature back"
     r"|: supply back"
+    r"|^MAVLink: servo component "  # the identity line: who the bridge is, not a problem
 )
 #: A later "no heartbeat" warning at most this often (the first comes after the link timeout).
 NO_HEARTBEAT_REPEAT_S = 30.0
@@ -320,6 +321,8 @@ def format_summary(summary: dict[str, Any]) -> str:
         lines.append("  mavlink: " + ", ".join(shown))
         lines += _stream_lines(mav.get("stream") or {})
     lines += _health_lines(summary.get("health") or {})
+    if summary.get("identity"):
+        lines.append(f"  identity at the end: {summary['identity']}")
     for text in summary.get("events", []):
         lines.append(f"  event: {text}")
     if summary.get("run_dir"):

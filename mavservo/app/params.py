@@ -18,6 +18,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from mavservo.app.component_metadata import parameter_metadata as metadata
 from mavservo.config.loader import ConfigError, default_config_path
 from mavservo.config.overlay import clear_overlay, load_config_with_overlay, overlay_path
 from mavservo.config.parameters import Parameter, current_values, parameter_table
@@ -91,27 +92,3 @@ def parameter_lines(
             f"(mavservo params --clear {path} removes it)"
         )
     return lines
-
-
-def metadata(table: list[Parameter]) -> dict[str, Any]:
-    """The parameters in MAVLink's component-information parameter schema (version 1)."""
-    parameters = []
-    for p in table:
-        entry: dict[str, Any] = {
-            "name": p.name,
-            "type": "Float",
-            "shortDesc": p.description[:80],
-            "longDesc": p.description,
-            "units": p.unit,
-            "min": p.minimum,
-            "max": p.maximum,
-            "group": "Servos"
-            if p.name.startswith("SRV")
-            else ("Gimbals" if p.name.startswith("GMB") else "Telemetry"),
-        }
-        if p.values is not None:
-            entry["values"] = [
-                {"value": value, "description": text} for value, text in p.values.items()
-            ]
-        parameters.append(entry)
-    return {"version": 1, "parameters": parameters}

@@ -199,7 +199,11 @@ def _servo_parameters(config: Config, number: int, servo: str) -> list[Parameter
         position = servo_of(c).failsafe.position_deg
         return servo_of(c).neutral_deg if position is None else position
 
-    return [
+    # TRIM, REV and SLEW act on the servo's channels: a servo no channel drives (a gimbal
+    # axis) has none, and a parameter every set of which is refused is not listed at all
+    driven = any(ch.servo == servo for ch in config.channels)
+    on_channels = {prefix + "TRIM", prefix + "REV", prefix + "SLEW"}
+    table = [
         Parameter(
             prefix + "TRIM",
             "servo",
@@ -288,6 +292,7 @@ def _servo_parameters(config: Config, number: int, servo: str) -> list[Parameter
             set_servo(("failsafe", "timeout_s")),
         ),
     ]
+    return table if driven else [p for p in table if p.name not in on_channels]
 
 
 # ----------------------------------------------------------------------------------- gimbals

@@ -24,6 +24,9 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from mavservo.mavlink.esc_status import ESC_INFO_HZ
+from mavservo.mavlink.wip_messages import EscInfo, EscStatus
+
 #: MAVLink 2 framing around a payload: 10-byte header and 2-byte checksum.
 FRAME_OVERHEAD = 12
 #: A signature adds link id, timestamp and signature.
@@ -130,6 +133,19 @@ def plan_budget(
             rates.esc_telemetry_hz * esc_groups,
             frame_bytes(mavlink2.MAVLink_esc_telemetry_1_to_4_message, signed),
         ),
+        # gcs (issue 30): QGroundControl's ESC view, the same groups as ESC_TELEMETRY
+        StreamCost(
+            "ESC_STATUS",
+            rates.esc_telemetry_hz,
+            rates.esc_telemetry_hz * esc_groups,
+            frame_bytes(EscStatus, signed),
+        ),
+        StreamCost(
+            "ESC_INFO",
+            min(ESC_INFO_HZ, rates.esc_telemetry_hz),
+            min(ESC_INFO_HZ, rates.esc_telemetry_hz) * esc_groups,
+            frame_bytes(EscInfo, signed),
+        ),
         StreamCost(
             "ACTUATOR_OUTPUT_STATUS",
             rates.actuator_output_status_hz,
@@ -173,6 +189,8 @@ _STREAM_OF_TYPE = {
     "NAMED_VALUE_FLOAT": "NAMED_VALUE_FLOAT",
     "ACTUATOR_OUTPUT_STATUS": "ACTUATOR_OUTPUT_STATUS",
     "GIMBAL_DEVICE_ATTITUDE_STATUS": "GIMBAL_DEVICE_ATTITUDE_STATUS",
+    "ESC_STATUS": "ESC_STATUS",  # gcs (issue 30)
+    "ESC_INFO": "ESC_INFO",  # gcs (issue 30)
 }
 
 
@@ -196,6 +214,8 @@ class LinkBudget:
         if ratio >= 1.0:
             return True
         key = (component_id, kind, msg.name if kind == "NAMED_VALUE_FLOAT" else None)
+        if kind in ("ESC_STATUS", "ESC_INFO"):  # gcs (issue 30): one stream per ESC group
+            key = (component_id, kind, msg.index)
         credit = self._credit.get(key, 1.0) + ratio
         if credit >= 1.0:
             self._credit[key] = credit - 1.0

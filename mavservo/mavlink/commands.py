@@ -57,6 +57,8 @@ MAV_CMD_DO_SET_ACTUATOR = 187
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
 MAV_CMD_REQUEST_MESSAGE = 512
 MSG_HEARTBEAT = 0
+#: COMPONENT_METADATA (common.xml 397), answered by each component that serves metadata
+MSG_COMPONENT_METADATA = 397
 
 INT32_MAX = 2**31 - 1
 #: DO_SET_ACTUATOR in COMMAND_INT carries actuators 5 and 6 in x/y, scaled by 1e7 (spec).
@@ -254,6 +256,8 @@ class CommandHandler:
     set_interval: Callable[[int, float], bool]
     heartbeat: Callable[[int], Any]
     gimbals: Mapping[int, HostedComponent] = field(default_factory=dict)
+    #: COMPONENT_METADATA of a hosted component (None: it serves no metadata)
+    component_metadata: Callable[[int], Any | None] = lambda _cid: None
     counters: Counter[str] = field(default_factory=Counter)
     _repeats: dict[int, _RepeatJob] = field(default_factory=dict)
     _retries: RetryTable = field(init=False)
@@ -333,7 +337,16 @@ class CommandHandler:
     def _with_retry_check(self, cmd: Command, now: float, ack: bool = True) -> list[Outgoing]:
         outputs = self._outputs(cmd)
         recent = self._retries.find(cmd, outputs, now)
-        if recent is not None:
+        # a repeated REQUEST_MESSAGE that was answered is answered again, message and all: it
+        # applies nothing, and its requester repeats it because the answer was lost (a GCS
+        # fetching COMPONENT_METADATA over a lossy radio would otherwise get only ACKs until
+        # the window passed); a refused one keeps its refusal like any retry
+        answer_again = (
+            recent is not None
+            and cmd.command == MAV_CMD_REQUEST_MESSAGE
+            and recent.result is Outcome.ACCEPTED
+        )
+        if recent is not None and not answer_again:
             self.counters["retry_not_reapplied"] += 1
             log.info(
                 "command %d from %s is a retry: ACK %s again, not applied",
@@ -465,6 +478,12 @@ class CommandHandler:
             # from the component asked; a broadcast gets one answer, from the servo component
             component = target if target in self.gimbals else servo_comp
             return component, ApplyResult(Outcome.ACCEPTED), [self.heartbeat(component)]
+        if cmd.command == MAV_CMD_REQUEST_MESSAGE and cmd.params[0] == MSG_COMPONENT_METADATA:
+            # each component serves its own metadata; a broadcast gets the servo component's
+            component = target if target in self.gimbals else servo_comp
+            metadata = self.component_metadata(component)
+            if metadata is not None:
+                return component, ApplyResult(Outcome.ACCEPTED), [metadata]
         if target in self.gimbals:
             return self._gimbal_command(self.gimbals[target], cmd, now, broadcast=False)
         decided = self._servo_command(cmd, now, broadcast=broadcast or target != servo_comp)

@@ -23,7 +23,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mavservo.mavlink.arbitration import CommandHold
 from mavservo.mavlink.backend import ActuatorBackend
-from mavservo.mavlink.bandwidth import LinkBudget, plan_budget
+from mavservo.mavlink.bandwidth import EVENT_RESERVE, LinkBudget, plan_budget
 from mavservo.mavlink.commands import (
     REFUSAL_LOG_INTERVAL_S,
     Command,
@@ -33,6 +33,9 @@ from mavservo.mavlink.commands import (
 )
 from mavservo.mavlink.component import MAV_TYPE_GIMBAL, MAV_TYPE_SERVO, HostedComponent
 from mavservo.mavlink.failsafe import FailsafeEvent, HeartbeatWatchdog
+from mavservo.mavlink.ftp import UNBUDGETED_BYTES_S
+from mavservo.mavlink.gimbal_discovery import GimbalDiscoveryWatch
+from mavservo.mavlink.metadata_service import MetadataService
 from mavservo.mavlink.mirror import Mirror
 from mavservo.mavlink.params import SERVICE_TYPES, ParameterServer, ParameterStore, SetResult
 from mavservo.mavlink.settings import FOLLOW, MavlinkSettings
@@ -68,6 +71,7 @@ class MavlinkCore:
         gimbals: Sequence[HostedComponent] = (),
         boot_time: float = 0.0,
         parameters: ParameterStore | None = None,
+        metadata_files: Mapping[int, Mapping[str, bytes]] | None = None,
     ) -> None:
         self.settings = settings
         self.backend = backend
@@ -94,7 +98,10 @@ class MavlinkCore:
             set_interval=lambda msg_id, us: self.telemetry.set_interval(msg_id, us, self._now),
             heartbeat=lambda cid: self._heartbeat_message(self.components[cid]),
             gimbals=self.gimbals,
+            component_metadata=lambda cid: self.metadata.component_metadata(cid, self._now),
         )
+        #: a hosted gimbal the autopilot never looks for is said, with the fix (issue 30)
+        self.discovery = GimbalDiscoveryWatch(self.gimbals)
         self._now = boot_time
         self._next_heartbeat = {cid: boot_time for cid in self.components}
         self.counters: Counter[str] = Counter()
@@ -119,6 +126,15 @@ class MavlinkCore:
             signing=settings.signing is not None,
             announce=lambda text: self.telemetry.announce(MAV_SEVERITY_WARNING, text),
         )
+        #: COMPONENT_METADATA and a read-only MAVLink FTP server per component (the metadata
+        #: files the app built); its answers take the event share of the link budget
+        budget = settings.link_budget_bytes_s
+        self.metadata = MetadataService(
+            self.components,
+            metadata_files or {},
+            bytes_per_s=UNBUDGETED_BYTES_S if budget is None else budget * EVENT_RESERVE,
+            boot_time=boot_time,
+        )
 
     @property
     def system_id(self) -> int:
@@ -137,6 +153,10 @@ class MavlinkCore:
         if source[0] == self._system_id and source[1] in self.components:
             return []  # our own traffic echoed back by a router
         self.counters["received"] += 1
+        if source == self.watched:
+            for text in self.discovery.on_autopilot_message(msg, now):
+                log.info("%s", text)
+                self.telemetry.announce(MAV_SEVERITY_NOTICE, text)
         if kind in ESC_TELEMETRY_TYPES and source[0] == self._system_id:
             self._heard_esc(kind, source)
         if kind == "HEARTBEAT":
@@ -159,10 +179,23 @@ class MavlinkCore:
             return []
         if kind in COMMAND_TYPES:
             return self.commands.handle(Command.from_message(msg), now)
+        if kind == "FILE_TRANSFER_PROTOCOL":
+            self._ftp(msg, source, now)
+            return []
         if kind in SERVICE_TYPES:
             return self.parameters.handle(msg, self._system_id, source)
         self._to_gimbals(msg, now)
         return []
+
+    def _ftp(self, msg: Any, source: tuple[int, int], now: float) -> None:
+        """A MAVLink FTP request: to the addressed component's server (never a broadcast: one
+        request must not make every component answer). On a signed link only signed frames."""
+        if self.settings.signing is not None and not getattr(msg, "_signed", False):
+            self.counters["ftp_unsigned_refused"] += 1
+            return
+        if msg.target_system not in (0, self._system_id) or msg.target_component == 0:
+            return
+        self.metadata.handle(msg, msg.target_component, source, now)
 
     def _acks_our_request(self, msg: Any) -> bool:
         """An ACK of our own SET_MESSAGE_INTERVAL (sent from the servo component)."""
@@ -247,11 +280,20 @@ class MavlinkCore:
             self.counters["failsafe_entered"] += 1
             self.commands.cancel_all()
             self.backend.enter_failsafe("autopilot heartbeat lost", now)
+            self.discovery.lost_autopilot()
             self.telemetry.announce(
                 MAV_SEVERITY_CRITICAL, "servo bridge: autopilot lost, servos in failsafe"
             )
         if not self.watchdog.in_failsafe:
             self._guarded("commands", lambda: self.commands.tick(now))
+            for gimbal, text in self.discovery.due(now):
+                self.counters["gimbal_not_found"] += 1
+                log.warning(
+                    "%s (ArduPilot: MNT1_TYPE 6; it looks for component %d only then)",
+                    text,
+                    gimbal,
+                )
+                self.telemetry.announce(MAV_SEVERITY_WARNING, text)
         for cid, mav_type in self.components.items():
             if now >= self._next_heartbeat[cid]:
                 self._next_heartbeat[cid] = max(self._next_heartbeat[cid] + HEARTBEAT_PERIOD_S, now)
@@ -260,6 +302,7 @@ class MavlinkCore:
         out.extend((servo, m) for m in self._guarded("streams", self._stream_requests, now))
         out.extend((servo, m) for m in self._guarded("telemetry", self.telemetry.periodic, now))
         out.extend(self._guarded("parameters", self.parameters.periodic))
+        out.extend(self._guarded("metadata", self.metadata.periodic, now))
         for cid, device in self.gimbals.items():
             out.extend((cid, m) for m in self._guarded(f"gimbal {cid}", device.periodic, now))
         return out
@@ -304,10 +347,12 @@ class MavlinkCore:
             "mirror_held_by_command": self.hold.mirror_suppressed,
             "telemetry": dict(self.telemetry.counters),
             "parameters": dict(self.parameters.counters),
+            "ftp": self.metadata.stats(),
             "failsafe_count": self.watchdog.failsafe_count,
             "in_failsafe": self.watchdog.in_failsafe,
             "gimbals": self._gimbal_counters(),
             "stream": self.streams.stats(),
+            "gimbal_discovery": self.discovery.stats(),
         }
 
     def _gimbal_counters(self) -> dict[str, dict[str, int]]:

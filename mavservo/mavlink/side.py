@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 from mavservo.mavlink.backend import ActuatorBackend
@@ -40,6 +40,7 @@ class MavlinkSide:
         clock: Callable[[], float] = time.monotonic,
         on_event: Callable[[str], None] | None = None,
         parameters: ParameterStore | None = None,
+        metadata_files: Mapping[int, Mapping[str, bytes]] | None = None,
     ) -> None:
         self._clock = clock
         #: also told about link loss / recovery (the bridge's console and event list)
@@ -47,7 +48,12 @@ class MavlinkSide:
         # re-entrant: the core calls the backend under this lock, and the backend may announce
         self._lock = threading.RLock()
         self.core = MavlinkCore(
-            settings, backend, gimbals, boot_time=clock(), parameters=parameters
+            settings,
+            backend,
+            gimbals,
+            boot_time=clock(),
+            parameters=parameters,
+            metadata_files=metadata_files,  # gcs: COMPONENT_METADATA + FTP (issue 30)
         )
         self.link = MavlinkLink(
             settings.url,

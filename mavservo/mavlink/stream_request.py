@@ -13,7 +13,14 @@ mirrored message to the autopilot it follows (system/component as heard in its H
 
 Whatever was asked, the rate received is measured over ``WINDOW_S`` windows, reported in the
 stats (summary, ``metrics.json``) and logged; a rate below what the servos need is a warning,
-at most one line per ``WARN_INTERVAL_S``. Pure: no I/O, time comes in as an argument.
+at most one line per ``WARN_INTERVAL_S``, and only while the autopilot is heard (an autopilot
+that died sends nothing: advice about its stream rate would be wrong advice).
+
+An accepted request whose rate stays low (under :data:`REASK_FRACTION` of the asked rate for a
+whole window) is asked again, at most every :data:`REASK_INTERVAL_S`: behind a router several
+bridges (and a ground station) set the same autopilot port's rate, and the last request wins,
+so a second bridge asking 10 Hz drops the first one to 10 Hz until someone asks again.
+Pure: no I/O, time comes in as an argument.
 """
 
 from __future__ import annotations
@@ -42,6 +49,10 @@ REBOOT_BACKSTEP_S = 1.0
 #: Restarts seen closer together than this (s) are counted, not acted on: on an unsigned link a
 #: spoofer alternating boot times would otherwise make the bridge send a request every tick.
 RESTART_HOLDOFF_S = 5.0
+#: An accepted stream that arrives under this fraction of the asked rate is asked again ...
+REASK_FRACTION = 0.8
+#: ... at most this often (s), so a port that cannot deliver costs one command per interval.
+REASK_INTERVAL_S = 15.0
 #: SERVO_OUTPUT_RAW.time_usec is a uint32 of microseconds: it wraps every ~71.6 minutes.
 UINT32_US_WRAP_S = 2**32 / 1e6
 
@@ -71,6 +82,9 @@ class _Stream:
     received: int = 0
     requests_sent: int = 0
     low_windows: int = 0
+    reasks: int = 0
+    last_reask: float | None = None
+    verdict_due: float | None = None
 
 
 class StreamRequester:
@@ -150,6 +164,7 @@ class StreamRequester:
         confirmation); also closes rate windows (and warns)."""
         for stream in self.streams.values():
             self._close_window(stream, now)
+            self._judge(stream, now)
         if not self.settings.enabled or self.target is None:
             return []
         out = []
@@ -187,6 +202,7 @@ class StreamRequester:
                 "requests_sent": s.requests_sent,
                 "answer": s.result if self.settings.enabled else "disabled",
                 "low_rate_windows": s.low_windows,
+                "asked_again": s.reasks,
             }
             for s in self.streams.values()
         }
@@ -217,12 +233,29 @@ class StreamRequester:
             stream.result = "not sent"
             stream.window_start = now
             stream.window_count = 0
+            stream.received_hz = None  # the rate of before the (re)start is not this one's
+            stream.verdict_due = None
+
+    def _autopilot_heard(self, now: float) -> bool:
+        return (
+            self._last_heartbeat is not None
+            and now - self._last_heartbeat <= self.heartbeat_timeout_s
+        )
 
     def _close_window(self, stream: _Stream, now: float) -> None:
         if stream.window_start is None or now - stream.window_start < WINDOW_S:
             return
-        if stream.result in ("sent", "not sent") and self.settings.enabled:
-            # still asking: a window that began before the answer would under-read the rate
+        if not self._autopilot_heard(now):
+            # gcs (issue 30): no rate, no advice about a silent autopilot; measure afresh
+            stream.window_start, stream.window_count = now, 0
+            return
+        if (
+            stream.result in ("sent", "not sent")
+            and self.settings.enabled
+            and stream.received_hz is None
+        ):
+            # still asking (after a start): a window that began before the answer would
+            # under-read the rate; a re-ask of a measured stream goes on measuring
             stream.window_start, stream.window_count = now, 0
             return
         first = stream.received_hz is None
@@ -237,7 +270,44 @@ class StreamRequester:
             )
         if stream.received_hz < stream.min_hz:
             stream.low_windows += 1
+        # the verdict waits one heartbeat timeout: a window cut short by the autopilot dying
+        # reads low, and advice about its stream rate would then be wrong advice
+        if stream.verdict_due is None:
+            stream.verdict_due = now + self.heartbeat_timeout_s
+
+    def _judge(self, stream: _Stream, now: float) -> None:
+        """A low window's warning and re-ask, once it is clear the autopilot still talks."""
+        if stream.verdict_due is None or now < stream.verdict_due:
+            return
+        stream.verdict_due = None
+        if not self._autopilot_heard(now) or stream.received_hz is None:
+            return
+        if stream.received_hz < stream.min_hz:
             self._warn_low(stream, now)
+        self._reask_if_low(stream, now)
+
+    def _reask_if_low(self, stream: _Stream, now: float) -> None:
+        """An accepted rate that did not stay: someone else (another bridge, a GCS) set the
+        port lower after us. Ask again, at most every REASK_INTERVAL_S."""
+        if not self.settings.enabled or stream.result != "accepted" or stream.received_hz is None:
+            return
+        if stream.received_hz >= REASK_FRACTION * stream.rate_hz:
+            return
+        if stream.last_reask is not None and now - stream.last_reask < REASK_INTERVAL_S:
+            return
+        stream.last_reask = now
+        stream.reasks += 1
+        stream.attempts = 0
+        stream.next_send = now
+        stream.result = "not sent"
+        log.info(
+            "asking again for %s at %g Hz: it arrives at %.1f Hz though the autopilot accepted; "
+            "another component asked its port for another rate (with several bridges behind a "
+            "router, ask the same rate on every bridge)",
+            stream.name,
+            stream.rate_hz,
+            stream.received_hz,
+        )
 
     def _warn_low(self, stream: _Stream, now: float) -> None:
         quiet = self._warn.quiet_since_last(stream.name, now)

@@ -38,6 +38,7 @@ from typing import Any
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mavservo.mavlink.backend import ActuatorBackend, ServoStatus
+from mavservo.mavlink.esc_status import ESC_INFO_HZ, esc_info, esc_status
 from mavservo.mavlink.settings import TelemetryRates
 from mavservo.servos.base import NO_FAULT, Fault
 
@@ -45,6 +46,9 @@ log = logging.getLogger(__name__)
 
 MSG_ACTUATOR_OUTPUT_STATUS = 375
 MSG_NAMED_VALUE_FLOAT = 251
+#: ESC_INFO / ESC_STATUS (QGroundControl's ESC view): one message per ESC_TELEMETRY group
+MSG_ESC_INFO = 290
+MSG_ESC_STATUS = 291
 ESC_MESSAGES = [
     mavlink2.MAVLink_esc_telemetry_1_to_4_message,
     mavlink2.MAVLink_esc_telemetry_5_to_8_message,
@@ -167,7 +171,9 @@ class Telemetry:
             MSG_ACTUATOR_OUTPUT_STATUS: _Stream(rates.actuator_output_status_hz),
             **{msg_id: _Stream(rates.esc_telemetry_hz) for msg_id in ESC_IDS},
             MSG_NAMED_VALUE_FLOAT: _Stream(rates.named_value_float_hz),
+            **{msg_id: _Stream(hz) for msg_id, hz in _esc_view_rates(rates).items()},
         }
+        self._esc_info_count = 0
         self._known: dict[str, tuple[bool, Any]] = {}  # name -> (online, faults)
         self._texts: deque[tuple[int, str]] = deque()
         self._text_sent_at: deque[float] = deque()
@@ -189,6 +195,8 @@ class Telemetry:
         """Whether ``msg_id`` is one of ours: an ESC_TELEMETRY group only if a servo is in it."""
         if msg_id in ESC_IDS:
             return ESC_IDS[msg_id] in self.esc_groups(self._backend.servo_statuses())
+        if msg_id in (MSG_ESC_INFO, MSG_ESC_STATUS):
+            return bool(self.esc_groups(self._backend.servo_statuses()))
         return msg_id in self._streams
 
     # ------------------------------------------------------------------ ESC numbers
@@ -248,6 +256,7 @@ class Telemetry:
             MSG_ACTUATOR_OUTPUT_STATUS: rates.actuator_output_status_hz,
             **{msg_id: rates.esc_telemetry_hz for msg_id in ESC_IDS},
             MSG_NAMED_VALUE_FLOAT: rates.named_value_float_hz,
+            **_esc_view_rates(rates),
         }
         for msg_id, hz in defaults.items():
             stream = self._streams[msg_id]
@@ -365,7 +374,23 @@ class Telemetry:
             return [self._actuator_output_status(statuses, now)]
         if msg_id in ESC_IDS:
             return self._esc_telemetry(statuses, ESC_IDS[msg_id])
+        if msg_id in (MSG_ESC_INFO, MSG_ESC_STATUS):
+            return self._esc_view(msg_id, statuses, now)
         return self._named_values(statuses, now)
+
+    def _esc_view(self, msg_id: int, statuses: list[ServoStatus], now: float) -> list[Any]:
+        """ESC_INFO or ESC_STATUS for every group ESC_TELEMETRY fills (same ESC numbers)."""
+        time_usec = int((now - self._boot) * 1e6)
+        groups = sorted(self.esc_groups(statuses))
+        if msg_id == MSG_ESC_STATUS:
+            return [esc_status(statuses, g, self.esc_number, time_usec=time_usec) for g in groups]
+        self._esc_info_count += 1
+        return [
+            esc_info(
+                statuses, g, self.esc_number, counter=self._esc_info_count, time_usec=time_usec
+            )
+            for g in groups
+        ]
 
     def _actuator_output_status(self, statuses: list[ServoStatus], now: float) -> Any:
         values = [math.nan] * ACTUATOR_SLOTS
@@ -452,6 +477,14 @@ class Telemetry:
                 )
             )
         return out
+
+
+def _esc_view_rates(rates: TelemetryRates) -> dict[int, float]:
+    """ESC_STATUS at the ESC telemetry rate, ESC_INFO at 1 Hz (never faster than that)."""
+    return {
+        MSG_ESC_STATUS: rates.esc_telemetry_hz,
+        MSG_ESC_INFO: min(ESC_INFO_HZ, rates.esc_telemetry_hz),
+    }
 
 
 def _names(flags: Any) -> str:

@@ -8,6 +8,8 @@ with exit status 0 after printing what was sent and received.
 from __future__ import annotations
 
 import argparse
+import os
+import shutil
 import signal
 import sys
 import threading
@@ -49,6 +51,12 @@ def build_parser(prog: str = "sitl") -> argparse.ArgumentParser:
         f"({prog} replay), sending MAVLink to a bridge.",
     )
     sub = parser.add_subparsers(dest="command", required=True)
+    sub.add_parser(
+        "arduplane",
+        help="run a built ArduPlane SITL with SERIAL1 sent to the bridge (never builds or "
+        "fetches; 'arduplane --help' for its options)",
+        add_help=False,
+    )
 
     s = sub.add_parser("stream", help="run the simulated ArduPilot autopilot stream")
     s.add_argument(
@@ -261,8 +269,29 @@ def _stop_on_signals() -> dict[int, object]:
     return previous
 
 
+#: The ArduPlane SITL launcher, shipped with the package (a pip install has no repository paths).
+ARDUPLANE_SCRIPT = Path(__file__).with_name("run-arduplane.sh")
+
+
+def run_arduplane(argv: list[str]) -> int:
+    """``mavservo sitl arduplane ...``: the packaged run-arduplane.sh with ``argv`` (its own
+    options; ``--help`` lists them). It runs an arduplane binary already built and never
+    builds, fetches or runs sim_vehicle.py; replaces this process, so signals reach SITL."""
+    bash = shutil.which("bash")
+    if bash is None:
+        print(
+            "mavservo sitl arduplane: needs bash (the launcher is a bash script)", file=sys.stderr
+        )
+        return 3
+    os.execv(bash, [bash, str(ARDUPLANE_SCRIPT), *argv])
+    return 0  # not reached: execv replaces the process
+
+
 def main(argv: list[str] | None = None, prog: str = "sitl") -> int:
     """``prog``: the name in usage texts (``mavservo sitl`` when run through ``mavservo``)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["arduplane"]:
+        return run_arduplane(argv[1:])
     args = build_parser(prog).parse_args(argv)
     previous = _stop_on_signals()
     try:

@@ -67,6 +67,9 @@ from mavservo.threads import BackgroundLoop
 GIMBAL_DEVICE_INFORMATION_ID = 283
 REQUEST_INTERVAL_S = 1.0  # ArduPilot re-asks the gimbal device for its information every second
 BOOT_OFFSET_S = 1.0  # the simulated autopilot "booted" this long before the stream starts
+#: ArduPilot's MAVLink gimbal driver looks for a gimbal from 10 s after boot and stops past
+#: 60 s once armed (libraries/AP_Mount/AP_Mount_Gremsy.cpp, find_gimbal, master 3d099b0)
+ARDUPILOT_GIMBAL_SEARCH_S = (10.0, 60.0)
 MAX_IDLE_WAIT_S = 0.01
 #: SERVO_OUTPUT_RAW rate of current ArduPlane on SERIAL1 with default parameters (MAV2_RC_CHAN,
 #: measured on a real SITL build): what a companion gets unless it asks with
@@ -124,6 +127,9 @@ class AutopilotStream(Background):
         connection_kwargs: dict[str, Any] | None = None,
         signing_key: bytes | None = None,
         keep: int = COMMANDED_KEEP,
+        gimbal_search_s: tuple[float, float] | None = None,
+        armed: bool = False,
+        boot_offset_s: float = BOOT_OFFSET_S,
     ) -> None:
         if repeat_servo_cycle not in ("seconds", "milliseconds"):
             raise ValueError("repeat_servo_cycle must be 'seconds' or 'milliseconds'")
@@ -146,6 +152,14 @@ class AutopilotStream(Background):
         #: MAVLink 2 signing key (32 bytes): sign everything, as an autopilot set up with
         #: the same key as a signed bridge does, so a signed config can be rehearsed
         self.signing_key = signing_key
+        #: (from, until) seconds of boot time in which the gimbal is looked for, like
+        #: ArduPilot (:data:`ARDUPILOT_GIMBAL_SEARCH_S`): past ``until`` only while disarmed;
+        #: None looks at any time
+        self.gimbal_search_s = gimbal_search_s
+        self.armed = armed
+        #: how long before the start the autopilot "booted" (a bridge started late sees a
+        #: boot time of minutes)
+        self.boot_offset_s = boot_offset_s
 
         # message name -> interval in seconds (None = off); changed by SET_MESSAGE_INTERVAL
         self._defaults: dict[str, float | None] = {
@@ -341,6 +355,8 @@ class AutopilotStream(Background):
         self._dropout_until = max(self._dropout_until, now + seconds)
         self._boot_at = now + seconds
         self._intervals = dict(self._defaults)
+        self.boot_offset_s = BOOT_OFFSET_S  # a fresh boot, disarmed
+        self.armed = False
         self.reboots += 1
 
     def _wait(self, timeout: float) -> None:
@@ -422,7 +438,7 @@ class AutopilotStream(Background):
 
     def _send_periodic(self, name: str, now: float) -> None:
         m = self._conn.mav
-        boot_s = now - self._boot_at + BOOT_OFFSET_S
+        boot_s = now - self._boot_at + self.boot_offset_s
         if name == "HEARTBEAT":
             self._send(
                 name,
@@ -430,7 +446,7 @@ class AutopilotStream(Background):
                 m.heartbeat_send,
                 mav.MAV_TYPE_FIXED_WING,
                 mav.MAV_AUTOPILOT_ARDUPILOTMEGA,
-                81,
+                81 | (mav.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0),
                 0,
                 mav.MAV_STATE_STANDBY,
                 3,
@@ -473,7 +489,7 @@ class AutopilotStream(Background):
             usec = int(boot_s * 1e6)
             # the profile is evaluated at the microsecond stamped into time_usec, so a receiver
             # can recompute exactly what was sent from the message alone
-            frame = self._output_frame(now, profile_t=usec / 1e6 - BOOT_OFFSET_S)
+            frame = self._output_frame(now, profile_t=usec / 1e6 - self.boot_offset_s)
             self._send(name, now, m.servo_output_raw_send, usec & 0xFFFFFFFF, 0, *frame)
             previous = self._last_output
             for channel, pwm in enumerate(frame, start=1):
@@ -538,6 +554,11 @@ class AutopilotStream(Background):
     def _gimbal_discovery(self, now: float) -> None:
         if not self.gimbal_enabled or self.gimbal_device_info is not None:
             return
+        if self.gimbal_search_s is not None:
+            start, stop = self.gimbal_search_s
+            boot_s = now - self._boot_at + self.boot_offset_s
+            if boot_s < start or (boot_s > stop and self.armed):
+                return
         if now < self._next_request:
             return
         self._next_request = now + REQUEST_INTERVAL_S

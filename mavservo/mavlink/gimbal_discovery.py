@@ -1,0 +1,111 @@
+"""Notice a gimbal the autopilot never looks for, and say why and what to do.
+
+ArduPilot's MAVLink gimbal driver (``libraries/AP_Mount/AP_Mount_Gremsy.cpp``,
+``AP_Mount_Gremsy::find_gimbal``, ArduPilot master 3d099b0) looks for a gimbal component only
+from 10 s after boot, and stops once it is past 60 s *and* armed. Once it has seen the gimbal's
+HEARTBEAT it asks for GIMBAL_DEVICE_INFORMATION every second (MAV_CMD_REQUEST_MESSAGE to the
+gimbal's component), then streams GIMBAL_DEVICE_SET_ATTITUDE and
+AUTOPILOT_STATE_FOR_GIMBAL_DEVICE. A bridge started after that window is never found: ArduPilot
+still ACKs MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW as ACCEPTED and nothing moves, without a word.
+
+So for each hosted gimbal of an ArduPilot vehicle (its HEARTBEAT says so) this watch waits
+until the autopilot has been heard for
+:data:`GRACE_S` and is at least :data:`SEARCH_STARTS_S` + :data:`GRACE_S` past its own boot (its
+boot time read from the messages it sends), and if by then the autopilot has neither asked the
+gimbal for anything nor sent it a setpoint, it returns one warning with the fix (the log and a
+STATUSTEXT). Once the autopilot does turn to the gimbal it says so once. Sans-I/O.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from typing import Any
+
+from mavservo.mavlink.stream_request import boot_time_s
+
+#: ArduPilot starts looking for gimbals this long after its boot (AP_Mount_Gremsy.cpp).
+SEARCH_STARTS_S = 10.0
+#: ... and stops past this, once armed (AP_MOUNT_GREMSY_SEARCH_MS).
+SEARCH_STOPS_S = 60.0
+#: How long the autopilot may take to turn to a gimbal it can see (it asks every second).
+GRACE_S = 5.0
+#: What the autopilot sends a gimbal it has found.
+_GIMBAL_TRAFFIC = ("GIMBAL_DEVICE_SET_ATTITUDE", "AUTOPILOT_STATE_FOR_GIMBAL_DEVICE")
+_COMMANDS = ("COMMAND_LONG", "COMMAND_INT")
+#: MAV_AUTOPILOT_ARDUPILOTMEGA (minimal.xml): the HEARTBEAT of an ArduPilot vehicle.
+MAV_AUTOPILOT_ARDUPILOTMEGA = 3
+
+
+def not_found_text(component_id: int) -> str:
+    """The warning: what happened, why, and the fix (fits four STATUSTEXT chunks)."""
+    return (
+        f"gimbal {component_id} not found by the autopilot: ArduPilot looks for gimbals only "
+        "10-60 s after boot (longer while disarmed). Reboot the autopilot with the bridge "
+        "running; start the bridge first"
+    )
+
+
+class GimbalDiscoveryWatch:
+    """Whether the autopilot turned to each hosted gimbal; the warnings due when it did not."""
+
+    def __init__(self, gimbal_ids: Iterable[int]) -> None:
+        self.gimbal_ids = tuple(gimbal_ids)
+        self._heard_since: float | None = None
+        self._uptime: tuple[float, float] | None = None  # (autopilot boot time s, our time)
+        self._found: set[int] = set()
+        self._warned: set[int] = set()
+        #: the search window is ArduPilot's: another autopilot gets no advice about it
+        self._ardupilot = False
+
+    def on_autopilot_message(self, msg: Any, now: float) -> list[str]:
+        """A message from the watched autopilot (HEARTBEAT included). Returns notices."""
+        if self._heard_since is None:
+            self._heard_since = now
+        kind = msg.get_type()
+        if kind == "HEARTBEAT":
+            self._ardupilot = int(msg.autopilot) == MAV_AUTOPILOT_ARDUPILOTMEGA
+        boot = boot_time_s(kind, msg)
+        if boot is not None:
+            self._uptime = (boot, now)
+        target = _gimbal_target(msg, kind)
+        if target is None or target not in self.gimbal_ids or target in self._found:
+            return []
+        self._found.add(target)
+        if target in self._warned:
+            return [f"gimbal {target} found by the autopilot after all"]
+        return []
+
+    def lost_autopilot(self) -> None:
+        """The autopilot went silent: the wait starts again when it is heard."""
+        self._heard_since = None
+        self._uptime = None
+
+    def due(self, now: float) -> list[tuple[int, str]]:
+        """(gimbal, warning) for each gimbal the autopilot should have found by now."""
+        if not self.gimbal_ids or not self._ardupilot or self._heard_since is None:
+            return []
+        if now - self._heard_since < GRACE_S:
+            return []
+        if self._uptime is not None:
+            boot, at = self._uptime
+            if boot + (now - at) < SEARCH_STARTS_S + GRACE_S:
+                return []  # the autopilot is not looking yet
+        out = []
+        for gimbal in self.gimbal_ids:
+            if gimbal in self._found or gimbal in self._warned:
+                continue
+            self._warned.add(gimbal)
+            out.append((gimbal, not_found_text(gimbal)))
+        return out
+
+    def stats(self) -> dict[str, list[int]]:
+        return {"found": sorted(self._found), "warned": sorted(self._warned)}
+
+
+def _gimbal_target(msg: Any, kind: str) -> int | None:
+    """The component an autopilot message turns to, when it is gimbal business."""
+    if kind in _GIMBAL_TRAFFIC:
+        return int(msg.target_component)
+    if kind in _COMMANDS:
+        return int(msg.target_component)  # any command to the gimbal: it knows the gimbal
+    return None

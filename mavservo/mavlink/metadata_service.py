@@ -1,0 +1,98 @@
+"""Component metadata for ground stations: COMPONENT_METADATA and the files it points at.
+
+QGroundControl asks each component for COMPONENT_METADATA (MAV_CMD_REQUEST_MESSAGE 397), reads
+the general metadata file at its ``uri`` over MAVLink FTP, and from it the parameter metadata
+file (https://mavlink.io/en/services/component_information.html). The files are built by the
+application from the config (this layer knows nothing of the config); here each hosted
+component gets its read-only :class:`~mavservo.mavlink.ftp.FtpServer`, and a component without
+files still answers FTP at once (NAK "file not found": MAVProxy's parameter download then
+falls back to PARAM_REQUEST_LIST instead of waiting for its time-out).
+
+The URI names the component (``mftp://[;comp=140]/general.json``, the MAVLink FTP URL scheme),
+so a ground station that reaches the bridge through the autopilot's routing still asks the
+right component. Sans-I/O.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from mavservo.mavlink.commands import Outgoing
+from mavservo.mavlink.ftp import ByteWindow, FtpServer, crc32
+from mavservo.mavlink.wip_messages import ComponentMetadata
+
+#: The general metadata file's name on every component that serves metadata.
+GENERAL_FILE = "general.json"
+#: The parameter metadata file (xz-compressed JSON, as the component-information page advises).
+PARAMETER_FILE = "parameters.json.xz"
+#: COMP_METADATA_TYPE (common.xml): 0 general, 1 parameter.
+COMP_METADATA_TYPE_PARAMETER = 1
+#: MAV_CMD_REQUEST_MESSAGE's message id for COMPONENT_METADATA.
+MSG_COMPONENT_METADATA = ComponentMetadata.id  # = commands.MSG_COMPONENT_METADATA
+URI_LENGTH = 100
+
+
+def mftp_uri(component_id: int, name: str) -> str:
+    """A MAVLink FTP URI for ``name`` on ``component_id`` (at most 100 characters)."""
+    uri = f"mftp://[;comp={component_id}]/{name}"
+    if len(uri) > URI_LENGTH:
+        raise ValueError(f"metadata URI {uri!r} is longer than {URI_LENGTH} characters")
+    return uri
+
+
+class MetadataService:
+    """COMPONENT_METADATA answers and the FTP servers of the hosted components.
+
+    ``files``: component id -> (served name -> content); a component with a
+    :data:`GENERAL_FILE` answers COMPONENT_METADATA. ``bytes_per_s``: the byte rate the FTP
+    answers of all components together may take of the link.
+    """
+
+    def __init__(
+        self,
+        component_ids: Iterable[int],
+        files: Mapping[int, Mapping[str, bytes]],
+        *,
+        bytes_per_s: float,
+        boot_time: float,
+    ) -> None:
+        self._boot = boot_time
+        window = ByteWindow(bytes_per_s)  # one link: every component's answers share it
+        self.servers = {
+            cid: FtpServer(dict(files.get(cid, {})), bytes_per_s=bytes_per_s, window=window)
+            for cid in component_ids
+        }
+
+    def component_metadata(self, component_id: int, now: float) -> Any | None:
+        """COMPONENT_METADATA of ``component_id``, or None when it serves no metadata."""
+        server = self.servers.get(component_id)
+        if server is None or GENERAL_FILE not in server.files:
+            return None
+        return ComponentMetadata(
+            time_boot_ms=int((now - self._boot) * 1000) & 0xFFFFFFFF,
+            file_crc=crc32(server.files[GENERAL_FILE]),
+            uri=mftp_uri(component_id, GENERAL_FILE),
+        )
+
+    def handle(self, msg: Any, component_id: int, sender: tuple[int, int], now: float) -> None:
+        """A FILE_TRANSFER_PROTOCOL request addressed to ``component_id``."""
+        server = self.servers.get(component_id)
+        if server is not None:
+            server.handle(bytes(msg.payload), sender, now)
+
+    def periodic(self, now: float) -> list[Outgoing]:
+        """The FTP answers each component may send now (paced by its server)."""
+        out: list[Outgoing] = []
+        for cid, server in self.servers.items():
+            for (system, component), payload in server.periodic(now):
+                reply = mavlink2.MAVLink_file_transfer_protocol_message(
+                    0, system, component, list(payload)
+                )
+                out.append((cid, reply))
+        return out
+
+    def stats(self) -> dict[str, dict[str, int]]:
+        return {str(cid): server.stats() for cid, server in self.servers.items()}
