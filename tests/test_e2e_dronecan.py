@@ -3,15 +3,18 @@
 A GCS-side pymavlink peer sends DO_SET_SERVO over UDP; the bridge drives the aa55 interface on
 the adapter emulator's pty; simulated DroneCAN servo nodes (made with the ``dronecan`` package)
 take their entry of the bridge's ArrayCommand, move, and report Status and NodeStatus, which
-come back over MAVLink. A servo node that falls silent is offline within about 3 s (its
-NodeStatus stops): STATUSTEXT, DO_SET_SERVO TEMPORARILY_REJECTED; it comes back when it speaks.
+come back over MAVLink. A servo node that falls silent goes offline once it has missed three
+NodeStatus (never sooner, whatever its Status rate): STATUSTEXT, DO_SET_SERVO
+TEMPORARILY_REJECTED; it comes back when it speaks. How fast is a timing goal, not judged here.
 """
 
 from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import can
 import pytest
@@ -29,6 +32,7 @@ from e2e_support import (
 )
 from test_run_cli import REPO, run_mavservo
 
+from mavservo.scheduling.runner import SchedulerObserver
 from mavservo.servos.base import Fault
 from mavservo.sim.autopilot.link import mavlink2
 
@@ -54,12 +58,29 @@ channels:
 """
 
 
+#: How long the bridge keeps a silent DroneCAN servo online: offline_after_missed (default 3)
+#: NodeStatus periods (1 s: uavcan.protocol.NodeStatus MAX_BROADCASTING_PERIOD_MS = 1000) plus
+#: CONFIG's reply_timeout_s. The servo's Status at 10 Hz would give 3 x 0.1 + 0.5 s instead.
+NODE_SILENCE_LIMIT_S = 3 * 1.0 + 0.5
+
+
 def status(bridge, name: str):  # type: ignore[no-untyped-def]
     return next(s for s in bridge.backend.servo_statuses() if s.name == name)
 
 
-def test_dronecan_servos_follow_and_a_silent_node_goes_offline_within_3_s_and_comes_back() -> None:
-    with running(CONFIG) as (bridge, port):
+@dataclass
+class LastHeard(SchedulerObserver):
+    """Scheduler observer: when the bridge last decoded a frame from each servo (its clock)."""
+
+    at: dict[str, float] = field(default_factory=dict)
+
+    def on_rx(self, bus: str, msg: Any, t: float, servo: str, state: Any) -> None:
+        self.at[servo] = max(t, self.at.get(servo, t))
+
+
+def test_dronecan_servos_follow_and_a_node_missing_its_node_status_goes_offline_and_back() -> None:
+    heard = LastHeard()
+    with running(CONFIG, observers=[heard]) as (bridge, port):
         peer = Peer(port)
         try:
             peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))  # a GCS: answer me
@@ -85,10 +106,14 @@ def test_dronecan_servos_follow_and_a_silent_node_goes_offline_within_3_s_and_co
             left = sim_servo(bridge, "left")
             mark = peer.count()
             left.faults.silent = True
-            silenced = time.monotonic()
-            assert wait_until(lambda: not status(bridge, "left").online, WAIT_S)
-            took = time.monotonic() - silenced
-            assert took < 4.0, took  # NodeStatus at 1 Hz, offline after about 3 s of silence
+            assert wait_until(
+                lambda: not status(bridge, "left").online, NODE_SILENCE_LIMIT_S + WAIT_S
+            )
+            seen_offline = time.monotonic()
+            # offline by the NodeStatus rule: not before three heartbeats were missed (the
+            # bridge's own receive times; a loaded machine only makes this later)
+            silent_for = seen_offline - heard.at["left"]
+            assert silent_for > NODE_SILENCE_LIMIT_S, silent_for
             assert Fault.NO_REPLY in status(bridge, "left").state.faults
             assert status(bridge, "right").online
             assert wait_until(lambda: "servo left not responding" in peer.statustexts(mark), WAIT_S)
