@@ -206,14 +206,7 @@ def test_real_arduplane_boots_without_a_gcs(tmp_path: Path) -> None:
     then stops it cleanly. With ``tcp:0:wait`` it would wait for a GCS and send nothing."""
     port = free_udp_port()
     conn = peer(port)
-    proc = subprocess.Popen(
-        ["bash", str(SCRIPT), "--port", str(port)],
-        cwd=tmp_path,
-        env=_without_sim_vehicle(),
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        start_new_session=True,
-    )
+    proc = _launch(tmp_path, port, env=_without_sim_vehicle())
     try:
         boot = collect(conn, 90.0, until=lambda m: m.get_type() == "SERVO_OUTPUT_RAW")
     finally:
@@ -239,13 +232,7 @@ def test_real_arduplane_streams_servo_outputs_and_obeys_do_set_servo(tmp_path: P
     port = free_udp_port()
     conn = peer(port)
     started = time.monotonic()
-    proc = subprocess.Popen(
-        ["bash", str(SCRIPT), "--port", str(port)],
-        cwd=tmp_path,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        start_new_session=True,
-    )
+    proc = _launch(tmp_path, port)
     try:
         boot = collect(conn, 90.0, until=lambda m: m.get_type() == "SERVO_OUTPUT_RAW")
         assert of_type(boot, "SERVO_OUTPUT_RAW"), "no SERVO_OUTPUT_RAW from SITL within 90 s"
@@ -280,6 +267,19 @@ def test_real_arduplane_streams_servo_outputs_and_obeys_do_set_servo(tmp_path: P
         conn.close()
         code = _stop(proc)
     assert code == 0, f"SITL did not stop cleanly on SIGTERM (status {code})"
+
+
+def _launch(tmp_path: Path, port: int, env: dict[str, str] | None = None) -> subprocess.Popen:
+    """The launcher, SERIAL1 to ``port``, nobody on SERIAL0; its own session, so _stop ends
+    SITL with it."""
+    return subprocess.Popen(
+        ["bash", str(SCRIPT), "--port", str(port)],
+        cwd=tmp_path,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        start_new_session=True,
+    )
 
 
 def _bridge_settings(port: int) -> MavlinkSettings:
