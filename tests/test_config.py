@@ -9,6 +9,7 @@ import textwrap
 from pathlib import Path
 
 import pytest
+from test_run_cli import run_mavservo
 
 from mavservo.app.check import check_main, resolved_mapping
 from mavservo.config import (
@@ -519,6 +520,45 @@ def test_check_main_returns_two_and_reports_every_bad_file(tmp_path: Path):
     assert "nope.yaml" in err.getvalue()
     assert "Traceback" not in err.getvalue()
     assert "valid" in out.getvalue()  # the good one is still shown
+
+
+#: families with no motor-off frame (``check --profiles``: "failsafe release: no"): CubeMars AK
+#: servo mode and DroneCAN's ArrayCommand have no command that turns the motor off
+WITHOUT_MOTOR_OFF = ("cubemars-ak", "dronecan")
+RELEASE_CASE = """\
+servos:
+  - name: s
+    profile: {profile}
+    can_id: 11
+    failsafe:
+      action: {action}   # <-
+channels:
+  - {{servo: s, source: servo_output, channel: 1}}
+"""
+
+
+@pytest.mark.parametrize("profile", WITHOUT_MOTOR_OFF)
+def test_check_exits_2_for_failsafe_release_on_a_family_without_motor_off(
+    tmp_path: Path, profile: str
+) -> None:
+    """``release`` promises motor off: ``mavservo check`` refuses it, at the action's line,
+    for a family that cannot; the same servo with ``hold``, and a family that can release
+    (rmd-x), pass."""
+    bad = tmp_path / f"{profile}-release.yaml"
+    bad.write_text(RELEASE_CASE.format(profile=profile, action="release"))
+    proc = run_mavservo("check", str(bad))
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    line = f"{bad}:{_marked_line(bad.read_text())}: servos[0].failsafe.action: "
+    assert line in proc.stderr, proc.stderr
+    assert f"the {profile} profile has no motor-off frame" in proc.stderr
+    assert "Traceback" not in proc.stderr
+    fine = []
+    for fine_profile, action in ((profile, "hold"), ("rmd-x", "release")):
+        path = tmp_path / f"{fine_profile}-{action}.yaml"
+        path.write_text(RELEASE_CASE.format(profile=fine_profile, action=action))
+        fine.append(str(path))
+    out, err = io.StringIO(), io.StringIO()
+    assert check_main(fine, out=out, err=err) == 0, err.getvalue()
 
 
 def test_resolved_mapping_shows_reverse_and_clamping():

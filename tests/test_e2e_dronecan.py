@@ -3,14 +3,18 @@
 A GCS-side pymavlink peer sends DO_SET_SERVO over UDP; the bridge drives the aa55 interface on
 the adapter emulator's pty; simulated DroneCAN servo nodes (made with the ``dronecan`` package)
 take their entry of the bridge's ArrayCommand, move, and report Status and NodeStatus, which
-come back over MAVLink. A servo node that falls silent is offline within about 3 s (its
-NodeStatus stops): STATUSTEXT, DO_SET_SERVO TEMPORARILY_REJECTED; it comes back when it speaks.
+come back over MAVLink. A servo node that falls silent goes offline once it has missed three
+NodeStatus (never sooner, whatever its Status rate): STATUSTEXT, DO_SET_SERVO
+TEMPORARILY_REJECTED; it comes back when it speaks. How fast is a timing goal, not judged here.
 """
 
 from __future__ import annotations
 
+import math
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import can
 import pytest
@@ -20,6 +24,7 @@ from e2e_support import (
     MAV_RESULT_ACCEPTED,
     MAV_RESULT_TEMPORARILY_REJECTED,
     Peer,
+    named_values,
     pwm_to_angle,
     run_example_config_follows_and_loses_nothing,
     running,
@@ -27,6 +32,7 @@ from e2e_support import (
 )
 from test_run_cli import REPO, run_mavservo
 
+from mavservo.scheduling.runner import SchedulerObserver
 from mavservo.servos.base import Fault
 from mavservo.sim.autopilot.link import mavlink2
 
@@ -52,12 +58,29 @@ channels:
 """
 
 
+#: How long the bridge keeps a silent DroneCAN servo online: offline_after_missed (default 3)
+#: NodeStatus periods (1 s: uavcan.protocol.NodeStatus MAX_BROADCASTING_PERIOD_MS = 1000) plus
+#: CONFIG's reply_timeout_s. The servo's Status at 10 Hz would give 3 x 0.1 + 0.5 s instead.
+NODE_SILENCE_LIMIT_S = 3 * 1.0 + 0.5
+
+
 def status(bridge, name: str):  # type: ignore[no-untyped-def]
     return next(s for s in bridge.backend.servo_statuses() if s.name == name)
 
 
-def test_dronecan_servos_follow_and_a_silent_node_goes_offline_within_3_s_and_comes_back() -> None:
-    with running(CONFIG) as (bridge, port):
+@dataclass
+class LastHeard(SchedulerObserver):
+    """Scheduler observer: when the bridge last decoded a frame from each servo (its clock)."""
+
+    at: dict[str, float] = field(default_factory=dict)
+
+    def on_rx(self, bus: str, msg: Any, t: float, servo: str, state: Any) -> None:
+        self.at[servo] = max(t, self.at.get(servo, t))
+
+
+def test_dronecan_servos_follow_and_a_node_missing_its_node_status_goes_offline_and_back() -> None:
+    heard = LastHeard()
+    with running(CONFIG, observers=[heard]) as (bridge, port):
         peer = Peer(port)
         try:
             peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))  # a GCS: answer me
@@ -83,10 +106,14 @@ def test_dronecan_servos_follow_and_a_silent_node_goes_offline_within_3_s_and_co
             left = sim_servo(bridge, "left")
             mark = peer.count()
             left.faults.silent = True
-            silenced = time.monotonic()
-            assert wait_until(lambda: not status(bridge, "left").online, WAIT_S)
-            took = time.monotonic() - silenced
-            assert took < 4.0, took  # NodeStatus at 1 Hz, offline after about 3 s of silence
+            assert wait_until(
+                lambda: not status(bridge, "left").online, NODE_SILENCE_LIMIT_S + WAIT_S
+            )
+            seen_offline = time.monotonic()
+            # offline by the NodeStatus rule: not before three heartbeats were missed (the
+            # bridge's own receive times; a loaded machine only makes this later)
+            silent_for = seen_offline - heard.at["left"]
+            assert silent_for > NODE_SILENCE_LIMIT_S, silent_for
             assert Fault.NO_REPLY in status(bridge, "left").state.faults
             assert status(bridge, "right").online
             assert wait_until(lambda: "servo left not responding" in peer.statustexts(mark), WAIT_S)
@@ -95,6 +122,63 @@ def test_dronecan_servos_follow_and_a_silent_node_goes_offline_within_3_s_and_co
             assert wait_until(lambda: status(bridge, "left").online, WAIT_S)
             assert peer.command(MAV_CMD_DO_SET_SERVO, [1, 1500]) == MAV_RESULT_ACCEPTED
             assert wait_until(lambda: abs(left.position_deg) < 0.3, WAIT_S)
+        finally:
+            peer.close()
+
+
+#: DroneCAN Status carries position as float16 radians: one step of it at 0.5..1 rad
+STATUS_RESOLUTION_DEG = math.degrees(2.0**-11)
+
+
+def test_dronecan_position_and_status_reach_mavlink_telemetry() -> None:
+    """What the DroneCAN servos report reaches a ground station over a real UDP MAVLink link:
+    each servo's actuator Status position as NAMED_VALUE_FLOAT ``s<n>_pos`` (equal to where the
+    simulated servo is, within float16) and as its ACTUATOR_OUTPUT_STATUS slot (normalised on
+    the channel's +-45 deg, ``active`` bit set); its NodeStatus health as ``s<n>_flt``: 0 while
+    OK, the OTHER bit (and a STATUSTEXT) once the node reports a warning, the other node's 0."""
+    targets = {"left": (1, 1700), "right": (2, 1300)}  # servo -> (channel = n, PWM)
+    with running(CONFIG) as (bridge, port):
+        peer = Peer(port)
+        try:
+            peer.gcs_heartbeat()
+            for channel, pwm in targets.values():
+                assert peer.command(MAV_CMD_DO_SET_SERVO, [channel, pwm]) == MAV_RESULT_ACCEPTED
+            sims = {name: sim_servo(bridge, name) for name in targets}
+            for name, (_, pwm) in targets.items():
+                target = pwm_to_angle(pwm, 1000, 2000, (-45, 45))
+                assert wait_until(
+                    lambda s=sims[name], a=target: (
+                        abs(s.position_deg - a) < 0.3 and abs(s.velocity_dps) < 0.1
+                    ),
+                    WAIT_S,
+                ), (name, sims[name].position_deg)
+            mark = peer.count()
+            assert wait_until(
+                lambda: all(
+                    len(named_values(peer.since(mark), f"s{n}_pos")) >= 3
+                    and peer.since(mark, "ACTUATOR_OUTPUT_STATUS")
+                    for n, _ in targets.values()
+                ),
+                WAIT_S,
+            )
+            received = peer.since(mark)
+            [latest] = peer.since(mark, "ACTUATOR_OUTPUT_STATUS")[-1:]
+            for name, (n, _) in targets.items():
+                where = sims[name].position_deg
+                for value in named_values(received, f"s{n}_pos")[-2:]:
+                    assert abs(value - where) <= STATUS_RESOLUTION_DEG, (name, value, where)
+                assert latest.active & (1 << (n - 1)), (name, latest.active)
+                assert latest.actuator[n - 1] == pytest.approx(where / 45, abs=1e-3), name
+                assert named_values(received, f"s{n}_flt")[-1] == 0, name
+
+            mark = peer.count()
+            sims["left"].faults.over_temperature = True  # the node's NodeStatus: WARNING
+            other = float(Fault.OTHER.value)
+            assert wait_until(lambda: other in named_values(peer.since(mark), "s1_flt"), WAIT_S), (
+                named_values(peer.since(mark), "s1_flt")
+            )
+            assert wait_until(lambda: "servo left fault" in "".join(peer.statustexts(mark)), WAIT_S)
+            assert set(named_values(peer.since(mark), "s2_flt")) == {0.0}
         finally:
             peer.close()
 

@@ -30,6 +30,7 @@ from e2e_support import (
     status,
 )
 
+from mavservo.servos.cubemars_mit import CubeMarsAKMit
 from mavservo.servos.damiao import DamiaoDM
 from mavservo.servos.mit import is_special, unpack_command
 
@@ -47,6 +48,8 @@ servos:
   - {name: ak_mit, profile: cubemars-ak-mit, can_id: 3, limits_deg: [-90, 90], telemetry_hz: 10}
   - {name: dm_small, profile: damiao-dm, can_id: 4, limits_deg: [-90, 90], telemetry_hz: 10,
      options: {p_max_rad: 1.0}}
+  - {name: ak_small, profile: cubemars-ak-mit, can_id: 5, limits_deg: [-90, 90], telemetry_hz: 10,
+     options: {p_max_rad: 1.0}}
 # a reply counts as lost only when it never comes: timing on a loaded machine is not judged here
 scheduler: {reply_timeout_s: 0.5}
 channels:
@@ -58,6 +61,8 @@ channels:
      output_deg: [-90, 90]}
   - {servo: dm_small, source: servo_output, channel: 4, input: {min: 1000, max: 2000},
      output_deg: [-90, 90]}
+  - {servo: ak_small, source: servo_output, channel: 5, input: {min: 1000, max: 2000},
+     output_deg: [-90, 90]}
 """
 
 RESOLUTION_DEG = math.degrees(25.0 / 65535)
@@ -66,18 +71,36 @@ RESOLUTION_DEG = math.degrees(25.0 / 65535)
 SERVOS = {"dm_mit": (1, 1), "dm_pv": (2, 2), "ak_mit": (3, 3)}
 
 
+#: servo with a +-1 rad (57.3 deg) model range -> (profile, channel, PWM whose angle is outside it)
+OUT_OF_RANGE = {
+    "dm_small": (DamiaoDM(4, p_max_rad=1.0), 4, 1900),  # +72 deg
+    "ak_small": (CubeMarsAKMit(5, p_max_rad=1.0), 5, 1050),  # -81 deg
+}
+
+
 def test_mit_families_follow_report_and_refuse_out_of_range() -> None:
+    """Both MIT families follow and report; an angle inside limits_deg but outside the model's
+    range is DENIED by each family, counted under its profile, and no command for it (nor any
+    other setpoint) reaches that servo while the others go on following."""
     recorder = Recorder()
     with running(CONFIG, observers=[recorder]) as (bridge, port):
         peer = Peer(port)
         try:
+            for _, channel, pwm in OUT_OF_RANGE.values():
+                assert peer.command(MAV_CMD_DO_SET_SERVO, [channel, pwm]) == MAV_RESULT_DENIED
             for pwm in (1650, 1210):
                 assert_servos_follow_pwm(bridge, peer, SERVOS, pwm, RESOLUTION_DEG, WAIT_S)
-
         finally:
             peer.close()
         summary = bridge.stop()
     assert_nothing_lost(summary, SERVOS)
+    for name, (profile, _, _) in OUT_OF_RANGE.items():
+        assert recorder.angles(name) == [], name
+        assert commanded_angles(recorder, name, profile) == [], name
+    commands = summary["mavlink"]["commands"]
+    assert commands["result_denied"] == 2, commands
+    assert commands["reason_damiao-dm"] == 1, commands
+    assert commands["reason_cubemars-ak-mit"] == 1, commands
 
 
 def test_a_position_outside_the_models_range_is_denied_counted_and_never_sent() -> None:
@@ -91,22 +114,24 @@ def test_a_position_outside_the_models_range_is_denied_counted_and_never_sent() 
             assert peer.command(MAV_CMD_DO_SET_SERVO, [4, 1900]) == MAV_RESULT_DENIED
             assert peer.command(MAV_CMD_DO_SET_SERVO, [4, 1600]) == MAV_RESULT_ACCEPTED
             assert wait_until(lambda: 18.0 in recorder.angles("dm_small"), WAIT_S)
-            assert wait_until(lambda: commanded_angles(recorder, small), WAIT_S)
+            assert wait_until(lambda: commanded_angles(recorder, "dm_small", small), WAIT_S)
         finally:
             peer.close()
         summary = bridge.stop()
     assert recorder.angles("dm_small") == [pytest.approx(18.0)]
-    sent = commanded_angles(recorder, small)
+    sent = commanded_angles(recorder, "dm_small", small)
     assert sent and all(a == pytest.approx(18.0, abs=0.05) for a in sent), sent
     commands = summary["mavlink"]["commands"]
     assert commands["result_denied"] == 1, commands
     assert commands["reason_damiao-dm"] == 1, commands  # counted under the profile's name
 
 
-def commanded_angles(recorder: Recorder, profile: DamiaoDM) -> list[float]:
-    """Angles of the MIT position commands written to ``profile``'s servo (decoded here)."""
+def commanded_angles(
+    recorder: Recorder, name: str, profile: DamiaoDM | CubeMarsAKMit
+) -> list[float]:
+    """Angles of the MIT position commands written to servo ``name`` (decoded here)."""
     out = []
-    for kind, arbitration_id, data in recorder.frames("dm_small"):
+    for kind, arbitration_id, data in recorder.frames(name):
         if kind.startswith("command") and arbitration_id == profile.can_id and not is_special(data):
             out.append(math.degrees(unpack_command(data, profile.ranges).position_rad))
     return out

@@ -47,6 +47,7 @@ def test_default_run_moves_servos_and_reports_both_directions(tmp_path: Path) ->
         assert row, f"no summary row for {name}:\n{out}"
         sent, received, _pushed, lost, _late, rejected = map(int, row.groups())
         assert sent > 0 and received > 0, f"{name}: {row.group(0)}"
+        assert lost == 0, f"{name} lost replies on the built-in simulation: {row.group(0)}"
         assert rejected == 0
     assert "decoder rejections 0" in out
     # the swept surfaces moved: the run's trace and CAN log show it

@@ -161,9 +161,12 @@ def test_launcher_command_line_for_the_arduplane_binary(tmp_path: Path) -> None:
     assert defaults.endswith(f"arduplane-companion.parm,{gimbal_parm}")
 
 
-def test_launcher_takes_the_plane_defaults_of_the_binarys_tree_and_boots_without_a_gcs(
+def test_launcher_dry_run_takes_the_plane_defaults_of_the_binarys_tree_and_does_not_wait_for_a_gcs(
     tmp_path: Path,
 ) -> None:
+    """A dry run with a stand-in binary: only the command line is checked (SERIAL0 listens
+    without ``:wait`` unless --wait-gcs). That SITL really boots without a GCS is
+    test_real_arduplane_boots_without_a_gcs."""
     # a current ArduPilot tree: defaults in Tools/autotest/models/, binary in build/sitl/bin/
     home = tmp_path / "ardupilot"
     (home / "Tools" / "autotest" / "models").mkdir(parents=True)
@@ -206,11 +209,48 @@ def test_launcher_takes_the_plane_defaults_of_the_binarys_tree_and_boots_without
     assert words[words.index("--serial0") + 1] == "tcp:0:wait"
 
 
-def _find_ardupilot() -> str | None:
+def _find_arduplane_binary() -> str | None:
+    """The ArduPlane SITL binary the launcher would run itself (not sim_vehicle.py)."""
     home = os.environ.get("ARDUPILOT_HOME")
     if home and (Path(home) / "build" / "sitl" / "bin" / "arduplane").exists():
         return str(Path(home) / "build" / "sitl" / "bin" / "arduplane")
-    return shutil.which("arduplane") or shutil.which("sim_vehicle.py")
+    return shutil.which("arduplane")
+
+
+def _find_ardupilot() -> str | None:
+    return _find_arduplane_binary() or shutil.which("sim_vehicle.py")
+
+
+def _without_sim_vehicle() -> dict[str, str]:
+    """This environment with no sim_vehicle.py on PATH: the launcher then runs the binary
+    itself (sim_vehicle.py would start MAVProxy, a GCS, on SERIAL0)."""
+    dirs = os.environ.get("PATH", "").split(os.pathsep)
+    kept = [d for d in dirs if not (Path(d or ".") / "sim_vehicle.py").exists()]
+    return dict(os.environ, PATH=os.pathsep.join(kept))
+
+
+@pytest.mark.skipif(
+    _find_arduplane_binary() is None,
+    reason="no ArduPlane SITL binary (arduplane on PATH or $ARDUPILOT_HOME/build/sitl/bin/"
+    "arduplane); tests never build or download ArduPilot",
+)
+@pytest.mark.timeout(150)
+def test_real_arduplane_boots_without_a_gcs(tmp_path: Path) -> None:
+    """The real binary, started by the launcher with nobody on SERIAL0 (its GCS port): it
+    boots and its SERIAL1 sends the companion ArduPilot heartbeats and SERVO_OUTPUT_RAW; SIGTERM
+    then stops it cleanly. With ``tcp:0:wait`` it would wait for a GCS and send nothing."""
+    port = free_udp_port()
+    conn = peer(port)
+    proc = _launch(tmp_path, port, env=_without_sim_vehicle())
+    try:
+        boot = collect(conn, 90.0, until=lambda m: m.get_type() == "SERVO_OUTPUT_RAW")
+    finally:
+        conn.close()
+        code = _stop(proc)
+    assert of_type(boot, "SERVO_OUTPUT_RAW"), "SITL sent no SERVO_OUTPUT_RAW within 90 s"
+    heartbeats = of_type(boot, "HEARTBEAT")
+    assert heartbeats and heartbeats[0].autopilot == mav.MAV_AUTOPILOT_ARDUPILOTMEGA
+    assert code == 0, f"SITL did not stop cleanly on SIGTERM (status {code})"
 
 
 @pytest.mark.skipif(
@@ -227,13 +267,7 @@ def test_real_arduplane_streams_servo_outputs_and_obeys_do_set_servo(tmp_path: P
     port = free_udp_port()
     conn = peer(port)
     started = time.monotonic()
-    proc = subprocess.Popen(
-        ["bash", str(SCRIPT), "--port", str(port)],
-        cwd=tmp_path,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
-        start_new_session=True,
-    )
+    proc = _launch(tmp_path, port)
     try:
         boot = collect(conn, 90.0, until=lambda m: m.get_type() == "SERVO_OUTPUT_RAW")
         assert of_type(boot, "SERVO_OUTPUT_RAW"), "no SERVO_OUTPUT_RAW from SITL within 90 s"
@@ -268,6 +302,19 @@ def test_real_arduplane_streams_servo_outputs_and_obeys_do_set_servo(tmp_path: P
         conn.close()
         code = _stop(proc)
     assert code == 0, f"SITL did not stop cleanly on SIGTERM (status {code})"
+
+
+def _launch(tmp_path: Path, port: int, env: dict[str, str] | None = None) -> subprocess.Popen:
+    """The launcher, SERIAL1 to ``port``, nobody on SERIAL0; its own session, so _stop ends
+    SITL with it."""
+    return subprocess.Popen(
+        ["bash", str(SCRIPT), "--port", str(port)],
+        cwd=tmp_path,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        start_new_session=True,
+    )
 
 
 def _bridge_settings(port: int) -> MavlinkSettings:
