@@ -24,6 +24,7 @@ from mavservo.config.schema import Config, ServoOutputChannel
 from mavservo.config.schema import allowed_values as _allowed
 from mavservo.control.mapping import ChannelMap, Rejected
 from mavservo.mavlink.bandwidth import plan_budget
+from mavservo.mavlink.params import WritePolicy
 from mavservo.mavlink.telemetry import AUTO_ESC_FIRST
 from mavservo.servos import registry
 
@@ -192,8 +193,13 @@ def telemetry_lines(config: Config) -> list[str]:
         rates=telemetry,
         signed=config.mavlink.signing is not None,
     )
+    writers = WritePolicy(
+        frozenset((a.system, a.component) for a in config.mavlink.allowed_sources),
+        open=config.mavlink.parameter_writers == "anyone",
+    )
     return [
         f"components: servos {config.mavlink.servo_component_id}, gimbals {gimbals}",
+        writers.describe(signing=config.mavlink.signing is not None),
         f"servo ESC numbers: {esc}" + (moves if telemetry.esc_first_index == "auto" else ""),
         f"NAMED_VALUE_FLOAT names: {prefix}1_pos .. {prefix}{servos}_flt",
         *plan.lines(),

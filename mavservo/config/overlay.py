@@ -105,7 +105,7 @@ def apply_overlay(base: Config, values: Mapping[str, float], path: Path) -> Conf
     if problems:
         raise ConfigError(str(path), problems)
     try:
-        return with_values(base, values)
+        return with_values(base, values, envelope=base)
     except ParameterError as exc:
         name, reason = _culprit(base, values) or (next(iter(values)), str(exc))
         raise ConfigError(str(path), [Problem((name,), lines.get(name), reason)]) from None
@@ -117,7 +117,7 @@ def _culprit(base: Config, values: Mapping[str, float]) -> tuple[str, str] | Non
     applied: dict[str, float] = {}
     for name, value in values.items():
         try:
-            with_values(base, {**applied, name: value})
+            with_values(base, {**applied, name: value}, envelope=base)
         except ParameterError as exc:
             return name, str(exc).split(": ", 1)[-1]
         applied[name] = value

@@ -51,6 +51,7 @@ class LiveParameters:
     ) -> None:
         self._lock = threading.Lock()
         self.config = config
+        self._base = base
         self._base_values = current_values(base)
         self._values = current_values(config)
         self.overlay = dict(overlay)
@@ -73,7 +74,7 @@ class LiveParameters:
         with self._lock:
             old = self._values[name]
             try:
-                updated = with_values(self.config, {name: value})
+                updated = with_values(self.config, {name: value}, envelope=self._base)
             except ParameterError as exc:
                 return SetResult(False, old, str(exc))
             self._apply(updated)

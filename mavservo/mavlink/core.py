@@ -34,7 +34,13 @@ from mavservo.mavlink.commands import (
 from mavservo.mavlink.component import MAV_TYPE_GIMBAL, MAV_TYPE_SERVO, HostedComponent
 from mavservo.mavlink.failsafe import FailsafeEvent, HeartbeatWatchdog
 from mavservo.mavlink.mirror import Mirror
-from mavservo.mavlink.params import SERVICE_TYPES, ParameterServer, ParameterStore, SetResult
+from mavservo.mavlink.params import (
+    SERVICE_TYPES,
+    ParameterServer,
+    ParameterStore,
+    SetResult,
+    WritePolicy,
+)
 from mavservo.mavlink.settings import FOLLOW, MavlinkSettings
 from mavservo.mavlink.stream_request import StreamRequester, set_message_interval
 from mavservo.mavlink.telemetry import (
@@ -118,6 +124,9 @@ class MavlinkCore:
             self.components,
             signing=settings.signing is not None,
             announce=lambda text: self.telemetry.announce(MAV_SEVERITY_WARNING, text),
+            writers=WritePolicy(
+                settings.allowed_sources, open=settings.parameter_writers == "anyone"
+            ),
         )
 
     @property

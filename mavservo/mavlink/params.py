@@ -56,6 +56,38 @@ FTP_HEADER_BYTES = 12
 
 
 @dataclass(frozen=True)
+class WritePolicy:
+    """Who may set parameters: a verified sender (a signed frame, or a source listed in
+    ``allowed_sources``), or anyone when ``open`` (``mavlink.parameter_writers: anyone``).
+
+    Why: one unauthenticated PARAM_SET reconfigured the aircraft (issue 32, finding 1); reading
+    stays open (a ground station lists parameters before it signs anything)."""
+
+    allowed_sources: frozenset[tuple[int, int]] = frozenset()
+    open: bool = False
+
+    def permits(self, signed: bool, sender: tuple[int, int]) -> bool:
+        return self.open or signed or sender in self.allowed_sources
+
+    def describe(self, signing: bool) -> str:
+        """One line for ``mavservo check``: who may write parameters with this config."""
+        if self.open:
+            return "parameters: anyone on the link may set them (mavlink.parameter_writers: anyone)"
+        who = []
+        if signing:
+            who.append("signed senders (mavlink.signing)")
+        if self.allowed_sources:
+            listed = ", ".join(f"{s}/{c}" for s, c in sorted(self.allowed_sources))
+            who.append(f"allowed_sources {listed}")
+        if not who:
+            return (
+                "parameters: read-only (no signing, no allowed_sources; nobody may set them; "
+                "add allowed_sources or set mavlink.parameter_writers: anyone to open them)"
+            )
+        return "parameters: may be set by " + " and ".join(who) + "; read by anyone"
+
+
+@dataclass(frozen=True)
 class SetResult:
     """What a PARAM_SET did: the value in force afterwards, and why a refused one was refused."""
 
@@ -94,8 +126,10 @@ class ParameterServer:
         *,
         signing: bool,
         announce: Callable[[str], None],
+        writers: WritePolicy | None = None,
     ) -> None:
         self.store = store
+        self.writers = writers if writers is not None else WritePolicy(open=True)
         self.component_ids = tuple(component_ids)
         self.signing = signing
         self._announce = announce
@@ -113,10 +147,35 @@ class ParameterServer:
         if kind in PARAM_TYPES and self.signing and not getattr(msg, "_signed", False):
             self.counters["unsigned_refused"] += 1
             return []
+        if len(targets) > 1 and kind == "PARAM_REQUEST_LIST":
+            targets = [cid for cid in targets if self.store.names(cid)]
+        elif len(targets) > 1:  # a broadcast: one answer, from the component that owns it
+            owner = self._owner(kind, msg, targets)
+            if owner is None:
+                self.counters["broadcast_unowned"] += 1
+                return []
+            targets = [owner]
         out: list[Outgoing] = []
         for component_id in targets:
             out.extend(self._handle_for(kind, msg, component_id, sender))
         return out
+
+    def _owner(self, kind: str, msg: Any, targets: list[int]) -> int | None:
+        """The one component that answers a broadcast (target component 0), or None.
+
+        Why: a broadcast READ drew a value from 140 and a PARAM_ERROR from 154, a broadcast
+        gimbal PARAM_SET was applied twice, a broadcast FTP request two NAKs (issue 32,
+        finding 3). A name is owned by the most specific component serving it (a gimbal's own
+        ``GMBn_*`` by the gimbal, the rest by the servo component); a name nobody serves gets
+        no answer; lists are per component by the protocol (a ground station enumerates
+        components that way); everything else is answered by the first (servo) component."""
+        if kind in ("PARAM_SET", "PARAM_REQUEST_READ") and (
+            kind == "PARAM_SET" or int(msg.param_index) < 0
+        ):
+            name = _param_id(msg.param_id)
+            serving = [cid for cid in targets if name in self.store.names(cid)]
+            return serving[-1] if serving else None
+        return targets[0]
 
     def _addressed(self, msg: Any, system_id: int) -> list[int]:
         """Our components ``msg`` targets: one, or all of them for component 0."""
@@ -135,6 +194,8 @@ class ParameterServer:
         if kind == "PARAM_REQUEST_READ":
             return self._request_read(msg, component_id, sender)
         if kind == "PARAM_SET":
+            if not self.writers.permits(bool(getattr(msg, "_signed", False)), sender):
+                return self._not_permitted(msg, component_id, sender)
             return self._set(msg, component_id, sender)
         if kind == "FILE_TRANSFER_PROTOCOL":
             return self._ftp_nak(msg, component_id)
@@ -189,6 +250,13 @@ class ParameterServer:
             )
             self._announce(f"{name} {value:g} refused: {result.reason.removeprefix(name + ': ')}")
         return [(component_id, self._value(names, names.index(name)))]
+
+    def _not_permitted(self, msg: Any, component_id: int, sender: tuple[int, int]) -> list[Outgoing]:
+        """A PARAM_SET from a sender not allowed to write: PARAM_ERROR PERMISSION_DENIED (the
+        ground station says why instead of timing out), counted; nothing changes."""
+        self.counters["set_not_permitted"] += 1
+        name = _param_id(msg.param_id)
+        return [self._error(component_id, sender, name, -1, "PERMISSION_DENIED")]
 
     def _ftp_nak(self, msg: Any, component_id: int) -> list[Outgoing]:
         """Every FTP request is answered NAK "unknown command" at once (MAVProxy then falls back
