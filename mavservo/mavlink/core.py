@@ -169,7 +169,7 @@ class MavlinkCore:
         if kind in COMMAND_TYPES:
             return self.commands.handle(Command.from_message(msg), now)
         if kind in SERVICE_TYPES:
-            return self.parameters.handle(msg, self._system_id, source)
+            return self.parameters.handle(msg, self._system_id, source, now)
         self._to_gimbals(msg, now)
         return []
 
@@ -268,7 +268,7 @@ class MavlinkCore:
         servo = self.settings.servo_component_id
         out.extend((servo, m) for m in self._guarded("streams", self._stream_requests, now))
         out.extend((servo, m) for m in self._guarded("telemetry", self.telemetry.periodic, now))
-        out.extend(self._guarded("parameters", self.parameters.periodic))
+        out.extend(self._guarded("parameters", self.parameters.periodic, now))
         for cid, device in self.gimbals.items():
             out.extend((cid, m) for m in self._guarded(f"gimbal {cid}", device.periodic, now))
         return out

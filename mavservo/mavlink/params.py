@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import logging
 import math
+import struct
 from collections import Counter, deque
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -37,7 +38,8 @@ from typing import Any, Protocol
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from mavservo.mavlink.commands import Outgoing
+from mavservo.mavlink.commands import Outgoing, RateLimitedLog
+from mavservo.mavlink.pacing import PerSender, RefusalDigest
 
 log = logging.getLogger(__name__)
 
@@ -45,6 +47,13 @@ log = logging.getLogger(__name__)
 VALUES_PER_TICK = 1
 #: Lists in flight at once (one per requesting component); more requests restart a list.
 MAX_PENDING_VALUES = 4096
+
+#: PARAM_SETs one sender may make per second (and in a burst): a ground station sets a value
+#: at a time, a flood of 200/s used to cost 400 fsyncs a second (issue 32, finding 2).
+SETS_PER_S = 10.0
+SET_BURST = 30
+#: At most one log line per kind of set outcome per this many seconds.
+SET_LOG_INTERVAL_S = 1.0
 
 PARAM_TYPES = ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET")
 SERVICE_TYPES = (*PARAM_TYPES, "FILE_TRANSFER_PROTOCOL", "MISSION_REQUEST_LIST")
@@ -135,11 +144,21 @@ class ParameterServer:
         self._announce = announce
         self._pending: deque[tuple[int, int]] = deque()
         self.counters: Counter[str] = Counter()
+        self._set_rate = PerSender(SETS_PER_S, SET_BURST)
+        self._log = RateLimitedLog(SET_LOG_INTERVAL_S)
+        self._refusals = RefusalDigest()
+        self._now: float | None = None
 
     # ------------------------------------------------------------------ input
 
-    def handle(self, msg: Any, system_id: int, sender: tuple[int, int]) -> list[Outgoing]:
-        """A PARAM_*, FTP or mission request; replies for each component it is addressed to."""
+    def handle(
+        self, msg: Any, system_id: int, sender: tuple[int, int], now: float | None = None
+    ) -> list[Outgoing]:
+        """A PARAM_*, FTP or mission request; replies for each component it is addressed to.
+
+        ``now`` (the core's clock) paces each sender's sets and refusal texts; None (unit
+        tests of the protocol alone) paces nothing."""
+        self._now = now
         kind = msg.get_type()
         targets = self._addressed(msg, system_id)
         if not targets:
@@ -238,20 +257,59 @@ class ParameterServer:
         if name not in names:
             self.counters["set_unknown"] += 1
             return [self._error(component_id, sender, name, -1, "DOES_NOT_EXIST")]
-        value = float(msg.param_value)
+        if self._now is not None and not self._set_rate.allow(sender, self._now):
+            self.counters["set_rate_limited"] += 1
+            self._refused(
+                sender,
+                f"{name}: more than {SETS_PER_S:g} sets/s from {sender[0]}/{sender[1]}, ignored",
+            )
+            return []
+        value = decode_param_value(float(msg.param_value), int(msg.param_type))
+        if value is None:
+            self.counters["set_bad_type"] += 1
+            self._refused(sender, f"{name}: param_type {int(msg.param_type)} not supported")
+            return [self._error(component_id, sender, name, -1, "VALUE_OUT_OF_RANGE")]
         result = self.store.set(name, value, sender)
         if result.accepted:
             self.counters["set_accepted"] += 1
-            log.warning("parameter %s set to %g by %d/%d", name, result.value, *sender)
+            self._log_set(
+                "accepted", "parameter %s set to %g by %d/%d", name, result.value, *sender
+            )
         else:
             self.counters["set_refused"] += 1
-            log.warning(
-                "parameter %s = %s from %d/%d refused: %s", name, value, *sender, result.reason
+            self._log_set(
+                "refused",
+                "parameter %s = %s from %d/%d refused: %s",
+                name,
+                value,
+                *sender,
+                result.reason,
             )
-            self._announce(f"{name} {value:g} refused: {result.reason.removeprefix(name + ': ')}")
+            self._refused(
+                sender, f"{name} {value:g} refused: {result.reason.removeprefix(name + ': ')}"
+            )
         return [(component_id, self._value(names, names.index(name)))]
 
-    def _not_permitted(self, msg: Any, component_id: int, sender: tuple[int, int]) -> list[Outgoing]:
+    def _log_set(self, kind: str, line: str, *args: Any) -> None:
+        """One log line per kind (accepted, refused) a second at most; the rest counted."""
+        quiet = self._log.quiet_since_last(kind, 0.0 if self._now is None else self._now)
+        if self._now is not None and quiet is None:
+            return
+        log.warning(line + (f" ({quiet} more since the last line)" if quiet else ""), *args)
+
+    def _refused(self, sender: tuple[int, int], text: str) -> None:
+        """A refusal for the ground station: the first of a sender's second at once, the
+        repeats collapsed into one text with their count (:meth:`periodic`)."""
+        if self._now is None:
+            self._announce(text)
+            return
+        said = self._refusals.note(sender, text, self._now)
+        if said is not None:
+            self._announce(said)
+
+    def _not_permitted(
+        self, msg: Any, component_id: int, sender: tuple[int, int]
+    ) -> list[Outgoing]:
         """A PARAM_SET from a sender not allowed to write: PARAM_ERROR PERMISSION_DENIED (the
         ground station says why instead of timing out), counted; nothing changes."""
         self.counters["set_not_permitted"] += 1
@@ -281,8 +339,12 @@ class ParameterServer:
 
     # ------------------------------------------------------------------ time
 
-    def periodic(self) -> list[Outgoing]:
-        """The next values of lists being sent (:data:`VALUES_PER_TICK` per call)."""
+    def periodic(self, now: float | None = None) -> list[Outgoing]:
+        """The next values of lists being sent (:data:`VALUES_PER_TICK` per call); at ``now``,
+        the summaries of refusals collapsed in the last second."""
+        if now is not None:
+            for text in self._refusals.due(now, "parameter refusals"):
+                self._announce(text)
         out: list[Outgoing] = []
         while self._pending and len(out) < VALUES_PER_TICK:
             component_id, index = self._pending.popleft()
@@ -312,6 +374,38 @@ class ParameterServer:
             sender[0], sender[1], name.encode("ascii", "replace")[:16], index, code
         )
         return (component_id, message)
+
+
+_INTEGER_TYPES = {
+    mavlink2.MAV_PARAM_TYPE_UINT8: "<B",
+    mavlink2.MAV_PARAM_TYPE_INT8: "<b",
+    mavlink2.MAV_PARAM_TYPE_UINT16: "<H",
+    mavlink2.MAV_PARAM_TYPE_INT16: "<h",
+    mavlink2.MAV_PARAM_TYPE_UINT32: "<I",
+    mavlink2.MAV_PARAM_TYPE_INT32: "<i",
+}
+
+
+def decode_param_value(value: float, param_type: int) -> float | None:
+    """The number a PARAM_SET carries, by its ``param_type``; None for a type not supported.
+
+    REAL32 is the value. An integer type is either C-cast (ArduPilot, MAVProxy: the float is
+    the integer, e.g. 1.0) or byte-wise (the MAVLink parameter protocol, QGroundControl: the
+    integer's bytes in the float's, e.g. 1.4e-45 for 1): a whole number is taken as C-cast
+    (no byte-wise integer below 2**23 is a whole float), anything else is read byte-wise.
+    Why: the type was ignored, so a byte-wise 1 arrived as 1.4e-45 (issue 32, finding 6).
+    64-bit types cannot travel in a float32 and are refused.
+    """
+    if param_type == mavlink2.MAV_PARAM_TYPE_REAL32:
+        return value
+    layout = _INTEGER_TYPES.get(param_type)
+    if layout is None:
+        return None
+    if math.isfinite(value) and value == int(value):
+        return value
+    raw = struct.pack("<f", value)
+    size = struct.calcsize(layout)
+    return float(struct.unpack(layout, raw[:size])[0])
 
 
 def _param_id(raw: Any) -> str:
