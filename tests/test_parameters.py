@@ -339,3 +339,22 @@ def test_check_refuses_a_stale_overlay_with_its_line(
     overlay_path(path).write_text("SRV1_TRIM: 1\nSRV42_MIN: 0\n")
     assert main(["check", str(path)]) == 2
     assert "rig.params.yaml:2: SRV42_MIN: no such parameter" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------ STATUSTEXT queue
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(st.tuples(st.integers(0, 7), st.booleans()), max_size=200))
+def test_essential_texts_are_never_dropped_and_go_first(entries: list[tuple[int, bool]]) -> None:
+    from mavservo.mavlink.statustext_queue import CRITICAL, TextQueue
+
+    queue = TextQueue(8)
+    for n, (severity, essential) in enumerate(entries):
+        queue.put(severity, f"{n}", essential)
+    wanted = [f"{n}" for n, (sev, ess) in enumerate(entries) if ess or sev <= CRITICAL]
+    out = []
+    while (item := queue.pop()) is not None:
+        out.append(item[1])
+    assert out[: len(wanted)] == wanted
+    assert len(out) <= max(8, len(wanted))

@@ -231,7 +231,9 @@ class MavlinkCore:
             self.mirror.reset()
             self.hold.release_all()
             self.telemetry.announce(
-                MAV_SEVERITY_NOTICE, "servo bridge: autopilot back, waiting for commands"
+                MAV_SEVERITY_NOTICE,
+                "servo bridge: autopilot back, waiting for commands",
+                essential=True,
             )
         self._to_gimbals(msg, now)
         return []

@@ -38,6 +38,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mavservo.mavlink.backend import ActuatorBackend, ServoStatus
 from mavservo.mavlink.settings import TelemetryRates
+from mavservo.mavlink.statustext_queue import TextQueue
 from mavservo.servos.base import NO_FAULT, Fault
 
 log = logging.getLogger(__name__)
@@ -168,7 +169,7 @@ class Telemetry:
             MSG_NAMED_VALUE_FLOAT: _Stream(rates.named_value_float_hz),
         }
         self._known: dict[str, tuple[bool, Any]] = {}  # name -> (online, faults)
-        self._texts: deque[tuple[int, str]] = deque()
+        self._texts = TextQueue(STATUSTEXT_QUEUE)
         self._text_sent_at: deque[float] = deque()
         self._text_id = 0
         self._next_reminder: float | None = None
@@ -271,12 +272,13 @@ class Telemetry:
             return None
         return self._build(msg_id, self._backend.servo_statuses(), now)
 
-    def announce(self, severity: int, text: str) -> None:
-        """Queue a STATUSTEXT (sent by :meth:`periodic` within the rate limit)."""
-        if len(self._texts) >= STATUSTEXT_QUEUE:
-            self._texts.popleft()
-            self.counters["statustext_dropped"] += 1
-        self._texts.append((severity, text))
+    def announce(self, severity: int, text: str, essential: bool = False) -> None:
+        """Queue a STATUSTEXT (sent by :meth:`periodic` within the rate limit); CRITICAL ones
+        and ``essential`` ones go first and are never dropped for others (:class:`TextQueue`)."""
+        dropped = self._texts.dropped
+        self._texts.put(severity, text, essential)
+        if self._texts.dropped != dropped:
+            self.counters["statustext_dropped"] += self._texts.dropped - dropped
         log.info("statustext: %s", text)
 
     # ------------------------------------------------------------------ periodic
@@ -350,7 +352,10 @@ class Telemetry:
             self._text_sent_at.popleft()
         out = []
         while self._texts and len(self._text_sent_at) < STATUSTEXT_BURST:
-            severity, text = self._texts.popleft()
+            next_text = self._texts.pop()
+            if next_text is None:
+                break
+            severity, text = next_text
             self._text_sent_at.append(now)
             if len(text) > STATUSTEXT_LENGTH:
                 self._text_id = self._text_id % UINT16_MAX + 1
