@@ -60,6 +60,8 @@ class MavlinkSide:
         )
         for cid in self.core.components:
             self.link.add_component(cid, self.core.system_id)
+        allowed = settings.allowed_sources
+        self.link.privileged = lambda source: source == self.core.watched or source in allowed
         self._loop = BackgroundLoop(self._tick_loop, name="mavlink-tick")
         self._tick_errors = 0  # failures the core's own guards did not catch
         #: ``on_sent(msg, t)`` after each message went out (latency tracing); must not block.
