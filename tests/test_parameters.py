@@ -196,20 +196,11 @@ def _handle(server: ParameterServer, msg: Any, signed: bool = False) -> list[Any
     return [m for _, m in server.handle(decoded, 1, GCS)]
 
 
-def _drain(server: ParameterServer) -> list[Any]:
-    out = []
-    for _ in range(100):
-        step = server.periodic()
-        if not step:
-            break
-        out.extend(m for _, m in step)
-    return out
-
-
-def test_list_is_paced_complete_and_indexed() -> None:
+def test_list_is_complete_and_indexed() -> None:
+    """The whole list at once: the core paces it per requester within the link budget
+    (tests/test_e2e_param_answers.py)."""
     server, _, _ = _server()
-    assert _handle(server, mavlink2.MAVLink_param_request_list_message(1, 140)) == []
-    values = _drain(server)
+    values = _handle(server, mavlink2.MAVLink_param_request_list_message(1, 140))
     assert [(v.param_id, v.param_index, v.param_count) for v in values] == [
         ("A_ONE", 0, 2),
         ("B_TWO", 1, 2),
@@ -219,8 +210,7 @@ def test_list_is_paced_complete_and_indexed() -> None:
 
 def test_a_component_without_parameters_answers_an_empty_list_and_others_nothing() -> None:
     server, _, _ = _server()
-    _handle(server, mavlink2.MAVLink_param_request_list_message(1, 154))
-    assert _drain(server) == []
+    assert _handle(server, mavlink2.MAVLink_param_request_list_message(1, 154)) == []
     assert _handle(server, mavlink2.MAVLink_param_request_list_message(1, 77)) == []
     assert _handle(server, mavlink2.MAVLink_param_request_list_message(9, 140)) == []
 
@@ -253,7 +243,6 @@ def test_unsigned_requests_on_a_signing_link_are_refused_and_counted() -> None:
     server, store, _ = _server(signing=True)
     assert _handle(server, mavlink2.MAVLink_param_set_message(1, 140, b"A_ONE", 5.0, 9)) == []
     assert _handle(server, mavlink2.MAVLink_param_request_list_message(1, 140)) == []
-    assert _drain(server) == []
     assert store.sets == []
     assert server.counters["unsigned_refused"] == 2
     (ok,) = _handle(server, mavlink2.MAVLink_param_set_message(1, 140, b"A_ONE", 5.0, 9), True)
@@ -293,7 +282,7 @@ def test_hostile_requests_never_raise(
         "ftp": lambda: mavlink2.MAVLink_file_transfer_protocol_message(0, 1, 140, payload),
     }[kind]()
     _handle(server, msg)
-    _drain(server)
+    server.periodic(1.0)
 
 
 # ------------------------------------------------------------------------------------ CLI

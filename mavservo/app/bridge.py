@@ -499,7 +499,7 @@ class Bridge:
                 system_id=fixed_sysid,
             )
         rates = TelemetryRates(**updated.mavlink.telemetry.model_dump())
-        self.mavlink.core.telemetry.set_rates(rates, time.monotonic())
+        self.mavlink.core.set_telemetry_rates(rates, time.monotonic())
         self.config = updated
 
     def _health(self) -> dict[str, float]:

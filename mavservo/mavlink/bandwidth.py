@@ -11,8 +11,19 @@ local: they keep the configured rates.
 The scaling is a decimation of what :class:`~mavservo.mavlink.telemetry.Telemetry` produces: each
 stream (a NAMED_VALUE_FLOAT name, an ESC_TELEMETRY group, ...) passes the fraction ``ratio`` of
 its messages, spread evenly (a Bresenham-style credit per stream), so a 2 Hz value at ratio 0.25
-goes out every 2 s and never in bursts. Heartbeats, acknowledgements, STATUSTEXT and answers to
-requests are never held back; :data:`EVENT_RESERVE` of the budget is left for them.
+goes out every 2 s and never in bursts. :data:`EVENT_RESERVE` of the rate is left for events.
+
+The plan is an average; a telemetry radio's buffer is small, so every message on the link also
+passes a token bucket (:class:`~mavservo.mavlink.pacing.TokenBucket`): rate ``r``, depth ``C``,
+and events (heartbeats, acknowledgements, STATUSTEXT) may run ``D`` into debt. In any interval of
+length T the link carries at most C + r*T + D bytes, so with C + r + D = budget no 1-second
+window exceeds the budget (issue 30, item 5: the average was under it, 25 of 60 seconds were
+not). Periodic telemetry and answers to requests take tokens only while half the depth stays
+for events (telemetry is then held back and counted, answers wait in their queue), events
+(STATUSTEXT, COMMAND_ACK) may take the rest and the debt; heartbeats and CRITICAL texts always go
+(counted in ``essential_over_budget`` when they exceed it).
+Sizes are the worst case of each message type (MAVLink 2 trims trailing zeros: real frames are
+shorter), so the bound holds for the bytes really sent.
 """
 
 from __future__ import annotations
@@ -24,12 +35,21 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from mavservo.mavlink.pacing import TokenBucket
+
 #: MAVLink 2 framing around a payload: 10-byte header and 2-byte checksum.
 FRAME_OVERHEAD = 12
 #: A signature adds link id, timestamp and signature.
 SIGNATURE_BYTES = 13
-#: Share of the budget kept free for event traffic (STATUSTEXT, COMMAND_ACK, answers).
+#: Share of the bucket's rate kept free for event traffic (STATUSTEXT, COMMAND_ACK, answers).
 EVENT_RESERVE = 0.1
+#: The token bucket's depth (at least the largest frame) and the events' debt, as shares of
+#: the budget; the rest is its rate.
+BUCKET_DEPTH_SHARE = 0.2
+EVENT_DEBT_SHARE = 0.05
+
+#: MAV_SEVERITY_CRITICAL: STATUSTEXT this grave always goes.
+_CRITICAL = 2
 #: ArduPilot's mount driver wants the gimbal's attitude status at least this often.
 GIMBAL_STATUS_FLOOR_HZ = 5.0
 #: NAMED_VALUE_FLOAT names per servo each period: flt, pos, vel, cur, tmp, sp.
@@ -64,6 +84,17 @@ class BudgetPlan:
     fixed_bytes_s: float
     streams: tuple[StreamCost, ...]
     ratios: Mapping[str, float]
+    signed: bool = False
+
+    @property
+    def bucket(self) -> tuple[float, float, float]:
+        """(rate, depth, debt) of the link's token bucket, in bytes; rate + depth + debt is the
+        budget (the depth at least one frame of the largest periodic message)."""
+        budget = self.budget_bytes_s or 0.0
+        largest = max((s.frame_bytes for s in self.streams), default=0)
+        depth = max(budget * BUCKET_DEPTH_SHARE, float(largest))
+        debt = budget * EVENT_DEBT_SHARE
+        return max(budget - depth - debt, budget * 0.1), depth, debt
 
     @property
     def full_bytes_s(self) -> float:
@@ -94,6 +125,11 @@ class BudgetPlan:
                     f"  {stream.name}: {stream.hz * ratio:.2g} Hz on the link "
                     f"({stream.hz:g} Hz configured)"
                 )
+        rate, depth, debt = self.bucket
+        lines.append(
+            f"  every message within a token bucket of {rate:,.0f} B/s, {depth:,.0f} B deep "
+            f"(+{debt:,.0f} B for events): no second above {self.budget_bytes_s:,.0f} B/s"
+        )
         lines.append(f"monitor outputs: {full} each (configured rates)")
         return lines
 
@@ -145,9 +181,11 @@ def plan_budget(
         ),
     )
     ratios = {s.name: 1.0 for s in streams}
+    plan = BudgetPlan(budget_bytes_s, fixed, streams, ratios, signed)
     if budget_bytes_s is not None:
-        ratios = _fit(budget_bytes_s * (1 - EVENT_RESERVE) - fixed, streams)
-    return BudgetPlan(budget_bytes_s, fixed, streams, ratios)
+        rate = plan.bucket[0]
+        ratios = _fit(rate * (1 - EVENT_RESERVE) - fixed, streams)
+    return BudgetPlan(budget_bytes_s, fixed, streams, ratios, signed)
 
 
 def _fit(room: float, streams: tuple[StreamCost, ...]) -> dict[str, float]:
@@ -177,29 +215,100 @@ _STREAM_OF_TYPE = {
 
 
 class LinkBudget:
-    """Decides, message by message, what of the periodic telemetry also goes on the link."""
+    """Decides, message by message, what goes on the autopilot link (monitors get everything):
+    periodic telemetry decimated by the plan, and everything within the token bucket."""
 
     def __init__(self, plan: BudgetPlan) -> None:
-        self.plan = plan
         self._credit: dict[tuple[Any, ...], float] = {}
         self.counters: Counter[str] = Counter()
+        self.plan = plan
+        self._scratch = mavlink2.MAVLink(None)
+        self._bucket: TokenBucket | None = None
+        self.replan(plan)
 
-    def allow(self, component_id: int, msg: Any) -> bool:
+    def replan(self, plan: BudgetPlan, now: float | None = None) -> None:
+        """A new plan (rates changed by parameter or SET_MESSAGE_INTERVAL); the bucket keeps
+        its tokens, so the change cannot open a burst."""
+        self.plan = plan
+        if plan.budget_bytes_s is None:
+            self._bucket = None
+            return
+        rate, depth, _ = plan.bucket
+        tokens = None if self._bucket is None else self._bucket.tokens
+        self._bucket = TokenBucket(rate, depth, now)
+        if tokens is not None:
+            self._bucket.tokens = min(tokens, depth)
+            self.counters["replans"] += 1
+
+    def _cost(self, msg: Any) -> int:
+        """The bytes ``msg`` takes on the link: packed by a scratch encoder (MAVLink 2 trims
+        trailing zeros), plus the signature when the link signs."""
+        try:
+            size = len(msg.pack(self._scratch))
+        except Exception:  # noqa: BLE001 - a field it cannot carry: the link drops it anyway
+            return frame_bytes(type(msg), self.plan.signed)
+        return size + (SIGNATURE_BYTES if self.plan.signed else 0)
+
+    def allow(self, component_id: int, msg: Any, now: float = 0.0) -> bool:
         """True when ``msg`` goes on the autopilot link (it always goes to the monitors)."""
         kind = msg.get_type()
         stream = _STREAM_OF_TYPE.get(kind)
         if stream is None and kind.startswith("ESC_TELEMETRY_"):
             stream = "ESC_TELEMETRY"
+        bucket = self._bucket
         if stream is None:
-            return True
+            return self._event(kind, msg, now, bucket)
         ratio = self.plan.ratios.get(stream, 1.0)
-        if ratio >= 1.0:
-            return True
         key = (component_id, kind, msg.name if kind == "NAMED_VALUE_FLOAT" else None)
-        credit = self._credit.get(key, 1.0) + ratio
-        if credit >= 1.0:
+        credit = self._credit.get(key, 1.0) + ratio if ratio < 1.0 else 1.0
+        if credit < 1.0:
+            self._credit[key] = credit
+            self.counters["held_back"] += 1
+            return False
+        if bucket is not None and not self._take_keeping_half(bucket, msg, now):
+            # its turn is kept (the credit stays): it goes with the next message the window allows
+            self._credit[key] = min(credit, 1.0 + ratio) if ratio < 1.0 else 1.0
+            self.counters["held_back_window"] += 1
+            return False
+        if ratio < 1.0:
             self._credit[key] = credit - 1.0
+        return True
+
+    def _take_keeping_half(self, bucket: TokenBucket, msg: Any, now: float) -> bool:
+        """Tokens for ``msg`` if half the depth stays for events (or, for a frame larger than
+        half the depth, if the rest of the bucket is enough)."""
+        cost = self._cost(msg)
+        return bucket.take(
+            cost, now, keep=max(0.0, min(bucket.capacity / 2, bucket.capacity - cost))
+        )
+
+    def _event(self, kind: str, msg: Any, now: float, bucket: TokenBucket | None) -> bool:
+        if bucket is None:
             return True
-        self._credit[key] = credit
-        self.counters["held_back"] += 1
+        cost = self._cost(msg)
+        _, _, debt = self.plan.bucket
+        if bucket.take(cost, now, debt=debt):
+            return True
+        if kind == "HEARTBEAT" or (kind == "STATUSTEXT" and msg.severity <= _CRITICAL):
+            bucket.tokens -= cost
+            self.counters["essential_over_budget"] += 1
+            return True
+        self.counters["events_held_back"] += 1
         return False
+
+    def admit_answer(self, component_id: int, msg: Any, now: float) -> bool:
+        """An answer to a request may go now: tokens for it while half the depth stays for
+        events (otherwise it waits in its queue). A frame deeper than the bucket (an FTP data
+        packet on a budget under ~1.3 kB/s) waits for a full bucket and leaves it in debt: that
+        one window may exceed the budget by the frame's excess over the depth."""
+        bucket = self._bucket
+        if bucket is None:
+            return True
+        cost = self._cost(msg)
+        if cost > bucket.capacity:
+            if bucket.level(now) < bucket.capacity:
+                return False
+            bucket.tokens -= cost
+            self.counters["answers_deeper_than_bucket"] += 1
+            return True
+        return self._take_keeping_half(bucket, msg, now)

@@ -21,9 +21,10 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from mavservo.mavlink.answers import Answer, AnswerQueue
 from mavservo.mavlink.arbitration import CommandHold
 from mavservo.mavlink.backend import ActuatorBackend
-from mavservo.mavlink.bandwidth import LinkBudget, plan_budget
+from mavservo.mavlink.bandwidth import BudgetPlan, LinkBudget, plan_budget
 from mavservo.mavlink.commands import (
     REFUSAL_LOG_INTERVAL_S,
     Command,
@@ -41,7 +42,7 @@ from mavservo.mavlink.params import (
     SetResult,
     WritePolicy,
 )
-from mavservo.mavlink.settings import FOLLOW, MavlinkSettings
+from mavservo.mavlink.settings import FOLLOW, MavlinkSettings, TelemetryRates
 from mavservo.mavlink.stream_request import StreamRequester, set_message_interval
 from mavservo.mavlink.telemetry import (
     ESC_MESSAGES,
@@ -59,6 +60,7 @@ MAV_STATE_ACTIVE = 4
 MAV_STATE_CRITICAL = 5
 HEARTBEAT_PERIOD_S = 1.0
 COMMAND_TYPES = ("COMMAND_LONG", "COMMAND_INT")
+PARAM_LIST = "PARAM_REQUEST_LIST"
 MIRROR_TYPES = ("SERVO_OUTPUT_RAW", "ACTUATOR_OUTPUT_STATUS")
 #: ESC_TELEMETRY_1_TO_4 .. 29_TO_32 by message name -> group (0 = 1_TO_4)
 ESC_TELEMETRY_TYPES = {cls.msgname: group for group, cls in enumerate(ESC_MESSAGES)}
@@ -97,7 +99,7 @@ class MavlinkCore:
             hold=self.hold,
             system_id=lambda: self._system_id,
             request_message=self.telemetry.request,
-            set_interval=lambda msg_id, us: self.telemetry.set_interval(msg_id, us, self._now),
+            set_interval=self._set_interval,
             heartbeat=lambda cid: self._heartbeat_message(self.components[cid]),
             gimbals=self.gimbals,
         )
@@ -106,17 +108,10 @@ class MavlinkCore:
         self.counters: Counter[str] = Counter()
         self._problem_log = RateLimitedLog(REFUSAL_LOG_INTERVAL_S)
         #: what of the periodic telemetry also goes on the autopilot link (monitors get all)
-        self.budget = LinkBudget(
-            plan_budget(
-                settings.link_budget_bytes_s,
-                servos=_safe_len(backend.servo_statuses),
-                gimbals=len(self.gimbals),
-                health_names=_safe_len(backend.health),
-                components=len(self.components),
-                rates=settings.telemetry,
-                signed=settings.signing is not None,
-            )
-        )
+        self.budget = LinkBudget(self._plan(settings.telemetry))
+        self._gimbal_hz = settings.telemetry.gimbal_attitude_status_hz
+        #: answers to requests (parameters, FTP, missions), per requester, paced
+        self.answers = AnswerQueue()
         #: parameters, and a prompt "not supported" to FTP and mission requests, on every
         #: component (without a store the components serve no parameters but still answer)
         self.parameters = ParameterServer(
@@ -169,9 +164,55 @@ class MavlinkCore:
         if kind in COMMAND_TYPES:
             return self.commands.handle(Command.from_message(msg), now)
         if kind in SERVICE_TYPES:
-            return self.parameters.handle(msg, self._system_id, source, now)
+            answers = self.parameters.handle(msg, self._system_id, source, now)
+            # a list asked again replaces what is still queued of it (per component)
+            tag = ("list", getattr(msg, "target_component", 0)) if kind == PARAM_LIST else None
+            self.answers.put(source, answers, now, tag)
+            return []
         self._to_gimbals(msg, now)
         return []
+
+    def answers_due(self, now: float) -> list[Answer]:
+        """Answers to requests that may go now: each to its requester only, paced per
+        requester, within the link budget (:class:`~mavservo.mavlink.answers.AnswerQueue`)."""
+        return self.answers.due(now, lambda cid, msg: self.budget.admit_answer(cid, msg, now))
+
+    def set_telemetry_rates(self, rates: TelemetryRates, now: float) -> None:
+        """New telemetry rates (TEL_*_HZ parameters): in force at once, the budget re-planned."""
+        self.telemetry.set_rates(rates, now)
+        self._gimbal_hz = rates.gimbal_attitude_status_hz
+        self.replan(now)
+
+    def _set_interval(self, msg_id: int, interval_us: float) -> bool:
+        """SET_MESSAGE_INTERVAL from a peer: the stream's new rate, and the budget re-planned
+        (before: planned once at start, so TEL_*_HZ raised took the link from 952 to 21,688
+        B/s; issue 32, finding 3)."""
+        accepted = self.telemetry.set_interval(msg_id, interval_us, self._now)
+        if accepted:
+            self.replan(self._now)
+        return accepted
+
+    def replan(self, now: float) -> None:
+        """The link budget's plan for the rates in force now (the bucket stays as it is)."""
+        hz = self.telemetry.rates_hz()
+        rates = TelemetryRates(
+            actuator_output_status_hz=hz.get("actuator_output_status_hz", 0.0),
+            esc_telemetry_hz=hz.get("esc_telemetry_hz", 0.0),
+            named_value_float_hz=hz.get("named_value_float_hz", 0.0),
+            gimbal_attitude_status_hz=self._gimbal_hz,
+        )
+        self.budget.replan(self._plan(rates), now)
+
+    def _plan(self, rates: Any) -> BudgetPlan:
+        return plan_budget(
+            self.settings.link_budget_bytes_s,
+            servos=_safe_len(self.backend.servo_statuses),
+            gimbals=len(self.gimbals),
+            health_names=_safe_len(self.backend.health),
+            components=len(self.components),
+            rates=rates,
+            signed=self.settings.signing is not None,
+        )
 
     def _acks_our_request(self, msg: Any) -> bool:
         """An ACK of our own SET_MESSAGE_INTERVAL (sent from the servo component)."""
@@ -315,6 +356,7 @@ class MavlinkCore:
             "mirror_held_by_command": self.hold.mirror_suppressed,
             "telemetry": dict(self.telemetry.counters),
             "parameters": dict(self.parameters.counters),
+            "answers": dict(self.answers.counters),
             "failsafe_count": self.watchdog.failsafe_count,
             "in_failsafe": self.watchdog.in_failsafe,
             "gimbals": self._gimbal_counters(),

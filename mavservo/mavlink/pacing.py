@@ -23,14 +23,17 @@ class TokenBucket:
     """``rate`` tokens a second, at most ``capacity`` held; ``debt`` lets a must-send message
     take tokens below zero (repaid before anything optional goes out again)."""
 
-    def __init__(self, rate: float, capacity: float, now: float = 0.0) -> None:
+    def __init__(self, rate: float, capacity: float, now: float | None = 0.0) -> None:
         self.rate = rate
         self.capacity = capacity
         self.tokens = capacity
+        #: None: the clock starts at the first :meth:`level` (full until then)
         self._at = now
 
     def level(self, now: float) -> float:
-        if now > self._at:
+        if self._at is None:
+            self._at = now
+        elif now > self._at:
             self.tokens = min(self.capacity, self.tokens + (now - self._at) * self.rate)
             self._at = now
         return self.tokens

@@ -11,7 +11,8 @@ whether it is valid and how it takes effect belong to a :class:`ParameterStore`.
 Rules (https://mavlink.io/en/services/parameter.html):
 
 * PARAM_REQUEST_LIST: every parameter of the component as PARAM_VALUE with its index and the
-  count, paced (:data:`VALUES_PER_TICK`) so a list does not arrive as one burst on a radio.
+  count; the core paces answers per requester within the link budget (mavlink/answers.py), so
+  a list does not arrive as one burst on a radio, and goes to the requester only.
 * PARAM_REQUEST_READ: by name when ``param_index`` is -1, else by index; an unknown one gets
   PARAM_ERROR (MAV_PARAM_ERROR_DOES_NOT_EXIST).
 * PARAM_SET: a PARAM_VALUE with the value now in force, accepted or not (the old value when
@@ -31,7 +32,7 @@ from __future__ import annotations
 import logging
 import math
 import struct
-from collections import Counter, deque
+from collections import Counter
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -43,10 +44,6 @@ from mavservo.mavlink.pacing import PerSender, RefusalDigest
 
 log = logging.getLogger(__name__)
 
-#: PARAM_VALUEs sent per MAVLink tick (10 ms) while a list is going out: 100 a second.
-VALUES_PER_TICK = 1
-#: Lists in flight at once (one per requesting component); more requests restart a list.
-MAX_PENDING_VALUES = 4096
 
 #: PARAM_SETs one sender may make per second (and in a burst): a ground station sets a value
 #: at a time, a flood of 200/s used to cost 400 fsyncs a second (issue 32, finding 2).
@@ -142,7 +139,6 @@ class ParameterServer:
         self.component_ids = tuple(component_ids)
         self.signing = signing
         self._announce = announce
-        self._pending: deque[tuple[int, int]] = deque()
         self.counters: Counter[str] = Counter()
         self._set_rate = PerSender(SETS_PER_S, SET_BURST)
         self._log = RateLimitedLog(SET_LOG_INTERVAL_S)
@@ -230,13 +226,11 @@ class ParameterServer:
         return []
 
     def _request_list(self, component_id: int) -> list[Outgoing]:
+        """Every value of the component, in index order: the caller paces them (answers go
+        through :class:`~mavservo.mavlink.answers.AnswerQueue`, per requester, in budget)."""
         names = self.store.names(component_id)
         self.counters["list_requests"] += 1
-        # a repeated request restarts this component's list instead of queueing a second copy
-        self._pending = deque(item for item in self._pending if item[0] != component_id)
-        room = MAX_PENDING_VALUES - len(self._pending)
-        self._pending.extend((component_id, index) for index in range(min(len(names), room)))
-        return []
+        return [(component_id, self._value(names, index)) for index in range(len(names))]
 
     def _request_read(self, msg: Any, component_id: int, sender: tuple[int, int]) -> list[Outgoing]:
         names = self.store.names(component_id)
@@ -340,18 +334,12 @@ class ParameterServer:
     # ------------------------------------------------------------------ time
 
     def periodic(self, now: float | None = None) -> list[Outgoing]:
-        """The next values of lists being sent (:data:`VALUES_PER_TICK` per call); at ``now``,
-        the summaries of refusals collapsed in the last second."""
+        """At ``now``, the summaries of refusals collapsed in the last second (as STATUSTEXT
+        through ``announce``); nothing to send itself."""
         if now is not None:
             for text in self._refusals.due(now, "parameter refusals"):
                 self._announce(text)
-        out: list[Outgoing] = []
-        while self._pending and len(out) < VALUES_PER_TICK:
-            component_id, index = self._pending.popleft()
-            names = self.store.names(component_id)
-            if index < len(names):
-                out.append((component_id, self._value(names, index)))
-        return out
+        return []
 
     # ------------------------------------------------------------------ messages
 

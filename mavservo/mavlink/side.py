@@ -14,6 +14,7 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from mavservo.mavlink.answers import Answer
 from mavservo.mavlink.backend import ActuatorBackend
 from mavservo.mavlink.commands import Outgoing
 from mavservo.mavlink.component import HostedComponent
@@ -124,7 +125,9 @@ class MavlinkSide:
             try:
                 with self._lock:
                     out = self.core.tick(now)
+                    answers = self.core.answers_due(now)
                 self._send(out)
+                self._send_answers(answers)
             except Exception:  # noqa: BLE001 - the only heartbeat source must never die
                 self._tick_errors += 1
                 if self._tick_errors == 1:
@@ -140,6 +143,14 @@ class MavlinkSide:
         system_id = self.core.system_id
         budget = self.core.budget
         for component_id, msg in out:
-            self.link.send(component_id, msg, system_id, to_link=budget.allow(component_id, msg))
+            with self._lock:  # the budget's bucket is shared with the tick thread
+                to_link = budget.allow(component_id, msg, self._clock())
+            self.link.send(component_id, msg, system_id, to_link=to_link)
             if self.on_sent is not None:
                 self.on_sent(msg, self._clock())
+
+    def _send_answers(self, answers: list[Answer]) -> None:
+        """Answers to requests (already admitted by the budget), each to its requester only."""
+        system_id = self.core.system_id
+        for answer in answers:
+            self.link.send(answer.component_id, answer.msg, system_id, reply_to=answer.to)

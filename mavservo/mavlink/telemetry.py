@@ -257,6 +257,20 @@ class Telemetry:
                 stream.period = stream.default_period
                 stream.next_due = now
 
+    def rates_hz(self) -> dict[str, float]:
+        """The rates in force (after parameters and SET_MESSAGE_INTERVAL), by ``..._hz`` key
+        of the telemetry section, for re-planning the link budget (ESC: the fastest group)."""
+
+        def hz(msg_id: int) -> float:
+            period = self._streams[msg_id].period
+            return 1.0 / period if period else 0.0
+
+        return {
+            "actuator_output_status_hz": hz(MSG_ACTUATOR_OUTPUT_STATUS),
+            "esc_telemetry_hz": max((hz(msg_id) for msg_id in ESC_IDS), default=0.0),
+            "named_value_float_hz": hz(MSG_NAMED_VALUE_FLOAT),
+        }
+
     def set_interval(self, msg_id: int, interval_us: float, now: float) -> bool:
         """SET_MESSAGE_INTERVAL: False when this component does not publish ``msg_id``."""
         stream = self._streams.get(msg_id)
