@@ -249,12 +249,28 @@ class LinkBudget:
             return frame_bytes(type(msg), self.plan.signed)
         return size + (SIGNATURE_BYTES if self.plan.signed else 0)
 
-    def allow(self, component_id: int, msg: Any, now: float = 0.0) -> bool:
-        """True when ``msg`` goes on the autopilot link (it always goes to the monitors)."""
-        kind = msg.get_type()
+    @staticmethod
+    def _stream(kind: str) -> str | None:
         stream = _STREAM_OF_TYPE.get(kind)
         if stream is None and kind.startswith("ESC_TELEMETRY_"):
             stream = "ESC_TELEMETRY"
+        return stream
+
+    def is_event(self, msg: Any) -> bool:
+        """Not periodic telemetry: a message that must go, late rather than never."""
+        return self._stream(msg.get_type()) is None
+
+    @staticmethod
+    def essential(msg: Any) -> bool:
+        """A heartbeat or a CRITICAL (or graver) text: always goes."""
+        kind = msg.get_type()
+        return kind == "HEARTBEAT" or (kind == "STATUSTEXT" and msg.severity <= _CRITICAL)
+
+    def allow(self, component_id: int, msg: Any, now: float = 0.0) -> bool:
+        """True when ``msg`` goes on the autopilot link now (it always goes to the monitors);
+        False for an event means "not yet" (the caller keeps it for the next tick)."""
+        kind = msg.get_type()
+        stream = self._stream(kind)
         bucket = self._bucket
         if stream is None:
             return self._event(kind, msg, now, bucket)
@@ -289,11 +305,11 @@ class LinkBudget:
         _, _, debt = self.plan.bucket
         if bucket.take(cost, now, debt=debt):
             return True
-        if kind == "HEARTBEAT" or (kind == "STATUSTEXT" and msg.severity <= _CRITICAL):
+        if self.essential(msg):
             bucket.tokens -= cost
             self.counters["essential_over_budget"] += 1
             return True
-        self.counters["events_held_back"] += 1
+        self.counters["events_delayed"] += 1
         return False
 
     def admit_answer(self, component_id: int, msg: Any, now: float) -> bool:

@@ -94,7 +94,7 @@ TCP_VERIFIED_IDLE_S = 10.0
 #: A signed stream (link id, system, component) is answered at the address it was first verified
 #: from; another address takes it over only once the first was silent this long (a restarted
 #: ground station on a new port), so a replay from elsewhere admits nobody.
-SIGNED_STREAM_REBIND_S = 10.0
+SIGNED_STREAM_REBIND_S = 2.0
 #: Signed streams remembered (least recently heard forgotten first).
 MAX_SIGNED_STREAMS = 256
 HANDLER_ERROR_SUMMARY_S = 60.0

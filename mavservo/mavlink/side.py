@@ -28,6 +28,8 @@ from mavservo.threads import BackgroundLoop
 log = logging.getLogger(__name__)
 
 TICK_S = 0.01
+#: Events (STATUSTEXT chunks, ACKs) waiting for the link budget at most.
+MAX_HELD_EVENTS = 256
 
 
 class MavlinkSide:
@@ -65,6 +67,8 @@ class MavlinkSide:
         self.link.privileged = lambda source: source == self.core.watched or source in allowed
         self._loop = BackgroundLoop(self._tick_loop, name="mavlink-tick")
         self._tick_errors = 0  # failures the core's own guards did not catch
+        #: events the link budget could not take yet, in order (sent before newer ones)
+        self._held: list[Outgoing] = []
         #: ``on_sent(msg, t)`` after each message went out (latency tracing); must not block.
         self.on_sent: Callable[[Any, float], None] | None = None
 
@@ -140,14 +144,47 @@ class MavlinkSide:
             self._loop.wait(delay)
 
     def _send(self, out: list[Outgoing]) -> None:
+        """Send ``out`` within the link budget: periodic telemetry the budget holds back goes
+        to the monitors only; an event (STATUSTEXT chunk, ACK) it cannot take now waits, in
+        order, for the next tick instead of being lost (a long text arrives whole)."""
+        with self._lock:  # the budget's bucket and the held events are shared by two threads
+            decided = self._decide([*self._held, *out])
         system_id = self.core.system_id
-        budget = self.core.budget
-        for component_id, msg in out:
-            with self._lock:  # the budget's bucket is shared with the tick thread
-                to_link = budget.allow(component_id, msg, self._clock())
+        for component_id, msg, to_link in decided:
             self.link.send(component_id, msg, system_id, to_link=to_link)
             if self.on_sent is not None:
                 self.on_sent(msg, self._clock())
+
+    def _decide(self, pending: list[Outgoing]) -> list[tuple[int, Any, bool]]:
+        budget = self.core.budget
+        now = self._clock()
+        self._held.clear()
+        decided = []
+        for component_id, msg in pending:
+            event = budget.is_event(msg)
+            if event and self._held:  # keep the order of events behind one that waits
+                self._hold(component_id, msg)
+                continue
+            if budget.allow(component_id, msg, now):
+                decided.append((component_id, msg, True))
+            elif event:
+                self._hold(component_id, msg)
+            else:
+                decided.append((component_id, msg, False))
+        return decided
+
+    def _hold(self, component_id: int, msg: Any) -> None:
+        """Keep an event for the next tick; beyond :data:`MAX_HELD_EVENTS` the oldest one
+        that is not essential (CRITICAL text, heartbeat) is dropped and counted."""
+        self._held.append((component_id, msg))
+        if len(self._held) > MAX_HELD_EVENTS:
+            victim = next(
+                (i for i, (_, m) in enumerate(self._held) if not self.core.budget.essential(m)),
+                None,
+            )
+            if victim is not None:
+                del self._held[victim]
+                self.core.budget.counters["events_dropped"] += 1
 
     def _send_answers(self, answers: list[Answer]) -> None:
         """Answers to requests (already admitted by the budget), each to its requester only."""
