@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import socket
 import statistics
@@ -56,7 +57,7 @@ def windows(samples: list[tuple[float, int]], start: float, end: float) -> list[
     """Bytes in each whole second from ``start``, and the peak of any 1-s sliding window last."""
     seconds = [0] * max(1, int(end - start))
     for t, n in samples:
-        k = int(t - start)
+        k = math.floor(t - start)
         if 0 <= k < len(seconds):
             seconds[k] += n
     ordered = sorted(s for s in samples if start <= s[0] < end)
@@ -148,7 +149,9 @@ def start_bridge(**mavlink: Any) -> tuple[Any, int, Path]:
 
 
 def amplification(kind: str, signed: bool) -> dict[str, Any]:
-    bridge, port, _ = start_bridge(signing={"key": KEY, "accept_unsigned": True} if signed else None)
+    bridge, port, _ = start_bridge(
+        signing={"key": KEY, "accept_unsigned": True} if signed else None
+    )
     autopilot = Peer(port, (1, 1), KEY if signed else None)
     stranger = Peer(port, (255, 77))
     stop = threading.Event()
@@ -164,7 +167,7 @@ def amplification(kind: str, signed: bool) -> dict[str, Any]:
             for n in range(100):
                 stranger.send(mavlink2.MAVLink_param_request_read_message(1, 140, b"SRV1_TRIM", -1))
                 time.sleep(0.02 if n else 0)
-        time.sleep(4.0)
+        time.sleep(10.0 if kind == "list" else 4.0)
         sent = stranger.sent_bytes - before
         out = stranger.answer_bytes() + autopilot.answer_bytes()
         return {
@@ -243,7 +246,9 @@ def flood_set(seconds: float = 10.0) -> dict[str, Any]:
             time.sleep(max(0.0, start + n / 200 - time.monotonic()))
         end = time.monotonic()
         time.sleep(3.0)
-        acks = [t for t, m in station.received if m.get_type() == "COMMAND_ACK" and m.command == 183]
+        acks = [
+            t for t, m in station.received if m.get_type() == "COMMAND_ACK" and m.command == 183
+        ]
         # each ACK answers the oldest command not yet answered (one ACK per command, in order)
         latencies = [a - c for c, a in zip(commands, acks, strict=False)]
         summary = bridge.summary()
@@ -255,7 +260,9 @@ def flood_set(seconds: float = 10.0) -> dict[str, Any]:
             "acks": len(acks),
             "ack_p50_ms": 1000 * statistics.median(latencies) if latencies else None,
             "command_period_sigma_ms": 1000 * (tick.get("sigma") or 0.0),
-            "overlay_writes_per_s": len([t for t in fsyncs if start <= t < end]) / 2 / (end - start),
+            "overlay_writes_per_s": len([t for t in fsyncs if start <= t < end])
+            / 2
+            / (end - start),
         }
     finally:
         stop.set()

@@ -43,6 +43,13 @@ FRAME_OVERHEAD = 12
 SIGNATURE_BYTES = 13
 #: Share of the bucket's rate kept free for event traffic (STATUSTEXT, COMMAND_ACK, answers).
 EVENT_RESERVE = 0.1
+#: Share of the bucket's rate answers to requests (parameter lists and reads, FTP) may use at
+#: most: a read flood from a stranger starved the autopilot's telemetry when answers and
+#: telemetry competed for the same tokens without a cap. While answers flow, telemetry gets
+#: the rest (held back and counted in ``held_back_window``); without requests, all of it.
+ANSWER_SHARE = 0.3
+#: Depth of the answers' own bucket: the largest MAVLink 2 frame (an FTP data packet, signed).
+ANSWER_DEPTH_BYTES = 280
 #: The token bucket's depth (at least the largest frame) and the events' debt, as shares of
 #: the budget; the rest is its rate.
 BUCKET_DEPTH_SHARE = 0.2
@@ -224,6 +231,7 @@ class LinkBudget:
         self.plan = plan
         self._scratch = mavlink2.MAVLink(None)
         self._bucket: TokenBucket | None = None
+        self._answers: TokenBucket | None = None
         self.replan(plan)
 
     def replan(self, plan: BudgetPlan, now: float | None = None) -> None:
@@ -231,11 +239,12 @@ class LinkBudget:
         its tokens, so the change cannot open a burst."""
         self.plan = plan
         if plan.budget_bytes_s is None:
-            self._bucket = None
+            self._bucket = self._answers = None
             return
         rate, depth, _ = plan.bucket
         tokens = None if self._bucket is None else self._bucket.tokens
         self._bucket = TokenBucket(rate, depth, now)
+        self._answers = TokenBucket(rate * ANSWER_SHARE, ANSWER_DEPTH_BYTES, now)
         if tokens is not None:
             self._bucket.tokens = min(tokens, depth)
             self.counters["replans"] += 1
@@ -313,18 +322,23 @@ class LinkBudget:
         return False
 
     def admit_answer(self, component_id: int, msg: Any, now: float) -> bool:
-        """An answer to a request may go now: tokens for it while half the depth stays for
-        events (otherwise it waits in its queue). A frame deeper than the bucket (an FTP data
-        packet on a budget under ~1.3 kB/s) waits for a full bucket and leaves it in debt: that
-        one window may exceed the budget by the frame's excess over the depth."""
-        bucket = self._bucket
-        if bucket is None:
+        """An answer to a request may go now: within the answers' share of the rate
+        (:data:`ANSWER_SHARE`, their own bucket) and with tokens for it while half the depth
+        stays for events (otherwise it waits in its queue). A frame deeper than the bucket (an
+        FTP data packet on a budget under ~1.3 kB/s) waits for a full bucket and leaves it in
+        debt: that one window may exceed the budget by the frame's excess over the depth."""
+        bucket, share = self._bucket, self._answers
+        if bucket is None or share is None:
             return True
         cost = self._cost(msg)
+        if share.level(now) < min(cost, share.capacity):
+            return False
         if cost > bucket.capacity:
             if bucket.level(now) < bucket.capacity:
                 return False
             bucket.tokens -= cost
             self.counters["answers_deeper_than_bucket"] += 1
-            return True
-        return self._take_keeping_half(bucket, msg, now)
+        elif not self._take_keeping_half(bucket, msg, now):
+            return False
+        share.tokens -= cost
+        return True
