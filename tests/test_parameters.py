@@ -347,3 +347,30 @@ def test_essential_texts_are_never_dropped_and_go_first(entries: list[tuple[int,
         out.append(item[1])
     assert out[: len(wanted)] == wanted
     assert len(out) <= max(8, len(wanted))
+
+
+class GimbalStore(Store):
+    """Component 140 serves every name, the gimbal 154 its own (as the bridge's store)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.values["G_PIT"] = 3.0
+
+    def names(self, component_id: int) -> list[str]:
+        return {140: list(self.values), 154: ["G_PIT"]}.get(component_id, [])
+
+
+def test_a_broadcast_set_is_applied_once_by_the_owner_and_an_unknown_one_not_at_all() -> None:
+    store, texts = GimbalStore(), []
+    server = ParameterServer(store, (140, 154), signing=False, announce=texts.append)
+    (answer,) = server.handle(
+        wire(mavlink2.MAVLink_param_set_message(1, 0, b"G_PIT", 4.0, 9), GCS), 1, GCS
+    )
+    assert answer[0] == 154 and len(store.sets) == 1
+    (answer,) = server.handle(
+        wire(mavlink2.MAVLink_param_set_message(1, 0, b"A_ONE", 4.0, 9), GCS), 1, GCS
+    )
+    assert answer[0] == 140 and len(store.sets) == 2
+    unknown = mavlink2.MAVLink_param_request_read_message(1, 0, b"NOPE", -1)
+    assert server.handle(wire(unknown, GCS), 1, GCS) == []
+    assert server.counters["broadcast_unowned"] == 1
