@@ -418,7 +418,7 @@ class UdpServer:
 
     def write_to(self, buf: bytes, address: tuple[str, int]) -> None:
         """Send to one peer only (an answer to its request)."""
-        if address in self._heard:
+        if address in self._peers:  # the tuple: replaced, never mutated (no lock needed)
             with contextlib.suppress(BlockingIOError, ConnectionRefusedError):
                 self._sock.sendto(buf, address)
 
