@@ -242,11 +242,13 @@ class LinkBudget:
             self._bucket = self._answers = None
             return
         rate, depth, _ = plan.bucket
-        tokens = None if self._bucket is None else self._bucket.tokens
+        before = self._bucket, self._answers
         self._bucket = TokenBucket(rate, depth, now)
         self._answers = TokenBucket(rate * ANSWER_SHARE, ANSWER_DEPTH_BYTES, now)
-        if tokens is not None:
-            self._bucket.tokens = min(tokens, depth)
+        for old, new in zip(before, (self._bucket, self._answers), strict=True):
+            if old is not None:  # a re-plan (a stranger's SET_MESSAGE_INTERVAL) refills nothing
+                new.tokens = min(old.tokens, new.capacity)
+        if before[0] is not None:
             self.counters["replans"] += 1
 
     def _cost(self, msg: Any) -> int:
