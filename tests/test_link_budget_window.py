@@ -21,7 +21,7 @@ MESSAGES = {
 }
 
 
-@settings(max_examples=150, deadline=None)
+@settings(max_examples=80, deadline=None)
 @given(
     budget=st.sampled_from([400.0, 1000.0, 5000.0]),
     signed=st.booleans(),
