@@ -43,6 +43,9 @@ channels:
   - {{source: servo_output, channel: 2, servo: elevator}}
 """
 KEY = "42" * 32
+#: Who may set parameters in these tests (issue 32: only verified senders write): the pymavlink
+#: GCS (255/190) and MAVProxy (255/230, its default source component).
+WRITERS = "  allowed_sources: [{system: 255, component: 190}, {system: 255, component: 230}]\n"
 
 
 class Timeline:
@@ -84,7 +87,7 @@ def bridge_from_file(path: Path, observers: tuple[Any, ...] = ()) -> Iterator[Br
         bridge.stop()
 
 
-def write_config(tmp_path: Path, port: int, extra: str = "") -> Path:
+def write_config(tmp_path: Path, port: int, extra: str = WRITERS) -> Path:
     path = tmp_path / "rig.yaml"
     path.write_text(CONFIG.format(port=port, extra=extra))
     return path

@@ -200,20 +200,11 @@ def _handle(server: ParameterServer, msg: Any, signed: bool = False) -> list[Any
     return [m for _, m in server.handle(decoded, 1, GCS)]
 
 
-def _drain(server: ParameterServer) -> list[Any]:
-    out = []
-    for _ in range(100):
-        step = server.periodic()
-        if not step:
-            break
-        out.extend(m for _, m in step)
-    return out
-
-
-def test_list_is_paced_complete_and_indexed() -> None:
+def test_list_is_complete_and_indexed() -> None:
+    """The whole list at once: the core paces it per requester within the link budget
+    (tests/test_e2e_param_answers.py)."""
     server, _, _ = _server()
-    assert _handle(server, mavlink2.MAVLink_param_request_list_message(1, 140)) == []
-    values = _drain(server)
+    values = _handle(server, mavlink2.MAVLink_param_request_list_message(1, 140))
     assert [(v.param_id, v.param_index, v.param_count) for v in values] == [
         ("A_ONE", 0, 2),
         ("B_TWO", 1, 2),
@@ -223,8 +214,7 @@ def test_list_is_paced_complete_and_indexed() -> None:
 
 def test_a_component_without_parameters_answers_an_empty_list_and_others_nothing() -> None:
     server, _, _ = _server()
-    _handle(server, mavlink2.MAVLink_param_request_list_message(1, 154))
-    assert _drain(server) == []
+    assert _handle(server, mavlink2.MAVLink_param_request_list_message(1, 154)) == []
     assert _handle(server, mavlink2.MAVLink_param_request_list_message(1, 77)) == []
     assert _handle(server, mavlink2.MAVLink_param_request_list_message(9, 140)) == []
 
@@ -257,7 +247,6 @@ def test_unsigned_requests_on_a_signing_link_are_refused_and_counted() -> None:
     server, store, _ = _server(signing=True)
     assert _handle(server, mavlink2.MAVLink_param_set_message(1, 140, b"A_ONE", 5.0, 9)) == []
     assert _handle(server, mavlink2.MAVLink_param_request_list_message(1, 140)) == []
-    assert _drain(server) == []
     assert store.sets == []
     assert server.counters["unsigned_refused"] == 2
     (ok,) = _handle(server, mavlink2.MAVLink_param_set_message(1, 140, b"A_ONE", 5.0, 9), True)
@@ -297,7 +286,7 @@ def test_hostile_requests_never_raise(
         "ftp": lambda: mavlink2.MAVLink_file_transfer_protocol_message(0, 1, 140, payload),
     }[kind]()
     _handle(server, msg)
-    _drain(server)
+    server.periodic(1.0)
 
 
 # ------------------------------------------------------------------------------------ CLI
@@ -343,3 +332,49 @@ def test_check_refuses_a_stale_overlay_with_its_line(
     overlay_path(path).write_text("SRV1_TRIM: 1\nSRV42_MIN: 0\n")
     assert main(["check", str(path)]) == 2
     assert "rig.params.yaml:2: SRV42_MIN: no such parameter" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------------ STATUSTEXT queue
+
+
+@settings(max_examples=100, deadline=None)
+@given(st.lists(st.tuples(st.integers(0, 7), st.booleans()), max_size=200))
+def test_essential_texts_are_never_dropped_and_go_first(entries: list[tuple[int, bool]]) -> None:
+    from mavservo.mavlink.statustext_queue import CRITICAL, TextQueue
+
+    queue = TextQueue(8)
+    for n, (severity, essential) in enumerate(entries):
+        queue.put(severity, f"{n}", essential)
+    wanted = [f"{n}" for n, (sev, ess) in enumerate(entries) if ess or sev <= CRITICAL]
+    out = []
+    while (item := queue.pop()) is not None:
+        out.append(item[1])
+    assert out[: len(wanted)] == wanted
+    assert len(out) <= max(8, len(wanted))
+
+
+class GimbalStore(Store):
+    """Component 140 serves every name, the gimbal 154 its own (as the bridge's store)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.values["G_PIT"] = 3.0
+
+    def names(self, component_id: int) -> list[str]:
+        return {140: list(self.values), 154: ["G_PIT"]}.get(component_id, [])
+
+
+def test_a_broadcast_set_is_applied_once_by_the_owner_and_an_unknown_one_not_at_all() -> None:
+    store, texts = GimbalStore(), []
+    server = ParameterServer(store, (140, 154), signing=False, announce=texts.append)
+    (answer,) = server.handle(
+        wire(mavlink2.MAVLink_param_set_message(1, 0, b"G_PIT", 4.0, 9), GCS), 1, GCS
+    )
+    assert answer[0] == 154 and len(store.sets) == 1
+    (answer,) = server.handle(
+        wire(mavlink2.MAVLink_param_set_message(1, 0, b"A_ONE", 4.0, 9), GCS), 1, GCS
+    )
+    assert answer[0] == 140 and len(store.sets) == 2
+    unknown = mavlink2.MAVLink_param_request_read_message(1, 0, b"NOPE", -1)
+    assert server.handle(wire(unknown, GCS), 1, GCS) == []
+    assert server.counters["broadcast_unowned"] == 1

@@ -4,6 +4,7 @@ bridges side by side behind a router, over real UDP sockets on 127.0.0.1."""
 from __future__ import annotations
 
 import contextlib
+import re
 import select
 import socket
 import threading
@@ -167,9 +168,11 @@ def test_check_prints_identity_esc_numbers_and_the_link_estimate(tmp_path: Any) 
     assert check_main([str(default_config_path())], out=out, err=err) == 0
     text = out.getvalue()
     assert f"servo ESC numbers: ESC 17-{16 + servos}" in text
-    assert "autopilot link: 900 B/s of periodic telemetry within a budget of 1,000 B/s" in text
+    assert "autopilot link: 675 B/s of periodic telemetry within a budget of 1,000 B/s" in text
+    assert "no second above 1,000 B/s" in text
     assert "monitor outputs:" in text
-    assert "NAMED_VALUE_FLOAT: 0.1" in text and "Hz on the link (2 Hz configured)" in text
+    # decimated to fit (the rate depends on every stream of the plan), never dropped to 0
+    assert re.search(r"NAMED_VALUE_FLOAT: 0\.\d*[1-9]\d* Hz on the link \(2 Hz configured\)", text)
 
 
 # ------------------------------------------------------------------------ two bridges

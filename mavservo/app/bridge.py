@@ -33,6 +33,7 @@ from mavservo.control.health import HealthEvent
 from mavservo.control.health_limits import health_limits
 from mavservo.control.health_watch import HealthWatch
 from mavservo.control.live_parameters import LiveParameters
+from mavservo.control.overlay_saver import OverlaySaver
 from mavservo.control.servo_backend import ServoBackend
 from mavservo.mavlink.backend import Health
 from mavservo.mavlink.gimbal import GimbalDevice, settings_from_config
@@ -52,6 +53,7 @@ log = logging.getLogger(__name__)
 
 SIM = "sim"
 MAV_SEVERITY_CRITICAL = 2
+MAV_SEVERITY_ERROR = 3
 MAV_SEVERITY_WARNING = 4
 MAV_SEVERITY_NOTICE = 5
 #: health checks whose onset is CRITICAL (the surface does not do what it is told, or the
@@ -203,6 +205,8 @@ class Bridge:
         self._overlay = dict(overlay or {})
         self._persist_parameters = persist_parameters and config_path is not None
         self.parameters: LiveParameters | None = None
+        #: writes the overlay in its own thread (None: parameters are not persisted)
+        self.overlay_saver: OverlaySaver | None = None
         #: extra scheduler observers (tests, live tools) next to the run log's
         self._observers = tuple(observers)
         self.config_path = config_path
@@ -289,6 +293,8 @@ class Bridge:
         if self.runlog is not None:
             self._tap_mavlink(self.mavlink, self.runlog)
         self.mavlink.start()
+        if self.overlay_saver is not None:
+            self.overlay_saver.start()
         self._identity_shown = self._identity_line()
         self._note(self._identity_shown)
         if self.autopilot_sim is not None:
@@ -327,6 +333,8 @@ class Bridge:
         summary = self.summary()
         if self.mavlink is not None:
             _quietly(self.mavlink.stop)
+        if self.overlay_saver is not None:
+            _quietly(self.overlay_saver.stop)
         for scheduler in self.schedulers.values():
             _quietly(scheduler.stop)
         for opened in self._opened:
@@ -457,16 +465,17 @@ class Bridge:
             for g in cfg.gimbals
         ]
         self._gimbal_devices = gimbals
+        if self._persist_parameters and self.config_path is not None:
+            self.overlay_saver = OverlaySaver(
+                overlay_path(self.config_path),
+                Path(self.config_path).name,
+                on_failure=self._parameters_not_saved,
+            )
         self.parameters = LiveParameters(
             cfg,
             base=self._parameter_base,
             overlay=self._overlay,
-            overlay_file=(
-                overlay_path(self.config_path)
-                if self._persist_parameters and self.config_path is not None
-                else None
-            ),
-            config_name=Path(self.config_path).name if self.config_path else "the config",
+            saver=self.overlay_saver,
             servo_component=cfg.mavlink.servo_component_id,
             gimbal_components={g.component_id: g.name for g in cfg.gimbals},
             apply=self._apply_parameters,
@@ -479,6 +488,12 @@ class Bridge:
             parameters=self.parameters,
             metadata_files=metadata_files(cfg),  # gcs: parameter metadata over FTP (issue 30)
         )
+
+    def _parameters_not_saved(self, text: str) -> None:
+        """The overlay saver's failure, to the ground station (STATUSTEXT) and the console."""
+        if self.mavlink is not None:
+            self.mavlink.announce(text, MAV_SEVERITY_ERROR)
+        self._note(text)
 
     def _apply_parameters(self, updated: Config) -> None:
         """A PARAM_SET the config's rules accepted: the mapping, the gimbals' limits and the
@@ -497,7 +512,7 @@ class Bridge:
                 system_id=fixed_sysid,
             )
         rates = TelemetryRates(**updated.mavlink.telemetry.model_dump())
-        self.mavlink.core.telemetry.set_rates(rates, time.monotonic())
+        self.mavlink.core.set_telemetry_rates(rates, time.monotonic())
         self.config = updated
 
     def _health(self) -> dict[str, float]:

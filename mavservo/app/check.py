@@ -26,6 +26,7 @@ from mavservo.config.schema import allowed_values as _allowed
 from mavservo.control.health_limits import describe_limits, servo_limits
 from mavservo.control.mapping import ChannelMap, Rejected
 from mavservo.mavlink.bandwidth import BudgetPlan, plan_budget
+from mavservo.mavlink.params import WritePolicy
 from mavservo.mavlink.telemetry import AUTO_ESC_FIRST
 from mavservo.servos import registry
 
@@ -201,8 +202,13 @@ def telemetry_lines(config: Config) -> list[str]:
     prefix = telemetry.name_prefix
     gimbals = ", ".join(str(g.component_id) for g in config.gimbals) or "none"
     plan = link_plan(config)
+    writers = WritePolicy(
+        frozenset((a.system, a.component) for a in config.mavlink.allowed_sources),
+        open=config.mavlink.parameter_writers == "anyone",
+    )
     return [
         f"components: servos {config.mavlink.servo_component_id}, gimbals {gimbals}",
+        writers.describe(signing=config.mavlink.signing is not None),
         f"servo ESC numbers: {esc}" + (moves if telemetry.esc_first_index == "auto" else ""),
         f"NAMED_VALUE_FLOAT names: {prefix}1_pos .. {prefix}{servos}_flt "
         f"(health bits: {prefix}<n>_hlt)",

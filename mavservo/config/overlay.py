@@ -16,6 +16,7 @@ from __future__ import annotations
 import contextlib
 import math
 import os
+import stat
 import tempfile
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -36,10 +37,21 @@ _HEADER = (
 )
 
 
+#: systemd sets this for a unit with ``StateDirectory=`` (deploy/mavservo.service): the one
+#: directory such a service may write; the config itself is in a read-only credentials directory.
+STATE_DIRECTORY_ENV = "STATE_DIRECTORY"
+
+
 def overlay_path(config_path: str | Path) -> Path:
-    """Where the overlay of ``config_path`` lives: ``sim.yaml`` -> ``sim.params.yaml``."""
+    """Where the overlay of ``config_path`` lives: ``sim.yaml`` -> ``sim.params.yaml``, in the
+    service's state directory (``$STATE_DIRECTORY``) when there is one, else beside the config.
+
+    Why: under the shipped unit the config is a credential (read-only): every PARAM_SET was
+    answered as saved and gone after a restart (issue 32, finding 6)."""
     path = Path(config_path)
-    return path.with_name(f"{path.stem}.params.yaml")
+    name = f"{path.stem}.params.yaml"
+    state = os.environ.get(STATE_DIRECTORY_ENV, "").split(":")[0]
+    return Path(state) / name if state else path.with_name(name)
 
 
 @dataclass(frozen=True)
@@ -63,9 +75,22 @@ def load_config_with_overlay(path: str | Path) -> LoadedConfig:
 
 
 def read_overlay(path: Path) -> dict[str, float]:
-    """The ``NAME: value`` pairs of an overlay file; {} when there is none."""
+    """The ``NAME: value`` pairs of an overlay file; {} when there is none.
+
+    Refused with the reason (a ConfigError naming the file): a symlink to nothing (silently
+    ignored before, so the values were lost unseen), a file others may write or that another
+    user owns (anyone who can write it sets the aircraft's limits at the next start)."""
+    if path.is_symlink() and not path.exists():
+        problem = Problem(
+            (),
+            None,
+            f"the overlay is a symlink to {os.readlink(path)}, which "
+            "does not exist (remove it, or restore its target)",
+        )
+        raise ConfigError(str(path), [problem])
     if not path.exists():
         return {}
+    _check_ownership(path)
     try:
         text = read_small_file(path, MAX_OVERLAY_BYTES).decode("utf-8")
     except (SmallFileError, UnicodeDecodeError) as exc:
@@ -84,6 +109,9 @@ def read_overlay(path: Path) -> dict[str, float]:
     problems = []
     for name, value in data.items():
         number = isinstance(value, int | float) and not isinstance(value, bool)
+        if number and isinstance(value, int) and abs(value) > 1e300:
+            number = False  # a float cannot hold it: an error with its line, not a traceback
+            value = f"an integer of {len(str(abs(value)))} digits"
         if not number or not math.isfinite(value):
             _, line = document.line_of((name,))
             problems.append(Problem((str(name),), line, f"expected a finite number, got {value!r}"))
@@ -92,6 +120,25 @@ def read_overlay(path: Path) -> dict[str, float]:
     if problems:
         raise ConfigError(str(path), problems)
     return values
+
+
+def _check_ownership(path: Path) -> None:
+    """Refuse an overlay another user owns or that group or others may write."""
+    info = path.stat()
+    problem = None
+    if info.st_mode & (stat.S_IWGRP | stat.S_IWOTH):
+        problem = (
+            f"the overlay is writable by {'others' if info.st_mode & stat.S_IWOTH else 'its group'}"
+            f" (mode {stat.S_IMODE(info.st_mode):04o}): anyone who can write it sets the "
+            f"aircraft's parameters; chmod 600 {path}"
+        )
+    elif hasattr(os, "geteuid") and info.st_uid not in (os.geteuid(), 0):
+        problem = (
+            f"the overlay is owned by user {info.st_uid}, not by this user ({os.geteuid()}) or "
+            f"root; check who wrote it, then chown it or remove it"
+        )
+    if problem is not None:
+        raise ConfigError(str(path), [Problem((), None, problem)])
 
 
 def apply_overlay(base: Config, values: Mapping[str, float], path: Path) -> Config:
@@ -105,7 +152,7 @@ def apply_overlay(base: Config, values: Mapping[str, float], path: Path) -> Conf
     if problems:
         raise ConfigError(str(path), problems)
     try:
-        return with_values(base, values)
+        return with_values(base, values, envelope=base)
     except ParameterError as exc:
         name, reason = _culprit(base, values) or (next(iter(values)), str(exc))
         raise ConfigError(str(path), [Problem((name,), lines.get(name), reason)]) from None
@@ -117,7 +164,7 @@ def _culprit(base: Config, values: Mapping[str, float]) -> tuple[str, str] | Non
     applied: dict[str, float] = {}
     for name, value in values.items():
         try:
-            with_values(base, {**applied, name: value})
+            with_values(base, {**applied, name: value}, envelope=base)
         except ParameterError as exc:
             return name, str(exc).split(": ", 1)[-1]
         applied[name] = value

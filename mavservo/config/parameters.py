@@ -15,6 +15,7 @@ gimbals likewise (``GMB1_*``), and a gimbal's parameters are also served by its 
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -86,8 +87,13 @@ def current_values(config: Config) -> dict[str, float]:
     return {p.name: p.read(config) for p in parameter_table(config)}
 
 
-def with_values(config: Config, values: Mapping[str, float]) -> Config:
+def with_values(
+    config: Config, values: Mapping[str, float], *, envelope: Config | None = None
+) -> Config:
     """``config`` with ``values`` set, validated again as a whole like a YAML file.
+
+    ``envelope``: the config file as written (without the overlay); the result must stay within
+    its limits (:func:`envelope_problem`).
 
     Raises :class:`ParameterError` naming the parameter for an unknown name, a value that is
     not finite, outside the parameter's range, not one of its values, or that the config's own
@@ -99,6 +105,7 @@ def with_values(config: Config, values: Mapping[str, float]) -> Config:
         parameter = table.get(name)
         if parameter is None:
             raise ParameterError(f"{name}: no such parameter")
+        value = snap_to_range(parameter, value)
         _check_value(parameter, value)
         parameter.write(raw, value)
     try:
@@ -112,11 +119,76 @@ def with_values(config: Config, values: Mapping[str, float]) -> Config:
     findings = cross_checks(updated) or budget_checks(updated)
     if findings:
         raise ParameterError(f"{_names(values)}: {findings[0][1]}")
+    problem = None if envelope is None else envelope_problem(envelope, updated)
+    if problem is not None:
+        raise ParameterError(f"{_names(values)}: {problem}")
     return updated
 
 
 def _names(values: Mapping[str, float]) -> str:
     return ", ".join(values)
+
+
+def float32(value: float) -> float:
+    """``value`` as MAVLink carries it (PARAM_SET.param_value is a float32)."""
+    try:
+        return float(struct.unpack("<f", struct.pack("<f", value))[0])
+    except OverflowError:
+        return math.copysign(math.inf, value)
+
+
+def snap_to_range(parameter: Parameter, value: float) -> float:
+    """``value``, or the range bound it equals once both are float32.
+
+    Why: a ground station sends ``SRV1_FS_TMO 0.01`` (the documented minimum) as float32
+    0.0099999998; compared in float64 it was below 0.01 and refused. A value that rounds to the
+    same float32 as a bound is that bound; anything else is left as it came."""
+    for bound in (parameter.minimum, parameter.maximum):
+        if math.isfinite(value) and float32(value) == float32(bound):
+            return float(bound)
+    return value
+
+
+def envelope_problem(base: Config, updated: Config) -> str | None:
+    """Why ``updated`` leaves the envelope of ``base`` (the YAML file), or None.
+
+    The YAML is the integrator's statement of what the hardware may do: a parameter may narrow
+    a servo's limits, move its failsafe position or a gimbal axis's limits within them, never
+    beyond. Why: one unauthenticated PARAM_SET ``SRV1_MAX=36000`` widened the limits the mapping
+    takes its output from and drove the aileron to 17,985 deg (issue 32, finding 1).
+    """
+    for servo, outer in zip(updated.servos, base.servos, strict=True):
+        low, high = outer.limits_deg
+        new_low, new_high = servo.limits_deg
+        if new_low < low or new_high > high:
+            return (
+                f"limits {new_low:g}..{new_high:g} deg of {servo.name} leave the config file's "
+                f"{low:g}..{high:g} deg (parameters may only narrow them)"
+            )
+        position = servo.failsafe.position_deg
+        if position is not None and not low <= position <= high:
+            return (
+                f"failsafe position {position:g} deg of {servo.name} is outside the config "
+                f"file's limits {low:g}..{high:g} deg"
+            )
+    for gimbal, outer_gimbal in zip(updated.gimbals, base.gimbals, strict=True):
+        for axis, _ in _AXES:
+            new = _gimbal_limits(updated, gimbal, axis)
+            old = _gimbal_limits(base, outer_gimbal, axis)
+            if new[0] < old[0] or new[1] > old[1]:
+                return (
+                    f"gimbal {gimbal.name} {axis} limits {new[0]:g}..{new[1]:g} deg leave the "
+                    f"config file's {old[0]:g}..{old[1]:g} deg (parameters may only narrow them)"
+                )
+    return None
+
+
+def _gimbal_limits(config: Config, gimbal: Any, axis: str) -> tuple[float, float]:
+    limits = getattr(gimbal.limits_deg, axis)
+    if limits is None:
+        servo = getattr(gimbal, axis)
+        limits = config.servo(servo).limits_deg if servo is not None else (-180.0, 180.0)
+    return float(limits[0]), float(limits[1])
 
 
 def _check_value(parameter: Parameter, value: float) -> None:

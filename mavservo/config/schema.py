@@ -257,6 +257,9 @@ class MavlinkConfig(StrictModel):
     heartbeat_timeout_s: Float = Field(2.0, gt=0)
     signing: SigningConfig | None = None
     allowed_sources: list[ComponentAddress] = []
+    #: Who may set the bridge's parameters (PARAM_SET): "verified" = a signed sender or one
+    #: listed in allowed_sources; "anyone" opens it to every sender on the link (a bench).
+    parameter_writers: Literal["verified", "anyone"] = "verified"
     act_on_autopilot_commands: Bool = False
     repeat_servo_cycle: Literal["seconds", "milliseconds"] = "seconds"
     command_hold_s: Float = Field(2.0, ge=0)

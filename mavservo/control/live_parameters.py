@@ -4,18 +4,17 @@
 parameter protocol talks to. A PARAM_SET becomes a whole new config, validated by the same rules
 as the YAML (:func:`mavservo.config.parameters.with_values`); only a config that passes is
 applied (through the ``apply`` callback: the backend's mapping, the gimbals' limits, telemetry
-rates) and written to the overlay file next to the config, so the value survives a restart. A
-refused value changes nothing and the reason goes back to the ground station.
+rates) and handed to the overlay's saver (:class:`~mavservo.control.overlay_saver.OverlaySaver`,
+its own thread, at most one write a second), so the value survives a restart. A refused value
+changes nothing and the reason goes back to the ground station. The config file (without the
+overlay) is the envelope: no value may take a servo past what the file allows.
 """
 
 from __future__ import annotations
 
-import logging
 import threading
 from collections.abc import Callable, Mapping
-from pathlib import Path
 
-from mavservo.config.overlay import write_overlay
 from mavservo.config.parameters import (
     ParameterError,
     current_values,
@@ -23,9 +22,8 @@ from mavservo.config.parameters import (
     with_values,
 )
 from mavservo.config.schema import Config
+from mavservo.control.overlay_saver import OverlaySaver
 from mavservo.mavlink.params import SetResult
-
-log = logging.getLogger(__name__)
 
 
 class LiveParameters:
@@ -43,19 +41,18 @@ class LiveParameters:
         *,
         base: Config,
         overlay: Mapping[str, float],
-        overlay_file: Path | None,
-        config_name: str,
+        saver: OverlaySaver | None,
         servo_component: int,
         gimbal_components: Mapping[int, str],
         apply: Callable[[Config], None],
     ) -> None:
         self._lock = threading.Lock()
         self.config = config
+        self._base = base
         self._base_values = current_values(base)
         self._values = current_values(config)
         self.overlay = dict(overlay)
-        self._overlay_file = overlay_file
-        self._config_name = config_name
+        self._saver = saver
         self._apply = apply
         table = parameter_table(config)
         self._names: dict[int, list[str]] = {servo_component: [p.name for p in table]}
@@ -73,36 +70,19 @@ class LiveParameters:
         with self._lock:
             old = self._values[name]
             try:
-                updated = with_values(self.config, {name: value})
+                updated = with_values(self.config, {name: value}, envelope=self._base)
             except ParameterError as exc:
                 return SetResult(False, old, str(exc))
             self._apply(updated)
             self.config = updated
             self._values = current_values(updated)
             self._remember(name, self._values[name])
-            saved = self._save()
-            return SetResult(True, self._values[name], "" if saved else "not saved")
+            if self._saver is not None:
+                self._saver.submit(self.overlay)
+            return SetResult(True, self._values[name])
 
     def _remember(self, name: str, value: float) -> None:
         if value == self._base_values.get(name):
             self.overlay.pop(name, None)
         else:
             self.overlay[name] = value
-
-    def _save(self) -> bool:
-        """Write the overlay; a failure (read-only or full disk) is logged, not fatal: the value
-        is in force until the bridge stops, and the log says it will not survive a restart."""
-        if self._overlay_file is None:
-            return True
-        try:
-            if self.overlay or self._overlay_file.exists():
-                write_overlay(self._overlay_file, self.overlay, self._config_name)
-        except OSError as exc:
-            log.error(
-                "parameters: cannot write %s (%s); the new value is in force but will not "
-                "survive a restart",
-                self._overlay_file,
-                exc,
-            )
-            return False
-        return True

@@ -21,9 +21,10 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from mavservo.mavlink.answers import Answer, AnswerQueue
 from mavservo.mavlink.arbitration import CommandHold
 from mavservo.mavlink.backend import ActuatorBackend
-from mavservo.mavlink.bandwidth import EVENT_RESERVE, LinkBudget, plan_budget
+from mavservo.mavlink.bandwidth import EVENT_RESERVE, BudgetPlan, LinkBudget, plan_budget
 from mavservo.mavlink.commands import (
     REFUSAL_LOG_INTERVAL_S,
     Command,
@@ -37,8 +38,14 @@ from mavservo.mavlink.ftp import UNBUDGETED_BYTES_S
 from mavservo.mavlink.gimbal_discovery import GimbalDiscoveryWatch
 from mavservo.mavlink.metadata_service import MetadataService
 from mavservo.mavlink.mirror import Mirror
-from mavservo.mavlink.params import SERVICE_TYPES, ParameterServer, ParameterStore, SetResult
-from mavservo.mavlink.settings import FOLLOW, MavlinkSettings
+from mavservo.mavlink.params import (
+    SERVICE_TYPES,
+    ParameterServer,
+    ParameterStore,
+    SetResult,
+    WritePolicy,
+)
+from mavservo.mavlink.settings import FOLLOW, MavlinkSettings, TelemetryRates
 from mavservo.mavlink.stream_request import StreamRequester, set_message_interval
 from mavservo.mavlink.telemetry import (
     ESC_MESSAGES,
@@ -56,6 +63,7 @@ MAV_STATE_ACTIVE = 4
 MAV_STATE_CRITICAL = 5
 HEARTBEAT_PERIOD_S = 1.0
 COMMAND_TYPES = ("COMMAND_LONG", "COMMAND_INT")
+PARAM_LIST = "PARAM_REQUEST_LIST"
 MIRROR_TYPES = ("SERVO_OUTPUT_RAW", "ACTUATOR_OUTPUT_STATUS")
 #: ESC_TELEMETRY_1_TO_4 .. 29_TO_32 by message name -> group (0 = 1_TO_4)
 ESC_TELEMETRY_TYPES = {cls.msgname: group for group, cls in enumerate(ESC_MESSAGES)}
@@ -95,7 +103,7 @@ class MavlinkCore:
             hold=self.hold,
             system_id=lambda: self._system_id,
             request_message=self.telemetry.request,
-            set_interval=lambda msg_id, us: self.telemetry.set_interval(msg_id, us, self._now),
+            set_interval=self._set_interval,
             heartbeat=lambda cid: self._heartbeat_message(self.components[cid]),
             gimbals=self.gimbals,
             component_metadata=lambda cid: self.metadata.component_metadata(cid, self._now),
@@ -107,17 +115,10 @@ class MavlinkCore:
         self.counters: Counter[str] = Counter()
         self._problem_log = RateLimitedLog(REFUSAL_LOG_INTERVAL_S)
         #: what of the periodic telemetry also goes on the autopilot link (monitors get all)
-        self.budget = LinkBudget(
-            plan_budget(
-                settings.link_budget_bytes_s,
-                servos=_safe_len(backend.servo_statuses),
-                gimbals=len(self.gimbals),
-                health_names=_safe_len(backend.health),
-                components=len(self.components),
-                rates=settings.telemetry,
-                signed=settings.signing is not None,
-            )
-        )
+        self.budget = LinkBudget(self._plan(settings.telemetry))
+        self._gimbal_hz = settings.telemetry.gimbal_attitude_status_hz
+        #: answers to requests (parameters, FTP, missions), per requester, paced
+        self.answers = AnswerQueue()
         #: parameters, and a prompt "not supported" to FTP and mission requests, on every
         #: component (without a store the components serve no parameters but still answer)
         self.parameters = ParameterServer(
@@ -125,6 +126,9 @@ class MavlinkCore:
             self.components,
             signing=settings.signing is not None,
             announce=lambda text: self.telemetry.announce(MAV_SEVERITY_WARNING, text),
+            writers=WritePolicy(
+                settings.allowed_sources, open=settings.parameter_writers == "anyone"
+            ),
         )
         #: COMPONENT_METADATA and a read-only MAVLink FTP server per component (the metadata
         #: files the app built); its answers take the event share of the link budget
@@ -183,7 +187,11 @@ class MavlinkCore:
             self._ftp(msg, source, now)
             return []
         if kind in SERVICE_TYPES:
-            return self.parameters.handle(msg, self._system_id, source)
+            answers = self.parameters.handle(msg, self._system_id, source, now)
+            # a list asked again replaces what is still queued of it (per component)
+            tag = ("list", getattr(msg, "target_component", 0)) if kind == PARAM_LIST else None
+            self.answers.put(source, answers, now, tag)
+            return []
         self._to_gimbals(msg, now)
         return []
 
@@ -196,6 +204,48 @@ class MavlinkCore:
         if msg.target_system not in (0, self._system_id) or msg.target_component == 0:
             return
         self.metadata.handle(msg, msg.target_component, source, now)
+
+    def answers_due(self, now: float) -> list[Answer]:
+        """Answers to requests that may go now: each to its requester only, paced per
+        requester, within the link budget (:class:`~mavservo.mavlink.answers.AnswerQueue`)."""
+        return self.answers.due(now, lambda cid, msg: self.budget.admit_answer(cid, msg, now))
+
+    def set_telemetry_rates(self, rates: TelemetryRates, now: float) -> None:
+        """New telemetry rates (TEL_*_HZ parameters): in force at once, the budget re-planned."""
+        self.telemetry.set_rates(rates, now)
+        self._gimbal_hz = rates.gimbal_attitude_status_hz
+        self.replan(now)
+
+    def _set_interval(self, msg_id: int, interval_us: float) -> bool:
+        """SET_MESSAGE_INTERVAL from a peer: the stream's new rate, and the budget re-planned
+        (before: planned once at start, so TEL_*_HZ raised took the link from 952 to 21,688
+        B/s; issue 32, finding 3)."""
+        accepted = self.telemetry.set_interval(msg_id, interval_us, self._now)
+        if accepted:
+            self.replan(self._now)
+        return accepted
+
+    def replan(self, now: float) -> None:
+        """The link budget's plan for the rates in force now (the bucket stays as it is)."""
+        hz = self.telemetry.rates_hz()
+        rates = TelemetryRates(
+            actuator_output_status_hz=hz.get("actuator_output_status_hz", 0.0),
+            esc_telemetry_hz=hz.get("esc_telemetry_hz", 0.0),
+            named_value_float_hz=hz.get("named_value_float_hz", 0.0),
+            gimbal_attitude_status_hz=self._gimbal_hz,
+        )
+        self.budget.replan(self._plan(rates), now)
+
+    def _plan(self, rates: Any) -> BudgetPlan:
+        return plan_budget(
+            self.settings.link_budget_bytes_s,
+            servos=_safe_len(self.backend.servo_statuses),
+            gimbals=len(self.gimbals),
+            health_names=_safe_len(self.backend.health),
+            components=len(self.components),
+            rates=rates,
+            signed=self.settings.signing is not None,
+        )
 
     def _acks_our_request(self, msg: Any) -> bool:
         """An ACK of our own SET_MESSAGE_INTERVAL (sent from the servo component)."""
@@ -255,7 +305,9 @@ class MavlinkCore:
             self.mirror.reset()
             self.hold.release_all()
             self.telemetry.announce(
-                MAV_SEVERITY_NOTICE, "servo bridge: autopilot back, waiting for commands"
+                MAV_SEVERITY_NOTICE,
+                "servo bridge: autopilot back, waiting for commands",
+                essential=True,
             )
         self._to_gimbals(msg, now)
         return []
@@ -301,7 +353,7 @@ class MavlinkCore:
         servo = self.settings.servo_component_id
         out.extend((servo, m) for m in self._guarded("streams", self._stream_requests, now))
         out.extend((servo, m) for m in self._guarded("telemetry", self.telemetry.periodic, now))
-        out.extend(self._guarded("parameters", self.parameters.periodic))
+        out.extend(self._guarded("parameters", self.parameters.periodic, now))
         out.extend(self._guarded("metadata", self.metadata.periodic, now))
         for cid, device in self.gimbals.items():
             out.extend((cid, m) for m in self._guarded(f"gimbal {cid}", device.periodic, now))
@@ -348,6 +400,7 @@ class MavlinkCore:
             "telemetry": dict(self.telemetry.counters),
             "parameters": dict(self.parameters.counters),
             "ftp": self.metadata.stats(),
+            "answers": dict(self.answers.counters),
             "failsafe_count": self.watchdog.failsafe_count,
             "in_failsafe": self.watchdog.in_failsafe,
             "gimbals": self._gimbal_counters(),

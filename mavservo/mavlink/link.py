@@ -44,8 +44,8 @@ import struct
 import sys
 import threading
 import time
-from collections import Counter
-from collections.abc import Callable, Sequence
+from collections import Counter, OrderedDict
+from collections.abc import Callable, Hashable, Sequence
 from typing import Any
 
 from pymavlink import mavutil
@@ -75,10 +75,28 @@ SIGNING_FUTURE_S = 60.0
 UDP_MAX_DATAGRAM = 65535
 #: Most addresses a UDP server sends to; each one had to send a verified frame first.
 MAX_UDP_PEERS = 16
+#: A UDP peer not heard from for this long stops being answered (the autopilot's and the
+#: allowed sources' addresses excepted); when the table is full the least recently heard goes.
+UDP_PEER_IDLE_S = 30.0
 #: Most clients a TCP server (``tcpin:``) serves at once.
 MAX_TCP_CLIENTS = 8
+#: Of those, slots only the followed autopilot and ``allowed_sources`` may hold: strangers
+#: (six HEARTBEATs) filled every slot and the autopilot's reconnect was refused (issue 32).
+RESERVED_TCP_SLOTS = 2
+#: Clients from one address (other than the autopilot's and allowed sources').
+MAX_TCP_PER_ADDRESS = 4
+#: Connections waiting in the kernel to be accepted.
+TCP_BACKLOG = 64
 #: A TCP client that has not sent a verified frame within this many seconds is closed.
 TCP_UNVERIFIED_IDLE_S = 5.0
+#: A verified TCP client silent this long is closed (a ground station sends HEARTBEAT at 1 Hz).
+TCP_VERIFIED_IDLE_S = 10.0
+#: A signed stream (link id, system, component) is answered at the address it was first verified
+#: from; another address takes it over only once the first was silent this long (a restarted
+#: ground station on a new port), so a replay from elsewhere admits nobody.
+SIGNED_STREAM_REBIND_S = 2.0
+#: Signed streams remembered (least recently heard forgotten first).
+MAX_SIGNED_STREAMS = 256
 HANDLER_ERROR_SUMMARY_S = 60.0
 #: Receive buffer a UDP server asks for. Linux's default (net.core.rmem_default, 208 KiB) held
 #: too few datagrams: a 5,000/s command flood lost a median 441 per 10 s in the kernel, unseen.
@@ -235,11 +253,20 @@ class UdpServer:
         port: int,
         max_peers: int = MAX_UDP_PEERS,
         peers: tuple[tuple[str, int], ...] = (),
+        idle_s: float = UDP_PEER_IDLE_S,
     ) -> None:
         self.address = (host, port)
         self.max_peers = max_peers
+        self.idle_s = idle_s
         self._peers: tuple[tuple[str, int], ...] = peers[:max_peers]
+        #: when each peer was last heard (least recently heard first), and the pinned ones
+        #: (the autopilot's and allowed sources' addresses: never expired nor evicted)
+        self._heard: OrderedDict[tuple[str, int], float] = OrderedDict(
+            (peer, time.monotonic()) for peer in self._peers
+        )
+        self._pinned: set[tuple[str, int]] = set()
         self.refused_peers = 0
+        self.expired_peers = 0
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             self._sock.bind(self.address)
@@ -354,20 +381,55 @@ class UdpServer:
     def is_peer(self, address: tuple[str, int]) -> bool:
         return address in self._peers
 
-    def admit(self, address: tuple[str, int]) -> bool:
-        """Make ``address`` a destination (it sent a verified frame); False when full."""
-        if address in self._peers:
+    def admit(self, address: tuple[str, int], now: float, pinned: bool = False) -> bool:
+        """``address`` sent a verified frame: answer it from now on. When the table is full
+        the least recently heard peer that is not pinned makes room; False when all are
+        pinned. A known peer is only marked heard."""
+        if pinned:
+            self._pinned.add(address)
+        if address in self._heard:
+            self._heard[address] = now
+            self._heard.move_to_end(address)
             return True
-        if len(self._peers) >= self.max_peers:
-            self.refused_peers += 1
-            return False
-        self._peers = (*self._peers, address)  # replaced, never mutated: write() needs no lock
+        self._expire(now)
+        if len(self._heard) >= self.max_peers:
+            victim = next((peer for peer in self._heard if peer not in self._pinned), None)
+            if victim is None:
+                self.refused_peers += 1
+                return False
+            del self._heard[victim]
+            self.expired_peers += 1
+        self._heard[address] = now
+        self._peers = tuple(self._heard)  # replaced, never mutated: write() needs no lock
         return True
+
+    def _expire(self, now: float) -> None:
+        """Forget peers not heard from for ``idle_s`` (pinned ones excepted)."""
+        stale = [
+            peer
+            for peer, heard in self._heard.items()
+            if now - heard > self.idle_s and peer not in self._pinned
+        ]
+        for peer in stale:
+            del self._heard[peer]
+            self.expired_peers += 1
+        if stale:
+            self._peers = tuple(self._heard)
+
+    def write_to(self, buf: bytes, address: tuple[str, int]) -> None:
+        """Send to one peer only (an answer to its request)."""
+        if address in self._peers:  # the tuple: replaced, never mutated (no lock needed)
+            with contextlib.suppress(BlockingIOError, ConnectionRefusedError):
+                self._sock.sendto(buf, address)
 
     def write(self, buf: bytes) -> None:
         for address in self._peers:
             with contextlib.suppress(BlockingIOError, ConnectionRefusedError):
                 self._sock.sendto(buf, address)
+
+    def tick(self, now: float) -> None:
+        """Expire idle peers (called by the receive loop at every poll)."""
+        self._expire(now)
 
     def close(self) -> None:
         self._sock.close()
@@ -417,11 +479,22 @@ class TcpClient:
     """One connection to a :class:`TcpServer`: its own stream framing state (a frame split
     over two writes of one client never continues with another client's bytes)."""
 
-    def __init__(self, sock: socket.socket, scanner: FrameScanner, since: float) -> None:
+    def __init__(
+        self,
+        sock: socket.socket,
+        scanner: FrameScanner,
+        since: float,
+        address: tuple[str, int] = ("", 0),
+    ) -> None:
         self.sock = sock
         self.scanner = scanner
         self.since = since
+        self.address = address
         self.verified = False
+        #: sent a verified frame as the followed autopilot or an allowed source: holds a
+        #: reserved slot, never evicted for a newcomer
+        self.privileged = False
+        self.last_heard = since
         #: why a writer gave up on it; the read thread closes it (only it closes sockets, so a
         #: socket is never closed under its select)
         self.dropped: str | None = None
@@ -451,9 +524,15 @@ class TcpServer:
         max_clients: int = MAX_TCP_CLIENTS,
         idle_s: float = TCP_UNVERIFIED_IDLE_S,
         clock: Callable[[], float] = time.monotonic,
+        verified_idle_s: float = TCP_VERIFIED_IDLE_S,
+        reserved: int = RESERVED_TCP_SLOTS,
+        per_address: int = MAX_TCP_PER_ADDRESS,
     ) -> None:
         self.max_clients = max_clients
         self.idle_s = idle_s
+        self.verified_idle_s = verified_idle_s
+        self.reserved = min(reserved, max_clients - 1)
+        self.per_address = per_address
         self._new_scanner = new_scanner
         self._counters = counters
         self._clock = clock
@@ -465,7 +544,7 @@ class TcpServer:
         self._listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
             self._listener.bind((host, port))
-            self._listener.listen(max_clients)
+            self._listener.listen(TCP_BACKLOG)
         except OSError as exc:
             self._listener.close()
             if exc.errno == errno.EADDRINUSE:
@@ -520,26 +599,40 @@ class TcpServer:
             received.append((client, data))
         return received
 
-    def verify(self, client: TcpClient) -> None:
-        """``client`` sent a verified frame: it receives our output from now on."""
+    def verify(self, client: TcpClient, privileged: bool = False) -> None:
+        """``client`` sent a verified frame: it receives our output from now on (``privileged``:
+        the frame came from the autopilot or an allowed source)."""
+        client.last_heard = self._clock()
+        client.privileged = client.privileged or privileged
         if not client.verified:
             client.verified = True
             log.info("MAVLink TCP client %s answered from now on", _peer_name(client.sock))
+
+    def write_to(self, buf: bytes, client: TcpClient) -> None:
+        """Send to one client only (an answer to its request)."""
+        with self._lock:
+            if self._clients.get(client.sock) is not client:
+                return
+        self._send(client, buf)
 
     def write(self, buf: bytes) -> None:
         with self._lock:
             targets = [c for c in self._clients.values() if c.verified and not c.dropped]
         for client in targets:
-            try:
-                sent = client.sock.send(buf)
-            except (BlockingIOError, InterruptedError):
-                sent = 0
-            except OSError:
-                sent = -1
-            if sent != len(buf):  # a part of a frame would corrupt its stream: let it go
-                client.dropped = "tcp_clients_closed" if sent < 0 else "tcp_clients_not_reading"
-                with contextlib.suppress(OSError):
-                    client.sock.shutdown(socket.SHUT_RDWR)  # wakes the read thread
+            self._send(client, buf)
+
+    @staticmethod
+    def _send(client: TcpClient, buf: bytes) -> None:
+        try:
+            sent = client.sock.send(buf)
+        except (BlockingIOError, InterruptedError):
+            sent = 0
+        except OSError:
+            sent = -1
+        if sent != len(buf):  # a part of a frame would corrupt its stream: let it go
+            client.dropped = "tcp_clients_closed" if sent < 0 else "tcp_clients_not_reading"
+            with contextlib.suppress(OSError):
+                client.sock.shutdown(socket.SHUT_RDWR)  # wakes the read thread
 
     def close(self) -> None:
         with self._lock:
@@ -551,30 +644,57 @@ class TcpServer:
     def _accept(self) -> None:
         for _ in range(self.max_clients):  # bounded per call
             try:
-                sock, _ = self._listener.accept()
+                sock, address = self._listener.accept()
             except (BlockingIOError, InterruptedError):
                 return
             except OSError:
                 return
             sock.setblocking(False)
-            if len(self._clients) >= self.max_clients and not self._make_room():
+            address = tuple(address[:2])
+            self._limit_address(address)
+            if not self._make_room():
                 self._counters["tcp_clients_refused"] += 1
                 sock.close()
                 continue
             with self._lock:
-                self._clients[sock] = TcpClient(sock, self._new_scanner(), self._clock())
+                client = TcpClient(sock, self._new_scanner(), self._clock(), address)
+                self._clients[sock] = client
             self._counters["tcp_clients_accepted"] += 1
 
+    def _ordinary(self) -> list[TcpClient]:
+        """Clients that hold no reserved slot, the first to make room first: those without a
+        verified frame (oldest first), then the verified ones least recently heard."""
+        ordinary = [c for c in self._clients.values() if not c.privileged]
+        return sorted(ordinary, key=lambda c: (c.verified, c.last_heard if c.verified else c.since))
+
     def _make_room(self) -> bool:
-        """Close the oldest client that never sent a verified frame; False when all did."""
-        unverified = [c for c in self._clients.values() if not c.verified]
-        if not unverified:
+        """Room for a newcomer: strangers may hold ``max_clients - reserved`` slots, so the
+        reserved ones stay free for the autopilot and allowed sources (a newcomer is anybody
+        until its first verified frame, so it always gets in, at an ordinary client's cost);
+        False when every slot is privileged."""
+        ordinary = self._ordinary()
+        if (
+            len(ordinary) < self.max_clients - self.reserved
+            and len(self._clients) < self.max_clients
+        ):
+            return True
+        if not ordinary:
             return False
-        self._remove(min(unverified, key=lambda c: c.since), "tcp_clients_replaced")
+        victim = ordinary[0]
+        self._remove(
+            victim, "tcp_clients_replaced" if not victim.verified else "tcp_clients_evicted"
+        )
         return True
 
+    def _limit_address(self, address: tuple[str, int]) -> None:
+        """At most ``per_address`` ordinary clients from one address: its oldest makes room."""
+        same = [c for c in self._ordinary() if c.address[0] == address[0]]
+        if len(same) >= self.per_address:
+            self._remove(same[0], "tcp_clients_per_address")
+
     def _sweep(self) -> None:
-        """Close the clients a writer gave up on, and those idle without a verified frame."""
+        """Close the clients a writer gave up on, those idle without a verified frame, and
+        verified ones silent for ``verified_idle_s``."""
         now = self._clock()
         with self._lock:
             clients = list(self._clients.values())
@@ -583,6 +703,8 @@ class TcpServer:
                 self._remove(client, client.dropped)
             elif not client.verified and now - client.since > self.idle_s:
                 self._remove(client, "tcp_clients_idle")
+            elif client.verified and now - client.last_heard > self.verified_idle_s:
+                self._remove(client, "tcp_clients_idle_verified")
 
     def _remove(self, client: TcpClient, reason: str) -> None:
         with self._lock:
@@ -664,6 +786,16 @@ class MavlinkLink:
         self._loop = BackgroundLoop(self._receive_loop, name="mavlink-rx")
         self.failed_reopens = 0  # in the current outage
         self._reopen_log = RateLimitedLog(REOPEN_WARNING_INTERVAL_S)
+        #: whether a (system, component) is the followed autopilot or an allowed source: its
+        #: address is pinned in the UDP peer table, its TCP client holds a reserved slot
+        self.privileged: Callable[[tuple[int, int]], bool] = lambda source: False
+        self._stream_origins: OrderedDict[tuple[int, int, int], tuple[Hashable, float]] = (
+            OrderedDict()
+        )
+        #: (system, component) -> where it was last heard (UDP address or TCP client)
+        self._origins: OrderedDict[tuple[int, int], Any] = OrderedDict()
+        #: where the frame being written goes (None: every peer); set under the write lock
+        self._destination: Any = None
 
     # ------------------------------------------------------------------ set-up
 
@@ -735,9 +867,19 @@ class MavlinkLink:
 
     # ------------------------------------------------------------------ output
 
-    def send(self, component_id: int, msg: Any, system_id: int, *, to_link: bool = True) -> None:
+    def send(
+        self,
+        component_id: int,
+        msg: Any,
+        system_id: int,
+        *,
+        to_link: bool = True,
+        reply_to: tuple[int, int] | None = None,
+    ) -> None:
         """Encode ``msg`` from ``component_id`` (its own sequence number and signature) and send
-        it to the monitor outputs and, unless ``to_link`` is False, on the link."""
+        it to the monitor outputs and, unless ``to_link`` is False, on the link: to every peer,
+        or with ``reply_to`` (an answer) only to where that (system, component) was last heard
+        on a UDP or TCP server (never to the other peers: issue 32, finding 3)."""
         try:
             with self._write_lock:
                 if self._monitors:
@@ -746,9 +888,18 @@ class MavlinkLink:
                     monitor.send(msg)
                 if not to_link:
                     return
+                self._destination = None
+                if reply_to is not None and isinstance(self._conn, UdpServer | TcpServer):
+                    self._destination = self._origins.get(reply_to)
+                    if self._destination is None:
+                        self.counters["answers_unroutable"] += 1
+                        return
                 encoder = self._encoders[component_id]
                 encoder.srcSystem = system_id
-                encoder.send(msg)
+                try:
+                    encoder.send(msg)
+                finally:
+                    self._destination = None
         except (struct.error, ValueError, TypeError, OverflowError):
             # a field the message cannot carry (NaN in an integer): drop this message only
             self.counters["encode_errors"] += 1
@@ -772,10 +923,22 @@ class MavlinkLink:
         if self.tap is not None:
             self.tap("out", redact_secrets(bytes(buf)), self._clock())
         try:
-            conn.write(buf)
+            destination = self._destination
+            if destination is None:
+                conn.write(buf)
+            else:
+                self._write_to(conn, buf, destination)
         except OSError as exc:
             self.counters["send_errors"] += 1
             log.debug("mavlink write failed: %s", exc)
+
+    @staticmethod
+    def _write_to(conn: Any, buf: bytes, destination: Any) -> None:
+        """An answer to one peer: a UDP address or a TCP client, as its server holds it."""
+        udp = isinstance(conn, UdpServer) and isinstance(destination, tuple)
+        tcp = isinstance(conn, TcpServer) and isinstance(destination, TcpClient)
+        if udp or tcp:
+            conn.write_to(buf, destination)
 
     # ------------------------------------------------------------------ input
 
@@ -831,12 +994,15 @@ class MavlinkLink:
         if not conn.select(POLL_S):
             return []
         if isinstance(conn, UdpServer):
+            conn.tick(self._clock())
             received = conn.recv_from()
             if received is None:
                 return []
             datagram, sender = received
             messages = self._not_our_own(self._scanner.datagram(datagram))
-            self._answer_or_ignore(conn, sender, len(messages))  # before the answers go out
+            messages = self._bound_to_origin(messages, sender)
+            self._answer_or_ignore(conn, sender, messages)  # before the answers go out
+            self._note_origin(messages, sender)
             return messages
         if isinstance(conn, TcpServer):
             return self._receive_tcp(conn)
@@ -866,10 +1032,21 @@ class MavlinkLink:
         messages: list[Any] = []
         for client, data in conn.receive():
             verified = self._not_our_own(client.scanner.stream(data))
+            verified = self._bound_to_origin(verified, client.address)
             if verified:
-                conn.verify(client)
+                conn.verify(client, any(self._is_privileged(m) for m in verified))
+            self._note_origin(verified, client)
             messages.extend(verified)
         return messages
+
+    def _note_origin(self, messages: list[Any], origin: Any) -> None:
+        """Where each identity was last heard: an answer to it goes there only."""
+        for msg in messages:
+            source = (msg.get_srcSystem(), msg.get_srcComponent())
+            self._origins[source] = origin
+            self._origins.move_to_end(source)
+        while len(self._origins) > MAX_SIGNED_STREAMS:
+            self._origins.popitem(last=False)
 
     def _receive_udp_client(self, conn: Any) -> list[Any]:
         """``udpout``/``udpbcast``: in broadcast mode pymavlink sends, from the first write on,
@@ -884,26 +1061,62 @@ class MavlinkLink:
                 self.counters["strangers_ignored"] += 1
         return messages
 
-    def _answer_or_ignore(self, conn: UdpServer, sender: tuple[str, int], accepted: int) -> None:
+    def _answer_or_ignore(
+        self, conn: UdpServer, sender: tuple[str, int], messages: list[Any]
+    ) -> None:
         """A sender becomes a destination of our output only once one of its frames verified:
         garbage, unknown ids, unsigned or forged frames from a stranger (or from 200 spoofed
-        addresses) draw nothing back."""
-        if conn.is_peer(sender):
+        addresses) draw nothing back. The autopilot's and allowed sources' addresses are
+        pinned (never expired nor evicted); others expire when not heard from."""
+        if not messages:
+            if not conn.is_peer(sender):
+                self.counters["strangers_ignored"] += 1
             return
-        if not accepted:
-            self.counters["strangers_ignored"] += 1
-            return
-        if conn.admit(sender):
-            log.info("MAVLink peer %s:%d answered from now on", *sender)
+        known = conn.is_peer(sender)
+        pinned = any(self._is_privileged(m) for m in messages)
+        if conn.admit(sender, self._clock(), pinned):
+            if not known:
+                log.info("MAVLink peer %s:%d answered from now on", *sender)
             return
         self.counters["peers_refused"] += 1
         if self.counters["peers_refused"] == 1:
             log.warning(
-                "MAVLink peer %s:%d not answered: already %d peers (repeats counted in "
+                "MAVLink peer %s:%d not answered: already %d pinned peers (repeats counted in "
                 "peers_refused)",
                 *sender,
                 conn.max_peers,
             )
+
+    def _is_privileged(self, msg: Any) -> bool:
+        return self.privileged((msg.get_srcSystem(), msg.get_srcComponent()))
+
+    def _bound_to_origin(self, messages: list[Any], origin: Hashable) -> list[Any]:
+        """``messages`` without signed frames of a stream first verified from elsewhere.
+
+        Why: a captured signed frame replayed first from a new address verified (a timestamp
+        newer than any the bridge had seen of that stream) and admitted that address for good
+        (issue 32, finding 5). A signed stream (link id, system, component) belongs to the
+        address it was first verified from; another address takes it over only after
+        :data:`SIGNED_STREAM_REBIND_S` of silence from the first (a restarted ground station)."""
+        if self._signing is None:
+            return messages
+        now = self._clock()
+        kept = []
+        for msg in messages:
+            if not getattr(msg, "_signed", False):
+                kept.append(msg)
+                continue
+            stream = (msg.get_msgbuf()[-13], msg.get_srcSystem(), msg.get_srcComponent())
+            bound = self._stream_origins.get(stream)
+            if bound is not None and bound[0] != origin and now - bound[1] < SIGNED_STREAM_REBIND_S:
+                self.counters["signed_stream_elsewhere"] += 1
+                continue
+            self._stream_origins[stream] = (origin, now)
+            self._stream_origins.move_to_end(stream)
+            while len(self._stream_origins) > MAX_SIGNED_STREAMS:
+                self._stream_origins.popitem(last=False)
+            kept.append(msg)
+        return kept
 
     def _feed(self, messages: list[Any]) -> int:
         """Hand verified ``messages`` to the handler; returns how many there were."""

@@ -11,7 +11,8 @@ whether it is valid and how it takes effect belong to a :class:`ParameterStore`.
 Rules (https://mavlink.io/en/services/parameter.html):
 
 * PARAM_REQUEST_LIST: every parameter of the component as PARAM_VALUE with its index and the
-  count, paced (:data:`VALUES_PER_TICK`) so a list does not arrive as one burst on a radio.
+  count; the core paces answers per requester within the link budget (mavlink/answers.py), so
+  a list does not arrive as one burst on a radio, and goes to the requester only.
 * PARAM_REQUEST_READ: by name when ``param_index`` is -1, else by index; an unknown one gets
   PARAM_ERROR (MAV_PARAM_ERROR_DOES_NOT_EXIST).
 * PARAM_SET: a PARAM_VALUE with the value now in force, accepted or not (the old value when
@@ -30,21 +31,26 @@ from __future__ import annotations
 
 import logging
 import math
-from collections import Counter, deque
+import struct
+from collections import Counter
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from mavservo.mavlink.commands import Outgoing
+from mavservo.mavlink.commands import Outgoing, RateLimitedLog
+from mavservo.mavlink.pacing import PerSender, RefusalDigest
 
 log = logging.getLogger(__name__)
 
-#: PARAM_VALUEs sent per MAVLink tick (10 ms) while a list is going out: 100 a second.
-VALUES_PER_TICK = 1
-#: Lists in flight at once (one per requesting component); more requests restart a list.
-MAX_PENDING_VALUES = 4096
+
+#: PARAM_SETs one sender may make per second (and in a burst): a ground station sets a value
+#: at a time, a flood of 200/s used to cost 400 fsyncs a second (issue 32, finding 2).
+SETS_PER_S = 10.0
+SET_BURST = 30
+#: At most one log line per kind of set outcome per this many seconds.
+SET_LOG_INTERVAL_S = 1.0
 
 PARAM_TYPES = ("PARAM_REQUEST_LIST", "PARAM_REQUEST_READ", "PARAM_SET")
 SERVICE_TYPES = (*PARAM_TYPES, "FILE_TRANSFER_PROTOCOL", "MISSION_REQUEST_LIST")
@@ -53,6 +59,38 @@ SERVICE_TYPES = (*PARAM_TYPES, "FILE_TRANSFER_PROTOCOL", "MISSION_REQUEST_LIST")
 FTP_OPCODE_NAK = 129
 FTP_ERROR_UNKNOWN_COMMAND = 7
 FTP_HEADER_BYTES = 12
+
+
+@dataclass(frozen=True)
+class WritePolicy:
+    """Who may set parameters: a verified sender (a signed frame, or a source listed in
+    ``allowed_sources``), or anyone when ``open`` (``mavlink.parameter_writers: anyone``).
+
+    Why: one unauthenticated PARAM_SET reconfigured the aircraft (issue 32, finding 1); reading
+    stays open (a ground station lists parameters before it signs anything)."""
+
+    allowed_sources: frozenset[tuple[int, int]] = frozenset()
+    open: bool = False
+
+    def permits(self, signed: bool, sender: tuple[int, int]) -> bool:
+        return self.open or signed or sender in self.allowed_sources
+
+    def describe(self, signing: bool) -> str:
+        """One line for ``mavservo check``: who may write parameters with this config."""
+        if self.open:
+            return "parameters: anyone on the link may set them (mavlink.parameter_writers: anyone)"
+        who = []
+        if signing:
+            who.append("signed senders (mavlink.signing)")
+        if self.allowed_sources:
+            listed = ", ".join(f"{s}/{c}" for s, c in sorted(self.allowed_sources))
+            who.append(f"allowed_sources {listed}")
+        if not who:
+            return (
+                "parameters: read-only (no signing, no allowed_sources; nobody may set them; "
+                "add allowed_sources or set mavlink.parameter_writers: anyone to open them)"
+            )
+        return "parameters: may be set by " + " and ".join(who) + "; read by anyone"
 
 
 @dataclass(frozen=True)
@@ -94,18 +132,29 @@ class ParameterServer:
         *,
         signing: bool,
         announce: Callable[[str], None],
+        writers: WritePolicy | None = None,
     ) -> None:
         self.store = store
+        self.writers = writers if writers is not None else WritePolicy(open=True)
         self.component_ids = tuple(component_ids)
         self.signing = signing
         self._announce = announce
-        self._pending: deque[tuple[int, int]] = deque()
         self.counters: Counter[str] = Counter()
+        self._set_rate = PerSender(SETS_PER_S, SET_BURST)
+        self._log = RateLimitedLog(SET_LOG_INTERVAL_S)
+        self._refusals = RefusalDigest()
+        self._now: float | None = None
 
     # ------------------------------------------------------------------ input
 
-    def handle(self, msg: Any, system_id: int, sender: tuple[int, int]) -> list[Outgoing]:
-        """A PARAM_*, FTP or mission request; replies for each component it is addressed to."""
+    def handle(
+        self, msg: Any, system_id: int, sender: tuple[int, int], now: float | None = None
+    ) -> list[Outgoing]:
+        """A PARAM_*, FTP or mission request; replies for each component it is addressed to.
+
+        ``now`` (the core's clock) paces each sender's sets and refusal texts; None (unit
+        tests of the protocol alone) paces nothing."""
+        self._now = now
         kind = msg.get_type()
         targets = self._addressed(msg, system_id)
         if not targets:
@@ -113,10 +162,35 @@ class ParameterServer:
         if kind in PARAM_TYPES and self.signing and not getattr(msg, "_signed", False):
             self.counters["unsigned_refused"] += 1
             return []
+        if len(targets) > 1 and kind == "PARAM_REQUEST_LIST":
+            targets = [cid for cid in targets if self.store.names(cid)]
+        elif len(targets) > 1:  # a broadcast: one answer, from the component that owns it
+            owner = self._owner(kind, msg, targets)
+            if owner is None:
+                self.counters["broadcast_unowned"] += 1
+                return []
+            targets = [owner]
         out: list[Outgoing] = []
         for component_id in targets:
             out.extend(self._handle_for(kind, msg, component_id, sender))
         return out
+
+    def _owner(self, kind: str, msg: Any, targets: list[int]) -> int | None:
+        """The one component that answers a broadcast (target component 0), or None.
+
+        Why: a broadcast READ drew a value from 140 and a PARAM_ERROR from 154, a broadcast
+        gimbal PARAM_SET was applied twice, a broadcast FTP request two NAKs (issue 32,
+        finding 3). A name is owned by the most specific component serving it (a gimbal's own
+        ``GMBn_*`` by the gimbal, the rest by the servo component); a name nobody serves gets
+        no answer; lists are per component by the protocol (a ground station enumerates
+        components that way); everything else is answered by the first (servo) component."""
+        if kind in ("PARAM_SET", "PARAM_REQUEST_READ") and (
+            kind == "PARAM_SET" or int(msg.param_index) < 0
+        ):
+            name = _param_id(msg.param_id)
+            serving = [cid for cid in targets if name in self.store.names(cid)]
+            return serving[-1] if serving else None
+        return targets[0]
 
     def _addressed(self, msg: Any, system_id: int) -> list[int]:
         """Our components ``msg`` targets: one, or all of them for component 0."""
@@ -135,6 +209,8 @@ class ParameterServer:
         if kind == "PARAM_REQUEST_READ":
             return self._request_read(msg, component_id, sender)
         if kind == "PARAM_SET":
+            if not self.writers.permits(bool(getattr(msg, "_signed", False)), sender):
+                return self._not_permitted(msg, component_id, sender)
             return self._set(msg, component_id, sender)
         if kind == "FILE_TRANSFER_PROTOCOL":
             return self._ftp_nak(msg, component_id)
@@ -150,13 +226,11 @@ class ParameterServer:
         return []
 
     def _request_list(self, component_id: int) -> list[Outgoing]:
+        """Every value of the component, in index order: the caller paces them (answers go
+        through :class:`~mavservo.mavlink.answers.AnswerQueue`, per requester, in budget)."""
         names = self.store.names(component_id)
         self.counters["list_requests"] += 1
-        # a repeated request restarts this component's list instead of queueing a second copy
-        self._pending = deque(item for item in self._pending if item[0] != component_id)
-        room = MAX_PENDING_VALUES - len(self._pending)
-        self._pending.extend((component_id, index) for index in range(min(len(names), room)))
-        return []
+        return [(component_id, self._value(names, index)) for index in range(len(names))]
 
     def _request_read(self, msg: Any, component_id: int, sender: tuple[int, int]) -> list[Outgoing]:
         names = self.store.names(component_id)
@@ -177,18 +251,64 @@ class ParameterServer:
         if name not in names:
             self.counters["set_unknown"] += 1
             return [self._error(component_id, sender, name, -1, "DOES_NOT_EXIST")]
-        value = float(msg.param_value)
+        if self._now is not None and not self._set_rate.allow(sender, self._now):
+            self.counters["set_rate_limited"] += 1
+            self._refused(
+                sender,
+                f"{name}: more than {SETS_PER_S:g} sets/s from {sender[0]}/{sender[1]}, ignored",
+            )
+            return []
+        value = decode_param_value(float(msg.param_value), int(msg.param_type))
+        if value is None:
+            self.counters["set_bad_type"] += 1
+            self._refused(sender, f"{name}: param_type {int(msg.param_type)} not supported")
+            return [self._error(component_id, sender, name, -1, "VALUE_OUT_OF_RANGE")]
         result = self.store.set(name, value, sender)
         if result.accepted:
             self.counters["set_accepted"] += 1
-            log.warning("parameter %s set to %g by %d/%d", name, result.value, *sender)
+            self._log_set(
+                "accepted", "parameter %s set to %g by %d/%d", name, result.value, *sender
+            )
         else:
             self.counters["set_refused"] += 1
-            log.warning(
-                "parameter %s = %s from %d/%d refused: %s", name, value, *sender, result.reason
+            self._log_set(
+                "refused",
+                "parameter %s = %s from %d/%d refused: %s",
+                name,
+                value,
+                *sender,
+                result.reason,
             )
-            self._announce(f"{name} {value:g} refused: {result.reason.removeprefix(name + ': ')}")
+            self._refused(
+                sender, f"{name} {value:g} refused: {result.reason.removeprefix(name + ': ')}"
+            )
         return [(component_id, self._value(names, names.index(name)))]
+
+    def _log_set(self, kind: str, line: str, *args: Any) -> None:
+        """One log line per kind (accepted, refused) a second at most; the rest counted."""
+        quiet = self._log.quiet_since_last(kind, 0.0 if self._now is None else self._now)
+        if self._now is not None and quiet is None:
+            return
+        log.warning(line + (f" ({quiet} more since the last line)" if quiet else ""), *args)
+
+    def _refused(self, sender: tuple[int, int], text: str) -> None:
+        """A refusal for the ground station: the first of a sender's second at once, the
+        repeats collapsed into one text with their count (:meth:`periodic`)."""
+        if self._now is None:
+            self._announce(text)
+            return
+        said = self._refusals.note(sender, text, self._now)
+        if said is not None:
+            self._announce(said)
+
+    def _not_permitted(
+        self, msg: Any, component_id: int, sender: tuple[int, int]
+    ) -> list[Outgoing]:
+        """A PARAM_SET from a sender not allowed to write: PARAM_ERROR PERMISSION_DENIED (the
+        ground station says why instead of timing out), counted; nothing changes."""
+        self.counters["set_not_permitted"] += 1
+        name = _param_id(msg.param_id)
+        return [self._error(component_id, sender, name, -1, "PERMISSION_DENIED")]
 
     def _ftp_nak(self, msg: Any, component_id: int) -> list[Outgoing]:
         """Every FTP request is answered NAK "unknown command" at once (MAVProxy then falls back
@@ -213,15 +333,13 @@ class ParameterServer:
 
     # ------------------------------------------------------------------ time
 
-    def periodic(self) -> list[Outgoing]:
-        """The next values of lists being sent (:data:`VALUES_PER_TICK` per call)."""
-        out: list[Outgoing] = []
-        while self._pending and len(out) < VALUES_PER_TICK:
-            component_id, index = self._pending.popleft()
-            names = self.store.names(component_id)
-            if index < len(names):
-                out.append((component_id, self._value(names, index)))
-        return out
+    def periodic(self, now: float | None = None) -> list[Outgoing]:
+        """At ``now``, the summaries of refusals collapsed in the last second (as STATUSTEXT
+        through ``announce``); nothing to send itself."""
+        if now is not None:
+            for text in self._refusals.due(now, "parameter refusals"):
+                self._announce(text)
+        return []
 
     # ------------------------------------------------------------------ messages
 
@@ -244,6 +362,38 @@ class ParameterServer:
             sender[0], sender[1], name.encode("ascii", "replace")[:16], index, code
         )
         return (component_id, message)
+
+
+_INTEGER_TYPES = {
+    mavlink2.MAV_PARAM_TYPE_UINT8: "<B",
+    mavlink2.MAV_PARAM_TYPE_INT8: "<b",
+    mavlink2.MAV_PARAM_TYPE_UINT16: "<H",
+    mavlink2.MAV_PARAM_TYPE_INT16: "<h",
+    mavlink2.MAV_PARAM_TYPE_UINT32: "<I",
+    mavlink2.MAV_PARAM_TYPE_INT32: "<i",
+}
+
+
+def decode_param_value(value: float, param_type: int) -> float | None:
+    """The number a PARAM_SET carries, by its ``param_type``; None for a type not supported.
+
+    REAL32 is the value. An integer type is either C-cast (ArduPilot, MAVProxy: the float is
+    the integer, e.g. 1.0) or byte-wise (the MAVLink parameter protocol, QGroundControl: the
+    integer's bytes in the float's, e.g. 1.4e-45 for 1): a whole number is taken as C-cast
+    (no byte-wise integer below 2**23 is a whole float), anything else is read byte-wise.
+    Why: the type was ignored, so a byte-wise 1 arrived as 1.4e-45 (issue 32, finding 6).
+    64-bit types cannot travel in a float32 and are refused.
+    """
+    if param_type == mavlink2.MAV_PARAM_TYPE_REAL32:
+        return value
+    layout = _INTEGER_TYPES.get(param_type)
+    if layout is None:
+        return None
+    if math.isfinite(value) and value == int(value):
+        return value
+    raw = struct.pack("<f", value)
+    size = struct.calcsize(layout)
+    return float(struct.unpack(layout, raw[:size])[0])
 
 
 def _param_id(raw: Any) -> str:

@@ -115,6 +115,8 @@ class MavlinkSettings:
     heartbeat_timeout_s: float = 2.0
     signing: SigningSettings | None = None
     allowed_sources: frozenset[tuple[int, int]] = frozenset()
+    #: "verified" (signed senders and allowed_sources may set parameters) or "anyone"
+    parameter_writers: Literal["verified", "anyone"] = "verified"
     act_on_autopilot_commands: bool = False
     repeat_servo_cycle: Literal["seconds", "milliseconds"] = "seconds"
     command_hold_s: float = 2.0
@@ -170,6 +172,7 @@ class MavlinkSettings:
             heartbeat_timeout_s=float(raw.get("heartbeat_timeout_s", 2.0)),
             signing=SigningSettings.from_mapping(raw.get("signing")),
             allowed_sources=sources,
+            parameter_writers="anyone" if raw.get("parameter_writers") == "anyone" else "verified",
             act_on_autopilot_commands=bool(raw.get("act_on_autopilot_commands", False)),
             repeat_servo_cycle=raw.get("repeat_servo_cycle", "seconds"),
             command_hold_s=float(raw.get("command_hold_s", 2.0)),

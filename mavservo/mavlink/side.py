@@ -14,6 +14,7 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
+from mavservo.mavlink.answers import Answer
 from mavservo.mavlink.backend import ActuatorBackend
 from mavservo.mavlink.commands import Outgoing
 from mavservo.mavlink.component import HostedComponent
@@ -27,6 +28,8 @@ from mavservo.threads import BackgroundLoop
 log = logging.getLogger(__name__)
 
 TICK_S = 0.01
+#: Events (STATUSTEXT chunks, ACKs) waiting for the link budget at most.
+MAX_HELD_EVENTS = 256
 
 
 class MavlinkSide:
@@ -66,8 +69,12 @@ class MavlinkSide:
         )
         for cid in self.core.components:
             self.link.add_component(cid, self.core.system_id)
+        allowed = settings.allowed_sources
+        self.link.privileged = lambda source: source == self.core.watched or source in allowed
         self._loop = BackgroundLoop(self._tick_loop, name="mavlink-tick")
         self._tick_errors = 0  # failures the core's own guards did not catch
+        #: events the link budget could not take yet, in order (sent before newer ones)
+        self._held: list[Outgoing] = []
         #: ``on_sent(msg, t)`` after each message went out (latency tracing); must not block.
         self.on_sent: Callable[[Any, float], None] | None = None
 
@@ -128,7 +135,9 @@ class MavlinkSide:
             try:
                 with self._lock:
                     out = self.core.tick(now)
+                    answers = self.core.answers_due(now)
                 self._send(out)
+                self._send_answers(answers)
             except Exception:  # noqa: BLE001 - the only heartbeat source must never die
                 self._tick_errors += 1
                 if self._tick_errors == 1:
@@ -141,9 +150,50 @@ class MavlinkSide:
             self._loop.wait(delay)
 
     def _send(self, out: list[Outgoing]) -> None:
+        """Send ``out`` within the link budget: periodic telemetry the budget holds back goes
+        to the monitors only; an event (STATUSTEXT chunk, ACK) it cannot take now waits, in
+        order, for the next tick instead of being lost (a long text arrives whole)."""
+        with self._lock:  # the budget's bucket and the held events are shared by two threads
+            decided = self._decide([*self._held, *out])
         system_id = self.core.system_id
-        budget = self.core.budget
-        for component_id, msg in out:
-            self.link.send(component_id, msg, system_id, to_link=budget.allow(component_id, msg))
+        for component_id, msg, to_link in decided:
+            self.link.send(component_id, msg, system_id, to_link=to_link)
             if self.on_sent is not None:
                 self.on_sent(msg, self._clock())
+
+    def _decide(self, pending: list[Outgoing]) -> list[tuple[int, Any, bool]]:
+        budget = self.core.budget
+        now = self._clock()
+        self._held.clear()
+        decided = []
+        for component_id, msg in pending:
+            event = budget.is_event(msg)
+            if event and self._held:  # keep the order of events behind one that waits
+                self._hold(component_id, msg)
+                continue
+            if budget.allow(component_id, msg, now):
+                decided.append((component_id, msg, True))
+            elif event:
+                self._hold(component_id, msg)
+            else:
+                decided.append((component_id, msg, False))
+        return decided
+
+    def _hold(self, component_id: int, msg: Any) -> None:
+        """Keep an event for the next tick; beyond :data:`MAX_HELD_EVENTS` the oldest one
+        that is not essential (CRITICAL text, heartbeat) is dropped and counted."""
+        self._held.append((component_id, msg))
+        if len(self._held) > MAX_HELD_EVENTS:
+            victim = next(
+                (i for i, (_, m) in enumerate(self._held) if not self.core.budget.essential(m)),
+                None,
+            )
+            if victim is not None:
+                del self._held[victim]
+                self.core.budget.counters["events_dropped"] += 1
+
+    def _send_answers(self, answers: list[Answer]) -> None:
+        """Answers to requests (already admitted by the budget), each to its requester only."""
+        system_id = self.core.system_id
+        for answer in answers:
+            self.link.send(answer.component_id, answer.msg, system_id, reply_to=answer.to)

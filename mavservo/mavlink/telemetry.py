@@ -40,6 +40,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from mavservo.mavlink.backend import ActuatorBackend, ServoStatus
 from mavservo.mavlink.esc_status import ESC_INFO_HZ, esc_info, esc_status
 from mavservo.mavlink.settings import TelemetryRates
+from mavservo.mavlink.statustext_queue import TextQueue
 from mavservo.servos.base import NO_FAULT, Fault
 
 log = logging.getLogger(__name__)
@@ -175,7 +176,7 @@ class Telemetry:
         }
         self._esc_info_count = 0
         self._known: dict[str, tuple[bool, Any]] = {}  # name -> (online, faults)
-        self._texts: deque[tuple[int, str]] = deque()
+        self._texts = TextQueue(STATUSTEXT_QUEUE)
         self._text_sent_at: deque[float] = deque()
         self._text_id = 0
         self._next_reminder: float | None = None
@@ -266,6 +267,20 @@ class Telemetry:
                 stream.period = stream.default_period
                 stream.next_due = now
 
+    def rates_hz(self) -> dict[str, float]:
+        """The rates in force (after parameters and SET_MESSAGE_INTERVAL), by ``..._hz`` key
+        of the telemetry section, for re-planning the link budget (ESC: the fastest group)."""
+
+        def hz(msg_id: int) -> float:
+            period = self._streams[msg_id].period
+            return 1.0 / period if period else 0.0
+
+        return {
+            "actuator_output_status_hz": hz(MSG_ACTUATOR_OUTPUT_STATUS),
+            "esc_telemetry_hz": max((hz(msg_id) for msg_id in ESC_IDS), default=0.0),
+            "named_value_float_hz": hz(MSG_NAMED_VALUE_FLOAT),
+        }
+
     def set_interval(self, msg_id: int, interval_us: float, now: float) -> bool:
         """SET_MESSAGE_INTERVAL: False when this component does not publish ``msg_id``."""
         stream = self._streams.get(msg_id)
@@ -281,12 +296,13 @@ class Telemetry:
             return None
         return self._build(msg_id, self._backend.servo_statuses(), now)
 
-    def announce(self, severity: int, text: str) -> None:
-        """Queue a STATUSTEXT (sent by :meth:`periodic` within the rate limit)."""
-        if len(self._texts) >= STATUSTEXT_QUEUE:
-            self._texts.popleft()
-            self.counters["statustext_dropped"] += 1
-        self._texts.append((severity, text))
+    def announce(self, severity: int, text: str, essential: bool = False) -> None:
+        """Queue a STATUSTEXT (sent by :meth:`periodic` within the rate limit); CRITICAL ones
+        and ``essential`` ones go first and are never dropped for others (:class:`TextQueue`)."""
+        dropped = self._texts.dropped
+        self._texts.put(severity, text, essential)
+        if self._texts.dropped != dropped:
+            self.counters["statustext_dropped"] += self._texts.dropped - dropped
         log.info("statustext: %s", text)
 
     # ------------------------------------------------------------------ periodic
@@ -360,7 +376,10 @@ class Telemetry:
             self._text_sent_at.popleft()
         out = []
         while self._texts and len(self._text_sent_at) < STATUSTEXT_BURST:
-            severity, text = self._texts.popleft()
+            next_text = self._texts.pop()
+            if next_text is None:
+                break
+            severity, text = next_text
             self._text_sent_at.append(now)
             if len(text) > STATUSTEXT_LENGTH:
                 self._text_id = self._text_id % UINT16_MAX + 1
