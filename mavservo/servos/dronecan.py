@@ -236,10 +236,12 @@ class DroneCanServo(ServoProfile):
         fraction = (angle_deg - o.unitless_min_deg) / (o.unitless_max_deg - o.unitless_min_deg)
         fraction = max(0.0, min(1.0, fraction))  # rounding only: the angle was checked
         if o.command == "pwm":
-            # microseconds: float16 carries whole numbers exactly up to 2048, and 0.5 above
-            # (AP_Periph rounds ``command_value + 0.5`` to a whole us)
+            # microseconds: float16 carries whole numbers exactly up to 2048 and steps by 2
+            # above (AP_Periph rounds ``command_value + 0.5`` to a whole us): the value sent is
+            # the float16 nearest the whole pulse that stays within the channel's pulse range
             pulse = o.pwm_min_us + fraction * (o.pwm_max_us - o.pwm_min_us)
-            return o.actuator_id, wire.COMMAND_TYPE_PWM, float(round(pulse))
+            on_wire = wire.float16_inside(float(round(pulse)), o.pwm_min_us, o.pwm_max_us)
+            return o.actuator_id, wire.COMMAND_TYPE_PWM, on_wire
         return o.actuator_id, wire.COMMAND_TYPE_UNITLESS, 2.0 * fraction - 1.0
 
     def position_command(self, angle_deg: float, max_speed_dps: float | None = None) -> can.Message:
