@@ -8,7 +8,9 @@ from dronecan.transport import Frame, Transfer
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from mavservo.servos import dronecan_wire as wire
 from mavservo.servos.dronecan import DroneCanServo
+from mavservo.servos.dronecan_node import SENDERS_REPORTED, BridgeNode, NodeOptions
 
 
 def library_decode(frames: list[can.Message]):  # type: ignore[no-untyped-def]
@@ -45,3 +47,66 @@ def test_the_pwm_limit_itself_is_sent_inside_the_limit() -> None:
     )
     [command] = library_decode([profile.position_command(45.0)]).payload.commands
     assert float(command.command_value) == 2498.0
+
+
+def _node(**options: object) -> BridgeNode:
+    return BridgeNode(
+        [DroneCanServo(20, firmware="ardupilot", actuator_id=1, command="pwm")],
+        NodeOptions(node_id=100, **options),
+        (0, 1),
+        0.0,
+    )
+
+
+def test_another_nodes_safety_state_is_reported_once_and_counted_every_time() -> None:
+    """A flight controller on the bus broadcasts SafetyState (SAFETY_ON while disarmed): an
+    AP_Periph board obeys the last one heard, so its outputs toggle at 2 Hz against the
+    bridge's SAFETY_OFF. It used to pass without a word."""
+    node = _node(safety_state="safety_off")
+    for tid in range(6):
+        for msg in wire.encode_message(wire.safety_state(False), 9, tid, wire.PRIORITY_LOW):
+            node.receive(msg, 0.5 * tid)
+    [notice] = node.take_notices()
+    assert "node 9" in notice and "SafetyState (SAFETY_ON)" in notice and "fight" in notice
+    assert node.counters["foreign_safety_state"] == 6
+    assert node.take_notices() == []
+    # a spoof with the bridge's own id is named as such
+    for msg in wire.encode_message(wire.safety_state(True), 100, 0, wire.PRIORITY_LOW):
+        node.receive(msg, 4.0)
+    [notice] = node.take_notices()
+    assert "bridge's own node id 100" in notice and "SAFETY_OFF" in notice
+
+
+def test_a_sender_that_turns_to_the_bridges_actuators_is_reported_as_a_second_master() -> None:
+    """Reported once as "not the bridge's" (actuator 7), the same node later commanding the
+    bridge's actuator 1 was never reported: two masters, silently."""
+    node = _node(safety_state="safety_off")
+    for msg in wire.encode_message(wire.array_command([(7, 4, 1500.0)]), 12, 0):
+        node.receive(msg, 1.0)
+    [first] = node.take_notices()
+    assert "not the bridge's" in first
+    for tid in range(1, 4):
+        for msg in wire.encode_message(wire.array_command([(1, 4, 1500.0)]), 12, tid):
+            node.receive(msg, 1.0 + tid)
+    [second] = node.take_notices()
+    assert "node 12" in second and "two masters" in second
+    assert node.take_notices() == []
+
+
+def test_a_stranger_making_up_source_ids_gets_a_bounded_number_of_reports() -> None:
+    """One ArrayCommand and one SafetyState from each of 126 made-up node ids used to give 252
+    WARNING lines and STATUSTEXTs; now two (a command, a safety state) for each of at most
+    SENDERS_REPORTED nodes and one summary."""
+    node = _node(safety_state="safety_off")
+    for source in range(1, 128):
+        if source == 100:
+            continue
+        for msg in wire.encode_message(wire.array_command([(1, 4, 1500.0)]), source, 0):
+            node.receive(msg, 1.0)
+        for msg in wire.encode_message(wire.safety_state(False), source, 0, wire.PRIORITY_LOW):
+            node.receive(msg, 1.0)
+    notices = node.take_notices()
+    assert len(notices) == 2 * SENDERS_REPORTED + 1
+    assert "counted" in notices[-1]
+    assert node.counters["foreign_commands"] == 126
+    assert node.counters["foreign_safety_state"] == 126

@@ -43,6 +43,10 @@ _HEALTH = {"ok": wire.HEALTH_OK, "warning": wire.HEALTH_WARNING, "error": wire.H
 SAFETY_PERIOD_S = 0.5
 """``ardupilot.indication.SafetyState`` every 500 ms, as ArduPilot's flight controller sends it
 (``AP_DroneCAN``, its 2 Hz safety broadcast); a peripheral that hears nothing keeps its state."""
+SENDERS_REPORTED = 8
+"""Other nodes reported by name (a second ArrayCommand sender, a SafetyState broadcaster), at
+most: a source id costs a stranger nothing, and each report is a WARNING line and a STATUSTEXT;
+the senders beyond are counted (``senders_not_reported``) and said once."""
 SILENT_ACTUATOR_S = 3.0
 """A servo whose node is alive and which is commanded, but which has sent no report of its
 own actuator for this long, is warned about once (its commands are likely ignored)."""
@@ -236,6 +240,11 @@ class BridgeNode:
         self._health = wire.HEALTH_OK
         self.counters: Counter[str] = Counter()
         self.foreign_masters: set[int] = set()
+        """Other nodes reported for sending ArrayCommand (see :meth:`_foreign_command`)."""
+        self._masters_of_ours: set[int] = set()
+        """Those of them reported for commanding the bridge's actuators (two masters)."""
+        self.safety_senders: set[int] = set()
+        """Other nodes reported for broadcasting SafetyState (see :meth:`_foreign_safety`)."""
         self._notices: list[str] = []
         if self.ardupilot_nodes and not self.safety_off:
             self._notices.append(self._safety_warning())
@@ -585,6 +594,8 @@ class BridgeNode:
         if dtid == wire.DTID_ARRAY_COMMAND:
             # CAN does not echo a sender's own frames: one with the bridge's id is another's
             self._foreign_command(msg, source, now)
+        if dtid == wire.DTID_SAFETY_STATE:
+            self._foreign_safety(msg, source, now)
         if dtid == wire.DTID_NODE_STATUS and source == self.node_id:
             self.counters["node_id_conflict"] += 1
             if not self._conflict_noted:
@@ -604,12 +615,18 @@ class BridgeNode:
         if source == self.node_id:
             self.counters["own_id_commands"] += 1
         received = self._reassembler.push(msg, now)
-        if received is None or source in self.foreign_masters:
+        if received is None or source in self._masters_of_ours:
             return
-        self.foreign_masters.add(source)
         ours = {servo.options.actuator_id for servo in self.servos}
         theirs = sorted({int(c.actuator_id) for c in received.payload.commands})
         shared = [a for a in theirs if a in ours]
+        if source in self.foreign_masters and not shared:
+            return  # reported already; a sender that turns to the bridge's actuators is again
+        if not self._may_report(source):
+            return
+        self.foreign_masters.add(source)
+        if shared:
+            self._masters_of_ours.add(source)
         if source == self.node_id:
             self._notices.append(
                 f"another DroneCAN node sends ArrayCommand with the bridge's own node id "
@@ -629,6 +646,50 @@ class BridgeNode:
                 f"DroneCAN node {source} also sends ArrayCommand on this bus, for actuators "
                 f"{', '.join(map(str, theirs))} (not the bridge's)"
             )
+
+    def _may_report(self, source: int) -> bool:
+        """True while another sender may still be reported by name (:data:`SENDERS_REPORTED`
+        distinct nodes; one already reported always may); beyond, counted and said once."""
+        reported = self.foreign_masters | self.safety_senders
+        if source in reported or len(reported) < SENDERS_REPORTED:
+            return True
+        self.counters["senders_not_reported"] += 1
+        self._notice_once(
+            "senders_not_reported",
+            f"more than {SENDERS_REPORTED} other DroneCAN nodes send ArrayCommand or "
+            "SafetyState on this bus: the others are counted (senders_not_reported), not "
+            "reported one by one (a stranger making up node ids?)",
+        )
+        return False
+
+    def _foreign_safety(self, msg: can.Message, source: int, now: float) -> None:
+        """Another node's ``ardupilot.indication.SafetyState``: an ArduPilot peripheral obeys
+        the last one it hears, so a flight controller (or a stranger) broadcasting it on this
+        bus turns the outputs on or off whatever the bridge's plan; reported once per sender,
+        every one counted (``foreign_safety_state``)."""
+        self.counters["foreign_safety_state"] += 1
+        received = self._reassembler.push(msg, now)
+        if received is None or received.dtid != wire.DTID_SAFETY_STATE:
+            return
+        if source in self.safety_senders or not self._may_report(source):
+            return
+        self.safety_senders.add(source)
+        state = "SAFETY_OFF" if int(received.payload.status) == wire.SAFETY_OFF else "SAFETY_ON"
+        who = (
+            f"another DroneCAN node sends SafetyState with the bridge's own node id {source}"
+            if source == self.node_id
+            else f"DroneCAN node {source} also broadcasts SafetyState"
+        )
+        plan = (
+            "the bridge's SAFETY_OFF and its SafetyState fight"
+            if self.safety_off
+            else "the bridge sends none (safety_state: none)"
+        )
+        self._notices.append(
+            f"{who} ({state}): ArduPilot peripherals obey the last one heard, so their outputs "
+            f"follow that node, not the bridge's plan ({plan}); only one node may own the "
+            "safety state of the bus (a flight controller's CAN driver sends it every 500 ms)"
+        )
 
     def _node_info_response(self, request: wire.Received, now: float) -> list[can.Message]:
         info = wire.lib().uavcan.protocol.GetNodeInfo.Response()
