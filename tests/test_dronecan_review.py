@@ -110,3 +110,21 @@ def test_a_stranger_making_up_source_ids_gets_a_bounded_number_of_reports() -> N
     assert "counted" in notices[-1]
     assert node.counters["foreign_commands"] == 126
     assert node.counters["foreign_safety_state"] == 126
+
+
+def test_a_real_ap_periph_board_without_status_is_not_said_to_ignore_its_commands() -> None:
+    """AP_Periph sends actuator Status only as a SITL build (rc_out.cpp ``sim_update_actuator``
+    under AP_SIM_ENABLED): a real board driving its outputs is silent. The warning used to tell
+    its user "commands ignored? check the command type" for a correct setup."""
+    servo = DroneCanServo(20, firmware="ardupilot", actuator_id=1, command="pwm")
+    node = BridgeNode([servo], NodeOptions(node_id=100, safety_state="safety_off"), (0, 1), 0.0)
+    heartbeat = wire.node_status(5.0, wire.HEALTH_OK, wire.MODE_OPERATIONAL)
+    for msg in wire.encode_message(heartbeat, 20, 0, wire.PRIORITY_LOW):
+        assert servo.decode(msg, 0.0) is not None
+    node.pack([servo.position_command(10.0)])
+    for step in range(50):  # 5 s of due() at 10 Hz, commanded, no Status
+        node.due(0.1 * step, "ok")
+    [notice] = node.take_notices()
+    assert "expected of a real AP_Periph board" in notice
+    assert "commands ignored" not in notice
+    assert node.counters["silent_actuators"] == 1

@@ -435,6 +435,18 @@ class BridgeNode:
             self._silent_warned.add(index)
             self.counters["silent_actuators"] += 1
             options = servo.options
+            if options.firmware == "ardupilot":
+                # AP_Periph sends actuator Status only as a SITL build (rc_out.cpp,
+                # sim_update_actuator) or with its actuator telemetry set up (actuator_telem.cpp,
+                # no position): a real board that drives its outputs is silent here
+                self._notices.append(
+                    f"DroneCAN node {servo.can_id} is alive but never reports Status for "
+                    f"actuator {options.actuator_id}: expected of a real AP_Periph board (it "
+                    "sends actuator Status only as a SITL build, or with its ACT telemetry set "
+                    "up): the position is not known, the servo is online on NodeStatus alone; "
+                    "if the node is a SITL build, check the actuator id"
+                )
+                continue
             self._notices.append(
                 f"DroneCAN node {servo.can_id} is alive but never reports Status for actuator "
                 f"{options.actuator_id}: commands ignored? check the command type (command: "
