@@ -179,7 +179,10 @@ class ServoBackend:
                 if servo.goal_deg is None or servo.source == "failsafe":
                     continue
                 goal = servo.goal_deg
-                if servo.last_input is not None:
+                # an overheated servo on hold stays put: a new trim is no reason to move it
+                # (only limits that no longer hold it bring it inside them)
+                holding = servo.health_action in ("hold", "release")
+                if servo.last_input is not None and not holding:
                     mapped = self._remap(servo, *servo.last_input)
                     goal = goal if mapped is None else mapped
                 servo.goal_deg = clamp(goal, servo.limits_deg)[0]
