@@ -3,10 +3,13 @@ main 00d11a1 and passes with its fix."""
 
 from __future__ import annotations
 
+import math
+
 import pytest
 from test_servo_backend import CONFIG, RecordingSink
 
 from mavservo.config import load_config_text
+from mavservo.control.health import Health, HealthLimits, Sample, ServoHealth
 from mavservo.control.servo_backend import ServoBackend
 
 
@@ -34,3 +37,25 @@ def test_an_overheated_servo_on_hold_is_not_moved_by_a_new_trim() -> None:
     backend.set_health_action("surface", None, 1.0)
     assert backend.apply_servo_output(1, 1700, "test", 1.1).ok
     assert sink.last("surface") != pytest.approx(held)
+
+
+def test_a_servo_slowed_for_its_temperature_is_not_called_late_for_the_slowed_move() -> None:
+    """``temperature_action: slow`` slews the servo's moves to ``slow_factor`` of its speed;
+    the tracking check kept judging them at the full speed and raised "not following" for a
+    healthy 90 deg move made at the lowered speed (0.2 x 360 deg/s)."""
+    limits = HealthLimits(
+        speed_dps=360.0, response_s=0.5, temperature_action="slow", slow_factor=0.2
+    )
+    health = ServoHealth("elevator", limits)
+    slowed = limits.speed_dps * limits.slow_factor
+    events = []
+    t = 0.0
+    while t < 4.0:  # overheated at once (80 C over the 75 C limit), a 90 deg step at t = 1
+        setpoint = 0.0 if t < 1.0 else 90.0
+        position = 0.0 if t < 1.05 else min(90.0, slowed * (t - 1.05))
+        moving = 0.0 < position < 90.0
+        sample = Sample(t, setpoint, position, slowed if moving else 0.0, math.nan, 80.0)
+        events += health.update(sample)
+        t = round(t + 0.05, 10)
+    assert [e.check for e in events] == [Health.HOT, Health.OVERHEATED]
+    assert Health.TRACKING not in health.active

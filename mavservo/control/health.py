@@ -383,7 +383,7 @@ class ServoHealth:
         if not off_target:
             self._late_since = None
             return False
-        speed = max(lim.speed_dps, 1e-6)
+        speed = max(self._expected_speed(), 1e-6)
         if self._late_since is None:
             self._late_since = s.t
             self._late_budget_s = abs(error) / speed + lim.tracking_s
@@ -392,6 +392,14 @@ class ServoHealth:
             self._late_budget_s += abs(s.setpoint_deg - self._late_setpoint) / speed
             self._late_setpoint = s.setpoint_deg
         return s.t - self._late_since > self._late_budget_s
+
+    def _expected_speed(self) -> float:
+        """``speed_dps``, lowered by ``slow_factor`` while the temperature limit's ``slow``
+        action is in force (the bridge slews the servo's moves to that fraction: judging them
+        at the full speed would call the servo late for the bridge's own action)."""
+        lim = self.limits
+        slowed = lim.temperature_action == "slow" and self._debounce[Health.OVERHEATED].active
+        return lim.speed_dps * lim.slow_factor if slowed else lim.speed_dps
 
     def _supply(self, t: float, volts: float) -> bool | None:
         lim = self.limits
