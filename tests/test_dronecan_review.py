@@ -3,7 +3,10 @@ test failed on main 00d11a1 and passes with its fix."""
 
 from __future__ import annotations
 
+import math
+
 import can
+import pytest
 from dronecan.transport import Frame, Transfer
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -128,3 +131,41 @@ def test_a_real_ap_periph_board_without_status_is_not_said_to_ignore_its_command
     assert "expected of a real AP_Periph board" in notice
     assert "commands ignored" not in notice
     assert node.counters["silent_actuators"] == 1
+
+
+def test_an_ardupilot_status_over_another_range_reads_back_as_the_angle_it_drives() -> None:
+    """AP_Periph (SITL) reports ``norm x 45 deg``. Over a servo range of +-60 deg, a command of
+    60 deg (norm 1.0) read back as 45 deg: 15 deg "behind" for ever in telemetry and in the
+    health monitor's tracking check."""
+    servo = DroneCanServo(
+        20,
+        firmware="ardupilot",
+        actuator_id=2,
+        command="pwm",
+        unitless_min_deg=-60.0,
+        unitless_max_deg=60.0,
+    )
+    for commanded in (60.0, 30.0, -60.0, 0.0):
+        norm = 2.0 * (commanded + 60.0) / 120.0 - 1.0
+        status = wire.lib().uavcan.equipment.actuator.Status(
+            actuator_id=2,
+            position=math.radians(norm * 45.0),
+            force=0.0,
+            speed=0.0,
+            power_rating_pct=wire.POWER_RATING_UNKNOWN,
+        )
+        frames = wire.encode_message(status, 20, 0, wire.PRIORITY_LOW)
+        states = [servo.decode(msg, 1.0) for msg in frames]
+        assert states[-1] is not None
+        assert states[-1].position_deg == pytest.approx(commanded, abs=0.1)
+    # the +-45 preset reads it as it comes, and a generic servo's position is its measurement
+    generic = DroneCanServo(21, actuator_id=2, command="unitless")
+    status = wire.lib().uavcan.equipment.actuator.Status(
+        actuator_id=2,
+        position=math.radians(45.0),
+        force=0.0,
+        speed=0.0,
+        power_rating_pct=wire.POWER_RATING_UNKNOWN,
+    )
+    [*_, state] = [generic.decode(m, 1.0) for m in wire.encode_message(status, 21, 0, 24)]
+    assert state is not None and state.position_deg == pytest.approx(45.0, abs=0.1)

@@ -36,7 +36,8 @@ Command types: ``position`` sends radians (``COMMAND_TYPE_POSITION``); ``unitles
 servos that take only a normalised command; ``pwm`` maps the same range onto
 ``[pwm_min_us, pwm_max_us]`` (``COMMAND_TYPE_PWM``, whole microseconds); angles outside that
 range are refused (COMMAND_ACK DENIED), never clamped. ArduPilot peripherals act on UNITLESS and
-PWM only and report ``norm x 45 deg`` (``firmware: ardupilot`` presets the range to +-45 deg).
+PWM only and report ``norm x 45 deg`` (``firmware: ardupilot`` presets the range to +-45 deg;
+over another range the reported norm is read back through that range).
 
 Received frames are reassembled per servo (a Status transfer is two frames); a frame that
 starts or continues a transfer decodes to the last known state and does not complete a report
@@ -440,7 +441,7 @@ class DroneCanServo(ServoProfile):
             self.actuator_reported_at = timestamp
             return self._merge(
                 timestamp,
-                position_deg=_degrees(p.position),
+                position_deg=self._reported_angle(_degrees(p.position)),
                 velocity_dps=_degrees(p.speed),
             )
         if rx.dtid == wire.DTID_VOLZ_STATUS:
@@ -469,6 +470,18 @@ class DroneCanServo(ServoProfile):
                 faults=self._health_faults | self._vendor_faults,
             )
         return self._merge(timestamp)
+
+    def _reported_angle(self, degrees: float) -> float:
+        """A Status position as this servo's angle. ArduPilot's peripheral reports no
+        measurement but its output's norm as ``norm x 45 deg`` (:data:`ARDUPILOT_UNITLESS_DEG`):
+        over a range other than +-45 deg that number is no angle of the servo (a servo told
+        60 deg over +-60 read back 45, and the health monitor called it 15 deg behind for
+        good), so the norm goes back through the servo's own range, the angle it drives."""
+        o = self.options
+        if o.firmware != "ardupilot" or not math.isfinite(degrees):
+            return degrees
+        norm = degrees / ARDUPILOT_UNITLESS_DEG
+        return o.unitless_min_deg + (norm + 1.0) / 2.0 * (o.unitless_max_deg - o.unitless_min_deg)
 
     def _other_actuator(self, actuator: int) -> ServoState | None:
         """A status of another actuator from this servo's node: a sibling's (another servo
