@@ -256,10 +256,15 @@ class DroneCanServo(ServoProfile):
         else:  # one payload object, its value replaced: the package's objects are costly
             self._payload.commands[0].command_value = command[2]
         (frame,) = wire.encode_message(self._payload, self.bridge_node_id, 0)
-        if len(self._sent) >= _COMMANDS_REMEMBERED:
-            self._sent.pop(next(iter(self._sent)))
-        self._sent[bytes(frame.data)] = command
+        self._remember(frame, command)
         return frame
+
+    def _remember(self, frame: can.Message, command: tuple[int, int, float]) -> None:
+        """Keep ``command`` findable by its frame (:meth:`command_of`), the latest few only."""
+        key = bytes(frame.data)
+        if key not in self._sent and len(self._sent) >= _COMMANDS_REMEMBERED:
+            self._sent.pop(next(iter(self._sent)))
+        self._sent[key] = command
 
     def command_of(self, frame: can.Message) -> tuple[int, int, float] | None:
         """The ``(actuator_id, command_type, value)`` of one of this servo's recent command
@@ -268,6 +273,21 @@ class DroneCanServo(ServoProfile):
 
     def telemetry_requests(self) -> list[can.Message]:
         return []
+
+    def release_frames(self) -> list[can.Message]:
+        """Motor off for an ArduPilot peripheral's output: PWM 0 for its actuator (what the
+        board's own command timeout writes, ``rc_out.cpp``). Not commanding it is no release
+        there: the board's timeout is one for the whole node, fed by any UNITLESS or PWM entry
+        of any ArrayCommand (``can.cpp``, ``handle_act_command``), so while another servo of
+        the bus is commanded the output keeps its last pulse. The bus node packs the frame
+        with the slot's commands. Other DroneCAN servos: none (the specification has no
+        release; they keep their last command, :meth:`stop_behaviour`)."""
+        if self.options.firmware != "ardupilot":
+            return []
+        command = (self.options.actuator_id, wire.COMMAND_TYPE_PWM, 0.0)
+        (frame,) = wire.encode_message(wire.array_command([command]), self.bridge_node_id, 0)
+        self._remember(frame, command)
+        return [frame]
 
     def shutdown_frames(self) -> list[can.Message]:
         """The bus node's SafetyState plan at stop (SAFETY_ON), carried by one of its servos."""
@@ -289,7 +309,9 @@ class DroneCanServo(ServoProfile):
         if self.options.firmware == "ardupilot":
             return (
                 f"zeroes its PWM output {ARDUPILOT_COMMAND_TIMEOUT_S * 1000:g} ms after the last "
-                "ArrayCommand (AP_Periph SRV_CMD_TIME_OUT): the servo goes limp"
+                "ArrayCommand on the bus, for any actuator (AP_Periph SRV_CMD_TIME_OUT): the "
+                "servo goes limp; a release sends it PWM 0 (the board would keep its pulse "
+                "while another servo is commanded)"
             )
         return (
             "keeps its last command (no timeout in the DroneCAN specification; Hitec and Volz "

@@ -289,12 +289,16 @@ class BridgeNode:
         return tid
 
     # ---------------------------------------------------------------------------- commands
-    def pack(self, commands: Sequence[can.Message], in_failsafe: bool = False) -> list[can.Message]:
+    def pack(
+        self, commands: Sequence[can.Message], in_failsafe: bool | None = False
+    ) -> list[can.Message]:
         """One ArrayCommand transfer for up to 15 of the servos' one-command frames (more:
         several transfers), numbered with this node's transfer ids. ``in_failsafe``: every
-        command is a failsafe setpoint (the SafetyState plan may turn safety on for it)."""
+        command is a failsafe setpoint (the SafetyState plan may turn safety on for it);
+        None: releases only, the plan stays as it is."""
         tuples: list[tuple[int, int, float]] = []
-        self._failsafe = in_failsafe and self.options.safety_on == "failsafe_and_stop"
+        if in_failsafe is not None:
+            self._failsafe = in_failsafe and self.options.safety_on == "failsafe_and_stop"
         for msg in commands:
             known = None
             for index, servo in enumerate(self.servos):
