@@ -59,3 +59,24 @@ def test_a_servo_slowed_for_its_temperature_is_not_called_late_for_the_slowed_mo
         t = round(t + 0.05, 10)
     assert [e.check for e in events] == [Health.HOT, Health.OVERHEATED]
     assert Health.TRACKING not in health.active
+
+
+def test_temperature_release_is_refused_for_a_family_with_no_motor_off_frame() -> None:
+    """``failsafe: release`` is refused where the profile has no motor-off frame; the health
+    monitor's ``temperature_action: release`` was accepted there, and at the limit its text said
+    "released (motor off)" while the generic DroneCAN servo kept holding (and heating)."""
+    from mavservo.config import ConfigError
+
+    text = """servos:
+  - name: elevator
+    profile: dronecan
+    can_id: 20
+    health: {temperature_action: release}
+"""
+    with pytest.raises(ConfigError, match="no motor-off frame"):
+        load_config_text(text, "bad.yaml")
+    # a family that has one (an ArduPilot peripheral's output: PWM 0) keeps the choice
+    ok = text.replace(
+        "can_id: 20\n", "can_id: 20\n    options: {firmware: ardupilot, command: pwm}\n"
+    )
+    assert load_config_text(ok, "ok.yaml").servos[0].health.temperature_action == "release"
