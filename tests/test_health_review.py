@@ -80,3 +80,36 @@ def test_temperature_release_is_refused_for_a_family_with_no_motor_off_frame() -
         "can_id: 20\n", "can_id: 20\n    options: {firmware: ardupilot, command: pwm}\n"
     )
     assert load_config_text(ok, "ok.yaml").servos[0].health.temperature_action == "release"
+
+
+def test_a_lying_reading_makes_no_giant_text() -> None:
+    """A decoded float far out of any range (a lying float field: 1e38 deg, 1e38 A) was printed
+    in full: a jammed text of about 100 digits, several STATUSTEXT chunks for one reply."""
+    limits = HealthLimits(jam_s=0.0, jam_current_a=1.0, tolerance_deg=3.0)
+    health = ServoHealth("elevator", limits)
+    events = []
+    for k in range(12):
+        sample = Sample(0.1 * k, 10.0, -1e38, 0.0, 3e38, 25.0)
+        events += health.update(sample)
+    jammed = [e for e in events if e.check is Health.JAMMED and e.active]
+    assert jammed, events
+    assert len(jammed[0].text) < 100, jammed[0].text
+    assert "1e+38" in jammed[0].text
+
+
+def test_a_jam_clears_once_the_servo_is_released() -> None:
+    """A jammed servo the crew (or failsafe) releases is told nothing any more: its jam stayed
+    active for good (fault bit, gimbal MOTOR_ERROR), since the check needs a setpoint to judge;
+    "not following" cleared in the same case."""
+    health = ServoHealth("hook", HealthLimits(jam_s=0.3, clear_s=1.0, jam_current_a=2.0))
+    events = []
+    for k in range(30):  # told 20 deg, stuck at 0 at 2.5 A
+        events += health.update(Sample(0.1 * k, 20.0, 0.0, 0.0, 2.5, 30.0))
+    assert Health.JAMMED in health.active
+    for k in range(30, 60):  # released: no setpoint, motor off
+        events += health.update(Sample(0.1 * k, None, 0.0, 0.0, 0.0, 30.0))
+    assert Health.JAMMED not in health.active
+    assert [(e.check, e.active) for e in events if e.check is Health.JAMMED] == [
+        (Health.JAMMED, True),
+        (Health.JAMMED, False),
+    ]

@@ -338,6 +338,8 @@ class ServoHealth:
                 and abs(speed) < lim.stopped_dps
                 and abs(s.current_a) >= lim.jam_current_a
             )
+        elif not finite(s.setpoint_deg):
+            out[Health.JAMMED] = False  # released: told nothing, so blocked from nothing
         if error is not None:
             explained = bool(self.active & (Health.JAMMED | Health.SLIPPING))
             out[Health.TRACKING] = self._late(s, error, off_target and not explained)
@@ -474,35 +476,48 @@ class ServoHealth:
 
     def _onset_text(self, check: Health, s: Sample, f: dict[str, float]) -> str:
         lim = self.limits
-        amps = f" at {abs(f['current_a']):.1f} A" if "current_a" in f else ""
-        behind = f.get("error_deg", math.nan)
+        amps = f" at {_shown(abs(f['current_a']), 1)} A" if "current_a" in f else ""
+        behind = _shown(f.get("error_deg", math.nan), 1)
         if check is Health.TRACKING:
-            what = f"not following, {behind:.1f} deg behind for {f.get('for_s', 0.0):.1f} s{amps}"
+            lasted = _shown(f.get("for_s", 0.0), 1)
+            what = f"not following, {behind} deg behind for {lasted} s{amps}"
         elif check is Health.JAMMED:
-            what = (
-                f"jammed at {f.get('position_deg', math.nan):.1f} deg, {behind:.1f} deg short{amps}"
-            )
+            where = _shown(f.get("position_deg", math.nan), 1)
+            what = f"jammed at {where} deg, {behind} deg short{amps}"
         elif check is Health.SLIPPING:
-            what = (
-                f"slipping, motor {abs(f.get('motor_dps', math.nan)):.0f} deg/s, output "
-                f"{abs(f.get('output_dps', math.nan)):.0f} deg/s{amps}"
-            )
+            motor = _shown(abs(f.get("motor_dps", math.nan)), 0)
+            output = _shown(abs(f.get("output_dps", math.nan)), 0)
+            what = f"slipping, motor {motor} deg/s, output {output} deg/s{amps}"
         elif check is Health.OVERLOAD:
             what = (
-                f"overloaded, {abs(f.get('current_a', math.nan)):.1f} A, I2t budget of "
-                f"{lim.continuous_current_a:.1f} A continuous spent"
+                f"overloaded, {_shown(abs(f.get('current_a', math.nan)), 1)} A, I2t budget of "
+                f"{_shown(lim.continuous_current_a, 1)} A continuous spent"
             )
         elif check is Health.HOT:
-            what = f"hot, {s.temperature_c:.0f} C (warning {lim.temperature_warning_c:.0f} C)"
+            what = (
+                f"hot, {_shown(s.temperature_c, 0)} C "
+                f"(warning {_shown(lim.temperature_warning_c, 0)} C)"
+            )
         elif check is Health.OVERHEATED:
             what = (
-                f"overheated, {s.temperature_c:.0f} C (limit {lim.temperature_limit_c:.0f} C): "
+                f"overheated, {_shown(s.temperature_c, 0)} C "
+                f"(limit {_shown(lim.temperature_limit_c, 0)} C): "
                 f"{_ACTION_TEXT[lim.temperature_action]}"
             )
         else:
             low, high = self._supply_range or (math.nan, math.nan)
-            what = f"supply {f.get('voltage_v', math.nan):.1f} V outside {low:.1f}-{high:.1f} V"
+            volts = _shown(f.get("voltage_v", math.nan), 1)
+            what = f"supply {volts} V outside {_shown(low, 1)}-{_shown(high, 1)} V"
         return f"{self.name}: {what}"
+
+
+def _shown(value: float, decimals: int) -> str:
+    """A figure for a text: fixed-point up to a million, three significant digits beyond (a
+    lying reply's 1e38 A or deg would otherwise be a 40-digit number, and a STATUSTEXT of it
+    several chunks long)."""
+    if math.isfinite(value) and abs(value) >= 1e6:
+        return f"{value:.3g}"
+    return f"{value:.{decimals}f}"
 
 
 _CLEARED = {
