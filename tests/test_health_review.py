@@ -113,3 +113,20 @@ def test_a_jam_clears_once_the_servo_is_released() -> None:
         (Health.JAMMED, True),
         (Health.JAMMED, False),
     ]
+
+
+def test_a_learned_supply_range_allows_a_lithium_pack_discharging_in_flight() -> None:
+    """A servo fed from a 4S pack, learned at take-off (16.8 V, full): a +-15 % band called
+    14.2 V (3.55 V a cell, mid-flight) a supply fault; 12.4 V (3.1 V a cell) still is one."""
+    health = ServoHealth("elevator", HealthLimits(supply_s=0.5, supply_learn_s=2.0))
+    events = []
+    t = 0.0
+    for volts, seconds in ((16.8, 3.0), (15.6, 3.0), (14.2, 3.0), (13.3, 3.0)):
+        for _ in range(int(seconds / 0.1)):
+            events += health.update(Sample(t, 0.0, 0.0, 0.0, 0.5, 30.0, volts))
+            t = round(t + 0.1, 10)
+    assert events == [], events
+    for _ in range(20):
+        events += health.update(Sample(t, 0.0, 0.0, 0.0, 0.5, 30.0, 12.4))
+        t = round(t + 0.1, 10)
+    assert [(e.check, e.active) for e in events] == [(Health.SUPPLY, True)]

@@ -40,6 +40,13 @@ MAX_SAMPLE_GAP_S = 0.5
 MAX_CURRENT_A = 1000.0
 #: slipping: the output moves at less than this fraction of the motor's reported speed
 SLIP_RATIO = 0.25
+#: a supply range learned from the first readings (none configured): down to this fraction
+#: of them. A servo fed straight from a lithium pack sees it fall from 4.2 V a cell (full, as
+#: at take-off) to 3.3 V (loaded, near empty): 21 % in a normal flight, which a +-15 % band
+#: called a supply fault (a 4S pack at 14.2 V, 3.55 V a cell). Below this it is one.
+LEARNED_SUPPLY_LOW = 0.78
+#: and up to this fraction (a supply above its first readings has no such normal cause)
+LEARNED_SUPPLY_HIGH = 1.15
 
 
 @dataclass(frozen=True)
@@ -79,7 +86,7 @@ class HealthLimits:
     """``slow``: the fraction of the speed limit left."""
     supply_min_v: float | None = None
     supply_max_v: float | None = None
-    """Supply range; None: learned around the first readings (``supply_learn_s``) +-15 %."""
+    """Supply range; None: learned around the first readings (``supply_learn_s``), -22 % / +15 %."""
     supply_s: float = 0.5
     supply_learn_s: float = 2.0
     clear_s: float = 1.0
@@ -412,7 +419,7 @@ class ServoHealth:
             if t < self._supply_learn_until:
                 return None
             nominal = sorted(self._supply_readings)[len(self._supply_readings) // 2]
-            self._supply_range = (0.85 * nominal, 1.15 * nominal)
+            self._supply_range = (LEARNED_SUPPLY_LOW * nominal, LEARNED_SUPPLY_HIGH * nominal)
             self._supply_readings.clear()
         low, high = self._supply_range
         margin = 0.02 * max(abs(low), abs(high)) if math.isfinite(high) else 0.02 * abs(low)
