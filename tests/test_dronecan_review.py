@@ -169,3 +169,51 @@ def test_an_ardupilot_status_over_another_range_reads_back_as_the_angle_it_drive
     )
     [*_, state] = [generic.decode(m, 1.0) for m in wire.encode_message(status, 21, 0, 24)]
     assert state is not None and state.position_deg == pytest.approx(45.0, abs=0.1)
+
+
+def _feed(servo: DroneCanServo, payload: object, source: int, t: float, tid: int) -> None:
+    for msg in wire.encode_message(payload, source, tid & 0x1F, wire.PRIORITY_LOW):
+        servo.decode(msg, t)
+
+
+def _run_node(status_until: float, commanded_until: float, end: float) -> BridgeNode:
+    """A generic servo on node 20: NodeStatus every second to the end, its Status at 10 Hz
+    until ``status_until``, commanded every 50 ms until ``commanded_until``."""
+    servo = DroneCanServo(20, actuator_id=1)
+    node = BridgeNode([servo], NodeOptions(node_id=100), (0, 1), 0.0)
+    actuator = wire.lib().uavcan.equipment.actuator
+    for step in range(int(end / 0.05)):
+        t = round(step * 0.05, 10)
+        if step % 20 == 0:
+            heartbeat = wire.node_status(t, wire.HEALTH_OK, wire.MODE_OPERATIONAL)
+            _feed(servo, heartbeat, 20, t, step // 20)
+        if t < status_until and step % 2 == 0:
+            status = actuator.Status(
+                actuator_id=1,
+                position=0.1,
+                force=0.0,
+                speed=0.0,
+                power_rating_pct=wire.POWER_RATING_UNKNOWN,
+            )
+            _feed(servo, status, 20, t, step // 2)
+        if t < commanded_until:
+            node.pack([servo.position_command(5.0)])
+        node.due(t, "ok")
+    return node
+
+
+def test_an_actuator_whose_status_stops_while_its_node_lives_is_reported_once() -> None:
+    """A servo's Status stopped at 2 s while its node's NodeStatus went on: it stayed online,
+    its 2 s old position shown as current, and nothing was said (the silent-actuator notice is
+    for an actuator that never reported)."""
+    node = _run_node(status_until=2.0, commanded_until=10.0, end=10.0)
+    [notice] = node.take_notices()
+    assert "actuator 1 has sent no Status for 3 s while commanded" in notice
+    assert node.counters["stopped_actuators"] == 1
+
+
+def test_a_healthy_or_released_actuator_is_not_reported_as_stopped() -> None:
+    healthy = _run_node(status_until=10.0, commanded_until=10.0, end=10.0)
+    assert healthy.take_notices() == [] and not healthy.counters["stopped_actuators"]
+    released = _run_node(status_until=2.0, commanded_until=2.0, end=10.0)
+    assert released.take_notices() == [] and not released.counters["stopped_actuators"]

@@ -216,6 +216,8 @@ class DroneCanServo(ServoProfile):
         """Transfers of a sibling's Status under way (see :meth:`_siblings_status`)."""
         self.node_heard_at: float | None = None
         """When the node's first NodeStatus came (None: not yet)."""
+        self.node_last_heard: float | None = None
+        """When the node's latest NodeStatus came (None: not yet)."""
         self.actuator_reported_at: float | None = None
         """When this actuator's last report (Status, vendor status) came (None: never)."""
         self.shutdown_hook: Any = None
@@ -453,6 +455,7 @@ class DroneCanServo(ServoProfile):
             self.node_health, self.node_mode = int(p.health), int(p.mode)
             if self.node_heard_at is None:
                 self.node_heard_at = timestamp
+            self.node_last_heard = timestamp
             healthy = self.node_health == wire.HEALTH_OK
             running = self.node_mode in (wire.MODE_OPERATIONAL, wire.MODE_INITIALIZATION)
             self._health_faults = NO_FAULT if healthy and running else Fault.OTHER

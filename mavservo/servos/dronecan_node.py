@@ -146,6 +146,7 @@ class CommandedServo(Protocol):
     options: Any
     node_actuators: frozenset[int]
     node_heard_at: float | None
+    node_last_heard: float | None
     actuator_reported_at: float | None
     shutdown_hook: Any
 
@@ -226,6 +227,12 @@ class BridgeNode:
         """Servo index -> when the node first saw it commanded (None: in the slot just packed,
         the time comes with the next :meth:`due`)."""
         self._silent_warned: set[int] = set()
+        self._packed: set[int] = set()
+        """Servo indexes commanded in the slots packed since the last :meth:`due`."""
+        self._last_commanded: dict[int, float] = {}
+        """Servo index -> when the node last packed a command for it (set in :meth:`due`)."""
+        self._stopped_warned: set[int] = set()
+        """Servos warned about for a Status that stopped (again once one comes)."""
         if self.safety_off and options.safety_on != "never" and servos:
             servos[0].shutdown_hook = self._safety_on_at_stop
         self.ardupilot_nodes = sorted(
@@ -305,6 +312,8 @@ class BridgeNode:
                 known = servo.command_of(msg)
                 if known is not None:
                     self._commanded_since.setdefault(index, None)
+                    if known[1] != wire.COMMAND_TYPE_PWM or known[2] > 0:  # not a release
+                        self._packed.add(index)
                     break
             if known is not None:
                 tuples.append(known)
@@ -425,7 +434,12 @@ class BridgeNode:
     def _check_silent_actuators(self, now: float) -> None:
         """Warn once per servo whose node is alive and which is commanded but never reports
         its actuator: the node ignores the command (a command type it does not act on, an
-        actuator id it does not have)."""
+        actuator id it does not have); and once per episode for one that did report and
+        stopped while its node goes on (:meth:`_check_stopped_actuators`)."""
+        for index in self._packed:
+            self._last_commanded[index] = now
+        self._packed.clear()
+        self._check_stopped_actuators(now)
         for index, since in list(self._commanded_since.items()):
             if since is None:
                 self._commanded_since[index] = now
@@ -456,6 +470,38 @@ class BridgeNode:
                 f"{options.actuator_id}: commands ignored? check the command type (command: "
                 f"{options.command}; ArduPilot peripherals act on unitless and pwm only) and "
                 "the actuator id"
+            )
+
+    def _check_stopped_actuators(self, now: float) -> None:
+        """An actuator that reported and has sent nothing for :data:`SILENT_ACTUATOR_S` while
+        it is commanded and its node's NodeStatus goes on: the servo stays online on that
+        NodeStatus, its last position shown as if current, so the crew is told (once per
+        episode; a report ends it). A released servo is not commanded: an ArduPilot SITL node
+        stops its Status then, as it should."""
+        for index, servo in enumerate(self.servos):
+            reported = servo.actuator_reported_at
+            if reported is None:
+                continue
+            if now - reported < SILENT_ACTUATOR_S:
+                self._stopped_warned.discard(index)
+                continue
+            commanded = self._last_commanded.get(index)
+            node = servo.node_last_heard
+            if (
+                index in self._stopped_warned
+                or commanded is None
+                or now - commanded > 1.0
+                or node is None
+                or now - node > SILENT_ACTUATOR_S
+            ):
+                continue
+            self._stopped_warned.add(index)
+            self.counters["stopped_actuators"] += 1
+            self._notices.append(
+                f"DroneCAN node {servo.can_id} is alive but actuator "
+                f"{servo.options.actuator_id} has sent no Status for {now - reported:.0f} s "
+                "while commanded: its position shown is that old (the servo stays online on the "
+                "node's NodeStatus); a failed actuator or a broken output?"
             )
 
     def next_due(self) -> float:
