@@ -562,8 +562,9 @@ class BridgeNode:
             "controller commanding other actuator ids) may share it; no other node may command "
             "these actuator ids (an autopilot with these servos in its outputs): two masters "
             "would fight. The bridge reports every other ArrayCommand sender once (STATUSTEXT, "
-            "log), saying whether it commands the bridge's actuators. With the allocator on, no "
-            "other allocation server may run on the bus.",
+            "log), saying whether it commands the bridge's actuators, and every other "
+            "SafetyState sender (ArduPilot peripherals obey the last one heard). With the "
+            "allocator on, no other allocation server may run on the bus.",
         ]
 
     def persistent_state(self) -> tuple[int, dict[str, Any]] | None:
