@@ -217,3 +217,17 @@ def test_a_healthy_or_released_actuator_is_not_reported_as_stopped() -> None:
     assert healthy.take_notices() == [] and not healthy.counters["stopped_actuators"]
     released = _run_node(status_until=2.0, commanded_until=2.0, end=10.0)
     assert released.take_notices() == [] and not released.counters["stopped_actuators"]
+
+
+def test_the_safety_warning_is_said_again_with_the_first_command() -> None:
+    """``safety_state: none`` with ArduPilot nodes was said once, at start: a ground station
+    that connected later never heard why the servos do not move (the e2e test of it passed or
+    failed on how fast the bridge started)."""
+    servo = DroneCanServo(20, firmware="ardupilot", actuator_id=1, command="pwm")
+    node = BridgeNode([servo], NodeOptions(node_id=100), (0, 1), 0.0)
+    [at_start] = node.take_notices()
+    assert "SAFETY_OFF" in at_start
+    node.pack([servo.position_command(10.0)])
+    assert node.take_notices() == [at_start]
+    node.pack([servo.position_command(12.0)])
+    assert node.take_notices() == []  # once more, not with every command

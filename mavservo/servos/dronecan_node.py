@@ -253,7 +253,10 @@ class BridgeNode:
         self.safety_senders: set[int] = set()
         """Other nodes reported for broadcasting SafetyState (see :meth:`_foreign_safety`)."""
         self._notices: list[str] = []
-        if self.ardupilot_nodes and not self.safety_off:
+        self._safety_warning_due = bool(self.ardupilot_nodes and not self.safety_off)
+        """Say it again with the first command: a ground station that connects after the
+        start never heard the start's text, and the first command is when it matters."""
+        if self._safety_warning_due:
             self._notices.append(self._safety_warning())
         self._conflict_noted = False
         self._noted: set[str] = set()
@@ -311,6 +314,9 @@ class BridgeNode:
             for index, servo in enumerate(self.servos):
                 known = servo.command_of(msg)
                 if known is not None:
+                    if self._safety_warning_due and servo.options.firmware == "ardupilot":
+                        self._safety_warning_due = False
+                        self._notices.append(self._safety_warning())
                     self._commanded_since.setdefault(index, None)
                     if known[1] != wire.COMMAND_TYPE_PWM or known[2] > 0:  # not a release
                         self._packed.add(index)
