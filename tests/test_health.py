@@ -181,7 +181,7 @@ def test_the_supply_range_is_learned_when_not_given():
     limits = HealthLimits()  # no supply range
     rig = Rig(limits=limits)
     rig.run(sweep(), 3.0)
-    assert rig.health.supply_range == pytest.approx((0.85 * 24.0, 1.15 * 24.0))
+    assert rig.health.supply_range == pytest.approx((0.78 * 24.0, 1.15 * 24.0))
     rig.motor.faults.supply_v = 18.0
     assert [e.check for e in rig.run(sweep(), 2.0)] == [Health.SUPPLY]
 

@@ -52,6 +52,10 @@ from mavservo.transport.counters import transport_stats
 log = logging.getLogger(__name__)
 
 SIM = "sim"
+EVENTS_KEPT = 1000
+"""Events the bridge keeps in :attr:`Bridge.events` (the newest): every health transition and
+servo event is one, and a servo whose readings flicker across a threshold (or lie) makes them
+for as long as the run lasts."""
 MAV_SEVERITY_CRITICAL = 2
 MAV_SEVERITY_ERROR = 3
 MAV_SEVERITY_WARNING = 4
@@ -651,6 +655,8 @@ class Bridge:
     def _note(self, text: str) -> None:
         """Console and event list only (the MAVLink side announces its own link events)."""
         self.events.append((time.monotonic(), text))
+        if len(self.events) > 2 * EVENTS_KEPT:  # trimmed in place: readers may be iterating
+            del self.events[:-EVENTS_KEPT]
         self._status(text)
 
     # ------------------------------------------------------------------ views

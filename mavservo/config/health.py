@@ -23,7 +23,7 @@ class HealthConfig(BaseModel):
     """Per-servo health thresholds (``docs/health.md``: what each check means and how to tune).
 
     ``supply_v``: [min, max] volts; left out, the range is learned around the first readings
-    (+-15 %) on hardware, and taken from the simulated supply on the built-in simulation.
+    (-22 % / +15 %) on hardware, and taken from the simulated supply on the built-in simulation.
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)

@@ -56,6 +56,7 @@ def cross_checks(config: Config) -> list[Finding]:
         _bus_nodes,
         _failsafe_positions,
         _failsafe_release,
+        _temperature_release,
         _channels,
         _gimbals,
         _simulation_names,
@@ -317,6 +318,22 @@ def _failsafe_release(config: Config) -> Iterator[Finding]:
                 f"servo {servo.name!r}: the {servo.profile} profile has no motor-off frame, so "
                 "'release' could only stop sending while the servo keeps holding its last "
                 "target; choose hold, neutral or position (with position_deg)",
+            )
+
+
+def _temperature_release(config: Config) -> Iterator[Finding]:
+    """The health monitor's ``temperature_action: release`` promises motor off too (its text
+    says "released (motor off)"): refused, like failsafe ``release``, for a family that has no
+    motor-off frame, where the overheating servo would keep holding its last target."""
+    for index, servo in enumerate(config.servos):
+        if servo.health.temperature_action == "release" and not (
+            servo.make_profile().release_frames()
+        ):
+            yield (
+                ("servos", index, "health", "temperature_action"),
+                f"servo {servo.name!r}: the {servo.profile} profile has no motor-off frame, so "
+                "'release' at the temperature limit would only refuse setpoints while the "
+                "servo keeps holding (and heating); choose hold, slow or warn",
             )
 
 

@@ -40,6 +40,13 @@ MAX_SAMPLE_GAP_S = 0.5
 MAX_CURRENT_A = 1000.0
 #: slipping: the output moves at less than this fraction of the motor's reported speed
 SLIP_RATIO = 0.25
+#: a supply range learned from the first readings (none configured): down to this fraction
+#: of them. A servo fed straight from a lithium pack sees it fall from 4.2 V a cell (full, as
+#: at take-off) to 3.3 V (loaded, near empty): 21 % in a normal flight, which a +-15 % band
+#: called a supply fault (a 4S pack at 14.2 V, 3.55 V a cell). Below this it is one.
+LEARNED_SUPPLY_LOW = 0.78
+#: and up to this fraction (a supply above its first readings has no such normal cause)
+LEARNED_SUPPLY_HIGH = 1.15
 
 
 @dataclass(frozen=True)
@@ -79,7 +86,7 @@ class HealthLimits:
     """``slow``: the fraction of the speed limit left."""
     supply_min_v: float | None = None
     supply_max_v: float | None = None
-    """Supply range; None: learned around the first readings (``supply_learn_s``) +-15 %."""
+    """Supply range; None: learned around the first readings (``supply_learn_s``), -22 % / +15 %."""
     supply_s: float = 0.5
     supply_learn_s: float = 2.0
     clear_s: float = 1.0
@@ -338,6 +345,8 @@ class ServoHealth:
                 and abs(speed) < lim.stopped_dps
                 and abs(s.current_a) >= lim.jam_current_a
             )
+        elif not finite(s.setpoint_deg):
+            out[Health.JAMMED] = False  # released: told nothing, so blocked from nothing
         if error is not None:
             explained = bool(self.active & (Health.JAMMED | Health.SLIPPING))
             out[Health.TRACKING] = self._late(s, error, off_target and not explained)
@@ -383,7 +392,7 @@ class ServoHealth:
         if not off_target:
             self._late_since = None
             return False
-        speed = max(lim.speed_dps, 1e-6)
+        speed = max(self._expected_speed(), 1e-6)
         if self._late_since is None:
             self._late_since = s.t
             self._late_budget_s = abs(error) / speed + lim.tracking_s
@@ -392,6 +401,14 @@ class ServoHealth:
             self._late_budget_s += abs(s.setpoint_deg - self._late_setpoint) / speed
             self._late_setpoint = s.setpoint_deg
         return s.t - self._late_since > self._late_budget_s
+
+    def _expected_speed(self) -> float:
+        """``speed_dps``, lowered by ``slow_factor`` while the temperature limit's ``slow``
+        action is in force (the bridge slews the servo's moves to that fraction: judging them
+        at the full speed would call the servo late for the bridge's own action)."""
+        lim = self.limits
+        slowed = lim.temperature_action == "slow" and self._debounce[Health.OVERHEATED].active
+        return lim.speed_dps * lim.slow_factor if slowed else lim.speed_dps
 
     def _supply(self, t: float, volts: float) -> bool | None:
         lim = self.limits
@@ -402,7 +419,7 @@ class ServoHealth:
             if t < self._supply_learn_until:
                 return None
             nominal = sorted(self._supply_readings)[len(self._supply_readings) // 2]
-            self._supply_range = (0.85 * nominal, 1.15 * nominal)
+            self._supply_range = (LEARNED_SUPPLY_LOW * nominal, LEARNED_SUPPLY_HIGH * nominal)
             self._supply_readings.clear()
         low, high = self._supply_range
         margin = 0.02 * max(abs(low), abs(high)) if math.isfinite(high) else 0.02 * abs(low)
@@ -466,35 +483,48 @@ class ServoHealth:
 
     def _onset_text(self, check: Health, s: Sample, f: dict[str, float]) -> str:
         lim = self.limits
-        amps = f" at {abs(f['current_a']):.1f} A" if "current_a" in f else ""
-        behind = f.get("error_deg", math.nan)
+        amps = f" at {_shown(abs(f['current_a']), 1)} A" if "current_a" in f else ""
+        behind = _shown(f.get("error_deg", math.nan), 1)
         if check is Health.TRACKING:
-            what = f"not following, {behind:.1f} deg behind for {f.get('for_s', 0.0):.1f} s{amps}"
+            lasted = _shown(f.get("for_s", 0.0), 1)
+            what = f"not following, {behind} deg behind for {lasted} s{amps}"
         elif check is Health.JAMMED:
-            what = (
-                f"jammed at {f.get('position_deg', math.nan):.1f} deg, {behind:.1f} deg short{amps}"
-            )
+            where = _shown(f.get("position_deg", math.nan), 1)
+            what = f"jammed at {where} deg, {behind} deg short{amps}"
         elif check is Health.SLIPPING:
-            what = (
-                f"slipping, motor {abs(f.get('motor_dps', math.nan)):.0f} deg/s, output "
-                f"{abs(f.get('output_dps', math.nan)):.0f} deg/s{amps}"
-            )
+            motor = _shown(abs(f.get("motor_dps", math.nan)), 0)
+            output = _shown(abs(f.get("output_dps", math.nan)), 0)
+            what = f"slipping, motor {motor} deg/s, output {output} deg/s{amps}"
         elif check is Health.OVERLOAD:
             what = (
-                f"overloaded, {abs(f.get('current_a', math.nan)):.1f} A, I2t budget of "
-                f"{lim.continuous_current_a:.1f} A continuous spent"
+                f"overloaded, {_shown(abs(f.get('current_a', math.nan)), 1)} A, I2t budget of "
+                f"{_shown(lim.continuous_current_a, 1)} A continuous spent"
             )
         elif check is Health.HOT:
-            what = f"hot, {s.temperature_c:.0f} C (warning {lim.temperature_warning_c:.0f} C)"
+            what = (
+                f"hot, {_shown(s.temperature_c, 0)} C "
+                f"(warning {_shown(lim.temperature_warning_c, 0)} C)"
+            )
         elif check is Health.OVERHEATED:
             what = (
-                f"overheated, {s.temperature_c:.0f} C (limit {lim.temperature_limit_c:.0f} C): "
+                f"overheated, {_shown(s.temperature_c, 0)} C "
+                f"(limit {_shown(lim.temperature_limit_c, 0)} C): "
                 f"{_ACTION_TEXT[lim.temperature_action]}"
             )
         else:
             low, high = self._supply_range or (math.nan, math.nan)
-            what = f"supply {f.get('voltage_v', math.nan):.1f} V outside {low:.1f}-{high:.1f} V"
+            volts = _shown(f.get("voltage_v", math.nan), 1)
+            what = f"supply {volts} V outside {_shown(low, 1)}-{_shown(high, 1)} V"
         return f"{self.name}: {what}"
+
+
+def _shown(value: float, decimals: int) -> str:
+    """A figure for a text: fixed-point up to a million, three significant digits beyond (a
+    lying reply's 1e38 A or deg would otherwise be a 40-digit number, and a STATUSTEXT of it
+    several chunks long)."""
+    if math.isfinite(value) and abs(value) >= 1e6:
+        return f"{value:.3g}"
+    return f"{value:.{decimals}f}"
 
 
 _CLEARED = {

@@ -115,7 +115,7 @@ def describe_limits(name: str, lim: HealthLimits) -> list[str]:
     supply = (
         f"{lim.supply_min_v:.1f}-{lim.supply_max_v:.1f} V"
         if lim.supply_min_v is not None and lim.supply_max_v is not None
-        else "learned from the first readings +-15 %"
+        else "learned from the first readings -22 %/+15 %"
     )
     return [
         f"  {name}: tracking > {lim.tolerance_deg:g} deg (+ setpoint motion in "

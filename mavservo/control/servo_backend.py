@@ -179,7 +179,10 @@ class ServoBackend:
                 if servo.goal_deg is None or servo.source == "failsafe":
                     continue
                 goal = servo.goal_deg
-                if servo.last_input is not None:
+                # an overheated servo on hold stays put: a new trim is no reason to move it
+                # (only limits that no longer hold it bring it inside them)
+                holding = servo.health_action in ("hold", "release")
+                if servo.last_input is not None and not holding:
                     mapped = self._remap(servo, *servo.last_input)
                     goal = goal if mapped is None else mapped
                 servo.goal_deg = clamp(goal, servo.limits_deg)[0]
@@ -452,7 +455,15 @@ class ServoBackend:
             servo.goal_deg = None
             return
         if action == "hold":
-            return  # the scheduler keeps refreshing the last setpoint
+            # the scheduler keeps refreshing the last setpoint; it is re-issued as a failsafe
+            # one, so the bus knows the servo is in failsafe (a DroneCAN node's SafetyState
+            # plan, ``safety_on: failsafe_and_stop``, never saw a held servo in failsafe)
+            if servo.goal_deg is None:
+                return
+            servo.source = "failsafe"
+            if servo.goal_deg == servo.sent_deg:
+                servo.sink.set_setpoint(servo.name, servo.goal_deg, "failsafe")
+            return  # a move under way goes on, its next steps failsafe ones
         angle = servo.neutral_deg if action == "neutral" else servo.failsafe_position_deg
         if angle is None:
             return

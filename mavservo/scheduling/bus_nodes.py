@@ -126,7 +126,12 @@ class BusNodes:
         batches: list[Batch] = []
         packed: dict[int, tuple[BusNode, int]] = {}
         for out in frames:
-            node = self.node_of.get(out.servo) if out.kind in ("command", "refresh") else None
+            # a release is a command too where the node carries it (DroneCAN: an ArduPilot
+            # output's PWM 0 in the ArrayCommand, numbered with the node's transfer ids)
+            packs = out.kind in ("command", "refresh") or (
+                out.kind == "lifecycle" and out.lifecycle == "release"
+            )
+            node = self.node_of.get(out.servo) if packs else None
             if node is None:
                 batches.append(([out], [out.msg]))
                 continue
@@ -136,8 +141,11 @@ class BusNodes:
             batches[packed[id(node)][1]][0].append(out)
         for node, index in packed.values():
             outs = batches[index][0]
-            failsafe = all(
-                out.setpoint is not None and out.setpoint.source == "failsafe" for out in outs
+            setpoints = [out.setpoint for out in outs if out.kind != "lifecycle"]
+            failsafe = (
+                all(sp is not None and sp.source == "failsafe" for sp in setpoints)
+                if setpoints
+                else None  # releases only: says nothing about failsafe
             )
             batches[index] = (outs, node.pack([out.msg for out in outs], failsafe))
         return batches

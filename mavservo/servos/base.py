@@ -219,9 +219,12 @@ class BusNode(Protocol):
     times are handed in.
     """
 
-    def pack(self, commands: Sequence[can.Message], in_failsafe: bool = False) -> list[can.Message]:
-        """The frames that carry these servos' command frames (one slot's) together;
-        ``in_failsafe``: every one of them is a failsafe setpoint."""
+    def pack(
+        self, commands: Sequence[can.Message], in_failsafe: bool | None = False
+    ) -> list[can.Message]:
+        """The frames that carry these servos' command frames (one slot's; a release frame is
+        one too) together; ``in_failsafe``: every setpoint among them is a failsafe one (None:
+        no setpoint among them, releases only)."""
         ...
 
     def due(self, now: float, health: NodeHealth) -> list[can.Message]:

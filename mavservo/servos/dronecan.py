@@ -36,7 +36,8 @@ Command types: ``position`` sends radians (``COMMAND_TYPE_POSITION``); ``unitles
 servos that take only a normalised command; ``pwm`` maps the same range onto
 ``[pwm_min_us, pwm_max_us]`` (``COMMAND_TYPE_PWM``, whole microseconds); angles outside that
 range are refused (COMMAND_ACK DENIED), never clamped. ArduPilot peripherals act on UNITLESS and
-PWM only and report ``norm x 45 deg`` (``firmware: ardupilot`` presets the range to +-45 deg).
+PWM only and report ``norm x 45 deg`` (``firmware: ardupilot`` presets the range to +-45 deg;
+over another range the reported norm is read back through that range).
 
 Received frames are reassembled per servo (a Status transfer is two frames); a frame that
 starts or continues a transfer decodes to the last known state and does not complete a report
@@ -215,6 +216,8 @@ class DroneCanServo(ServoProfile):
         """Transfers of a sibling's Status under way (see :meth:`_siblings_status`)."""
         self.node_heard_at: float | None = None
         """When the node's first NodeStatus came (None: not yet)."""
+        self.node_last_heard: float | None = None
+        """When the node's latest NodeStatus came (None: not yet)."""
         self.actuator_reported_at: float | None = None
         """When this actuator's last report (Status, vendor status) came (None: never)."""
         self.shutdown_hook: Any = None
@@ -236,10 +239,12 @@ class DroneCanServo(ServoProfile):
         fraction = (angle_deg - o.unitless_min_deg) / (o.unitless_max_deg - o.unitless_min_deg)
         fraction = max(0.0, min(1.0, fraction))  # rounding only: the angle was checked
         if o.command == "pwm":
-            # microseconds: float16 carries whole numbers exactly up to 2048, and 0.5 above
-            # (AP_Periph rounds ``command_value + 0.5`` to a whole us)
+            # microseconds: float16 carries whole numbers exactly up to 2048 and steps by 2
+            # above (AP_Periph rounds ``command_value + 0.5`` to a whole us): the value sent is
+            # the float16 nearest the whole pulse that stays within the channel's pulse range
             pulse = o.pwm_min_us + fraction * (o.pwm_max_us - o.pwm_min_us)
-            return o.actuator_id, wire.COMMAND_TYPE_PWM, float(round(pulse))
+            on_wire = wire.float16_inside(float(round(pulse)), o.pwm_min_us, o.pwm_max_us)
+            return o.actuator_id, wire.COMMAND_TYPE_PWM, on_wire
         return o.actuator_id, wire.COMMAND_TYPE_UNITLESS, 2.0 * fraction - 1.0
 
     def position_command(self, angle_deg: float, max_speed_dps: float | None = None) -> can.Message:
@@ -253,10 +258,15 @@ class DroneCanServo(ServoProfile):
         else:  # one payload object, its value replaced: the package's objects are costly
             self._payload.commands[0].command_value = command[2]
         (frame,) = wire.encode_message(self._payload, self.bridge_node_id, 0)
-        if len(self._sent) >= _COMMANDS_REMEMBERED:
-            self._sent.pop(next(iter(self._sent)))
-        self._sent[bytes(frame.data)] = command
+        self._remember(frame, command)
         return frame
+
+    def _remember(self, frame: can.Message, command: tuple[int, int, float]) -> None:
+        """Keep ``command`` findable by its frame (:meth:`command_of`), the latest few only."""
+        key = bytes(frame.data)
+        if key not in self._sent and len(self._sent) >= _COMMANDS_REMEMBERED:
+            self._sent.pop(next(iter(self._sent)))
+        self._sent[key] = command
 
     def command_of(self, frame: can.Message) -> tuple[int, int, float] | None:
         """The ``(actuator_id, command_type, value)`` of one of this servo's recent command
@@ -265,6 +275,21 @@ class DroneCanServo(ServoProfile):
 
     def telemetry_requests(self) -> list[can.Message]:
         return []
+
+    def release_frames(self) -> list[can.Message]:
+        """Motor off for an ArduPilot peripheral's output: PWM 0 for its actuator (what the
+        board's own command timeout writes, ``rc_out.cpp``). Not commanding it is no release
+        there: the board's timeout is one for the whole node, fed by any UNITLESS or PWM entry
+        of any ArrayCommand (``can.cpp``, ``handle_act_command``), so while another servo of
+        the bus is commanded the output keeps its last pulse. The bus node packs the frame
+        with the slot's commands. Other DroneCAN servos: none (the specification has no
+        release; they keep their last command, :meth:`stop_behaviour`)."""
+        if self.options.firmware != "ardupilot":
+            return []
+        command = (self.options.actuator_id, wire.COMMAND_TYPE_PWM, 0.0)
+        (frame,) = wire.encode_message(wire.array_command([command]), self.bridge_node_id, 0)
+        self._remember(frame, command)
+        return [frame]
 
     def shutdown_frames(self) -> list[can.Message]:
         """The bus node's SafetyState plan at stop (SAFETY_ON), carried by one of its servos."""
@@ -286,7 +311,9 @@ class DroneCanServo(ServoProfile):
         if self.options.firmware == "ardupilot":
             return (
                 f"zeroes its PWM output {ARDUPILOT_COMMAND_TIMEOUT_S * 1000:g} ms after the last "
-                "ArrayCommand (AP_Periph SRV_CMD_TIME_OUT): the servo goes limp"
+                "ArrayCommand on the bus, for any actuator (AP_Periph SRV_CMD_TIME_OUT): the "
+                "servo goes limp; a release sends it PWM 0 (the board would keep its pulse "
+                "while another servo is commanded)"
             )
         return (
             "keeps its last command (no timeout in the DroneCAN specification; Hitec and Volz "
@@ -428,6 +455,7 @@ class DroneCanServo(ServoProfile):
             self.node_health, self.node_mode = int(p.health), int(p.mode)
             if self.node_heard_at is None:
                 self.node_heard_at = timestamp
+            self.node_last_heard = timestamp
             healthy = self.node_health == wire.HEALTH_OK
             running = self.node_mode in (wire.MODE_OPERATIONAL, wire.MODE_INITIALIZATION)
             self._health_faults = NO_FAULT if healthy and running else Fault.OTHER
@@ -438,7 +466,7 @@ class DroneCanServo(ServoProfile):
             self.actuator_reported_at = timestamp
             return self._merge(
                 timestamp,
-                position_deg=_degrees(p.position),
+                position_deg=self._reported_angle(_degrees(p.position)),
                 velocity_dps=_degrees(p.speed),
             )
         if rx.dtid == wire.DTID_VOLZ_STATUS:
@@ -467,6 +495,18 @@ class DroneCanServo(ServoProfile):
                 faults=self._health_faults | self._vendor_faults,
             )
         return self._merge(timestamp)
+
+    def _reported_angle(self, degrees: float) -> float:
+        """A Status position as this servo's angle. ArduPilot's peripheral reports no
+        measurement but its output's norm as ``norm x 45 deg`` (:data:`ARDUPILOT_UNITLESS_DEG`):
+        over a range other than +-45 deg that number is no angle of the servo (a servo told
+        60 deg over +-60 read back 45, and the health monitor called it 15 deg behind for
+        good), so the norm goes back through the servo's own range, the angle it drives."""
+        o = self.options
+        if o.firmware != "ardupilot" or not math.isfinite(degrees):
+            return degrees
+        norm = degrees / ARDUPILOT_UNITLESS_DEG
+        return o.unitless_min_deg + (norm + 1.0) / 2.0 * (o.unitless_max_deg - o.unitless_min_deg)
 
     def _other_actuator(self, actuator: int) -> ServoState | None:
         """A status of another actuator from this servo's node: a sibling's (another servo

@@ -43,6 +43,10 @@ _HEALTH = {"ok": wire.HEALTH_OK, "warning": wire.HEALTH_WARNING, "error": wire.H
 SAFETY_PERIOD_S = 0.5
 """``ardupilot.indication.SafetyState`` every 500 ms, as ArduPilot's flight controller sends it
 (``AP_DroneCAN``, its 2 Hz safety broadcast); a peripheral that hears nothing keeps its state."""
+SENDERS_REPORTED = 8
+"""Other nodes reported by name (a second ArrayCommand sender, a SafetyState broadcaster), at
+most: a source id costs a stranger nothing, and each report is a WARNING line and a STATUSTEXT;
+the senders beyond are counted (``senders_not_reported``) and said once."""
 SILENT_ACTUATOR_S = 3.0
 """A servo whose node is alive and which is commanded, but which has sent no report of its
 own actuator for this long, is warned about once (its commands are likely ignored)."""
@@ -142,6 +146,7 @@ class CommandedServo(Protocol):
     options: Any
     node_actuators: frozenset[int]
     node_heard_at: float | None
+    node_last_heard: float | None
     actuator_reported_at: float | None
     shutdown_hook: Any
 
@@ -222,6 +227,12 @@ class BridgeNode:
         """Servo index -> when the node first saw it commanded (None: in the slot just packed,
         the time comes with the next :meth:`due`)."""
         self._silent_warned: set[int] = set()
+        self._packed: set[int] = set()
+        """Servo indexes commanded in the slots packed since the last :meth:`due`."""
+        self._last_commanded: dict[int, float] = {}
+        """Servo index -> when the node last packed a command for it (set in :meth:`due`)."""
+        self._stopped_warned: set[int] = set()
+        """Servos warned about for a Status that stopped (again once one comes)."""
         if self.safety_off and options.safety_on != "never" and servos:
             servos[0].shutdown_hook = self._safety_on_at_stop
         self.ardupilot_nodes = sorted(
@@ -236,8 +247,16 @@ class BridgeNode:
         self._health = wire.HEALTH_OK
         self.counters: Counter[str] = Counter()
         self.foreign_masters: set[int] = set()
+        """Other nodes reported for sending ArrayCommand (see :meth:`_foreign_command`)."""
+        self._masters_of_ours: set[int] = set()
+        """Those of them reported for commanding the bridge's actuators (two masters)."""
+        self.safety_senders: set[int] = set()
+        """Other nodes reported for broadcasting SafetyState (see :meth:`_foreign_safety`)."""
         self._notices: list[str] = []
-        if self.ardupilot_nodes and not self.safety_off:
+        self._safety_warning_due = bool(self.ardupilot_nodes and not self.safety_off)
+        """Say it again with the first command: a ground station that connects after the
+        start never heard the start's text, and the first command is when it matters."""
+        if self._safety_warning_due:
             self._notices.append(self._safety_warning())
         self._conflict_noted = False
         self._noted: set[str] = set()
@@ -280,18 +299,27 @@ class BridgeNode:
         return tid
 
     # ---------------------------------------------------------------------------- commands
-    def pack(self, commands: Sequence[can.Message], in_failsafe: bool = False) -> list[can.Message]:
+    def pack(
+        self, commands: Sequence[can.Message], in_failsafe: bool | None = False
+    ) -> list[can.Message]:
         """One ArrayCommand transfer for up to 15 of the servos' one-command frames (more:
         several transfers), numbered with this node's transfer ids. ``in_failsafe``: every
-        command is a failsafe setpoint (the SafetyState plan may turn safety on for it)."""
+        command is a failsafe setpoint (the SafetyState plan may turn safety on for it);
+        None: releases only, the plan stays as it is."""
         tuples: list[tuple[int, int, float]] = []
-        self._failsafe = in_failsafe and self.options.safety_on == "failsafe_and_stop"
+        if in_failsafe is not None:
+            self._failsafe = in_failsafe and self.options.safety_on == "failsafe_and_stop"
         for msg in commands:
             known = None
             for index, servo in enumerate(self.servos):
                 known = servo.command_of(msg)
                 if known is not None:
+                    if self._safety_warning_due and servo.options.firmware == "ardupilot":
+                        self._safety_warning_due = False
+                        self._notices.append(self._safety_warning())
                     self._commanded_since.setdefault(index, None)
+                    if known[1] != wire.COMMAND_TYPE_PWM or known[2] > 0:  # not a release
+                        self._packed.add(index)
                     break
             if known is not None:
                 tuples.append(known)
@@ -412,7 +440,12 @@ class BridgeNode:
     def _check_silent_actuators(self, now: float) -> None:
         """Warn once per servo whose node is alive and which is commanded but never reports
         its actuator: the node ignores the command (a command type it does not act on, an
-        actuator id it does not have)."""
+        actuator id it does not have); and once per episode for one that did report and
+        stopped while its node goes on (:meth:`_check_stopped_actuators`)."""
+        for index in self._packed:
+            self._last_commanded[index] = now
+        self._packed.clear()
+        self._check_stopped_actuators(now)
         for index, since in list(self._commanded_since.items()):
             if since is None:
                 self._commanded_since[index] = now
@@ -426,11 +459,55 @@ class BridgeNode:
             self._silent_warned.add(index)
             self.counters["silent_actuators"] += 1
             options = servo.options
+            if options.firmware == "ardupilot":
+                # AP_Periph sends actuator Status only as a SITL build (rc_out.cpp,
+                # sim_update_actuator) or with its actuator telemetry set up (actuator_telem.cpp,
+                # no position): a real board that drives its outputs is silent here
+                self._notices.append(
+                    f"DroneCAN node {servo.can_id} is alive but never reports Status for "
+                    f"actuator {options.actuator_id}: expected of a real AP_Periph board (it "
+                    "sends actuator Status only as a SITL build, or with its ACT telemetry set "
+                    "up): the position is not known, the servo is online on NodeStatus alone; "
+                    "if the node is a SITL build, check the actuator id"
+                )
+                continue
             self._notices.append(
                 f"DroneCAN node {servo.can_id} is alive but never reports Status for actuator "
                 f"{options.actuator_id}: commands ignored? check the command type (command: "
                 f"{options.command}; ArduPilot peripherals act on unitless and pwm only) and "
                 "the actuator id"
+            )
+
+    def _check_stopped_actuators(self, now: float) -> None:
+        """An actuator that reported and has sent nothing for :data:`SILENT_ACTUATOR_S` while
+        it is commanded and its node's NodeStatus goes on: the servo stays online on that
+        NodeStatus, its last position shown as if current, so the crew is told (once per
+        episode; a report ends it). A released servo is not commanded: an ArduPilot SITL node
+        stops its Status then, as it should."""
+        for index, servo in enumerate(self.servos):
+            reported = servo.actuator_reported_at
+            if reported is None:
+                continue
+            if now - reported < SILENT_ACTUATOR_S:
+                self._stopped_warned.discard(index)
+                continue
+            commanded = self._last_commanded.get(index)
+            node = servo.node_last_heard
+            if (
+                index in self._stopped_warned
+                or commanded is None
+                or now - commanded > 1.0
+                or node is None
+                or now - node > SILENT_ACTUATOR_S
+            ):
+                continue
+            self._stopped_warned.add(index)
+            self.counters["stopped_actuators"] += 1
+            self._notices.append(
+                f"DroneCAN node {servo.can_id} is alive but actuator "
+                f"{servo.options.actuator_id} has sent no Status for {now - reported:.0f} s "
+                "while commanded: its position shown is that old (the servo stays online on the "
+                "node's NodeStatus); a failed actuator or a broken output?"
             )
 
     def next_due(self) -> float:
@@ -491,8 +568,9 @@ class BridgeNode:
             "controller commanding other actuator ids) may share it; no other node may command "
             "these actuator ids (an autopilot with these servos in its outputs): two masters "
             "would fight. The bridge reports every other ArrayCommand sender once (STATUSTEXT, "
-            "log), saying whether it commands the bridge's actuators. With the allocator on, no "
-            "other allocation server may run on the bus.",
+            "log), saying whether it commands the bridge's actuators, and every other "
+            "SafetyState sender (ArduPilot peripherals obey the last one heard). With the "
+            "allocator on, no other allocation server may run on the bus.",
         ]
 
     def persistent_state(self) -> tuple[int, dict[str, Any]] | None:
@@ -585,6 +663,8 @@ class BridgeNode:
         if dtid == wire.DTID_ARRAY_COMMAND:
             # CAN does not echo a sender's own frames: one with the bridge's id is another's
             self._foreign_command(msg, source, now)
+        if dtid == wire.DTID_SAFETY_STATE:
+            self._foreign_safety(msg, source, now)
         if dtid == wire.DTID_NODE_STATUS and source == self.node_id:
             self.counters["node_id_conflict"] += 1
             if not self._conflict_noted:
@@ -604,12 +684,18 @@ class BridgeNode:
         if source == self.node_id:
             self.counters["own_id_commands"] += 1
         received = self._reassembler.push(msg, now)
-        if received is None or source in self.foreign_masters:
+        if received is None or source in self._masters_of_ours:
             return
-        self.foreign_masters.add(source)
         ours = {servo.options.actuator_id for servo in self.servos}
         theirs = sorted({int(c.actuator_id) for c in received.payload.commands})
         shared = [a for a in theirs if a in ours]
+        if source in self.foreign_masters and not shared:
+            return  # reported already; a sender that turns to the bridge's actuators is again
+        if not self._may_report(source):
+            return
+        self.foreign_masters.add(source)
+        if shared:
+            self._masters_of_ours.add(source)
         if source == self.node_id:
             self._notices.append(
                 f"another DroneCAN node sends ArrayCommand with the bridge's own node id "
@@ -629,6 +715,50 @@ class BridgeNode:
                 f"DroneCAN node {source} also sends ArrayCommand on this bus, for actuators "
                 f"{', '.join(map(str, theirs))} (not the bridge's)"
             )
+
+    def _may_report(self, source: int) -> bool:
+        """True while another sender may still be reported by name (:data:`SENDERS_REPORTED`
+        distinct nodes; one already reported always may); beyond, counted and said once."""
+        reported = self.foreign_masters | self.safety_senders
+        if source in reported or len(reported) < SENDERS_REPORTED:
+            return True
+        self.counters["senders_not_reported"] += 1
+        self._notice_once(
+            "senders_not_reported",
+            f"more than {SENDERS_REPORTED} other DroneCAN nodes send ArrayCommand or "
+            "SafetyState on this bus: the others are counted (senders_not_reported), not "
+            "reported one by one (a stranger making up node ids?)",
+        )
+        return False
+
+    def _foreign_safety(self, msg: can.Message, source: int, now: float) -> None:
+        """Another node's ``ardupilot.indication.SafetyState``: an ArduPilot peripheral obeys
+        the last one it hears, so a flight controller (or a stranger) broadcasting it on this
+        bus turns the outputs on or off whatever the bridge's plan; reported once per sender,
+        every one counted (``foreign_safety_state``)."""
+        self.counters["foreign_safety_state"] += 1
+        received = self._reassembler.push(msg, now)
+        if received is None or received.dtid != wire.DTID_SAFETY_STATE:
+            return
+        if source in self.safety_senders or not self._may_report(source):
+            return
+        self.safety_senders.add(source)
+        state = "SAFETY_OFF" if int(received.payload.status) == wire.SAFETY_OFF else "SAFETY_ON"
+        who = (
+            f"another DroneCAN node sends SafetyState with the bridge's own node id {source}"
+            if source == self.node_id
+            else f"DroneCAN node {source} also broadcasts SafetyState"
+        )
+        plan = (
+            "the bridge's SAFETY_OFF and its SafetyState fight"
+            if self.safety_off
+            else "the bridge sends none (safety_state: none)"
+        )
+        self._notices.append(
+            f"{who} ({state}): ArduPilot peripherals obey the last one heard, so their outputs "
+            f"follow that node, not the bridge's plan ({plan}); only one node may own the "
+            "safety state of the bus (a flight controller's CAN driver sends it every 500 ms)"
+        )
 
     def _node_info_response(self, request: wire.Received, now: float) -> list[can.Message]:
         info = wire.lib().uavcan.protocol.GetNodeInfo.Response()

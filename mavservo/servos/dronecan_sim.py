@@ -20,8 +20,9 @@ The node's firmware is the servo's ``options.firmware``:
   outputs are off (safety on) until ``ardupilot.indication.SafetyState`` says SAFETY_OFF (255;
   any other value turns safety on again); only UNITLESS (a norm, -1..1) and PWM (us, rounded)
   commands are acted on, anything else is dropped without a word; actuator ``n`` drives output
-  ``n`` (ids from 1: 0 is no output); 200 ms without a valid command (``SRV_CMD_TIME_OUT``)
-  zeroes every output it was commanded on (the servo goes limp); while commanded, a Status for
+  ``n`` (ids from 1: 0 is no output); 200 ms without a valid command for any actuator
+  (``SRV_CMD_TIME_OUT``, one timeout for the node) zeroes every output it was commanded on (the
+  servo goes limp), and a PWM 0 command does it for one output; while commanded, a Status for
   each commanded actuator at most every 100 ms with ``position = radians(norm * 45)``, force and
   speed 0 (its simulation convention), whatever the real output does. The attached servo turns
   the norm into an angle over the options' range (its real travel).
@@ -135,6 +136,9 @@ class DroneCanDevice:
         """ArduPilot: the output's last commanded norm (-1..1), None: never commanded."""
         self.output_on = False
         """ArduPilot: the output drives the servo (commanded, safety off, not timed out)."""
+        self.pulse_off = False
+        """ArduPilot: the last command was PWM 0 (the output sends no pulse: the servo is limp
+        until a command with a pulse comes)."""
         self._reported_at = -math.inf
         self._commanded_since_report = False
 
@@ -213,9 +217,14 @@ class DroneCanDevice:
         if kind == wire.COMMAND_TYPE_UNITLESS:
             self.norm = max(-1.0, min(1.0, value))
         elif kind == wire.COMMAND_TYPE_PWM:
-            self.norm = self._pwm_norm(float(int(value + 0.5)))
+            pulse = int(value + 0.5)
+            self.pulse_off = pulse <= 0  # PWM 0: no pulse (what the board's timeout writes)
+            if not self.pulse_off:
+                self.norm = self._pwm_norm(float(pulse))
         else:
             return
+        if kind == wire.COMMAND_TYPE_UNITLESS:
+            self.pulse_off = False
         self.commands_seen += 1
         self._commanded_since_report = True
         self._drive(now)
@@ -225,7 +234,7 @@ class DroneCanDevice:
         within the command timeout; otherwise PWM 0: the servo goes limp."""
         if not self.ardupilot or self.norm is None:
             return
-        on = self.node.safety_off and not self.node.timed_out(now)
+        on = self.node.safety_off and not self.node.timed_out(now) and not self.pulse_off
         if on:
             if not self.output_on:
                 self.motor.enable(now)

@@ -21,6 +21,7 @@ from __future__ import annotations
 import binascii
 import functools
 import math
+import struct
 from collections import Counter
 from dataclasses import dataclass
 from types import ModuleType
@@ -60,6 +61,20 @@ OFFLINE_AFTER_S = 3.0
 MAX_FRAMES_PER_TRANSFER = 64
 """Longer transfers are dropped: nothing this project decodes needs more (bounds memory)."""
 _MAX_PENDING = 64
+
+
+def float16_inside(value: float, low: float, high: float) -> float:
+    """The float16 nearest ``value`` that lies within ``[low, high]`` (both finite, positive,
+    ``low <= value <= high``, with a float16 between them): a command field is float16 on the
+    wire, and the nearest one may lie outside the range (2499 us is carried as 2500: float16
+    steps by 2 between 2048 and 4096), which would put a pulse past a channel's limit."""
+    (bits,) = struct.unpack("<H", struct.pack("<e", value))
+    on_wire = struct.unpack("<e", struct.pack("<H", bits))[0]
+    if on_wire > high:
+        on_wire = struct.unpack("<e", struct.pack("<H", bits - 1))[0]
+    elif on_wire < low:
+        on_wire = struct.unpack("<e", struct.pack("<H", bits + 1))[0]
+    return float(on_wire)
 
 
 @functools.cache
