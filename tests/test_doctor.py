@@ -415,3 +415,38 @@ def test_robstride_in_the_other_protocol_found_with_allow_enable(
     )
     assert "wrong mode: heard robstride (protocol: mit) from id 1" in out, out
     assert suggested(out)["servos"][0]["options"] == {"protocol": "mit"}
+
+
+def _odrive_node_commands(log: Path, node: int) -> list[can.Message]:
+    """Frames the doctor sent into ODrive node ``node``'s block (ODrive CANSimple: an ODrive
+    takes every 11-bit id whose upper six bits are its node id) that are not remote frames:
+    each is a command to that ODrive (0x0C Set_Input_Pos, 0x16 Reboot, 0x1F Enter_DFU_Mode...)."""
+    return [
+        m
+        for m in _frames_sent(log)
+        if not m.is_extended_id and m.arbitration_id >> 5 == node and not m.is_remote_frame
+    ]
+
+
+@pytest.mark.parametrize("odrive_at", ["configured", "heard only"])
+def test_a_scan_never_lands_on_another_familys_commands(
+    odrive_at: str, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """RMD-X / LK reads go to 0x140 + id, which is ODrive node 10's block: an RMD-X scan sent
+    its 0x9C read as node 10's Set_Input_Pos, Set_Limits, Reboot and Enter_DFU_Mode. The
+    doctor now spares the ids of every device it knows (configured, or heard by heartbeat)."""
+    text = "servos:\n  - {name: arm, profile: odrive, can_id: 10}\n"
+    if odrive_at == "heard only":  # configured on 11, answering on 10: a wrong-id mistake
+        text = (
+            "servos:\n  - {name: arm, profile: odrive, can_id: 11}\n"
+            "simulation:\n  servos:\n    arm: {can_id: 10}\n"
+        )
+    path = write_config(tmp_path, text)
+    _, out, log = run_doctor(
+        capsys, path, tmp_path, "--no-bitrate-search", "--scan", "rmd-x", "--scan", "lk", listen=0.5
+    )
+    assert "ODrive node 10: heartbeat" in out, out
+    assert _odrive_node_commands(log, 10) == []
+    assert "requests whose id is odrive 10's" in out, out
+    # the rest of the range is still scanned: id 32 (0x160) is outside node 10's block
+    assert any(m.arbitration_id == 0x160 for m in _frames_sent(log))

@@ -259,6 +259,11 @@ def print_bus(findings: BusFindings, verdicts: list[Verdict]) -> bool:
             f"  probed {findings.scanned} ids in {findings.scan_s:.2f} s "
             f"({findings.sent} requests sent, {findings.enable_sent} enable frames)"
         )
+    for device, count in sorted(findings.spared.items()):
+        print(
+            f"  not sent: {count} requests whose id is {device}'s (another family's command "
+            "there); scan that family with the device unplugged, or on another bus"
+        )
     return ok
 
 

@@ -22,7 +22,7 @@ from typing import Any
 import can
 
 from mavservo.config import BusConfig, ServoConfig
-from mavservo.servos import get_profile
+from mavservo.servos import FrameId, get_profile
 from mavservo.transport.bus_factory import (
     BITRATE_SET_OUTSIDE,
     STANDARD_BITRATES,
@@ -162,6 +162,10 @@ class BusFindings:
     enable_sent: int = 0
     scan_s: float | None = None
     scanned: int = 0
+    spared: Counter[str] = field(default_factory=Counter)
+    """Device ("odrive 10") -> probes not sent because they land on that device's ids: a
+    frame that is another family's read can be this device's command (an RMD-X read on 0x14C
+    is Set_Input_Pos of ODrive node 10, 0x156 its Reboot, 0x15F its Enter_DFU_Mode)."""
 
     def seen(self, candidate: Candidate, bitrate: int, how: str, complete: bool) -> Sighting:
         key = (*candidate.key, bitrate)
@@ -346,13 +350,53 @@ class BusDoctor:
             opened.close()
         return True
 
+    def _occupants(self) -> list[tuple[str, frozenset[str], FrameId]]:
+        """The ids other devices take frames on: every configured servo, every motor heard or
+        answering, every ODrive heard by its heartbeat; each as (name, its family and the
+        families sharing its hardware, one receiving identifier)."""
+        devices: dict[tuple[str, int], Mapping[str, Any]] = {}
+        for servo in self.servos:
+            devices.setdefault((servo.profile, servo.can_id), servo.options)
+        for sighting in self.findings.sightings.values():
+            devices.setdefault((sighting.profile, sighting.can_id), sighting.options)
+        for node in self.findings.heartbeats:
+            devices.setdefault(("odrive", node), {})
+        out: list[tuple[str, frozenset[str], FrameId]] = []
+        for (profile, can_id), options in devices.items():
+            candidate = make_candidate(profile, can_id, options)
+            if candidate is None:
+                continue
+            group = frozenset((profile, *facts(profile).siblings))
+            out.extend(
+                (f"{profile} {can_id}", group, frame_id) for frame_id in _receiving_ids(candidate)
+            )
+        return out
+
+    def _lands_on_another(
+        self,
+        candidate: Candidate,
+        msg: can.Message,
+        occupants: Sequence[tuple[str, frozenset[str], FrameId]],
+    ) -> str | None:
+        """The device of another family that would take ``msg`` (meant for ``candidate``) as
+        one of its own frames, or None."""
+        for name, group, frame_id in occupants:
+            if candidate.profile not in group and frame_id.matches(msg):
+                return name
+        return None
+
     def _probe(self, opened: OpenedBus, probes: Sequence[Candidate], bitrate: int) -> None:
         forbidden = self._forbidden | forbidden_frames(probes)
         sender = SafeSender(opened.bus, lambda msg, rx: self._record(msg, rx, bitrate), forbidden)
         frames: list[can.Message] = []
         unique: set[tuple[int, bool, bytes]] = set()
+        occupants = self._occupants()
         for candidate in probes:  # two modes often share a read (the same frame): sent once
             for msg in safe_requests(candidate, forbidden):
+                owner = self._lands_on_another(candidate, msg, occupants)
+                if owner is not None:
+                    self.findings.spared[owner] += 1
+                    continue
                 if _signature(msg) not in unique:
                     unique.add(_signature(msg))
                     frames.append(msg)
@@ -370,11 +414,18 @@ class BusDoctor:
         """``--allow-enable``: the silent ones that answer only when enabled, enabled once
         and disabled again at once."""
         found = {(s.profile, s.can_id) for s in self.findings.sightings.values()}
+        occupants = self._occupants()
         for candidate in probes:
             enable = facts(candidate.profile).enable
             if enable is None or (candidate.profile, candidate.can_id) in found:
                 continue
             on, off = enable(candidate.can_id, candidate.raw_options)
+            owner = next(
+                (o for m in on if (o := self._lands_on_another(candidate, m, occupants))), None
+            )
+            if owner is not None:
+                self.findings.spared[owner] += len(on)
+                continue
             for msg in on:
                 sender.send(msg, enabling=True)
                 self.findings.enable_sent += 1
@@ -417,6 +468,14 @@ class BusDoctor:
             opened.close()
         self.findings.scan_s = (self.findings.scan_s or 0.0) + time.monotonic() - started
         self.findings.scanned += len(probes)
+
+
+def _receiving_ids(candidate: Candidate) -> list[FrameId]:
+    """The identifiers ``candidate``'s motor takes frames on (its profile's own list)."""
+    try:
+        return [f for f in candidate.instance.identifiers() if f.direction == "to_servo"]
+    except Exception:  # noqa: BLE001 - a profile that cannot say occupies nothing known
+        return []
 
 
 def safe_requests(
