@@ -450,3 +450,20 @@ def test_a_scan_never_lands_on_another_familys_commands(
     assert "requests whose id is odrive 10's" in out, out
     # the rest of the range is still scanned: id 32 (0x160) is outside node 10's block
     assert any(m.arbitration_id == 0x160 for m in _frames_sent(log))
+
+
+def test_a_flood_of_random_ids_keeps_the_unknown_count_bounded(tmp_path: Path) -> None:
+    """Every frame no family reads was counted by id in an unbounded Counter: a hostile
+    stream of random 29-bit ids grew it by one entry per frame."""
+    from mavservo.app.doctor.session import MAX_UNKNOWN_IDS
+
+    path = write_config(tmp_path, "servos:\n  - {name: a, profile: rmd-x, can_id: 1}\n")
+    config = load_config(path)
+    doctor = BusDoctor(config.can.buses[0], config.servos, open_bus, lambda *_: None)
+    frames = 3 * MAX_UNKNOWN_IDS
+    for k in range(frames):
+        msg = can.Message(arbitration_id=0x1ABC0000 + k, is_extended_id=True, data=b"\x01")
+        doctor._read(msg, 1_000_000, "heard")  # noqa: SLF001
+    findings = doctor.findings
+    assert len(findings.unknown_ids) <= MAX_UNKNOWN_IDS
+    assert sum(findings.unknown_ids.values()) + findings.unknown_overflow == frames

@@ -287,7 +287,10 @@ def _print_who(findings: BusFindings) -> None:
             f"0x{i:X}{'x' if ext else ''} ({n})"
             for (i, ext), n in findings.unknown_ids.most_common(8)
         )
-        print(f"  frames no family reads: {ids}")
+        more = (
+            f"; {findings.unknown_overflow} more of other ids" if findings.unknown_overflow else ""
+        )
+        print(f"  frames no family reads: {ids}{more}")
 
 
 def print_yaml(

@@ -54,6 +54,9 @@ log = logging.getLogger(__name__)
 #: How long the replies to one batch of probes are waited for (a servo answers within ~1 ms;
 #: a USB adapter's latency and a loaded host add a few more).
 REPLY_WAIT_S = 0.05
+#: Distinct ids of unreadable frames counted one by one: a hostile stream of random ids
+#: (up to ~8,000 frames/s at 1 Mbit/s) cannot grow the count past this.
+MAX_UNKNOWN_IDS = 1024
 #: Probes sent before their replies are collected (a scan's batch): at 1 Mbit/s 16 requests
 #: and their replies take ~4 ms of bus time, well inside the wait.
 BATCH = 16
@@ -151,6 +154,8 @@ class BusFindings:
     heartbeats: dict[int, ODriveHeartbeat] = field(default_factory=dict)
     node_statuses: dict[int, NodeStatus] = field(default_factory=dict)
     unknown_ids: Counter[tuple[int, bool]] = field(default_factory=Counter)
+    unknown_overflow: int = 0
+    """Frames of ids no family reads beyond the first :data:`MAX_UNKNOWN_IDS` distinct ones."""
     damiao_modes: dict[int, str] = field(default_factory=dict)
     """Damiao motor id -> its CTRL_MODE register as read."""
     identities: dict[tuple[str, int], str] = field(default_factory=dict)
@@ -166,6 +171,15 @@ class BusFindings:
     """Device ("odrive 10") -> probes not sent because they land on that device's ids: a
     frame that is another family's read can be this device's command (an RMD-X read on 0x14C
     is Set_Input_Pos of ODrive node 10, 0x156 its Reboot, 0x15F its Enter_DFU_Mode)."""
+
+    def unknown(self, msg: can.Message) -> None:
+        """Count a frame no family reads, by id; a flood of random ids is counted in one
+        bucket past :data:`MAX_UNKNOWN_IDS` distinct ones (what is printed is the top 8)."""
+        key = (msg.arbitration_id, msg.is_extended_id)
+        if key in self.unknown_ids or len(self.unknown_ids) < MAX_UNKNOWN_IDS:
+            self.unknown_ids[key] += 1
+        else:
+            self.unknown_overflow += 1
 
     def seen(self, candidate: Candidate, bitrate: int, how: str, complete: bool) -> Sighting:
         key = (*candidate.key, bitrate)
@@ -319,7 +333,7 @@ class BusDoctor:
             self.findings.actuators.setdefault(status_of[0], set()).add(status_of[1])
         if not candidates:
             if said is None:
-                self.findings.unknown_ids[(msg.arbitration_id, msg.is_extended_id)] += 1
+                self.findings.unknown(msg)
             return
         mode = damiao_mode(msg)
         if mode is not None and any(c.profile == "damiao-dm" for c, _ in candidates):
