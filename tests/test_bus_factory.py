@@ -266,3 +266,33 @@ def test_an_aa55_key_given_as_an_option_is_refused() -> None:
     text = _bus_yaml("aa55", "        serial_baud: 115200\n", channel="sim")
     with pytest.raises(ConfigError, match=r"bus.yaml:7:.*own `serial_baud:` key"):
         load_config_text(text, "bus.yaml")
+
+
+@pytest.mark.parametrize(
+    ("options", "says"),
+    [
+        ("        sleep_after_open: -1\n", "finite number >= 0"),  # time.sleep(-1): traceback
+        ("        sleep_after_open: .nan\n", "finite number >= 0"),
+        ("        tty_baudrate: -5\n", "finite number >= 0"),
+        ('        can_filters: "xx"\n', "takes a list of"),  # the bridge heard nothing
+        ("        can_filters: {a: {b: 1}}\n", "takes a list of"),
+        ("        can_filters: [{can_id: 0x141}]\n", "takes a list of"),
+        ("        can_filters: [{can_id: 0x141, can_mask: 0x7FF, open: 1}]\n", "takes a list of"),
+        ("        can_filters: [{can_id: -1, can_mask: 0x7FF}]\n", "is not a CAN id"),
+    ],
+)
+def test_hostile_option_values_are_errors_on_their_line(options: str, says: str) -> None:
+    """Values check let through: a negative or NaN sleep stopped the bridge's start with
+    python-can's traceback; a malformed can_filters loaded, ran, and received 0 frames."""
+    with pytest.raises(ConfigError) as caught:
+        load_config_text(_bus_yaml("slcan", options), "bus.yaml")
+    message = str(caught.value)
+    assert "bus.yaml:7:" in message and says in message, message
+
+
+def test_a_well_formed_filter_list_still_loads() -> None:
+    text = _bus_yaml(
+        "slcan", "        can_filters: [{can_id: 0x240, can_mask: 0x7E0, extended: false}]\n"
+    )
+    bus = load_config_text(text, "bus.yaml").can.buses[0]
+    assert bus.options["can_filters"][0]["can_mask"] == 0x7E0
