@@ -296,3 +296,45 @@ def test_a_well_formed_filter_list_still_loads() -> None:
     )
     bus = load_config_text(text, "bus.yaml").can.buses[0]
     assert bus.options["can_filters"][0]["can_mask"] == 0x7E0
+
+
+class _GarblingSlcan(SlcanEmulator):
+    """An slcan adapter whose first line to the host has a non-hex data digit (line noise on
+    a UART adapter, a firmware glitch): python-can's slcan ``recv`` raises ValueError on it."""
+
+    garbled_lines = 0
+
+    def _to_host(self, frames: list[tuple[float, can.Message]]) -> None:
+        if self.garbled_lines or not frames or self.state == "closed":
+            super()._to_host(frames)
+            return
+        self.garbled_lines += 1
+        line = bytearray(format_frame(frames[0][1]))
+        line[-1:] = b"G"
+        self._write(bytes(line) + b"\r", 1)
+        super()._to_host(frames[1:])
+
+
+def test_a_garbled_slcan_line_drops_one_frame_not_the_receiver() -> None:
+    """python-can's slcan raised ValueError out of ``recv`` for a line with a non-hex digit;
+    the bus wrapper let it through and the bridge's receiving thread (which catches CanError
+    only) died: every servo offline for the rest of the run. Now the frame is counted as
+    garbled and dropped; the device is not taken for lost and the next frame arrives."""
+    request = can.Message(arbitration_id=0x141, data=bytes([0x9A]) + bytes(7), is_extended_id=False)
+    with _GarblingSlcan([SimServo("rmd-x", 1)]).start() as emulator:
+        opened = open_bus(
+            BusRequest("bus0", "slcan", emulator.path, 1_000_000, {"sleep_after_open": 0})
+        )
+        try:
+            opened.bus.send(request)
+            for _ in range(30):  # bounded: 3 s
+                if opened.bus.recv(0.1) is None and opened.bus.stats()["garbled"]:
+                    break
+            assert emulator.garbled_lines == 1
+            opened.bus.send(request)
+            replies = [opened.bus.recv(0.2) for _ in range(10)]
+            assert any(r is not None and r.arbitration_id == 0x241 for r in replies)
+            stats = opened.bus.stats()
+            assert stats["garbled"] == 1 and stats["disconnects"] == 0, stats
+        finally:
+            opened.close()
