@@ -467,3 +467,26 @@ def test_a_flood_of_random_ids_keeps_the_unknown_count_bounded(tmp_path: Path) -
     findings = doctor.findings
     assert len(findings.unknown_ids) <= MAX_UNKNOWN_IDS
     assert sum(findings.unknown_ids.values()) + findings.unknown_overflow == frames
+
+
+def test_scan_ids_are_clipped_to_the_family_range(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """``--ids`` took any range up to 0x1FFFFFFF and built a candidate per id: a 29-bit range
+    for a 32-id family ran for hours. Now only the family's own ids are probed; a range with
+    none of them is refused."""
+    path = write_config(tmp_path, "servos:\n  - {name: a, profile: rmd-x, can_id: 1}\n")
+    code, out, _ = run_doctor(
+        capsys,
+        path,
+        tmp_path,
+        "--no-bitrate-search",
+        "--scan",
+        "rmd-x",
+        "--ids",
+        "0-0x1FFFFFFF",
+        listen=0.3,
+    )
+    assert code == 0 and "probed 32 ids" in out, out
+    code = doctor_main([str(path), "--scan", "rmd-x", "--ids", "100-200"])
+    assert code == 2 and "rmd-x ids are 1-32" in capsys.readouterr().err

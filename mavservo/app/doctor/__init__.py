@@ -136,7 +136,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         except UnknownProfileError as exc:
             print(f"mavservo doctor: --scan: {exc}", file=sys.stderr)
             return EXIT_INVALID
-        scans.append((family, args.ids or range(cls.min_id, cls.max_id + 1)))
+        family_ids = range(cls.min_id, cls.max_id + 1)
+        ids = family_ids
+        if args.ids is not None:  # only the family's own ids: 0-0x1FFFFFFF would take hours
+            ids = range(max(args.ids.start, cls.min_id), min(args.ids.stop, family_ids.stop))
+            if not ids:
+                print(
+                    f"mavservo doctor: --ids {args.ids.start}-{args.ids.stop - 1}: {family} "
+                    f"ids are {cls.min_id}-{cls.max_id}",
+                    file=sys.stderr,
+                )
+                return EXIT_INVALID
+        scans.append((family, ids))
     log_dir = Path(args.log_dir) if args.log_dir else config.logging.dir
     frame_log = FrameLog(log_dir / f"doctor-{time.strftime('%Y%m%d-%H%M%S')}.asc")
     print(f"mavservo doctor: {path}; every frame sent and heard: {frame_log.path}")
