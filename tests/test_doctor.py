@@ -490,3 +490,38 @@ def test_scan_ids_are_clipped_to_the_family_range(
     assert code == 0 and "probed 32 ids" in out, out
     code = doctor_main([str(path), "--scan", "rmd-x", "--ids", "100-200"])
     assert code == 2 and "rmd-x ids are 1-32" in capsys.readouterr().err
+
+
+def test_a_foreign_flood_adds_no_phantom_servos_to_the_yaml(tmp_path: Path) -> None:
+    """20,000 random frames (2.5 s of a busy foreign bus) fitted some family's reply layout
+    often enough that the printed servos: block listed ~250 servos that do not exist (every
+    ODrive node, Damiao ids, LK ids...). On a bus where most frames are no family's, a motor
+    only heard, never answering a request, is not listed; the configured ones still are."""
+    import random
+
+    from mavservo.app.doctor.verdict import extra_entries, judge
+
+    path = write_config(
+        tmp_path,
+        "servos:\n  - {name: a, profile: rmd-x, can_id: 1}\n"
+        "  - {name: e, profile: odrive, can_id: 9}\n",
+    )
+    config = load_config(path)
+    doctor = BusDoctor(config.can.buses[0], config.servos, open_bus, lambda *_: None)
+    rng = random.Random(1)
+    for _ in range(20_000):
+        extended = rng.random() < 0.5
+        size = rng.choice([8, 8, rng.randint(0, 8)])
+        msg = can.Message(
+            arbitration_id=rng.getrandbits(29 if extended else 11),
+            is_extended_id=extended,
+            data=bytes(rng.getrandbits(8) for _ in range(size)),
+        )
+        doctor._read(msg, 1_000_000, "heard")  # noqa: SLF001
+    findings = doctor.findings
+    findings.working_bitrate = 1_000_000
+    heard = {(s.profile, s.can_id) for s in findings.sightings.values()}
+    assert len(heard) > 20  # the flood does fit other ids' layouts: the attack is real
+    assert findings.noisy
+    verdicts = judge(findings, config.servos)
+    assert extra_entries(findings, verdicts) == []

@@ -279,8 +279,15 @@ def print_bus(findings: BusFindings, verdicts: list[Verdict]) -> bool:
 
 
 def _print_who(findings: BusFindings) -> None:
+    sightings = list(findings.sightings.values())
+    if findings.noisy:  # chance matches of a foreign flood: only what answered is named
+        sightings = [s for s in sightings if s.how == "answered"]
+        print(
+            "  most frames here are no family's: motors only heard (not answering a request) "
+            "may be chance matches and are not named or listed below"
+        )
     heard = sorted(
-        {(s.profile, s.can_id, s.how) for s in findings.sightings.values()},
+        {(s.profile, s.can_id, s.how) for s in sightings},
         key=lambda k: (k[0], k[1]),
     )
     if heard:

@@ -172,6 +172,14 @@ class BusFindings:
     frame that is another family's read can be this device's command (an RMD-X read on 0x14C
     is Set_Input_Pos of ODrive node 10, 0x156 its Reboot, 0x15F its Enter_DFU_Mode)."""
 
+    @property
+    def noisy(self) -> bool:
+        """More frames no family reads than frames some family reads: on such a bus a frame
+        that fits a family's layout is as likely chance as a motor, so a motor only heard
+        (never answering a request) is not taken for one."""
+        unknown = sum(self.unknown_ids.values()) + self.unknown_overflow
+        return unknown > sum(s.frames for s in self.sightings.values())
+
     def unknown(self, msg: can.Message) -> None:
         """Count a frame no family reads, by id; a flood of random ids is counted in one
         bucket past :data:`MAX_UNKNOWN_IDS` distinct ones (what is printed is the top 8)."""
@@ -292,8 +300,17 @@ class BusDoctor:
         self.findings.listened[bitrate] = valid
         return valid > 0
 
-    def _collect(self, bus: can.BusABC, bitrate: int, seconds: float, how: str) -> int:
-        """Receive for ``seconds``; each frame recorded and read. Valid frames counted."""
+    def _collect(
+        self,
+        bus: can.BusABC,
+        bitrate: int,
+        seconds: float,
+        how: str,
+        asked: set[tuple[str, int]] | None = None,
+    ) -> int:
+        """Receive for ``seconds``; each frame recorded and read. Valid frames counted.
+        ``asked``: the motors just sent a request; only they can have ``answered`` it (a
+        frame of another, or of a foreign flood that fits some family, was only heard)."""
         valid = 0
         deadline = time.monotonic() + seconds
         for _ in range(200_000):  # bounded: a saturated 1 Mbit/s bus is ~8,000 frames/s
@@ -308,10 +325,16 @@ class BusDoctor:
                 self.findings.error_frames[bitrate] = self.findings.error_frames.get(bitrate, 0) + 1
                 continue
             valid += 1
-            self._read(msg, bitrate, how)
+            self._read(msg, bitrate, how, asked)
         return valid
 
-    def _read(self, msg: can.Message, bitrate: int, how: str) -> None:
+    def _read(
+        self,
+        msg: can.Message,
+        bitrate: int,
+        how: str,
+        asked: set[tuple[str, int]] | None = None,
+    ) -> None:
         said = announcements(msg)
         candidates = self.recogniser.whose(msg)
         mine = [(c, whole) for c, whole in candidates if c.key in self._configured]
@@ -340,7 +363,10 @@ class BusDoctor:
             self.findings.damiao_modes[mode[0]] = mode[1]
         names = {f"{c.profile} {c.can_id}" for c, _ in candidates}
         for candidate, complete in candidates:
-            sighting = self.findings.seen(candidate, bitrate, how, complete)
+            mine_to_answer = asked is None or (candidate.profile, candidate.can_id) in asked
+            sighting = self.findings.seen(
+                candidate, bitrate, how if mine_to_answer else "heard", complete
+            )
             sighting.alternatives |= names - {f"{candidate.profile} {candidate.can_id}"}
 
     def _probe_servos(self, bitrate: int) -> bool:
@@ -403,7 +429,7 @@ class BusDoctor:
         forbidden = self._forbidden | forbidden_frames(probes)
         sender = SafeSender(opened.bus, lambda msg, rx: self._record(msg, rx, bitrate), forbidden)
         frames: list[can.Message] = []
-        unique: set[tuple[int, bool, bytes]] = set()
+        askers: dict[tuple[int, bool, bytes], set[tuple[str, int]]] = {}
         occupants = self._occupants()
         for candidate in probes:  # two modes often share a read (the same frame): sent once
             for msg in safe_requests(candidate, forbidden):
@@ -411,13 +437,17 @@ class BusDoctor:
                 if owner is not None:
                     self.findings.spared[owner] += 1
                     continue
-                if _signature(msg) not in unique:
-                    unique.add(_signature(msg))
+                signature = _signature(msg)
+                if signature not in askers:
+                    askers[signature] = set()
                     frames.append(msg)
+                askers[signature].add((candidate.profile, candidate.can_id))
         for start in range(0, len(frames), BATCH):
+            asked: set[tuple[str, int]] = set()
             for msg in frames[start : start + BATCH]:
                 sender.send(msg)
-            self._collect(opened.bus, bitrate, REPLY_WAIT_S, "answered")
+                asked |= askers[_signature(msg)]
+            self._collect(opened.bus, bitrate, REPLY_WAIT_S, "answered", asked)
         if self.allow_enable:
             self._enable_probes(sender, opened, probes, bitrate)
         self.findings.sent += sender.sent
@@ -443,10 +473,11 @@ class BusDoctor:
             for msg in on:
                 sender.send(msg, enabling=True)
                 self.findings.enable_sent += 1
-            self._collect(opened.bus, bitrate, REPLY_WAIT_S, "answered")
+            asked = {(candidate.profile, candidate.can_id)}
+            self._collect(opened.bus, bitrate, REPLY_WAIT_S, "answered", asked)
             for msg in off:
                 sender.send(msg, enabling=True)
-            self._collect(opened.bus, bitrate, REPLY_WAIT_S / 2, "answered")
+            self._collect(opened.bus, bitrate, REPLY_WAIT_S / 2, "answered", asked)
 
     def _silent(self) -> list[ServoConfig]:
         found = {(s.profile, s.can_id) for s in self.findings.sightings.values()}
