@@ -73,6 +73,7 @@ def test_valid_options_load_and_reach_the_interface_unchanged() -> None:
         "bitrate": 500_000,
         "fd": True,
         "f_clock_mhz": 80,
+        "ignore_config": True,  # python-can's own config files and CAN_CONFIG do not apply
     }
 
 
@@ -338,3 +339,27 @@ def test_a_garbled_slcan_line_drops_one_frame_not_the_receiver() -> None:
             assert stats["garbled"] == 1 and stats["disconnects"] == 0, stats
         finally:
             opened.close()
+
+
+def test_python_cans_own_config_sources_cannot_change_a_bus(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """``can.Bus`` merges CAN_CONFIG (JSON in the environment), ``~/.canrc`` and
+    ``/etc/can.conf`` into the keys it was not given: CAN_CONFIG={"listen_only": true} opened
+    the bridge's slcan adapter listen-only (it sent nothing, every servo silent) although
+    the YAML, which `check` validated, said nothing of it."""
+    monkeypatch.setenv("CAN_CONFIG", '{"listen_only": true}')
+    with SlcanEmulator([SimServo("rmd-x", 1)]).start() as emulator:
+        opened = open_bus(
+            BusRequest("bus0", "slcan", emulator.path, 1_000_000, {"sleep_after_open": 0})
+        )
+        try:
+            assert emulator.mode == "normal", emulator.mode
+        finally:
+            opened.close()
+
+
+def test_python_cans_config_keys_are_not_options() -> None:
+    text = _bus_yaml("slcan", "        sleep_after_open: 0\n        config_context: other\n")
+    with pytest.raises(ConfigError, match=r"bus.yaml:8:.*config_context"):
+        load_config_text(text, "bus.yaml")

@@ -34,6 +34,8 @@ RESERVED = {
     "interface": "use the bus's own `interface:` key",
     "bustype": "use the bus's own `interface:` key",
     "on_reject": "set by the bridge (the run log's rejections)",
+    "ignore_config": "set by the bridge (the YAML is the only configuration)",
+    "config_context": "the YAML is the only configuration: give the option itself",
 }
 
 #: Keys an interface's bus has its own YAML key for, per interface.
