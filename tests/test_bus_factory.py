@@ -354,6 +354,7 @@ def test_python_cans_own_config_sources_cannot_change_a_bus(
             BusRequest("bus0", "slcan", emulator.path, 1_000_000, {"sleep_after_open": 0})
         )
         try:
+            assert wait_until(lambda: emulator.mode != "closed"), "the adapter was never opened"
             assert emulator.mode == "normal", emulator.mode
         finally:
             opened.close()
