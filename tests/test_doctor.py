@@ -525,3 +525,18 @@ def test_a_foreign_flood_adds_no_phantom_servos_to_the_yaml(tmp_path: Path) -> N
     assert findings.noisy
     verdicts = judge(findings, config.servos)
     assert extra_entries(findings, verdicts) == []
+
+
+@pytest.mark.parametrize("family", ["rmd-x", "lk"])
+def test_the_silence_advice_names_the_id_the_family_answers_on(family: str) -> None:
+    """The LK advice said replies come on 0x240 + id (RMD-X V4's); LK answers on the
+    request's own id 0x140 + id (LK-TECH CAN protocol; the profile's own identifiers)."""
+    import re
+
+    from mavservo.app.doctor.families import facts
+    from mavservo.servos import get_profile
+
+    [named] = re.findall(r"0x([0-9A-Fa-f]+) \+ id", facts(family).silence)
+    profile = get_profile(family)(1)
+    replies = [f.arbitration_id for f in profile.identifiers() if f.direction == "from_servo"]
+    assert int(named, 16) + 1 in replies, (named, [hex(r) for r in replies])
