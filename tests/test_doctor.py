@@ -540,3 +540,13 @@ def test_the_silence_advice_names_the_id_the_family_answers_on(family: str) -> N
     profile = get_profile(family)(1)
     replies = [f.arbitration_id for f in profile.identifiers() if f.direction == "from_servo"]
     assert int(named, 16) + 1 in replies, (named, [hex(r) for r in replies])
+
+
+@pytest.mark.parametrize("listen", ["nan", "-1", "0", "1e9", "inf"])
+def test_listen_seconds_are_bounded(listen: str, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--listen nan`` made every receive deadline unreachable (``left <= 0`` is never true
+    for NaN); ``--listen 1e9`` listened at one bitrate for decades."""
+    with pytest.raises(SystemExit) as caught:
+        doctor_main(["--listen", listen])
+    assert caught.value.code == 2
+    assert "--listen" in capsys.readouterr().err

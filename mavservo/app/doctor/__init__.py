@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -52,6 +53,22 @@ def _id_range(text: str) -> range:
     return range(start, end + 1)
 
 
+#: The longest listen per bitrate: ten NodeStatus periods, a hundred ODrive heartbeats.
+MAX_LISTEN_S = 10.0
+
+
+def _listen_seconds(text: str) -> float:
+    """``--listen``: a finite number of seconds in (0, MAX_LISTEN_S] (NaN made every receive
+    deadline unreachable; a huge value, one bitrate for hours)."""
+    try:
+        seconds = float(text)
+    except ValueError:
+        seconds = math.nan
+    if not 0 < seconds <= MAX_LISTEN_S:  # NaN fails both comparisons
+        raise argparse.ArgumentTypeError(f"{text!r}: seconds in (0, {MAX_LISTEN_S:g}]")
+    return seconds
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="mavservo doctor",
@@ -74,7 +91,11 @@ def _parser() -> argparse.ArgumentParser:
         "nothing else (CubeMars/Robstride in MIT mode); never sent without it",
     )
     parser.add_argument(
-        "--listen", type=float, default=1.5, metavar="S", help="seconds of listening per bitrate"
+        "--listen",
+        type=_listen_seconds,
+        default=1.5,
+        metavar="S",
+        help=f"seconds of listening per bitrate (0 < S <= {MAX_LISTEN_S:g})",
     )
     parser.add_argument(
         "--no-bitrate-search",
