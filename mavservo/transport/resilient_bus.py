@@ -115,6 +115,8 @@ class ResilientBus(can.BusABC, TransportCounters):
         except (can.CanOperationError, OSError) as exc:
             self._lost(bus, exc)
             return None, False
+        except can.CanError:
+            raise  # python-can's own errors keep their meaning (the scheduler counts them)
         except Exception as exc:  # noqa: BLE001 - a driver that cannot parse what it read
             self._garbled_frame(exc)
             return None, False
