@@ -32,7 +32,7 @@ from mavservo.app.doctor.wire_facts import (
     odrive_version_request,
     robstride_device_id,
 )
-from mavservo.config import load_config
+from mavservo.config import load_config, load_config_text
 from mavservo.sim.bus_simulation import wired_servos
 from mavservo.sim.servo import SimServo
 from mavservo.sim.slcan import SlcanEmulator
@@ -550,3 +550,49 @@ def test_listen_seconds_are_bounded(listen: str, capsys: pytest.CaptureFixture[s
         doctor_main(["--listen", listen])
     assert caught.value.code == 2
     assert "--listen" in capsys.readouterr().err
+
+
+def test_a_refused_disable_after_allow_enable_is_retried_and_reported(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """--allow-enable sends enter-motor-mode, then exit-motor-mode; a bus that refused the
+    exit (a full transmit queue, bus-off) left the motor in motor mode, silently. Now the
+    exit is retried and a motor still enabled is a WARNING in the report."""
+    from can.interfaces.virtual import VirtualBus
+
+    from mavservo.app.doctor import print_bus
+    from mavservo.app.doctor.families import EXIT_MOTOR_MODE
+    from mavservo.transport.resilient_bus import ResilientBus
+
+    refused: list[bytes] = []
+
+    class RefusesDisable(VirtualBus):  # the adapter failing exactly the undo
+        def send(self, msg: can.Message, timeout: float | None = None) -> None:
+            if bytes(msg.data) == EXIT_MOTOR_MODE:
+                refused.append(bytes(msg.data))
+                raise can.CanOperationError("transmit queue full")
+            super().send(msg, timeout)
+
+    channel = f"refuse-{time.monotonic_ns()}"
+
+    def open_request(request: BusRequest) -> OpenedBus:
+        return OpenedBus(ResilientBus(lambda: RefusesDisable(channel=channel)))
+
+    config = load_config_text(
+        "servos:\n  - {name: knee, profile: cubemars-ak-mit, can_id: 3}\n", "doctor.yaml"
+    )
+    doctor = BusDoctor(
+        config.can.buses[0],
+        config.servos,
+        open_request,
+        lambda *_: None,
+        listen_s=0.05,
+        allow_enable=True,
+        try_bitrates=False,
+    )
+    findings = doctor.run()
+    assert findings.enable_sent >= 1
+    assert len(refused) >= 2  # tried again once the adapter was reopened
+    assert findings.left_enabled == ["cubemars-ak-mit 3"]
+    assert not print_bus(findings, [])
+    assert "WARNING: cubemars-ak-mit 3 was enabled" in capsys.readouterr().out

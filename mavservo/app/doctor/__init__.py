@@ -291,6 +291,13 @@ def print_bus(findings: BusFindings, verdicts: list[Verdict]) -> bool:
             f"  probed {findings.scanned} ids in {findings.scan_s:.2f} s "
             f"({findings.sent} requests sent, {findings.enable_sent} enable frames)"
         )
+    for motor in findings.left_enabled:
+        ok = False
+        print(
+            f"  WARNING: {motor} was enabled (--allow-enable) and the bus refused its disable "
+            "frame every time: it may still be in motor mode; power-cycle it or disable it "
+            "before touching it"
+        )
     for device, count in sorted(findings.spared.items()):
         print(
             f"  not sent: {count} requests whose id is {device}'s (another family's command "

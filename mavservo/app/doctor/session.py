@@ -57,6 +57,10 @@ REPLY_WAIT_S = 0.05
 #: Distinct ids of unreadable frames counted one by one: a hostile stream of random ids
 #: (up to ~8,000 frames/s at 1 Mbit/s) cannot grow the count past this.
 MAX_UNKNOWN_IDS = 1024
+#: Sends of a disable frame before a motor is reported left enabled, each after a wait in
+#: which a refusing adapter is reopened (the bus wrapper's backoff starts at 0.1 s).
+DISABLE_TRIES = 5
+DISABLE_RETRY_WAIT_S = 0.25
 #: Probes sent before their replies are collected (a scan's batch): at 1 Mbit/s 16 requests
 #: and their replies take ~4 ms of bus time, well inside the wait.
 BATCH = 16
@@ -165,6 +169,8 @@ class BusFindings:
     probed_bitrates: list[int] = field(default_factory=list)
     sent: int = 0
     enable_sent: int = 0
+    left_enabled: list[str] = field(default_factory=list)
+    """Motors enabled by ``--allow-enable`` whose disable the bus refused every time."""
     scan_s: float | None = None
     scanned: int = 0
     spared: Counter[str] = field(default_factory=Counter)
@@ -476,7 +482,15 @@ class BusDoctor:
             asked = {(candidate.profile, candidate.can_id)}
             self._collect(opened.bus, bitrate, REPLY_WAIT_S, "answered", asked)
             for msg in off:
-                sender.send(msg, enabling=True)
+                # the undo must go out: a motor left in motor mode after the doctor is gone
+                # is the one thing --allow-enable must never cause
+                for _ in range(DISABLE_TRIES):
+                    if sender.send(msg, enabling=True):
+                        break
+                    # an adapter that refused is reopened from the receive path: let it
+                    self._collect(opened.bus, bitrate, DISABLE_RETRY_WAIT_S, "heard")
+                else:
+                    self.findings.left_enabled.append(f"{candidate.profile} {candidate.can_id}")
             self._collect(opened.bus, bitrate, REPLY_WAIT_S / 2, "answered", asked)
 
     def _silent(self) -> list[ServoConfig]:
