@@ -596,3 +596,48 @@ def test_a_refused_disable_after_allow_enable_is_retried_and_reported(
     assert findings.left_enabled == ["cubemars-ak-mit 3"]
     assert not print_bus(findings, [])
     assert "WARNING: cubemars-ak-mit 3 was enabled" in capsys.readouterr().out
+
+
+def test_ctrl_c_while_an_enabled_motor_is_heard_still_disables_it() -> None:
+    """An interrupt in the listen after enter-motor-mode skipped the exit: the motor stayed
+    in motor mode. The exit now goes out in a ``finally``."""
+    from can.interfaces.virtual import VirtualBus
+
+    from mavservo.app.doctor.families import ENTER_MOTOR_MODE, EXIT_MOTOR_MODE
+    from mavservo.transport.resilient_bus import ResilientBus
+
+    sent: list[bytes] = []
+
+    class InterruptedAfterEnable(VirtualBus):  # the user presses Ctrl-C right then
+        interrupted = False
+
+        def send(self, msg: can.Message, timeout: float | None = None) -> None:
+            sent.append(bytes(msg.data))
+            super().send(msg, timeout)
+
+        def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+            if ENTER_MOTOR_MODE in sent and not InterruptedAfterEnable.interrupted:
+                InterruptedAfterEnable.interrupted = True
+                raise KeyboardInterrupt
+            return super()._recv_internal(timeout)
+
+    channel = f"interrupt-{time.monotonic_ns()}"
+
+    def open_request(request: BusRequest) -> OpenedBus:
+        return OpenedBus(ResilientBus(lambda: InterruptedAfterEnable(channel=channel)))
+
+    config = load_config_text(
+        "servos:\n  - {name: knee, profile: cubemars-ak-mit, can_id: 3}\n", "doctor.yaml"
+    )
+    doctor = BusDoctor(
+        config.can.buses[0],
+        config.servos,
+        open_request,
+        lambda *_: None,
+        listen_s=0.05,
+        allow_enable=True,
+        try_bitrates=False,
+    )
+    with pytest.raises(KeyboardInterrupt):
+        doctor.run()
+    assert sent.index(EXIT_MOTOR_MODE) > sent.index(ENTER_MOTOR_MODE)

@@ -476,22 +476,34 @@ class BusDoctor:
             if owner is not None:
                 self.findings.spared[owner] += len(on)
                 continue
-            for msg in on:
-                sender.send(msg, enabling=True)
-                self.findings.enable_sent += 1
             asked = {(candidate.profile, candidate.can_id)}
-            self._collect(opened.bus, bitrate, REPLY_WAIT_S, "answered", asked)
-            for msg in off:
-                # the undo must go out: a motor left in motor mode after the doctor is gone
-                # is the one thing --allow-enable must never cause
-                for _ in range(DISABLE_TRIES):
-                    if sender.send(msg, enabling=True):
-                        break
-                    # an adapter that refused is reopened from the receive path: let it
-                    self._collect(opened.bus, bitrate, DISABLE_RETRY_WAIT_S, "heard")
-                else:
-                    self.findings.left_enabled.append(f"{candidate.profile} {candidate.can_id}")
+            try:
+                for msg in on:
+                    sender.send(msg, enabling=True)
+                    self.findings.enable_sent += 1
+                self._collect(opened.bus, bitrate, REPLY_WAIT_S, "answered", asked)
+            finally:  # Ctrl-C while it listens still disables it
+                self._disable(sender, opened, bitrate, candidate, off)
             self._collect(opened.bus, bitrate, REPLY_WAIT_S / 2, "answered", asked)
+
+    def _disable(
+        self,
+        sender: SafeSender,
+        opened: OpenedBus,
+        bitrate: int,
+        candidate: Candidate,
+        off: Sequence[can.Message],
+    ) -> None:
+        """Send the frames that undo an enable: a motor left in motor mode after the doctor
+        is gone is the one thing ``--allow-enable`` must never cause. Each is tried again
+        after a wait in which a refusing adapter is reopened (from the receive path)."""
+        for msg in off:
+            for _ in range(DISABLE_TRIES):
+                if sender.send(msg, enabling=True):
+                    break
+                self._collect(opened.bus, bitrate, DISABLE_RETRY_WAIT_S, "heard")
+            else:
+                self.findings.left_enabled.append(f"{candidate.profile} {candidate.can_id}")
 
     def _silent(self) -> list[ServoConfig]:
         found = {(s.profile, s.can_id) for s in self.findings.sightings.values()}
