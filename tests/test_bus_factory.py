@@ -73,6 +73,7 @@ def test_valid_options_load_and_reach_the_interface_unchanged() -> None:
         "bitrate": 500_000,
         "fd": True,
         "f_clock_mhz": 80,
+        "ignore_config": True,  # python-can's own config files and CAN_CONFIG do not apply
     }
 
 
@@ -265,4 +266,101 @@ def test_an_aa55_key_given_as_an_option_is_refused() -> None:
     """``serial_baud`` has its own key on an aa55 bus: one setting, one place."""
     text = _bus_yaml("aa55", "        serial_baud: 115200\n", channel="sim")
     with pytest.raises(ConfigError, match=r"bus.yaml:7:.*own `serial_baud:` key"):
+        load_config_text(text, "bus.yaml")
+
+
+@pytest.mark.parametrize(
+    ("options", "says"),
+    [
+        ("        sleep_after_open: -1\n", "finite number >= 0"),  # time.sleep(-1): traceback
+        ("        sleep_after_open: .nan\n", "finite number >= 0"),
+        ("        tty_baudrate: -5\n", "finite number >= 0"),
+        ('        can_filters: "xx"\n', "takes a list of"),  # the bridge heard nothing
+        ("        can_filters: {a: {b: 1}}\n", "takes a list of"),
+        ("        can_filters: [{can_id: 0x141}]\n", "takes a list of"),
+        ("        can_filters: [{can_id: 0x141, can_mask: 0x7FF, open: 1}]\n", "takes a list of"),
+        ("        can_filters: [{can_id: -1, can_mask: 0x7FF}]\n", "is not a CAN id"),
+    ],
+)
+def test_hostile_option_values_are_errors_on_their_line(options: str, says: str) -> None:
+    """Values check let through: a negative or NaN sleep stopped the bridge's start with
+    python-can's traceback; a malformed can_filters loaded, ran, and received 0 frames."""
+    with pytest.raises(ConfigError) as caught:
+        load_config_text(_bus_yaml("slcan", options), "bus.yaml")
+    message = str(caught.value)
+    assert "bus.yaml:7:" in message and says in message, message
+
+
+def test_a_well_formed_filter_list_still_loads() -> None:
+    text = _bus_yaml(
+        "slcan", "        can_filters: [{can_id: 0x240, can_mask: 0x7E0, extended: false}]\n"
+    )
+    bus = load_config_text(text, "bus.yaml").can.buses[0]
+    assert bus.options["can_filters"][0]["can_mask"] == 0x7E0
+
+
+class _GarblingSlcan(SlcanEmulator):
+    """An slcan adapter whose first line to the host has a non-hex data digit (line noise on
+    a UART adapter, a firmware glitch): python-can's slcan ``recv`` raises ValueError on it."""
+
+    garbled_lines = 0
+
+    def _to_host(self, frames: list[tuple[float, can.Message]]) -> None:
+        if self.garbled_lines or not frames or self.state == "closed":
+            super()._to_host(frames)
+            return
+        self.garbled_lines += 1
+        line = bytearray(format_frame(frames[0][1]))
+        line[-1:] = b"G"
+        self._write(bytes(line) + b"\r", 1)
+        super()._to_host(frames[1:])
+
+
+def test_a_garbled_slcan_line_drops_one_frame_not_the_receiver() -> None:
+    """python-can's slcan raised ValueError out of ``recv`` for a line with a non-hex digit;
+    the bus wrapper let it through and the bridge's receiving thread (which catches CanError
+    only) died: every servo offline for the rest of the run. Now the frame is counted as
+    garbled and dropped; the device is not taken for lost and the next frame arrives."""
+    request = can.Message(arbitration_id=0x141, data=bytes([0x9A]) + bytes(7), is_extended_id=False)
+    with _GarblingSlcan([SimServo("rmd-x", 1)]).start() as emulator:
+        opened = open_bus(
+            BusRequest("bus0", "slcan", emulator.path, 1_000_000, {"sleep_after_open": 0})
+        )
+        try:
+            opened.bus.send(request)
+            for _ in range(30):  # bounded: 3 s
+                if opened.bus.recv(0.1) is None and opened.bus.stats()["garbled"]:
+                    break
+            assert emulator.garbled_lines == 1
+            opened.bus.send(request)
+            replies = [opened.bus.recv(0.2) for _ in range(10)]
+            assert any(r is not None and r.arbitration_id == 0x241 for r in replies)
+            stats = opened.bus.stats()
+            assert stats["garbled"] == 1 and stats["disconnects"] == 0, stats
+        finally:
+            opened.close()
+
+
+def test_python_cans_own_config_sources_cannot_change_a_bus(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """``can.Bus`` merges CAN_CONFIG (JSON in the environment), ``~/.canrc`` and
+    ``/etc/can.conf`` into the keys it was not given: CAN_CONFIG={"listen_only": true} opened
+    the bridge's slcan adapter listen-only (it sent nothing, every servo silent) although
+    the YAML, which `check` validated, said nothing of it."""
+    monkeypatch.setenv("CAN_CONFIG", '{"listen_only": true}')
+    with SlcanEmulator([SimServo("rmd-x", 1)]).start() as emulator:
+        opened = open_bus(
+            BusRequest("bus0", "slcan", emulator.path, 1_000_000, {"sleep_after_open": 0})
+        )
+        try:
+            assert wait_until(lambda: emulator.mode != "closed"), "the adapter was never opened"
+            assert emulator.mode == "normal", emulator.mode
+        finally:
+            opened.close()
+
+
+def test_python_cans_config_keys_are_not_options() -> None:
+    text = _bus_yaml("slcan", "        sleep_after_open: 0\n        config_context: other\n")
+    with pytest.raises(ConfigError, match=r"bus.yaml:8:.*config_context"):
         load_config_text(text, "bus.yaml")

@@ -24,3 +24,20 @@ def test_summary_counts_failed_sends_per_bus() -> None:
     bus1 = next(line for line in lines if line.startswith("  bus bus1:"))
     assert bus0.endswith("reconnects 1, failed sends 60")
     assert bus1.endswith("reconnects 0, failed sends 0")
+
+
+def test_summary_names_frames_the_driver_could_not_parse() -> None:
+    """Frames a driver's recv raised on are dropped and counted by the bus wrapper
+    (``garbled``): the stop summary says how many, and nothing when there were none."""
+    summary = {
+        "buses": {
+            "bus0": {"transport": {"reconnects": 0, "garbled": 3}},
+            "bus1": {"transport": {"garbled": 0}},
+        },
+        "servos": {},
+    }
+    lines = format_summary(summary).splitlines()
+    bus0 = next(line for line in lines if line.startswith("  bus bus0:"))
+    bus1 = next(line for line in lines if line.startswith("  bus bus1:"))
+    assert bus0.endswith("failed sends 0, frames the driver could not parse 3")
+    assert bus1.endswith("failed sends 0")

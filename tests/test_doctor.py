@@ -32,7 +32,7 @@ from mavservo.app.doctor.wire_facts import (
     odrive_version_request,
     robstride_device_id,
 )
-from mavservo.config import load_config
+from mavservo.config import load_config, load_config_text
 from mavservo.sim.bus_simulation import wired_servos
 from mavservo.sim.servo import SimServo
 from mavservo.sim.slcan import SlcanEmulator
@@ -415,3 +415,229 @@ def test_robstride_in_the_other_protocol_found_with_allow_enable(
     )
     assert "wrong mode: heard robstride (protocol: mit) from id 1" in out, out
     assert suggested(out)["servos"][0]["options"] == {"protocol": "mit"}
+
+
+def _odrive_node_commands(log: Path, node: int) -> list[can.Message]:
+    """Frames the doctor sent into ODrive node ``node``'s block (ODrive CANSimple: an ODrive
+    takes every 11-bit id whose upper six bits are its node id) that are not remote frames:
+    each is a command to that ODrive (0x0C Set_Input_Pos, 0x16 Reboot, 0x1F Enter_DFU_Mode...)."""
+    return [
+        m
+        for m in _frames_sent(log)
+        if not m.is_extended_id and m.arbitration_id >> 5 == node and not m.is_remote_frame
+    ]
+
+
+@pytest.mark.parametrize("odrive_at", ["configured", "heard only"])
+def test_a_scan_never_lands_on_another_familys_commands(
+    odrive_at: str, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """RMD-X / LK reads go to 0x140 + id, which is ODrive node 10's block: an RMD-X scan sent
+    its 0x9C read as node 10's Set_Input_Pos, Set_Limits, Reboot and Enter_DFU_Mode. The
+    doctor now spares the ids of every device it knows (configured, or heard by heartbeat)."""
+    text = "servos:\n  - {name: arm, profile: odrive, can_id: 10}\n"
+    if odrive_at == "heard only":  # configured on 11, answering on 10: a wrong-id mistake
+        text = (
+            "servos:\n  - {name: arm, profile: odrive, can_id: 11}\n"
+            "simulation:\n  servos:\n    arm: {can_id: 10}\n"
+        )
+    path = write_config(tmp_path, text)
+    _, out, log = run_doctor(
+        capsys, path, tmp_path, "--no-bitrate-search", "--scan", "rmd-x", "--scan", "lk", listen=0.5
+    )
+    assert "ODrive node 10: heartbeat" in out, out
+    assert _odrive_node_commands(log, 10) == []
+    assert "requests whose id is odrive 10's" in out, out
+    # the rest of the range is still scanned: id 32 (0x160) is outside node 10's block
+    assert any(m.arbitration_id == 0x160 for m in _frames_sent(log))
+
+
+def test_a_flood_of_random_ids_keeps_the_unknown_count_bounded(tmp_path: Path) -> None:
+    """Every frame no family reads was counted by id in an unbounded Counter: a hostile
+    stream of random 29-bit ids grew it by one entry per frame."""
+    from mavservo.app.doctor.session import MAX_UNKNOWN_IDS
+
+    path = write_config(tmp_path, "servos:\n  - {name: a, profile: rmd-x, can_id: 1}\n")
+    config = load_config(path)
+    doctor = BusDoctor(config.can.buses[0], config.servos, open_bus, lambda *_: None)
+    frames = 3 * MAX_UNKNOWN_IDS
+    for k in range(frames):
+        msg = can.Message(arbitration_id=0x1ABC0000 + k, is_extended_id=True, data=b"\x01")
+        doctor._read(msg, 1_000_000, "heard")  # noqa: SLF001
+    findings = doctor.findings
+    assert len(findings.unknown_ids) <= MAX_UNKNOWN_IDS
+    assert sum(findings.unknown_ids.values()) + findings.unknown_overflow == frames
+
+
+def test_scan_ids_are_clipped_to_the_family_range(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """``--ids`` took any range up to 0x1FFFFFFF and built a candidate per id: a 29-bit range
+    for a 32-id family ran for hours. Now only the family's own ids are probed; a range with
+    none of them is refused."""
+    path = write_config(tmp_path, "servos:\n  - {name: a, profile: rmd-x, can_id: 1}\n")
+    code, out, _ = run_doctor(
+        capsys,
+        path,
+        tmp_path,
+        "--no-bitrate-search",
+        "--scan",
+        "rmd-x",
+        "--ids",
+        "0-0x1FFFFFFF",
+        listen=0.3,
+    )
+    assert code == 0 and "probed 32 ids" in out, out
+    code = doctor_main([str(path), "--scan", "rmd-x", "--ids", "100-200"])
+    assert code == 2 and "rmd-x ids are 1-32" in capsys.readouterr().err
+
+
+def test_a_foreign_flood_adds_no_phantom_servos_to_the_yaml(tmp_path: Path) -> None:
+    """20,000 random frames (2.5 s of a busy foreign bus) fitted some family's reply layout
+    often enough that the printed servos: block listed ~250 servos that do not exist (every
+    ODrive node, Damiao ids, LK ids...). On a bus where most frames are no family's, a motor
+    only heard, never answering a request, is not listed; the configured ones still are."""
+    import random
+
+    from mavservo.app.doctor.verdict import extra_entries, judge
+
+    path = write_config(
+        tmp_path,
+        "servos:\n  - {name: a, profile: rmd-x, can_id: 1}\n"
+        "  - {name: e, profile: odrive, can_id: 9}\n",
+    )
+    config = load_config(path)
+    doctor = BusDoctor(config.can.buses[0], config.servos, open_bus, lambda *_: None)
+    rng = random.Random(1)
+    for _ in range(20_000):
+        extended = rng.random() < 0.5
+        size = rng.choice([8, 8, rng.randint(0, 8)])
+        msg = can.Message(
+            arbitration_id=rng.getrandbits(29 if extended else 11),
+            is_extended_id=extended,
+            data=bytes(rng.getrandbits(8) for _ in range(size)),
+        )
+        doctor._read(msg, 1_000_000, "heard")  # noqa: SLF001
+    findings = doctor.findings
+    findings.working_bitrate = 1_000_000
+    heard = {(s.profile, s.can_id) for s in findings.sightings.values()}
+    assert len(heard) > 20  # the flood does fit other ids' layouts: the attack is real
+    assert findings.noisy
+    verdicts = judge(findings, config.servos)
+    assert extra_entries(findings, verdicts) == []
+
+
+@pytest.mark.parametrize("family", ["rmd-x", "lk"])
+def test_the_silence_advice_names_the_id_the_family_answers_on(family: str) -> None:
+    """The LK advice said replies come on 0x240 + id (RMD-X V4's); LK answers on the
+    request's own id 0x140 + id (LK-TECH CAN protocol; the profile's own identifiers)."""
+    import re
+
+    from mavservo.app.doctor.families import facts
+    from mavservo.servos import get_profile
+
+    [named] = re.findall(r"0x([0-9A-Fa-f]+) \+ id", facts(family).silence)
+    profile = get_profile(family)(1)
+    replies = [f.arbitration_id for f in profile.identifiers() if f.direction == "from_servo"]
+    assert int(named, 16) + 1 in replies, (named, [hex(r) for r in replies])
+
+
+@pytest.mark.parametrize("listen", ["nan", "-1", "0", "1e9", "inf"])
+def test_listen_seconds_are_bounded(listen: str, capsys: pytest.CaptureFixture[str]) -> None:
+    """``--listen nan`` made every receive deadline unreachable (``left <= 0`` is never true
+    for NaN); ``--listen 1e9`` listened at one bitrate for decades."""
+    with pytest.raises(SystemExit) as caught:
+        doctor_main(["--listen", listen])
+    assert caught.value.code == 2
+    assert "--listen" in capsys.readouterr().err
+
+
+def test_a_refused_disable_after_allow_enable_is_retried_and_reported(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """--allow-enable sends enter-motor-mode, then exit-motor-mode; a bus that refused the
+    exit (a full transmit queue, bus-off) left the motor in motor mode, silently. Now the
+    exit is retried and a motor still enabled is a WARNING in the report."""
+    from can.interfaces.virtual import VirtualBus
+
+    from mavservo.app.doctor import print_bus
+    from mavservo.app.doctor.families import EXIT_MOTOR_MODE
+    from mavservo.transport.resilient_bus import ResilientBus
+
+    refused: list[bytes] = []
+
+    class RefusesDisable(VirtualBus):  # the adapter failing exactly the undo
+        def send(self, msg: can.Message, timeout: float | None = None) -> None:
+            if bytes(msg.data) == EXIT_MOTOR_MODE:
+                refused.append(bytes(msg.data))
+                raise can.CanOperationError("transmit queue full")
+            super().send(msg, timeout)
+
+    channel = f"refuse-{time.monotonic_ns()}"
+
+    def open_request(request: BusRequest) -> OpenedBus:
+        return OpenedBus(ResilientBus(lambda: RefusesDisable(channel=channel)))
+
+    config = load_config_text(
+        "servos:\n  - {name: knee, profile: cubemars-ak-mit, can_id: 3}\n", "doctor.yaml"
+    )
+    doctor = BusDoctor(
+        config.can.buses[0],
+        config.servos,
+        open_request,
+        lambda *_: None,
+        listen_s=0.05,
+        allow_enable=True,
+        try_bitrates=False,
+    )
+    findings = doctor.run()
+    assert findings.enable_sent >= 1
+    assert len(refused) >= 2  # tried again once the adapter was reopened
+    assert findings.left_enabled == ["cubemars-ak-mit 3"]
+    assert not print_bus(findings, [])
+    assert "WARNING: cubemars-ak-mit 3 was enabled" in capsys.readouterr().out
+
+
+def test_ctrl_c_while_an_enabled_motor_is_heard_still_disables_it() -> None:
+    """An interrupt in the listen after enter-motor-mode skipped the exit: the motor stayed
+    in motor mode. The exit now goes out in a ``finally``."""
+    from can.interfaces.virtual import VirtualBus
+
+    from mavservo.app.doctor.families import ENTER_MOTOR_MODE, EXIT_MOTOR_MODE
+    from mavservo.transport.resilient_bus import ResilientBus
+
+    sent: list[bytes] = []
+
+    class InterruptedAfterEnable(VirtualBus):  # the user presses Ctrl-C right then
+        interrupted = False
+
+        def send(self, msg: can.Message, timeout: float | None = None) -> None:
+            sent.append(bytes(msg.data))
+            super().send(msg, timeout)
+
+        def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+            if ENTER_MOTOR_MODE in sent and not InterruptedAfterEnable.interrupted:
+                InterruptedAfterEnable.interrupted = True
+                raise KeyboardInterrupt
+            return super()._recv_internal(timeout)
+
+    channel = f"interrupt-{time.monotonic_ns()}"
+
+    def open_request(request: BusRequest) -> OpenedBus:
+        return OpenedBus(ResilientBus(lambda: InterruptedAfterEnable(channel=channel)))
+
+    config = load_config_text(
+        "servos:\n  - {name: knee, profile: cubemars-ak-mit, can_id: 3}\n", "doctor.yaml"
+    )
+    doctor = BusDoctor(
+        config.can.buses[0],
+        config.servos,
+        open_request,
+        lambda *_: None,
+        listen_s=0.05,
+        allow_enable=True,
+        try_bitrates=False,
+    )
+    with pytest.raises(KeyboardInterrupt):
+        doctor.run()
+    assert sent.index(EXIT_MOTOR_MODE) > sent.index(ENTER_MOTOR_MODE)

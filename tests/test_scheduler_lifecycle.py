@@ -254,3 +254,35 @@ def test_a_split_start_up_sends_its_second_step_at_the_next_slot_once() -> None:
         if now - (100.0 + 2 * T_C) < STARTUP_RETRY_S:
             assert lifecycle(decision) == [], f"early start-up again at slot {k}"
         report(0, now + 0.4 * T_C)
+
+
+def test_a_command_soon_after_a_release_goes_with_its_start_up() -> None:
+    """A release within STARTUP_RETRY_S of the last start-up (a link lost for a short
+    failsafe timeout, then back): the next command went without its start-up frames, so an
+    LK motor (off after 0x80) ignored the A4 and a braked RMD-X (locked by 0x78) was driven
+    against its brake, until a refresh a second later carried 0x88 / 0x77."""
+    from mavservo.servos import get_profile
+
+    lk = get_profile("lk")(1)
+    braked = RmdX(2, brake=True)
+    core = core_with(ServoSpec("lk", lk, telemetry_hz=0), ServoSpec("rmd", braked, telemetry_hz=0))
+    core.submit("lk", 5.0, "test", t=99.0)
+    core.submit("rmd", 5.0, "test", t=99.0)
+    run_answered(core, 100.0)  # start-up (0x88 / 0x77) and the first commands
+    core.release("lk")
+    core.release("rmd")
+    assert sorted(frames(run_answered(core, 100.01))) == [
+        ("lk", "lifecycle", 0x80),
+        ("rmd", "lifecycle", 0x78),
+        ("rmd", "lifecycle", 0x80),
+    ]
+    core.submit("lk", 6.0, "test", t=100.2)  # well inside STARTUP_RETRY_S of 100.0
+    core.submit("rmd", 6.0, "test", t=100.2)
+    again = frames(run_answered(core, 100.0 + 5 * T_C))
+    assert again == [
+        ("lk", "lifecycle", 0x88),
+        ("lk", "command", 0xA4),
+        ("rmd", "lifecycle", 0xB3),  # its communication timeout, then the brake release
+        ("rmd", "lifecycle", 0x77),
+        ("rmd", "command", 0xA4),
+    ], again

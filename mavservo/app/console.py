@@ -299,6 +299,11 @@ def format_summary(summary: dict[str, Any]) -> str:
             f"bytes discarded {transport.get('bytes_discarded', 0)}, "
             f"reconnects {transport.get('reconnects', 0)}, "
             f"failed sends {bus.get('send_failures', {}).get('total', 0)}"
+            + (
+                f", frames the driver could not parse {transport['garbled']}"
+                if transport.get("garbled")
+                else ""
+            )
         )
         for node in bus.get("nodes") or []:
             counts = ", ".join(f"{k} {v}" for k, v in node.items() if v)

@@ -590,6 +590,11 @@ class ScheduleCore:
         slot.released = True
         slot.release_due = -math.inf if slot.spec.profile.release_frames() else None
         slot.started = False
+        # the next command's start-up is not a retry: it goes with that command even within
+        # STARTUP_RETRY_S of the last one (an LK motor off ignores A4 until 0x88, an RMD-X
+        # brake locked by the release would be driven against until 0x77). Releases come
+        # from a lost link or a health limit, each at most once per new setpoint.
+        slot.last_startup = -math.inf
 
     def wants_lifecycle_wake(self) -> bool:
         """True when release frames wait to go at once (the runner is woken for them)."""

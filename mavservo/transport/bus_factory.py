@@ -88,6 +88,10 @@ class BusRequest:
             "channel": channel,
             "bitrate": self.bitrate,
             **self.options,
+            # the YAML is the only configuration: python-can would otherwise merge in keys
+            # of CAN_CONFIG / ~/.canrc / /etc/can.conf that `check` never saw (listen_only,
+            # receive_own_messages, can_filters)
+            "ignore_config": True,
         }
         if self.listen_only:
             out.update(LISTEN_ONLY.get(self.interface, {}))

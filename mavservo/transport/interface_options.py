@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import difflib
 import inspect
+import math
 import re
 import types
 import typing
@@ -33,6 +34,8 @@ RESERVED = {
     "interface": "use the bus's own `interface:` key",
     "bustype": "use the bus's own `interface:` key",
     "on_reject": "set by the bridge (the run log's rejections)",
+    "ignore_config": "set by the bridge (the YAML is the only configuration)",
+    "config_context": "the YAML is the only configuration: give the option itself",
 }
 
 #: Keys an interface's bus has its own YAML key for, per interface.
@@ -79,6 +82,10 @@ class InterfaceOptions:
                 out.append(
                     (key, f"{key!r} of interface {self.interface!r} takes {names}, found {value!r}")
                 )
+            elif kinds is not None and not _in_range(value):
+                out.append((key, f"{key!r} must be a finite number >= 0, found {value!r}"))
+            elif key == "can_filters" and (problem := _filters_problem(value)):
+                out.append((key, problem))
         return out
 
     def _unknown(self, key: str) -> str:
@@ -106,6 +113,48 @@ def _fits(value: Any, kinds: type | tuple[type, ...]) -> bool:
         if kind is str and isinstance(value, str):
             return True
     return False
+
+
+def _in_range(value: Any) -> bool:
+    """Numbers a python-can interface takes (seconds, baud rates, clocks, sizes) are finite and
+    not negative: ``sleep_after_open: -1`` or ``.nan`` reached ``time.sleep`` and stopped the
+    bridge's start with a traceback."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return True
+    return math.isfinite(value) and value >= 0
+
+
+#: ``can_filters`` (python-can's ``CanFilter``): a list of these mappings.
+_FILTER_KEYS = {"can_id": int, "can_mask": int, "extended": bool}
+
+
+def _filters_problem(value: Any) -> str | None:
+    """Why ``value`` is not python-can's filter list (None: it is), so a malformed one is a
+    FILE:LINE error instead of a bus that drops every frame at run time."""
+    shape = (
+        "'can_filters' takes a list of {can_id: int, can_mask: int, extended: bool} "
+        f"(extended optional), found {value!r}"
+    )
+    if value is None:
+        return None
+    if not isinstance(value, list):
+        return shape
+    if len(value) > MAX_FILTERS:
+        return f"'can_filters': at most {MAX_FILTERS} filters, found {len(value)}"
+    for entry in value:
+        if not isinstance(entry, Mapping) or not {"can_id", "can_mask"} <= set(entry):
+            return shape
+        for key, item in entry.items():
+            kind = _FILTER_KEYS.get(str(key))
+            if kind is None or not _fits(item, kind):
+                return shape
+            if kind is int and not 0 <= item <= 0x1FFFFFFF:
+                return f"'can_filters' {key} {item!r} is not a CAN id (0..0x1FFFFFFF)"
+    return None
+
+
+#: More filters than any adapter has hardware for.
+MAX_FILTERS = 64
 
 
 def _plain_kinds(annotation: Any) -> type | tuple[type, ...] | None:

@@ -72,6 +72,9 @@ class ResilientBus(can.BusABC, TransportCounters):
         self._next_attempt = 0.0
         self.disconnects = 0
         self.reconnects = 0
+        self.garbled = 0
+        """Frames the driver's ``recv`` raised on (not a lost device): dropped, counted."""
+        self._garbled_warned_at: float | None = None
         self._retired: dict[str, Any] = {}  # counters of the buses closed so far
         self.down_since: float | None = None
         self.channel_info = f"{self._bus.channel_info or name} (auto-reconnect)"
@@ -112,10 +115,34 @@ class ResilientBus(can.BusABC, TransportCounters):
         except (can.CanOperationError, OSError) as exc:
             self._lost(bus, exc)
             return None, False
+        except can.CanError:
+            raise  # python-can's own errors keep their meaning (the scheduler counts them)
+        except Exception as exc:  # noqa: BLE001 - a driver that cannot parse what it read
+            self._garbled_frame(exc)
+            return None, False
         tap = self.on_frame
         if msg is not None and tap is not None:
             tap(msg, self._clock())
         return msg, False
+
+    def _garbled_frame(self, exc: Exception) -> None:
+        """A frame the driver read but could not parse (python-can's slcan raises ValueError
+        from ``recv`` on a line with a non-hex digit): that frame is lost, the device is not
+        (the driver has consumed the line), and the receiving thread must not die of it.
+        Counted; warned at the first, then at most once per interval with the count."""
+        self.garbled += 1
+        now = self._clock()
+        warned = self._garbled_warned_at
+        if warned is not None and now - warned < REOPEN_WARNING_INTERVAL_S:
+            return
+        self._garbled_warned_at = now
+        log.warning(
+            "%s: the driver could not parse a received frame (%d so far, dropped): %s: %s",
+            self.name,
+            self.garbled,
+            type(exc).__name__,
+            exc,
+        )
 
     def _lost(self, bus: can.BusABC, exc: BaseException) -> None:
         with self._lock:
@@ -185,6 +212,7 @@ class ResilientBus(can.BusABC, TransportCounters):
             "connected": inner is not None,
             "disconnects": self.disconnects,
             "reconnects": self.reconnects,
+            "garbled": self.garbled,
         }
 
     def shutdown(self) -> None:

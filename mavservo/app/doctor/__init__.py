@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -52,6 +53,22 @@ def _id_range(text: str) -> range:
     return range(start, end + 1)
 
 
+#: The longest listen per bitrate: ten NodeStatus periods, a hundred ODrive heartbeats.
+MAX_LISTEN_S = 10.0
+
+
+def _listen_seconds(text: str) -> float:
+    """``--listen``: a finite number of seconds in (0, MAX_LISTEN_S] (NaN made every receive
+    deadline unreachable; a huge value, one bitrate for hours)."""
+    try:
+        seconds = float(text)
+    except ValueError:
+        seconds = math.nan
+    if not 0 < seconds <= MAX_LISTEN_S:  # NaN fails both comparisons
+        raise argparse.ArgumentTypeError(f"{text!r}: seconds in (0, {MAX_LISTEN_S:g}]")
+    return seconds
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="mavservo doctor",
@@ -74,7 +91,11 @@ def _parser() -> argparse.ArgumentParser:
         "nothing else (CubeMars/Robstride in MIT mode); never sent without it",
     )
     parser.add_argument(
-        "--listen", type=float, default=1.5, metavar="S", help="seconds of listening per bitrate"
+        "--listen",
+        type=_listen_seconds,
+        default=1.5,
+        metavar="S",
+        help=f"seconds of listening per bitrate (0 < S <= {MAX_LISTEN_S:g})",
     )
     parser.add_argument(
         "--no-bitrate-search",
@@ -136,7 +157,18 @@ def main(argv: Sequence[str] | None = None) -> int:
         except UnknownProfileError as exc:
             print(f"mavservo doctor: --scan: {exc}", file=sys.stderr)
             return EXIT_INVALID
-        scans.append((family, args.ids or range(cls.min_id, cls.max_id + 1)))
+        family_ids = range(cls.min_id, cls.max_id + 1)
+        ids = family_ids
+        if args.ids is not None:  # only the family's own ids: 0-0x1FFFFFFF would take hours
+            ids = range(max(args.ids.start, cls.min_id), min(args.ids.stop, family_ids.stop))
+            if not ids:
+                print(
+                    f"mavservo doctor: --ids {args.ids.start}-{args.ids.stop - 1}: {family} "
+                    f"ids are {cls.min_id}-{cls.max_id}",
+                    file=sys.stderr,
+                )
+                return EXIT_INVALID
+        scans.append((family, ids))
     log_dir = Path(args.log_dir) if args.log_dir else config.logging.dir
     frame_log = FrameLog(log_dir / f"doctor-{time.strftime('%Y%m%d-%H%M%S')}.asc")
     print(f"mavservo doctor: {path}; every frame sent and heard: {frame_log.path}")
@@ -259,12 +291,31 @@ def print_bus(findings: BusFindings, verdicts: list[Verdict]) -> bool:
             f"  probed {findings.scanned} ids in {findings.scan_s:.2f} s "
             f"({findings.sent} requests sent, {findings.enable_sent} enable frames)"
         )
+    for motor in findings.left_enabled:
+        ok = False
+        print(
+            f"  WARNING: {motor} was enabled (--allow-enable) and the bus refused its disable "
+            "frame every time: it may still be in motor mode; power-cycle it or disable it "
+            "before touching it"
+        )
+    for device, count in sorted(findings.spared.items()):
+        print(
+            f"  not sent: {count} requests whose id is {device}'s (another family's command "
+            "there); scan that family with the device unplugged, or on another bus"
+        )
     return ok
 
 
 def _print_who(findings: BusFindings) -> None:
+    sightings = list(findings.sightings.values())
+    if findings.noisy:  # chance matches of a foreign flood: only what answered is named
+        sightings = [s for s in sightings if s.how == "answered"]
+        print(
+            "  most frames here are no family's: motors only heard (not answering a request) "
+            "may be chance matches and are not named or listed below"
+        )
     heard = sorted(
-        {(s.profile, s.can_id, s.how) for s in findings.sightings.values()},
+        {(s.profile, s.can_id, s.how) for s in sightings},
         key=lambda k: (k[0], k[1]),
     )
     if heard:
@@ -282,7 +333,10 @@ def _print_who(findings: BusFindings) -> None:
             f"0x{i:X}{'x' if ext else ''} ({n})"
             for (i, ext), n in findings.unknown_ids.most_common(8)
         )
-        print(f"  frames no family reads: {ids}")
+        more = (
+            f"; {findings.unknown_overflow} more of other ids" if findings.unknown_overflow else ""
+        )
+        print(f"  frames no family reads: {ids}{more}")
 
 
 def print_yaml(

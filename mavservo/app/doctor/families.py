@@ -153,8 +153,9 @@ FACTS: dict[str, FamilyFacts] = {
         siblings=("rmd-x",),
         mode_fix=_rmd_lk_mode,
         silence=(
-            "an LK motor answers every request on 0x240 + id at its bitrate (1 Mbit/s from the "
-            "factory; LK's tool sets both): check the id, wiring and terminators"
+            "an LK motor answers every request on the request's own id, 0x140 + id, at its "
+            "bitrate (1 Mbit/s from the factory; LK's tool sets both): check the id, wiring "
+            "and terminators"
         ),
     ),
     "cubemars-ak": FamilyFacts(

@@ -22,7 +22,7 @@ from typing import Any
 import can
 
 from mavservo.config import BusConfig, ServoConfig
-from mavservo.servos import get_profile
+from mavservo.servos import FrameId, get_profile
 from mavservo.transport.bus_factory import (
     BITRATE_SET_OUTSIDE,
     STANDARD_BITRATES,
@@ -54,6 +54,13 @@ log = logging.getLogger(__name__)
 #: How long the replies to one batch of probes are waited for (a servo answers within ~1 ms;
 #: a USB adapter's latency and a loaded host add a few more).
 REPLY_WAIT_S = 0.05
+#: Distinct ids of unreadable frames counted one by one: a hostile stream of random ids
+#: (up to ~8,000 frames/s at 1 Mbit/s) cannot grow the count past this.
+MAX_UNKNOWN_IDS = 1024
+#: Sends of a disable frame before a motor is reported left enabled, each after a wait in
+#: which a refusing adapter is reopened (the bus wrapper's backoff starts at 0.1 s).
+DISABLE_TRIES = 5
+DISABLE_RETRY_WAIT_S = 0.25
 #: Probes sent before their replies are collected (a scan's batch): at 1 Mbit/s 16 requests
 #: and their replies take ~4 ms of bus time, well inside the wait.
 BATCH = 16
@@ -151,6 +158,8 @@ class BusFindings:
     heartbeats: dict[int, ODriveHeartbeat] = field(default_factory=dict)
     node_statuses: dict[int, NodeStatus] = field(default_factory=dict)
     unknown_ids: Counter[tuple[int, bool]] = field(default_factory=Counter)
+    unknown_overflow: int = 0
+    """Frames of ids no family reads beyond the first :data:`MAX_UNKNOWN_IDS` distinct ones."""
     damiao_modes: dict[int, str] = field(default_factory=dict)
     """Damiao motor id -> its CTRL_MODE register as read."""
     identities: dict[tuple[str, int], str] = field(default_factory=dict)
@@ -160,8 +169,31 @@ class BusFindings:
     probed_bitrates: list[int] = field(default_factory=list)
     sent: int = 0
     enable_sent: int = 0
+    left_enabled: list[str] = field(default_factory=list)
+    """Motors enabled by ``--allow-enable`` whose disable the bus refused every time."""
     scan_s: float | None = None
     scanned: int = 0
+    spared: Counter[str] = field(default_factory=Counter)
+    """Device ("odrive 10") -> probes not sent because they land on that device's ids: a
+    frame that is another family's read can be this device's command (an RMD-X read on 0x14C
+    is Set_Input_Pos of ODrive node 10, 0x156 its Reboot, 0x15F its Enter_DFU_Mode)."""
+
+    @property
+    def noisy(self) -> bool:
+        """More frames no family reads than frames some family reads: on such a bus a frame
+        that fits a family's layout is as likely chance as a motor, so a motor only heard
+        (never answering a request) is not taken for one."""
+        unknown = sum(self.unknown_ids.values()) + self.unknown_overflow
+        return unknown > sum(s.frames for s in self.sightings.values())
+
+    def unknown(self, msg: can.Message) -> None:
+        """Count a frame no family reads, by id; a flood of random ids is counted in one
+        bucket past :data:`MAX_UNKNOWN_IDS` distinct ones (what is printed is the top 8)."""
+        key = (msg.arbitration_id, msg.is_extended_id)
+        if key in self.unknown_ids or len(self.unknown_ids) < MAX_UNKNOWN_IDS:
+            self.unknown_ids[key] += 1
+        else:
+            self.unknown_overflow += 1
 
     def seen(self, candidate: Candidate, bitrate: int, how: str, complete: bool) -> Sighting:
         key = (*candidate.key, bitrate)
@@ -274,8 +306,17 @@ class BusDoctor:
         self.findings.listened[bitrate] = valid
         return valid > 0
 
-    def _collect(self, bus: can.BusABC, bitrate: int, seconds: float, how: str) -> int:
-        """Receive for ``seconds``; each frame recorded and read. Valid frames counted."""
+    def _collect(
+        self,
+        bus: can.BusABC,
+        bitrate: int,
+        seconds: float,
+        how: str,
+        asked: set[tuple[str, int]] | None = None,
+    ) -> int:
+        """Receive for ``seconds``; each frame recorded and read. Valid frames counted.
+        ``asked``: the motors just sent a request; only they can have ``answered`` it (a
+        frame of another, or of a foreign flood that fits some family, was only heard)."""
         valid = 0
         deadline = time.monotonic() + seconds
         for _ in range(200_000):  # bounded: a saturated 1 Mbit/s bus is ~8,000 frames/s
@@ -290,10 +331,16 @@ class BusDoctor:
                 self.findings.error_frames[bitrate] = self.findings.error_frames.get(bitrate, 0) + 1
                 continue
             valid += 1
-            self._read(msg, bitrate, how)
+            self._read(msg, bitrate, how, asked)
         return valid
 
-    def _read(self, msg: can.Message, bitrate: int, how: str) -> None:
+    def _read(
+        self,
+        msg: can.Message,
+        bitrate: int,
+        how: str,
+        asked: set[tuple[str, int]] | None = None,
+    ) -> None:
         said = announcements(msg)
         candidates = self.recogniser.whose(msg)
         mine = [(c, whole) for c, whole in candidates if c.key in self._configured]
@@ -315,14 +362,17 @@ class BusDoctor:
             self.findings.actuators.setdefault(status_of[0], set()).add(status_of[1])
         if not candidates:
             if said is None:
-                self.findings.unknown_ids[(msg.arbitration_id, msg.is_extended_id)] += 1
+                self.findings.unknown(msg)
             return
         mode = damiao_mode(msg)
         if mode is not None and any(c.profile == "damiao-dm" for c, _ in candidates):
             self.findings.damiao_modes[mode[0]] = mode[1]
         names = {f"{c.profile} {c.can_id}" for c, _ in candidates}
         for candidate, complete in candidates:
-            sighting = self.findings.seen(candidate, bitrate, how, complete)
+            mine_to_answer = asked is None or (candidate.profile, candidate.can_id) in asked
+            sighting = self.findings.seen(
+                candidate, bitrate, how if mine_to_answer else "heard", complete
+            )
             sighting.alternatives |= names - {f"{candidate.profile} {candidate.can_id}"}
 
     def _probe_servos(self, bitrate: int) -> bool:
@@ -346,20 +396,64 @@ class BusDoctor:
             opened.close()
         return True
 
+    def _occupants(self) -> list[tuple[str, frozenset[str], FrameId]]:
+        """The ids other devices take frames on: every configured servo, every motor heard or
+        answering, every ODrive heard by its heartbeat; each as (name, its family and the
+        families sharing its hardware, one receiving identifier)."""
+        devices: dict[tuple[str, int], Mapping[str, Any]] = {}
+        for servo in self.servos:
+            devices.setdefault((servo.profile, servo.can_id), servo.options)
+        for sighting in self.findings.sightings.values():
+            devices.setdefault((sighting.profile, sighting.can_id), sighting.options)
+        for node in self.findings.heartbeats:
+            devices.setdefault(("odrive", node), {})
+        out: list[tuple[str, frozenset[str], FrameId]] = []
+        for (profile, can_id), options in devices.items():
+            candidate = make_candidate(profile, can_id, options)
+            if candidate is None:
+                continue
+            group = frozenset((profile, *facts(profile).siblings))
+            out.extend(
+                (f"{profile} {can_id}", group, frame_id) for frame_id in _receiving_ids(candidate)
+            )
+        return out
+
+    def _lands_on_another(
+        self,
+        candidate: Candidate,
+        msg: can.Message,
+        occupants: Sequence[tuple[str, frozenset[str], FrameId]],
+    ) -> str | None:
+        """The device of another family that would take ``msg`` (meant for ``candidate``) as
+        one of its own frames, or None."""
+        for name, group, frame_id in occupants:
+            if candidate.profile not in group and frame_id.matches(msg):
+                return name
+        return None
+
     def _probe(self, opened: OpenedBus, probes: Sequence[Candidate], bitrate: int) -> None:
         forbidden = self._forbidden | forbidden_frames(probes)
         sender = SafeSender(opened.bus, lambda msg, rx: self._record(msg, rx, bitrate), forbidden)
         frames: list[can.Message] = []
-        unique: set[tuple[int, bool, bytes]] = set()
+        askers: dict[tuple[int, bool, bytes], set[tuple[str, int]]] = {}
+        occupants = self._occupants()
         for candidate in probes:  # two modes often share a read (the same frame): sent once
             for msg in safe_requests(candidate, forbidden):
-                if _signature(msg) not in unique:
-                    unique.add(_signature(msg))
+                owner = self._lands_on_another(candidate, msg, occupants)
+                if owner is not None:
+                    self.findings.spared[owner] += 1
+                    continue
+                signature = _signature(msg)
+                if signature not in askers:
+                    askers[signature] = set()
                     frames.append(msg)
+                askers[signature].add((candidate.profile, candidate.can_id))
         for start in range(0, len(frames), BATCH):
+            asked: set[tuple[str, int]] = set()
             for msg in frames[start : start + BATCH]:
                 sender.send(msg)
-            self._collect(opened.bus, bitrate, REPLY_WAIT_S, "answered")
+                asked |= askers[_signature(msg)]
+            self._collect(opened.bus, bitrate, REPLY_WAIT_S, "answered", asked)
         if self.allow_enable:
             self._enable_probes(sender, opened, probes, bitrate)
         self.findings.sent += sender.sent
@@ -370,18 +464,46 @@ class BusDoctor:
         """``--allow-enable``: the silent ones that answer only when enabled, enabled once
         and disabled again at once."""
         found = {(s.profile, s.can_id) for s in self.findings.sightings.values()}
+        occupants = self._occupants()
         for candidate in probes:
             enable = facts(candidate.profile).enable
             if enable is None or (candidate.profile, candidate.can_id) in found:
                 continue
             on, off = enable(candidate.can_id, candidate.raw_options)
-            for msg in on:
-                sender.send(msg, enabling=True)
-                self.findings.enable_sent += 1
-            self._collect(opened.bus, bitrate, REPLY_WAIT_S, "answered")
-            for msg in off:
-                sender.send(msg, enabling=True)
-            self._collect(opened.bus, bitrate, REPLY_WAIT_S / 2, "answered")
+            owner = next(
+                (o for m in on if (o := self._lands_on_another(candidate, m, occupants))), None
+            )
+            if owner is not None:
+                self.findings.spared[owner] += len(on)
+                continue
+            asked = {(candidate.profile, candidate.can_id)}
+            try:
+                for msg in on:
+                    sender.send(msg, enabling=True)
+                    self.findings.enable_sent += 1
+                self._collect(opened.bus, bitrate, REPLY_WAIT_S, "answered", asked)
+            finally:  # Ctrl-C while it listens still disables it
+                self._disable(sender, opened, bitrate, candidate, off)
+            self._collect(opened.bus, bitrate, REPLY_WAIT_S / 2, "answered", asked)
+
+    def _disable(
+        self,
+        sender: SafeSender,
+        opened: OpenedBus,
+        bitrate: int,
+        candidate: Candidate,
+        off: Sequence[can.Message],
+    ) -> None:
+        """Send the frames that undo an enable: a motor left in motor mode after the doctor
+        is gone is the one thing ``--allow-enable`` must never cause. Each is tried again
+        after a wait in which a refusing adapter is reopened (from the receive path)."""
+        for msg in off:
+            for _ in range(DISABLE_TRIES):
+                if sender.send(msg, enabling=True):
+                    break
+                self._collect(opened.bus, bitrate, DISABLE_RETRY_WAIT_S, "heard")
+            else:
+                self.findings.left_enabled.append(f"{candidate.profile} {candidate.can_id}")
 
     def _silent(self) -> list[ServoConfig]:
         found = {(s.profile, s.can_id) for s in self.findings.sightings.values()}
@@ -417,6 +539,14 @@ class BusDoctor:
             opened.close()
         self.findings.scan_s = (self.findings.scan_s or 0.0) + time.monotonic() - started
         self.findings.scanned += len(probes)
+
+
+def _receiving_ids(candidate: Candidate) -> list[FrameId]:
+    """The identifiers ``candidate``'s motor takes frames on (its profile's own list)."""
+    try:
+        return [f for f in candidate.instance.identifiers() if f.direction == "to_servo"]
+    except Exception:  # noqa: BLE001 - a profile that cannot say occupies nothing known
+        return []
 
 
 def safe_requests(

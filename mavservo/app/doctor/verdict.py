@@ -252,6 +252,8 @@ def extra_entries(findings: BusFindings, verdicts: list[Verdict]) -> list[dict[s
             continue
         if findings.working_bitrate is not None and sighting.bitrate != findings.working_bitrate:
             continue
+        if findings.noisy and sighting.how != "answered":
+            continue  # chance matches of a busy foreign bus (BusFindings.noisy): not listed
         seen.add(key)
         entry: dict[str, Any] = {
             "name": f"{sighting.profile.replace('-', '_')}_{sighting.can_id}",
