@@ -30,7 +30,7 @@ from e2e_support import (
     status,
 )
 
-from mavservo.servos.damiao import DamiaoDM
+from mavservo.servos.damiao.profile import DamiaoDM
 from mavservo.servos.mit import is_special, unpack_command
 
 pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")

@@ -48,4 +48,4 @@ def test_every_built_in_family_has_vectors_and_a_simulator_of_its_own() -> None:
         assert cls.name in FAMILIES, f"{cls.name}: no tests/data/vectors/{cls.name}.yaml"
         device = SimServo(cls.name, cls.min_id + 1)._device  # noqa: SLF001
         module = type(device).__module__
-        assert module.endswith("_sim") and module != cls.__module__, (cls.name, module)
+        assert module.endswith("sim") and module != cls.__module__, (cls.name, module)

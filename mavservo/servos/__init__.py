@@ -20,15 +20,15 @@ from .base import (
     SimDevice,
     SimMotor,
 )
-from .cubemars import CubeMarsAK
-from .cubemars_mit import CubeMarsAKMit
-from .damiao import DamiaoDM
-from .dronecan import DroneCanServo
-from .lk import LkTech
-from .odrive import ODrive
+from .cubemars.mit_mode import CubeMarsAKMit
+from .cubemars.profile import CubeMarsAK
+from .damiao.profile import DamiaoDM
+from .dronecan.profile import DroneCanServo
+from .lk.profile import LkTech
+from .odrive.profile import ODrive
 from .registry import PROFILES, UnknownProfileError, get_profile, load_errors, profiles
-from .rmdx import RmdX
-from .robstride import Robstride
+from .rmdx.profile import RmdX
+from .robstride.profile import Robstride
 
 __all__ = [
     "NO_FAULT",

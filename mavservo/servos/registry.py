@@ -21,14 +21,14 @@ from importlib.metadata import entry_points
 from mavservo.errors import MavservoError
 
 from .base import ServoProfile
-from .cubemars import CubeMarsAK
-from .cubemars_mit import CubeMarsAKMit
-from .damiao import DamiaoDM
-from .dronecan import DroneCanServo
-from .lk import LkTech
-from .odrive import ODrive
-from .rmdx import RmdX
-from .robstride import Robstride
+from .cubemars.mit_mode import CubeMarsAKMit
+from .cubemars.profile import CubeMarsAK
+from .damiao.profile import DamiaoDM
+from .dronecan.profile import DroneCanServo
+from .lk.profile import LkTech
+from .odrive.profile import ODrive
+from .rmdx.profile import RmdX
+from .robstride.profile import Robstride
 
 ENTRY_POINT_GROUP = "mavservo.profiles"
 BUILT_IN: tuple[type[ServoProfile], ...] = (

@@ -1,21 +1,19 @@
 """Every built-in family's simulated device, registered by profile name (:mod:`.sim_registry`).
 
 Imported by the package, so a profile's ``sim_device`` finds its device wherever the profile is
-used; the devices themselves live in ``<family>_sim`` modules that import nothing of their
-profiles.
+used; the devices themselves live in each family's ``sim`` module, which imports nothing of its
+profile.
 """
 
 from __future__ import annotations
 
-from . import (
-    cubemars_mit_sim,
-    cubemars_sim,
-    damiao_sim,
-    lk_sim,
-    odrive_sim,
-    rmdx_sim,
-    robstride_sim,
-)
+from .cubemars import mit_mode_sim as cubemars_mit_sim
+from .cubemars import sim as cubemars_sim
+from .damiao import sim as damiao_sim
+from .lk import sim as lk_sim
+from .odrive import sim as odrive_sim
+from .rmdx import sim as rmdx_sim
+from .robstride import sim as robstride_sim
 from .sim_registry import register
 
 register("rmd-x", rmdx_sim.RmdXV4Device)

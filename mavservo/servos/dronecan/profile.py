@@ -55,8 +55,7 @@ from typing import Any, ClassVar, Literal
 import can
 from pydantic import Field, model_validator
 
-from . import dronecan_wire as wire
-from .base import (
+from ..base import (
     NO_FAULT,
     Fault,
     FrameId,
@@ -66,7 +65,8 @@ from .base import (
     SimDevice,
     SimMotor,
 )
-from .dronecan_node import BridgeNode, NodeOptions
+from . import wire
+from .node import BridgeNode, NodeOptions
 
 _DTID_MASK = 0xFFFF << 8
 _FEEDBACK = (
@@ -300,7 +300,7 @@ class DroneCanServo(ServoProfile):
 
     @classmethod
     def sim_device(cls, motor: SimMotor, can_id: int, options: ProfileOptions) -> SimDevice:
-        from .dronecan_sim import DroneCanDevice
+        from .sim import DroneCanDevice
 
         assert isinstance(options, DroneCanOptions)
         return DroneCanDevice(motor, can_id, options)
@@ -308,7 +308,7 @@ class DroneCanServo(ServoProfile):
     @classmethod
     def link_sim_devices(cls, devices: Sequence[SimDevice]) -> None:
         """Servos on one node id are one simulated node (see :mod:`.dronecan_sim`)."""
-        from .dronecan_sim import link_devices
+        from .sim import link_devices
 
         link_devices(devices)
 
