@@ -1,14 +1,14 @@
 """Servo profiles: setpoints <-> CAN payloads, pure functions of their inputs.
 
-A servo family is one module with a :class:`ServoProfile` subclass that describes itself (see
-``docs/profiles.md``): built-in families are listed in :mod:`mavservo.servos.registry`, other
+A servo family is one folder ``servos/<family>/`` with a :class:`ServoProfile` subclass that
+describes itself (see ``docs/profiles.md``): built-in families are one line each of the lazy
+table :data:`mavservo.servos.registry.BUILT_IN`, other
 packages register through the entry-point group ``mavservo.profiles``. The YAML config names
 profiles by their short ``name``.
 """
 
 from __future__ import annotations
 
-from . import simulators  # noqa: F401  (fills sim_registry with the built-in devices)
 from .base import (
     NO_FAULT,
     UNKNOWN,
@@ -20,15 +20,19 @@ from .base import (
     SimDevice,
     SimMotor,
 )
-from .cubemars.mit_mode import CubeMarsAKMit
-from .cubemars.profile import CubeMarsAK
-from .damiao.profile import DamiaoDM
-from .dronecan.profile import DroneCanServo
-from .lk.profile import LkTech
-from .odrive.profile import ODrive
-from .registry import PROFILES, UnknownProfileError, get_profile, load_errors, profiles
-from .rmdx.profile import RmdX
-from .robstride.profile import Robstride
+from .registry import BUILT_IN, PROFILES, UnknownProfileError, get_profile, load_errors, profiles
+
+_CLASSES = {line.profile.partition(":")[2]: name for name, line in BUILT_IN.items()}
+"""Each built-in family's class name -> its YAML name (``RmdX`` -> ``rmd-x``), from the table."""
+
+
+def __getattr__(attribute: str) -> type[ServoProfile]:
+    """The family classes by their class names, imported on first use (PEP 562), so importing
+    the package imports no family."""
+    if attribute in _CLASSES:
+        return PROFILES[_CLASSES[attribute]]
+    raise AttributeError(f"module {__name__!r} has no attribute {attribute!r}")
+
 
 __all__ = [
     "NO_FAULT",
