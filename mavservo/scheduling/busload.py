@@ -26,7 +26,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Literal, Protocol
 
-from mavservo.servos.base import ServoProfile
+from mavservo.servos.base import ServoProfile, unsolicited_hz_of
 
 Stuffing = Literal["worst", "none"]
 
@@ -209,7 +209,7 @@ def servo_traffic(
         replies_per_request=profile.replies_per_request,
         # a multi-frame status transfer (DroneCAN Status: two frames) counts every frame
         push_hz=(0.0 if requests else status_hz * profile.frames_per_push)
-        + profile.unsolicited_hz(),
+        + unsolicited_hz_of(profile),
         lifecycle_hz=startup_hz,
         lifecycle_shapes=tuple((bool(f.is_extended_id), int(f.dlc)) for f in startup),
         replies_per_lifecycle=profile.replies_per_lifecycle,

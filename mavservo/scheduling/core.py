@@ -89,7 +89,7 @@ from typing import Literal
 import can
 
 from mavservo.errors import MavservoError
-from mavservo.servos.base import ServoProfile
+from mavservo.servos.base import ServoProfile, SplitStartup, release_frames_of
 
 from . import reply_matching
 from .busload import (
@@ -320,7 +320,7 @@ class _ServoSlot:
     released (module docstring)."""
     last_startup: float = -math.inf
     continued: bool = False
-    """The early next step of its latest start-up went (``ServoProfile.startup_continues``)."""
+    """The early next step of its latest start-up went (``servos.base.SplitStartup``)."""
     release_due: float | None = None
     """When its release frames go out (None: none pending): at once after ``release``, at the
     next command slot after the bus refused them."""
@@ -588,7 +588,7 @@ class ScheduleCore:
         is preceded by the start-up frames again."""
         slot = self._slots[name]
         slot.released = True
-        slot.release_due = -math.inf if slot.spec.profile.release_frames() else None
+        slot.release_due = -math.inf if release_frames_of(slot.spec.profile) else None
         slot.started = False
 
     def wants_lifecycle_wake(self) -> bool:
@@ -608,7 +608,7 @@ class ScheduleCore:
             slot = self._slots[name]
             if slot.release_due is not None:
                 slot.release_due = None
-                out += self._lifecycle(slot, slot.spec.profile.release_frames(), "release", now)
+                out += self._lifecycle(slot, release_frames_of(slot.spec.profile), "release", now)
             out += self._lifecycle(slot, slot.spec.profile.shutdown_frames(), "shutdown", now)
         return out
 
@@ -638,7 +638,12 @@ class ScheduleCore:
     def _start_up_if_needed(self, slot: _ServoSlot, now: float, decision: Decision) -> None:
         """Put the servo's start-up frames before its command when they are due."""
         profile = slot.spec.profile
-        early = slot.started and not slot.continued and profile.startup_continues()
+        early = (
+            slot.started
+            and not slot.continued
+            and isinstance(profile, SplitStartup)
+            and profile.startup_continues()
+        )
         if now - slot.last_startup < STARTUP_RETRY_S and not early:
             return  # the budget counts start-ups at this rate: it is a ceiling
         if slot.started and not profile.needs_startup():
@@ -653,7 +658,7 @@ class ScheduleCore:
             slot = self._slots[name]
             if slot.release_due is not None and slot.release_due <= now:
                 slot.release_due = None
-                frames = slot.spec.profile.release_frames()
+                frames = release_frames_of(slot.spec.profile)
                 decision.frames += self._lifecycle(slot, frames, "release", now)
 
     def _command_frame(self, slot: _ServoSlot, kind: FrameKind, now: float) -> Outgoing:

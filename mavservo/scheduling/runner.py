@@ -60,6 +60,7 @@ __all__ = [
     "SetpointResult",
     "StateCallback",
     "TimingConfig",
+    "WriteObserver",
 ]
 
 log = logging.getLogger(__name__)
@@ -95,14 +96,6 @@ class SchedulerObserver(Protocol):
         """``bus.send`` returned for ``msg``; ``t`` is the monotonic time just after the write."""
         return None
 
-    def on_written(self, bus: str, t: float, kind: FrameKind, servo: str, seq: int | None) -> None:
-        """Every frame carrying ``servo``'s ``kind`` frame (its ``seq``) is on the wire, the last
-        of them written at ``t``: called once per servo per write, after the frames' ``on_tx``.
-        A packed transfer (DroneCAN's ArrayCommand: 8 servos' commands in 5 frames) has fewer
-        frames than commands, so ``on_tx`` cannot say which commands it wrote; this does, for
-        every family alike. Optional: an observer without it is not called."""
-        return None
-
     def on_rx(
         self, bus: str, msg: can.Message, t: float, servo: str, state: ServoState | None
     ) -> None:
@@ -117,6 +110,21 @@ class SchedulerObserver(Protocol):
     def on_reject(self, bus: str, reason: str, raw_bytes: bytes, t: float) -> None:
         """The bus's frame decoder rejected bytes (forwarded through ``report_reject``)."""
         return None
+
+
+@runtime_checkable
+class WriteObserver(Protocol):
+    """An observer that also wants to know when a servo's frames are all on the wire: a
+    capability of a :class:`SchedulerObserver`, checked with isinstance once, when the
+    scheduler is built (an observer without it is not called)."""
+
+    def on_written(self, bus: str, t: float, kind: FrameKind, servo: str, seq: int | None) -> None:
+        """Every frame carrying ``servo``'s ``kind`` frame (its ``seq``) is on the wire, the last
+        of them written at ``t``: called once per servo per write, after the frames' ``on_tx``.
+        A packed transfer (DroneCAN's ArrayCommand: 8 servos' commands in 5 frames) has fewer
+        frames than commands, so ``on_tx`` cannot say which commands it wrote; this does, for
+        every family alike."""
+        ...
 
 
 @runtime_checkable
@@ -210,6 +218,7 @@ class Scheduler:
         self._bus = bus
         self._clock = clock
         self._observer: SchedulerObserver = observer or _NoObserver()
+        self._write_observer = observer if isinstance(observer, WriteObserver) else None
         self._nodes = BusNodes(self.name, servos, self.timing, node_options or {}, clock())
         self._core = ScheduleCore(
             servos,
@@ -368,9 +377,10 @@ class Scheduler:
             self._notify_observer(
                 self._observer.on_tx, self.name, out.msg, t, out.kind, out.servo, out.seq
             )
-            written = getattr(self._observer, "on_written", None)
-            if written is not None:
-                self._notify_observer(written, self.name, t, out.kind, out.servo, out.seq)
+            if self._write_observer is not None:
+                self._notify_observer(
+                    self._write_observer.on_written, self.name, t, out.kind, out.servo, out.seq
+                )
 
     def __enter__(self) -> Scheduler:
         self.start()
@@ -738,8 +748,8 @@ class Scheduler:
                 self._notify_observer(
                     self._observer.on_tx, self.name, msg, t, out.kind, out.servo, out.seq
                 )
-            written = getattr(self._observer, "on_written", None)
-            if written is not None:
+            if self._write_observer is not None:
+                written = self._write_observer.on_written
                 for out in outs:
                     self._notify_observer(written, self.name, t, out.kind, out.servo, out.seq)
 

@@ -14,7 +14,7 @@ import math
 from abc import ABC, abstractmethod
 from collections.abc import Hashable, Sequence
 from dataclasses import dataclass, replace
-from typing import Any, ClassVar, Literal, Protocol
+from typing import Any, ClassVar, Literal, Protocol, runtime_checkable
 
 import can
 from pydantic import BaseModel, ConfigDict
@@ -293,8 +293,6 @@ class ServoProfile(ABC):
     rate. None: ``offline_after_missed`` status periods."""
     frames_per_push: ClassVar[int] = 1
     """CAN frames one status push takes (a multi-frame transfer: more than one)."""
-    NodeOptions: ClassVar[type[ProfileOptions] | None] = None
-    """The bus-level ``node:`` options of a family with a :class:`BusNode` (None: no node)."""
     min_id: int = 1
     max_id: int = 32
     min_angle_deg: float = -math.inf
@@ -336,15 +334,6 @@ class ServoProfile(ABC):
         """True after a decoded reply says the servo is disabled or timed out by itself."""
         return False
 
-    def startup_continues(self) -> bool:
-        """True when the last start-up was a first step whose next step (asked for with
-        :meth:`needs_startup`) may go at the next command slot instead of after the scheduler's
-        retry interval: a start-up that must be split in two so that CAN arbitration cannot
-        reorder it (Robstride: the enable after the mode write) then costs one command slot, not
-        a second of commands the motor ignores. The scheduler allows one such early step per
-        start-up. Default: False."""
-        return False
-
     telemetry_hz: float | None = None
     """The servo's configured ``telemetry_hz`` (None: not configured, e.g. a bare instance),
     set by the config when it builds the profile: a pushed family that programs its servo's
@@ -362,24 +351,9 @@ class ServoProfile(ABC):
         answered (wrong protocol, id, bitrate); None (the default): nothing to add."""
         return None
 
-    def release_frames(self) -> list[can.Message]:
-        """Motor off (torque free): what ``failsafe: release`` sends. Empty: cannot release."""
-        return []
-
     def shutdown_frames(self) -> list[can.Message]:
         """Sent once when the bridge stops, after the failsafe action. Default: none."""
         return []
-
-    def unsolicited_hz(self) -> float:
-        """Frames per second the servo sends on its own besides its telemetry (ODrive's
-        heartbeat), which the bus-load budget counts. Default: none."""
-        return 0.0
-
-    def comm_timeout_s(self) -> float | None:
-        """The servo's own communication timeout or watchdog as configured (seconds): it
-        stops or disarms by itself after this long without a frame from the bridge. ``check``
-        warns when the keep-alive is not shorter. Default: None, none declared."""
-        return None
 
     def config_warnings(self) -> list[str]:
         """Settings of this servo that load but will likely not do what the user means (a
@@ -394,9 +368,9 @@ class ServoProfile(ABC):
 
     def stop_behaviour(self) -> str:
         """:attr:`STOP_BEHAVIOUR`, with the servo's own timeout when one is configured
-        (:meth:`comm_timeout_s`); a family whose behaviour depends on its options overrides
+        (:class:`CommTimeout`); a family whose behaviour depends on its options overrides
         this (DroneCAN: the node's firmware)."""
-        timeout = self.comm_timeout_s()
+        timeout = comm_timeout_of(self)
         if timeout is None:
             return self.STOP_BEHAVIOUR
         return (
@@ -408,27 +382,6 @@ class ServoProfile(ABC):
     @abstractmethod
     def sim_device(cls, motor: SimMotor, can_id: int, options: ProfileOptions) -> SimDevice:
         """The device side for the built-in simulation and ``mavservo sim``."""
-
-    @classmethod
-    def link_sim_devices(cls, devices: Sequence[SimDevice]) -> None:
-        """Let the simulated devices of this family on one bus meet, for a family whose
-        device can carry several servos (a DroneCAN node with several actuators: one node,
-        one heartbeat). Default: every device stands alone."""
-        return None
-
-    @classmethod
-    def bus_node(
-        cls,
-        profiles: Sequence[ServoProfile],
-        options: ProfileOptions | None,
-        software_version: tuple[int, int],
-        start: float,
-        unique_id: bytes = bytes(16),
-    ) -> BusNode | None:
-        """The node this family's servos on one bus share (``profiles``: those servos), or
-        None (the default: every servo is addressed on its own). ``unique_id``: the node's
-        identity on the bus, stable for this machine and bus."""
-        return None
 
     def _merge(
         self,
@@ -529,3 +482,114 @@ class ServoProfile(ABC):
         if math.isnan(speed) or speed < 0:
             raise ValueError(f"{self.name}: speed limit must be >= 0, got {speed!r}")
         return min(speed, self.max_speed_dps)
+
+
+# ---------------------------------------------------------------------------- capabilities
+# What only some families do, each a runtime-checkable Protocol that a profile (or, for a bus
+# node, a profile class) meets by defining its members; callers ask with isinstance (or the
+# helpers below), never with getattr, and a profile without the capability is not asked.
+
+
+@runtime_checkable
+class Releasing(Protocol):
+    """A family that can switch its motor off (torque free): ``failsafe: release``."""
+
+    def release_frames(self) -> list[can.Message]:
+        """Motor off, as the frames that do it. Empty: this servo's options cannot release."""
+        ...
+
+
+@runtime_checkable
+class CommTimeout(Protocol):
+    """A servo with a communication timeout or watchdog of its own."""
+
+    def comm_timeout_s(self) -> float | None:
+        """The servo's own communication timeout or watchdog as configured (seconds): it stops
+        or disarms by itself after this long without a frame from the bridge. ``check`` warns
+        when the keep-alive is not shorter. None: not configured."""
+        ...
+
+
+@runtime_checkable
+class SplitStartup(Protocol):
+    """A start-up that must be split in two so that CAN arbitration cannot reorder it."""
+
+    def startup_continues(self) -> bool:
+        """True when the last start-up was a first step whose next step (asked for with
+        ``needs_startup``) may go at the next command slot instead of after the scheduler's
+        retry interval (Robstride: the enable after the mode write): it then costs one command
+        slot, not a second of commands the motor ignores. The scheduler allows one such early
+        step per start-up."""
+        ...
+
+
+@runtime_checkable
+class UnsolicitedFrames(Protocol):
+    """A servo that sends frames on its own besides its telemetry (ODrive's heartbeat)."""
+
+    def unsolicited_hz(self) -> float:
+        """Frames per second it sends unasked, which the bus-load budget counts."""
+        ...
+
+
+@runtime_checkable
+class BusNodeFamily(Protocol):
+    """A family whose servos on one bus share a node (DroneCAN): met by the profile class.
+
+    ``NodeOptions`` is the model of the bus-level ``node:`` options; :meth:`bus_node` builds
+    the node the scheduler owns; :meth:`link_sim_devices` lets the simulated devices of one
+    bus meet (a DroneCAN node with several actuators: one node, one heartbeat)."""
+
+    NodeOptions: type[ProfileOptions]
+
+    def bus_node(
+        self,
+        profiles: Sequence[ServoProfile],
+        options: ProfileOptions | None,
+        software_version: tuple[int, int],
+        start: float,
+        unique_id: bytes = ...,
+    ) -> BusNode:
+        """The node this family's servos on one bus share (``profiles``: those servos).
+        ``unique_id``: the node's identity on the bus, stable for this machine and bus."""
+        ...
+
+    def link_sim_devices(self, devices: Sequence[SimDevice]) -> None:
+        """Let the simulated devices of this family on one bus meet."""
+        ...
+
+
+@runtime_checkable
+class CountingNode(Protocol):
+    """A :class:`BusNode` that counts what it saw of the bus (hostile traffic included)."""
+
+    def stats(self) -> dict[str, int]:
+        """Counts for the run summary and ``metrics.json``."""
+        ...
+
+
+@runtime_checkable
+class ActuatorOptions(Protocol):
+    """The options of a servo that is one actuator of a node (DroneCAN's ``actuator_id``)."""
+
+    actuator_id: int
+
+
+def release_frames_of(profile: ServoProfile) -> list[can.Message]:
+    """The profile's release frames, or none for a family that cannot release."""
+    return profile.release_frames() if isinstance(profile, Releasing) else []
+
+
+def comm_timeout_of(profile: ServoProfile) -> float | None:
+    """The servo's own communication timeout in seconds, or None (none declared)."""
+    return profile.comm_timeout_s() if isinstance(profile, CommTimeout) else None
+
+
+def unsolicited_hz_of(profile: ServoProfile) -> float:
+    """Frames per second the servo sends unasked besides its telemetry (0: none)."""
+    return profile.unsolicited_hz() if isinstance(profile, UnsolicitedFrames) else 0.0
+
+
+def node_family(cls: type[ServoProfile]) -> BusNodeFamily | None:
+    """The profile class as a :class:`BusNodeFamily`, or None: its servos stand alone."""
+    return cls if isinstance(cls, BusNodeFamily) else None

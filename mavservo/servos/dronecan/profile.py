@@ -312,7 +312,7 @@ class DroneCanServo(ServoProfile):
 
         link_devices(devices)
 
-    NodeOptions: ClassVar[type[ProfileOptions] | None] = NodeOptions
+    NodeOptions: ClassVar[type[ProfileOptions]] = NodeOptions
 
     @classmethod
     def bus_node(
