@@ -17,7 +17,13 @@ from mavservo.config.schema import (
     ServoOutputChannel,
 )
 from mavservo.servos import FrameId, ServoProfile
-from mavservo.servos.base import BusNodeError, comm_timeout_of, node_family, release_frames_of
+from mavservo.servos.base import (
+    BusNodeError,
+    ConfigWarnings,
+    comm_timeout_of,
+    node_family,
+    release_frames_of,
+)
 
 Finding = tuple[tuple[str | int, ...], str]
 
@@ -111,7 +117,8 @@ def advisories(config: Config) -> list[Finding]:
     findings += [
         (("servos", index, "options"), f"servo {servo.name!r}: {text}")
         for index, servo in enumerate(config.servos)
-        for text in profile_of(servo).config_warnings()
+        if isinstance(profile := profile_of(servo), ConfigWarnings)
+        for text in profile.config_warnings()
     ]
     findings += _undriven_servos(config)
     findings += _keep_alive_past_timeout(config)

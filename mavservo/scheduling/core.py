@@ -89,7 +89,7 @@ from typing import Literal
 import can
 
 from mavservo.errors import MavservoError
-from mavservo.servos.base import ServoProfile, SplitStartup, release_frames_of
+from mavservo.servos.base import ServoProfile, SplitStartup, node_reports_of, release_frames_of
 
 from . import reply_matching
 from .busload import (
@@ -447,8 +447,9 @@ class ScheduleCore:
         as the budget assumes); None for polled servos and for one configured to push nothing."""
         if spec.profile.telemetry_requests():
             return None
-        if spec.profile.heartbeat_period_s:
-            return spec.profile.heartbeat_period_s  # its own heartbeat says it is alive
+        reports = node_reports_of(spec.profile)
+        if reports is not None and reports.heartbeat_period_s:
+            return reports.heartbeat_period_s  # its own heartbeat says it is alive
         hz = spec.telemetry_hz
         if hz is None:
             return self.timing.telemetry_period_s

@@ -46,7 +46,7 @@ from mavservo.scheduling.core import (
     exchange_key,
 )
 from mavservo.scheduling.outage_log import LateReplies, Line, OnlineLog
-from mavservo.servos.base import BusNode, Fault, ServoProfile, ServoState
+from mavservo.servos.base import Advising, BusNode, Fault, ServoState, node_reports_of
 
 from .bus_nodes import BusNodes
 from .busload import message_bits
@@ -261,10 +261,14 @@ class Scheduler:
         and STATUSTEXT); called from the scheduler's threads, must not block."""
         self._advised: set[str] = set()
         """Servos whose :meth:`_advise` line went out (once per servo and run)."""
-        self._diagnosing = [
-            (spec.name, spec.profile)
+        self._node_reports = {
+            spec.name: reports
             for spec in servos
-            if type(spec.profile).diagnose is not ServoProfile.diagnose
+            if (reports := node_reports_of(spec.profile)) is not None
+        }
+        """The servos whose reports come from a node (resolved once, asked for every frame)."""
+        self._diagnosing = [
+            (spec.name, spec.profile) for spec in servos if isinstance(spec.profile, Advising)
         ]
         """Servos whose profile can say whose an unclaimed frame is (a foreign node's flood
         costs nothing for the others)."""
@@ -660,7 +664,8 @@ class Scheduler:
                 sent = self._metrics.servos[servo].lifecycle_sent
                 sent += self._metrics.servos[servo].commands_sent
                 if sent and servo not in self._states:  # spoken to, never heard: what to check
-                    hint = self._specs[servo].profile.silence_hint()
+                    profile = self._specs[servo].profile
+                    hint = profile.silence_hint() if isinstance(profile, Advising) else None
                     if hint is not None:
                         advice.append((servo, hint))
                 more, state = self._go_offline(servo, "no reply", dropped.get(servo), now)
@@ -700,7 +705,7 @@ class Scheduler:
 
     def _diagnose(self, msg: can.Message) -> None:
         """A frame no servo claims: ask each servo not yet advised whether it is its own in
-        another form (:meth:`ServoProfile.diagnose`)."""
+        another form (:class:`~mavservo.servos.base.Advising`)."""
         for name, profile in self._diagnosing:
             if name in self._advised:
                 continue
@@ -908,14 +913,15 @@ class Scheduler:
         """One servo's decoded report of ``msg`` (None: rejected): the scheduler's reply,
         metrics, observers and subscribers."""
         profile = self._specs[servo].profile
+        reports = self._node_reports.get(servo)
         lines: list[Line] = []
-        if state is not None and not profile.completes_report(msg):
+        if state is not None and reports is not None and not reports.completes_report(msg):
             # the start of a multi-frame report: logged, but neither a reply nor a new state
             # (state None for the observer: the run log's trace and the latency's round trip
             # take the report at its last frame, as the metrics do)
             self._notify_observer(self._observer.on_rx, self.name, msg, t, servo, None)
             return state
-        answer = state is not None and not profile.is_liveness_only(msg)
+        answer = state is not None and not (reports is not None and reports.is_liveness_only(msg))
         with self._lock:
             servo_metrics = self._metrics.servos[servo]
             if state is None:

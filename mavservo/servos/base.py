@@ -287,12 +287,6 @@ class ServoProfile(ABC):
     replies_per_lifecycle: int = 0
     """Replies each start-up, release or shutdown frame provokes (the scheduler expects them,
     so an answer is neither a late reply nor a bad one)."""
-    heartbeat_period_s: ClassVar[float | None] = None
-    """A pushing family whose nodes send a heartbeat of their own (DroneCAN NodeStatus, 1 Hz):
-    the scheduler's silence limit is ``offline_after_missed`` heartbeats, whatever the status
-    rate. None: ``offline_after_missed`` status periods."""
-    frames_per_push: ClassVar[int] = 1
-    """CAN frames one status push takes (a multi-frame transfer: more than one)."""
     min_id: int = 1
     max_id: int = 32
     min_angle_deg: float = -math.inf
@@ -339,26 +333,8 @@ class ServoProfile(ABC):
     set by the config when it builds the profile: a pushed family that programs its servo's
     own report period at start-up (Robstride's EPScan_time) takes the rate from here."""
 
-    def diagnose(self, msg: can.Message) -> str | None:
-        """Why ``msg``, a frame no servo of the bus claims, looks like this servo's in a form
-        it is not configured for (another protocol, another host id), as advice naming the
-        option to change; None (the default) when it does not. Called for unclaimed frames
-        until the first advice; the scheduler logs it and announces it once."""
-        return None
-
-    def silence_hint(self) -> str | None:
-        """The likely causes to name when this servo goes offline without ever having
-        answered (wrong protocol, id, bitrate); None (the default): nothing to add."""
-        return None
-
     def shutdown_frames(self) -> list[can.Message]:
         """Sent once when the bridge stops, after the failsafe action. Default: none."""
-        return []
-
-    def config_warnings(self) -> list[str]:
-        """Settings of this servo that load but will likely not do what the user means (a
-        numbering convention of the servo's firmware), for ``check``'s warnings. Default:
-        none."""
         return []
 
     STOP_BEHAVIOUR: ClassVar[str] = "holds its last target (no timeout of its own)"
@@ -438,19 +414,6 @@ class ServoProfile(ABC):
     @abstractmethod
     def decode(self, msg: can.Message, timestamp: float) -> ServoState | None:
         """State after reply ``msg`` received at ``timestamp``; None if not this servo's reply."""
-
-    def is_liveness_only(self, msg: can.Message) -> bool:
-        """True for a report that only says the servo is alive (a DroneCAN node's NodeStatus,
-        which any node can send with the servo's id): it keeps the servo online and its faults
-        current, but answers no command, so it closes no round trip and adds no latency
-        sample. Default: False, every report is the servo's answer."""
-        return False
-
-    def completes_report(self, msg: can.Message) -> bool:
-        """False for a frame of this servo that only starts or continues a multi-frame report
-        (DroneCAN transfers): the scheduler logs it but counts neither a reply nor a new state
-        until the frame that completes it. Default: every frame is a whole report."""
-        return True
 
     def exchange_key(self, msg: can.Message) -> Hashable | None:
         """What a request and the reply that answers it have in common, or None.
@@ -575,6 +538,57 @@ class ActuatorOptions(Protocol):
     actuator_id: int
 
 
+@runtime_checkable
+class Advising(Protocol):
+    """A family that can tell when its servo answers in a form it is not configured for."""
+
+    def diagnose(self, msg: can.Message) -> str | None:
+        """Why ``msg``, a frame no servo of the bus claims, looks like this servo's in a form
+        it is not configured for (another protocol, another host id), as advice naming the
+        option to change; None when it does not. Called for unclaimed frames until the first
+        advice; the scheduler logs it and announces it once."""
+        ...
+
+    def silence_hint(self) -> str | None:
+        """The likely causes to name when this servo goes offline without ever having
+        answered (wrong protocol, id, bitrate); None: nothing to add."""
+        ...
+
+
+@runtime_checkable
+class ConfigWarnings(Protocol):
+    """A family with settings that load but will likely not do what the user means."""
+
+    def config_warnings(self) -> list[str]:
+        """Such settings of this servo (a numbering convention of the servo's firmware), for
+        ``check``'s warnings."""
+        ...
+
+
+@runtime_checkable
+class NodeReports(Protocol):
+    """A pushing family whose reports come from a node (DroneCAN): the node's own heartbeat
+    says it is alive, and a report may take several frames."""
+
+    heartbeat_period_s: ClassVar[float]
+    """The node's heartbeat period (DroneCAN NodeStatus, 1 s): the scheduler's silence limit
+    is ``offline_after_missed`` heartbeats, whatever the status rate."""
+    frames_per_push: ClassVar[int]
+    """CAN frames one status push takes (a multi-frame transfer: more than one)."""
+
+    def is_liveness_only(self, msg: can.Message) -> bool:
+        """True for a report that only says the servo is alive (a NodeStatus, which any node
+        can send with the servo's id): it keeps the servo online and its faults current, but
+        answers no command, so it closes no round trip and adds no latency sample."""
+        ...
+
+    def completes_report(self, msg: can.Message) -> bool:
+        """False for a frame of this servo that only starts or continues a multi-frame report:
+        the scheduler logs it but counts neither a reply nor a new state until the frame that
+        completes it."""
+        ...
+
+
 def release_frames_of(profile: ServoProfile) -> list[can.Message]:
     """The profile's release frames, or none for a family that cannot release."""
     return profile.release_frames() if isinstance(profile, Releasing) else []
@@ -588,6 +602,12 @@ def comm_timeout_of(profile: ServoProfile) -> float | None:
 def unsolicited_hz_of(profile: ServoProfile) -> float:
     """Frames per second the servo sends unasked besides its telemetry (0: none)."""
     return profile.unsolicited_hz() if isinstance(profile, UnsolicitedFrames) else 0.0
+
+
+def node_reports_of(profile: ServoProfile) -> NodeReports | None:
+    """The profile as :class:`NodeReports`, or None: every frame is a whole report that
+    answers, and silence is counted in status periods."""
+    return profile if isinstance(profile, NodeReports) else None
 
 
 def node_family(cls: type[ServoProfile]) -> BusNodeFamily | None:

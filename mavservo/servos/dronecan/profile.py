@@ -185,7 +185,7 @@ class DroneCanServo(ServoProfile):
     """float16 in radians: a step of 2**-8 rad (0.22 deg) between 4 and 8 rad, finer below;
     position mode is held to +-360 deg (a servo's range, and where float16 still resolves it)."""
     min_angle_deg, max_angle_deg = -360.0, 360.0
-    heartbeat_period_s: ClassVar[float | None] = wire.NODE_STATUS_PERIOD_S
+    heartbeat_period_s: ClassVar[float] = wire.NODE_STATUS_PERIOD_S
     frames_per_push: ClassVar[int] = 2
     """A Status transfer is two frames (8 payload bytes and the tail byte)."""
     Options: ClassVar[type[ProfileOptions]] = DroneCanOptions
