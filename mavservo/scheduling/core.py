@@ -321,6 +321,8 @@ class _ServoSlot:
     last_startup: float = -math.inf
     continued: bool = False
     """The early next step of its latest start-up went (``servos.base.SplitStartup``)."""
+    split_startup: SplitStartup | None = None
+    """Its profile as a :class:`SplitStartup` (resolved once: asked at every command slot)."""
     release_due: float | None = None
     """When its release frames go out (None: none pending): at once after ``release``, at the
     next command slot after the bus refused them."""
@@ -388,6 +390,7 @@ class ScheduleCore:
                 command_cost_s=self._command_cost(spec),
                 next_poll_due=math.inf,
                 push_period=self._push_period(spec),
+                split_startup=spec.profile if isinstance(spec.profile, SplitStartup) else None,
             )
         self.telemetry_phase_s = (
             self._automatic_phase()
@@ -639,11 +642,9 @@ class ScheduleCore:
     def _start_up_if_needed(self, slot: _ServoSlot, now: float, decision: Decision) -> None:
         """Put the servo's start-up frames before its command when they are due."""
         profile = slot.spec.profile
+        split = slot.split_startup
         early = (
-            slot.started
-            and not slot.continued
-            and isinstance(profile, SplitStartup)
-            and profile.startup_continues()
+            slot.started and not slot.continued and split is not None and split.startup_continues()
         )
         if now - slot.last_startup < STARTUP_RETRY_S and not early:
             return  # the budget counts start-ups at this rate: it is a ceiling
