@@ -15,7 +15,7 @@ from test_run_cli import run_mavservo as mavservo
 
 from mavservo.config.loader import load_config_with_warnings
 from mavservo.config.semantic import longest_command_gap_s
-from mavservo.servos import get_profile
+from mavservo.servos import comm_timeout_of, get_profile
 
 WARNING = "stops by itself after"
 
@@ -107,8 +107,8 @@ def test_the_longest_gap_is_what_the_scheduler_does(refresh_s: float, period_s: 
 
 
 def test_profiles_without_a_timeout_declare_none() -> None:
-    assert get_profile("rmd-x")(1).comm_timeout_s() is None
-    assert get_profile("dronecan")(1).comm_timeout_s() is None
+    assert comm_timeout_of(get_profile("rmd-x")(1)) is None
+    assert comm_timeout_of(get_profile("dronecan")(1)) is None
 
 
 def test_check_prints_the_warning(tmp_path: Path) -> None:

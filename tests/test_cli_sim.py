@@ -122,7 +122,7 @@ def test_sim_gives_each_dronecan_servo_its_own_actuator_id(tmp_path: Path):
     import dronecan
     from dronecan.transport import Transfer
 
-    from mavservo.servos.dronecan import DroneCanServo
+    from mavservo.servos.dronecan.profile import DroneCanServo
 
     process = subprocess.Popen(
         [sys.executable, "-m", "mavservo", "sim", "--profile", "dronecan", "--servos", "3"],

@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 
 from mavservo.servos import CubeMarsAK
-from mavservo.servos.cubemars import MODEL_GEAR_RATIO, MODEL_POLE_PAIRS
+from mavservo.servos.cubemars.profile import MODEL_GEAR_RATIO, MODEL_POLE_PAIRS
 from mavservo.sim.servo import SimServo
 
 

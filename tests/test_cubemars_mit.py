@@ -17,7 +17,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from mavservo.servos import NO_FAULT, Fault, get_profile
-from mavservo.servos.cubemars_mit import CubeMarsAKMit, CubeMarsMitOptions
+from mavservo.servos.cubemars.mit_mode import CubeMarsAKMit, CubeMarsMitOptions
 
 
 def reply(hex_data: str, arbitration_id: int = 0) -> can.Message:

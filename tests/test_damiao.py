@@ -19,7 +19,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from mavservo.servos import NO_FAULT, Fault, get_profile
-from mavservo.servos.damiao import DamiaoDM, DamiaoOptions, fault_from_status
+from mavservo.servos.damiao.profile import DamiaoDM, DamiaoOptions, fault_from_status
 
 
 def frame(arbitration_id: int, hex_data: str) -> can.Message:

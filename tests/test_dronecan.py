@@ -19,10 +19,10 @@ from hypothesis import strategies as st
 
 from mavservo.config import ConfigError, load_config_text
 from mavservo.scheduling.core import ScheduleCore, ServoSpec, TimingConfig
-from mavservo.servos import dronecan_wire as wire
 from mavservo.servos.base import Fault
-from mavservo.servos.dronecan import DroneCanServo
-from mavservo.servos.dronecan_node import BridgeNode, NodeOptions, frames_for_commands
+from mavservo.servos.dronecan import wire
+from mavservo.servos.dronecan.node import BridgeNode, NodeOptions, frames_for_commands
+from mavservo.servos.dronecan.profile import DroneCanServo
 
 actuator = dronecan.uavcan.equipment.actuator
 

@@ -22,10 +22,10 @@ from test_dronecan_interop import VirtualBusDriver
 from mavservo.app.bridge import Bridge
 from mavservo.config import load_config
 from mavservo.scheduling.runner import Scheduler, ServoSpec, TimingConfig
-from mavservo.servos import dronecan_wire as wire
-from mavservo.servos.dronecan import DroneCanOptions, DroneCanServo
-from mavservo.servos.dronecan_alloc import AllocationServer
-from mavservo.servos.dronecan_node import BridgeNode, NodeOptions
+from mavservo.servos.dronecan import wire
+from mavservo.servos.dronecan.alloc import AllocationServer
+from mavservo.servos.dronecan.node import BridgeNode, NodeOptions
+from mavservo.servos.dronecan.profile import DroneCanOptions, DroneCanServo
 from mavservo.sim.servo import SimServo
 
 pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")

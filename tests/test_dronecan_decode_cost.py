@@ -22,8 +22,8 @@ from dronecan.transport import CompoundValue, Frame, Transfer
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mavservo.servos import dronecan_wire as wire
-from mavservo.servos.dronecan import DroneCanServo
+from mavservo.servos.dronecan import wire
+from mavservo.servos.dronecan.profile import DroneCanServo
 
 actuator = dronecan.uavcan.equipment.actuator
 

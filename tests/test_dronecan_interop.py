@@ -26,7 +26,7 @@ import pytest
 from dronecan.driver.common import AbstractDriver, CANFrame
 
 from mavservo.scheduling.runner import Scheduler, ServoSpec, TimingConfig
-from mavservo.servos.dronecan import DroneCanServo
+from mavservo.servos.dronecan.profile import DroneCanServo
 from mavservo.sim.adapter import AdapterEmulator
 
 pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")

@@ -20,8 +20,8 @@ import can
 from mavservo.records.runlog import LATENCY_FILE, METRICS_FILE, RunLog, read_can_log
 from mavservo.scheduling.core import ServoSpec, TimingConfig
 from mavservo.scheduling.runner import Scheduler
-from mavservo.servos.dronecan import DroneCanServo
-from mavservo.servos.dronecan_node import frames_for_commands
+from mavservo.servos.dronecan.node import frames_for_commands
+from mavservo.servos.dronecan.profile import DroneCanServo
 
 SERVOS = 8
 

@@ -11,9 +11,9 @@ from dronecan.transport import Frame, Transfer
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mavservo.servos import dronecan_wire as wire
-from mavservo.servos.dronecan import DroneCanServo
-from mavservo.servos.dronecan_node import SENDERS_REPORTED, BridgeNode, NodeOptions
+from mavservo.servos.dronecan import wire
+from mavservo.servos.dronecan.node import SENDERS_REPORTED, BridgeNode, NodeOptions
+from mavservo.servos.dronecan.profile import DroneCanServo
 
 
 def library_decode(frames: list[can.Message]):  # type: ignore[no-untyped-def]

@@ -29,9 +29,9 @@ from e2e_support import MAV_CMD_DO_SET_SERVO, MAV_RESULT_ACCEPTED, Peer, running
 from test_e2e_dronecan_nodes import says
 
 from mavservo.app.bridge import Bridge
-from mavservo.servos import dronecan_wire as wire
-from mavservo.servos.dronecan import DroneCanServo
-from mavservo.servos.dronecan_alloc import AllocationServer
+from mavservo.servos.dronecan import wire
+from mavservo.servos.dronecan.alloc import AllocationServer
+from mavservo.servos.dronecan.profile import DroneCanServo
 from mavservo.sim.autopilot.link import mavlink2
 
 pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")

@@ -30,8 +30,8 @@ from e2e_support import (
     status,
 )
 
-from mavservo.servos.cubemars_mit import CubeMarsAKMit
-from mavservo.servos.damiao import DamiaoDM
+from mavservo.servos.cubemars.mit_mode import CubeMarsAKMit
+from mavservo.servos.damiao.profile import DamiaoDM
 from mavservo.servos.mit import is_special, unpack_command
 
 pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")

@@ -31,7 +31,7 @@ from e2e_support import (
     status,
 )
 
-from mavservo.servos.odrive import (
+from mavservo.servos.odrive.profile import (
     CMD_SET_INPUT_POS,
     STATE_CLOSED_LOOP,
     WATCHDOG_TIMER_EXPIRED,

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from vectors_support import checked, load, profile_mismatches
 
 from mavservo.servos import Fault, LkTech, RmdX
-from mavservo.servos import lk as lk_module
+from mavservo.servos.lk import profile as lk_module
 
 
 def _frame(hexdata: str, arb_id: int = 0x141) -> can.Message:

@@ -8,7 +8,7 @@ import can
 import pytest
 from vectors_support import checked, load, simulator_mismatches
 
-from mavservo.servos import lk_sim
+from mavservo.servos.lk import sim as lk_sim
 from mavservo.sim.servo import SimServo
 
 VECTORS = checked("lk", "simulator")

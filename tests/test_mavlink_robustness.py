@@ -26,7 +26,7 @@ from mavservo.mavlink.settings import MavlinkSettings, TelemetryRates  # noqa: E
 ESC_FROM_1 = TelemetryRates(esc_first_index=1)  # servo n is ESC n: group 1_TO_4
 from mavservo.mavlink.side import MavlinkSide  # noqa: E402
 from mavservo.mavlink.telemetry import Telemetry  # noqa: E402
-from mavservo.servos.rmdx import CMD_STATUS_1, RmdX  # noqa: E402
+from mavservo.servos.rmdx.profile import CMD_STATUS_1, RmdX  # noqa: E402
 
 TELEMETRY_TYPES = {"ACTUATOR_OUTPUT_STATUS", "ESC_TELEMETRY_1_TO_4", "NAMED_VALUE_FLOAT"}
 

@@ -13,8 +13,8 @@ import pytest
 
 from mavservo.config.simulation import Faults
 from mavservo.servos import Fault
-from mavservo.servos.cubemars_mit import CubeMarsAKMit, CubeMarsMitOptions
-from mavservo.servos.damiao import DamiaoDM, DamiaoOptions
+from mavservo.servos.cubemars.mit_mode import CubeMarsAKMit, CubeMarsMitOptions
+from mavservo.servos.damiao.profile import DamiaoDM, DamiaoOptions
 from mavservo.sim.servo import SimServo
 
 

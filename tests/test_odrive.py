@@ -23,7 +23,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mavservo.servos import NO_FAULT, Fault, get_profile
-from mavservo.servos.odrive import (
+from mavservo.servos.odrive.profile import (
     ERROR_FAULTS,
     ODrive,
     ODriveOptions,

@@ -11,7 +11,7 @@ import can
 import pytest
 
 from mavservo.servos import NO_FAULT, Fault
-from mavservo.servos.odrive import (
+from mavservo.servos.odrive.profile import (
     CMD_ENCODER_ESTIMATES,
     CMD_HEARTBEAT,
     STATE_CLOSED_LOOP,

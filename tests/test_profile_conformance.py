@@ -13,7 +13,7 @@ import math
 import can
 import pytest
 
-from mavservo.servos import ServoProfile, registry
+from mavservo.servos import ServoProfile, registry, release_frames_of
 from mavservo.servos.base import FrameId, ProfileOptions
 from mavservo.sim.servo import SimServo
 
@@ -83,7 +83,7 @@ def test_identifiers_cover_every_frame_it_sends(name: str) -> None:
             profile.position_command(0.0, 90.0),
             *profile.telemetry_requests(),
             *profile.startup_frames(),
-            *profile.release_frames(),
+            *release_frames_of(profile),
             *profile.shutdown_frames(),
         ]
         for frame in sent:
@@ -128,8 +128,8 @@ def test_lifecycle_frames_are_accepted_and_release_turns_the_motor_off(name: str
         assert len(replies) == profile.replies_per_lifecycle, f"{name}: replies to {frame}"
         for _, reply in replies:
             assert profile.decode(reply, 0.1) is not None
-    if profile.release_frames():
-        for frame in profile.release_frames():
+    if release_frames_of(profile):
+        for frame in release_frames_of(profile):
             assert len(sim.receive(frame, 0.2)) == profile.replies_per_lifecycle
         assert not sim.enabled, f"{name}: release frames leave the motor off"
     for frame in profile.shutdown_frames():

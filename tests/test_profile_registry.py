@@ -11,7 +11,7 @@ import can
 import pytest
 
 from mavservo.config import ConfigError, load_config_text
-from mavservo.servos import CubeMarsAK, RmdX, ServoProfile, registry
+from mavservo.servos import CubeMarsAK, Releasing, RmdX, ServoProfile, registry, release_frames_of
 from mavservo.servos.base import FrameId, ProfileOptions, SimDevice, SimMotor
 from mavservo.sim.servo import SimServo
 
@@ -181,7 +181,8 @@ def test_rmdx_servo_turns_its_motor_off_when_its_own_timeout_expires() -> None:
 
 
 def test_cubemars_servo_mode_cannot_release() -> None:
-    assert CubeMarsAK(1).release_frames() == []
+    assert not isinstance(CubeMarsAK(1), Releasing)
+    assert release_frames_of(CubeMarsAK(1)) == []
 
 
 def test_frame_id_overlap_follows_masks_and_first_byte() -> None:

@@ -23,15 +23,20 @@ from test_mavlink_support import RecordingBackend
 from mavservo.config import ConfigError, load_config_text
 from mavservo.mavlink.core import MavlinkCore
 from mavservo.mavlink.settings import MavlinkSettings
-from mavservo.servos import dronecan_wire as wire
-from mavservo.servos.dronecan import DroneCanServo
-from mavservo.servos.dronecan_alloc import (
+from mavservo.servos.dronecan import wire
+from mavservo.servos.dronecan.alloc import (
     ALLOCATION_ANSWERS_PER_S,
     NEW_IDS_PER_MINUTE,
     AllocationServer,
 )
-from mavservo.servos.dronecan_node import GET_NODE_INFO_PER_S, BridgeNode, NodeOptions
-from mavservo.servos.odrive import CMD_ENCODER_ESTIMATES, CMD_HEARTBEAT, ODrive, arbitration_id
+from mavservo.servos.dronecan.node import GET_NODE_INFO_PER_S, BridgeNode, NodeOptions
+from mavservo.servos.dronecan.profile import DroneCanServo
+from mavservo.servos.odrive.profile import (
+    CMD_ENCODER_ESTIMATES,
+    CMD_HEARTBEAT,
+    ODrive,
+    arbitration_id,
+)
 
 Allocation = dronecan.uavcan.protocol.dynamic_node_id.Allocation
 

@@ -30,9 +30,9 @@ from mavservo.app.bridge import Bridge
 from mavservo.app.console import format_summary
 from mavservo.app.report import ReportError, load_run
 from mavservo.config import load_config
-from mavservo.servos import dronecan_wire as wire
-from mavservo.servos.dronecan_node import GET_NODE_INFO_PER_S
-from mavservo.servos.odrive import CMD_ENCODER_ESTIMATES, arbitration_id
+from mavservo.servos.dronecan import wire
+from mavservo.servos.dronecan.node import GET_NODE_INFO_PER_S
+from mavservo.servos.odrive.profile import CMD_ENCODER_ESTIMATES, arbitration_id
 from mavservo.sim.autopilot.link import mavlink2
 
 pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")

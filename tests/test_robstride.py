@@ -25,7 +25,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mavservo.servos import NO_FAULT, Fault, get_profile
-from mavservo.servos.robstride import (
+from mavservo.servos.robstride.profile import (
     FEEDBACK_FAULT_BITS,
     MODELS,
     Robstride,

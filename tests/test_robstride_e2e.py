@@ -33,8 +33,8 @@ from e2e_support import (
     status,
 )
 
-from mavservo.servos.robstride import PARAM_LOC_REF, RobstrideOptions
-from mavservo.servos.robstride_sim import RsMotorDevice
+from mavservo.servos.robstride.profile import PARAM_LOC_REF, RobstrideOptions
+from mavservo.servos.robstride.sim import RsMotorDevice
 from mavservo.sim.autopilot.link import mavlink2
 
 pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")

@@ -18,7 +18,7 @@ from e2e_support import (
 )
 
 from mavservo.servos import Fault
-from mavservo.servos.robstride import MODELS, Robstride
+from mavservo.servos.robstride.profile import MODELS, Robstride
 
 pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnhandledThreadExceptionWarning")
 

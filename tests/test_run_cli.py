@@ -17,7 +17,7 @@ from pathlib import Path
 from mavservo.app.bridge import settle_heap
 from mavservo.config import Config, default_config_path, load_config
 from mavservo.records.runlog import read_can_log
-from mavservo.servos.rmdx import CMD_POSITION, REQUEST_BASE
+from mavservo.servos.rmdx.profile import CMD_POSITION, REQUEST_BASE
 
 REPO = Path(__file__).resolve().parents[1]
 SWEPT_CHANNELS = (1, 2, 3, 4)

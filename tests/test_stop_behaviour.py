@@ -9,7 +9,7 @@ from test_run_cli import REPO
 
 from mavservo.app.check import check_main
 from mavservo.servos import registry
-from mavservo.servos.dronecan import DroneCanServo
+from mavservo.servos.dronecan.profile import DroneCanServo
 
 
 def test_every_family_says_what_it_does_when_frames_stop() -> None:

@@ -7,7 +7,7 @@ from __future__ import annotations
 import pytest
 from vectors_support import VECTORS, checked, profile_mismatches, simulator_mismatches
 
-from mavservo.servos.registry import BUILT_IN
+from mavservo.servos import PROFILES
 
 FAMILIES = sorted(path.stem for path in VECTORS.glob("*.yaml"))
 PROFILE_SIDE = [pair for family in FAMILIES for pair in checked(family, "profile")]
@@ -42,10 +42,10 @@ def test_every_built_in_family_has_vectors_and_a_simulator_of_its_own() -> None:
     contracts (``dronecan_sim``, made with the dronecan package)."""
     from mavservo.sim.servo import SimServo
 
-    for cls in BUILT_IN:
+    for cls in PROFILES.values():
         if cls.name == "dronecan":
             continue
         assert cls.name in FAMILIES, f"{cls.name}: no tests/data/vectors/{cls.name}.yaml"
         device = SimServo(cls.name, cls.min_id + 1)._device  # noqa: SLF001
         module = type(device).__module__
-        assert module.endswith("_sim") and module != cls.__module__, (cls.name, module)
+        assert module.endswith("sim") and module != cls.__module__, (cls.name, module)

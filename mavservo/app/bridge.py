@@ -42,8 +42,8 @@ from mavservo.mavlink.side import MavlinkSide
 from mavservo.records.metrics import round_trip_figures
 from mavservo.records.runlog import RunLog, new_run_dir
 from mavservo.scheduling.core import FrameKind, ServoSpec, TimingConfig
-from mavservo.scheduling.runner import Scheduler, SchedulerObserver
-from mavservo.servos import ServoState
+from mavservo.scheduling.runner import Scheduler, SchedulerObserver, WriteObserver
+from mavservo.servos import CountingNode, ServoState
 from mavservo.sim.bus_simulation import simulator_factory
 from mavservo.sim.pty_adapter import PtyAdapter
 from mavservo.transport.bus_factory import BusRequest, OpenedBus, open_bus
@@ -76,11 +76,13 @@ class _FanOut(SchedulerObserver):
     """Passes scheduler events to several observers (run log, latency tracer, live status).
 
     Every observer implements the whole :class:`SchedulerObserver` Protocol (a subclass
-    inherits no-ops for the hooks it does not need), so each hook is simply called on each.
+    inherits no-ops for the hooks it does not need), so each hook is simply called on each;
+    ``on_written`` goes to those that have the :class:`WriteObserver` capability.
     """
 
     def __init__(self, *observers: SchedulerObserver | None) -> None:
         self.observers = [o for o in observers if o is not None]
+        self._writers = [o for o in self.observers if isinstance(o, WriteObserver)]
 
     def on_setpoint(self, servo: str, seq: int, angle_deg: float, source: str, t: float) -> None:
         for observer in self.observers:
@@ -99,10 +101,8 @@ class _FanOut(SchedulerObserver):
             observer.on_tx(bus, msg, t, kind, servo, seq)
 
     def on_written(self, bus: str, t: float, kind: FrameKind, servo: str, seq: int | None) -> None:
-        for observer in self.observers:
-            hook = getattr(observer, "on_written", None)  # optional (the Protocol says so)
-            if hook is not None:
-                hook(bus, t, kind, servo, seq)
+        for observer in self._writers:
+            observer.on_written(bus, t, kind, servo, seq)
 
     def on_rx(
         self, bus: str, msg: can.Message, t: float, servo: str, state: ServoState | None
@@ -703,7 +703,7 @@ class Bridge:
                 "transport": transport_stats(bus),
                 # what the bus nodes (DroneCAN: the bridge's node) counted of hostile traffic
                 "nodes": [
-                    stats() for node in scheduler.nodes if (stats := getattr(node, "stats", None))
+                    node.stats() for node in scheduler.nodes if isinstance(node, CountingNode)
                 ],
             }
             out["servos"].update(metrics.get("servos", {}))

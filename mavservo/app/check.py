@@ -28,7 +28,7 @@ from mavservo.control.mapping import ChannelMap, Rejected
 from mavservo.mavlink.bandwidth import BudgetPlan, plan_budget
 from mavservo.mavlink.params import WritePolicy
 from mavservo.mavlink.telemetry import AUTO_ESC_FIRST
-from mavservo.servos import registry
+from mavservo.servos import node_family, registry, release_frames_of
 
 EXIT_OK = 0
 EXIT_INVALID = 2
@@ -149,7 +149,7 @@ def profiles_listing() -> str:
     lines = ["servo profiles:"]
     for name, entry in registry.profiles().items():
         cls = entry.profile
-        can_release = "yes" if cls(cls.min_id).release_frames() else "no"
+        can_release = "yes" if release_frames_of(cls(cls.min_id)) else "no"
         lines.append(
             f"  {name}  ({entry.origin}; ids {cls.min_id}..{cls.max_id}, {cls.telemetry}, "
             f"failsafe release: {can_release})"
@@ -160,9 +160,10 @@ def profiles_listing() -> str:
         for key, field in fields.items():
             about = f" - {field.description}" if field.description else ""
             lines.append(f"    {key}: default {field.default!r}, allowed {_allowed(field)}{about}")
-        if cls.NodeOptions is not None:  # a family with a node on its bus (DroneCAN)
+        family = node_family(cls)
+        if family is not None:  # a family with a node on its bus (DroneCAN)
             lines.append(f"    bus node options (can.buses[].node.{name}):")
-            for key, field in cls.NodeOptions.model_fields.items():
+            for key, field in family.NodeOptions.model_fields.items():
                 about = f" - {field.description}" if field.description else ""
                 default = field.get_default(call_default_factory=True)
                 lines.append(f"      {key}: default {default!r}, allowed {_allowed(field)}{about}")

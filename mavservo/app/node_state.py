@@ -21,7 +21,7 @@ from mavservo.config import BusConfig
 from mavservo.config.overlay import write_atomic
 from mavservo.config.smallfile import SmallFileError, read_small_file
 from mavservo.scheduling.runner import Scheduler
-from mavservo.servos import get_profile
+from mavservo.servos import get_profile, node_family
 
 log = logging.getLogger(__name__)
 _MAX_BYTES = 1 << 20
@@ -64,10 +64,10 @@ def bus_node_options(bus: BusConfig, saved: Mapping[str, Any], path: Path) -> di
                 merged[key] = {**value, **merged[key]}
             else:
                 merged.setdefault(key, value)
-        model = get_profile(name).NodeOptions
+        family = node_family(get_profile(name))
         try:
-            if model is not None:
-                model.model_validate(merged)
+            if family is not None:
+                family.NodeOptions.model_validate(merged)
         except ValidationError as exc:
             log.warning("node state %s for bus %s ignored: %s", path, bus.name, exc)
             continue

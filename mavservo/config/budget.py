@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING
 from mavservo.scheduling.bus_nodes import node_unique_id, software_version
 from mavservo.scheduling.busload import FrameFlow, load_ratio, servo_traffic
 from mavservo.scheduling.core import STARTUP_RETRY_S
+from mavservo.servos.base import node_family
 
 if TYPE_CHECKING:
     from mavservo.config.schema import BusConfig, Config, SchedulerConfig, ServoConfig
@@ -98,11 +99,12 @@ def bus_nodes(
         groups.setdefault(type(profile_of(servo)), []).append(servo)
     nodes: list[tuple[str, list[ServoConfig], BusNode]] = []
     for cls, group in groups.items():
-        if cls.NodeOptions is None:
+        family = node_family(cls)
+        if family is None:
             continue
         try:
-            options = cls.NodeOptions.model_validate(bus.node.get(cls.name, {}))
-            node = cls.bus_node(
+            options = family.NodeOptions.model_validate(bus.node.get(cls.name, {}))
+            node = family.bus_node(
                 [profile_of(s) for s in group],
                 options,
                 software_version(),

@@ -30,7 +30,7 @@ from pydantic_core import PydanticCustomError
 from mavservo.config.health import HealthConfig
 from mavservo.config.smallfile import SmallFileError, read_small_file
 from mavservo.config.urls import url_problem
-from mavservo.servos import ProfileOptions, ServoProfile, get_profile
+from mavservo.servos import ProfileOptions, ServoProfile, get_profile, node_family
 from mavservo.transport.aa55.codec import BITRATE_CODES
 from mavservo.transport.bus_factory import SIM_CHANNEL, SIMULATED_INTERFACES
 from mavservo.transport.interface_options import (
@@ -344,12 +344,12 @@ class BusConfig(StrictModel):
     def _node_options_valid(cls, value: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
         problems: list[str] = []
         for name, options in value.items():
-            model = get_profile(name).NodeOptions
-            if model is None:
+            family = node_family(get_profile(name))
+            if family is None:
                 problems.append(f"node.{name}: profile {name!r} has no bus node")
                 continue
             try:
-                model.model_validate(options)
+                family.NodeOptions.model_validate(options)
             except ValidationError as exc:
                 problems += [
                     f"node.{name}.{'.'.join(str(p) for p in e['loc'])}: {e['msg']}, "

@@ -17,7 +17,13 @@ from mavservo.config.schema import (
     ServoOutputChannel,
 )
 from mavservo.servos import FrameId, ServoProfile
-from mavservo.servos.base import BusNodeError
+from mavservo.servos.base import (
+    BusNodeError,
+    ConfigWarnings,
+    comm_timeout_of,
+    node_family,
+    release_frames_of,
+)
 
 Finding = tuple[tuple[str | int, ...], str]
 
@@ -112,7 +118,8 @@ def advisories(config: Config) -> list[Finding]:
     findings += [
         (("servos", index, "options"), f"servo {servo.name!r}: {text}")
         for index, servo in enumerate(config.servos)
-        for text in profile_of(servo).config_warnings()
+        if isinstance(profile := profile_of(servo), ConfigWarnings)
+        for text in profile.config_warnings()
     ]
     findings += _undriven_servos(config)
     findings += _keep_alive_past_timeout(config)
@@ -137,7 +144,7 @@ def _keep_alive_past_timeout(config: Config) -> list[Finding]:
     gap = longest_command_gap_s(sched.refresh_interval_s, sched.command_period_s)
     findings: list[Finding] = []
     for index, servo in enumerate(config.servos):
-        timeout = profile_of(servo).comm_timeout_s()
+        timeout = comm_timeout_of(profile_of(servo))
         if timeout is None or gap < timeout:
             continue
         findings.append(
@@ -266,11 +273,12 @@ def _bus_nodes(config: Config) -> Iterator[Finding]:
                     "remove them or put the servos on this bus",
                 )
         for cls, group in groups.items():
-            if cls.NodeOptions is None:
+            family = node_family(cls)
+            if family is None:
                 continue
-            options = cls.NodeOptions.model_validate(bus.node.get(cls.name, {}))
+            options = family.NodeOptions.model_validate(bus.node.get(cls.name, {}))
             try:
-                cls.bus_node([s.make_profile() for _, s in group], options, (0, 0), 0.0)
+                family.bus_node([s.make_profile() for _, s in group], options, (0, 0), 0.0)
             except BusNodeError as exc:
                 if exc.servo is None:
                     path: tuple[str | int, ...] = ("can", "buses", bus_index, "node", cls.name)
@@ -312,7 +320,7 @@ def _failsafe_positions(config: Config) -> Iterator[Finding]:
 def _failsafe_release(config: Config) -> Iterator[Finding]:
     """``release`` promises motor off: refuse it for a family that has no frame for that."""
     for index, servo in enumerate(config.servos):
-        if servo.failsafe.action == "release" and not servo.make_profile().release_frames():
+        if servo.failsafe.action == "release" and not release_frames_of(servo.make_profile()):
             yield (
                 ("servos", index, "failsafe", "action"),
                 f"servo {servo.name!r}: the {servo.profile} profile has no motor-off frame, so "
@@ -327,7 +335,7 @@ def _temperature_release(config: Config) -> Iterator[Finding]:
     motor-off frame, where the overheating servo would keep holding its last target."""
     for index, servo in enumerate(config.servos):
         if servo.health.temperature_action == "release" and not (
-            servo.make_profile().release_frames()
+            release_frames_of(servo.make_profile())
         ):
             yield (
                 ("servos", index, "health", "temperature_action"),

@@ -19,7 +19,7 @@ from typing import Any
 
 import can
 
-from mavservo.servos.base import BusNode, NodeHealth, ServoProfile
+from mavservo.servos.base import BusNode, NodeHealth, ServoProfile, node_family
 
 from .busload import FrameFlow
 from .core import Outgoing, ScheduleError, ServoSpec, TimingConfig
@@ -94,12 +94,13 @@ class BusNodes:
         for spec in servos:
             groups.setdefault(type(spec.profile), []).append(spec)
         for cls, group in groups.items():
-            if cls.NodeOptions is None:
+            family = node_family(cls)
+            if family is None:
                 continue
             try:
-                node_options = cls.NodeOptions.model_validate(dict(options.get(cls.name, {})))
+                node_options = family.NodeOptions.model_validate(dict(options.get(cls.name, {})))
                 profiles = [spec.profile for spec in group]
-                node = cls.bus_node(
+                node = family.bus_node(
                     profiles, node_options, software_version(), now, node_unique_id(bus)
                 )
             except ValueError as exc:  # pydantic's ValidationError is one

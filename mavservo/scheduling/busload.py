@@ -26,7 +26,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Literal, Protocol
 
-from mavservo.servos.base import ServoProfile
+from mavservo.servos.base import ServoProfile, node_reports_of, unsolicited_hz_of
 
 Stuffing = Literal["worst", "none"]
 
@@ -198,7 +198,9 @@ def servo_traffic(
     command = profile.position_command(0.0, max_speed_dps)
     requests = profile.telemetry_requests()
     startup = profile.startup_frames()
-    heartbeat = profile.heartbeat_period_s
+    reports = node_reports_of(profile)
+    heartbeat = None if reports is None else reports.heartbeat_period_s
+    frames_per_push = 1 if reports is None else reports.frames_per_push
     return ServoTraffic(
         command_hz=command_hz,
         command_extended=bool(command.is_extended_id),
@@ -208,8 +210,7 @@ def servo_traffic(
         request_shapes=tuple((bool(r.is_extended_id), int(r.dlc)) for r in requests),
         replies_per_request=profile.replies_per_request,
         # a multi-frame status transfer (DroneCAN Status: two frames) counts every frame
-        push_hz=(0.0 if requests else status_hz * profile.frames_per_push)
-        + profile.unsolicited_hz(),
+        push_hz=(0.0 if requests else status_hz * frames_per_push) + unsolicited_hz_of(profile),
         lifecycle_hz=startup_hz,
         lifecycle_shapes=tuple((bool(f.is_extended_id), int(f.dlc)) for f in startup),
         replies_per_lifecycle=profile.replies_per_lifecycle,

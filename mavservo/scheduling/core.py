@@ -89,7 +89,7 @@ from typing import Literal
 import can
 
 from mavservo.errors import MavservoError
-from mavservo.servos.base import ServoProfile
+from mavservo.servos.base import ServoProfile, SplitStartup, node_reports_of, release_frames_of
 
 from . import reply_matching
 from .busload import (
@@ -320,7 +320,9 @@ class _ServoSlot:
     released (module docstring)."""
     last_startup: float = -math.inf
     continued: bool = False
-    """The early next step of its latest start-up went (``ServoProfile.startup_continues``)."""
+    """The early next step of its latest start-up went (``servos.base.SplitStartup``)."""
+    split_startup: SplitStartup | None = None
+    """Its profile as a :class:`SplitStartup` (resolved once: asked at every command slot)."""
     release_due: float | None = None
     """When its release frames go out (None: none pending): at once after ``release``, at the
     next command slot after the bus refused them."""
@@ -388,6 +390,7 @@ class ScheduleCore:
                 command_cost_s=self._command_cost(spec),
                 next_poll_due=math.inf,
                 push_period=self._push_period(spec),
+                split_startup=spec.profile if isinstance(spec.profile, SplitStartup) else None,
             )
         self.telemetry_phase_s = (
             self._automatic_phase()
@@ -447,8 +450,9 @@ class ScheduleCore:
         as the budget assumes); None for polled servos and for one configured to push nothing."""
         if spec.profile.telemetry_requests():
             return None
-        if spec.profile.heartbeat_period_s:
-            return spec.profile.heartbeat_period_s  # its own heartbeat says it is alive
+        reports = node_reports_of(spec.profile)
+        if reports is not None and reports.heartbeat_period_s:
+            return reports.heartbeat_period_s  # its own heartbeat says it is alive
         hz = spec.telemetry_hz
         if hz is None:
             return self.timing.telemetry_period_s
@@ -588,7 +592,7 @@ class ScheduleCore:
         is preceded by the start-up frames again."""
         slot = self._slots[name]
         slot.released = True
-        slot.release_due = -math.inf if slot.spec.profile.release_frames() else None
+        slot.release_due = -math.inf if release_frames_of(slot.spec.profile) else None
         slot.started = False
         # the next command's start-up is not a retry: it goes with that command even within
         # STARTUP_RETRY_S of the last one (an LK motor off ignores A4 until 0x88, an RMD-X
@@ -613,7 +617,7 @@ class ScheduleCore:
             slot = self._slots[name]
             if slot.release_due is not None:
                 slot.release_due = None
-                out += self._lifecycle(slot, slot.spec.profile.release_frames(), "release", now)
+                out += self._lifecycle(slot, release_frames_of(slot.spec.profile), "release", now)
             out += self._lifecycle(slot, slot.spec.profile.shutdown_frames(), "shutdown", now)
         return out
 
@@ -643,7 +647,10 @@ class ScheduleCore:
     def _start_up_if_needed(self, slot: _ServoSlot, now: float, decision: Decision) -> None:
         """Put the servo's start-up frames before its command when they are due."""
         profile = slot.spec.profile
-        early = slot.started and not slot.continued and profile.startup_continues()
+        split = slot.split_startup
+        early = (
+            slot.started and not slot.continued and split is not None and split.startup_continues()
+        )
         if now - slot.last_startup < STARTUP_RETRY_S and not early:
             return  # the budget counts start-ups at this rate: it is a ceiling
         if slot.started and not profile.needs_startup():
@@ -658,7 +665,7 @@ class ScheduleCore:
             slot = self._slots[name]
             if slot.release_due is not None and slot.release_due <= now:
                 slot.release_due = None
-                frames = slot.spec.profile.release_frames()
+                frames = release_frames_of(slot.spec.profile)
                 decision.frames += self._lifecycle(slot, frames, "release", now)
 
     def _command_frame(self, slot: _ServoSlot, kind: FrameKind, now: float) -> Outgoing:

@@ -46,7 +46,7 @@ from mavservo.scheduling.core import (
     exchange_key,
 )
 from mavservo.scheduling.outage_log import LateReplies, Line, OnlineLog
-from mavservo.servos.base import BusNode, Fault, ServoProfile, ServoState
+from mavservo.servos.base import Advising, BusNode, Fault, ServoState, node_reports_of
 
 from .bus_nodes import BusNodes
 from .busload import message_bits
@@ -60,6 +60,7 @@ __all__ = [
     "SetpointResult",
     "StateCallback",
     "TimingConfig",
+    "WriteObserver",
 ]
 
 log = logging.getLogger(__name__)
@@ -95,14 +96,6 @@ class SchedulerObserver(Protocol):
         """``bus.send`` returned for ``msg``; ``t`` is the monotonic time just after the write."""
         return None
 
-    def on_written(self, bus: str, t: float, kind: FrameKind, servo: str, seq: int | None) -> None:
-        """Every frame carrying ``servo``'s ``kind`` frame (its ``seq``) is on the wire, the last
-        of them written at ``t``: called once per servo per write, after the frames' ``on_tx``.
-        A packed transfer (DroneCAN's ArrayCommand: 8 servos' commands in 5 frames) has fewer
-        frames than commands, so ``on_tx`` cannot say which commands it wrote; this does, for
-        every family alike. Optional: an observer without it is not called."""
-        return None
-
     def on_rx(
         self, bus: str, msg: can.Message, t: float, servo: str, state: ServoState | None
     ) -> None:
@@ -117,6 +110,21 @@ class SchedulerObserver(Protocol):
     def on_reject(self, bus: str, reason: str, raw_bytes: bytes, t: float) -> None:
         """The bus's frame decoder rejected bytes (forwarded through ``report_reject``)."""
         return None
+
+
+@runtime_checkable
+class WriteObserver(Protocol):
+    """An observer that also wants to know when a servo's frames are all on the wire: a
+    capability of a :class:`SchedulerObserver`, checked with isinstance once, when the
+    scheduler is built (an observer without it is not called)."""
+
+    def on_written(self, bus: str, t: float, kind: FrameKind, servo: str, seq: int | None) -> None:
+        """Every frame carrying ``servo``'s ``kind`` frame (its ``seq``) is on the wire, the last
+        of them written at ``t``: called once per servo per write, after the frames' ``on_tx``.
+        A packed transfer (DroneCAN's ArrayCommand: 8 servos' commands in 5 frames) has fewer
+        frames than commands, so ``on_tx`` cannot say which commands it wrote; this does, for
+        every family alike."""
+        ...
 
 
 @runtime_checkable
@@ -210,6 +218,7 @@ class Scheduler:
         self._bus = bus
         self._clock = clock
         self._observer: SchedulerObserver = observer or _NoObserver()
+        self._write_observer = observer if isinstance(observer, WriteObserver) else None
         self._nodes = BusNodes(self.name, servos, self.timing, node_options or {}, clock())
         self._core = ScheduleCore(
             servos,
@@ -252,10 +261,14 @@ class Scheduler:
         and STATUSTEXT); called from the scheduler's threads, must not block."""
         self._advised: set[str] = set()
         """Servos whose :meth:`_advise` line went out (once per servo and run)."""
-        self._diagnosing = [
-            (spec.name, spec.profile)
+        self._node_reports = {
+            spec.name: reports
             for spec in servos
-            if type(spec.profile).diagnose is not ServoProfile.diagnose
+            if (reports := node_reports_of(spec.profile)) is not None
+        }
+        """The servos whose reports come from a node (resolved once, asked for every frame)."""
+        self._diagnosing = [
+            (spec.name, spec.profile) for spec in servos if isinstance(spec.profile, Advising)
         ]
         """Servos whose profile can say whose an unclaimed frame is (a foreign node's flood
         costs nothing for the others)."""
@@ -368,9 +381,10 @@ class Scheduler:
             self._notify_observer(
                 self._observer.on_tx, self.name, out.msg, t, out.kind, out.servo, out.seq
             )
-            written = getattr(self._observer, "on_written", None)
-            if written is not None:
-                self._notify_observer(written, self.name, t, out.kind, out.servo, out.seq)
+            if self._write_observer is not None:
+                self._notify_observer(
+                    self._write_observer.on_written, self.name, t, out.kind, out.servo, out.seq
+                )
 
     def __enter__(self) -> Scheduler:
         self.start()
@@ -650,7 +664,8 @@ class Scheduler:
                 sent = self._metrics.servos[servo].lifecycle_sent
                 sent += self._metrics.servos[servo].commands_sent
                 if sent and servo not in self._states:  # spoken to, never heard: what to check
-                    hint = self._specs[servo].profile.silence_hint()
+                    profile = self._specs[servo].profile
+                    hint = profile.silence_hint() if isinstance(profile, Advising) else None
                     if hint is not None:
                         advice.append((servo, hint))
                 more, state = self._go_offline(servo, "no reply", dropped.get(servo), now)
@@ -690,7 +705,7 @@ class Scheduler:
 
     def _diagnose(self, msg: can.Message) -> None:
         """A frame no servo claims: ask each servo not yet advised whether it is its own in
-        another form (:meth:`ServoProfile.diagnose`)."""
+        another form (:class:`~mavservo.servos.base.Advising`)."""
         for name, profile in self._diagnosing:
             if name in self._advised:
                 continue
@@ -738,8 +753,8 @@ class Scheduler:
                 self._notify_observer(
                     self._observer.on_tx, self.name, msg, t, out.kind, out.servo, out.seq
                 )
-            written = getattr(self._observer, "on_written", None)
-            if written is not None:
+            if self._write_observer is not None:
+                written = self._write_observer.on_written
                 for out in outs:
                     self._notify_observer(written, self.name, t, out.kind, out.servo, out.seq)
 
@@ -898,14 +913,15 @@ class Scheduler:
         """One servo's decoded report of ``msg`` (None: rejected): the scheduler's reply,
         metrics, observers and subscribers."""
         profile = self._specs[servo].profile
+        reports = self._node_reports.get(servo)
         lines: list[Line] = []
-        if state is not None and not profile.completes_report(msg):
+        if state is not None and reports is not None and not reports.completes_report(msg):
             # the start of a multi-frame report: logged, but neither a reply nor a new state
             # (state None for the observer: the run log's trace and the latency's round trip
             # take the report at its last frame, as the metrics do)
             self._notify_observer(self._observer.on_rx, self.name, msg, t, servo, None)
             return state
-        answer = state is not None and not profile.is_liveness_only(msg)
+        answer = state is not None and not (reports is not None and reports.is_liveness_only(msg))
         with self._lock:
             servo_metrics = self._metrics.servos[servo]
             if state is None:

@@ -1,39 +1,64 @@
 """Servo profiles: setpoints <-> CAN payloads, pure functions of their inputs.
 
-A servo family is one module with a :class:`ServoProfile` subclass that describes itself (see
-``docs/profiles.md``): built-in families are listed in :mod:`mavservo.servos.registry`, other
+A servo family is one folder ``servos/<family>/`` with a :class:`ServoProfile` subclass that
+describes itself (see ``docs/profiles.md``): built-in families are one line each of the lazy
+table :data:`mavservo.servos.registry.BUILT_IN`, other
 packages register through the entry-point group ``mavservo.profiles``. The YAML config names
 profiles by their short ``name``.
 """
 
 from __future__ import annotations
 
-from . import simulators  # noqa: F401  (fills sim_registry with the built-in devices)
 from .base import (
     NO_FAULT,
     UNKNOWN,
+    ActuatorOptions,
+    Advising,
+    BusNodeFamily,
+    CommTimeout,
+    ConfigWarnings,
+    CountingNode,
     Fault,
     FrameId,
+    NodeReports,
     ProfileOptions,
+    Releasing,
     ServoProfile,
     ServoState,
     SimDevice,
     SimMotor,
+    SplitStartup,
+    UnsolicitedFrames,
+    comm_timeout_of,
+    node_family,
+    node_reports_of,
+    release_frames_of,
+    unsolicited_hz_of,
 )
-from .cubemars import CubeMarsAK
-from .cubemars_mit import CubeMarsAKMit
-from .damiao import DamiaoDM
-from .dronecan import DroneCanServo
-from .lk import LkTech
-from .odrive import ODrive
-from .registry import PROFILES, UnknownProfileError, get_profile, load_errors, profiles
-from .rmdx import RmdX
-from .robstride import Robstride
+from .registry import BUILT_IN, PROFILES, UnknownProfileError, get_profile, load_errors, profiles
+
+_CLASSES = {line.profile.partition(":")[2]: name for name, line in BUILT_IN.items()}
+"""Each built-in family's class name -> its YAML name (``RmdX`` -> ``rmd-x``), from the table."""
+
+
+def __getattr__(attribute: str) -> type[ServoProfile]:
+    """The family classes by their class names, imported on first use (PEP 562), so importing
+    the package imports no family."""
+    if attribute in _CLASSES:
+        return PROFILES[_CLASSES[attribute]]
+    raise AttributeError(f"module {__name__!r} has no attribute {attribute!r}")
+
 
 __all__ = [
     "NO_FAULT",
     "PROFILES",
     "UNKNOWN",
+    "ActuatorOptions",
+    "Advising",
+    "BusNodeFamily",
+    "CommTimeout",
+    "ConfigWarnings",
+    "CountingNode",
     "CubeMarsAK",
     "CubeMarsAKMit",
     "DamiaoDM",
@@ -41,16 +66,25 @@ __all__ = [
     "Fault",
     "FrameId",
     "LkTech",
+    "NodeReports",
     "ODrive",
     "ProfileOptions",
+    "Releasing",
     "RmdX",
     "Robstride",
     "ServoProfile",
     "ServoState",
     "SimDevice",
     "SimMotor",
+    "SplitStartup",
     "UnknownProfileError",
+    "UnsolicitedFrames",
+    "comm_timeout_of",
     "get_profile",
     "load_errors",
+    "node_family",
+    "node_reports_of",
     "profiles",
+    "release_frames_of",
+    "unsolicited_hz_of",
 ]

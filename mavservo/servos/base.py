@@ -14,7 +14,7 @@ import math
 from abc import ABC, abstractmethod
 from collections.abc import Hashable, Sequence
 from dataclasses import dataclass, replace
-from typing import Any, ClassVar, Literal, Protocol
+from typing import Any, ClassVar, Literal, Protocol, runtime_checkable
 
 import can
 from pydantic import BaseModel, ConfigDict
@@ -290,14 +290,6 @@ class ServoProfile(ABC):
     replies_per_lifecycle: int = 0
     """Replies each start-up, release or shutdown frame provokes (the scheduler expects them,
     so an answer is neither a late reply nor a bad one)."""
-    heartbeat_period_s: ClassVar[float | None] = None
-    """A pushing family whose nodes send a heartbeat of their own (DroneCAN NodeStatus, 1 Hz):
-    the scheduler's silence limit is ``offline_after_missed`` heartbeats, whatever the status
-    rate. None: ``offline_after_missed`` status periods."""
-    frames_per_push: ClassVar[int] = 1
-    """CAN frames one status push takes (a multi-frame transfer: more than one)."""
-    NodeOptions: ClassVar[type[ProfileOptions] | None] = None
-    """The bus-level ``node:`` options of a family with a :class:`BusNode` (None: no node)."""
     min_id: int = 1
     max_id: int = 32
     min_angle_deg: float = -math.inf
@@ -339,55 +331,13 @@ class ServoProfile(ABC):
         """True after a decoded reply says the servo is disabled or timed out by itself."""
         return False
 
-    def startup_continues(self) -> bool:
-        """True when the last start-up was a first step whose next step (asked for with
-        :meth:`needs_startup`) may go at the next command slot instead of after the scheduler's
-        retry interval: a start-up that must be split in two so that CAN arbitration cannot
-        reorder it (Robstride: the enable after the mode write) then costs one command slot, not
-        a second of commands the motor ignores. The scheduler allows one such early step per
-        start-up. Default: False."""
-        return False
-
     telemetry_hz: float | None = None
     """The servo's configured ``telemetry_hz`` (None: not configured, e.g. a bare instance),
     set by the config when it builds the profile: a pushed family that programs its servo's
     own report period at start-up (Robstride's EPScan_time) takes the rate from here."""
 
-    def diagnose(self, msg: can.Message) -> str | None:
-        """Why ``msg``, a frame no servo of the bus claims, looks like this servo's in a form
-        it is not configured for (another protocol, another host id), as advice naming the
-        option to change; None (the default) when it does not. Called for unclaimed frames
-        until the first advice; the scheduler logs it and announces it once."""
-        return None
-
-    def silence_hint(self) -> str | None:
-        """The likely causes to name when this servo goes offline without ever having
-        answered (wrong protocol, id, bitrate); None (the default): nothing to add."""
-        return None
-
-    def release_frames(self) -> list[can.Message]:
-        """Motor off (torque free): what ``failsafe: release`` sends. Empty: cannot release."""
-        return []
-
     def shutdown_frames(self) -> list[can.Message]:
         """Sent once when the bridge stops, after the failsafe action. Default: none."""
-        return []
-
-    def unsolicited_hz(self) -> float:
-        """Frames per second the servo sends on its own besides its telemetry (ODrive's
-        heartbeat), which the bus-load budget counts. Default: none."""
-        return 0.0
-
-    def comm_timeout_s(self) -> float | None:
-        """The servo's own communication timeout or watchdog as configured (seconds): it
-        stops or disarms by itself after this long without a frame from the bridge. ``check``
-        warns when the keep-alive is not shorter. Default: None, none declared."""
-        return None
-
-    def config_warnings(self) -> list[str]:
-        """Settings of this servo that load but will likely not do what the user means (a
-        numbering convention of the servo's firmware), for ``check``'s warnings. Default:
-        none."""
         return []
 
     STOP_BEHAVIOUR: ClassVar[str] = "holds its last target (no timeout of its own)"
@@ -397,9 +347,9 @@ class ServoProfile(ABC):
 
     def stop_behaviour(self) -> str:
         """:attr:`STOP_BEHAVIOUR`, with the servo's own timeout when one is configured
-        (:meth:`comm_timeout_s`); a family whose behaviour depends on its options overrides
+        (:class:`CommTimeout`); a family whose behaviour depends on its options overrides
         this (DroneCAN: the node's firmware)."""
-        timeout = self.comm_timeout_s()
+        timeout = comm_timeout_of(self)
         if timeout is None:
             return self.STOP_BEHAVIOUR
         return (
@@ -411,27 +361,6 @@ class ServoProfile(ABC):
     @abstractmethod
     def sim_device(cls, motor: SimMotor, can_id: int, options: ProfileOptions) -> SimDevice:
         """The device side for the built-in simulation and ``mavservo sim``."""
-
-    @classmethod
-    def link_sim_devices(cls, devices: Sequence[SimDevice]) -> None:
-        """Let the simulated devices of this family on one bus meet, for a family whose
-        device can carry several servos (a DroneCAN node with several actuators: one node,
-        one heartbeat). Default: every device stands alone."""
-        return None
-
-    @classmethod
-    def bus_node(
-        cls,
-        profiles: Sequence[ServoProfile],
-        options: ProfileOptions | None,
-        software_version: tuple[int, int],
-        start: float,
-        unique_id: bytes = bytes(16),
-    ) -> BusNode | None:
-        """The node this family's servos on one bus share (``profiles``: those servos), or
-        None (the default: every servo is addressed on its own). ``unique_id``: the node's
-        identity on the bus, stable for this machine and bus."""
-        return None
 
     def _merge(
         self,
@@ -489,19 +418,6 @@ class ServoProfile(ABC):
     def decode(self, msg: can.Message, timestamp: float) -> ServoState | None:
         """State after reply ``msg`` received at ``timestamp``; None if not this servo's reply."""
 
-    def is_liveness_only(self, msg: can.Message) -> bool:
-        """True for a report that only says the servo is alive (a DroneCAN node's NodeStatus,
-        which any node can send with the servo's id): it keeps the servo online and its faults
-        current, but answers no command, so it closes no round trip and adds no latency
-        sample. Default: False, every report is the servo's answer."""
-        return False
-
-    def completes_report(self, msg: can.Message) -> bool:
-        """False for a frame of this servo that only starts or continues a multi-frame report
-        (DroneCAN transfers): the scheduler logs it but counts neither a reply nor a new state
-        until the frame that completes it. Default: every frame is a whole report."""
-        return True
-
     def exchange_key(self, msg: can.Message) -> Hashable | None:
         """What a request and the reply that answers it have in common, or None.
 
@@ -532,3 +448,171 @@ class ServoProfile(ABC):
         if math.isnan(speed) or speed < 0:
             raise ValueError(f"{self.name}: speed limit must be >= 0, got {speed!r}")
         return min(speed, self.max_speed_dps)
+
+
+# ---------------------------------------------------------------------------- capabilities
+# What only some families do, each a runtime-checkable Protocol that a profile (or, for a bus
+# node, a profile class) meets by defining its members; callers ask with isinstance (or the
+# helpers below), never with getattr, and a profile without the capability is not asked.
+
+
+@runtime_checkable
+class Releasing(Protocol):
+    """A family that can switch its motor off (torque free): ``failsafe: release``."""
+
+    def release_frames(self) -> list[can.Message]:
+        """Motor off, as the frames that do it. Empty: this servo's options cannot release."""
+        ...
+
+
+@runtime_checkable
+class CommTimeout(Protocol):
+    """A servo with a communication timeout or watchdog of its own."""
+
+    def comm_timeout_s(self) -> float | None:
+        """The servo's own communication timeout or watchdog as configured (seconds): it stops
+        or disarms by itself after this long without a frame from the bridge. ``check`` warns
+        when the keep-alive is not shorter. None: not configured."""
+        ...
+
+
+@runtime_checkable
+class SplitStartup(Protocol):
+    """A start-up that must be split in two so that CAN arbitration cannot reorder it."""
+
+    def startup_continues(self) -> bool:
+        """True when the last start-up was a first step whose next step (asked for with
+        ``needs_startup``) may go at the next command slot instead of after the scheduler's
+        retry interval (Robstride: the enable after the mode write): it then costs one command
+        slot, not a second of commands the motor ignores. The scheduler allows one such early
+        step per start-up."""
+        ...
+
+
+@runtime_checkable
+class UnsolicitedFrames(Protocol):
+    """A servo that sends frames on its own besides its telemetry (ODrive's heartbeat)."""
+
+    def unsolicited_hz(self) -> float:
+        """Frames per second it sends unasked, which the bus-load budget counts."""
+        ...
+
+
+@runtime_checkable
+class BusNodeFamily(Protocol):
+    """A family whose servos on one bus share a node (DroneCAN): met by the profile class.
+
+    ``NodeOptions`` is the model of the bus-level ``node:`` options; :meth:`bus_node` builds
+    the node the scheduler owns; :meth:`link_sim_devices` lets the simulated devices of one
+    bus meet (a DroneCAN node with several actuators: one node, one heartbeat)."""
+
+    NodeOptions: type[ProfileOptions]
+
+    def bus_node(
+        self,
+        profiles: Sequence[ServoProfile],
+        options: ProfileOptions | None,
+        software_version: tuple[int, int],
+        start: float,
+        unique_id: bytes = ...,
+    ) -> BusNode:
+        """The node this family's servos on one bus share (``profiles``: those servos).
+        ``unique_id``: the node's identity on the bus, stable for this machine and bus."""
+        ...
+
+    def link_sim_devices(self, devices: Sequence[SimDevice]) -> None:
+        """Let the simulated devices of this family on one bus meet."""
+        ...
+
+
+@runtime_checkable
+class CountingNode(Protocol):
+    """A :class:`BusNode` that counts what it saw of the bus (hostile traffic included)."""
+
+    def stats(self) -> dict[str, int]:
+        """Counts for the run summary and ``metrics.json``."""
+        ...
+
+
+@runtime_checkable
+class ActuatorOptions(Protocol):
+    """The options of a servo that is one actuator of a node (DroneCAN's ``actuator_id``)."""
+
+    actuator_id: int
+
+
+@runtime_checkable
+class Advising(Protocol):
+    """A family that can tell when its servo answers in a form it is not configured for."""
+
+    def diagnose(self, msg: can.Message) -> str | None:
+        """Why ``msg``, a frame no servo of the bus claims, looks like this servo's in a form
+        it is not configured for (another protocol, another host id), as advice naming the
+        option to change; None when it does not. Called for unclaimed frames until the first
+        advice; the scheduler logs it and announces it once."""
+        ...
+
+    def silence_hint(self) -> str | None:
+        """The likely causes to name when this servo goes offline without ever having
+        answered (wrong protocol, id, bitrate); None: nothing to add."""
+        ...
+
+
+@runtime_checkable
+class ConfigWarnings(Protocol):
+    """A family with settings that load but will likely not do what the user means."""
+
+    def config_warnings(self) -> list[str]:
+        """Such settings of this servo (a numbering convention of the servo's firmware), for
+        ``check``'s warnings."""
+        ...
+
+
+@runtime_checkable
+class NodeReports(Protocol):
+    """A pushing family whose reports come from a node (DroneCAN): the node's own heartbeat
+    says it is alive, and a report may take several frames."""
+
+    heartbeat_period_s: ClassVar[float]
+    """The node's heartbeat period (DroneCAN NodeStatus, 1 s): the scheduler's silence limit
+    is ``offline_after_missed`` heartbeats, whatever the status rate."""
+    frames_per_push: ClassVar[int]
+    """CAN frames one status push takes (a multi-frame transfer: more than one)."""
+
+    def is_liveness_only(self, msg: can.Message) -> bool:
+        """True for a report that only says the servo is alive (a NodeStatus, which any node
+        can send with the servo's id): it keeps the servo online and its faults current, but
+        answers no command, so it closes no round trip and adds no latency sample."""
+        ...
+
+    def completes_report(self, msg: can.Message) -> bool:
+        """False for a frame of this servo that only starts or continues a multi-frame report:
+        the scheduler logs it but counts neither a reply nor a new state until the frame that
+        completes it."""
+        ...
+
+
+def release_frames_of(profile: ServoProfile) -> list[can.Message]:
+    """The profile's release frames, or none for a family that cannot release."""
+    return profile.release_frames() if isinstance(profile, Releasing) else []
+
+
+def comm_timeout_of(profile: ServoProfile) -> float | None:
+    """The servo's own communication timeout in seconds, or None (none declared)."""
+    return profile.comm_timeout_s() if isinstance(profile, CommTimeout) else None
+
+
+def unsolicited_hz_of(profile: ServoProfile) -> float:
+    """Frames per second the servo sends unasked besides its telemetry (0: none)."""
+    return profile.unsolicited_hz() if isinstance(profile, UnsolicitedFrames) else 0.0
+
+
+def node_reports_of(profile: ServoProfile) -> NodeReports | None:
+    """The profile as :class:`NodeReports`, or None: every frame is a whole report that
+    answers, and silence is counted in status periods."""
+    return profile if isinstance(profile, NodeReports) else None
+
+
+def node_family(cls: type[ServoProfile]) -> BusNodeFamily | None:
+    """The profile class as a :class:`BusNodeFamily`, or None: its servos stand alone."""
+    return cls if isinstance(cls, BusNodeFamily) else None

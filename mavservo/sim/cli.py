@@ -35,7 +35,7 @@ import threading
 from collections.abc import Sequence
 from typing import Any
 
-from ..servos import get_profile
+from ..servos import ActuatorOptions, get_profile
 from .adapter import AdapterEmulator, LineFaults
 from .servo import Faults, Physics, SimServo, share_nodes
 
@@ -331,7 +331,7 @@ def build_emulator(
 
 def _servo_label(servo: SimServo) -> str:
     """``profile:can_id``, with the actuator id where the profile has one (``dronecan:11/a1``)."""
-    actuator = getattr(servo.options, "actuator_id", None)
+    actuator = servo.options.actuator_id if isinstance(servo.options, ActuatorOptions) else None
     return f"{servo.profile}:{servo.can_id}" + ("" if actuator is None else f"/a{actuator}")
 
 

@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING
 import can
 
 from ..config.simulation import Faults, Physics
-from ..servos import ProfileOptions, get_profile
+from ..servos import ProfileOptions, get_profile, node_family
 from ..servos.base import NO_FAULT, Fault, SimDevice
 
 if TYPE_CHECKING:
@@ -337,11 +337,13 @@ def simulated_servos(config: Config, bus_name: str) -> list[SimServo]:
 
 
 def share_nodes(servos: list[SimServo]) -> list[SimServo]:
-    """Let the devices of one family meet (``ServoProfile.link_sim_devices``): a DroneCAN node
+    """Let the devices of one family meet (``BusNodeFamily.link_sim_devices``): a DroneCAN node
     with several actuators is one node for the servos on its id."""
     by_profile: dict[str, list[SimDevice]] = {}
     for servo in servos:
         by_profile.setdefault(servo.profile, []).append(servo._device)
     for profile, devices in by_profile.items():
-        get_profile(profile).link_sim_devices(devices)
+        family = node_family(get_profile(profile))
+        if family is not None:
+            family.link_sim_devices(devices)
     return servos

@@ -16,7 +16,7 @@ from typing import Any
 
 import can
 
-from mavservo.servos import ServoProfile, get_profile
+from mavservo.servos import ServoProfile, get_profile, node_reports_of
 
 from .families import facts
 from .wire_facts import NodeStatus, ODriveHeartbeat, node_status, odrive_heartbeat
@@ -117,7 +117,8 @@ class Recogniser:
                 profile = candidate.instance
                 if not profile.is_reply(msg):
                     continue
-                complete = profile.completes_report(msg)
+                reports = node_reports_of(profile)
+                complete = reports is None or reports.completes_report(msg)
                 if profile.decode(msg, 0.0) is not None and complete:
                     out.append((candidate, True))
                 elif not complete:

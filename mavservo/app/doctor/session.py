@@ -12,6 +12,7 @@ nothing else (CubeMars and Robstride in MIT mode).
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import time
 from collections import Counter, defaultdict
@@ -22,7 +23,7 @@ from typing import Any
 import can
 
 from mavservo.config import BusConfig, ServoConfig
-from mavservo.servos import FrameId, get_profile
+from mavservo.servos import FrameId, get_profile, release_frames_of
 from mavservo.transport.bus_factory import (
     BITRATE_SET_OUTSIDE,
     STANDARD_BITRATES,
@@ -113,7 +114,8 @@ def forbidden_frames(candidates: Iterable[Candidate]) -> set[tuple[int, bool, by
             continue
         profile = fresh.instance
         frames: list[can.Message] = []
-        for source in (profile.startup_frames, profile.release_frames, profile.shutdown_frames):
+        releases = functools.partial(release_frames_of, profile)
+        for source in (profile.startup_frames, releases, profile.shutdown_frames):
             with contextlib.suppress(Exception):  # a profile that cannot say forbids nothing
                 frames += source()
         with contextlib.suppress(Exception):

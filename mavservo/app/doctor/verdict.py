@@ -15,7 +15,7 @@ from typing import Any
 
 from mavservo.config import ServoConfig
 from mavservo.config.endpoints import bitrate_text
-from mavservo.servos import get_profile
+from mavservo.servos import Advising, get_profile
 
 from .families import facts
 from .session import BusFindings, Sighting
@@ -155,7 +155,8 @@ def _silence(findings: BusFindings, servo: ServoConfig) -> tuple[str, str]:
     rates = ", ".join(bitrate_text(r) for r in tried) or "none"
     cause = f"silent: no frame of it at any bitrate tried ({rates})"
     hints = [family.probe_note, family.silence]
-    profile_hint = get_profile(servo.profile)(servo.can_id, servo.profile_options()).silence_hint()
+    profile = get_profile(servo.profile)(servo.can_id, servo.profile_options())
+    profile_hint = profile.silence_hint() if isinstance(profile, Advising) else None
     if profile_hint:
         hints.append(profile_hint)
     return cause, "; ".join(h for h in hints if h)

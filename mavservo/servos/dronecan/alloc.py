@@ -33,7 +33,7 @@ from typing import Any
 
 import can
 
-from . import dronecan_wire as wire
+from . import wire
 
 FOLLOWUP_TIMEOUT_S = 0.5
 """``Allocation.FOLLOWUP_TIMEOUT_MS``: a query not continued within this is forgotten."""

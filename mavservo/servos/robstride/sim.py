@@ -36,8 +36,8 @@ import struct
 
 import can
 
-from .base import Fault, ProfileOptions, SimMotor
-from .mit_sim import SPECIAL, DriveRanges, command_setpoints, feedback_body
+from ..base import Fault, ProfileOptions, SimMotor
+from ..mit_sim import SPECIAL, DriveRanges, command_setpoints, feedback_body
 
 _FEEDBACK, _ENABLE, _STOP, _ZERO, _WRITE, _REPORT = 0x02, 0x03, 0x04, 0x06, 0x12, 0x18
 _RUN_MODE, _LOC_REF, _LIMIT_SPD, _EPSCAN, _CAN_TIMEOUT = 0x7005, 0x7016, 0x7017, 0x7026, 0x7028

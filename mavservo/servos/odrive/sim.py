@@ -26,7 +26,7 @@ import struct
 
 import can
 
-from .base import Fault, ProfileOptions, SimMotor
+from ..base import Fault, ProfileOptions, SimMotor
 
 _HEARTBEAT, _RX_SDO, _SET_AXIS_STATE, _ENCODER_ESTIMATES = 0x01, 0x04, 0x07, 0x09
 _SET_CONTROLLER_MODE, _SET_INPUT_POS, _SET_LIMITS = 0x0B, 0x0C, 0x0F

@@ -64,7 +64,7 @@ from typing import ClassVar, Literal
 import can
 from pydantic import Field, model_validator
 
-from .base import (
+from ..base import (
     NO_FAULT,
     Fault,
     FrameId,
@@ -74,7 +74,7 @@ from .base import (
     SimDevice,
     SimMotor,
 )
-from .sim_registry import simulated_device
+from ..sim_registry import simulated_device
 
 NODE_MASK = 0x7E0
 """The id bits that name the node (the upper six of eleven)."""

@@ -20,8 +20,8 @@ import math
 
 import can
 
-from .base import Fault, ProfileOptions, SimMotor
-from .mit_sim import SPECIAL, command_setpoints, configured_ranges, feedback_body
+from ..base import Fault, ProfileOptions, SimMotor
+from ..mit_sim import SPECIAL, command_setpoints, configured_ranges, feedback_body
 
 _ENTER, _EXIT, _ZERO = 0xFC, 0xFD, 0xFE
 _MUTE_AFTER_ZERO_S = 1.0

@@ -56,8 +56,7 @@ from typing import Any, ClassVar, Literal
 import can
 from pydantic import Field, model_validator
 
-from . import dronecan_wire as wire
-from .base import (
+from ..base import (
     NO_FAULT,
     Fault,
     FrameId,
@@ -67,7 +66,8 @@ from .base import (
     SimDevice,
     SimMotor,
 )
-from .dronecan_node import BridgeNode, NodeOptions
+from . import wire
+from .node import BridgeNode, NodeOptions
 
 _DTID_MASK = 0xFFFF << 8
 _FEEDBACK = (
@@ -186,7 +186,7 @@ class DroneCanServo(ServoProfile):
     """float16 in radians: a step of 2**-8 rad (0.22 deg) between 4 and 8 rad, finer below;
     position mode is held to +-360 deg (a servo's range, and where float16 still resolves it)."""
     min_angle_deg, max_angle_deg = -360.0, 360.0
-    heartbeat_period_s: ClassVar[float | None] = wire.NODE_STATUS_PERIOD_S
+    heartbeat_period_s: ClassVar[float] = wire.NODE_STATUS_PERIOD_S
     frames_per_push: ClassVar[int] = 2
     """A Status transfer is two frames (8 payload bytes and the tail byte)."""
     Options: ClassVar[type[ProfileOptions]] = DroneCanOptions
@@ -327,7 +327,7 @@ class DroneCanServo(ServoProfile):
 
     @classmethod
     def sim_device(cls, motor: SimMotor, can_id: int, options: ProfileOptions) -> SimDevice:
-        from .dronecan_sim import DroneCanDevice
+        from .sim import DroneCanDevice
 
         assert isinstance(options, DroneCanOptions)
         return DroneCanDevice(motor, can_id, options)
@@ -335,11 +335,11 @@ class DroneCanServo(ServoProfile):
     @classmethod
     def link_sim_devices(cls, devices: Sequence[SimDevice]) -> None:
         """Servos on one node id are one simulated node (see :mod:`.dronecan_sim`)."""
-        from .dronecan_sim import link_devices
+        from .sim import link_devices
 
         link_devices(devices)
 
-    NodeOptions: ClassVar[type[ProfileOptions] | None] = NodeOptions
+    NodeOptions: ClassVar[type[ProfileOptions]] = NodeOptions
 
     @classmethod
     def bus_node(

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import can
 
-from .base import Fault, ProfileOptions, SimMotor
+from ..base import Fault, ProfileOptions, SimMotor
 
 _REQUEST_BASE, _REPLY_BASE = 0x140, 0x240
 _SHUTDOWN, _BRAKE_RELEASE, _BRAKE_LOCK, _COMM_LOSS = 0x80, 0x77, 0x78, 0xB3

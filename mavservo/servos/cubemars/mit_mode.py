@@ -37,10 +37,10 @@ from typing import ClassVar, Literal
 import can
 from pydantic import Field
 
-from . import mit
-from .base import FrameId, ProfileOptions, ServoProfile, ServoState, SimDevice, SimMotor
-from .cubemars import fault_from_error_code
-from .sim_registry import simulated_device
+from .. import mit
+from ..base import FrameId, ProfileOptions, ServoProfile, ServoState, SimDevice, SimMotor
+from ..sim_registry import simulated_device
+from .profile import fault_from_error_code
 
 REPLY_LENGTHS = (6, 8)
 """The manual's MIT reply table gives DLC 6 (position, speed, current); drivers that add the

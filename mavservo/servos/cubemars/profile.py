@@ -33,7 +33,7 @@ from typing import Literal
 import can
 from pydantic import Field
 
-from .base import (
+from ..base import (
     NO_FAULT,
     Fault,
     FrameId,
@@ -43,7 +43,7 @@ from .base import (
     SimDevice,
     SimMotor,
 )
-from .sim_registry import simulated_device
+from ..sim_registry import simulated_device
 
 MODE_POSITION = 4
 MODE_POSITION_SPEED = 6

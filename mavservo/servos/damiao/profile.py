@@ -45,8 +45,8 @@ from typing import ClassVar, Literal
 import can
 from pydantic import Field
 
-from . import mit
-from .base import (
+from .. import mit
+from ..base import (
     NO_FAULT,
     Fault,
     FrameId,
@@ -56,7 +56,7 @@ from .base import (
     SimDevice,
     SimMotor,
 )
-from .sim_registry import simulated_device
+from ..sim_registry import simulated_device
 
 REGISTER_ID = 0x7FF
 POSITION_VELOCITY_BASE = 0x100

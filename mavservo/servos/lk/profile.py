@@ -35,7 +35,7 @@ from typing import ClassVar, Literal
 import can
 from pydantic import Field
 
-from .base import (
+from ..base import (
     NO_FAULT,
     Fault,
     FrameId,
@@ -45,7 +45,7 @@ from .base import (
     SimDevice,
     SimMotor,
 )
-from .sim_registry import simulated_device
+from ..sim_registry import simulated_device
 
 CMD_MOTOR_OFF = 0x80
 CMD_MOTOR_STOP = 0x81

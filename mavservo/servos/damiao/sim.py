@@ -25,8 +25,8 @@ import struct
 
 import can
 
-from .base import Fault, ProfileOptions, SimMotor
-from .mit_sim import SPECIAL, command_setpoints, configured_ranges, feedback_body
+from ..base import Fault, ProfileOptions, SimMotor
+from ..mit_sim import SPECIAL, command_setpoints, configured_ranges, feedback_body
 
 _REGISTERS_ID = 0x7FF
 _POSITION_VELOCITY = 0x100

@@ -60,8 +60,8 @@ from typing import ClassVar, Literal
 import can
 from pydantic import Field, model_validator
 
-from . import mit
-from .base import (
+from .. import mit
+from ..base import (
     NO_FAULT,
     Fault,
     FrameId,
@@ -71,7 +71,7 @@ from .base import (
     SimDevice,
     SimMotor,
 )
-from .sim_registry import simulated_device
+from ..sim_registry import simulated_device
 
 # -- private protocol ----------------------------------------------------------------------
 TYPE_GET_ID = 0x00

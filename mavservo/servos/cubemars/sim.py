@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import can
 
-from .base import Fault, ProfileOptions, SimMotor
+from ..base import Fault, ProfileOptions, SimMotor
 
 _POSITION_LOOP, _POSITION_SPEED_LOOP = 4, 6
 _REPORT_BASE = 0x2900

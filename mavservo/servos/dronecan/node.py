@@ -30,8 +30,8 @@ from typing import Any, Literal, Protocol
 import can
 from pydantic import Field, field_validator, model_validator
 
-from . import dronecan_wire as wire
-from .base import BusNodeError, NodeHealth, ProfileOptions
+from ..base import BusNodeError, NodeHealth, ProfileOptions
+from . import wire
 
 _HEX32 = re.compile(r"[0-9a-f]{32}")
 GET_NODE_INFO_PER_S = 4
@@ -262,7 +262,7 @@ class BridgeNode:
         self._noted: set[str] = set()
         self.allocator: Any = None
         if options.allocator:
-            from .dronecan_alloc import AllocationServer
+            from .alloc import AllocationServer
 
             configured = {
                 bytes.fromhex(servo.options.unique_id): servo.can_id
@@ -594,7 +594,7 @@ class BridgeNode:
         if self.safety_off:  # SafetyState: one single-frame transfer (1 byte and the tail)
             flows.append((1 / SAFETY_PERIOD_S, True, 2))
         if self.allocator is not None:
-            from .dronecan_alloc import ALLOCATION_ANSWER_FRAMES, ALLOCATION_ANSWERS_PER_S
+            from .alloc import ALLOCATION_ANSWER_FRAMES, ALLOCATION_ANSWERS_PER_S
 
             flows.append((ALLOCATION_ANSWERS_PER_S * ALLOCATION_ANSWER_FRAMES, True, 8))
         return flows

@@ -33,7 +33,7 @@ from typing import ClassVar
 import can
 from pydantic import Field
 
-from .base import (
+from ..base import (
     NO_FAULT,
     Fault,
     FrameId,
@@ -43,7 +43,7 @@ from .base import (
     SimDevice,
     SimMotor,
 )
-from .sim_registry import simulated_device
+from ..sim_registry import simulated_device
 
 CMD_MOTOR_OFF = 0x80
 CMD_BRAKE_RELEASE = 0x77

@@ -41,9 +41,9 @@ from collections.abc import Sequence
 
 import can
 
-from . import dronecan_wire as wire
-from .base import NO_FAULT, SimMotor
-from .dronecan import ARDUPILOT_COMMAND_TIMEOUT_S, ARDUPILOT_UNITLESS_DEG, DroneCanOptions
+from ..base import NO_FAULT, SimMotor
+from . import wire
+from .profile import ARDUPILOT_COMMAND_TIMEOUT_S, ARDUPILOT_UNITLESS_DEG, DroneCanOptions
 
 ARDUPILOT_STATUS_PERIOD_S = 0.1
 """AP_Periph's actuator Status period while commanded (10 Hz)."""

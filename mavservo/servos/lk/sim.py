@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import can
 
-from .base import Fault, ProfileOptions, SimMotor
+from ..base import Fault, ProfileOptions, SimMotor
 
 REQUEST_ID_BASE = 0x140
 
