@@ -46,6 +46,9 @@ class RefusingSink:
     def release(self, servo: str) -> None:
         pass
 
+    def mark_failsafe(self, servo: str) -> None:
+        pass
+
     def state(self, servo: str) -> ServoState | None:
         return None
 

@@ -137,7 +137,9 @@ def test_dronecan_position_and_status_reach_mavlink_telemetry() -> None:
     the channel's +-45 deg, ``active`` bit set); its NodeStatus health as ``s<n>_flt``: 0 while
     OK, the OTHER bit (and a STATUSTEXT) once the node reports a warning, the other node's 0."""
     targets = {"left": (1, 1700), "right": (2, 1300)}  # servo -> (channel = n, PWM)
-    with running(CONFIG) as (bridge, port):
+    # every name several times within WAIT_S: a wider link than a radio's default 1,000 B/s
+    wide = "  link_budget_bytes_s: 20000\n"
+    with running(CONFIG, extra_mavlink=wide) as (bridge, port):
         peer = Peer(port)
         try:
             peer.gcs_heartbeat()

@@ -83,7 +83,10 @@ def test_mit_families_follow_report_and_refuse_out_of_range() -> None:
     range is DENIED by each family, counted under its profile, and no command for it (nor any
     other setpoint) reaches that servo while the others go on following."""
     recorder = Recorder()
-    with running(CONFIG, observers=[recorder]) as (bridge, port):
+    # five servos' positions, three each, within WAIT_S: a wider link than a radio's
+    # default 1,000 B/s (whose decimation leaves one position per servo every several seconds)
+    wide = "  link_budget_bytes_s: 20000\n"
+    with running(CONFIG, observers=[recorder], extra_mavlink=wide) as (bridge, port):
         peer = Peer(port)
         try:
             for _, channel, pwm in OUT_OF_RANGE.values():

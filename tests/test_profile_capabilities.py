@@ -42,7 +42,7 @@ EXPECTED = {
     "cubemars-ak-mit": {"Releasing", "CommTimeout"},
     "damiao-dm": {"Releasing", "CommTimeout"},
     "odrive": {"Releasing", "CommTimeout", "UnsolicitedFrames"},
-    "dronecan": {"ConfigWarnings", "NodeReports", "BusNodeFamily"},
+    "dronecan": {"Releasing", "ConfigWarnings", "NodeReports", "BusNodeFamily"},
     "robstride": {"Releasing", "SplitStartup", "Advising"},
 }
 """What each built-in family does beyond the core (docs/architecture.md, the capability

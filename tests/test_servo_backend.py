@@ -41,6 +41,7 @@ channels:
 class RecordingSink:
     sent: list[tuple[str, float, str]] = field(default_factory=list)
     released: list[str] = field(default_factory=list)
+    marked: list[str] = field(default_factory=list)
     offline: set[str] = field(default_factory=set)
 
     def set_setpoint(self, servo: str, angle_deg: float, source: str, t: float | None = None):
@@ -49,6 +50,9 @@ class RecordingSink:
 
     def release(self, servo: str) -> None:
         self.released.append(servo)
+
+    def mark_failsafe(self, servo: str) -> None:
+        self.marked.append(servo)
 
     def state(self, servo: str):
         return None

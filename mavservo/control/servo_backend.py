@@ -48,6 +48,10 @@ class SetpointSink(Protocol):
         """Stop commanding ``servo`` until its next setpoint (failsafe ``release``)."""
         ...
 
+    def mark_failsafe(self, servo: str) -> None:
+        """The setpoint in force is now held by a failsafe (``hold``); nothing new is sent."""
+        ...
+
     def state(self, servo: str) -> ServoState | None:
         """The servo's last decoded state, or None before its first reply."""
         ...
@@ -455,14 +459,15 @@ class ServoBackend:
             servo.goal_deg = None
             return
         if action == "hold":
-            # the scheduler keeps refreshing the last setpoint; it is re-issued as a failsafe
-            # one, so the bus knows the servo is in failsafe (a DroneCAN node's SafetyState
-            # plan, ``safety_on: failsafe_and_stop``, never saw a held servo in failsafe)
+            # the scheduler keeps refreshing the last setpoint; it is marked as held by the
+            # failsafe (no new command: the command stream stays exactly what was applied), so
+            # the bus knows the servo is in failsafe (a DroneCAN node's SafetyState plan,
+            # ``safety_on: failsafe_and_stop``, never saw a held servo in failsafe)
             if servo.goal_deg is None:
                 return
             servo.source = "failsafe"
             if servo.goal_deg == servo.sent_deg:
-                servo.sink.set_setpoint(servo.name, servo.goal_deg, "failsafe")
+                servo.sink.mark_failsafe(servo.name)
             return  # a move under way goes on, its next steps failsafe ones
         angle = servo.neutral_deg if action == "neutral" else servo.failsafe_position_deg
         if angle is None:

@@ -83,7 +83,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Hashable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import can
@@ -585,6 +585,14 @@ class ScheduleCore:
         slot.released = False
         slot.release_due = None
         return SetpointResult(True, seq)
+
+    def mark_failsafe(self, name: str) -> None:
+        """The setpoint in force is held by a failsafe from now on: the same command, no new
+        one (its refreshes go on as before), only its source says failsafe, which is what a bus
+        node's failsafe plan reads (a DroneCAN SafetyState turned on at failsafe)."""
+        slot = self._slots.get(name)
+        if slot is not None and slot.latest is not None and slot.latest.source != "failsafe":
+            slot.latest = replace(slot.latest, source="failsafe")
 
     def release(self, name: str) -> None:
         """Stop commanding and refreshing a servo until its next setpoint (failsafe release),

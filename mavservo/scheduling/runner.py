@@ -430,6 +430,11 @@ class Scheduler:
             self._wake.set()
         return result
 
+    def mark_failsafe(self, servo: str) -> None:
+        """The setpoint in force is held by a failsafe (``hold``): no new command goes out."""
+        with self._lock:
+            self._core.mark_failsafe(servo)
+
     def release(self, servo: str) -> None:
         """Stop sending and refreshing ``servo`` until its next setpoint (failsafe release)."""
         with self._lock:
