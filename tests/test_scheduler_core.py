@@ -457,3 +457,13 @@ def test_bursts_too_long_for_the_gap_start_polls_right_after_the_commands():
 def test_a_phase_outside_the_telemetry_period_is_refused(phase):
     with pytest.raises(ScheduleError, match="telemetry_phase_s"):
         TimingConfig(telemetry_phase_s=phase)
+
+
+def test_mark_failsafe_relabels_the_setpoint_in_force_without_a_new_command():
+    core = core_with(rmd(1), telemetry_phase_s=0.0)
+    assert core.submit("s1", 10.0, "servo_output_raw", t=100.0).seq == 1
+    core.mark_failsafe("s1")
+    latest = core._slots["s1"].latest
+    assert latest is not None
+    assert (latest.seq, latest.angle_deg, latest.source) == (1, 10.0, "failsafe")
+    core.mark_failsafe("nobody")  # an unknown servo: nothing to mark, no error

@@ -223,3 +223,21 @@ def test_an_offline_servo_reports_no_measured_normalized_position(setup) -> None
     surface = next(s for s in backend.servo_statuses() if s.name == "surface")
     assert surface.normalized is None and not surface.online
     assert surface.state is state  # the last values stay readable (console, age)
+
+
+def test_failsafe_hold_marks_the_setpoint_in_force_and_sends_nothing_new() -> None:
+    """``hold`` keeps the command that was applied: no second position command (a command is
+    applied once), only the mark that the bus now holds it as a failsafe (what a DroneCAN
+    SafetyState plan reads)."""
+    config = load_config_text(
+        CONFIG.replace("failsafe: {action: neutral, timeout_s: 1.0}", "failsafe: {action: hold}"),
+        "backend.yaml",
+    )
+    sink = RecordingSink()
+    backend = ServoBackend(config, {s.name: sink for s in config.servos}, on_event=lambda _: None)
+    backend.apply_servo_output(1, 1700, "servo_output_raw", 0.0)
+    backend.tick(5.0)
+    sent = list(sink.sent)
+    backend.failsafe_all("bridge shutting down", 6.0)
+    assert [s for s, _, _ in sink.sent[len(sent) :] if s == "surface"] == []
+    assert sink.marked == ["surface"]
