@@ -43,7 +43,9 @@ WAIT_S = 5.0
 def test_a_huge_encoder_estimate_reaches_the_gcs_as_an_infinity_not_an_encode_error() -> None:
     """Finding: a (spoofed or broken) ODrive encoder estimate of 3e38 turns made NAMED_VALUE_FLOAT
     fail to encode in the link: dropped, with a traceback in the log."""
-    with running(ODRIVE_CONFIG) as (bridge, port):
+    # the name within WAIT_S: a wider link than a radio's default 1,000 B/s decimation allows
+    wide = "  link_budget_bytes_s: 20000\n"
+    with running(ODRIVE_CONFIG, extra_mavlink=wide) as (bridge, port):
         peer = Peer(port)
         try:
             peer.send(mavlink2.MAVLink_heartbeat_message(6, 8, 0, 0, 4, 3))  # a GCS: answer me
