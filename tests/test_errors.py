@@ -17,7 +17,6 @@ from pathlib import Path
 
 import can
 import pytest
-from conftest import wait_until
 
 from mavservo.app import run
 from mavservo.app.report import ReportError
@@ -33,6 +32,7 @@ from mavservo.sim.autopilot.replay import TlogError
 from mavservo.sim.servo import SimServo
 from mavservo.transport.aa55.bus import AA55Bus, AdapterBusyError, AdapterMissingError
 from mavservo.transport.resilient_bus import REOPEN_WARNING_INTERVAL_S, ResilientBus
+from tests.support.waiting import wait_until
 
 
 @pytest.mark.parametrize(

@@ -752,7 +752,7 @@ class ScheduleCore:
         self._next_command_slot = slot_time + t.command_period_s
         # less a rounding margin: slot times are sums of periods, and a refresh due exactly on a
         # slot (refresh_interval_s 0.5 s in 0.2 s slots) waited a whole slot more when the sum
-        # came out a hair short (tests/test_check_keep_alive.py)
+        # came out a hair short (tests/app/test_check_keep_alive.py)
         refresh_due = t.refresh_s - t.command_period_s / 2 - 1e-9
         for name in self._order:
             slot = self._slots[name]

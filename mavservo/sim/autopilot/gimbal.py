@@ -3,7 +3,8 @@
 ArduPilot's MAVLink mount backend turns its target angles into a quaternion with the usual
 aerospace Z-Y-X (yaw, pitch, roll) order; the simulator uses the bridge's own conversions
 (:mod:`mavservo.mavlink.quaternion`), whose agreement with real ArduPilot is tested against the
-recorded gimbal session (tests/test_sitl_profiles.py, tests/test_mavlink_gimbal_replay.py).
+recorded gimbal session (tests/sim/autopilot/test_motion_scripts.py,
+tests/mavlink/test_gimbal_replay.py).
 """
 
 from __future__ import annotations
