@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-from mavservo.sim.cli import build_parser as sim_parser
+from mavservo.sim.sim_command import build_parser as sim_parser
 from tests.app.test_run_cli import run_mavservo as mavservo
 from tests.support.paths import REPO
 

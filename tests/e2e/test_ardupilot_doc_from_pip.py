@@ -33,7 +33,7 @@ here = Path(__file__).resolve().parents[3]
 signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
 serial1 = sys.argv[sys.argv.index("--serial1") + 1]
 _, host, port = serial1.split(":")
-from mavservo.sim.autopilot.cli import main
+from mavservo.sim.autopilot.sitl_command import main
 main(["stream", "--url", f"udpout:{host}:{port}", "--profile", "sweep", "--servo-rate", "1"])
 """
 

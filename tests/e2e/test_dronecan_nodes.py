@@ -26,8 +26,8 @@ import pytest
 from dronecan.transport import Frame, Transfer
 
 from mavservo.app.bridge import Bridge
+from mavservo.mavlink.connection import mavlink2
 from mavservo.servos.base import Fault
-from mavservo.sim.autopilot.link import mavlink2
 from mavservo.sim.servo import SimServo
 from tests.app.test_run_cli import REPO, run_mavservo
 from tests.support.bridge import (

@@ -19,9 +19,9 @@ from typing import Any
 import can
 import pytest
 
+from mavservo.mavlink.connection import mavlink2
 from mavservo.scheduling.runner import SchedulerObserver
 from mavservo.servos.base import Fault
-from mavservo.sim.autopilot.link import mavlink2
 from tests.app.test_run_cli import REPO, run_mavservo
 from tests.support.bridge import (
     MAV_CMD_DO_SET_SERVO,

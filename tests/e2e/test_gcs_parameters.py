@@ -22,7 +22,7 @@ import pytest
 from mavservo.app.bridge import Bridge
 from mavservo.config.overlay import load_config_with_overlay, overlay_path
 from mavservo.config.parameters import parameter_table
-from mavservo.sim.autopilot.link import mavlink2
+from mavservo.mavlink.connection import mavlink2
 from tests.support.bridge import MAV_CMD_DO_SET_SERVO, MAV_RESULT_ACCEPTED, Peer
 from tests.support.waiting import free_udp_port, wait_until
 

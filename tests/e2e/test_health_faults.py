@@ -18,7 +18,7 @@ from typing import Any
 import pytest
 
 from mavservo.mavlink.backend import Health
-from mavservo.sim.autopilot.link import mavlink2
+from mavservo.mavlink.connection import mavlink2
 from mavservo.sim.servo import SimServo
 from tests.support.bridge import (
     MAV_CMD_DO_SET_SERVO,

@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import pytest
 
+from mavservo.mavlink.connection import mavlink2
 from mavservo.servos.base import Fault
-from mavservo.sim.autopilot.link import mavlink2
 from tests.e2e.test_recorded_traffic import GIMBAL  # the three-CubeMars gimbal of the recorded runs
 from tests.support.bridge import (
     MAV_RESULT_ACCEPTED,

@@ -17,9 +17,9 @@ import struct
 
 import pytest
 
+from mavservo.mavlink.connection import mavlink2
 from mavservo.servos.robstride.profile import PARAM_LOC_REF, RobstrideOptions
 from mavservo.servos.robstride.sim import RsMotorDevice
-from mavservo.sim.autopilot.link import mavlink2
 from tests.support.bridge import (
     MAV_CMD_DO_SET_SERVO,
     MAV_RESULT_ACCEPTED,

@@ -27,7 +27,7 @@ from mavservo.app.bridge import Bridge
 from mavservo.app.check import EXIT_INVALID, EXIT_OK, check_main
 from mavservo.app.console import event_level
 from mavservo.config import load_config_text
-from mavservo.sim.autopilot.link import mavlink2
+from mavservo.mavlink.connection import mavlink2
 from mavservo.sim.autopilot.stream import AutopilotStream
 from tests.support.paths import REPO
 from tests.support.waiting import free_udp_port, wait_until

@@ -16,7 +16,7 @@ import threading
 
 import pytest
 
-from mavservo.sim.autopilot.profiles import StaircaseProfile
+from mavservo.sim.autopilot.motion_scripts import StaircaseProfile
 from mavservo.sim.autopilot.stream import AutopilotStream
 from tests.support.bridge import running
 from tests.support.waiting import wait_until

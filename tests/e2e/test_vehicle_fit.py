@@ -15,8 +15,8 @@ from mavservo.app.bridge import Bridge
 from mavservo.app.check import check_main
 from mavservo.config import load_config_text
 from mavservo.config.loader import default_config_path
+from mavservo.mavlink.connection import mavlink2
 from mavservo.sim.autopilot.factory import simulator_from_config
-from mavservo.sim.autopilot.link import mavlink2
 from tests.support.bridge import MAV_CMD_DO_SET_SERVO, MAV_RESULT_ACCEPTED, Peer, running
 from tests.support.waiting import free_udp_port, wait_until
 

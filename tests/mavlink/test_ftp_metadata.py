@@ -319,7 +319,7 @@ def _core(**settings: Any) -> Any:
 
 
 def _ftp_message(target_component: int) -> Any:
-    from mavservo.sim.autopilot.link import mavlink2
+    from mavservo.mavlink.connection import mavlink2
     from tests.support.mavlink_doubles import wire
 
     payload = list(request(ftp.OP_OPEN_FILE_RO, data=b"general.json"))

@@ -13,8 +13,8 @@ import time
 
 import pytest
 
+from mavservo.mavlink.connection import mavlink2
 from mavservo.mavlink.gimbal_discovery import GRACE_S, GimbalDiscoveryWatch
-from mavservo.sim.autopilot.link import mavlink2
 from mavservo.sim.autopilot.stream import ARDUPILOT_GIMBAL_SEARCH_S, AutopilotStream
 from tests.support.bridge import gimbal_config, running
 from tests.support.waiting import wait_until

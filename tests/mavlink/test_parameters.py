@@ -35,13 +35,13 @@ from mavservo.config.parameters import (
     with_values,
 )
 from mavservo.config.schema import Config
+from mavservo.mavlink.connection import mavlink2
 from mavservo.mavlink.params import (
     FTP_ERROR_UNKNOWN_COMMAND,
     FTP_OPCODE_NAK,
     ParameterServer,
     SetResult,
 )
-from mavservo.sim.autopilot.link import mavlink2
 from tests.support.mavlink_doubles import wire
 
 SIM = load_config(default_config_path())

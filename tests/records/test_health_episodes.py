@@ -11,7 +11,7 @@ from mavservo.app.console import event_level, format_summary
 from mavservo.app.monitor import MonitorState
 from mavservo.app.report import generate
 from mavservo.mavlink.backend import Health
-from mavservo.sim.autopilot.link import mavlink2
+from mavservo.mavlink.connection import mavlink2
 from tests.app.test_run_cli import read_trace
 from tests.e2e.test_health_faults import BODY, pwm_for
 from tests.support.bridge import bridge_config, sim_servo, status

@@ -27,9 +27,9 @@ import pytest
 
 from mavservo.records.latency import STAGES, LatencyTracer
 from mavservo.records.metrics import FloatRing, SampleStats, SchedulerMetrics, percentile
-from mavservo.sim.autopilot.cli import STREAM_KEEP, build_parser
-from mavservo.sim.autopilot.commands import CommandTracker
+from mavservo.sim.autopilot.command_tracker import CommandTracker
 from mavservo.sim.autopilot.recorder import Received
+from mavservo.sim.autopilot.sitl_command import STREAM_KEEP, build_parser
 from mavservo.sim.autopilot.stream import AutopilotStream, Commanded
 from tests.support.paths import REPO
 

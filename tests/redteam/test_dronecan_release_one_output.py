@@ -16,7 +16,7 @@ import time
 
 import pytest
 
-from mavservo.sim.autopilot.link import mavlink2
+from mavservo.mavlink.connection import mavlink2
 from tests.e2e.test_dronecan_nodes import WAIT_S, Wire, ardupilot_board, node_servo
 from tests.support.bridge import MAV_CMD_DO_SET_SERVO, MAV_RESULT_ACCEPTED, Peer, running
 from tests.support.waiting import wait_until

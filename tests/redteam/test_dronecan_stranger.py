@@ -26,10 +26,10 @@ import pytest
 from dronecan.transport import Transfer
 
 from mavservo.app.bridge import Bridge
+from mavservo.mavlink.connection import mavlink2
 from mavservo.servos.dronecan import wire
 from mavservo.servos.dronecan.alloc import AllocationServer
 from mavservo.servos.dronecan.profile import DroneCanServo
-from mavservo.sim.autopilot.link import mavlink2
 from tests.e2e.test_dronecan_nodes import says
 from tests.support.bridge import MAV_CMD_DO_SET_SERVO, MAV_RESULT_ACCEPTED, Peer, running, status
 from tests.support.waiting import wait_until

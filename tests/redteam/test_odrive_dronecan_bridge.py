@@ -24,10 +24,10 @@ from mavservo.app.bridge import Bridge
 from mavservo.app.console import format_summary
 from mavservo.app.report import ReportError, load_run
 from mavservo.config import load_config
+from mavservo.mavlink.connection import mavlink2
 from mavservo.servos.dronecan import wire
 from mavservo.servos.dronecan.node import GET_NODE_INFO_PER_S
 from mavservo.servos.odrive.profile import CMD_ENCODER_ESTIMATES, arbitration_id
-from mavservo.sim.autopilot.link import mavlink2
 from tests.e2e.test_dronecan_through_bridge import CONFIG as DRONECAN_CONFIG
 from tests.e2e.test_dronecan_through_bridge import status
 from tests.e2e.test_odrive_through_bridge import CONFIG as ODRIVE_CONFIG

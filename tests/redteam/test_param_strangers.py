@@ -22,7 +22,7 @@ from mavservo.app.bridge import Bridge
 from mavservo.app.check import check_main
 from mavservo.config.loader import ConfigError
 from mavservo.config.overlay import load_config_with_overlay, overlay_path
-from mavservo.sim.autopilot.link import mavlink2
+from mavservo.mavlink.connection import mavlink2
 from tests.support.bridge import Peer
 from tests.support.waiting import free_udp_port, wait_until
 

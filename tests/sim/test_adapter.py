@@ -234,7 +234,7 @@ def test_relaxation_is_visible_without_refresh(emulator_factory):
 def test_sim_command_prints_the_path_first_and_exits_cleanly_on_sigterm():
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     process = subprocess.Popen(
-        [sys.executable, "-m", "mavservo.sim.cli", "--servos", "2", "--profile", "rmd-x"],
+        [sys.executable, "-m", "mavservo.sim.sim_command", "--servos", "2", "--profile", "rmd-x"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -261,7 +261,7 @@ def test_sim_command_reads_servos_and_faults_from_yaml(tmp_path):
         "    - {id: 4, profile: lk, faults: {silent: true}}\n"
         "    - {id: 5, profile: cubemars-ak}\n"
     )
-    from mavservo.sim.cli import build_emulator, build_parser
+    from mavservo.sim.sim_command import build_emulator, build_parser
 
     emulator = build_emulator(build_parser().parse_args(["--config", str(config)]))
     assert [(s.profile, s.can_id, s.faults.silent) for s in emulator.servos] == [
@@ -270,7 +270,7 @@ def test_sim_command_reads_servos_and_faults_from_yaml(tmp_path):
     ]
     bad = tmp_path / "bad.yaml"
     bad.write_text("simulation:\n  servos:\n    - {id: 1, profile: nope}\n")
-    from mavservo.sim.cli import main
+    from mavservo.sim.sim_command import main
 
     assert main(["--config", str(bad)]) == 2
 
@@ -286,7 +286,7 @@ def test_sim_command_accepts_a_full_mavservo_config(tmp_path):
         "    tilt: {faults: {drop_reply_prob: 0.5}}\n"
         "    default: {physics: {relax_after_s: 3}}\n"
     )
-    from mavservo.sim.cli import build_emulator, build_parser
+    from mavservo.sim.sim_command import build_emulator, build_parser
 
     emulator = build_emulator(build_parser().parse_args(["--config", str(config)]))
     pan, tilt = emulator.servos

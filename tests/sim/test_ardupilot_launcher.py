@@ -20,10 +20,10 @@ from pathlib import Path
 import pytest
 
 from mavservo.config.loader import load_config
+from mavservo.mavlink.connection import mavlink2 as mav
 from mavservo.mavlink.settings import MavlinkSettings
 from mavservo.mavlink.side import MavlinkSide
 from mavservo.mavlink.stream_request import WINDOW_S
-from mavservo.sim.autopilot.link import mavlink2 as mav
 from tests.support.autopilot import collect, of_type, peer
 from tests.support.mavlink_doubles import RecordingBackend
 from tests.support.paths import REPO

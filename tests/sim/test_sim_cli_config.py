@@ -13,7 +13,7 @@ import can
 import pytest
 
 from mavservo.servos import get_profile
-from mavservo.sim.cli import build_emulator, build_parser, main
+from mavservo.sim.sim_command import build_emulator, build_parser, main
 from mavservo.transport.aa55.bus import AA55Bus
 from tests.support.waiting import wait_until
 

@@ -7,7 +7,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from mavservo.sim.autopilot.link import open_link
+from mavservo.mavlink.connection import open_connection
 
 #: Receive buffer asked for by test peers. A replay at 40x speed sends ~2,300 datagrams in
 #: seconds; with the default ~208 KiB (about 270 loopback datagrams) a test process stalled by a
@@ -17,7 +17,7 @@ PEER_RCVBUF_BYTES = 4 * 1024 * 1024
 
 def peer(port: int, component: int = 191) -> Any:
     """A companion-side pymavlink endpoint listening on 127.0.0.1:``port`` (MAVLink 2)."""
-    conn = open_link(f"udpin:127.0.0.1:{port}", 1, component)
+    conn = open_connection(f"udpin:127.0.0.1:{port}", source_system=1, source_component=component)
     conn.port.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, PEER_RCVBUF_BYTES)
     return conn
 

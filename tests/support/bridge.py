@@ -22,8 +22,8 @@ import yaml
 
 from mavservo.app.bridge import Bridge, free_udp_port
 from mavservo.config import Config, load_config, load_config_text
+from mavservo.mavlink.connection import mavlink2, open_connection
 from mavservo.scheduling.runner import SchedulerObserver
-from mavservo.sim.autopilot.link import mavlink2, open_link
 from mavservo.sim.servo import SimServo
 from tests.app.test_run_cli import REPO, assert_positions_followed, read_trace, run_mavservo
 from tests.support.waiting import wait_until
@@ -139,7 +139,9 @@ class Peer:
     """
 
     def __init__(self, port: int, system: int = 255, component: int = 190) -> None:
-        self.conn = open_link(f"udpout:127.0.0.1:{port}", system, component)
+        self.conn = open_connection(
+            f"udpout:127.0.0.1:{port}", source_system=system, source_component=component
+        )
         self.received: list[Any] = []
         self._lock = threading.Lock()
         self._send_lock = threading.Lock()

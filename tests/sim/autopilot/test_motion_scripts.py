@@ -18,9 +18,9 @@ from mavservo.config.autopilot_script import (
     parse_script,
     repeat_servo_value,
 )
-from mavservo.sim.autopilot.commands import CommandTracker
-from mavservo.sim.autopilot.gimbal import euler_to_quaternion, quaternion_to_euler
-from mavservo.sim.autopilot.profiles import (
+from mavservo.mavlink.quaternion import euler_to_quaternion, quaternion_to_euler
+from mavservo.sim.autopilot.command_tracker import CommandTracker
+from mavservo.sim.autopilot.motion_scripts import (
     N_CHANNELS,
     PROFILES,
     RandomWalkProfile,

@@ -115,7 +115,7 @@ def test_the_quick_start_do_set_actuator_event_addresses_a_mapped_actuator() -> 
 
 
 def test_stream_cli_refuses_an_old_script_with_one_clear_line(tmp_path, capsys) -> None:
-    from mavservo.sim.autopilot.cli import main
+    from mavservo.sim.autopilot.sitl_command import main
 
     script = tmp_path / "old.yaml"
     script.write_text("- {at: 1.0, do_set_actuator: {values: [0.5], group: 1}}\n")

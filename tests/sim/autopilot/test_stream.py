@@ -8,11 +8,11 @@ from collections import Counter
 import pytest
 
 from mavservo.config.autopilot_script import Event, RepeatServo, SetActuator, SetServo
+from mavservo.mavlink.connection import mavlink2 as mav
+from mavservo.mavlink.connection import open_connection
+from mavservo.mavlink.quaternion import quaternion_to_euler
 from mavservo.sim.autopilot.factory import simulator_from_config
-from mavservo.sim.autopilot.gimbal import quaternion_to_euler
-from mavservo.sim.autopilot.link import mavlink2 as mav
-from mavservo.sim.autopilot.link import open_link
-from mavservo.sim.autopilot.profiles import HoldProfile, StaircaseProfile, SweepProfile
+from mavservo.sim.autopilot.motion_scripts import HoldProfile, StaircaseProfile, SweepProfile
 from mavservo.sim.autopilot.replay import ReplayRunner
 from mavservo.sim.autopilot.stream import AutopilotStream, normalized_outputs
 from tests.support.autopilot import collect, of_type, peer
@@ -251,7 +251,7 @@ def test_udpin_mode_waits_for_the_bridge_then_streams() -> None:
     port = free_udp_port()
     stream = AutopilotStream(f"udpin:127.0.0.1:{port}", HoldProfile())
     with stream.start():
-        bridge = open_link(f"udpout:127.0.0.1:{port}", 1, 191)
+        bridge = open_connection(f"udpout:127.0.0.1:{port}", source_system=1, source_component=191)
         try:
             bridge.mav.heartbeat_send(
                 mav.MAV_TYPE_ONBOARD_CONTROLLER, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0

@@ -18,7 +18,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mavservo.sim.autopilot.cli import main
 from mavservo.sim.autopilot.replay import (
     BRIDGE_TYPES,
     TlogError,
@@ -26,6 +25,7 @@ from mavservo.sim.autopilot.replay import (
     iter_tlog_records,
     replay,
 )
+from mavservo.sim.autopilot.sitl_command import main
 from tests.support.autopilot import collect, of_type, peer
 from tests.support.paths import REPO, TEST_DATA
 from tests.support.waiting import free_udp_port
@@ -355,7 +355,7 @@ pwm = st.integers(min_value=0, max_value=65535)
 )
 def test_written_tlog_reads_back_exactly(frames, tmp_path_factory) -> None:
     """Round trip: messages packed as MAVLink 2 (or 1) into tlog records come back unchanged."""
-    from mavservo.sim.autopilot.link import mavlink2
+    from mavservo.mavlink.connection import mavlink2
 
     encoder = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
     stamp = 1_795_302_091_605_568
