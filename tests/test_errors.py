@@ -25,7 +25,7 @@ from mavservo.config.yamlsource import YamlSyntaxError
 from mavservo.errors import DeviceMissingError, EndpointBusyError, MavservoError, StartupError
 from mavservo.mavlink.link import REOPEN_WARNING_INTERVAL_S as LINK_REOPEN_INTERVAL_S
 from mavservo.mavlink.link import LinkBusyError, MavlinkLink, UdpServer
-from mavservo.scheduling.core import ScheduleError
+from mavservo.scheduling.schedule_core import ScheduleError
 from mavservo.servos import UnknownProfileError
 from mavservo.sim.adapter import AdapterEmulator
 from mavservo.sim.autopilot.replay import TlogError

@@ -16,8 +16,8 @@ from mavservo.app.bridge import _FanOut
 from mavservo.config import BusConfig, ConfigError, load_config_text
 from mavservo.control.servo_backend import ServoBackend
 from mavservo.mavlink.backend import Outcome
-from mavservo.scheduling.core import SetpointResult
 from mavservo.scheduling.runner import SchedulerObserver
+from mavservo.scheduling.schedule_core import SetpointResult
 from mavservo.servos.base import ServoState
 from mavservo.transport.aa55 import codec
 

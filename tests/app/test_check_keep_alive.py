@@ -87,7 +87,7 @@ def test_the_shipped_configs_keep_their_servos_alive() -> None:
 def test_the_longest_gap_is_what_the_scheduler_does(refresh_s: float, period_s: float) -> None:
     """The figure ``check`` uses against the scheduler's core driven slot by slot (no clock):
     the refresh is due from ``refresh - period / 2``, so it goes on that slot or the next."""
-    from mavservo.scheduling.core import ScheduleCore, ServoSpec, TimingConfig
+    from mavservo.scheduling.schedule_core import ScheduleCore, ServoSpec, TimingConfig
 
     timing = TimingConfig(command_period_s=period_s, refresh_interval_s=refresh_s)
     core = ScheduleCore([ServoSpec("s", get_profile("rmd-x")(1), telemetry_hz=0)], timing, 0.0)

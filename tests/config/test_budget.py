@@ -7,7 +7,7 @@ import pytest
 from mavservo.app.bridge import servo_specs, timing_config
 from mavservo.config import bus_loads, default_config_path, load_config, load_config_text
 from mavservo.config.budget import servo_flows
-from mavservo.scheduling.core import ScheduleCore
+from mavservo.scheduling.schedule_core import ScheduleCore
 
 
 def _config(hz: int):

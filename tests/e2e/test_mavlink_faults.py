@@ -15,7 +15,7 @@ from pymavlink import mavutil
 
 from mavservo.app.bridge import Bridge
 from mavservo.config.loader import load_config_text
-from mavservo.mavlink.core import MavlinkCore
+from mavservo.mavlink.mavlink_core import MavlinkCore
 from tests.support.mavlink_doubles import (
     RecordingBackend,
     command_long,

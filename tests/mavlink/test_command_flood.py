@@ -16,7 +16,7 @@ import logging
 import can
 
 from mavservo.mavlink.commands import MAX_RETRY_ENTRIES, Command, CommandHandler
-from mavservo.mavlink.core import MavlinkCore
+from mavservo.mavlink.mavlink_core import MavlinkCore
 from mavservo.mavlink.settings import MavlinkSettings
 from mavservo.scheduling.runner import Scheduler, ServoSpec, TimingConfig
 from mavservo.servos import RmdX

@@ -17,8 +17,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from mavservo.mavlink.core import MavlinkCore
 from mavservo.mavlink.gimbal import GimbalDevice, GimbalSettings
+from mavservo.mavlink.mavlink_core import MavlinkCore
 from mavservo.mavlink.settings import MavlinkSettings
 from tests.support.mavlink_doubles import (
     RecordingBackend,

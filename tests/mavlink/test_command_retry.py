@@ -16,7 +16,7 @@ import time
 
 os.environ.setdefault("MAVLINK20", "1")
 
-from mavservo.mavlink.core import MavlinkCore  # noqa: E402
+from mavservo.mavlink.mavlink_core import MavlinkCore  # noqa: E402
 from tests.mavlink.test_udp_peers import bridge, introduce, is_ack  # noqa: E402, F401, F811
 from tests.support.mavlink_doubles import (
     # noqa: E402

@@ -304,7 +304,7 @@ logging.getLogger("pymavlink").setLevel(logging.WARNING)
 
 
 def _core(**settings: Any) -> Any:
-    from mavservo.mavlink.core import MavlinkCore
+    from mavservo.mavlink.mavlink_core import MavlinkCore
     from mavservo.mavlink.settings import MavlinkSettings
     from tests.support.mavlink_doubles import RecordingBackend
 

@@ -69,7 +69,7 @@ def test_the_watch_warns_once_past_the_search_window_and_not_before() -> None:
 def test_a_bridge_started_late_is_told_why_its_gimbal_is_never_found(
     looking: bool, caplog: pytest.LogCaptureFixture
 ) -> None:
-    caplog.set_level(logging.WARNING, logger="mavservo.mavlink.core")
+    caplog.set_level(logging.WARNING, logger="mavservo.mavlink.mavlink_core")
     with running(gimbal_config("rmd-x", "rmd-x")) as (bridge, port):
         autopilot = AutopilotStream(
             f"udpout:127.0.0.1:{port}",

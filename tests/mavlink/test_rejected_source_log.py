@@ -41,7 +41,7 @@ def test_spoofed_flood_from_a_source_not_allowed_gives_a_handful_of_lines(
 ) -> None:
     rig = open_rig
     rogue = rig.peer(ROGUE)
-    caplog.set_level(logging.WARNING, logger="mavservo.mavlink.core")
+    caplog.set_level(logging.WARNING, logger="mavservo.mavlink.mavlink_core")
     started = time.monotonic()
     for batch in range(SPOOFED // BATCH):
         for i in range(BATCH):

@@ -371,7 +371,7 @@ def test_recorded_arduplane_link_reads_its_real_rate_and_no_false_reboot() -> No
     measured rate is the recorded 20 Hz, and the real boot times never look like a reboot."""
     from pymavlink import mavutil
 
-    from mavservo.mavlink.core import MavlinkCore
+    from mavservo.mavlink.mavlink_core import MavlinkCore
 
     path = TEST_DATA / "plane-servos.tlog"
     log = mavutil.mavlink_connection(str(path), dialect="ardupilotmega")

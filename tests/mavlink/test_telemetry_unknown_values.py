@@ -17,7 +17,7 @@ import can  # noqa: E402
 import pytest  # noqa: E402
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2  # noqa: E402
 
-from mavservo.mavlink.core import MavlinkCore  # noqa: E402
+from mavservo.mavlink.mavlink_core import MavlinkCore  # noqa: E402
 from mavservo.mavlink.settings import MavlinkSettings, TelemetryRates  # noqa: E402
 from tests.mavlink.test_udp_peers import peer  # noqa: E402
 from tests.support.mavlink_doubles import RecordingBackend, state  # noqa: E402

@@ -19,7 +19,7 @@ import pytest
 from dronecan.transport import Frame, Transfer
 
 from mavservo.config import ConfigError, load_config_text
-from mavservo.mavlink.core import MavlinkCore
+from mavservo.mavlink.mavlink_core import MavlinkCore
 from mavservo.mavlink.settings import MavlinkSettings
 from mavservo.servos.dronecan import wire
 from mavservo.servos.dronecan.alloc import (

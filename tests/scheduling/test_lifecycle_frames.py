@@ -11,7 +11,7 @@ import pytest
 
 from mavservo.app.bridge import Bridge
 from mavservo.config import load_config
-from mavservo.scheduling.core import (
+from mavservo.scheduling.schedule_core import (
     STARTUP_RETRY_S,
     Decision,
     ScheduleCore,

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import pytest
 
-from mavservo.scheduling.core import Decision, ScheduleCore, ServoSpec, TimingConfig
+from mavservo.scheduling.schedule_core import Decision, ScheduleCore, ServoSpec, TimingConfig
 from mavservo.servos import CubeMarsAK, RmdX
 
 START = 100.0

@@ -16,8 +16,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from mavservo.scheduling.core import ScheduleCore, ServoSpec, TimingConfig, exchange_key
 from mavservo.scheduling.reply_matching import ReplyMatcher
+from mavservo.scheduling.schedule_core import ScheduleCore, ServoSpec, TimingConfig, exchange_key
 from mavservo.servos import CubeMarsAK, RmdX
 from tests.support.servos import RmdXWithoutStartUp
 

@@ -10,7 +10,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mavservo.scheduling.busload import frame_time
-from mavservo.scheduling.core import Decision, ScheduleCore, ScheduleError, ServoSpec, TimingConfig
+from mavservo.scheduling.schedule_core import (
+    Decision,
+    ScheduleCore,
+    ScheduleError,
+    ServoSpec,
+    TimingConfig,
+)
 from mavservo.servos import RmdX, ServoProfile
 from tests.support.servos import RmdXWithoutStartUp
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import pytest
 
-from mavservo.scheduling.core import Decision, ScheduleCore, ServoSpec, TimingConfig
+from mavservo.scheduling.schedule_core import Decision, ScheduleCore, ServoSpec, TimingConfig
 from tests.support.servos import RmdXWithoutStartUp
 
 T_C = 0.05

@@ -7,7 +7,7 @@ from __future__ import annotations
 import can
 import pytest
 
-from mavservo.scheduling.core import ScheduleCore, ServoSpec, TimingConfig
+from mavservo.scheduling.schedule_core import ScheduleCore, ServoSpec, TimingConfig
 from mavservo.servos import (
     PROFILES,
     Advising,

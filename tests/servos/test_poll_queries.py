@@ -9,7 +9,7 @@ budget built before the run shifted the interleaving of the running scheduler.
 from __future__ import annotations
 
 from mavservo.scheduling.busload import servo_traffic
-from mavservo.scheduling.core import ScheduleCore, ServoSpec, TimingConfig
+from mavservo.scheduling.schedule_core import ScheduleCore, ServoSpec, TimingConfig
 from mavservo.servos import RmdX
 
 STATUS_2, STATUS_1 = 0x9C, 0x9A

@@ -16,7 +16,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mavservo.mavlink.backend import ACCEPTED, ApplyResult, Outcome, ServoStatus
 from mavservo.mavlink.component import HostedComponent
-from mavservo.mavlink.core import MavlinkCore
+from mavservo.mavlink.mavlink_core import MavlinkCore
 from mavservo.mavlink.settings import MavlinkSettings
 from mavservo.servos.base import Fault, ServoState
 

@@ -18,7 +18,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mavservo.config import ConfigError, load_config_text
-from mavservo.scheduling.core import ScheduleCore, ServoSpec, TimingConfig
+from mavservo.scheduling.schedule_core import ScheduleCore, ServoSpec, TimingConfig
 from mavservo.servos.base import Fault
 from mavservo.servos.dronecan import wire
 from mavservo.servos.dronecan.node import BridgeNode, NodeOptions, frames_for_commands

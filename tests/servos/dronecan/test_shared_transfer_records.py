@@ -18,8 +18,8 @@ from pathlib import Path
 import can
 
 from mavservo.records.runlog import LATENCY_FILE, METRICS_FILE, RunLog, read_can_log
-from mavservo.scheduling.core import ServoSpec, TimingConfig
 from mavservo.scheduling.runner import Scheduler
+from mavservo.scheduling.schedule_core import ServoSpec, TimingConfig
 from mavservo.servos.dronecan.node import frames_for_commands
 from mavservo.servos.dronecan.profile import DroneCanServo
 

@@ -541,7 +541,7 @@ def test_start_up_survives_arbitration_on_the_bus() -> None:
 def test_a_report_between_a_command_and_its_answer_is_a_push_not_a_late_answer() -> None:
     """The scheduler owes the command an answer (type 2, key "feedback"); an active report
     (type 0x18, key "report") arriving first is a push, and the answer still matches."""
-    from mavservo.scheduling.core import ScheduleCore, ServoSpec, TimingConfig
+    from mavservo.scheduling.schedule_core import ScheduleCore, ServoSpec, TimingConfig
 
     profile = Robstride(1)
     core = ScheduleCore([ServoSpec("hip", profile)], TimingConfig(), start=0.0)

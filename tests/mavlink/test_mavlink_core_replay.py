@@ -11,7 +11,7 @@ os.environ.setdefault("MAVLINK20", "1")
 
 from pymavlink import mavutil  # noqa: E402
 
-from mavservo.mavlink.core import MavlinkCore  # noqa: E402
+from mavservo.mavlink.mavlink_core import MavlinkCore  # noqa: E402
 from mavservo.mavlink.settings import MavlinkSettings  # noqa: E402
 from tests.support.mavlink_doubles import RecordingBackend  # noqa: E402
 

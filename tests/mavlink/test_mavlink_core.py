@@ -11,8 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from mavservo.mavlink.commands import INT32_MAX
-from mavservo.mavlink.core import MavlinkCore
 from mavservo.mavlink.gimbal import GimbalDevice, GimbalSettings
+from mavservo.mavlink.mavlink_core import MavlinkCore
 from mavservo.mavlink.settings import MavlinkSettings
 from mavservo.servos.base import Fault
 from tests.support.mavlink_doubles import (
