@@ -89,17 +89,14 @@ from typing import Literal
 import can
 
 from mavservo.errors import MavservoError
-from mavservo.servos.base import ServoProfile, SplitStartup, node_reports_of, release_frames_of
+from mavservo.servos.base import ServoProfile, SplitStartup, release_frames_of
 
 from . import reply_matching
+from .bus_plan import REPLY_DLC, plan_bus
 from .busload import (
     FrameFlow,
-    ServoTraffic,
     frame_time,
-    load_ratio,
     message_bits,
-    servo_traffic,
-    worst_case_load,
 )
 
 CommandMode = Literal["periodic", "immediate"]
@@ -108,7 +105,6 @@ LifecyclePurpose = Literal["startup", "release", "shutdown"]
 STARTUP_RETRY_S = 1.0
 """Start-up frames go out again at most this often for one servo (``needs_startup`` may stay
 true while a servo refuses to start); the budget counts them at this rate."""
-_REPLY_DLC = 8
 _TIMED_OUT_KEPT = 8
 
 
@@ -342,10 +338,6 @@ def exchange_key(profile: ServoProfile, msg: can.Message) -> Hashable | None:
     return profile.exchange_key(msg)
 
 
-def _msg_shape(msg: can.Message) -> tuple[bool, int]:
-    return bool(msg.is_extended_id), int(msg.dlc)
-
-
 class ScheduleCore:
     """The dual-loop policy as a state machine driven by ``now`` (see module docstring)."""
 
@@ -367,8 +359,6 @@ class ScheduleCore:
             raise ScheduleError("a scheduler needs at least one servo")
         self.timing = timing
         self.start = start
-        self._packed = packed
-        self._extra_flows = tuple(extra_flows)
         self.warnings: list[str] = []
         self._slots: dict[str, _ServoSlot] = {}
         self._order = names
@@ -378,27 +368,35 @@ class ScheduleCore:
         self._offline_on_sends: set[str] = set()
         """Servos offline because the bus refused their frames (not because replies stopped),
         that have not answered since."""
-        self.worst_case_load = self._check_budget(servos)
+        plan = plan_bus(
+            servos, timing, startup_retry_s=STARTUP_RETRY_S, packed=packed, extra_flows=extra_flows
+        )
+        if plan.worst_case_load > timing.max_load:
+            heaviest = sorted(plan.servo_loads.items(), key=lambda kv: -kv[1])[:3]
+            detail = ", ".join(f"{name} {share:.1%}" for name, share in heaviest)
+            raise ScheduleError(
+                f"worst-case bus load R = {plan.worst_case_load:.1%} exceeds max_load "
+                f"{timing.max_load:.1%} at {timing.bitrate} bit/s with {len(servos)} servos "
+                f"(heaviest: {detail}); lower telemetry_hz, lengthen command_period_s or "
+                "immediate_min_spacing_s, or raise the bitrate"
+            )
+        self.worst_case_load = plan.worst_case_load
+        self.warnings.extend(plan.warnings)
         for spec in servos:
-            poll_period = self._poll_period(spec)
+            costs = plan.servos[spec.name]
             # No staggering: servos sharing the tick rate are polled in the same round, one
             # after another, so each sees exactly one request per T_t.
             self._slots[spec.name] = _ServoSlot(
                 spec=spec,
-                poll_period=poll_period,
-                poll_cost_s=self._poll_cost(spec),
-                command_cost_s=self._command_cost(spec),
+                poll_period=costs.poll_period,
+                poll_cost_s=costs.poll_cost_s,
+                command_cost_s=costs.command_cost_s,
                 next_poll_due=math.inf,
-                push_period=self._push_period(spec),
+                push_period=costs.push_period,
                 split_startup=spec.profile if isinstance(spec.profile, SplitStartup) else None,
             )
-        self.telemetry_phase_s = (
-            self._automatic_phase()
-            if timing.telemetry_phase_s is None
-            else timing.telemetry_phase_s
-        )
+        self.telemetry_phase_s = plan.telemetry_phase_s
         self.anchor(start)
-        self._check_polls_fit()
 
     def anchor(self, start: float) -> None:
         """Move the time origin (the runner anchors the schedule when it actually starts)."""
@@ -410,144 +408,12 @@ class ScheduleCore:
                 slot.next_poll_due = self._next_telemetry_tick
             slot.last_heard = start
 
-    def _automatic_phase(self) -> float:
-        """The tick phase farthest, in bus time, from both neighbouring command bursts.
-
-        Relative to a slot, ticks only ever fall at ``phase mod g + j * g`` with
-        ``g = gcd(T_c, T_t)`` (computed on whole microseconds), so it is enough to keep
-        ``[phase mod g, + poll burst + guard]`` clear of ``[0, command burst]`` and of the next
-        multiple of ``g``: the phase is the middle of the gap between the end of a slot's
-        command burst and the latest start that lets a full poll round end ``command_guard_s``
-        before the next slot. When the bursts do not fit in ``g`` there is no clear phase; the
-        ticks go right after the command burst, and the suspension rule defers what does not
-        fit to after the next slot's commands.
-        """
-        t = self.timing
-        g = math.gcd(round(t.command_period_s * 1e6), round(t.telemetry_period_s * 1e6)) / 1e6
-        command_burst = self._command_burst_s()
-        poll_burst = sum(slot.poll_cost_s for slot in self._slots.values() if slot.poll_period)
-        latest_start = g - t.command_guard_s - poll_burst
-        return (command_burst + max(0.0, latest_start - command_burst) / 2) % g
-
-    # ----------------------------------------------------------------- configuration checks
-    def _poll_period(self, spec: ServoSpec) -> float | None:
-        if not spec.profile.telemetry_requests():
-            return None
-        hz = spec.telemetry_hz
-        if hz is None:
-            hz = 1 / self.timing.telemetry_period_s
-        if hz == 0:
-            return None
-        if hz > 1 / self.timing.telemetry_period_s * (1 + 1e-9):
-            self.warnings.append(
-                f"servo {spec.name!r}: telemetry_hz {hz:g} is faster than the telemetry tick "
-                f"({1 / self.timing.telemetry_period_s:g} Hz); it will be polled at the tick rate"
-            )
-        return max(1 / hz, self.timing.telemetry_period_s)
-
-    def _push_period(self, spec: ServoSpec) -> float | None:
-        """A pushing servo's report period: ``1 / telemetry_hz`` (default the telemetry tick,
-        as the budget assumes); None for polled servos and for one configured to push nothing."""
-        if spec.profile.telemetry_requests():
-            return None
-        reports = node_reports_of(spec.profile)
-        if reports is not None and reports.heartbeat_period_s:
-            return reports.heartbeat_period_s  # its own heartbeat says it is alive
-        hz = spec.telemetry_hz
-        if hz is None:
-            return self.timing.telemetry_period_s
-        return None if hz == 0 else 1 / hz
-
     def push_silence_limit_s(self, name: str) -> float | None:
         """How long a pushing servo may stay silent before it is offline (None: not pushing)."""
         period = self._slots[name].push_period
         if period is None:
             return None
         return self.timing.offline_after_missed * period + self.timing.reply_timeout_s
-
-    def _poll_cost(self, spec: ServoSpec) -> float:
-        """Worst-case bus time one poll of this servo takes: requests plus their replies."""
-        cost = 0.0
-        bitrate = self.timing.bitrate
-        for req in spec.profile.telemetry_requests():
-            extended, dlc = _msg_shape(req)
-            cost += frame_time(extended, dlc, bitrate, bool(req.is_remote_frame))
-            replies = spec.profile.replies_per_request
-            cost += replies * frame_time(extended, _REPLY_DLC, bitrate)
-        return cost
-
-    def _command_hz(self, spec: ServoSpec) -> float:
-        """Worst-case commands per second: every slot, or back to back at the minimum spacing
-        for ``immediate`` servos (slots honour that spacing too, so it is a true ceiling)."""
-        hz = 1 / self.timing.command_period_s
-        if spec.command_mode == "immediate":
-            hz = max(hz, 1 / self.timing.immediate_min_spacing_s)
-        return hz
-
-    def _traffic(self, spec: ServoSpec) -> ServoTraffic:
-        period = self._poll_period(spec)  # None: not polled
-        return servo_traffic(
-            spec.profile,
-            command_hz=0.0 if spec.name in self._packed else self._command_hz(spec),
-            poll_hz=0.0 if period is None else 1 / period,
-            # a push-style servo sends status on its own at its telemetry_hz
-            status_hz=(
-                1 / self.timing.telemetry_period_s
-                if spec.telemetry_hz is None
-                else spec.telemetry_hz
-            ),
-            max_speed_dps=spec.max_speed_dps,
-            startup_hz=1 / STARTUP_RETRY_S,
-        )
-
-    def _check_budget(self, servos: Sequence[ServoSpec]) -> float:
-        warnings_before = len(self.warnings)
-        traffic = {spec.name: self._traffic(spec) for spec in servos}
-        del self.warnings[warnings_before:]  # _poll_period warns again in __init__
-        load = worst_case_load(traffic.values(), self.timing.bitrate)
-        load += load_ratio(self._extra_flows, self.timing.bitrate)
-        if load > self.timing.max_load:
-            per_servo = {
-                name: worst_case_load([t], self.timing.bitrate) for name, t in traffic.items()
-            }
-            heaviest = sorted(per_servo.items(), key=lambda kv: -kv[1])[:3]
-            detail = ", ".join(f"{name} {share:.1%}" for name, share in heaviest)
-            raise ScheduleError(
-                f"worst-case bus load R = {load:.1%} exceeds max_load {self.timing.max_load:.1%} "
-                f"at {self.timing.bitrate} bit/s with {len(servos)} servos (heaviest: {detail}); "
-                "lower telemetry_hz, lengthen command_period_s or immediate_min_spacing_s, "
-                "or raise the bitrate"
-            )
-        return load
-
-    def _command_cost(self, spec: ServoSpec) -> float:
-        """Worst-case bus time of one command to this servo and the replies it provokes."""
-        command = spec.profile.position_command(0.0, spec.max_speed_dps)
-        replies = spec.profile.replies_per_command
-        bitrate = self.timing.bitrate
-        return message_bits(command) / bitrate + replies * frame_time(
-            bool(command.is_extended_id), _REPLY_DLC, bitrate
-        )
-
-    def _command_burst_s(self) -> float:
-        return sum(slot.command_cost_s for slot in self._slots.values())
-
-    def _check_polls_fit(self) -> None:
-        """Say so at start-up when the configured poll rates cannot all fit between slots."""
-        t = self.timing
-        free_per_period = t.command_period_s - t.command_guard_s - self._command_burst_s()
-        demand_per_period = sum(
-            slot.poll_cost_s * t.command_period_s / slot.poll_period
-            for slot in self._slots.values()
-            if slot.poll_period
-        )
-        if free_per_period <= 0 or demand_per_period > free_per_period:
-            self.warnings.append(
-                f"telemetry cannot keep its rate: polls need {demand_per_period * 1e3:.2f} ms of "
-                f"bus per {t.command_period_s * 1e3:g} ms command period but only "
-                f"{max(free_per_period, 0) * 1e3:.2f} ms is free; servos will be polled late "
-                "(oldest first) and the achieved intervals will show it"
-            )
 
     # ----------------------------------------------------------------------- upper layers
     @property
@@ -841,7 +707,7 @@ class ScheduleCore:
         if out.kind != "lifecycle":
             return self._slots[out.servo].command_cost_s
         bitrate = self.timing.bitrate
-        reply = frame_time(bool(out.msg.is_extended_id), _REPLY_DLC, bitrate)
+        reply = frame_time(bool(out.msg.is_extended_id), REPLY_DLC, bitrate)
         return message_bits(out.msg) / bitrate + len(out.expectations) * reply
 
     def step(self, now: float) -> Decision:
