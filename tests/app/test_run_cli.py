@@ -178,7 +178,7 @@ def test_missing_serial_port_is_one_clear_line(tmp_path: Path) -> None:
 
 
 def test_check_command_validates_the_simulation_configs() -> None:
-    # (the hardware examples need the user's signing key file; tests/test_config* cover them)
+    # (the hardware examples need the user's signing key file; tests/config/ covers them)
     configs = [str(REPO / "config" / "sim.yaml"), str(REPO / "config" / "ardupilot-sitl.yaml")]
     proc = run_mavservo("check", *configs)
     assert proc.returncode == 0, proc.stderr + proc.stdout

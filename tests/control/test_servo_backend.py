@@ -2,7 +2,7 @@
 
 The scheduler is replaced by a recording sink (the backend's only dependency below it), so the
 clock is the test's and nothing sleeps. The whole chain with the real scheduler is exercised by
-tests/test_e2e_*.py.
+tests/e2e/.
 """
 
 from __future__ import annotations
