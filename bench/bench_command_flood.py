@@ -162,11 +162,11 @@ def lookup_cost(prior: int, measured: int = 2000) -> float:
     after ``prior`` distinct commands within one retry window: what the retry lookup costs
     when a flood has filled the table."""
     from mavservo.mavlink.commands import Command, CommandHandler
-    from mavservo.mavlink.core import MavlinkCore
+    from mavservo.mavlink.mavlink_core import MavlinkCore
     from mavservo.mavlink.settings import MavlinkSettings
 
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-    from test_mavlink_support import RecordingBackend
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from tests.support.mavlink_doubles import RecordingBackend
 
     handler: CommandHandler = MavlinkCore(MavlinkSettings(system_id=1), RecordingBackend()).commands
 

@@ -14,7 +14,7 @@ Sections (``--only`` picks one; both run by default):
 * ``recorded``: config/ardupilot-sitl.yaml mirroring a real ArduPlane SITL session (the
   recorded tests/data/plane-servos.tlog, replayed in real time, 90 s): health events (must
   be 0). The stand-in for a live ArduPlane run where no SITL binary is built.
-* ``quiet``: every shipped config on the built-in simulation (tests/health_support.py), the
+* ``quiet``: every shipped config on the built-in simulation (tests/support/health.py), the
   simulated autopilot's ``sweep`` and ``steps`` for ``--seconds`` each (60 by default), three
   bridges at a time: the health events (must be 0) and the states judged.
 
@@ -40,13 +40,12 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-
-from health_support import SHIPPED, on_simulation, quiet_run  # noqa: E402
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from mavservo.app.bridge import Bridge, free_udp_port  # noqa: E402
 from mavservo.config.loader import load_config_text  # noqa: E402
 from mavservo.sim.servo import SimServo  # noqa: E402
+from tests.support.health import SHIPPED, on_simulation, quiet_run  # noqa: E402
 
 BODY = """
 mavlink:

@@ -34,10 +34,12 @@ COMMANDS: dict[str, Command] = {
         "mavservo.app.check", "check_main", "validate config files, print mapping and bus load"
     ),
     "sim": Command(
-        "mavservo.sim.cli", "main", "USB-CAN adapter emulator with simulated servos on a pty"
+        "mavservo.sim.sim_command",
+        "main",
+        "USB-CAN adapter emulator with simulated servos on a pty",
     ),
     "sitl": Command(
-        "mavservo.sim.autopilot.cli",
+        "mavservo.sim.autopilot.sitl_command",
         "main",
         "simulated autopilot stream, replay of a .tlog, or a built ArduPlane SITL",
         takes_prog=True,

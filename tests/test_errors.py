@@ -17,7 +17,6 @@ from pathlib import Path
 
 import can
 import pytest
-from conftest import wait_until
 
 from mavservo.app import run
 from mavservo.app.report import ReportError
@@ -26,13 +25,14 @@ from mavservo.config.yamlsource import YamlSyntaxError
 from mavservo.errors import DeviceMissingError, EndpointBusyError, MavservoError, StartupError
 from mavservo.mavlink.link import REOPEN_WARNING_INTERVAL_S as LINK_REOPEN_INTERVAL_S
 from mavservo.mavlink.link import LinkBusyError, MavlinkLink, UdpServer
-from mavservo.scheduling.core import ScheduleError
+from mavservo.scheduling.schedule_core import ScheduleError
 from mavservo.servos import UnknownProfileError
 from mavservo.sim.adapter import AdapterEmulator
 from mavservo.sim.autopilot.replay import TlogError
 from mavservo.sim.servo import SimServo
 from mavservo.transport.aa55.bus import AA55Bus, AdapterBusyError, AdapterMissingError
 from mavservo.transport.resilient_bus import REOPEN_WARNING_INTERVAL_S, ResilientBus
+from tests.support.waiting import wait_until
 
 
 @pytest.mark.parametrize(

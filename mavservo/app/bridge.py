@@ -41,8 +41,8 @@ from mavservo.mavlink.settings import MavlinkSettings, SigningSettings, Telemetr
 from mavservo.mavlink.side import MavlinkSide
 from mavservo.records.metrics import round_trip_figures
 from mavservo.records.runlog import RunLog, new_run_dir
-from mavservo.scheduling.core import FrameKind, ServoSpec, TimingConfig
 from mavservo.scheduling.runner import Scheduler, SchedulerObserver, WriteObserver
+from mavservo.scheduling.schedule_core import FrameKind, ServoSpec, TimingConfig
 from mavservo.servos import CountingNode, ServoState
 from mavservo.sim.bus_simulation import simulator_factory
 from mavservo.sim.pty_adapter import PtyAdapter

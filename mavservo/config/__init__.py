@@ -13,6 +13,10 @@ Public API::
 `mavservo check` (which also needs the channel mapping, a layer above) is :mod:`mavservo.app.check`.
 """
 
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
 from mavservo.config.budget import BusLoad, bus_loads
 from mavservo.config.endpoints import endpoint_lines
 from mavservo.config.loader import (
@@ -39,6 +43,7 @@ from mavservo.config.schema import (
     SimulationConfig,
 )
 from mavservo.config.yamlsource import Problem
+from mavservo.faces import lazy_face
 
 __all__ = [
     "ActuatorChannel",
@@ -66,3 +71,104 @@ __all__ = [
     "load_config_text",
     "load_config_with_warnings",
 ]
+
+# The face: what the other layers use from this package (``tests/test_package_faces.py``), each
+# name imported from its module on first use (:func:`mavservo.faces.lazy_face`); the modules'
+# other names are the package's own business.
+if TYPE_CHECKING:
+    from .autopilot_script import (
+        Action,
+        Dropout,
+        Event,
+        GimbalTarget,
+        RepeatServo,
+        Script,
+        SetActuator,
+        SetServo,
+        parse_script,
+        repeat_servo_value,
+    )
+    from .budget import bus_nodes, servos_on
+    from .endpoints import bitrate_text, describe_bus
+    from .overlay import (
+        LoadedConfig,
+        clear_overlay,
+        load_config_with_overlay,
+        overlay_path,
+        write_atomic,
+        write_overlay,
+    )
+    from .parameters import Parameter, ParameterError, current_values, parameter_table, with_values
+    from .schema import allowed_values, read_key_file
+    from .simulation import Faults, Physics
+    from .smallfile import SmallFileError, read_small_file
+
+__all__ += [
+    "Action",
+    "Dropout",
+    "Event",
+    "Faults",
+    "GimbalTarget",
+    "LoadedConfig",
+    "Parameter",
+    "ParameterError",
+    "Physics",
+    "RepeatServo",
+    "Script",
+    "SetActuator",
+    "SetServo",
+    "SmallFileError",
+    "allowed_values",
+    "bitrate_text",
+    "bus_nodes",
+    "clear_overlay",
+    "current_values",
+    "describe_bus",
+    "load_config_with_overlay",
+    "overlay_path",
+    "parameter_table",
+    "parse_script",
+    "read_key_file",
+    "read_small_file",
+    "repeat_servo_value",
+    "servos_on",
+    "with_values",
+    "write_atomic",
+    "write_overlay",
+]
+__getattr__ = lazy_face(
+    __name__,
+    {
+        "Action": "autopilot_script",
+        "Dropout": "autopilot_script",
+        "Event": "autopilot_script",
+        "Faults": "simulation",
+        "GimbalTarget": "autopilot_script",
+        "LoadedConfig": "overlay",
+        "Parameter": "parameters",
+        "ParameterError": "parameters",
+        "Physics": "simulation",
+        "RepeatServo": "autopilot_script",
+        "Script": "autopilot_script",
+        "SetActuator": "autopilot_script",
+        "SetServo": "autopilot_script",
+        "SmallFileError": "smallfile",
+        "allowed_values": "schema",
+        "bitrate_text": "endpoints",
+        "bus_nodes": "budget",
+        "clear_overlay": "overlay",
+        "current_values": "parameters",
+        "describe_bus": "endpoints",
+        "load_config_with_overlay": "overlay",
+        "overlay_path": "overlay",
+        "parameter_table": "parameters",
+        "parse_script": "autopilot_script",
+        "read_key_file": "schema",
+        "read_small_file": "smallfile",
+        "repeat_servo_value": "autopilot_script",
+        "servos_on": "budget",
+        "with_values": "parameters",
+        "write_atomic": "overlay",
+        "write_overlay": "overlay",
+    },
+)

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 from mavservo.scheduling.bus_nodes import node_unique_id, software_version
 from mavservo.scheduling.busload import FrameFlow, load_ratio, servo_traffic
-from mavservo.scheduling.core import STARTUP_RETRY_S
+from mavservo.scheduling.schedule_core import STARTUP_RETRY_S
 from mavservo.servos.base import node_family
 
 if TYPE_CHECKING:

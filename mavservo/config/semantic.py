@@ -129,7 +129,7 @@ def advisories(config: Config) -> list[Finding]:
 def longest_command_gap_s(refresh_interval_s: float, command_period_s: float) -> float:
     """The longest a servo holding one setpoint goes without a command frame: its refresh goes
     out on the first command slot at least ``refresh_interval_s - command_period_s / 2`` after
-    the last command (``scheduling.core``), so the interval rounded to whole slots."""
+    the last command (``scheduling.schedule_core``), so the interval rounded to whole slots."""
     slots = math.ceil((refresh_interval_s - command_period_s / 2) / command_period_s - 1e-9)
     return max(1, slots) * command_period_s
 

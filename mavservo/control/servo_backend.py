@@ -29,7 +29,7 @@ from mavservo.mavlink.backend import (
     Outcome,
     ServoStatus,
 )
-from mavservo.scheduling.core import SetpointResult
+from mavservo.scheduling.schedule_core import SetpointResult
 from mavservo.servos.base import ServoState
 
 log = logging.getLogger(__name__)

@@ -1,1 +1,94 @@
 """MAVLink side of the bridge: link, commands in, telemetry out, gimbal device."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from mavservo.faces import lazy_face
+
+# The face: what the other layers use from this package (``tests/test_package_faces.py``), each
+# name imported from its module on first use (:func:`mavservo.faces.lazy_face`); the modules'
+# other names are the package's own business.
+if TYPE_CHECKING:
+    from .backend import ACCEPTED, NO_HEALTH_PROBLEM, ApplyResult, Health, Outcome, ServoStatus
+    from .bandwidth import BudgetPlan, plan_budget
+    from .commands import ACTUATORS_PER_SET
+    from .connection import mavlink2, open_connection
+    from .ftp import crc32
+    from .gimbal import GimbalDevice, settings_from_config
+    from .metadata_service import (
+        COMP_METADATA_TYPE_PARAMETER,
+        GENERAL_FILE,
+        PARAMETER_FILE,
+        mftp_uri,
+    )
+    from .params import SetResult, WritePolicy
+    from .quaternion import euler_to_quaternion, quaternion_to_euler
+    from .settings import MavlinkSettings, SigningSettings, TelemetryRates
+    from .side import MavlinkSide
+    from .stream_request import WINDOW_S
+    from .telemetry import AUTO_ESC_FIRST
+
+__all__ = [
+    "ACCEPTED",
+    "ACTUATORS_PER_SET",
+    "AUTO_ESC_FIRST",
+    "ApplyResult",
+    "BudgetPlan",
+    "COMP_METADATA_TYPE_PARAMETER",
+    "GENERAL_FILE",
+    "GimbalDevice",
+    "Health",
+    "MavlinkSettings",
+    "MavlinkSide",
+    "NO_HEALTH_PROBLEM",
+    "Outcome",
+    "PARAMETER_FILE",
+    "ServoStatus",
+    "SetResult",
+    "SigningSettings",
+    "TelemetryRates",
+    "WINDOW_S",
+    "WritePolicy",
+    "crc32",
+    "euler_to_quaternion",
+    "mavlink2",
+    "mftp_uri",
+    "open_connection",
+    "plan_budget",
+    "quaternion_to_euler",
+    "settings_from_config",
+]
+__getattr__ = lazy_face(
+    __name__,
+    {
+        "ACCEPTED": "backend",
+        "ACTUATORS_PER_SET": "commands",
+        "AUTO_ESC_FIRST": "telemetry",
+        "ApplyResult": "backend",
+        "BudgetPlan": "bandwidth",
+        "COMP_METADATA_TYPE_PARAMETER": "metadata_service",
+        "GENERAL_FILE": "metadata_service",
+        "GimbalDevice": "gimbal",
+        "Health": "backend",
+        "MavlinkSettings": "settings",
+        "MavlinkSide": "side",
+        "NO_HEALTH_PROBLEM": "backend",
+        "Outcome": "backend",
+        "PARAMETER_FILE": "metadata_service",
+        "ServoStatus": "backend",
+        "SetResult": "params",
+        "SigningSettings": "settings",
+        "TelemetryRates": "settings",
+        "WINDOW_S": "stream_request",
+        "WritePolicy": "params",
+        "crc32": "ftp",
+        "euler_to_quaternion": "quaternion",
+        "mavlink2": "connection",
+        "mftp_uri": "metadata_service",
+        "open_connection": "connection",
+        "plan_budget": "bandwidth",
+        "quaternion_to_euler": "quaternion",
+        "settings_from_config": "gimbal",
+    },
+)

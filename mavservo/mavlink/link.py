@@ -136,7 +136,7 @@ def _verify_signatures_against_the_clock(
 
     * a stream's timestamp is only recorded once the signature verified: pymavlink records it
       *before*, so one forged far-future frame, made without the key, locked the genuine stream
-      out (found by tests/test_security.py);
+      out (found by tests/redteam/test_bridge_security.py);
     * the timestamp of a correctly keyed frame may be at most ``max_ahead_s`` (default
       ``SIGNING_FUTURE_S``; None: no bound, for a companion without a synchronised clock) ahead
       of this computer's clock; further ahead it is refused and counted (``signing_future``);

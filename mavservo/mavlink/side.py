@@ -18,8 +18,8 @@ from mavservo.mavlink.answers import Answer
 from mavservo.mavlink.backend import ActuatorBackend
 from mavservo.mavlink.commands import Outgoing
 from mavservo.mavlink.component import HostedComponent
-from mavservo.mavlink.core import MavlinkCore
 from mavservo.mavlink.link import MavlinkLink
+from mavservo.mavlink.mavlink_core import MavlinkCore
 from mavservo.mavlink.params import ParameterStore
 from mavservo.mavlink.settings import MavlinkSettings
 from mavservo.mavlink.telemetry import MAV_SEVERITY_WARNING

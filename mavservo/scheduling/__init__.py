@@ -1,2 +1,55 @@
 """Who gets the bus when: the pure policy core, the runner thread that owns the only writer to
 the bus, the bus-load arithmetic (paper eq. 4), reply matching and the servo outage log."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from mavservo.faces import lazy_face
+
+# The face: what the other layers use from this package (``tests/test_package_faces.py``), each
+# name imported from its module on first use (:func:`mavservo.faces.lazy_face`); the modules'
+# other names are the package's own business.
+if TYPE_CHECKING:
+    from .bus_nodes import node_unique_id, software_version
+    from .busload import FrameFlow, frame_time, load_ratio, message_bits, servo_traffic
+    from .runner import Scheduler, SchedulerObserver, WriteObserver
+    from .schedule_core import STARTUP_RETRY_S, FrameKind, ServoSpec, SetpointResult, TimingConfig
+
+__all__ = [
+    "FrameFlow",
+    "FrameKind",
+    "STARTUP_RETRY_S",
+    "Scheduler",
+    "SchedulerObserver",
+    "ServoSpec",
+    "SetpointResult",
+    "TimingConfig",
+    "WriteObserver",
+    "frame_time",
+    "load_ratio",
+    "message_bits",
+    "node_unique_id",
+    "servo_traffic",
+    "software_version",
+]
+__getattr__ = lazy_face(
+    __name__,
+    {
+        "FrameFlow": "busload",
+        "FrameKind": "schedule_core",
+        "STARTUP_RETRY_S": "schedule_core",
+        "Scheduler": "runner",
+        "SchedulerObserver": "runner",
+        "ServoSpec": "schedule_core",
+        "SetpointResult": "schedule_core",
+        "TimingConfig": "schedule_core",
+        "WriteObserver": "runner",
+        "frame_time": "busload",
+        "load_ratio": "busload",
+        "message_bits": "busload",
+        "node_unique_id": "bus_nodes",
+        "servo_traffic": "busload",
+        "software_version": "bus_nodes",
+    },
+)

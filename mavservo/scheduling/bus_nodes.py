@@ -22,7 +22,7 @@ import can
 from mavservo.servos.base import BusNode, NodeHealth, ServoProfile, node_family
 
 from .busload import FrameFlow
-from .core import Outgoing, ScheduleError, ServoSpec, TimingConfig
+from .schedule_core import Outgoing, ScheduleError, ServoSpec, TimingConfig
 
 Batch = tuple[list[Outgoing], list[can.Message]]
 """Frames of a step as they go on the wire: the scheduler's frames and the CAN frames that

@@ -1,9 +1,9 @@
 """The dual-loop priority scheduler: the only writer to one CAN bus.
 
-:class:`Scheduler` runs the pure policy of :mod:`mavservo.scheduling.core` on absolute monotonic
-deadlines in one thread (the only caller of ``bus.send``, so command-over-telemetry priority is
-structural), and decodes replies in a second thread (``bus.recv``) through the servo profiles.
-Upper layers talk to it through a small thread-safe API: ``set_setpoint``, ``state``,
+:class:`Scheduler` runs the pure policy of :mod:`mavservo.scheduling.schedule_core` on absolute
+monotonic deadlines in one thread (the only caller of ``bus.send``, so command-over-telemetry
+priority is structural), and decodes replies in a second thread (``bus.recv``) through the servo
+profiles. Upper layers talk to it through a small thread-safe API: ``set_setpoint``, ``state``,
 ``is_online``, ``subscribe``, ``release``, ``metrics``.
 
 Waiting: sleep until ``spin_s`` before the deadline, then spin (yielding the GIL on every turn
@@ -33,7 +33,8 @@ from typing import Any, ParamSpec, Protocol, runtime_checkable
 import can
 
 from mavservo.records.metrics import SchedulerMetrics, write_json
-from mavservo.scheduling.core import (
+from mavservo.scheduling.outage_log import LateReplies, Line, OnlineLog
+from mavservo.scheduling.schedule_core import (
     Decision,
     FrameKind,
     Outgoing,
@@ -45,7 +46,6 @@ from mavservo.scheduling.core import (
     TimingConfig,
     exchange_key,
 )
-from mavservo.scheduling.outage_log import LateReplies, Line, OnlineLog
 from mavservo.servos.base import Advising, BusNode, Fault, ServoState, node_reports_of
 
 from .bus_nodes import BusNodes

@@ -5,31 +5,44 @@ emulator in a child process for timing runs (:class:`SimulatorProcess`)."""
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING
+
+from mavservo.faces import lazy_face
 
 from .adapter import AdapterEmulator, LineFaults
 from .canbus import SimCanBus
 from .servo import Faults, Physics, SimServo
 from .virtual import VirtualServoBus
 
-
-def __getattr__(name: str) -> Any:
-    """``SimulatorProcess`` on first use: its module is also the child's ``python -m`` entry
-    point, and importing it with the package made runpy warn in every child it started."""
-    if name == "SimulatorProcess":
-        from .child import SimulatorProcess
-
-        return SimulatorProcess
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
+# The rest of the face, each name imported from its module on first use
+# (:func:`mavservo.faces.lazy_face`): ``SimulatorProcess``'s module is also the child's
+# ``python -m`` entry point, and importing it with the package made runpy warn in every child it
+# started; the others are what the layer above uses (``tests/test_package_faces.py``).
+if TYPE_CHECKING:
+    from .autopilot.factory import simulator_from_config
+    from .bus_simulation import simulator_factory
+    from .child import SimulatorProcess
+    from .pty_adapter import PtyAdapter
 
 __all__ = [
     "AdapterEmulator",
     "Faults",
     "LineFaults",
     "Physics",
+    "PtyAdapter",
     "SimCanBus",
     "SimServo",
     "SimulatorProcess",
     "VirtualServoBus",
+    "simulator_factory",
+    "simulator_from_config",
 ]
+__getattr__ = lazy_face(
+    __name__,
+    {
+        "PtyAdapter": "pty_adapter",
+        "SimulatorProcess": "child",
+        "simulator_factory": "bus_simulation",
+        "simulator_from_config": "autopilot.factory",
+    },
+)

@@ -1,2 +1,60 @@
 """Frames on the wire: the AA-55 USB-CAN adapter (:mod:`mavservo.transport.aa55`) and the bus
 wrapper that survives an unplugged adapter."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+from mavservo.faces import lazy_face
+
+# The face: what the other layers use from this package (``tests/test_package_faces.py``), each
+# name imported from its module on first use (:func:`mavservo.faces.lazy_face`); the modules'
+# other names are the package's own business.
+if TYPE_CHECKING:
+    from .aa55.codec import BITRATE_CODES
+    from .bus_factory import (
+        BITRATE_SET_OUTSIDE,
+        SIM_CHANNEL,
+        SIMULATED_INTERFACES,
+        STANDARD_BITRATES,
+        BusRequest,
+        OpenedBus,
+        has_listen_only,
+        open_bus,
+    )
+    from .counters import transport_stats
+    from .interface_options import UnknownInterfaceError, interface_options, option_problems
+
+__all__ = [
+    "BITRATE_CODES",
+    "BITRATE_SET_OUTSIDE",
+    "BusRequest",
+    "OpenedBus",
+    "SIMULATED_INTERFACES",
+    "SIM_CHANNEL",
+    "STANDARD_BITRATES",
+    "UnknownInterfaceError",
+    "has_listen_only",
+    "interface_options",
+    "open_bus",
+    "option_problems",
+    "transport_stats",
+]
+__getattr__ = lazy_face(
+    __name__,
+    {
+        "BITRATE_CODES": "aa55.codec",
+        "BITRATE_SET_OUTSIDE": "bus_factory",
+        "BusRequest": "bus_factory",
+        "OpenedBus": "bus_factory",
+        "SIMULATED_INTERFACES": "bus_factory",
+        "SIM_CHANNEL": "bus_factory",
+        "STANDARD_BITRATES": "bus_factory",
+        "UnknownInterfaceError": "interface_options",
+        "has_listen_only": "bus_factory",
+        "interface_options": "interface_options",
+        "open_bus": "bus_factory",
+        "option_problems": "interface_options",
+        "transport_stats": "counters",
+    },
+)

@@ -9,7 +9,7 @@ Written from the vendors' documents, not from the profiles:
   ``Procedure_Result`` u8, ``Trajectory_Done_Flag`` u8, sent every ``heartbeat_msg_rate_ms``
   (100 ms by default). The error bits are ``ODrive.Error`` and the states ``ODrive.AxisState``
   of the same document's API reference (the DBC ODrive publishes carries the same value tables;
-  tests/test_doctor.py checks this table against it).
+  tests/app/test_doctor.py checks this table against it).
 * DroneCAN (DSDL ``uavcan.protocol.NodeStatus``, data type id 341): a single-frame message
   transfer; 29-bit id ``priority << 24 | dtid << 8 | source node`` (service bit 7 clear);
   payload ``uptime_sec`` u32 LE, then ``health`` u2, ``mode`` u3, ``sub_mode`` u3 in one byte

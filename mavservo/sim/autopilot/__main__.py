@@ -1,7 +1,7 @@
-"""``python -m mavservo.sim.autopilot``: see :mod:`mavservo.sim.autopilot.cli`."""
+"""``python -m mavservo.sim.autopilot``: see :mod:`mavservo.sim.autopilot.sitl_command`."""
 
 import sys
 
-from mavservo.sim.autopilot.cli import main
+from mavservo.sim.autopilot.sitl_command import main
 
 sys.exit(main())

@@ -3,7 +3,7 @@
 The bridge (``mavlink.url: sim``) calls :func:`simulator_from_config` with the validated
 ``simulation.autopilot`` section (a pydantic model or a plain mapping) and the connection string
 the simulator should use to reach the bridge; it gets back an object with ``start()``/``stop()``.
-Keys understood: ``profile`` (a :mod:`mavservo.sim.autopilot.profiles` name or ``replay``),
+Keys understood: ``profile`` (a :mod:`mavservo.sim.autopilot.motion_scripts` name or ``replay``),
 ``servo_output_rate_hz``,
 ``actuator_output_status_hz`` (PX4-style, 0 = off),
 ``replay_file``, ``speed``, ``seed``, ``script`` (list of events, see
@@ -18,7 +18,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from mavservo.config.autopilot_script import GimbalTarget, parse_script
-from mavservo.sim.autopilot.profiles import Profile, RandomWalkProfile, get_profile
+from mavservo.sim.autopilot.motion_scripts import Profile, RandomWalkProfile, get_profile
 from mavservo.sim.autopilot.replay import ReplayRunner
 from mavservo.sim.autopilot.stream import AutopilotStream, gimbal_demo_script
 

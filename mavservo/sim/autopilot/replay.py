@@ -19,8 +19,8 @@ from pathlib import Path
 from typing import Any
 
 from mavservo.errors import MavservoError
+from mavservo.mavlink.connection import mavlink2, open_connection
 from mavservo.sim.autopilot.background import Background
-from mavservo.sim.autopilot.link import mavlink2, open_link
 from mavservo.threads import BackgroundLoop
 
 # What the bridge consumes (docs/architecture.md, mavservo/mavlink/).
@@ -134,7 +134,9 @@ def replay(
     if speed <= 0:
         raise ValueError("speed must be > 0")
     own = isinstance(url_or_conn, str)
-    conn: Any = open_link(url_or_conn, 255, 0) if own else url_or_conn
+    conn: Any = (
+        open_connection(url_or_conn, source_system=255, source_component=0) if own else url_or_conn
+    )
     result = ReplayResult()
     began = clock()
     origin: float | None = None

@@ -8,7 +8,7 @@ sysid 1 / compid 1 with MAVLink 2 and the ardupilotmega dialect:
 * SERVO_OUTPUT_RAW (port 0, all 16 channels, ``time_usec``) at the configured rate, 20 Hz by
   default like ArduPilot after SET_MESSAGE_INTERVAL; SET_MESSAGE_INTERVAL and REQUEST_MESSAGE
   from the companion are honoured and ACKed,
-* the values of a scripted :mod:`mavservo.sim.autopilot.profiles` profile, with DO_SET_SERVO /
+* the values of a scripted :mod:`mavservo.sim.autopilot.motion_scripts` profile, with DO_SET_SERVO /
 DO_REPEAT_SERVO /
   DO_SET_ACTUATOR sent as COMMAND_LONG (ACKs collected, MAVSDK-style retries) from a
   :class:`mavservo.config.autopilot_script.Script` or from calls made while it runs,
@@ -46,12 +46,12 @@ from mavservo.config.autopilot_script import (
     SetServo,
     repeat_servo_value,
 )
+from mavservo.mavlink.connection import mavlink2 as mav
+from mavservo.mavlink.connection import open_connection
+from mavservo.mavlink.quaternion import euler_to_quaternion
 from mavservo.sim.autopilot.background import Background
-from mavservo.sim.autopilot.commands import CommandRecord, CommandTracker
-from mavservo.sim.autopilot.gimbal import FLAG_RETRACT, euler_to_quaternion
-from mavservo.sim.autopilot.link import mavlink2 as mav
-from mavservo.sim.autopilot.link import open_link
-from mavservo.sim.autopilot.profiles import (
+from mavservo.sim.autopilot.command_tracker import CommandRecord, CommandTracker
+from mavservo.sim.autopilot.motion_scripts import (
     SURFACE_MAX,
     SURFACE_MIN,
     SURFACE_TRIM,
@@ -208,8 +208,11 @@ class AutopilotStream(Background):
         """Open the link and start the thread; returns self so ``with ... .start()`` reads well."""
         if self.t0 is not None:  # one run per stream: its records and counters are that run's
             raise RuntimeError("stream already started")
-        self._conn = open_link(
-            self.url, self.system_id, self.component_id, **self._connection_kwargs
+        self._conn = open_connection(
+            self.url,
+            source_system=self.system_id,
+            source_component=self.component_id,
+            **self._connection_kwargs,
         )
         if self.signing_key is not None:
             # accept the bridge's unsigned replies too: this side only plays the autopilot
@@ -531,7 +534,7 @@ class AutopilotStream(Background):
     def _send_gimbal_target(self, now: float) -> None:
         target = self._gimbal_target
         nan = math.nan
-        if target.flags & FLAG_RETRACT:
+        if target.flags & mav.GIMBAL_DEVICE_FLAGS_RETRACT:
             q, rates = (nan, nan, nan, nan), (0.0, 0.0, 0.0)
         else:
             q, rates = euler_to_quaternion(target.roll, target.pitch, target.yaw), (nan, nan, nan)

@@ -1,0 +1,1 @@
+"""Attacks and hostile input: each finding of a red team, replayed against the fix."""

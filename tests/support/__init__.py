@@ -1,0 +1,1 @@
+"""Helpers shared by the tests: real bridges, MAVLink doubles, waits, paths (never collected)."""
