@@ -216,10 +216,15 @@ class MavlinkCore:
         self._gimbal_hz = rates.gimbal_attitude_status_hz
         self.replan(now)
 
-    def _set_interval(self, msg_id: int, interval_us: float) -> bool:
+    def _set_interval(self, msg_id: int, interval_us: float) -> bool | str:
         """SET_MESSAGE_INTERVAL from a peer: the stream's new rate, and the budget re-planned
         (before: planned once at start, so TEL_*_HZ raised took the link from 952 to 21,688
-        B/s; issue 32, finding 3)."""
+        B/s; issue 32, finding 3); a rate faster than the configured one is refused with the
+        reason (a stranger's 1 us starved every other stream: Telemetry.interval_refusal)."""
+        refusal = self.telemetry.interval_refusal(msg_id, interval_us)
+        if refusal is not None:
+            self.counters["interval_refused"] += 1
+            return refusal
         accepted = self.telemetry.set_interval(msg_id, interval_us, self._now)
         if accepted:
             self.replan(self._now)
