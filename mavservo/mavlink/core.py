@@ -69,6 +69,13 @@ MIRROR_TYPES = ("SERVO_OUTPUT_RAW", "ACTUATOR_OUTPUT_STATUS")
 ESC_TELEMETRY_TYPES = {cls.msgname: group for group, cls in enumerate(ESC_MESSAGES)}
 
 
+#: Answers that take the answers' share of the link budget (the parameter and FTP services);
+#: other queued answers (command responses) are events.
+SERVICE_ANSWER_TYPES = frozenset(
+    {"PARAM_VALUE", "PARAM_ERROR", "FILE_TRANSFER_PROTOCOL", "MISSION_ACK"}
+)
+
+
 class MavlinkCore:
     """Routes messages to the command handler, the mirror, the gimbal devices and the watchdog."""
 
@@ -207,8 +214,27 @@ class MavlinkCore:
 
     def answers_due(self, now: float) -> list[Answer]:
         """Answers to requests that may go now: each to its requester only, paced per
-        requester, within the link budget (:class:`~mavservo.mavlink.answers.AnswerQueue`)."""
-        return self.answers.due(now, lambda cid, msg: self.budget.admit_answer(cid, msg, now))
+        requester, within the link budget (:class:`~mavservo.mavlink.answers.AnswerQueue`).
+        Service answers take the answers' share; queued command responses (see
+        :meth:`queue_responses`) are events, as they would have been sent directly."""
+
+        def admit(cid: int, msg: Any) -> bool:
+            if msg.get_type() in SERVICE_ANSWER_TYPES:
+                return self.budget.admit_answer(cid, msg, now)
+            return self.budget.allow(cid, msg, now)
+
+        return self.answers.due(now, admit)
+
+    def queue_responses(self, source: tuple[int, int], out: list[Outgoing], now: float) -> None:
+        """Responses to a command from an unverified sender (its ACK, the messages it asked
+        for): to that sender only, in turn with the other requesters, not ahead of everyone.
+
+        Why (review3): sent at once to every peer, a stranger's REQUEST_MESSAGE flood (1,000/s
+        for COMPONENT_METADATA) filled the held events with its ACKs and answers: 11,654
+        events dropped in 7 s, and a ground station got 1 of 30 ACKs of its DO_SET_SERVO (all
+        30 applied). Queued per requester, the flood waits for its own turn."""
+        self.counters["responses_queued"] += len(out)
+        self.answers.put(source, out, now)
 
     def set_telemetry_rates(self, rates: TelemetryRates, now: float) -> None:
         """New telemetry rates (TEL_*_HZ parameters): in force at once, the budget re-planned."""
