@@ -40,7 +40,9 @@ def _peer(port: int, source: tuple[int, int]) -> Any:
     return conn
 
 
-def test_a_ground_stations_acks_get_through_a_strangers_request_flood() -> None:
+def _acks_through(flood_one: Any) -> int:
+    """ACKs of 10 DO_SET_SERVO a ground station gets (1 s each) while ``flood_one(conn, n)``
+    sends the stranger's n-th message about 1,000 times a second."""
     port = free_udp_port()
     bridge = Bridge(load_config_text(_config(port)), log_dir=False).start()
     rogue = _peer(port, (66, 190))
@@ -51,7 +53,7 @@ def test_a_ground_stations_acks_get_through_a_strangers_request_flood() -> None:
         for n in range(20_000):  # bounded: at most 10 s
             if stop.is_set():
                 return
-            rogue.mav.command_long_send(1, 140, REQUEST_MESSAGE, 0, COMPONENT_METADATA, *[0] * 6)
+            flood_one(rogue, n)
             if n % 5 == 4:
                 time.sleep(0.0025)  # about 1,000 requests a second, on a loaded machine less
 
@@ -74,4 +76,22 @@ def test_a_ground_stations_acks_get_through_a_strangers_request_flood() -> None:
         rogue.close()
         gcs.close()
         bridge.stop()
-    assert acked >= 9
+    return acked
+
+
+def test_a_ground_stations_acks_get_through_a_strangers_request_flood() -> None:
+    def request(conn: Any, _n: int) -> None:
+        conn.mav.command_long_send(1, 140, REQUEST_MESSAGE, 0, COMPONENT_METADATA, *[0] * 6)
+
+    assert _acks_through(request) >= 9
+
+
+def test_acks_do_not_wait_behind_parameter_lists_of_spoofed_senders() -> None:
+    """Guards the fix above: the responses, queued per sender, must not wait behind the
+    answers of 250 spoofed senders' PARAM_REQUEST_LIST (a first version did: 3 of 30)."""
+
+    def parameter_list(conn: Any, n: int) -> None:
+        conn.mav.srcSystem = 2 + n % 250
+        conn.mav.param_request_list_send(1, 0)
+
+    assert _acks_through(parameter_list) >= 9

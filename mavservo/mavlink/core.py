@@ -69,13 +69,6 @@ MIRROR_TYPES = ("SERVO_OUTPUT_RAW", "ACTUATOR_OUTPUT_STATUS")
 ESC_TELEMETRY_TYPES = {cls.msgname: group for group, cls in enumerate(ESC_MESSAGES)}
 
 
-#: Answers that take the answers' share of the link budget (the parameter and FTP services);
-#: other queued answers (command responses) are events.
-SERVICE_ANSWER_TYPES = frozenset(
-    {"PARAM_VALUE", "PARAM_ERROR", "FILE_TRANSFER_PROTOCOL", "MISSION_ACK"}
-)
-
-
 class MavlinkCore:
     """Routes messages to the command handler, the mirror, the gimbal devices and the watchdog."""
 
@@ -126,6 +119,8 @@ class MavlinkCore:
         self._gimbal_hz = settings.telemetry.gimbal_attitude_status_hz
         #: answers to requests (parameters, FTP, missions), per requester, paced
         self.answers = AnswerQueue()
+        #: responses to unverified senders' commands, per sender, in turn (events)
+        self.responses = AnswerQueue()
         #: parameters, and a prompt "not supported" to FTP and mission requests, on every
         #: component (without a store the components serve no parameters but still answer)
         self.parameters = ParameterServer(
@@ -215,15 +210,12 @@ class MavlinkCore:
     def answers_due(self, now: float) -> list[Answer]:
         """Answers to requests that may go now: each to its requester only, paced per
         requester, within the link budget (:class:`~mavservo.mavlink.answers.AnswerQueue`).
-        Service answers take the answers' share; queued command responses (see
-        :meth:`queue_responses`) are events, as they would have been sent directly."""
-
-        def admit(cid: int, msg: Any) -> bool:
-            if msg.get_type() in SERVICE_ANSWER_TYPES:
-                return self.budget.admit_answer(cid, msg, now)
-            return self.budget.allow(cid, msg, now)
-
-        return self.answers.due(now, admit)
+        Queued command responses (see :meth:`queue_responses`) go first, as the events they
+        would have been (a flood of parameter lists from 250 spoofed senders must not hold a
+        ground station's ACK behind their answers); service answers take the answers' share."""
+        responses = self.responses.due(now, lambda cid, msg: self.budget.allow(cid, msg, now))
+        answers = self.answers.due(now, lambda cid, msg: self.budget.admit_answer(cid, msg, now))
+        return responses + answers
 
     def queue_responses(self, source: tuple[int, int], out: list[Outgoing], now: float) -> None:
         """Responses to a command from an unverified sender (its ACK, the messages it asked
@@ -234,7 +226,7 @@ class MavlinkCore:
         events dropped in 7 s, and a ground station got 1 of 30 ACKs of its DO_SET_SERVO (all
         30 applied). Queued per requester, the flood waits for its own turn."""
         self.counters["responses_queued"] += len(out)
-        self.answers.put(source, out, now)
+        self.responses.put(source, out, now)
 
     def set_telemetry_rates(self, rates: TelemetryRates, now: float) -> None:
         """New telemetry rates (TEL_*_HZ parameters): in force at once, the budget re-planned."""
@@ -432,6 +424,7 @@ class MavlinkCore:
             "parameters": dict(self.parameters.counters),
             "ftp": self.metadata.stats(),
             "answers": dict(self.answers.counters),
+            "responses": dict(self.responses.counters),
             "failsafe_count": self.watchdog.failsafe_count,
             "in_failsafe": self.watchdog.in_failsafe,
             "gimbals": self._gimbal_counters(),
