@@ -94,3 +94,38 @@ def test_over_udp_a_real_ftp_client_reads_past_squatted_sessions(tmp_path: Path)
         squatter.close()
         conn.close()
         bridge.stop()
+
+
+def test_ftp_replies_go_to_the_requester_only(tmp_path: Path) -> None:
+    """Before: FTP replies went out with the tick's output, to every peer (a bystander got
+    the stranger's OpenFileRO ACK and burst data); now only the requester gets them."""
+    port = free_udp_port()
+    path = tmp_path / "rig.yaml"
+    path.write_text(CONFIG.format(port=port))
+    bridge = Bridge(load_config(path), config_path=path, log_dir=False).start()
+    bystander = open_connection(f"udpout:127.0.0.1:{port}", source_system=255, source_component=190)
+    requester = open_connection(f"udpout:127.0.0.1:{port}", source_system=66, source_component=190)
+    try:
+        for conn in (bystander, requester):
+            conn.mav.heartbeat_send(6, 8, 0, 0, 4)
+        time.sleep(0.5)
+        opened = request(ftp.OP_OPEN_FILE_RO, data=b"/parameters.json.xz")
+        requester.mav.file_transfer_protocol_send(0, 1, 140, list(opened))
+        replies = []
+        for _ in range(30):  # bounded: 3 s
+            msg = requester.recv_match(type="FILE_TRANSFER_PROTOCOL", blocking=True, timeout=0.1)
+            if msg is not None:
+                replies.append(msg)
+                break
+        assert replies, "the requester got no reply"
+        burst = request(ftp.OP_BURST_READ_FILE, seq=2, session=0, size=239)
+        requester.mav.file_transfer_protocol_send(0, 1, 140, list(burst))
+        seen = 0
+        for _ in range(20):  # bounded: 2 s
+            msg = bystander.recv_match(type="FILE_TRANSFER_PROTOCOL", blocking=True, timeout=0.1)
+            seen += msg is not None
+        assert seen == 0
+    finally:
+        bystander.close()
+        requester.close()
+        bridge.stop()

@@ -377,10 +377,19 @@ class MavlinkCore:
         out.extend((servo, m) for m in self._guarded("streams", self._stream_requests, now))
         out.extend((servo, m) for m in self._guarded("telemetry", self.telemetry.periodic, now))
         out.extend(self._guarded("parameters", self.parameters.periodic, now))
-        out.extend(self._guarded("metadata", self.metadata.periodic, now))
+        self._guarded("metadata", self._queue_ftp_replies, now)
         for cid, device in self.gimbals.items():
             out.extend((cid, m) for m in self._guarded(f"gimbal {cid}", device.periodic, now))
         return out
+
+    def _queue_ftp_replies(self, now: float) -> None:
+        """The FTP replies due now, to their requester only, as answers (paced per requester,
+        within the answers' share of the budget). Why (review3): sent with the tick's output
+        they went to every peer: a stranger's burst read of the parameter metadata reached the
+        other ground stations and the autopilot's port, 251-byte frames each."""
+        for component_id, reply in self.metadata.periodic(now):
+            requester = (reply.target_system, reply.target_component)
+            self.answers.put(requester, [(component_id, reply)], now)
 
     def _stream_requests(self, now: float) -> list[Any]:
         """SET_MESSAGE_INTERVAL commands due now (sent from the servo component)."""
