@@ -102,3 +102,19 @@ def test_a_strangers_fast_interval_is_denied_and_the_telemetry_keeps_flowing() -
         for conn in peers:
             conn.close()
         bridge.stop()
+
+
+def test_only_minus_one_stops_a_stream() -> None:
+    """MAV_CMD_SET_MESSAGE_INTERVAL: -1 disables, 0 restores the default; -0.5 was taken as
+    a stop (any negative did) and ACCEPTED; now it is DENIED and the stream keeps going."""
+    from test_mavlink_support import RecordingBackend, command_long, wire
+
+    from mavservo.mavlink.core import MavlinkCore
+    from mavservo.mavlink.settings import MavlinkSettings
+
+    core = MavlinkCore(MavlinkSettings(system_id=1), RecordingBackend())
+    before = core.telemetry.rates_hz()["named_value_float_hz"]
+    command = command_long((1, 140), SET_MESSAGE_INTERVAL, NAMED_VALUE_FLOAT, -0.5)
+    out = core.on_message(wire(command, (255, 190)), 1.0)
+    assert [m.result for _, m in out if m.get_type() == "COMMAND_ACK"] == [MAV_RESULT_DENIED]
+    assert core.telemetry.rates_hz()["named_value_float_hz"] == before > 0

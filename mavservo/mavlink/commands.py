@@ -697,8 +697,9 @@ def _is_message_id(value: float) -> bool:
 
 
 def _valid_interval(interval_us: float) -> bool:
-    """-1 (stop), 0 (default rate) or a positive interval MESSAGE_INTERVAL can report."""
-    return math.isfinite(interval_us) and -1 <= interval_us <= MAX_INTERVAL_US
+    """-1 (stop), 0 (default rate) or a positive interval MESSAGE_INTERVAL can report; any
+    other negative value means nothing (review3: -0.5 stopped the stream like -1)."""
+    return math.isfinite(interval_us) and (interval_us == -1 or 0 <= interval_us <= MAX_INTERVAL_US)
 
 
 def _actuator_values(cmd: Command) -> dict[int, float] | None:
