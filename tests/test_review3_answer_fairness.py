@@ -60,8 +60,7 @@ def test_over_udp_a_ground_station_reads_parameters_through_a_strangers_read_flo
     import time
 
     from conftest import free_udp_port
-    from pymavlink import mavutil
-    from test_review3_stranger_rates import _config
+    from test_review3_stranger_rates import _config, _peer
 
     from mavservo.app.bridge import Bridge
     from mavservo.config.loader import load_config_text
@@ -70,19 +69,9 @@ def test_over_udp_a_ground_station_reads_parameters_through_a_strangers_read_flo
     port = free_udp_port()
     bridge = Bridge(load_config_text(_config(port)), log_dir=False).start()
 
-    def peer(source: tuple[int, int]) -> mavutil.mavfile:
-        conn = mavutil.mavlink_connection(
-            f"udpout:127.0.0.1:{port}",
-            source_system=source[0],
-            source_component=source[1],
-            dialect="ardupilotmega",
-        )
-        conn.mav.heartbeat_send(6, 8, 0, 0, 4)
-        return conn
-
-    rogue = peer(ROGUE)
+    rogue = _peer(port, ROGUE)
     time.sleep(0.3)  # the stranger asks first
-    gcs = peer(GCS)
+    gcs = _peer(port, GCS)
     stop = threading.Event()
 
     def flood() -> None:

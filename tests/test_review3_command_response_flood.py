@@ -16,8 +16,7 @@ import time
 from typing import Any
 
 from conftest import free_udp_port
-from pymavlink import mavutil
-from test_review3_stranger_rates import _config
+from test_review3_stranger_rates import _config, _peer
 
 from mavservo.app.bridge import Bridge
 from mavservo.config.loader import load_config_text
@@ -27,17 +26,6 @@ os.environ.setdefault("MAVLINK20", "1")
 DO_SET_SERVO = 183
 REQUEST_MESSAGE = 512
 COMPONENT_METADATA = 397
-
-
-def _peer(port: int, source: tuple[int, int]) -> Any:
-    conn = mavutil.mavlink_connection(
-        f"udpout:127.0.0.1:{port}",
-        source_system=source[0],
-        source_component=source[1],
-        dialect="ardupilotmega",
-    )
-    conn.mav.heartbeat_send(6, 8, 0, 0, 4)
-    return conn
 
 
 def _acks_through(flood_one: Any) -> int:
