@@ -485,13 +485,18 @@ class UdpServerTotals:
         return {
             "udp_datagrams": totals["udp_datagrams"],
             "udp_kernel_drops": totals["udp_kernel_drops"],
+            "udp_refused_pins": totals["udp_refused_pins"],
             "udp_rcvbuf_bytes": self._current.rcvbuf_bytes,
             "udp_kernel_drops_counted": self._current.counts_kernel_drops,
         }
 
     @staticmethod
     def _figures(server: UdpServer) -> dict[str, int]:
-        return {"udp_datagrams": server.datagrams, "udp_kernel_drops": server.kernel_drops}
+        return {
+            "udp_datagrams": server.datagrams,
+            "udp_kernel_drops": server.kernel_drops,
+            "udp_refused_pins": server.refused_pins,
+        }
 
 
 def is_udp_server_url(url: str) -> bool:
