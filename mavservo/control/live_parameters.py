@@ -12,12 +12,14 @@ overlay) is the envelope: no value may take a servo past what the file allows.
 
 from __future__ import annotations
 
+import math
 import threading
 from collections.abc import Callable, Mapping
 
 from mavservo.config.parameters import (
     ParameterError,
     current_values,
+    float32,
     parameter_table,
     with_values,
 )
@@ -69,6 +71,7 @@ class LiveParameters:
     def set(self, name: str, value: float, sender: tuple[int, int]) -> SetResult:
         with self._lock:
             old = self._values[name]
+            value = self._as_sent(name, value, old)
             try:
                 updated = with_values(self.config, {name: value}, envelope=self._base)
             except ParameterError as exc:
@@ -80,6 +83,18 @@ class LiveParameters:
             if self._saver is not None:
                 self._saver.submit(self.overlay)
             return SetResult(True, self._values[name])
+
+    def _as_sent(self, name: str, value: float, old: float) -> float:
+        """``value``, or the current value or the config file's when it is that one as a
+        float32 (what PARAM_VALUE carried and a ground station writes back).
+
+        Why (review3): SRV1_MAX of a servo limited to [-30.1, 30.1] reads as 30.100000381; a
+        ground station writing back what it read was refused, "limits -30.1..30.1 deg of left
+        leave the config file's -30.1..30.1 deg": compared in float64, it left the envelope."""
+        for known in (old, self._base_values.get(name)):
+            if known is not None and math.isfinite(value) and float32(value) == float32(known):
+                return known
+        return value
 
     def _remember(self, name: str, value: float) -> None:
         if value == self._base_values.get(name):

@@ -8,6 +8,9 @@ hands the latest values over (:meth:`OverlaySaver.submit`, no I/O); a thread wri
 ``interval_s``, so a flood of sets costs one write a second whatever its rate. A write that
 fails is reported through ``on_failure`` (the bridge sends it as STATUSTEXT: the ground station
 must know a value will not survive a restart), once per kind of failure until a write succeeds.
+A failed write is tried again every ``interval_s`` (review3: the values of a write that failed
+once, a state directory not yet mounted, a full disk, were never written again unless another
+PARAM_SET came, so a space freed later still lost them at the next restart).
 """
 
 from __future__ import annotations
@@ -91,6 +94,9 @@ class OverlaySaver:
                 write_overlay(self.path, values, self._config_name)
         except OSError as exc:
             self.failures += 1
+            with self._lock:  # tried again at the next interval unless newer values came
+                if self._pending is None:
+                    self._pending = values
             reason = exc.strerror or type(exc).__name__
             if reason != self._failing:
                 self._failing = reason

@@ -66,11 +66,10 @@ class AnswerQueue:
         if requester is None:
             if not answers:
                 return
+            if len(self._requesters) >= MAX_REQUESTERS:
+                self._forget_one()
             requester = _Requester(now)
             self._requesters[to] = requester
-            while len(self._requesters) > MAX_REQUESTERS:
-                _, dropped = self._requesters.popitem(last=False)
-                self.counters["answers_dropped"] += len(dropped.queue)
         if tag is not None:
             kept = deque(item for item in requester.queue if item[0] != tag)
             self.counters["answers_replaced"] += len(requester.queue) - len(kept)
@@ -81,10 +80,23 @@ class AnswerQueue:
                 self.counters["answers_dropped"] += 1
             requester.queue.append((tag, component_id, msg))
 
+    def _forget_one(self) -> None:
+        """Make room for a new requester: one with nothing queued (least recently served
+        first), else the one with the most queued (a flood), never a quiet one with little
+        waiting, such as a ground station behind a flood of new spoofed requesters (among
+        equals the most recently served or added goes: the one waiting longest stays)."""
+        victim = next((to for to, r in self._requesters.items() if not r.queue), None)
+        if victim is None:
+            newest_first = list(reversed(self._requesters))
+            victim = max(newest_first, key=lambda to: len(self._requesters[to].queue))
+        dropped = self._requesters.pop(victim)
+        self.counters["answers_dropped"] += len(dropped.queue)
+        self.counters["requesters_forgotten"] += 1
+
     def due(self, now: float, admit: Callable[[int, Any], bool]) -> list[Answer]:
-        """The answers that may go now: requesters in turn, one answer each per round, each
-        within its own rate and ``admit`` (the link budget; the first refusal ends the call,
-        the answer stays queued)."""
+        """The answers that may go now: requesters in turn (the least recently served first,
+        across calls too), one answer each per round, each within its own rate and ``admit``
+        (the link budget; the first refusal ends the call, the answer stays queued)."""
         out: list[Answer] = []
         for _ in range(MAX_QUEUED):  # bounded rounds
             progressed = False
@@ -98,6 +110,11 @@ class AnswerQueue:
                     return out
                 requester.queue.popleft()
                 requester.bucket.take(1.0, now)
+                # served: to the back of the line, so the next call (the next tick, when the
+                # budget admits one answer a tick) starts with the others. Before, the first
+                # requester ever queued was asked first at every tick: a stranger's 200/s
+                # READ flood took every admitted answer, a ground station's READ got 0 of 10.
+                self._requesters.move_to_end(to)
                 out.append(Answer(component_id, msg, to))
                 self.counters["answers_sent"] += 1
                 progressed = True

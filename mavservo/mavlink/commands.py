@@ -244,16 +244,18 @@ class CommandHandler:
     """Decides, applies and ACKs commands. ``system_id`` is read at every call (it may follow
     the autopilot). ``request_message(msg_id, now)`` returns the servo component's answer to
     REQUEST_MESSAGE (or None when it does not publish it); ``set_interval(msg_id, interval_us)``
-    returns whether the servo component publishes that message; ``heartbeat(component_id)`` is
-    that component's HEARTBEAT, sent at once when REQUEST_MESSAGE asks for message 0 (every
-    hosted component publishes one, so every one answers for it)."""
+    returns whether the servo component publishes that message (or, a text, why it refuses
+    the rate); ``heartbeat(component_id)`` is that component's HEARTBEAT, sent at once when
+    REQUEST_MESSAGE asks for message 0 (every hosted component publishes one, so every one
+    answers for it)."""
 
     backend: ActuatorBackend
     settings: MavlinkSettings
     hold: CommandHold
     system_id: Callable[[], int]
     request_message: Callable[[int, float], list[Any] | None]
-    set_interval: Callable[[int, float], bool]
+    #: True: set; False: not published; a text: refused, the reason (DENIED)
+    set_interval: Callable[[int, float], bool | str]
     heartbeat: Callable[[int], Any]
     gimbals: Mapping[int, HostedComponent] = field(default_factory=dict)
     #: COMPONENT_METADATA of a hosted component (None: it serves no metadata)
@@ -660,7 +662,10 @@ class CommandHandler:
             return (
                 None if broadcast else (_denied("bad_param", f"message interval {interval!r}"), [])
             )
-        if not self.set_interval(int(msg_id), interval):
+        result = self.set_interval(int(msg_id), interval)
+        if isinstance(result, str):
+            return None if broadcast else (_denied("rate", result), [])
+        if not result:
             if broadcast:
                 return None
             return ApplyResult(Outcome.UNSUPPORTED, f"unsupported:message {int(msg_id)}"), []
@@ -692,8 +697,9 @@ def _is_message_id(value: float) -> bool:
 
 
 def _valid_interval(interval_us: float) -> bool:
-    """-1 (stop), 0 (default rate) or a positive interval MESSAGE_INTERVAL can report."""
-    return math.isfinite(interval_us) and -1 <= interval_us <= MAX_INTERVAL_US
+    """-1 (stop), 0 (default rate) or a positive interval MESSAGE_INTERVAL can report; any
+    other negative value means nothing (review3: -0.5 stopped the stream like -1)."""
+    return math.isfinite(interval_us) and (interval_us == -1 or 0 <= interval_us <= MAX_INTERVAL_US)
 
 
 def _actuator_values(cmd: Command) -> dict[int, float] | None:

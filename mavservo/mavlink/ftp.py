@@ -84,10 +84,21 @@ ERR_UNKNOWN_COMMAND = 7
 ERR_FILE_PROTECTED = 9
 ERR_FILE_NOT_FOUND = 10
 
-MAX_SESSIONS = 4
+#: Sessions cost a name and an offset (the files are in memory): enough of them that squatting
+#: takes many spoofed senders (review3: with 4, two senders' four OpenFileRO every 10 s kept
+#: every ground station out: NAK NoSessionsAvailable for good).
+MAX_SESSIONS = 16
 MAX_SESSIONS_PER_SENDER = 2
 SESSION_IDLE_S = 10.0
+#: When every session is taken, the least recently used one idle this long makes room for a
+#: newcomer (a transfer in progress asks far more often; a squatter must keep asking).
+SESSION_EVICT_IDLE_S = 1.0
 MAX_QUEUED = 16
+#: Replies queued for one sender at most: its oldest makes room for its newest. When the queue
+#: is full, the sender with the most queued gives up its oldest (review3: one sender's 10
+#: requests a second kept the 16-entry queue full at a 1 kB/s budget, every other requester's
+#: replies dropped as ``queue_full``).
+MAX_QUEUED_PER_SENDER = 4
 BURST_PACKETS = 16
 #: Without a link budget the server is still paced (a USB link, a monitor output).
 UNBUDGETED_BYTES_S = 20_000.0
@@ -235,6 +246,8 @@ class FtpServer:
             self._nak(request, ERR_FILE_NOT_FOUND)
             return
         mine = [s for s in self._sessions.values() if s.owner == request.sender]
+        if len(self._sessions) >= MAX_SESSIONS and len(mine) < MAX_SESSIONS_PER_SENDER:
+            self._evict_idle(now)
         if len(self._sessions) >= MAX_SESSIONS or len(mine) >= MAX_SESSIONS_PER_SENDER:
             self.counters["no_session"] += 1
             self._nak(request, ERR_NO_SESSIONS_AVAILABLE)
@@ -290,6 +303,13 @@ class FtpServer:
             return None
         return session
 
+    def _evict_idle(self, now: float) -> None:
+        """The least recently used session, if idle :data:`SESSION_EVICT_IDLE_S`, goes."""
+        oldest = min(self._sessions.values(), key=lambda s: s.last_used)
+        if now - oldest.last_used >= SESSION_EVICT_IDLE_S:
+            del self._sessions[oldest.number]
+            self.counters["evicted"] += 1
+
     def _expire(self, now: float) -> None:
         for number in [n for n, s in self._sessions.items() if now - s.last_used > SESSION_IDLE_S]:
             del self._sessions[number]
@@ -318,10 +338,21 @@ class FtpServer:
         )
 
     def _queue_reply(self, sender: Sender, payload: bytes) -> None:
-        if len(self._queue) >= MAX_QUEUED:
-            self.counters["queue_full"] += 1
-            return
+        """Queue a reply; a sender's own oldest makes room beyond its share, and a full queue
+        takes room from the sender with the most queued (never from a quiet requester)."""
+        per_sender = Counter(owner for owner, _ in self._queue)
+        if per_sender[sender] >= MAX_QUEUED_PER_SENDER:
+            self._drop_oldest_of(sender)
+        elif len(self._queue) >= MAX_QUEUED:
+            self._drop_oldest_of(max(per_sender, key=lambda owner: per_sender[owner]))
         self._queue.append((sender, payload))
+
+    def _drop_oldest_of(self, sender: Sender) -> None:
+        for index, (owner, _) in enumerate(self._queue):
+            if owner == sender:
+                del self._queue[index]
+                self.counters["queue_full"] += 1
+                return
 
     # ------------------------------------------------------------------ time
 

@@ -45,7 +45,7 @@ import sys
 import threading
 import time
 from collections import Counter, OrderedDict
-from collections.abc import Callable, Hashable, Sequence
+from collections.abc import Callable, Hashable, Iterable, Sequence
 from typing import Any
 
 from pymavlink import mavutil
@@ -95,6 +95,14 @@ TCP_VERIFIED_IDLE_S = 10.0
 #: from; another address takes it over only once the first was silent this long (a restarted
 #: ground station on a new port), so a replay from elsewhere admits nobody.
 SIGNED_STREAM_REBIND_S = 2.0
+#: A privileged identity (the followed autopilot, an allowed source) pins one UDP address or
+#: holds one TCP slot: the one it was first verified from; another address claiming it takes
+#: the pin over only once the holder was silent this long (an autopilot rebooted on a new
+#: port). Why: on an unsigned link anyone can claim the autopilot's id; each claim pinned one
+#: more address (never expired, never evicted, the pin set grew without bound: 1,923 pins from
+#: 2,000 spoofed HEARTBEATs) and 16 of them locked every later ground station out; 8 TCP
+#: connections claiming it held every slot, the reserved ones included.
+PIN_REBIND_S = 3.0
 #: Signed streams remembered (least recently heard forgotten first).
 MAX_SIGNED_STREAMS = 256
 HANDLER_ERROR_SUMMARY_S = 60.0
@@ -264,8 +272,11 @@ class UdpServer:
         self._heard: OrderedDict[tuple[str, int], float] = OrderedDict(
             (peer, time.monotonic()) for peer in self._peers
         )
-        self._pinned: set[tuple[str, int]] = set()
+        #: privileged identity -> the one address it pins (see :data:`PIN_REBIND_S`)
+        self._pins: dict[Hashable, tuple[str, int]] = {}
         self.refused_peers = 0
+        #: claims of a privileged identity from a second address while the first is heard
+        self.refused_pins = 0
         self.expired_peers = 0
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
@@ -381,19 +392,22 @@ class UdpServer:
     def is_peer(self, address: tuple[str, int]) -> bool:
         return address in self._peers
 
-    def admit(self, address: tuple[str, int], now: float, pinned: bool = False) -> bool:
+    def admit(
+        self, address: tuple[str, int], now: float, pinned_as: Iterable[Hashable] = ()
+    ) -> bool:
         """``address`` sent a verified frame: answer it from now on. When the table is full
         the least recently heard peer that is not pinned makes room; False when all are
-        pinned. A known peer is only marked heard."""
-        if pinned:
-            self._pinned.add(address)
+        pinned. A known peer is only marked heard. ``pinned_as``: the privileged identities
+        its frames claimed; each pins one address at most (:data:`PIN_REBIND_S`)."""
         if address in self._heard:
             self._heard[address] = now
             self._heard.move_to_end(address)
+            self._pin(address, pinned_as, now)
             return True
         self._expire(now)
         if len(self._heard) >= self.max_peers:
-            victim = next((peer for peer in self._heard if peer not in self._pinned), None)
+            pinned = set(self._pins.values())
+            victim = next((peer for peer in self._heard if peer not in pinned), None)
             if victim is None:
                 self.refused_peers += 1
                 return False
@@ -401,14 +415,27 @@ class UdpServer:
             self.expired_peers += 1
         self._heard[address] = now
         self._peers = tuple(self._heard)  # replaced, never mutated: write() needs no lock
+        self._pin(address, pinned_as, now)
         return True
+
+    def _pin(self, address: tuple[str, int], identities: Iterable[Hashable], now: float) -> None:
+        """Pin ``address`` for each identity whose pin is free, its own, or held by an
+        address silent for :data:`PIN_REBIND_S` (or gone from the table)."""
+        for identity in identities:
+            holder = self._pins.get(identity)
+            heard = self._heard.get(holder) if holder is not None else None
+            if holder == address or heard is None or now - heard > PIN_REBIND_S:
+                self._pins[identity] = address
+            else:
+                self.refused_pins += 1
 
     def _expire(self, now: float) -> None:
         """Forget peers not heard from for ``idle_s`` (pinned ones excepted)."""
+        pinned = set(self._pins.values())
         stale = [
             peer
             for peer, heard in self._heard.items()
-            if now - heard > self.idle_s and peer not in self._pinned
+            if now - heard > self.idle_s and peer not in pinned
         ]
         for peer in stale:
             del self._heard[peer]
@@ -458,13 +485,18 @@ class UdpServerTotals:
         return {
             "udp_datagrams": totals["udp_datagrams"],
             "udp_kernel_drops": totals["udp_kernel_drops"],
+            "udp_refused_pins": totals["udp_refused_pins"],
             "udp_rcvbuf_bytes": self._current.rcvbuf_bytes,
             "udp_kernel_drops_counted": self._current.counts_kernel_drops,
         }
 
     @staticmethod
     def _figures(server: UdpServer) -> dict[str, int]:
-        return {"udp_datagrams": server.datagrams, "udp_kernel_drops": server.kernel_drops}
+        return {
+            "udp_datagrams": server.datagrams,
+            "udp_kernel_drops": server.kernel_drops,
+            "udp_refused_pins": server.refused_pins,
+        }
 
 
 def is_udp_server_url(url: str) -> bool:
@@ -538,6 +570,8 @@ class TcpServer:
         self._clock = clock
         self._lock = threading.Lock()  # the client table: read thread vs. writers
         self._clients: dict[socket.socket, TcpClient] = {}
+        #: privileged identity -> the client holding its reserved slot (one each)
+        self._holders: dict[Hashable, TcpClient] = {}
         self._listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         # on Linux SO_REUSEADDR lets a restarted bridge bind past TIME_WAIT; it never lets
         # a second process listen on the same port
@@ -599,11 +633,26 @@ class TcpServer:
             received.append((client, data))
         return received
 
-    def verify(self, client: TcpClient, privileged: bool = False) -> None:
-        """``client`` sent a verified frame: it receives our output from now on (``privileged``:
-        the frame came from the autopilot or an allowed source)."""
-        client.last_heard = self._clock()
-        client.privileged = client.privileged or privileged
+    def verify(self, client: TcpClient, privileged_as: Iterable[Hashable] = ()) -> None:
+        """``client`` sent a verified frame: it receives our output from now on
+        (``privileged_as``: the autopilot's or allowed sources' identities its frames claimed;
+        each holds one reserved slot at most, see :data:`PIN_REBIND_S`)."""
+        now = self._clock()
+        client.last_heard = now
+        for identity in privileged_as:
+            holder = self._holders.get(identity)
+            if (
+                holder is not None
+                and holder is not client
+                and self._clients.get(holder.sock) is holder
+                and now - holder.last_heard <= PIN_REBIND_S
+            ):
+                self._counters["tcp_privilege_refused"] += 1
+                continue
+            self._holders[identity] = client
+            client.privileged = True
+            if holder is not None and holder is not client:
+                holder.privileged = any(h is holder for h in self._holders.values())
         if not client.verified:
             client.verified = True
             log.info("MAVLink TCP client %s answered from now on", _peer_name(client.sock))
@@ -1034,7 +1083,7 @@ class MavlinkLink:
             verified = self._not_our_own(client.scanner.stream(data))
             verified = self._bound_to_origin(verified, client.address)
             if verified:
-                conn.verify(client, any(self._is_privileged(m) for m in verified))
+                conn.verify(client, self._privileged_identities(verified))
             self._note_origin(verified, client)
             messages.extend(verified)
         return messages
@@ -1073,8 +1122,7 @@ class MavlinkLink:
                 self.counters["strangers_ignored"] += 1
             return
         known = conn.is_peer(sender)
-        pinned = any(self._is_privileged(m) for m in messages)
-        if conn.admit(sender, self._clock(), pinned):
+        if conn.admit(sender, self._clock(), self._privileged_identities(messages)):
             if not known:
                 log.info("MAVLink peer %s:%d answered from now on", *sender)
             return
@@ -1087,8 +1135,10 @@ class MavlinkLink:
                 conn.max_peers,
             )
 
-    def _is_privileged(self, msg: Any) -> bool:
-        return self.privileged((msg.get_srcSystem(), msg.get_srcComponent()))
+    def _privileged_identities(self, messages: list[Any]) -> set[tuple[int, int]]:
+        """The autopilot's or allowed sources' identities ``messages`` claim."""
+        sources = {(m.get_srcSystem(), m.get_srcComponent()) for m in messages}
+        return {source for source in sources if self.privileged(source)}
 
     def _bound_to_origin(self, messages: list[Any], origin: Hashable) -> list[Any]:
         """``messages`` without signed frames of a stream first verified from elsewhere.

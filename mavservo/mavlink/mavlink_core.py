@@ -119,6 +119,8 @@ class MavlinkCore:
         self._gimbal_hz = settings.telemetry.gimbal_attitude_status_hz
         #: answers to requests (parameters, FTP, missions), per requester, paced
         self.answers = AnswerQueue()
+        #: responses to unverified senders' commands, per sender, in turn (events)
+        self.responses = AnswerQueue()
         #: parameters, and a prompt "not supported" to FTP and mission requests, on every
         #: component (without a store the components serve no parameters but still answer)
         self.parameters = ParameterServer(
@@ -207,8 +209,24 @@ class MavlinkCore:
 
     def answers_due(self, now: float) -> list[Answer]:
         """Answers to requests that may go now: each to its requester only, paced per
-        requester, within the link budget (:class:`~mavservo.mavlink.answers.AnswerQueue`)."""
-        return self.answers.due(now, lambda cid, msg: self.budget.admit_answer(cid, msg, now))
+        requester, within the link budget (:class:`~mavservo.mavlink.answers.AnswerQueue`).
+        Queued command responses (see :meth:`queue_responses`) go first, as the events they
+        would have been (a flood of parameter lists from 250 spoofed senders must not hold a
+        ground station's ACK behind their answers); service answers take the answers' share."""
+        responses = self.responses.due(now, lambda cid, msg: self.budget.allow(cid, msg, now))
+        answers = self.answers.due(now, lambda cid, msg: self.budget.admit_answer(cid, msg, now))
+        return responses + answers
+
+    def queue_responses(self, source: tuple[int, int], out: list[Outgoing], now: float) -> None:
+        """Responses to a command from an unverified sender (its ACK, the messages it asked
+        for): to that sender only, in turn with the other requesters, not ahead of everyone.
+
+        Why (review3): sent at once to every peer, a stranger's REQUEST_MESSAGE flood (1,000/s
+        for COMPONENT_METADATA) filled the held events with its ACKs and answers: 11,654
+        events dropped in 7 s, and a ground station got 1 of 30 ACKs of its DO_SET_SERVO (all
+        30 applied). Queued per requester, the flood waits for its own turn."""
+        self.counters["responses_queued"] += len(out)
+        self.responses.put(source, out, now)
 
     def set_telemetry_rates(self, rates: TelemetryRates, now: float) -> None:
         """New telemetry rates (TEL_*_HZ parameters): in force at once, the budget re-planned."""
@@ -216,10 +234,15 @@ class MavlinkCore:
         self._gimbal_hz = rates.gimbal_attitude_status_hz
         self.replan(now)
 
-    def _set_interval(self, msg_id: int, interval_us: float) -> bool:
+    def _set_interval(self, msg_id: int, interval_us: float) -> bool | str:
         """SET_MESSAGE_INTERVAL from a peer: the stream's new rate, and the budget re-planned
         (before: planned once at start, so TEL_*_HZ raised took the link from 952 to 21,688
-        B/s; issue 32, finding 3)."""
+        B/s; issue 32, finding 3); a rate faster than the configured one is refused with the
+        reason (a stranger's 1 us starved every other stream: Telemetry.interval_refusal)."""
+        refusal = self.telemetry.interval_refusal(msg_id, interval_us)
+        if refusal is not None:
+            self.counters["interval_refused"] += 1
+            return refusal
         accepted = self.telemetry.set_interval(msg_id, interval_us, self._now)
         if accepted:
             self.replan(self._now)
@@ -354,10 +377,19 @@ class MavlinkCore:
         out.extend((servo, m) for m in self._guarded("streams", self._stream_requests, now))
         out.extend((servo, m) for m in self._guarded("telemetry", self.telemetry.periodic, now))
         out.extend(self._guarded("parameters", self.parameters.periodic, now))
-        out.extend(self._guarded("metadata", self.metadata.periodic, now))
+        self._guarded("metadata", self._queue_ftp_replies, now)
         for cid, device in self.gimbals.items():
             out.extend((cid, m) for m in self._guarded(f"gimbal {cid}", device.periodic, now))
         return out
+
+    def _queue_ftp_replies(self, now: float) -> None:
+        """The FTP replies due now, to their requester only, as answers (paced per requester,
+        within the answers' share of the budget). Why (review3): sent with the tick's output
+        they went to every peer: a stranger's burst read of the parameter metadata reached the
+        other ground stations and the autopilot's port, 251-byte frames each."""
+        for component_id, reply in self.metadata.periodic(now):
+            requester = (reply.target_system, reply.target_component)
+            self.answers.put(requester, [(component_id, reply)], now)
 
     def _stream_requests(self, now: float) -> list[Any]:
         """SET_MESSAGE_INTERVAL commands due now (sent from the servo component)."""
@@ -401,6 +433,7 @@ class MavlinkCore:
             "parameters": dict(self.parameters.counters),
             "ftp": self.metadata.stats(),
             "answers": dict(self.answers.counters),
+            "responses": dict(self.responses.counters),
             "failsafe_count": self.watchdog.failsafe_count,
             "in_failsafe": self.watchdog.in_failsafe,
             "gimbals": self._gimbal_counters(),

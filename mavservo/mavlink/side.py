@@ -116,6 +116,12 @@ class MavlinkSide:
     def _on_message(self, msg: Any, now: float) -> None:
         with self._lock:
             out = self.core.on_message(msg, now)
+            source = (msg.get_srcSystem(), msg.get_srcComponent())
+            if out and not (self.link.privileged(source) or getattr(msg, "_signed", False)):
+                # an unverified sender's responses wait for its turn (a flood cannot push
+                # everyone else's ACKs out): to it only, with the next tick
+                self.core.queue_responses(source, out, now)
+                return
         self._send(out)
 
     def announce(self, text: str, severity: int = MAV_SEVERITY_WARNING) -> None:

@@ -281,6 +281,27 @@ class Telemetry:
             "named_value_float_hz": hz(MSG_NAMED_VALUE_FLOAT),
         }
 
+    def interval_refusal(self, msg_id: int, interval_us: float) -> str | None:
+        """Why SET_MESSAGE_INTERVAL may not set ``interval_us`` (None: it may). A stream may be
+        slowed, stopped or reset by anyone the link lets command, never made faster than its
+        configured rate (the YAML's, or TEL_*_HZ set by a parameter writer).
+
+        Why (review3): one stranger's SET_MESSAGE_INTERVAL of 1 us for NAMED_VALUE_FLOAT
+        re-planned the link budget for a 1 MHz stream: every stream's ratio fell to 1.5e-6,
+        and ACTUATOR_OUTPUT_STATUS and ESC_TELEMETRY stopped on the autopilot link (6 and 3 in
+        4 s before, 0 after) until a restart; parameters that raise rates are for writers."""
+        stream = self._streams.get(msg_id)
+        if stream is None or interval_us <= 0:
+            return None
+        period = stream.default_period
+        if period is not None and interval_us / 1e6 >= period * (1 - 1e-9):
+            return None
+        ceiling = "off" if period is None else f"{1.0 / period:g} Hz"
+        return (
+            f"{interval_us:.0f} us is faster than the configured rate ({ceiling}); "
+            "a rate is raised by the config or its TEL_*_HZ parameter"
+        )
+
     def set_interval(self, msg_id: int, interval_us: float, now: float) -> bool:
         """SET_MESSAGE_INTERVAL: False when this component does not publish ``msg_id``."""
         stream = self._streams.get(msg_id)

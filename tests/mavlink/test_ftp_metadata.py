@@ -328,12 +328,20 @@ def _ftp_message(target_component: int) -> Any:
     )
 
 
+def _ftp_out(core: Any, now: float) -> list[tuple[int, Any]]:
+    """What one tick sends: its output and the answers due (FTP replies are answers)."""
+    out = core.tick(now)
+    return [*out, *((a.component_id, a.msg) for a in core.answers_due(now))]
+
+
 def test_the_core_answers_the_addressed_component_only_never_a_broadcast() -> None:
     core = _core()
     assert core.on_message(_ftp_message(0), 0.0) == []  # broadcast: nobody answers
-    assert [m for _cid, m in core.tick(0.01) if m.get_type() == "FILE_TRANSFER_PROTOCOL"] == []
+    assert [m for _cid, m in _ftp_out(core, 0.01) if m.get_type() == "FILE_TRANSFER_PROTOCOL"] == []
     core.on_message(_ftp_message(140), 0.02)
-    replies = [(cid, m) for cid, m in core.tick(0.03) if m.get_type() == "FILE_TRANSFER_PROTOCOL"]
+    replies = [
+        (cid, m) for cid, m in _ftp_out(core, 0.03) if m.get_type() == "FILE_TRANSFER_PROTOCOL"
+    ]
     assert [(cid, parse(bytes(m.payload))[2]) for cid, m in replies] == [(140, ftp.OP_ACK)]
     assert (replies[0][1].target_system, replies[0][1].target_component) == GCS
 
@@ -343,7 +351,7 @@ def test_on_a_signed_link_unsigned_ftp_gets_no_answer() -> None:
 
     core = _core(signing=SigningSettings(key=bytes(32), accept_unsigned=True))
     core.on_message(_ftp_message(140), 0.0)  # unsigned (wire() does not sign)
-    assert [m for _cid, m in core.tick(0.01) if m.get_type() == "FILE_TRANSFER_PROTOCOL"] == []
+    assert [m for _cid, m in _ftp_out(core, 0.01) if m.get_type() == "FILE_TRANSFER_PROTOCOL"] == []
     assert core.counters["ftp_unsigned_refused"] == 1
 
 

@@ -150,7 +150,7 @@ def test_request_message_routed_to_gimbal_and_servo_components(bridge):
     gcs.mav.command_long_send(1, 154, 512, 0, 280, 0, 0, 0, 0, 0, 0)  # manager info: not ours
     ack = wait_for_message(gcs, is_ack(512))
     assert ack is not None and ack.result == 3
-    gcs.mav.command_long_send(1, 140, 511, 0, 11030, 100000, 0, 0, 0, 0, 0)
+    gcs.mav.command_long_send(1, 140, 511, 0, 11030, 1_000_000, 0, 0, 0, 0, 0)
     ack = wait_for_message(gcs, is_ack(511))
     assert ack is not None and ack.result == 0 and ack.get_srcComponent() == 140
     gcs.mav.command_long_send(1, 154, 512, 0, 0, 0, 0, 0, 0, 0, 0)  # HEARTBEAT, from the gimbal

@@ -148,7 +148,9 @@ def heard(rig: Rig) -> int:
 
 def test_output_goes_to_at_most_max_udp_peers_verified_addresses() -> None:
     """On an unsigned link any address can send a valid frame; the number of addresses the
-    bridge sends to is capped, the rest are counted and get nothing."""
+    bridge sends to is capped. The identity (an allowed source here) pins its first address
+    only; the others make room for newcomers least recently heard first (review3: before,
+    every address claiming it was pinned, so these 16 locked every later peer out)."""
     rig = Rig(signing=False)
     extra = 4
     socks = [stranger() for _ in range(MAX_UDP_PEERS + extra)]
@@ -163,8 +165,9 @@ def test_output_goes_to_at_most_max_udp_peers_verified_addresses() -> None:
         for sock in socks:
             sock.close()
         rig.close()
-    assert answered == [True] * MAX_UDP_PEERS + [False] * extra
-    assert rig.stats()["link"]["peers_refused"] == extra
+    expected = [True] + [False] * extra + [True] * (MAX_UDP_PEERS - 1)
+    assert answered == expected
+    assert rig.stats()["link"].get("peers_refused", 0) == 0
 
 
 def test_a_strangers_datagram_does_not_choose_where_a_udpbcast_link_sends() -> None:
