@@ -14,11 +14,11 @@ import os
 import time
 from typing import Any
 
-from conftest import free_udp_port
 from pymavlink import mavutil
 
 from mavservo.app.bridge import Bridge
 from mavservo.config.loader import load_config_text
+from tests.support.waiting import free_udp_port
 
 os.environ.setdefault("MAVLINK20", "1")
 
@@ -109,7 +109,7 @@ def test_only_minus_one_stops_a_stream() -> None:
     a stop (any negative did) and ACCEPTED; now it is DENIED and the stream keeps going."""
     from test_mavlink_support import RecordingBackend, command_long, wire
 
-    from mavservo.mavlink.core import MavlinkCore
+    from mavservo.mavlink.mavlink_core import MavlinkCore
     from mavservo.mavlink.settings import MavlinkSettings
 
     core = MavlinkCore(MavlinkSettings(system_id=1), RecordingBackend())

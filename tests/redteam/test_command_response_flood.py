@@ -15,11 +15,10 @@ import threading
 import time
 from typing import Any
 
-from conftest import free_udp_port
-from test_review3_stranger_rates import _config, _peer
-
 from mavservo.app.bridge import Bridge
 from mavservo.config.loader import load_config_text
+from tests.redteam.test_stranger_message_rates import _config, _peer
+from tests.support.waiting import free_udp_port
 
 os.environ.setdefault("MAVLINK20", "1")
 

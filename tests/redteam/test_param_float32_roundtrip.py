@@ -15,11 +15,11 @@ import struct
 import time
 from typing import Any
 
-from conftest import free_udp_port
 from pymavlink import mavutil
 
 from mavservo.app.bridge import Bridge
 from mavservo.config.loader import load_config_text
+from tests.support.waiting import free_udp_port
 
 os.environ.setdefault("MAVLINK20", "1")
 MAV_PARAM_TYPE_REAL32 = 9

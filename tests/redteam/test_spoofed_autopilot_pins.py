@@ -16,10 +16,10 @@ import socket
 import time
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
-from test_e2e_sessions import _drain, _heartbeat, _udp_bridge
-from test_tcp_server import Station, TcpRig
 
 from mavservo.mavlink.link import MAX_TCP_CLIENTS, UdpServer
+from tests.redteam.test_session_squatting import _drain, _heartbeat, _udp_bridge
+from tests.redteam.test_tcp_server import Station, TcpRig
 
 DO_SET_SERVO = 183
 SPOOFED_PORTS = 300

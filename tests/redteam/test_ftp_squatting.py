@@ -13,15 +13,15 @@ import socket
 import time
 from pathlib import Path
 
-from conftest import free_udp_port
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
-from test_ftp_metadata import CONFIG, FILES, GCS, answers, request
 
 from mavservo.app.bridge import Bridge
 from mavservo.config.loader import load_config
 from mavservo.mavlink import ftp
 from mavservo.mavlink.connection import open_connection
 from mavservo.mavlink.ftp import FtpServer
+from tests.mavlink.test_ftp_metadata import CONFIG, FILES, GCS, answers, request
+from tests.support.waiting import free_udp_port
 
 SQUATTERS = [(100 + n, 190) for n in range(ftp.MAX_SESSIONS)]
 
