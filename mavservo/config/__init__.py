@@ -98,7 +98,14 @@ if TYPE_CHECKING:
         write_atomic,
         write_overlay,
     )
-    from .parameters import Parameter, ParameterError, current_values, parameter_table, with_values
+    from .parameters import (
+        Parameter,
+        ParameterError,
+        current_values,
+        float32,
+        parameter_table,
+        with_values,
+    )
     from .schema import allowed_values, read_key_file
     from .simulation import Faults, Physics
     from .smallfile import SmallFileError, read_small_file
@@ -124,6 +131,7 @@ __all__ += [
     "clear_overlay",
     "current_values",
     "describe_bus",
+    "float32",
     "load_config_with_overlay",
     "overlay_path",
     "parameter_table",
@@ -159,6 +167,7 @@ __getattr__ = lazy_face(
         "clear_overlay": "overlay",
         "current_values": "parameters",
         "describe_bus": "endpoints",
+        "float32": "parameters",
         "load_config_with_overlay": "overlay",
         "overlay_path": "overlay",
         "parameter_table": "parameters",

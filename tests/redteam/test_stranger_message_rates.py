@@ -107,10 +107,9 @@ def test_a_strangers_fast_interval_is_denied_and_the_telemetry_keeps_flowing() -
 def test_only_minus_one_stops_a_stream() -> None:
     """MAV_CMD_SET_MESSAGE_INTERVAL: -1 disables, 0 restores the default; -0.5 was taken as
     a stop (any negative did) and ACCEPTED; now it is DENIED and the stream keeps going."""
-    from test_mavlink_support import RecordingBackend, command_long, wire
-
     from mavservo.mavlink.mavlink_core import MavlinkCore
     from mavservo.mavlink.settings import MavlinkSettings
+    from tests.support.mavlink_doubles import RecordingBackend, command_long, wire
 
     core = MavlinkCore(MavlinkSettings(system_id=1), RecordingBackend())
     before = core.telemetry.rates_hz()["named_value_float_hz"]
