@@ -29,6 +29,7 @@ from mavservo.app.check import stop_behaviour_lines
 from mavservo.app.component_metadata import metadata_files
 from mavservo.config import BusConfig, Config
 from mavservo.config.overlay import overlay_path
+from mavservo.config.views import mavlink_settings, servo_specs, telemetry_rates
 from mavservo.control.health import HealthEvent
 from mavservo.control.health_limits import health_limits
 from mavservo.control.health_watch import HealthWatch
@@ -37,11 +38,10 @@ from mavservo.control.overlay_saver import OverlaySaver
 from mavservo.control.servo_backend import ServoBackend
 from mavservo.mavlink.backend import Health
 from mavservo.mavlink.gimbal import GimbalDevice, settings_from_config
-from mavservo.mavlink.settings import MavlinkSettings, SigningSettings, TelemetryRates
 from mavservo.mavlink.side import MavlinkSide
 from mavservo.records.metrics import round_trip_figures
 from mavservo.records.runlog import RunLog, new_run_dir
-from mavservo.scheduling.core import FrameKind, ServoSpec, TimingConfig
+from mavservo.scheduling.core import FrameKind, TimingConfig
 from mavservo.scheduling.runner import Scheduler, SchedulerObserver, WriteObserver
 from mavservo.servos import CountingNode, ServoState
 from mavservo.sim.bus_simulation import simulator_factory
@@ -117,21 +117,6 @@ class _FanOut(SchedulerObserver):
     def on_reject(self, bus: str, reason: str, raw_bytes: bytes, t: float) -> None:
         for observer in self.observers:
             observer.on_reject(bus, reason, raw_bytes, t)
-
-
-def servo_specs(config: Config, bus_name: str) -> list[ServoSpec]:
-    """What the scheduler of ``bus_name`` is told about each of its servos."""
-    return [
-        ServoSpec(
-            name=s.name,
-            profile=s.make_profile(),
-            command_mode=s.command_mode,
-            telemetry_hz=s.telemetry_hz,
-            max_speed_dps=s.max_speed_dps,
-        )
-        for s in config.servos
-        if config.bus_of(s).name == bus_name
-    ]
 
 
 def timing_config(config: Config, bus: BusConfig) -> TimingConfig:
@@ -427,23 +412,7 @@ class Bridge:
 
     def _make_mavlink(self) -> MavlinkSide:
         cfg = self.config
-        raw = cfg.mavlink.model_dump(mode="python")
-        raw.pop("signing", None)
-        trims = {
-            c.channel: c.input.resolved_trim for c in cfg.channels if c.source == "servo_output"
-        }
-        settings = MavlinkSettings.from_mapping(
-            raw, channel_trims_us=trims, command_period_s=cfg.scheduler.command_period_s
-        )
-        if cfg.mavlink.signing is not None:
-            settings = dataclasses.replace(
-                settings,
-                signing=SigningSettings(
-                    key=cfg.mavlink.signing.secret_key(),
-                    accept_unsigned=cfg.mavlink.signing.accept_unsigned,
-                    max_clock_ahead_s=cfg.mavlink.signing.max_clock_ahead_s,
-                ),
-            )
+        settings = mavlink_settings(cfg)
         if cfg.mavlink.url == SIM:
             from mavservo.sim.autopilot.factory import simulator_from_config
 
@@ -515,8 +484,9 @@ class Bridge:
                 status_rate_hz=updated.mavlink.telemetry.gimbal_attitude_status_hz,
                 system_id=fixed_sysid,
             )
-        rates = TelemetryRates(**updated.mavlink.telemetry.model_dump())
-        self.mavlink.core.set_telemetry_rates(rates, time.monotonic())
+        self.mavlink.core.set_telemetry_rates(
+            telemetry_rates(updated.mavlink.telemetry), time.monotonic()
+        )
         self.config = updated
 
     def _health(self) -> dict[str, float]:

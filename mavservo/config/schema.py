@@ -30,6 +30,7 @@ from pydantic_core import PydanticCustomError
 from mavservo.config.health import HealthConfig
 from mavservo.config.smallfile import SmallFileError, read_small_file
 from mavservo.config.urls import url_problem
+from mavservo.mavlink.settings import TelemetryRates
 from mavservo.servos import ProfileOptions, ServoProfile, get_profile, node_family
 from mavservo.transport.aa55.codec import BITRATE_CODES
 from mavservo.transport.bus_factory import SIM_CHANNEL, SIMULATED_INTERFACES
@@ -190,23 +191,29 @@ class MirrorConfig(StrictModel):
     actuator_output_status_units: Literal["pwm", "normalized"] = "pwm"
 
 
-class TelemetryRates(StrictModel):
+#: The MAVLink side's own defaults: the schema takes them from there, so they are written once.
+_RATES = TelemetryRates()
+
+
+class TelemetryConfig(StrictModel):
     """Rates (Hz) of the MAVLink telemetry the bridge publishes; 0 turns a stream off.
 
     (0 rather than null, because that is what SET_MESSAGE_INTERVAL's -1/0 map onto at run time.)
+    The YAML shape and its bounds; :func:`mavservo.config.views.telemetry_rates` gives the
+    MAVLink side's :class:`~mavservo.mavlink.settings.TelemetryRates` of it.
     """
 
-    actuator_output_status_hz: Float = Field(10.0, ge=0, le=100)
-    esc_telemetry_hz: Float = Field(4.0, ge=0, le=100)
-    named_value_float_hz: Float = Field(2.0, ge=0, le=100)
-    gimbal_attitude_status_hz: Float = Field(10.0, ge=0, le=100)
+    actuator_output_status_hz: Float = Field(_RATES.actuator_output_status_hz, ge=0, le=100)
+    esc_telemetry_hz: Float = Field(_RATES.esc_telemetry_hz, ge=0, le=100)
+    named_value_float_hz: Float = Field(_RATES.named_value_float_hz, ge=0, le=100)
+    gimbal_attitude_status_hz: Float = Field(_RATES.gimbal_attitude_status_hz, ge=0, le=100)
     #: ESC index of the first servo in ESC_TELEMETRY_x_TO_y (1, 5, 9, ... 29: the messages carry
     #: four ESCs each). "auto" starts at 17, above the motors of any common frame, and moves up
     #: when the autopilot (or another bridge) is heard publishing the same ESC indices.
-    esc_first_index: Literal["auto"] | Annotated[Int, Field(ge=1, le=29)] = "auto"
+    esc_first_index: Literal["auto"] | Annotated[Int, Field(ge=1, le=29)] = _RATES.esc_first_index
     #: First letters of the NAMED_VALUE_FLOAT names (``s1_pos``): a second bridge on the same
     #: vehicle takes another (``t1_pos``) so a ground station tells them apart.
-    name_prefix: str = Field("s", pattern=r"^[a-z]{1,3}$")
+    name_prefix: str = Field(_RATES.name_prefix, pattern=r"^[a-z]{1,3}$")
 
     @field_validator("esc_first_index")
     @classmethod
@@ -264,7 +271,7 @@ class MavlinkConfig(StrictModel):
     repeat_servo_cycle: Literal["seconds", "milliseconds"] = "seconds"
     command_hold_s: Float = Field(2.0, ge=0)
     mirror: MirrorConfig = MirrorConfig()
-    telemetry: TelemetryRates = TelemetryRates()
+    telemetry: TelemetryConfig = TelemetryConfig()
     request_streams: StreamRequestConfig = StreamRequestConfig()
     #: Output-only endpoints that get a copy of everything the bridge sends (mavservo monitor).
     monitor_outputs: list[str] = []
