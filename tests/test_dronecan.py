@@ -432,7 +432,10 @@ def test_budget_counts_packed_transfers_status_frames_and_every_nodes_heartbeat(
         from mavservo.scheduling.runner import Scheduler
 
         scheduler = Scheduler(
-            vbus, servo_specs(config, bus.name), timing_config(config, bus), node_options=bus.node
+            vbus,
+            servo_specs(config, bus.name),
+            timing_config(config, bus),
+            node_options=bus.node_options(),
         )
         assert scheduler.worst_case_load == pytest.approx(expected)
 
@@ -673,7 +676,7 @@ def test_a_nodes_notices_reach_the_bridge_with_no_frame_on_the_bus() -> None:
     servo = DroneCanServo(20, firmware="ardupilot", command="pwm")
     with can.Bus(interface="virtual", channel="dronecan-notices-quiet") as vbus:
         scheduler = Scheduler(
-            vbus, [ServoSpec("s1", servo)], TimingConfig(), node_options={"dronecan": {}}
+            vbus, [ServoSpec("s1", servo)], TimingConfig(), node_options={"dronecan": NodeOptions()}
         )
         [notice] = scheduler.take_notices()
         assert "SAFETY_OFF" in notice and "will not move" in notice

@@ -251,7 +251,7 @@ class Bridge:
             if not specs:
                 continue
             timing = timing_config(cfg, bus_cfg)
-            node_options: Mapping[str, Any] = bus_cfg.node
+            node_options = bus_cfg.node_options()
             if state_file is not None:
                 node_options = node_state.bus_node_options(bus_cfg, saved, state_file)
             scheduler = Scheduler(

@@ -19,6 +19,7 @@ from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
+    PrivateAttr,
     Strict,
     ValidationError,
     ValidationInfo,
@@ -311,16 +312,18 @@ class MavlinkConfig(StrictModel):
 # ------------------------------------------------------------------------------------------- CAN
 
 
-def raise_option_problems(problems: list[tuple[str, str]]) -> None:
-    """Raise an ``options`` mapping's ``(key, message)`` problems as one error the loader
-    splits again, so that each is reported on its own key's line."""
+def raise_option_problems(problems: list[tuple[str, str]], field: str = "options") -> None:
+    """Raise the ``(key, message)`` problems of a mapping of options (``field``: a servo's
+    ``options``, a bus's ``node``) as one error the loader splits again, so that each is
+    reported on its own key's line."""
     if problems:
         raise PydanticCustomError(
             "profile_options",
             "{summary}",
             {
-                "summary": "; ".join(f"options.{k}: {m}" for k, m in problems),
+                "summary": "; ".join(f"{field}.{k}: {m}" for k, m in problems),
                 "problems": problems,
+                "field": field,
             },
         )
 
@@ -346,26 +349,38 @@ class BusConfig(StrictModel):
     """The bridge's own node on this bus, per family that has one, keyed by profile name
     (``node: {dronecan: {node_id: 100}}``); checked by that profile's ``NodeOptions``."""
 
-    @field_validator("node")
-    @classmethod
-    def _node_options_valid(cls, value: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
-        problems: list[str] = []
-        for name, options in value.items():
+    _node_options: dict[str, ProfileOptions] = PrivateAttr(default_factory=dict)
+    """``node`` as each family's ``NodeOptions``, validated once (:meth:`node_options`)."""
+
+    @model_validator(mode="after")
+    def _node_options_valid(self) -> BusConfig:
+        """Each ``node:`` entry checked by its family's ``NodeOptions``, once, and kept typed;
+        each problem on its own key's line."""
+        problems: list[tuple[str, str]] = []
+        typed: dict[str, ProfileOptions] = {}
+        for name, options in self.node.items():
             family = node_family(get_profile(name))
             if family is None:
-                problems.append(f"node.{name}: profile {name!r} has no bus node")
+                problems.append((name, f"profile {name!r} has no bus node"))
                 continue
             try:
-                family.NodeOptions.model_validate(options)
+                typed[name] = family.NodeOptions.model_validate(options)
             except ValidationError as exc:
                 problems += [
-                    f"node.{name}.{'.'.join(str(p) for p in e['loc'])}: {e['msg']}, "
-                    f"found {e.get('input')!r}"
+                    (
+                        ".".join((name, *(str(p) for p in e["loc"]))),
+                        f"{e['msg']}, found {e.get('input')!r}",
+                    )
                     for e in exc.errors(include_url=False)
                 ]
-        if problems:
-            raise ValueError("; ".join(problems))
-        return value
+        raise_option_problems(problems, "node")
+        self._node_options = typed
+        return self
+
+    def node_options(self) -> dict[str, ProfileOptions]:
+        """The bridge's node options on this bus by profile name, as validated from ``node``
+        (a family without an entry takes its ``NodeOptions`` defaults)."""
+        return dict(self._node_options)
 
     @field_validator("interface")
     @classmethod
@@ -440,7 +455,8 @@ class ServoConfig(StrictModel):
 
     ``profile`` is any name the profile registry knows (built-in or plug-in), ``can_id`` must be
     in that profile's id range, and ``options`` is checked by the profile's own ``Options``
-    model (:func:`options_problems` gives each problem its key, so the loader prints its line).
+    model once, here (each problem with its key, so the loader prints its line); the typed
+    options are kept (:meth:`profile_options`), so no other layer parses them again.
     """
 
     name: Name
@@ -481,17 +497,29 @@ class ServoConfig(StrictModel):
             )
         return value
 
+    _options: ProfileOptions | None = PrivateAttr(None)
+    """``options`` as the profile's ``Options``, validated once by :meth:`_options_valid`."""
+
     @model_validator(mode="after")
     def _options_valid(self) -> ServoConfig:
-        raise_option_problems(options_problems(self.profile, self.options))
+        model = get_profile(self.profile).Options
+        try:
+            self._options = model.model_validate(self.options)
+        except ValidationError as exc:
+            raise_option_problems(
+                [_option_problem(model, error) for error in exc.errors(include_url=False)]
+            )
         return self
 
     def profile_options(self) -> ProfileOptions:
-        """The validated ``options`` as the profile's ``Options`` instance."""
-        return get_profile(self.profile).Options.model_validate(self.options)
+        """The validated ``options`` as the profile's ``Options`` instance (built once, when
+        the config was validated; options models are immutable, so it is shared)."""
+        assert self._options is not None  # set by _options_valid on every validated servo
+        return self._options
 
     def make_profile(self) -> ServoProfile:
-        """A profile instance for this servo: its id and options."""
+        """A new profile instance for this servo (its id and its validated options): each
+        scheduler, check and simulator gets its own, since a profile keeps per-servo state."""
         profile = get_profile(self.profile)(self.can_id, self.profile_options())
         profile.telemetry_hz = self.telemetry_hz
         return profile
@@ -504,17 +532,6 @@ class ServoConfig(StrictModel):
                 f"neutral_deg {self.neutral_deg} is outside limits_deg [{low}, {high}]"
             )
         return self
-
-
-def options_problems(profile: str, options: dict[str, Any]) -> list[tuple[str, str]]:
-    """``(key, message)`` for every problem of a servo's ``options`` under its profile's
-    ``Options``: the key, what is wrong, the value found and the allowed keys or range."""
-    model = get_profile(profile).Options
-    try:
-        model.model_validate(options)
-    except ValidationError as exc:
-        return [_option_problem(model, error) for error in exc.errors(include_url=False)]
-    return []
 
 
 def _option_problem(model: type[BaseModel], error: Any) -> tuple[str, str]:
