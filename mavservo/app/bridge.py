@@ -414,16 +414,18 @@ class Bridge:
         cfg = self.config
         settings = mavlink_settings(cfg)
         if cfg.mavlink.url == SIM:
-            from mavservo.sim.autopilot.factory import simulator_from_config
+            from mavservo.sim.autopilot.factory import simulator_for
 
             port = free_udp_port()
             settings = dataclasses.replace(settings, url=f"udpin:127.0.0.1:{port}")
-            section = cfg.simulation.autopilot.model_dump()
-            # the simulated autopilot reads DO_REPEAT_SERVO's cycle the way the bridge is told to
-            section["repeat_servo_cycle"] = cfg.mavlink.repeat_servo_cycle
-            if settings.signing is not None:  # the simulated autopilot shares the key
-                section["signing_key"] = settings.signing.key
-            self.autopilot_sim = simulator_from_config(section, f"udpout:127.0.0.1:{port}")
+            self.autopilot_sim = simulator_for(
+                cfg.simulation.autopilot,
+                f"udpout:127.0.0.1:{port}",
+                # it reads DO_REPEAT_SERVO's cycle the way the bridge is told to, and shares
+                # the signing key
+                repeat_servo_cycle=cfg.mavlink.repeat_servo_cycle,
+                signing_key=settings.signing.key if settings.signing is not None else None,
+            )
         assert self.backend is not None
         servo_limits = {s.name: s.limits_deg for s in cfg.servos}
         status_hz = cfg.mavlink.telemetry.gimbal_attitude_status_hz
