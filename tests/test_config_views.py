@@ -14,11 +14,10 @@ from typing import Any
 import can
 import pytest
 
-from mavservo.app.bridge import timing_config
 from mavservo.config import bus_loads, load_config
 from mavservo.config.parameters import with_values
 from mavservo.config.semantic import cross_checks
-from mavservo.config.views import mavlink_settings, servo_specs, telemetry_rates
+from mavservo.config.views import mavlink_settings, servo_specs, telemetry_rates, timing_config
 from mavservo.mavlink.settings import TelemetryRates
 from mavservo.scheduling.runner import Scheduler
 from mavservo.servos.dronecan.node import NodeOptions

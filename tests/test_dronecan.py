@@ -416,9 +416,8 @@ def test_budget_counts_packed_transfers_status_frames_and_every_nodes_heartbeat(
     transfer per slot, two frames per Status at 10 Hz each, NodeStatus from 4 servo nodes and
     the bridge; the bridge's GetNodeInfo answers at their bound (4 a second, 9 frames each);
     every frame 29-bit, counted at 8 bytes."""
-    from mavservo.app.bridge import timing_config
     from mavservo.config import bus_loads, load_config
-    from mavservo.config.views import servo_specs
+    from mavservo.config.views import servo_specs, timing_config
     from mavservo.scheduling.busload import frame_bits
 
     config = load_config("config/dronecan.yaml")

@@ -29,7 +29,7 @@ from mavservo.app.check import stop_behaviour_lines
 from mavservo.app.component_metadata import metadata_files
 from mavservo.config import BusConfig, Config
 from mavservo.config.overlay import overlay_path
-from mavservo.config.views import mavlink_settings, servo_specs, telemetry_rates
+from mavservo.config.views import mavlink_settings, servo_specs, telemetry_rates, timing_config
 from mavservo.control.health import HealthEvent
 from mavservo.control.health_limits import health_limits
 from mavservo.control.health_watch import HealthWatch
@@ -41,7 +41,7 @@ from mavservo.mavlink.gimbal import GimbalDevice, settings_from_config
 from mavservo.mavlink.side import MavlinkSide
 from mavservo.records.metrics import round_trip_figures
 from mavservo.records.runlog import RunLog, new_run_dir
-from mavservo.scheduling.core import FrameKind, TimingConfig
+from mavservo.scheduling.core import FrameKind
 from mavservo.scheduling.runner import Scheduler, SchedulerObserver, WriteObserver
 from mavservo.servos import CountingNode, ServoState
 from mavservo.sim.bus_simulation import simulator_factory
@@ -117,21 +117,6 @@ class _FanOut(SchedulerObserver):
     def on_reject(self, bus: str, reason: str, raw_bytes: bytes, t: float) -> None:
         for observer in self.observers:
             observer.on_reject(bus, reason, raw_bytes, t)
-
-
-def timing_config(config: Config, bus: BusConfig) -> TimingConfig:
-    """The scheduler settings of the config, with ``bus``'s bitrate and load budget."""
-    sched = config.scheduler
-    return TimingConfig(
-        command_period_s=sched.command_period_s,
-        telemetry_period_s=sched.telemetry_period_s,
-        refresh_interval_s=sched.refresh_interval_s,
-        immediate_min_spacing_s=sched.immediate_min_spacing_s,
-        reply_timeout_s=sched.reply_timeout_s,
-        max_load=bus.max_load,
-        bitrate=bus.bitrate,
-        realtime=sched.realtime,
-    )
 
 
 def settle_heap() -> None:

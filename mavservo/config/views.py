@@ -9,14 +9,14 @@ its own, so a key added to the schema has one place to reach the layer that uses
 
 from __future__ import annotations
 
-from mavservo.config.schema import Config, MavlinkConfig, TelemetryConfig
+from mavservo.config.schema import BusConfig, Config, MavlinkConfig, TelemetryConfig
 from mavservo.mavlink.settings import (
     MavlinkSettings,
     SigningSettings,
     StreamRequestSettings,
     TelemetryRates,
 )
-from mavservo.scheduling.core import ServoSpec
+from mavservo.scheduling.core import ServoSpec, TimingConfig
 
 
 def telemetry_rates(section: TelemetryConfig) -> TelemetryRates:
@@ -109,3 +109,18 @@ def servo_specs(config: Config, bus_name: str) -> list[ServoSpec]:
         for s in config.servos
         if config.bus_of(s).name == bus_name
     ]
+
+
+def timing_config(config: Config, bus: BusConfig) -> TimingConfig:
+    """The scheduler settings of the config, with ``bus``'s bitrate and load budget."""
+    sched = config.scheduler
+    return TimingConfig(
+        command_period_s=sched.command_period_s,
+        telemetry_period_s=sched.telemetry_period_s,
+        refresh_interval_s=sched.refresh_interval_s,
+        immediate_min_spacing_s=sched.immediate_min_spacing_s,
+        reply_timeout_s=sched.reply_timeout_s,
+        max_load=bus.max_load,
+        bitrate=bus.bitrate,
+        realtime=sched.realtime,
+    )
