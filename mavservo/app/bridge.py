@@ -29,7 +29,13 @@ from mavservo.app.check import stop_behaviour_lines
 from mavservo.app.component_metadata import metadata_files
 from mavservo.config import BusConfig, Config
 from mavservo.config.overlay import overlay_path
-from mavservo.config.views import mavlink_settings, servo_specs, telemetry_rates, timing_config
+from mavservo.config.views import (
+    gimbal_settings,
+    mavlink_settings,
+    servo_specs,
+    telemetry_rates,
+    timing_config,
+)
 from mavservo.control.health import HealthEvent
 from mavservo.control.health_limits import health_limits
 from mavservo.control.health_watch import HealthWatch
@@ -37,7 +43,7 @@ from mavservo.control.live_parameters import LiveParameters
 from mavservo.control.overlay_saver import OverlaySaver
 from mavservo.control.servo_backend import ServoBackend
 from mavservo.mavlink.backend import Health
-from mavservo.mavlink.gimbal import GimbalDevice, settings_from_config
+from mavservo.mavlink.gimbal import GimbalDevice
 from mavservo.mavlink.side import MavlinkSide
 from mavservo.records.metrics import round_trip_figures
 from mavservo.records.runlog import RunLog, new_run_dir
@@ -412,18 +418,7 @@ class Bridge:
                 signing_key=settings.signing.key if settings.signing is not None else None,
             )
         assert self.backend is not None
-        servo_limits = {s.name: s.limits_deg for s in cfg.servos}
-        status_hz = cfg.mavlink.telemetry.gimbal_attitude_status_hz
-        fixed_sysid = None if cfg.mavlink.system_id == "follow" else cfg.mavlink.system_id
-        gimbals = [
-            GimbalDevice(
-                settings_from_config(
-                    g, servo_limits, status_rate_hz=status_hz, system_id=fixed_sysid
-                ),
-                self.backend,
-            )
-            for g in cfg.gimbals
-        ]
+        gimbals = [GimbalDevice(settings, self.backend) for settings in gimbal_settings(cfg)]
         self._gimbal_devices = gimbals
         if self._persist_parameters and self.config_path is not None:
             self.overlay_saver = OverlaySaver(
@@ -462,15 +457,8 @@ class Bridge:
         self.backend.reconfigure(updated, time.monotonic())
         if self.health is not None:  # speed limits and slews are in the tracking allowance
             self.health.reconfigure(health_limits(updated))
-        servo_limits = {s.name: s.limits_deg for s in updated.servos}
-        fixed_sysid = None if updated.mavlink.system_id == "follow" else updated.mavlink.system_id
-        for device, gimbal in zip(self._gimbal_devices, updated.gimbals, strict=True):
-            device.settings = settings_from_config(
-                gimbal,
-                servo_limits,
-                status_rate_hz=updated.mavlink.telemetry.gimbal_attitude_status_hz,
-                system_id=fixed_sysid,
-            )
+        for device, settings in zip(self._gimbal_devices, gimbal_settings(updated), strict=True):
+            device.settings = settings
         self.mavlink.core.set_telemetry_rates(
             telemetry_rates(updated.mavlink.telemetry), time.monotonic()
         )

@@ -10,6 +10,7 @@ its own, so a key added to the schema has one place to reach the layer that uses
 from __future__ import annotations
 
 from mavservo.config.schema import BusConfig, Config, MavlinkConfig, TelemetryConfig
+from mavservo.mavlink.gimbal import GimbalSettings
 from mavservo.mavlink.settings import (
     MavlinkSettings,
     SigningSettings,
@@ -124,3 +125,40 @@ def timing_config(config: Config, bus: BusConfig) -> TimingConfig:
         bitrate=bus.bitrate,
         realtime=sched.realtime,
     )
+
+
+def gimbal_settings(config: Config) -> list[GimbalSettings]:
+    """The MAVLink gimbal devices' settings, in ``gimbals:`` order: an axis without gimbal
+    limits takes its servo's ``limits_deg``; the status rate is ``mavlink.telemetry``'s
+    ``gimbal_attitude_status_hz``; the system id the fixed ``mavlink.system_id`` (None when it
+    follows the autopilot)."""
+    servo_limits = {s.name: s.limits_deg for s in config.servos}
+    fixed_sysid = None if config.mavlink.system_id == "follow" else config.mavlink.system_id
+    settings = []
+    for gimbal in config.gimbals:
+        axis_servos = gimbal.axes()
+        own = {
+            "roll": gimbal.limits_deg.roll,
+            "pitch": gimbal.limits_deg.pitch,
+            "yaw": gimbal.limits_deg.yaw,
+        }
+        limits = {
+            axis: own[axis] or servo_limits.get(servo, (-180.0, 180.0))
+            for axis, servo in axis_servos.items()
+        }
+        settings.append(
+            GimbalSettings(
+                name=gimbal.name,
+                axis_servos=axis_servos,
+                limits_deg=limits,
+                component_id=gimbal.component_id,
+                act_as_manager=gimbal.act_as_manager,
+                vendor_name=gimbal.vendor_name,
+                model_name=gimbal.model_name,
+                status_rate_hz=config.mavlink.telemetry.gimbal_attitude_status_hz,
+                retract_pose_deg=gimbal.retract_pose_deg,
+                neutral_pose_deg=gimbal.neutral_pose_deg,
+                system_id=fixed_sysid,
+            )
+        )
+    return settings
