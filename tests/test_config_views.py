@@ -188,3 +188,17 @@ def test_node_option_problems_are_each_on_their_own_line(tmp_path: Path) -> None
     text = str(err.value)
     assert ":8: can.buses[0].node.dronecan.node_id:" in text and "127" in text
     assert ":9: can.buses[0].node.dronecan.bogus:" in text
+
+
+def test_a_copy_with_other_options_is_not_given_the_old_ones() -> None:
+    """``model_copy(update=...)`` skips validation (the tests' helpers use it): a servo or bus
+    copied with other options gets those, validated, never the originals' kept ones."""
+    config = load_config(DRONECAN)
+    servo, bus = config.servos[0], config.can.buses[0]
+    copied = servo.model_copy(update={"options": {"actuator_id": 7}})
+    assert copied.profile_options().actuator_id == 7
+    assert servo.profile_options().actuator_id == 1
+    assert servo.model_copy().profile_options() is servo.profile_options()  # kept, not redone
+    moved = bus.model_copy(update={"node": {"dronecan": {"node_id": 42}}})
+    assert moved.node_options()["dronecan"].node_id == 42
+    assert bus.node_options()["dronecan"].node_id == 100

@@ -349,13 +349,20 @@ class BusConfig(StrictModel):
     """The bridge's own node on this bus, per family that has one, keyed by profile name
     (``node: {dronecan: {node_id: 100}}``); checked by that profile's ``NodeOptions``."""
 
-    _node_options: dict[str, ProfileOptions] = PrivateAttr(default_factory=dict)
-    """``node`` as each family's ``NodeOptions``, validated once (:meth:`node_options`)."""
+    _node_options: tuple[dict[str, dict[str, Any]], dict[str, ProfileOptions]] | None = PrivateAttr(
+        None
+    )
+    """``(node mapping, typed)``: ``node`` as each family's ``NodeOptions``, validated once by
+    :meth:`_node_options_valid`, with what it was validated from."""
 
     @model_validator(mode="after")
     def _node_options_valid(self) -> BusConfig:
         """Each ``node:`` entry checked by its family's ``NodeOptions``, once, and kept typed;
         each problem on its own key's line."""
+        self._keep_node_options()
+        return self
+
+    def _keep_node_options(self) -> None:
         problems: list[tuple[str, str]] = []
         typed: dict[str, ProfileOptions] = {}
         for name, options in self.node.items():
@@ -374,13 +381,16 @@ class BusConfig(StrictModel):
                     for e in exc.errors(include_url=False)
                 ]
         raise_option_problems(problems, "node")
-        self._node_options = typed
-        return self
+        self._node_options = (self.node, typed)
 
     def node_options(self) -> dict[str, ProfileOptions]:
         """The bridge's node options on this bus by profile name, as validated from ``node``
-        (a family without an entry takes its ``NodeOptions`` defaults)."""
-        return dict(self._node_options)
+        (a family without an entry takes its ``NodeOptions`` defaults). A copy made with
+        another ``node`` (``model_copy(update=...)`` skips validation) is validated here."""
+        if self._node_options is None or self._node_options[0] is not self.node:
+            self._keep_node_options()
+        assert self._node_options is not None
+        return dict(self._node_options[1])
 
     @field_validator("interface")
     @classmethod
@@ -497,14 +507,15 @@ class ServoConfig(StrictModel):
             )
         return value
 
-    _options: ProfileOptions | None = PrivateAttr(None)
-    """``options`` as the profile's ``Options``, validated once by :meth:`_options_valid`."""
+    _options: tuple[str, dict[str, Any], ProfileOptions] | None = PrivateAttr(None)
+    """``(profile, options mapping, typed options)``: ``options`` validated once by
+    :meth:`_options_valid`, with what it was validated from."""
 
     @model_validator(mode="after")
     def _options_valid(self) -> ServoConfig:
         model = get_profile(self.profile).Options
         try:
-            self._options = model.model_validate(self.options)
+            self._options = (self.profile, self.options, model.model_validate(self.options))
         except ValidationError as exc:
             raise_option_problems(
                 [_option_problem(model, error) for error in exc.errors(include_url=False)]
@@ -513,9 +524,14 @@ class ServoConfig(StrictModel):
 
     def profile_options(self) -> ProfileOptions:
         """The validated ``options`` as the profile's ``Options`` instance (built once, when
-        the config was validated; options models are immutable, so it is shared)."""
-        assert self._options is not None  # set by _options_valid on every validated servo
-        return self._options
+        the config was validated; options models are immutable, so it is shared). A copy
+        made with other options or another profile (``model_copy(update=...)``, which skips
+        validation) has them validated here, once."""
+        kept = self._options
+        if kept is None or kept[0] != self.profile or kept[1] is not self.options:
+            model = get_profile(self.profile).Options
+            kept = self._options = (self.profile, self.options, model.model_validate(self.options))
+        return kept[2]
 
     def make_profile(self) -> ServoProfile:
         """A new profile instance for this servo (its id and its validated options): each
