@@ -29,6 +29,13 @@ from mavservo.app.check import stop_behaviour_lines
 from mavservo.app.component_metadata import metadata_files
 from mavservo.config import BusConfig, Config
 from mavservo.config.overlay import overlay_path
+from mavservo.config.views import (
+    gimbal_settings,
+    mavlink_settings,
+    servo_specs,
+    telemetry_rates,
+    timing_config,
+)
 from mavservo.control.health import HealthEvent
 from mavservo.control.health_limits import health_limits
 from mavservo.control.health_watch import HealthWatch
@@ -36,13 +43,12 @@ from mavservo.control.live_parameters import LiveParameters
 from mavservo.control.overlay_saver import OverlaySaver
 from mavservo.control.servo_backend import ServoBackend
 from mavservo.mavlink.backend import Health
-from mavservo.mavlink.gimbal import GimbalDevice, settings_from_config
-from mavservo.mavlink.settings import MavlinkSettings, SigningSettings, TelemetryRates
+from mavservo.mavlink.gimbal import GimbalDevice
 from mavservo.mavlink.side import MavlinkSide
 from mavservo.records.metrics import round_trip_figures
 from mavservo.records.runlog import RunLog, new_run_dir
 from mavservo.scheduling.runner import Scheduler, SchedulerObserver, WriteObserver
-from mavservo.scheduling.schedule_core import FrameKind, ServoSpec, TimingConfig
+from mavservo.scheduling.schedule_core import FrameKind
 from mavservo.servos import CountingNode, ServoState
 from mavservo.sim.bus_simulation import simulator_factory
 from mavservo.sim.pty_adapter import PtyAdapter
@@ -117,36 +123,6 @@ class _FanOut(SchedulerObserver):
     def on_reject(self, bus: str, reason: str, raw_bytes: bytes, t: float) -> None:
         for observer in self.observers:
             observer.on_reject(bus, reason, raw_bytes, t)
-
-
-def servo_specs(config: Config, bus_name: str) -> list[ServoSpec]:
-    """What the scheduler of ``bus_name`` is told about each of its servos."""
-    return [
-        ServoSpec(
-            name=s.name,
-            profile=s.make_profile(),
-            command_mode=s.command_mode,
-            telemetry_hz=s.telemetry_hz,
-            max_speed_dps=s.max_speed_dps,
-        )
-        for s in config.servos
-        if config.bus_of(s).name == bus_name
-    ]
-
-
-def timing_config(config: Config, bus: BusConfig) -> TimingConfig:
-    """The scheduler settings of the config, with ``bus``'s bitrate and load budget."""
-    sched = config.scheduler
-    return TimingConfig(
-        command_period_s=sched.command_period_s,
-        telemetry_period_s=sched.telemetry_period_s,
-        refresh_interval_s=sched.refresh_interval_s,
-        immediate_min_spacing_s=sched.immediate_min_spacing_s,
-        reply_timeout_s=sched.reply_timeout_s,
-        max_load=bus.max_load,
-        bitrate=bus.bitrate,
-        realtime=sched.realtime,
-    )
 
 
 def settle_heap() -> None:
@@ -266,7 +242,7 @@ class Bridge:
             if not specs:
                 continue
             timing = timing_config(cfg, bus_cfg)
-            node_options: Mapping[str, Any] = bus_cfg.node
+            node_options = bus_cfg.node_options()
             if state_file is not None:
                 node_options = node_state.bus_node_options(bus_cfg, saved, state_file)
             scheduler = Scheduler(
@@ -427,47 +403,22 @@ class Bridge:
 
     def _make_mavlink(self) -> MavlinkSide:
         cfg = self.config
-        raw = cfg.mavlink.model_dump(mode="python")
-        raw.pop("signing", None)
-        trims = {
-            c.channel: c.input.resolved_trim for c in cfg.channels if c.source == "servo_output"
-        }
-        settings = MavlinkSettings.from_mapping(
-            raw, channel_trims_us=trims, command_period_s=cfg.scheduler.command_period_s
-        )
-        if cfg.mavlink.signing is not None:
-            settings = dataclasses.replace(
-                settings,
-                signing=SigningSettings(
-                    key=cfg.mavlink.signing.secret_key(),
-                    accept_unsigned=cfg.mavlink.signing.accept_unsigned,
-                    max_clock_ahead_s=cfg.mavlink.signing.max_clock_ahead_s,
-                ),
-            )
+        settings = mavlink_settings(cfg)
         if cfg.mavlink.url == SIM:
-            from mavservo.sim.autopilot.factory import simulator_from_config
+            from mavservo.sim.autopilot.factory import simulator_for
 
             port = free_udp_port()
             settings = dataclasses.replace(settings, url=f"udpin:127.0.0.1:{port}")
-            section = cfg.simulation.autopilot.model_dump()
-            # the simulated autopilot reads DO_REPEAT_SERVO's cycle the way the bridge is told to
-            section["repeat_servo_cycle"] = cfg.mavlink.repeat_servo_cycle
-            if settings.signing is not None:  # the simulated autopilot shares the key
-                section["signing_key"] = settings.signing.key
-            self.autopilot_sim = simulator_from_config(section, f"udpout:127.0.0.1:{port}")
-        assert self.backend is not None
-        servo_limits = {s.name: s.limits_deg for s in cfg.servos}
-        status_hz = cfg.mavlink.telemetry.gimbal_attitude_status_hz
-        fixed_sysid = None if cfg.mavlink.system_id == "follow" else cfg.mavlink.system_id
-        gimbals = [
-            GimbalDevice(
-                settings_from_config(
-                    g, servo_limits, status_rate_hz=status_hz, system_id=fixed_sysid
-                ),
-                self.backend,
+            self.autopilot_sim = simulator_for(
+                cfg.simulation.autopilot,
+                f"udpout:127.0.0.1:{port}",
+                # it reads DO_REPEAT_SERVO's cycle the way the bridge is told to, and shares
+                # the signing key
+                repeat_servo_cycle=cfg.mavlink.repeat_servo_cycle,
+                signing_key=settings.signing.key if settings.signing is not None else None,
             )
-            for g in cfg.gimbals
-        ]
+        assert self.backend is not None
+        gimbals = [GimbalDevice(settings, self.backend) for settings in gimbal_settings(cfg)]
         self._gimbal_devices = gimbals
         if self._persist_parameters and self.config_path is not None:
             self.overlay_saver = OverlaySaver(
@@ -506,17 +457,11 @@ class Bridge:
         self.backend.reconfigure(updated, time.monotonic())
         if self.health is not None:  # speed limits and slews are in the tracking allowance
             self.health.reconfigure(health_limits(updated))
-        servo_limits = {s.name: s.limits_deg for s in updated.servos}
-        fixed_sysid = None if updated.mavlink.system_id == "follow" else updated.mavlink.system_id
-        for device, gimbal in zip(self._gimbal_devices, updated.gimbals, strict=True):
-            device.settings = settings_from_config(
-                gimbal,
-                servo_limits,
-                status_rate_hz=updated.mavlink.telemetry.gimbal_attitude_status_hz,
-                system_id=fixed_sysid,
-            )
-        rates = TelemetryRates(**updated.mavlink.telemetry.model_dump())
-        self.mavlink.core.set_telemetry_rates(rates, time.monotonic())
+        for device, settings in zip(self._gimbal_devices, gimbal_settings(updated), strict=True):
+            device.settings = settings
+        self.mavlink.core.set_telemetry_rates(
+            telemetry_rates(updated.mavlink.telemetry), time.monotonic()
+        )
         self.config = updated
 
     def _health(self) -> dict[str, float]:

@@ -21,7 +21,7 @@ from mavservo.config import BusConfig
 from mavservo.config.overlay import write_atomic
 from mavservo.config.smallfile import SmallFileError, read_small_file
 from mavservo.scheduling.runner import Scheduler
-from mavservo.servos import get_profile, node_family
+from mavservo.servos import ProfileOptions, get_profile, node_family
 
 log = logging.getLogger(__name__)
 _MAX_BYTES = 1 << 20
@@ -49,29 +49,29 @@ def load(path: Path) -> dict[str, Any]:
     return data
 
 
-def bus_node_options(bus: BusConfig, saved: Mapping[str, Any], path: Path) -> dict[str, Any]:
-    """``bus.node`` with the saved state merged in, per profile, if it validates."""
-    options: dict[str, Any] = {name: dict(values) for name, values in bus.node.items()}
+def bus_node_options(
+    bus: BusConfig, saved: Mapping[str, Any], path: Path
+) -> dict[str, ProfileOptions]:
+    """``bus``'s validated node options, with the saved state merged in, per profile, where the
+    merge validates (the file is input like any other: checked by the same ``NodeOptions``)."""
+    options = bus.node_options()
     saved_bus = saved.get(bus.name)
     if not isinstance(saved_bus, dict):
         return options
     for name, state in saved_bus.items():
-        if name not in options or not isinstance(state, dict):
+        family = node_family(get_profile(name)) if name in bus.node else None
+        if family is None or not isinstance(state, dict):
             continue
-        merged = dict(options[name])
+        merged = dict(bus.node[name])
         for key, value in state.items():
             if isinstance(value, dict) and isinstance(merged.get(key), dict):
                 merged[key] = {**value, **merged[key]}
             else:
                 merged.setdefault(key, value)
-        family = node_family(get_profile(name))
         try:
-            if family is not None:
-                family.NodeOptions.model_validate(merged)
+            options[name] = family.NodeOptions.model_validate(merged)
         except ValidationError as exc:
             log.warning("node state %s for bus %s ignored: %s", path, bus.name, exc)
-            continue
-        options[name] = merged
     return options
 
 

@@ -46,6 +46,12 @@ from mavservo.config.yamlsource import Problem
 from mavservo.faces import lazy_face
 
 __all__ = [
+    "SimAutopilotConfig",
+    "timing_config",
+    "telemetry_rates",
+    "servo_specs",
+    "mavlink_settings",
+    "gimbal_settings",
     "ActuatorChannel",
     "BusConfig",
     "BusLoad",
@@ -106,9 +112,16 @@ if TYPE_CHECKING:
         parameter_table,
         with_values,
     )
-    from .schema import allowed_values, read_key_file
+    from .schema import SimAutopilotConfig, allowed_values, read_key_file
     from .simulation import Faults, Physics
     from .smallfile import SmallFileError, read_small_file
+    from .views import (
+        gimbal_settings,
+        mavlink_settings,
+        servo_specs,
+        telemetry_rates,
+        timing_config,
+    )
 
 __all__ += [
     "Action",
@@ -147,6 +160,12 @@ __all__ += [
 __getattr__ = lazy_face(
     __name__,
     {
+        "SimAutopilotConfig": "schema",
+        "timing_config": "views",
+        "telemetry_rates": "views",
+        "servo_specs": "views",
+        "mavlink_settings": "views",
+        "gimbal_settings": "views",
         "Action": "autopilot_script",
         "Dropout": "autopilot_script",
         "Event": "autopilot_script",

@@ -12,10 +12,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from mavservo.scheduling.bus_nodes import node_unique_id, software_version
+from mavservo.scheduling.bus_nodes import family_nodes
 from mavservo.scheduling.busload import FrameFlow, load_ratio, servo_traffic
 from mavservo.scheduling.schedule_core import STARTUP_RETRY_S
-from mavservo.servos.base import node_family
 
 if TYPE_CHECKING:
     from mavservo.config.schema import BusConfig, Config, SchedulerConfig, ServoConfig
@@ -92,30 +91,10 @@ def bus_nodes(
     bus: BusConfig, servos: list[ServoConfig]
 ) -> list[tuple[str, list[ServoConfig], BusNode]]:
     """The bus nodes the scheduler of ``bus`` will own, with their servos: ``(profile name,
-    servos, node)``, built by the same profile code. A node that refuses its servos (a node id
-    clash) is left out: the semantic checks report it with its line."""
-    groups: dict[type[ServoProfile], list[ServoConfig]] = {}
-    for servo in servos:
-        groups.setdefault(type(profile_of(servo)), []).append(servo)
-    nodes: list[tuple[str, list[ServoConfig], BusNode]] = []
-    for cls, group in groups.items():
-        family = node_family(cls)
-        if family is None:
-            continue
-        try:
-            options = family.NodeOptions.model_validate(bus.node.get(cls.name, {}))
-            node = family.bus_node(
-                [profile_of(s) for s in group],
-                options,
-                software_version(),
-                0.0,
-                node_unique_id(bus.name),
-            )
-        except ValueError:
-            continue
-        if node is not None:
-            nodes.append((cls.name, group, node))
-    return nodes
+    servos, node)``, built by the scheduler's own :func:`family_nodes`. A node that refuses its
+    servos (a node id clash) is left out: the semantic checks report it with its line."""
+    built = family_nodes([profile_of(s) for s in servos], bus.node_options(), bus.name)
+    return [(b.family, [servos[i] for i in b.members], b.node) for b in built if b.node is not None]
 
 
 def node_flows(

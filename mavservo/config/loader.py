@@ -149,9 +149,9 @@ def _pydantic_problems(exc: ValidationError, document: YamlDocument) -> list[Pro
 
 
 def _expand_option_errors(errors: list[Any]) -> list[Any]:
-    """A servo's ``options`` problems (checked by its profile's model, see
-    :func:`mavservo.config.schema.options_problems`) become one error per option key, so each
-    is printed on the line of its key."""
+    """A servo's ``options`` and a bus's ``node`` problems (checked by the family's models, see
+    :func:`mavservo.config.schema.raise_option_problems`) become one error per key, so each is
+    printed on the line of its key."""
     out: list[Any] = []
     for error in errors:
         ctx = error.get("ctx") or {}
@@ -159,7 +159,7 @@ def _expand_option_errors(errors: list[Any]) -> list[Any]:
             out.append(error)
             continue
         for key, message in ctx["problems"]:
-            loc = (*error["loc"], "options", *key.split("."))
+            loc = (*error["loc"], ctx.get("field", "options"), *key.split("."))
             out.append({"type": "value_error", "loc": loc, "msg": message, "input": None})
     return out
 

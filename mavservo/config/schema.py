@@ -19,6 +19,7 @@ from pydantic import (
     BaseModel,
     ConfigDict,
     Field,
+    PrivateAttr,
     Strict,
     ValidationError,
     ValidationInfo,
@@ -30,6 +31,7 @@ from pydantic_core import PydanticCustomError
 from mavservo.config.health import HealthConfig
 from mavservo.config.smallfile import SmallFileError, read_small_file
 from mavservo.config.urls import url_problem
+from mavservo.mavlink.settings import TelemetryRates
 from mavservo.servos import ProfileOptions, ServoProfile, get_profile, node_family
 from mavservo.transport.aa55.codec import BITRATE_CODES
 from mavservo.transport.bus_factory import SIM_CHANNEL, SIMULATED_INTERFACES
@@ -190,23 +192,29 @@ class MirrorConfig(StrictModel):
     actuator_output_status_units: Literal["pwm", "normalized"] = "pwm"
 
 
-class TelemetryRates(StrictModel):
+#: The MAVLink side's own defaults: the schema takes them from there, so they are written once.
+_RATES = TelemetryRates()
+
+
+class TelemetryConfig(StrictModel):
     """Rates (Hz) of the MAVLink telemetry the bridge publishes; 0 turns a stream off.
 
     (0 rather than null, because that is what SET_MESSAGE_INTERVAL's -1/0 map onto at run time.)
+    The YAML shape and its bounds; :func:`mavservo.config.views.telemetry_rates` gives the
+    MAVLink side's :class:`~mavservo.mavlink.settings.TelemetryRates` of it.
     """
 
-    actuator_output_status_hz: Float = Field(10.0, ge=0, le=100)
-    esc_telemetry_hz: Float = Field(4.0, ge=0, le=100)
-    named_value_float_hz: Float = Field(2.0, ge=0, le=100)
-    gimbal_attitude_status_hz: Float = Field(10.0, ge=0, le=100)
+    actuator_output_status_hz: Float = Field(_RATES.actuator_output_status_hz, ge=0, le=100)
+    esc_telemetry_hz: Float = Field(_RATES.esc_telemetry_hz, ge=0, le=100)
+    named_value_float_hz: Float = Field(_RATES.named_value_float_hz, ge=0, le=100)
+    gimbal_attitude_status_hz: Float = Field(_RATES.gimbal_attitude_status_hz, ge=0, le=100)
     #: ESC index of the first servo in ESC_TELEMETRY_x_TO_y (1, 5, 9, ... 29: the messages carry
     #: four ESCs each). "auto" starts at 17, above the motors of any common frame, and moves up
     #: when the autopilot (or another bridge) is heard publishing the same ESC indices.
-    esc_first_index: Literal["auto"] | Annotated[Int, Field(ge=1, le=29)] = "auto"
+    esc_first_index: Literal["auto"] | Annotated[Int, Field(ge=1, le=29)] = _RATES.esc_first_index
     #: First letters of the NAMED_VALUE_FLOAT names (``s1_pos``): a second bridge on the same
     #: vehicle takes another (``t1_pos``) so a ground station tells them apart.
-    name_prefix: str = Field("s", pattern=r"^[a-z]{1,3}$")
+    name_prefix: str = Field(_RATES.name_prefix, pattern=r"^[a-z]{1,3}$")
 
     @field_validator("esc_first_index")
     @classmethod
@@ -264,7 +272,7 @@ class MavlinkConfig(StrictModel):
     repeat_servo_cycle: Literal["seconds", "milliseconds"] = "seconds"
     command_hold_s: Float = Field(2.0, ge=0)
     mirror: MirrorConfig = MirrorConfig()
-    telemetry: TelemetryRates = TelemetryRates()
+    telemetry: TelemetryConfig = TelemetryConfig()
     request_streams: StreamRequestConfig = StreamRequestConfig()
     #: Output-only endpoints that get a copy of everything the bridge sends (mavservo monitor).
     monitor_outputs: list[str] = []
@@ -304,16 +312,18 @@ class MavlinkConfig(StrictModel):
 # ------------------------------------------------------------------------------------------- CAN
 
 
-def raise_option_problems(problems: list[tuple[str, str]]) -> None:
-    """Raise an ``options`` mapping's ``(key, message)`` problems as one error the loader
-    splits again, so that each is reported on its own key's line."""
+def raise_option_problems(problems: list[tuple[str, str]], field: str = "options") -> None:
+    """Raise the ``(key, message)`` problems of a mapping of options (``field``: a servo's
+    ``options``, a bus's ``node``) as one error the loader splits again, so that each is
+    reported on its own key's line."""
     if problems:
         raise PydanticCustomError(
             "profile_options",
             "{summary}",
             {
-                "summary": "; ".join(f"options.{k}: {m}" for k, m in problems),
+                "summary": "; ".join(f"{field}.{k}: {m}" for k, m in problems),
                 "problems": problems,
+                "field": field,
             },
         )
 
@@ -339,26 +349,48 @@ class BusConfig(StrictModel):
     """The bridge's own node on this bus, per family that has one, keyed by profile name
     (``node: {dronecan: {node_id: 100}}``); checked by that profile's ``NodeOptions``."""
 
-    @field_validator("node")
-    @classmethod
-    def _node_options_valid(cls, value: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
-        problems: list[str] = []
-        for name, options in value.items():
+    _node_options: tuple[dict[str, dict[str, Any]], dict[str, ProfileOptions]] | None = PrivateAttr(
+        None
+    )
+    """``(node mapping, typed)``: ``node`` as each family's ``NodeOptions``, validated once by
+    :meth:`_node_options_valid`, with what it was validated from."""
+
+    @model_validator(mode="after")
+    def _node_options_valid(self) -> BusConfig:
+        """Each ``node:`` entry checked by its family's ``NodeOptions``, once, and kept typed;
+        each problem on its own key's line."""
+        self._keep_node_options()
+        return self
+
+    def _keep_node_options(self) -> None:
+        problems: list[tuple[str, str]] = []
+        typed: dict[str, ProfileOptions] = {}
+        for name, options in self.node.items():
             family = node_family(get_profile(name))
             if family is None:
-                problems.append(f"node.{name}: profile {name!r} has no bus node")
+                problems.append((name, f"profile {name!r} has no bus node"))
                 continue
             try:
-                family.NodeOptions.model_validate(options)
+                typed[name] = family.NodeOptions.model_validate(options)
             except ValidationError as exc:
                 problems += [
-                    f"node.{name}.{'.'.join(str(p) for p in e['loc'])}: {e['msg']}, "
-                    f"found {e.get('input')!r}"
+                    (
+                        ".".join((name, *(str(p) for p in e["loc"]))),
+                        f"{e['msg']}, found {e.get('input')!r}",
+                    )
                     for e in exc.errors(include_url=False)
                 ]
-        if problems:
-            raise ValueError("; ".join(problems))
-        return value
+        raise_option_problems(problems, "node")
+        self._node_options = (self.node, typed)
+
+    def node_options(self) -> dict[str, ProfileOptions]:
+        """The bridge's node options on this bus by profile name, as validated from ``node``
+        (a family without an entry takes its ``NodeOptions`` defaults). A copy made with
+        another ``node`` (``model_copy(update=...)`` skips validation) is validated here."""
+        if self._node_options is None or self._node_options[0] is not self.node:
+            self._keep_node_options()
+        assert self._node_options is not None
+        return dict(self._node_options[1])
 
     @field_validator("interface")
     @classmethod
@@ -433,7 +465,8 @@ class ServoConfig(StrictModel):
 
     ``profile`` is any name the profile registry knows (built-in or plug-in), ``can_id`` must be
     in that profile's id range, and ``options`` is checked by the profile's own ``Options``
-    model (:func:`options_problems` gives each problem its key, so the loader prints its line).
+    model once, here (each problem with its key, so the loader prints its line); the typed
+    options are kept (:meth:`profile_options`), so no other layer parses them again.
     """
 
     name: Name
@@ -474,17 +507,35 @@ class ServoConfig(StrictModel):
             )
         return value
 
+    _options: tuple[str, dict[str, Any], ProfileOptions] | None = PrivateAttr(None)
+    """``(profile, options mapping, typed options)``: ``options`` validated once by
+    :meth:`_options_valid`, with what it was validated from."""
+
     @model_validator(mode="after")
     def _options_valid(self) -> ServoConfig:
-        raise_option_problems(options_problems(self.profile, self.options))
+        model = get_profile(self.profile).Options
+        try:
+            self._options = (self.profile, self.options, model.model_validate(self.options))
+        except ValidationError as exc:
+            raise_option_problems(
+                [_option_problem(model, error) for error in exc.errors(include_url=False)]
+            )
         return self
 
     def profile_options(self) -> ProfileOptions:
-        """The validated ``options`` as the profile's ``Options`` instance."""
-        return get_profile(self.profile).Options.model_validate(self.options)
+        """The validated ``options`` as the profile's ``Options`` instance (built once, when
+        the config was validated; options models are immutable, so it is shared). A copy
+        made with other options or another profile (``model_copy(update=...)``, which skips
+        validation) has them validated here, once."""
+        kept = self._options
+        if kept is None or kept[0] != self.profile or kept[1] is not self.options:
+            model = get_profile(self.profile).Options
+            kept = self._options = (self.profile, self.options, model.model_validate(self.options))
+        return kept[2]
 
     def make_profile(self) -> ServoProfile:
-        """A profile instance for this servo: its id and options."""
+        """A new profile instance for this servo (its id and its validated options): each
+        scheduler, check and simulator gets its own, since a profile keeps per-servo state."""
         profile = get_profile(self.profile)(self.can_id, self.profile_options())
         profile.telemetry_hz = self.telemetry_hz
         return profile
@@ -497,17 +548,6 @@ class ServoConfig(StrictModel):
                 f"neutral_deg {self.neutral_deg} is outside limits_deg [{low}, {high}]"
             )
         return self
-
-
-def options_problems(profile: str, options: dict[str, Any]) -> list[tuple[str, str]]:
-    """``(key, message)`` for every problem of a servo's ``options`` under its profile's
-    ``Options``: the key, what is wrong, the value found and the allowed keys or range."""
-    model = get_profile(profile).Options
-    try:
-        model.model_validate(options)
-    except ValidationError as exc:
-        return [_option_problem(model, error) for error in exc.errors(include_url=False)]
-    return []
 
 
 def _option_problem(model: type[BaseModel], error: Any) -> tuple[str, str]:

@@ -16,12 +16,12 @@ from mavservo.config.schema import (
     ServoConfig,
     ServoOutputChannel,
 )
-from mavservo.servos import FrameId, ServoProfile
+from mavservo.scheduling.bus_nodes import family_nodes
+from mavservo.servos import FrameId
 from mavservo.servos.base import (
     BusNodeError,
     ConfigWarnings,
     comm_timeout_of,
-    node_family,
     release_frames_of,
 )
 
@@ -262,31 +262,28 @@ def _bus_nodes(config: Config) -> Iterator[Finding]:
             for index, servo in enumerate(config.servos)
             if (servo.bus or config.can.buses[0].name) == bus.name
         ]
-        groups: dict[type[ServoProfile], list[tuple[int, ServoConfig]]] = {}
-        for index, servo in members:
-            groups.setdefault(type(servo.make_profile()), []).append((index, servo))
+        built = family_nodes([s.make_profile() for _, s in members], bus.node_options(), bus.name)
         for name in bus.node:
-            if not any(cls.name == name for cls in groups):
+            if not any(b.family == name for b in built):
                 yield (
                     ("can", "buses", bus_index, "node", name),
                     f"bus {bus.name!r} has no {name} servo: its node options do nothing; "
                     "remove them or put the servos on this bus",
                 )
-        for cls, group in groups.items():
-            family = node_family(cls)
-            if family is None:
+        for b in built:
+            exc = b.error
+            if exc is None:
                 continue
-            options = family.NodeOptions.model_validate(bus.node.get(cls.name, {}))
-            try:
-                family.bus_node([s.make_profile() for _, s in group], options, (0, 0), 0.0)
-            except BusNodeError as exc:
-                if exc.servo is None:
-                    path: tuple[str | int, ...] = ("can", "buses", bus_index, "node", cls.name)
-                    if cls.name in bus.node:
-                        path += tuple(exc.key.split("."))
-                else:
-                    path = ("servos", group[exc.servo][0], *exc.key.split("."))
-                yield (path, f"{exc} (bus {bus.name!r})")
+            if not isinstance(exc, BusNodeError):  # a refusal that names no key: the node's
+                yield (("can", "buses", bus_index, "node", b.family), f"{exc} (bus {bus.name!r})")
+                continue
+            if exc.servo is None:
+                path: tuple[str | int, ...] = ("can", "buses", bus_index, "node", b.family)
+                if b.family in bus.node:
+                    path += tuple(exc.key.split("."))
+            else:
+                path = ("servos", members[b.members[exc.servo]][0], *exc.key.split("."))
+            yield (path, f"{exc} (bus {bus.name!r})")
 
 
 def _collision_message(

@@ -15,7 +15,7 @@ if TYPE_CHECKING:
     from .commands import ACTUATORS_PER_SET
     from .connection import mavlink2, open_connection
     from .ftp import crc32
-    from .gimbal import GimbalDevice, settings_from_config
+    from .gimbal import GimbalDevice, GimbalSettings
     from .metadata_service import (
         COMP_METADATA_TYPE_PARAMETER,
         GENERAL_FILE,
@@ -26,10 +26,12 @@ if TYPE_CHECKING:
     from .quaternion import euler_to_quaternion, quaternion_to_euler
     from .settings import MavlinkSettings, SigningSettings, TelemetryRates
     from .side import MavlinkSide
-    from .stream_request import WINDOW_S
+    from .stream_request import WINDOW_S, StreamRequestSettings
     from .telemetry import AUTO_ESC_FIRST
 
 __all__ = [
+    "StreamRequestSettings",
+    "GimbalSettings",
     "ACCEPTED",
     "ACTUATORS_PER_SET",
     "AUTO_ESC_FIRST",
@@ -57,11 +59,12 @@ __all__ = [
     "open_connection",
     "plan_budget",
     "quaternion_to_euler",
-    "settings_from_config",
 ]
 __getattr__ = lazy_face(
     __name__,
     {
+        "StreamRequestSettings": "settings",
+        "GimbalSettings": "gimbal",
         "ACCEPTED": "backend",
         "ACTUATORS_PER_SET": "commands",
         "AUTO_ESC_FIRST": "telemetry",
@@ -89,6 +92,5 @@ __getattr__ = lazy_face(
         "open_connection": "connection",
         "plan_budget": "bandwidth",
         "quaternion_to_euler": "quaternion",
-        "settings_from_config": "gimbal",
     },
 )

@@ -196,44 +196,6 @@ class GimbalSettings:
         return (0.0, self.limits("pitch")[0], 0.0)
 
 
-def settings_from_config(
-    gimbal: Any,
-    servo_limits_deg: dict[str, tuple[float, float]],
-    *,
-    status_rate_hz: float = 10.0,
-    system_id: int | None = None,
-) -> GimbalSettings:
-    """Build :class:`GimbalSettings` from a ``mavservo.config.GimbalConfig``.
-
-    The config lets a gimbal omit an axis's limits, meaning "the servo's own limits", so the
-    servos' ``limits_deg`` (by servo name) are passed in; ``status_rate_hz`` comes from the
-    MAVLink config's ``gimbal_attitude_status_hz`` and ``system_id`` from its ``system_id``
-    (None when it follows the autopilot). Duck-typed so this module does not import the config
-    layer.
-    """
-    axis_servos = dict(gimbal.axes())
-    limits: dict[str, tuple[float, float]] = {}
-    for axis, servo in axis_servos.items():
-        own = getattr(gimbal.limits_deg, axis)
-        low, high = own if own is not None else servo_limits_deg.get(servo, (-180.0, 180.0))
-        limits[axis] = (float(low), float(high))
-    return GimbalSettings(
-        name=gimbal.name,
-        axis_servos=axis_servos,
-        limits_deg=limits,
-        component_id=gimbal.component_id,
-        act_as_manager=gimbal.act_as_manager,
-        vendor_name=gimbal.vendor_name,
-        model_name=gimbal.model_name,
-        status_rate_hz=status_rate_hz,
-        retract_pose_deg=(
-            None if gimbal.retract_pose_deg is None else tuple(gimbal.retract_pose_deg)
-        ),
-        neutral_pose_deg=tuple(gimbal.neutral_pose_deg),
-        system_id=system_id,
-    )
-
-
 class Mode(enum.Enum):
     """What kind of demand is in effect."""
 

@@ -11,12 +11,13 @@ from mavservo.faces import lazy_face
 # name imported from its module on first use (:func:`mavservo.faces.lazy_face`); the modules'
 # other names are the package's own business.
 if TYPE_CHECKING:
-    from .bus_nodes import node_unique_id, software_version
+    from .bus_nodes import family_nodes, node_unique_id, software_version
     from .busload import FrameFlow, frame_time, load_ratio, message_bits, servo_traffic
     from .runner import Scheduler, SchedulerObserver, WriteObserver
     from .schedule_core import STARTUP_RETRY_S, FrameKind, ServoSpec, SetpointResult, TimingConfig
 
 __all__ = [
+    "family_nodes",
     "FrameFlow",
     "FrameKind",
     "STARTUP_RETRY_S",
@@ -36,6 +37,7 @@ __all__ = [
 __getattr__ = lazy_face(
     __name__,
     {
+        "family_nodes": "bus_nodes",
         "FrameFlow": "busload",
         "FrameKind": "schedule_core",
         "STARTUP_RETRY_S": "schedule_core",

@@ -14,12 +14,13 @@ from __future__ import annotations
 import hashlib
 import socket
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import can
 
-from mavservo.servos.base import BusNode, NodeHealth, ServoProfile, node_family
+from mavservo.servos.base import BusNode, NodeHealth, ProfileOptions, ServoProfile, node_family
 
 from .busload import FrameFlow
 from .schedule_core import Outgoing, ScheduleError, ServoSpec, TimingConfig
@@ -72,6 +73,53 @@ def command_hz(spec: ServoSpec, timing: TimingConfig) -> float:
     return hz
 
 
+@dataclass
+class FamilyNode:
+    """The servos of one family on one bus and the node they share (see :func:`family_nodes`)."""
+
+    family: str
+    """The profile name (the key of the bus's ``node:`` options)."""
+    members: list[int]
+    """Indices of its servos in the list given to :func:`family_nodes`."""
+    node: BusNode | None
+    """The node, or None: the family builds none, or it refused (``error``)."""
+    error: ValueError | None = None
+    """Why the family refused its servos or options (a :class:`BusNodeError` names the key)."""
+
+
+def family_nodes(
+    profiles: Sequence[ServoProfile],
+    options: Mapping[str, ProfileOptions],
+    bus: str,
+    now: float = 0.0,
+) -> list[FamilyNode]:
+    """Group the servos of one bus by family and build each family's bus node (DroneCAN: one
+    node for all its servos) from the bus's validated ``node:`` options: the one place this is
+    done, for the scheduler, the bus-load budget and the config's checks alike. A refusal is
+    returned, not raised, for each caller to report in its own terms."""
+    groups: dict[type[ServoProfile], list[int]] = {}
+    for index, profile in enumerate(profiles):
+        groups.setdefault(type(profile), []).append(index)
+    built: list[FamilyNode] = []
+    for cls, members in groups.items():
+        family = node_family(cls)
+        if family is None:
+            continue
+        try:
+            node = family.bus_node(
+                [profiles[i] for i in members],
+                options.get(cls.name) or family.NodeOptions(),
+                software_version(),
+                now,
+                node_unique_id(bus),
+            )
+        except ValueError as exc:  # BusNodeError names the servo or option at fault
+            built.append(FamilyNode(cls.name, members, None, exc))
+            continue
+        built.append(FamilyNode(cls.name, members, node))
+    return built
+
+
 class BusNodes:
     """The nodes of one bus, their servos and their traffic (module docstring)."""
 
@@ -80,7 +128,7 @@ class BusNodes:
         bus: str,
         servos: Sequence[ServoSpec],
         timing: TimingConfig,
-        options: Mapping[str, Mapping[str, Any]],
+        options: Mapping[str, ProfileOptions],
         now: float,
     ) -> None:
         self.nodes: list[tuple[str, BusNode, list[str]]] = []
@@ -90,24 +138,16 @@ class BusNodes:
         """What the nodes put on the bus (their heartbeat, the packed commands), for the
         budget; the servos in :attr:`node_of` are not counted for their own commands."""
         self._notices: list[str] = []
-        groups: dict[type[ServoProfile], list[ServoSpec]] = {}
-        for spec in servos:
-            groups.setdefault(type(spec.profile), []).append(spec)
-        for cls, group in groups.items():
-            family = node_family(cls)
-            if family is None:
+        for built in family_nodes([spec.profile for spec in servos], options, bus, now):
+            if built.error is not None:
+                raise ScheduleError(
+                    f"bus {bus}: {built.family} node: {built.error}"
+                ) from built.error
+            if built.node is None:
                 continue
-            try:
-                node_options = family.NodeOptions.model_validate(dict(options.get(cls.name, {})))
-                profiles = [spec.profile for spec in group]
-                node = family.bus_node(
-                    profiles, node_options, software_version(), now, node_unique_id(bus)
-                )
-            except ValueError as exc:  # pydantic's ValidationError is one
-                raise ScheduleError(f"bus {bus}: {cls.name} node: {exc}") from exc
-            if node is None:
-                continue
-            self.nodes.append((cls.name, node, [spec.name for spec in group]))
+            group = [servos[i] for i in built.members]
+            node = built.node
+            self.nodes.append((built.family, node, [spec.name for spec in group]))
             self.node_of.update((spec.name, node) for spec in group)
             hz = max(command_hz(spec, timing) for spec in group)
             self.flows += [

@@ -46,7 +46,14 @@ from mavservo.scheduling.schedule_core import (
     TimingConfig,
     exchange_key,
 )
-from mavservo.servos.base import Advising, BusNode, Fault, ServoState, node_reports_of
+from mavservo.servos.base import (
+    Advising,
+    BusNode,
+    Fault,
+    ProfileOptions,
+    ServoState,
+    node_reports_of,
+)
 
 from .bus_nodes import BusNodes
 from .busload import message_bits
@@ -211,7 +218,7 @@ class Scheduler:
         clock: Callable[[], float] = time.monotonic,
         observer: SchedulerObserver | None = None,
         name: str | None = None,
-        node_options: Mapping[str, Mapping[str, Any]] | None = None,
+        node_options: Mapping[str, ProfileOptions] | None = None,
     ) -> None:
         self.timing = timing or TimingConfig()
         self.name = name or str(bus.channel_info)

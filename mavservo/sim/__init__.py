@@ -19,12 +19,13 @@ from .virtual import VirtualServoBus
 # ``python -m`` entry point, and importing it with the package made runpy warn in every child it
 # started; the others are what the layer above uses (``tests/test_package_faces.py``).
 if TYPE_CHECKING:
-    from .autopilot.factory import simulator_from_config
+    from .autopilot.factory import simulator_for, simulator_from_config
     from .bus_simulation import simulator_factory
     from .child import SimulatorProcess
     from .pty_adapter import PtyAdapter
 
 __all__ = [
+    "simulator_for",
     "AdapterEmulator",
     "Faults",
     "LineFaults",
@@ -40,6 +41,7 @@ __all__ = [
 __getattr__ = lazy_face(
     __name__,
     {
+        "simulator_for": "autopilot.factory",
         "PtyAdapter": "pty_adapter",
         "SimulatorProcess": "child",
         "simulator_factory": "bus_simulation",

@@ -37,7 +37,12 @@ def wired_servos(config: Config, bus_name: str) -> list[SimServo]:
             continue
         physics, faults = config.simulated_settings(servo)
         profile = tuning.profile or servo.profile
-        options = tuning.options if tuning.options is not None else servo.options
+        # the servo's own options were validated with the config; only wired ones are new input
+        if tuning.options is None and profile == servo.profile:
+            options = servo.profile_options()
+        else:
+            raw = tuning.options if tuning.options is not None else servo.options
+            options = get_profile(profile).Options.model_validate(raw)
         out.append(
             SimServo(
                 profile,
@@ -46,7 +51,7 @@ def wired_servos(config: Config, bus_name: str) -> list[SimServo]:
                 Faults.from_dict(faults),
                 seed=index,
                 status_rate_hz=servo.telemetry_hz,
-                options=get_profile(profile).Options.model_validate(options),
+                options=options,
             )
         )
     return out

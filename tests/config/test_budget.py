@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from mavservo.app.bridge import servo_specs, timing_config
 from mavservo.config import bus_loads, default_config_path, load_config, load_config_text
 from mavservo.config.budget import servo_flows
+from mavservo.config.views import servo_specs, timing_config
 from mavservo.scheduling.schedule_core import ScheduleCore
 
 

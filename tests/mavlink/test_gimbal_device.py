@@ -538,11 +538,10 @@ gimbals:
 
 def test_settings_from_a_gimbal_config():
     from mavservo.config import load_config_text
-    from mavservo.mavlink.gimbal import settings_from_config
+    from mavservo.config.views import gimbal_settings as settings_of
 
-    config = load_config_text(GIMBAL_YAML, "gimbal.yaml")
-    servo_limits = {servo.name: tuple(servo.limits_deg) for servo in config.servos}
-    gimbal_settings = settings_from_config(config.gimbals[0], servo_limits, status_rate_hz=20.0)
+    yaml = GIMBAL_YAML + "mavlink: {telemetry: {gimbal_attitude_status_hz: 20}}\n"
+    [gimbal_settings] = settings_of(load_config_text(yaml, "gimbal.yaml"))
     assert gimbal_settings.axis_servos == AXIS_SERVOS
     assert gimbal_settings.limits_deg == LIMITS
     assert gimbal_settings.retract_pose() == (0.0, -90.0, 0.0)

@@ -17,6 +17,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from mavservo.app.console import format_summary
 from mavservo.config.loader import ConfigError, load_config
+from mavservo.config.views import mavlink_settings
 from mavservo.mavlink.settings import MavlinkSettings, StreamRequestSettings
 from mavservo.mavlink.side import MavlinkSide
 from mavservo.mavlink.stream_request import (
@@ -249,8 +250,7 @@ def _config(tmp_path: Path, mavlink_extra: str, scheduler: str = "") -> Path:
 
 def test_defaults_ask_for_the_command_rate_of_the_scheduler(tmp_path: Path) -> None:
     cfg = load_config(_config(tmp_path, "", "scheduler: {command_period_s: 0.04}\n"))
-    raw = cfg.mavlink.model_dump(mode="python")
-    settings = MavlinkSettings.from_mapping(raw, command_period_s=0.04).stream_request
+    settings = mavlink_settings(cfg).stream_request
     assert settings.enabled is True
     assert settings.rates_hz == {"SERVO_OUTPUT_RAW": pytest.approx(25.0)}
     assert settings.min_hz == {"SERVO_OUTPUT_RAW": pytest.approx(18.75)}
@@ -279,12 +279,15 @@ def test_bad_request_streams_keys_are_refused_with_their_line(
 
 
 def _bridge(port: int, enabled: bool, heartbeat_timeout_s: float) -> MavlinkSide:
-    raw = {
-        "url": f"udpin:127.0.0.1:{port}",
-        "heartbeat_timeout_s": heartbeat_timeout_s,
-        "request_streams": {"enabled": enabled},
-    }
-    return MavlinkSide(MavlinkSettings.from_mapping(raw, command_period_s=0.05), RecordingBackend())
+    settings = MavlinkSettings(
+        url=f"udpin:127.0.0.1:{port}",
+        heartbeat_timeout_s=heartbeat_timeout_s,
+        command_period_s=0.05,
+        stream_request=StreamRequestSettings.for_mirror(
+            ("SERVO_OUTPUT_RAW",), 0.05, enabled=enabled
+        ),
+    )
+    return MavlinkSide(settings, RecordingBackend())
 
 
 def _requests_seen(ap: AutopilotStream) -> list:
@@ -375,7 +378,11 @@ def test_recorded_arduplane_link_reads_its_real_rate_and_no_false_reboot() -> No
 
     path = TEST_DATA / "plane-servos.tlog"
     log = mavutil.mavlink_connection(str(path), dialect="ardupilotmega")
-    settings = MavlinkSettings.from_mapping({"heartbeat_timeout_s": 3.0}, command_period_s=0.05)
+    settings = MavlinkSettings(
+        heartbeat_timeout_s=3.0,
+        command_period_s=0.05,
+        stream_request=StreamRequestSettings.for_mirror(("SERVO_OUTPUT_RAW",), 0.05),
+    )
     core: MavlinkCore | None = None
     requests = []
     for _ in range(10_000):  # the file holds 4,462 messages

@@ -10,6 +10,7 @@ listeners bind every address) in a network namespace that has only ``lo``::
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import shutil
 import signal
@@ -20,6 +21,7 @@ from pathlib import Path
 import pytest
 
 from mavservo.config.loader import load_config
+from mavservo.config.views import mavlink_settings
 from mavservo.mavlink.connection import mavlink2 as mav
 from mavservo.mavlink.settings import MavlinkSettings
 from mavservo.mavlink.side import MavlinkSide
@@ -320,9 +322,8 @@ def _launch(tmp_path: Path, port: int, env: dict[str, str] | None = None) -> sub
 def _bridge_settings(port: int) -> MavlinkSettings:
     """The MAVLink settings of config/ardupilot-sitl.yaml, on this test's port."""
     cfg = load_config(SITL_CONFIG)
-    raw = dict(cfg.mavlink.model_dump(mode="python"), url=f"udpin:127.0.0.1:{port}")
-    raw["signing"] = None
-    return MavlinkSettings.from_mapping(raw, command_period_s=cfg.scheduler.command_period_s)
+    settings = mavlink_settings(cfg)
+    return dataclasses.replace(settings, url=f"udpin:127.0.0.1:{port}", signing=None)
 
 
 def _stop(proc: subprocess.Popen) -> int | None:

@@ -26,6 +26,7 @@ import pytest
 from dronecan.driver.common import AbstractDriver, CANFrame
 
 from mavservo.scheduling.runner import Scheduler, ServoSpec, TimingConfig
+from mavservo.servos.dronecan.node import NodeOptions
 from mavservo.servos.dronecan.profile import DroneCanServo
 from mavservo.sim.adapter import AdapterEmulator
 
@@ -152,7 +153,7 @@ def test_independent_library_node_on_a_virtual_bus() -> None:
     )
     bus = can.Bus(interface="virtual", channel=channel)
     scheduler = Scheduler(
-        bus, specs(), TIMING, name="vbus", node_options={"dronecan": {"node_id": BRIDGE_ID}}
+        bus, specs(), TIMING, name="vbus", node_options={"dronecan": NodeOptions(node_id=BRIDGE_ID)}
     )
     try:
         with scheduler:
@@ -254,7 +255,11 @@ def test_independent_library_node_over_aa55_and_the_adapter_emulator() -> None:
     with library_node_behind_an_adapter() as (participant, emulator):
         bus = can.Bus(interface="aa55", channel=emulator.path, bitrate=1_000_000)
         scheduler = Scheduler(
-            bus, specs(), TIMING, name="aa55", node_options={"dronecan": {"node_id": BRIDGE_ID}}
+            bus,
+            specs(),
+            TIMING,
+            name="aa55",
+            node_options={"dronecan": NodeOptions(node_id=BRIDGE_ID)},
         )
         try:
             with scheduler:

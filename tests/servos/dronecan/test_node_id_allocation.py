@@ -218,7 +218,7 @@ def allocating_scheduler(bus: can.BusABC) -> Scheduler:
         bus,
         [spec],
         TimingConfig(reply_timeout_s=0.5),
-        node_options={"dronecan": {"node_id": 100, "allocator": True}},
+        node_options={"dronecan": NodeOptions(node_id=100, allocator=True)},
     )
 
 

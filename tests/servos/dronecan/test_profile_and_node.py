@@ -416,8 +416,8 @@ def test_budget_counts_packed_transfers_status_frames_and_every_nodes_heartbeat(
     transfer per slot, two frames per Status at 10 Hz each, NodeStatus from 4 servo nodes and
     the bridge; the bridge's GetNodeInfo answers at their bound (4 a second, 9 frames each);
     every frame 29-bit, counted at 8 bytes."""
-    from mavservo.app.bridge import servo_specs, timing_config
     from mavservo.config import bus_loads, load_config
+    from mavservo.config.views import servo_specs, timing_config
     from mavservo.scheduling.busload import frame_bits
 
     config = load_config("config/dronecan.yaml")
@@ -431,7 +431,10 @@ def test_budget_counts_packed_transfers_status_frames_and_every_nodes_heartbeat(
         from mavservo.scheduling.runner import Scheduler
 
         scheduler = Scheduler(
-            vbus, servo_specs(config, bus.name), timing_config(config, bus), node_options=bus.node
+            vbus,
+            servo_specs(config, bus.name),
+            timing_config(config, bus),
+            node_options=bus.node_options(),
         )
         assert scheduler.worst_case_load == pytest.approx(expected)
 
@@ -672,7 +675,7 @@ def test_a_nodes_notices_reach_the_bridge_with_no_frame_on_the_bus() -> None:
     servo = DroneCanServo(20, firmware="ardupilot", command="pwm")
     with can.Bus(interface="virtual", channel="dronecan-notices-quiet") as vbus:
         scheduler = Scheduler(
-            vbus, [ServoSpec("s1", servo)], TimingConfig(), node_options={"dronecan": {}}
+            vbus, [ServoSpec("s1", servo)], TimingConfig(), node_options={"dronecan": NodeOptions()}
         )
         [notice] = scheduler.take_notices()
         assert "SAFETY_OFF" in notice and "will not move" in notice
