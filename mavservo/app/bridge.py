@@ -441,7 +441,7 @@ class Bridge:
             gimbals,
             on_event=self._note,
             parameters=self.parameters,
-            metadata_files=metadata_files(cfg),  # gcs: parameter metadata over FTP (issue 30)
+            metadata_files=metadata_files(cfg, self._parameter_base),  # issue 30, 32
         )
 
     def _parameters_not_saved(self, text: str) -> None:

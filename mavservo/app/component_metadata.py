@@ -81,9 +81,11 @@ def general_metadata(component_id: int, parameter_file: bytes) -> dict[str, Any]
     return general
 
 
-def metadata_files(config: Config) -> dict[int, dict[str, bytes]]:
-    """Component id -> served files: the servo component's and each gimbal component's."""
-    table = parameter_table(config)
+def metadata_files(config: Config, envelope: Config | None = None) -> dict[int, dict[str, bytes]]:
+    """Component id -> served files: the servo component's and each gimbal component's; the
+    angle parameters' ranges are ``envelope``'s limits (the config file's), what a PARAM_SET
+    may take."""
+    table = parameter_table(config, envelope)
     groups = {config.mavlink.servo_component_id: table}
     for gimbal in config.gimbals:
         groups[gimbal.component_id] = [p for p in table if p.component == gimbal.name]

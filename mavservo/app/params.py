@@ -65,7 +65,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConfigError as exc:
         print(f"mavservo: invalid configuration\n{exc}", file=sys.stderr)
         return EXIT_INVALID
-    table = parameter_table(loaded.config)
+    table = parameter_table(loaded.config, loaded.base)
     if args.metadata:
         Path(args.metadata).write_text(json.dumps(metadata(table), indent=2) + "\n")
         print(f"wrote the metadata of {len(table)} parameters to {args.metadata}")

@@ -61,25 +61,60 @@ class Parameter:
     write: Callable[[RawConfig, float], None]
     values: Mapping[int, str] | None = None
     integral: bool = False
+    range_note: str = ""
+    """Why the range is what it is, said with a value outside it."""
 
     def __post_init__(self) -> None:
         if len(self.name) > MAX_NAME_LENGTH:
             raise ValueError(f"parameter name {self.name!r} is longer than {MAX_NAME_LENGTH}")
 
 
-def parameter_table(config: Config) -> list[Parameter]:
-    """Every parameter of ``config``, in the order a PARAM_REQUEST_LIST sends them."""
+def parameter_table(config: Config, envelope: Config | None = None) -> list[Parameter]:
+    """Every parameter of ``config``, in the order a PARAM_REQUEST_LIST sends them.
+
+    ``envelope``: the config file as written (``config`` itself when None). The angle
+    parameters (limits, failsafe position, gimbal limits) range over its limits, so the range a
+    ground station shows (the component metadata) is what a PARAM_SET may take: before, they
+    showed +-36,000 deg and every value past the file's limits was refused."""
+    outer = config if envelope is None else envelope
     table: list[Parameter] = []
     for number, servo in enumerate(config.servos, start=1):
-        table.extend(_servo_parameters(config, number, servo.name))
+        table.extend(_servo_parameters(config, number, servo.name, _servo_span(outer, servo.name)))
     for number, gimbal in enumerate(config.gimbals, start=1):
-        table.extend(_gimbal_parameters(number, gimbal.name))
+        table.extend(_gimbal_parameters(number, gimbal.name, _gimbal_spans(outer, gimbal.name)))
     table.extend(_telemetry_parameters())
     return table
 
 
-def parameters_by_name(config: Config) -> dict[str, Parameter]:
-    return {p.name: p for p in parameter_table(config)}
+def parameters_by_name(config: Config, envelope: Config | None = None) -> dict[str, Parameter]:
+    return {p.name: p for p in parameter_table(config, envelope)}
+
+
+def _servo_span(envelope: Config, servo: str) -> tuple[float, float]:
+    """The angles a servo's limit and failsafe parameters may take: its limits in the file
+    (the whole angle span for a servo the file does not have)."""
+    for candidate in envelope.servos:
+        if candidate.name == servo:
+            low, high = candidate.limits_deg
+            return float(low), float(high)
+    return -_ANGLE_SPAN, _ANGLE_SPAN
+
+
+def _gimbal_spans(envelope: Config, gimbal: str) -> dict[str, tuple[float, float]]:
+    """Per axis, the angles the gimbal's limit parameters may take: the file's limit of the
+    axis (its own, or its servo's when the gimbal names none)."""
+    spans: dict[str, tuple[float, float]] = {}
+    for candidate in envelope.gimbals:
+        if candidate.name != gimbal:
+            continue
+        for axis, _ in _AXES:
+            limits = getattr(candidate.limits_deg, axis)
+            servo = getattr(candidate, axis)
+            if limits is not None:
+                spans[axis] = (float(limits[0]), float(limits[1]))
+            elif servo is not None:
+                spans[axis] = _servo_span(envelope, servo)
+    return spans
 
 
 def current_values(config: Config) -> dict[str, float]:
@@ -99,7 +134,7 @@ def with_values(
     not finite, outside the parameter's range, not one of its values, or that the config's own
     rules (models, cross-section checks, bus-load budget) refuse.
     """
-    table = parameters_by_name(config)
+    table = parameters_by_name(config, envelope)
     raw = config.model_dump()
     for name, value in values.items():
         parameter = table.get(name)
@@ -198,6 +233,7 @@ def _check_value(parameter: Parameter, value: float) -> None:
         raise ParameterError(
             f"{parameter.name}: {value:g} is outside {parameter.minimum:g}..{parameter.maximum:g}"
             f"{' ' + parameter.unit if parameter.unit else ''}"
+            f"{' (' + parameter.range_note + ')' if parameter.range_note else ''}"
         )
     if parameter.integral and value != int(value):
         raise ParameterError(f"{parameter.name}: {value:g} is not a whole number")
@@ -210,9 +246,12 @@ def _check_value(parameter: Parameter, value: float) -> None:
 
 #: Angles a servo parameter may take at all; the config's rules narrow this further.
 _ANGLE_SPAN = 36_000.0
+ENVELOPE_NOTE = "the config file's limits: a parameter may narrow them, never widen them"
 
 
-def _servo_parameters(config: Config, number: int, servo: str) -> list[Parameter]:
+def _servo_parameters(
+    config: Config, number: int, servo: str, span: tuple[float, float]
+) -> list[Parameter]:
     prefix = f"SRV{number}_"
     index = number - 1
 
@@ -290,21 +329,23 @@ def _servo_parameters(config: Config, number: int, servo: str) -> list[Parameter
             prefix + "MIN",
             "servo",
             "deg",
-            -_ANGLE_SPAN,
-            _ANGLE_SPAN,
+            span[0],
+            span[1],
             f"{servo}: soft lower limit; no command goes below it",
             lambda c: servo_of(c).limits_deg[0],
             set_limit(0),
+            range_note=ENVELOPE_NOTE,
         ),
         Parameter(
             prefix + "MAX",
             "servo",
             "deg",
-            -_ANGLE_SPAN,
-            _ANGLE_SPAN,
+            span[0],
+            span[1],
             f"{servo}: soft upper limit; no command goes above it",
             lambda c: servo_of(c).limits_deg[1],
             set_limit(1),
+            range_note=ENVELOPE_NOTE,
         ),
         Parameter(
             prefix + "REV",
@@ -347,11 +388,12 @@ def _servo_parameters(config: Config, number: int, servo: str) -> list[Parameter
             prefix + "FS_POS",
             "servo",
             "deg",
-            -_ANGLE_SPAN,
-            _ANGLE_SPAN,
+            span[0],
+            span[1],
             f"{servo}: angle of failsafe action 'position' (unset reads as the neutral angle)",
             failsafe_position,
             set_servo(("failsafe", "position_deg")),
+            range_note=ENVELOPE_NOTE,
         ),
         Parameter(
             prefix + "FS_TMO",
@@ -372,22 +414,26 @@ def _servo_parameters(config: Config, number: int, servo: str) -> list[Parameter
 _AXES = (("roll", "ROL"), ("pitch", "PIT"), ("yaw", "YAW"))
 
 
-def _gimbal_parameters(number: int, gimbal: str) -> list[Parameter]:
+def _gimbal_parameters(
+    number: int, gimbal: str, spans: Mapping[str, tuple[float, float]]
+) -> list[Parameter]:
     index = number - 1
     table = []
     for axis, short in _AXES:
+        low, high = spans.get(axis, (-_ANGLE_SPAN, _ANGLE_SPAN))
         for side, word in ((0, "MIN"), (1, "MAX")):
             table.append(
                 Parameter(
                     f"GMB{number}_{short}_{word}",
                     gimbal,
                     "deg",
-                    -_ANGLE_SPAN,
-                    _ANGLE_SPAN,
+                    low,
+                    high,
                     f"gimbal {gimbal}: {axis} {'lower' if side == 0 else 'upper'} limit "
                     "(unset reads as the axis servo's limit)",
                     _gimbal_limit_reader(index, axis, side),
                     _gimbal_limit_writer(index, axis, side),
+                    range_note=ENVELOPE_NOTE,
                 )
             )
     return table

@@ -58,3 +58,33 @@ def test_the_metadata_file_validates_against_mavlinks_parameter_schema() -> None
     schema = json.loads((TEST_DATA / "component_metadata" / "parameter.schema.json").read_text())
     table = parameter_table(load_config_text(CONFIG, "<test>"))
     jsonschema.validate(parameter_metadata(table), schema)
+
+
+def test_the_ranges_a_gcs_sees_are_what_a_set_accepts() -> None:
+    """The metadata a ground station reads gave the limit and failsafe angles +-36,000 deg
+    while a PARAM_SET past the file's limits was refused (review3): each angle parameter now
+    ranges over the file's limits, and with the file as the envelope the edges are accepted
+    and a step past them is refused, naming the file's limits."""
+    import pytest
+
+    from mavservo.config.parameters import ParameterError, with_values
+
+    text = CONFIG.replace(
+        "{name: aileron, profile: rmd-x, can_id: 1}",
+        "{name: aileron, profile: rmd-x, can_id: 1, limits_deg: [-25, 35]}",
+    ).replace("yaw: pan, pitch: tilt}", "yaw: pan, pitch: tilt, limits_deg: {yaw: [-80, 80]}}")
+    config = load_config_text(text, "<test>")
+    shown = {
+        p["name"]: p for p in parameter_metadata(parameter_table(config, config))["parameters"]
+    }
+    for name in ("SRV1_MIN", "SRV1_MAX", "SRV1_FS_POS"):
+        assert (shown[name]["min"], shown[name]["max"]) == (-25.0, 35.0), name
+    assert (shown["GMB1_YAW_MIN"]["min"], shown["GMB1_YAW_MAX"]["max"]) == (-80.0, 80.0)
+    narrowed = with_values(config, {"SRV1_MIN": -10.0}, envelope=config)
+    assert (
+        with_values(narrowed, {"SRV1_MIN": -25.0}, envelope=config).servos[0].limits_deg[0] == -25
+    )
+    with pytest.raises(ParameterError, match="outside -25..35 deg .the config file's limits"):
+        with_values(narrowed, {"SRV1_MIN": -25.5}, envelope=config)
+    with pytest.raises(ParameterError, match="outside -80..80 deg"):
+        with_values(config, {"GMB1_YAW_MAX": 81.0}, envelope=config)

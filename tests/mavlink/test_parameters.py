@@ -76,7 +76,7 @@ def test_a_value_set_is_the_value_read_back_and_lands_in_the_config() -> None:
     ("values", "reason"),
     [
         ({"SRV1_TRIM": 100.0}, "outside output_deg"),
-        ({"SRV1_MIN": 50.0}, "low < high"),
+        ({"SRV1_MIN": 30.0}, "low < high"),
         ({"SRV1_REV": 0.5}, "not a whole number"),
         ({"SRV1_FS_ACT": 7.0}, "outside 0..3"),
         ({"SRV1_TRIM": math.nan}, "not a finite number"),
@@ -152,7 +152,7 @@ def test_an_overlay_that_no_longer_fits_names_its_line(tmp_path: Path) -> None:
     overlay_path(path).write_text("SRV1_TRIM: 1\nSRV99_TRIM: 2\n")
     with pytest.raises(ConfigError, match=r"rig.params.yaml:2: SRV99_TRIM: no such parameter"):
         load_config_with_overlay(path)
-    overlay_path(path).write_text("SRV1_TRIM: 1\nSRV1_MIN: 99\n")
+    overlay_path(path).write_text("SRV1_TRIM: 1\nSRV1_MIN: 30\n")
     with pytest.raises(ConfigError, match=r"rig.params.yaml:2: SRV1_MIN: .*low < high"):
         load_config_with_overlay(path)
 
