@@ -131,6 +131,7 @@ SIGNED = """
 mavlink:
   url: "udpin:127.0.0.1:{port}"
   signing: {{key: "{key}"}}
+  link_budget_bytes_s: 20000  # the servo's values within the monitor's 4 s, whatever the load
 servos:
   - {{name: aileron, profile: rmd-x, can_id: 1, limits_deg: [-30, 30], telemetry_hz: 10}}
 """
