@@ -16,8 +16,8 @@ from __future__ import annotations
 import dataclasses
 import logging
 from collections import Counter
-from collections.abc import Callable, Mapping, Sequence
-from typing import Any
+from collections.abc import Callable, Mapping, Sequence, Sized
+from typing import Any, TypeVar
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
@@ -56,6 +56,9 @@ from mavservo.mavlink.telemetry import (
 )
 
 log = logging.getLogger(__name__)
+
+_T = TypeVar("_T")
+"""What one part of the tick returns a sequence of (see :meth:`MavlinkCore._guarded`)."""
 
 MAV_TYPE_GCS = 6
 MAV_AUTOPILOT_INVALID = 8
@@ -259,7 +262,7 @@ class MavlinkCore:
         )
         self.budget.replan(self._plan(rates), now)
 
-    def _plan(self, rates: Any) -> BudgetPlan:
+    def _plan(self, rates: TelemetryRates) -> BudgetPlan:
         return plan_budget(
             self.settings.link_budget_bytes_s,
             servos=_safe_len(self.backend.servo_statuses),
@@ -360,7 +363,7 @@ class MavlinkCore:
                 MAV_SEVERITY_CRITICAL, "servo bridge: autopilot lost, servos in failsafe"
             )
         if not self.watchdog.in_failsafe:
-            self._guarded("commands", lambda: self.commands.tick(now))
+            self._guarded("commands", self.commands.tick, now)
             for gimbal, text in self.discovery.due(now):
                 self.counters["gimbal_not_found"] += 1
                 log.warning(
@@ -395,7 +398,9 @@ class MavlinkCore:
         """SET_MESSAGE_INTERVAL commands due now (sent from the servo component)."""
         return [set_message_interval(*request) for request in self.streams.tick(now)]
 
-    def _guarded(self, part: str, step: Callable[..., Any], *args: Any) -> Any:
+    def _guarded(
+        self, part: str, step: Callable[[float], Sequence[_T] | None], now: float
+    ) -> Sequence[_T]:
         """Run one part of the tick; an exception there costs only that part's output.
 
         The tick thread is the only source of heartbeats: a NaN one servo reported once killed
@@ -403,7 +408,7 @@ class MavlinkCore:
         logged with its traceback, every one is counted (``tick_errors``).
         """
         try:
-            result = step(*args)
+            result = step(now)
         except Exception:  # noqa: BLE001 - whatever fails, the other parts must go on
             self.counters["tick_errors"] += 1
             key = f"tick_errors {part}"
@@ -468,7 +473,7 @@ class _NoParameters:
         raise KeyError(name)
 
 
-def _safe_len(snapshot: Callable[[], Any]) -> int:
+def _safe_len(snapshot: Callable[[], Sized]) -> int:
     """How many items a backend snapshot has; 0 when it fails (the tick's guards report a
     failing backend; building the MAVLink side must not fail on it)."""
     try:

@@ -24,14 +24,17 @@ from __future__ import annotations
 
 import re
 from collections import Counter, deque
-from collections.abc import Sequence
-from typing import Any, Literal, Protocol
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any, Literal, Protocol
 
 import can
 from pydantic import Field, field_validator, model_validator
 
 from ..base import BusNodeError, NodeHealth, ProfileOptions
 from . import wire
+
+if TYPE_CHECKING:  # imported where used at run time: only a bus with the allocator on needs it
+    from .alloc import AllocationServer
 
 _HEX32 = re.compile(r"[0-9a-f]{32}")
 GET_NODE_INFO_PER_S = 4
@@ -138,17 +141,35 @@ class NodeOptions(ProfileOptions):
         return self
 
 
+class CommandedServoOptions(Protocol):
+    """What the node reads of a DroneCAN servo's options (read-only)."""
+
+    @property
+    def actuator_id(self) -> int: ...
+
+    @property
+    def unique_id(self) -> str | None: ...
+
+    @property
+    def firmware(self) -> str: ...
+
+    @property
+    def command(self) -> str: ...
+
+
 class CommandedServo(Protocol):
     """What the node needs of a DroneCAN servo profile."""
 
     can_id: int
     bridge_node_id: int
-    options: Any
     node_actuators: frozenset[int]
     node_heard_at: float | None
     node_last_heard: float | None
     actuator_reported_at: float | None
-    shutdown_hook: Any
+    shutdown_hook: Callable[[], list[can.Message]] | None
+
+    @property
+    def options(self) -> CommandedServoOptions: ...
 
     def command_of(self, frame: can.Message) -> tuple[int, int, float] | None: ...
 
@@ -260,7 +281,7 @@ class BridgeNode:
             self._notices.append(self._safety_warning())
         self._conflict_noted = False
         self._noted: set[str] = set()
-        self.allocator: Any = None
+        self.allocator: AllocationServer | None = None
         if options.allocator:
             from .alloc import AllocationServer
 

@@ -50,7 +50,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any, ClassVar, Literal
 
 import can
@@ -220,7 +220,7 @@ class DroneCanServo(ServoProfile):
         """When the node's latest NodeStatus came (None: not yet)."""
         self.actuator_reported_at: float | None = None
         """When this actuator's last report (Status, vendor status) came (None: never)."""
-        self.shutdown_hook: Any = None
+        self.shutdown_hook: Callable[[], list[can.Message]] | None = None
         """Frames the bus node wants sent when the bridge stops (its SafetyState plan), set
         on one servo of the node; None: none."""
 

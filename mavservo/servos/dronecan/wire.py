@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import binascii
 import functools
+import importlib
 import math
 import struct
 from collections import Counter
@@ -80,9 +81,9 @@ def float16_inside(value: float, low: float, high: float) -> float:
 @functools.cache
 def lib() -> ModuleType:
     """The ``dronecan`` package, imported on first use (see module docstring)."""
-    import dronecan  # noqa: PLC0415 - deliberately lazy
-
-    return dronecan
+    # import_module rather than an import statement: the package has no type information, and
+    # import_module's result is a ModuleType for mypy as well as at run time
+    return importlib.import_module("dronecan")
 
 
 def message_type(full_name: str) -> Any:

@@ -28,6 +28,7 @@ from itertools import repeat
 from typing import Any, Literal, NamedTuple, Protocol
 
 import can
+from can.typechecking import Channel
 
 __all__ = [
     "BITRATE_CODES",
@@ -129,7 +130,7 @@ class Frame(_FrameFields):
 
     __slots__ = ()
 
-    def to_message(self, channel: Any = None, is_rx: bool = True) -> can.Message:
+    def to_message(self, channel: Channel | None = None, is_rx: bool = True) -> can.Message:
         """The ``can.Message`` python-can users expect, built without ``Message.__init__``.
 
         ``Message.__init__`` costs ~0.9 us (argument handling, data copy, checks we already did);
@@ -343,7 +344,11 @@ _DATA_RE = re.compile(_DATA_ALTERNATIVES, re.DOTALL)
 
 
 def _run_messages(
-    rows: Iterator[tuple[Any, ...]], run: _Run, timestamp: float, channel: Any, out: list[Any]
+    rows: Iterator[tuple[Any, ...]],
+    run: _Run,
+    timestamp: float,
+    channel: Channel | None,
+    out: list[Decoded],
 ) -> int:
     """Append a ``can.Message`` per unpacked row of ``run``'s layout to ``out``; how many.
 
@@ -405,7 +410,7 @@ class Decoder:
         keep_rejections: int = 256,
         resolve_overlaps: bool = True,
         messages: bool = False,
-        channel: Any = None,
+        channel: Channel | None = None,
     ) -> None:
         if protocol not in PROTOCOLS:
             raise ValueError(f"unknown protocol {protocol!r}; expected one of {PROTOCOLS}")
@@ -696,7 +701,7 @@ class Decoder:
         return None if not idle and self._could_complete(buf, inner, end) else -1
 
     def _take_run(
-        self, buf: bytes | bytearray, pos: int, run: _Run, timestamp: float, out: list[Any]
+        self, buf: bytes | bytearray, pos: int, run: _Run, timestamp: float, out: list[Decoded]
     ) -> tuple[int, int]:
         """Decode the frames of ``run``'s layout back to back from ``pos``; (new pos, count).
 
