@@ -8,7 +8,12 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from mavservo.mavlink.bandwidth import GIMBAL_STATUS_FLOOR_HZ, LinkBudget, plan_budget
+from mavservo.mavlink.bandwidth import (
+    GIMBAL_STATUS_FLOOR_HZ,
+    BudgetPlan,
+    LinkBudget,
+    plan_budget,
+)
 from mavservo.mavlink.esc_status import esc_info, esc_status
 from mavservo.mavlink.settings import TelemetryRates
 from mavservo.records.metrics import peak_window_bytes
@@ -59,20 +64,25 @@ def test_no_window_exceeds_the_budget(
     assert peak_window_bytes(sent) <= budget
 
 
+def _default_plan(servos: int, gimbals: int) -> BudgetPlan:
+    """The plan of a bridge with the default rates and budget (1,000 B/s, unsigned)."""
+    return plan_budget(
+        1000.0,
+        servos=servos,
+        gimbals=gimbals,
+        health_names=7,
+        components=1 + gimbals,
+        rates=TelemetryRates(),
+        signed=False,
+    )
+
+
 def test_a_held_back_stream_gets_its_turn_among_the_others() -> None:
     """The window is first come first served, except that a stream it held back reserves the
     next turn. Before, in the bridge's order of a tick (names, ESC_TELEMETRY, then ESC_STATUS,
     then ACTUATOR_OUTPUT_STATUS), ESC_STATUS came each time just after the window was emptied:
     4 of its planned 20 in 20 s here, 0 of 17 in a real bridge's 4 s."""
-    plan = plan_budget(
-        1000.0,
-        servos=1,
-        gimbals=0,
-        health_names=7,
-        components=1,
-        rates=TelemetryRates(),
-        signed=False,
-    )
+    plan = _default_plan(servos=1, gimbals=0)
     link = LinkBudget(plan)
     names = [f"s1_n{i}".encode() for i in range(8)]
     passed = {"nvf": 0, "esc": 0, "esc_status": 0, "aos": 0}
@@ -109,16 +119,7 @@ def test_the_gimbal_status_reaches_the_autopilot_every_second_among_many_streams
     reservation of the window at a time, claimed by whichever of ~70 streams came first after
     the last one expired, so the gimbal's turn came seconds late. The bridge's tick order and
     the default rates here, in simulated time."""
-    plan = plan_budget(
-        1000.0,
-        servos=9,
-        gimbals=1,
-        health_names=7,
-        components=2,
-        rates=TelemetryRates(),
-        signed=False,
-    )
-    link = LinkBudget(plan)
+    link = LinkBudget(_default_plan(servos=9, gimbals=1))
     names = [f"s{s}_n{i}".encode() for s in range(1, 10) for i in range(7)]
     gimbal = mavlink2.MAVLink_gimbal_device_attitude_status_message(
         0, 0, 0, 0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, 0
