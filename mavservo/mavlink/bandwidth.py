@@ -60,6 +60,12 @@ ANSWER_DEPTH_BYTES = 280
 BUCKET_DEPTH_SHARE = 0.2
 EVENT_DEBT_SHARE = 0.05
 
+#: Periodic streams the autopilot's own health check needs: they take the window's turn from
+#: any other stream. ArduPilot's MAVLink mount (``AP_Mount_Gremsy::healthy``, master
+#: 90700977c5) calls the gimbal unhealthy, and refuses to arm, after 1 s without a
+#: GIMBAL_DEVICE_ATTITUDE_STATUS; against ArduPlane SITL, behind ~70 other streams at the
+#: default budget, gaps of up to 6.3 s came out (docs/sitl.md).
+_URGENT_STREAMS = frozenset({"GIMBAL_DEVICE_ATTITUDE_STATUS"})
 #: MAV_SEVERITY_CRITICAL: STATUSTEXT this grave always goes.
 _CRITICAL = 2
 #: ArduPilot's mount driver wants the gimbal's attitude status at least this often.
@@ -333,15 +339,20 @@ class LinkBudget:
         passed) no other stream takes tokens. Without it a frame near the bucket's depth (an
         ACTUATOR_OUTPUT_STATUS of 152 B in a 200 B bucket) needs a full bucket, which the many
         small NAMED_VALUE_FLOATs never leave: it, ESC_STATUS and ESC_INFO starved although the
-        plan had room for them (0 of 17 ESC_STATUS in 4 s on a one-servo config)."""
+        plan had room for them (0 of 17 ESC_STATUS in 4 s on a one-servo config). A stream in
+        :data:`_URGENT_STREAMS` goes before a reservation and takes it over when it is held back
+        itself: with one turn at a time for ~70 streams, the gimbal's status waited seconds for
+        its turn."""
         held = self._reserved
-        if held is not None and held[0] != key and now - held[1] < RESERVATION_S:
+        urgent = key[1] in _URGENT_STREAMS
+        others_turn = held is not None and held[0] != key and now - held[1] < RESERVATION_S
+        if others_turn and not urgent:
             return False
         if bucket.take(self._cost(msg), now):
-            if held is not None:
+            if held is not None and not others_turn:
                 self._reserved = None
             return True
-        if held is None or held[0] != key and now - held[1] >= RESERVATION_S:
+        if held is None or held[0] != key and (urgent or not others_turn):
             self._reserved = (key, now)
         return False
 
