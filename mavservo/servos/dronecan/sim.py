@@ -173,7 +173,9 @@ class SimNode:
         self.last_command: float | None = None
         """ArduPilot: the last ArrayCommand with a command it acts on (its output timeout)."""
         self.transfers = _Transfers()
-        self._handled: tuple[int, float] | None = None
+        self._handled: tuple[can.Message, float] | None = None
+        """The last frame reassembled and its time, the frame itself kept (not its ``id()``,
+        which a new frame may reuse once the old one is gone)."""
 
     def tid(self, dtid: int) -> int:
         tid = self.transfer_ids[dtid] & 0x1F
@@ -199,9 +201,9 @@ class SimNode:
 
     def receive(self, msg: can.Message, now: float) -> tuple[int, Any] | None:
         """Reassemble a frame once for the whole node (each member is handed the same frame)."""
-        if self._handled is not None and self._handled == (id(msg), now):
+        if self._handled is not None and self._handled[0] is msg and self._handled[1] == now:
             return None
-        self._handled = (id(msg), now)
+        self._handled = (msg, now)
         return self.transfers.push(msg, now)
 
     def timed_out(self, now: float) -> bool:
