@@ -44,6 +44,7 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import can
@@ -231,18 +232,30 @@ def link_devices(devices: Sequence[object]) -> None:
         device.node = node
 
 
-class _Settings:
+@dataclass(frozen=True)
+class NodeSettings:
     """The servo's options as this node reads them (its configuration, ``model_dump()``)."""
 
-    def __init__(self, options: ProfileOptions) -> None:
+    firmware: str
+    actuator_id: int
+    unique_id: str | None
+    unitless_min_deg: float
+    unitless_max_deg: float
+    pwm_min_us: float
+    pwm_max_us: float
+
+    @classmethod
+    def of(cls, options: ProfileOptions) -> NodeSettings:
         values = options.model_dump()
-        self.firmware = str(values["firmware"])
-        self.actuator_id = int(values["actuator_id"])
-        self.unique_id: str | None = values.get("unique_id")
-        self.unitless_min_deg = float(values["unitless_min_deg"])
-        self.unitless_max_deg = float(values["unitless_max_deg"])
-        self.pwm_min_us = float(values["pwm_min_us"])
-        self.pwm_max_us = float(values["pwm_max_us"])
+        return cls(
+            firmware=str(values["firmware"]),
+            actuator_id=int(values["actuator_id"]),
+            unique_id=values.get("unique_id"),
+            unitless_min_deg=float(values["unitless_min_deg"]),
+            unitless_max_deg=float(values["unitless_max_deg"]),
+            pwm_min_us=float(values["pwm_min_us"]),
+            pwm_max_us=float(values["pwm_max_us"]),
+        )
 
 
 class DroneCanDevice:
@@ -252,7 +265,7 @@ class DroneCanDevice:
 
     def __init__(self, motor: SimMotor, node_id: int, options: ProfileOptions) -> None:
         self.motor = motor
-        self.options = _Settings(options)
+        self.options = NodeSettings.of(options)
         self.unique_id = bytes.fromhex(self.options.unique_id) if self.options.unique_id else None
         self.node_id: int | None = None if self.unique_id else node_id
         self._next_request = -math.inf
