@@ -37,6 +37,9 @@ class BuiltIn:
     profile: str
     device: str | None = None
     """Its simulated device (:mod:`.sim_registry`); None when the profile builds its own."""
+    link: str | None = None
+    """A function ``(devices) -> None`` that lets the simulated devices of one bus meet (the
+    servos of one DroneCAN node are one node), None when they are independent."""
 
 
 ENTRY_POINT_GROUP = "mavservo.profiles"
@@ -49,7 +52,9 @@ BUILT_IN: dict[str, BuiltIn] = {
     ),
     "damiao-dm": BuiltIn("damiao.profile:DamiaoDM", "damiao.sim:DmJMotorDevice"),
     "odrive": BuiltIn("odrive.profile:ODrive", "odrive.sim:OdriveAxisDevice"),
-    "dronecan": BuiltIn("dronecan.profile:DroneCanServo"),
+    "dronecan": BuiltIn(
+        "dronecan.profile:DroneCanServo", "dronecan.sim:DroneCanDevice", "dronecan.sim:link_devices"
+    ),
     "robstride": BuiltIn("robstride.profile:Robstride", "robstride.sim:RsMotorDevice"),
 }
 """The built-in families by YAML name, in the order ``check --profiles`` lists them."""

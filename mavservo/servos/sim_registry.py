@@ -9,7 +9,7 @@ Plug-in profiles keep building their own device in ``sim_device``.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import cast
 
 from .base import ProfileOptions, ServoProfile, SimDevice, SimMotor
@@ -38,3 +38,15 @@ def simulated_device(
             if factory is not None:
                 return factory(motor, can_id, options)
     raise LookupError(f"no simulated device is registered for profile {profile.name!r}")
+
+
+def link_simulated_devices(profile: type[ServoProfile], devices: Sequence[SimDevice]) -> None:
+    """Let the simulated devices of a built-in family on one bus meet (its ``link`` function,
+    :data:`~mavservo.servos.registry.BUILT_IN`); nothing when the family has none."""
+    for cls in profile.__mro__:
+        if issubclass(cls, ServoProfile):
+            built_in = BUILT_IN.get(cls.name)
+            if built_in is not None and built_in.link is not None:
+                link = cast(Callable[[Sequence[SimDevice]], None], import_built_in(built_in.link))
+                link(devices)
+                return

@@ -16,6 +16,7 @@ side a pymavlink peer over UDP on 127.0.0.1. Every wait is bounded.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from pathlib import Path
@@ -266,7 +267,7 @@ def test_a_node_that_ignores_the_command_type_is_warned_about_once_within_second
     with running(body) as (bridge, port):
         for sim in bridge.emulators["bus0"].servos:  # the real node runs ArduPilot firmware
             device = sim._device  # noqa: SLF001 - the simulated node's firmware is the fixture
-            device.options = device.options.model_copy(update={"firmware": "ardupilot"})
+            device.options = dataclasses.replace(device.options, firmware="ardupilot")
             device.node.firmware, device.node.safety_off = "ardupilot", False
         peer = Peer(port)
         try:

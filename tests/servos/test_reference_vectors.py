@@ -38,13 +38,11 @@ def test_every_vector_file_names_its_profile_and_cites_a_source() -> None:
 def test_every_built_in_family_has_vectors_and_a_simulator_of_its_own() -> None:
     """The design of issue 27: each family's simulated device lives in a module of its own
     (``<family>_sim``, which imports nothing of the profile: lint-imports) and is what the
-    profile's ``sim_device`` returns; DroneCAN's node simulator is kept apart by its own
-    contracts (``dronecan_sim``, made with the dronecan package)."""
+    profile's ``sim_device`` returns; DroneCAN's node encodes and decodes with the dronecan
+    package, not the profile's ``wire`` module."""
     from mavservo.sim.servo import SimServo
 
     for cls in PROFILES.values():
-        if cls.name == "dronecan":
-            continue
         assert cls.name in FAMILIES, f"{cls.name}: no tests/data/vectors/{cls.name}.yaml"
         device = SimServo(cls.name, cls.min_id + 1)._device  # noqa: SLF001
         module = type(device).__module__

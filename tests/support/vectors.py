@@ -20,6 +20,8 @@ A vector file::
         reply: {id: 0x141, data: "9C 32 00 08 5A 00 00 20"}
         means: {temperature_c: 50, current_a: 16.5, velocity_dps: 90, position_deg: 180}
         before: [{id: 0x141, data: "80 00 00 00 00 00 00 00"}]   # frames the device hears first
+        first_frames: [...]           # a multi-frame reply's frames before ``reply`` (DroneCAN):
+                                      # the profile decodes them first, the device sends them too
         motor: {current_a: 1.0}       # simulator only: motor readings ``means`` does not carry
         simulator: false              # a profile-only vector (say why in ``why``)
         absent: true                  # simulator: the request gets no answer at all
@@ -102,6 +104,8 @@ def profile_mismatches(document: dict[str, Any], vector: dict[str, Any]) -> list
         return []
     for spec in vector.get("before_decode", []):
         profile.decode(_frame(spec), 0.0)
+    for spec in vector.get("first_frames", []):
+        profile.decode(_frame(spec), 1.0)
     reply = _frame(vector["reply"])
     if vector.get("means") is None:  # a frame the profile must refuse
         state = profile.decode(reply, 1.0)
@@ -226,9 +230,13 @@ def simulator_mismatches(document: dict[str, Any], vector: dict[str, Any]) -> li
     described = [_describe(reply) for reply in replies]
     if vector.get("absent"):  # the device must not send it
         return [f"{name}: the device answers {described}"] if replies else []
-    if _describe(expected) not in described:
-        return [f"{name}: the device answers {described}, the document says {_describe(expected)}"]
-    return []
+    problems = []
+    for frame in [*(_frame(spec) for spec in vector.get("first_frames", [])), expected]:
+        if _describe(frame) not in described:
+            problems.append(
+                f"{name}: the device answers {described}, the document says {_describe(frame)}"
+            )
+    return problems
 
 
 def checked(family: str, side: str) -> list[tuple[dict[str, Any], dict[str, Any]]]:

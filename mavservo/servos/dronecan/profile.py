@@ -66,6 +66,7 @@ from ..base import (
     SimDevice,
     SimMotor,
 )
+from ..sim_registry import link_simulated_devices, simulated_device
 from . import wire
 from .node import BridgeNode, NodeOptions
 
@@ -327,17 +328,12 @@ class DroneCanServo(ServoProfile):
 
     @classmethod
     def sim_device(cls, motor: SimMotor, can_id: int, options: ProfileOptions) -> SimDevice:
-        from .sim import DroneCanDevice
-
-        assert isinstance(options, DroneCanOptions)
-        return DroneCanDevice(motor, can_id, options)
+        return simulated_device(cls, motor, can_id, options)
 
     @classmethod
     def link_sim_devices(cls, devices: Sequence[SimDevice]) -> None:
-        """Servos on one node id are one simulated node (see :mod:`.dronecan_sim`)."""
-        from .sim import link_devices
-
-        link_devices(devices)
+        """Servos on one node id are one simulated node (see :mod:`.sim`, found by name)."""
+        link_simulated_devices(cls, devices)
 
     NodeOptions: ClassVar[type[ProfileOptions]] = NodeOptions
 

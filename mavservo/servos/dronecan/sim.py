@@ -1,5 +1,11 @@
 """The simulated DroneCAN actuator node (built-in simulation, ``mavservo sim``), made with the
-same ``dronecan`` package as the bridge's side.
+``dronecan`` package and written from the DroneCAN specification, never from the profile's code
+(issue 27): it imports nothing of the ``dronecan`` profile or its ``wire`` module (import-linter
+contract ``simulators-apart-from-profiles``), so a framing or field mistake of the profile is
+not repeated here. The package encodes and decodes every transfer (tail byte, toggle, transfer
+CRC: the specification's transport layer, "CAN bus transport layer"); this module reads the
+frame ids (29-bit: priority, data type id, service bit, source node id, the specification's
+"CAN ID" tables) and reassembles frames by (id, transfer id) itself.
 
 One :class:`DroneCanDevice` per simulated servo (one actuator); the devices of servos that share
 a node id share one :class:`SimNode` (:func:`link_devices`): one NodeStatus, one uptime, one
@@ -38,15 +44,120 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
 
 import can
+import dronecan
 
-from ..base import NO_FAULT, SimMotor
-from . import wire
-from .profile import ARDUPILOT_COMMAND_TIMEOUT_S, ARDUPILOT_UNITLESS_DEG, DroneCanOptions
+from ..base import NO_FAULT, ProfileOptions, SimMotor
 
+# --- from the DSDL definitions the dronecan package ships (data type ids are theirs) -----------
+_ACTUATOR = dronecan.uavcan.equipment.actuator
+_ARRAY_COMMAND = _ACTUATOR.ArrayCommand.default_dtid  # uavcan.equipment.actuator.ArrayCommand
+_STATUS = _ACTUATOR.Status.default_dtid  # uavcan.equipment.actuator.Status
+_NODE_STATUS = dronecan.uavcan.protocol.NodeStatus.default_dtid  # uavcan.protocol.NodeStatus
+_SAFETY_STATE = dronecan.ardupilot.indication.SafetyState.default_dtid
+_ALLOCATION = dronecan.uavcan.protocol.dynamic_node_id.Allocation.default_dtid
+# uavcan.equipment.actuator.Command.command_type constants
+_UNITLESS, _POSITION, _PWM = 0, 1, 4
+_SAFETY_OFF = 255  # ardupilot.indication.SafetyState.STATUS_SAFETY_OFF
+_POWER_RATING_UNKNOWN = 127  # uavcan.equipment.actuator.Status.POWER_RATING_PCT_UNKNOWN
+_HEALTH_OK, _HEALTH_WARNING, _MODE_OPERATIONAL = 0, 1, 0  # uavcan.protocol.NodeStatus
+# transfer priorities (the specification's 0..31, lower is more urgent)
+_PRIORITY_MEDIUM, _PRIORITY_LOW = 16, 24
+NODE_STATUS_PERIOD_S = 1.0
+"""uavcan.protocol.NodeStatus: ``MAX_BROADCASTING_PERIOD_MS`` is 1000."""
+_TRANSFER_TIMEOUT_S = 1.0
+"""A transfer whose next frame does not come within this is dropped (its frames forgotten)."""
+_MAX_PENDING = 64
+_MAX_FRAMES = 64
+
+# --- AP_Periph (``Tools/AP_Periph``), read for behaviour -------------------------------------
 ARDUPILOT_STATUS_PERIOD_S = 0.1
 """AP_Periph's actuator Status period while commanded (10 Hz)."""
+ARDUPILOT_COMMAND_TIMEOUT_S = 0.2
+"""AP_Periph's ``SRV_CMD_TIME_OUT``: outputs zeroed 200 ms after the last valid command."""
+ARDUPILOT_STATUS_DEG = 45.0
+"""AP_Periph reports an output's norm as ``position = radians(norm * 45)``."""
+
+
+def _is_message(msg: can.Message) -> bool:
+    """A message frame: 29-bit id, service-not-message bit (bit 7) clear."""
+    return bool(msg.is_extended_id) and not msg.is_remote_frame and not msg.arbitration_id & 0x80
+
+
+def _source(msg: can.Message) -> int:
+    return int(msg.arbitration_id & 0x7F)
+
+
+def _message_type(msg: can.Message) -> int:
+    """Bits 8..23 of a message frame; an anonymous one (source 0) carries only bits 8..9."""
+    if _source(msg) == 0:
+        return (msg.arbitration_id >> 8) & 0x3
+    return (msg.arbitration_id >> 8) & 0xFFFF
+
+
+def _frames(transfer: Any) -> list[can.Message]:
+    return [
+        can.Message(arbitration_id=frame.message_id, is_extended_id=True, data=bytes(frame.bytes))
+        for frame in transfer.to_frames()
+    ]
+
+
+def _broadcast(payload: Any, source: int, transfer_id: int, priority: int) -> list[can.Message]:
+    """A message transfer of ``payload`` from node ``source`` (0: anonymous), by the package."""
+    transfer = dronecan.transport.Transfer(
+        transfer_id=transfer_id & 0x1F,
+        source_node_id=source,
+        payload=payload,
+        transfer_priority=priority,
+    )
+    return _frames(transfer)
+
+
+class _Transfers:
+    """Frames in, decoded payloads out: a node's receive side. Frames are collected by (CAN id,
+    transfer id) from a start-of-transfer frame to an end-of-transfer frame (the tail byte);
+    the package checks toggles and the transfer CRC and unpacks. A transfer that does not
+    decode is dropped, counted in :attr:`dropped`, as a node drops it."""
+
+    def __init__(self) -> None:
+        self._pending: dict[tuple[int, int], tuple[float, list[bytes]]] = {}
+        self.dropped = 0
+
+    def push(self, msg: can.Message, now: float) -> tuple[int, Any] | None:
+        """``(data type id, payload)`` when ``msg`` completes a transfer that decodes."""
+        data = bytes(msg.data)
+        if not data:
+            return None
+        for key in [k for k, (t, _) in self._pending.items() if now - t > _TRANSFER_TIMEOUT_S]:
+            del self._pending[key]
+        tail = data[-1]
+        key = (int(msg.arbitration_id), tail & 0x1F)
+        if tail & 0x80:  # start of transfer
+            frames = [data]
+            self._pending.pop(key, None)
+        else:
+            pending = self._pending.pop(key, None)
+            if pending is None:
+                return None  # no start: nothing to add it to
+            frames = pending[1] + [data]
+        if not tail & 0x40:  # not the end yet
+            if len(frames) < _MAX_FRAMES and len(self._pending) < _MAX_PENDING:
+                self._pending[key] = (now, frames)
+            else:
+                self.dropped += 1
+            return None
+        transfer = dronecan.transport.Transfer()
+        try:
+            transfer.from_frames(
+                [dronecan.transport.Frame(msg.arbitration_id, frame) for frame in frames]
+            )
+        except Exception:  # a hostile payload may trip anything in the package's decoder
+            self.dropped += 1
+            return None
+        return int(transfer.data_type_id), transfer.payload
 
 
 class SimNode:
@@ -62,8 +173,10 @@ class SimNode:
         """ArduPilot: outputs off until SAFETY_OFF; other firmware has no safety state."""
         self.last_command: float | None = None
         """ArduPilot: the last ArrayCommand with a command it acts on (its output timeout)."""
-        self.reassembler = wire.Reassembler()
-        self._handled: tuple[int, float] | None = None
+        self.transfers = _Transfers()
+        self._handled: tuple[can.Message, float] | None = None
+        """The last frame reassembled and its time, the frame itself kept (not its ``id()``,
+        which a new frame may reuse once the old one is gone)."""
 
     def tid(self, dtid: int) -> int:
         tid = self.transfer_ids[dtid] & 0x1F
@@ -76,21 +189,23 @@ class SimNode:
             return []
         if self.start is None:
             self.start = now
-        self.next_node_status = now + wire.NODE_STATUS_PERIOD_S
+        self.next_node_status = now + NODE_STATUS_PERIOD_S
         faulty = any(m.motor.active_faults != NO_FAULT for m in self.members)
-        health = wire.HEALTH_WARNING if faulty else wire.HEALTH_OK
-        status = wire.node_status(now - self.start, health, wire.MODE_OPERATIONAL)
-        return wire.encode_message(
-            status, node_id, self.tid(wire.DTID_NODE_STATUS), wire.PRIORITY_LOW
+        status = dronecan.uavcan.protocol.NodeStatus(
+            uptime_sec=max(0, min(0xFFFFFFFF, int(now - self.start))),
+            health=_HEALTH_WARNING if faulty else _HEALTH_OK,
+            mode=_MODE_OPERATIONAL,
+            sub_mode=0,
+            vendor_specific_status_code=0,
         )
+        return _broadcast(status, node_id, self.tid(_NODE_STATUS), _PRIORITY_LOW)
 
-    def receive(self, msg: can.Message, now: float) -> wire.Received | None:
+    def receive(self, msg: can.Message, now: float) -> tuple[int, Any] | None:
         """Reassemble a frame once for the whole node (each member is handed the same frame)."""
-        key = (id(msg), now)
-        if self._handled is not None and self._handled[0] == key[0] and self._handled[1] == now:
+        if self._handled is not None and self._handled[0] is msg and self._handled[1] == now:
             return None
-        self._handled = key
-        return self.reassembler.push(msg, now)
+        self._handled = (msg, now)
+        return self.transfers.push(msg, now)
 
     def timed_out(self, now: float) -> bool:
         """ArduPilot: no valid command for ``SRV_CMD_TIME_OUT``: its outputs are zeroed."""
@@ -117,20 +232,46 @@ def link_devices(devices: Sequence[object]) -> None:
         device.node = node
 
 
+@dataclass(frozen=True)
+class NodeSettings:
+    """The servo's options as this node reads them (its configuration, ``model_dump()``)."""
+
+    firmware: str
+    actuator_id: int
+    unique_id: str | None
+    unitless_min_deg: float
+    unitless_max_deg: float
+    pwm_min_us: float
+    pwm_max_us: float
+
+    @classmethod
+    def of(cls, options: ProfileOptions) -> NodeSettings:
+        values = options.model_dump()
+        return cls(
+            firmware=str(values["firmware"]),
+            actuator_id=int(values["actuator_id"]),
+            unique_id=values.get("unique_id"),
+            unitless_min_deg=float(values["unitless_min_deg"]),
+            unitless_max_deg=float(values["unitless_max_deg"]),
+            pwm_min_us=float(values["pwm_min_us"]),
+            pwm_max_us=float(values["pwm_max_us"]),
+        )
+
+
 class DroneCanDevice:
     """One actuator of a simulated node, on a :class:`SimMotor` (module docstring)."""
 
     pushes = True
 
-    def __init__(self, motor: SimMotor, node_id: int, options: DroneCanOptions) -> None:
+    def __init__(self, motor: SimMotor, node_id: int, options: ProfileOptions) -> None:
         self.motor = motor
-        self.unique_id = bytes.fromhex(options.unique_id) if options.unique_id else None
+        self.options = NodeSettings.of(options)
+        self.unique_id = bytes.fromhex(self.options.unique_id) if self.options.unique_id else None
         self.node_id: int | None = None if self.unique_id else node_id
         self._next_request = -math.inf
-        self.options = options
-        self.node = SimNode(options.firmware)
+        self.node = SimNode(self.options.firmware)
         self.node.members.append(self)
-        self._allocation_reassembler = wire.Reassembler()
+        self._allocation_transfers = _Transfers()
         self.commands_seen = 0
         self.norm: float | None = None
         """ArduPilot: the output's last commanded norm (-1..1), None: never commanded."""
@@ -147,35 +288,35 @@ class DroneCanDevice:
         return self.options.firmware == "ardupilot"
 
     def accepts(self, msg: can.Message) -> bool:
-        if not wire.is_message_frame(msg) or wire.source_node(msg) in (0, self.node_id):
+        if not _is_message(msg) or _source(msg) in (0, self.node_id):
             return False
         if not self.node_id:
-            return wire.message_dtid(msg) == wire.DTID_ALLOCATION
-        return wire.message_dtid(msg) in (wire.DTID_ARRAY_COMMAND, wire.DTID_SAFETY_STATE)
+            return _message_type(msg) == _ALLOCATION
+        return _message_type(msg) in (_ARRAY_COMMAND, _SAFETY_STATE)
 
     def handle(self, msg: can.Message, now: float) -> list[can.Message]:
         if not self.node_id:
-            received = self._allocation_reassembler.push(msg, now)
-            if received is not None and received.dtid == wire.DTID_ALLOCATION:
-                return self._allocation_answer(received.payload)
+            received = self._allocation_transfers.push(msg, now)
+            if received is not None and received[0] == _ALLOCATION:
+                return self._allocation_answer(received[1])
             return []
         received = self.node.receive(msg, now)
         if received is not None:
             for member in self.node.members:
-                member._take(received, now)
+                member._take(received[0], received[1], now)
         return []
 
-    def _take(self, received: wire.Received, now: float) -> None:
+    def _take(self, dtid: int, payload: Any, now: float) -> None:
         """A whole transfer the node received, for this member's actuator."""
-        if received.dtid == wire.DTID_SAFETY_STATE:
-            self.node.safety_off = int(received.payload.status) == wire.SAFETY_OFF
+        if dtid == _SAFETY_STATE:
+            self.node.safety_off = int(payload.status) == _SAFETY_OFF
             self._drive(now)
             return
-        if received.dtid != wire.DTID_ARRAY_COMMAND:
+        if dtid != _ARRAY_COMMAND:
             return
-        for command in received.payload.commands:
+        for command in payload.commands:
             kind, value = int(command.command_type), float(command.command_value)
-            if self.ardupilot and kind in (wire.COMMAND_TYPE_UNITLESS, wire.COMMAND_TYPE_PWM):
+            if self.ardupilot and kind in (_UNITLESS, _PWM):
                 self.node.last_command = now  # any command it acts on feeds the timeout
             if int(command.actuator_id) != self.options.actuator_id:
                 continue
@@ -191,11 +332,11 @@ class DroneCanDevice:
         """A generic servo: its command as an angle over the options' range."""
         if not math.isfinite(value):
             return None
-        if command_type == wire.COMMAND_TYPE_POSITION:
+        if command_type == _POSITION:
             return math.degrees(value)
-        if command_type == wire.COMMAND_TYPE_UNITLESS:
+        if command_type == _UNITLESS:
             return self._norm_angle(max(-1.0, min(1.0, value)))
-        if command_type == wire.COMMAND_TYPE_PWM:
+        if command_type == _PWM:
             return self._norm_angle(self._pwm_norm(value))
         return None  # force, speed: not a position servo's business
 
@@ -214,16 +355,16 @@ class DroneCanDevice:
     def _ardupilot_command(self, kind: int, value: float, now: float) -> None:
         if self.options.actuator_id == 0 or not math.isfinite(value):
             return  # output 1 << (0 - 1): none
-        if kind == wire.COMMAND_TYPE_UNITLESS:
+        if kind == _UNITLESS:
             self.norm = max(-1.0, min(1.0, value))
-        elif kind == wire.COMMAND_TYPE_PWM:
+        elif kind == _PWM:
             pulse = int(value + 0.5)
             self.pulse_off = pulse <= 0  # PWM 0: no pulse (what the board's timeout writes)
             if not self.pulse_off:
                 self.norm = self._pwm_norm(float(pulse))
         else:
             return
-        if kind == wire.COMMAND_TYPE_UNITLESS:
+        if kind == _UNITLESS:
             self.pulse_off = False
         self.commands_seen += 1
         self._commanded_since_report = True
@@ -248,21 +389,28 @@ class DroneCanDevice:
 
     def _allocation_request(self, part: bytes, first: bool) -> list[can.Message]:
         assert self.unique_id is not None
-        allocation = wire.lib().uavcan.protocol.dynamic_node_id.Allocation()
+        allocation = dronecan.uavcan.protocol.dynamic_node_id.Allocation()
         allocation.node_id = 0  # no preference
         allocation.first_part_of_unique_id = first
         allocation.unique_id.from_bytes(part)
         discriminator = int.from_bytes(self.unique_id[:2], "little")
-        return wire.encode_anonymous(allocation, discriminator, self._tid(wire.DTID_ALLOCATION))
+        transfer = dronecan.transport.Transfer(
+            transfer_id=self._tid(_ALLOCATION) & 0x1F,
+            source_node_id=0,
+            payload=allocation,
+            transfer_priority=_PRIORITY_LOW,
+            discriminator=discriminator & 0x3FFF,
+        )
+        return _frames(transfer)
 
-    def _allocation_answer(self, answer: object) -> list[can.Message]:
+    def _allocation_answer(self, answer: Any) -> list[can.Message]:
         """The allocator echoed part of a unique id, or handed out an id."""
         if self.node_id is not None or self.unique_id is None:
             return []
-        echoed = bytes(answer.unique_id.to_bytes())  # type: ignore[attr-defined]
+        echoed = bytes(answer.unique_id.to_bytes())
         if not echoed or not self.unique_id.startswith(echoed):
             return []  # another node's exchange
-        node_id = int(answer.node_id)  # type: ignore[attr-defined]
+        node_id = int(answer.node_id)
         if len(echoed) == len(self.unique_id):
             if node_id:
                 self.node_id = node_id
@@ -281,7 +429,6 @@ class DroneCanDevice:
 
     def _actuator_status(self, now: float) -> list[can.Message]:
         assert self.node_id is not None
-        actuator = wire.lib().uavcan.equipment.actuator
         if self.ardupilot:
             # only while commanded, at most every 100 ms, the norm x 45 deg
             if not self._commanded_since_report or self.norm is None:
@@ -289,27 +436,25 @@ class DroneCanDevice:
             if now - self._reported_at < ARDUPILOT_STATUS_PERIOD_S - 1e-9:
                 return []
             self._reported_at, self._commanded_since_report = now, False
-            payload = actuator.Status(
+            payload = _ACTUATOR.Status(
                 actuator_id=self.options.actuator_id,
-                position=math.radians(self.norm * ARDUPILOT_UNITLESS_DEG),
+                position=math.radians(self.norm * ARDUPILOT_STATUS_DEG),
                 force=0.0,
                 speed=0.0,
-                power_rating_pct=wire.POWER_RATING_UNKNOWN,
+                power_rating_pct=_POWER_RATING_UNKNOWN,
             )
-            priority = wire.PRIORITY_LOW
+            priority = _PRIORITY_LOW
         else:
             motor = self.motor
-            payload = actuator.Status(
+            payload = _ACTUATOR.Status(
                 actuator_id=self.options.actuator_id,
                 position=math.radians(motor.position_deg),
                 force=math.nan,
                 speed=math.radians(motor.velocity_dps),
-                power_rating_pct=wire.POWER_RATING_UNKNOWN,
+                power_rating_pct=_POWER_RATING_UNKNOWN,
             )
-            priority = wire.PRIORITY_MEDIUM
-        return wire.encode_message(
-            payload, self.node_id, self._tid(wire.DTID_ACTUATOR_STATUS), priority
-        )
+            priority = _PRIORITY_MEDIUM
+        return _broadcast(payload, self.node_id, self._tid(_STATUS), priority)
 
     def tick(self, now: float) -> None:
         return None
