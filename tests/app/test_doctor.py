@@ -28,6 +28,8 @@ from mavservo.app.doctor.wire_facts import (
     node_status,
     odrive_version,
     odrive_version_request,
+    rmdx_identity,
+    rmdx_identity_requests,
     robstride_device_id,
 )
 from mavservo.config import load_config, load_config_text
@@ -83,6 +85,8 @@ FAMILIES = [
 
 #: What the doctor learns beyond "it answers" (state, identity, mode registers).
 IDENTIFIED = {
+    # MyActuator V4.2 2.32 and 2.29: the simulated RMD-X answers the document's examples
+    "slcan.yaml": ["rmd-x id 1: OK", "model X8S2V10, software 2022-02-06"],
     "damiao.yaml": [
         "CTRL_MODE register: mit",
         # the simulated DM-J powers up in MIT mode
@@ -328,6 +332,37 @@ def test_robstride_device_id_answer() -> None:
     assert robstride_device_id(feedback) is None
 
 
+def test_rmdx_identity_reads_are_the_documents_bytes() -> None:
+    """MyActuator "Servo Motor Control Protocol" V4.2 (2024.05): 2.32.2 (B5) and 2.29.2 (B2)
+    are the command byte and seven zeros on 0x140 + id; the replies of 2.32.4 and 2.29.4 read
+    as the document reads them; a garbled or foreign answer reads as nothing."""
+    requests = rmdx_identity_requests(1)
+    assert [(m.arbitration_id, m.is_extended_id, bytes(m.data)) for m in requests] == [
+        (0x141, False, bytes.fromhex("B5 00 00 00 00 00 00 00")),
+        (0x141, False, bytes.fromhex("B2 00 00 00 00 00 00 00")),
+    ]
+
+    def reply(can_id: int, hex_data: str, *, extended: bool = False) -> can.Message:
+        return can.Message(
+            arbitration_id=can_id, data=bytes.fromhex(hex_data), is_extended_id=extended
+        )
+
+    assert rmdx_identity(reply(0x241, "B5 58 38 53 32 56 31 30")) == (1, "model X8S2V10")
+    assert rmdx_identity(reply(0x241, "B2 00 00 00 2E 89 34 01")) == (1, "software 2022-02-06")
+    assert rmdx_identity(reply(0x260, "B5 58 38 00 00 00 00 00")) == (32, "model X8")
+    for foreign in (
+        reply(0x241, "B5 58 0A 53 32 56 31 30"),  # a control character: not a model name
+        reply(0x241, "B5 00 00 00 00 00 00 00"),  # no name
+        reply(0x241, "B2 00 00 00 FF FF FF FF"),  # not a date
+        reply(0x241, "B2 01 00 00 2E 89 34 01"),  # bytes 1..3 are zero in the document
+        reply(0x141, "B5 58 38 53 32 56 31 30"),  # a request, not a reply
+        reply(0x261, "B5 58 38 53 32 56 31 30"),  # id 33: outside 1..32
+        reply(0x241, "B5 58 38 53 32 56 31 30", extended=True),
+        reply(0x241, "9C 00 00 00 00 00 00 00"),
+    ):
+        assert rmdx_identity(foreign) is None, foreign
+
+
 @given(
     st.integers(0, 0x1FFFFFFF),
     st.booleans(),
@@ -349,7 +384,13 @@ def test_hostile_frames_never_break_the_recognisers(
         dlc=len(data),
         check=False,
     )
-    for read in (announcements, actuator_status, odrive_version, robstride_device_id):
+    for read in (
+        announcements,
+        actuator_status,
+        odrive_version,
+        robstride_device_id,
+        rmdx_identity,
+    ):
         read(msg)
     _RECOGNISER.whose(msg)
 

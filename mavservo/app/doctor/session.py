@@ -47,6 +47,7 @@ from .wire_facts import (
     actuator_status,
     damiao_mode,
     odrive_version,
+    rmdx_identity,
     robstride_device_id,
 )
 
@@ -187,6 +188,15 @@ class BusFindings:
         (never answering a request) is not taken for one."""
         unknown = sum(self.unknown_ids.values()) + self.unknown_overflow
         return unknown > sum(s.frames for s in self.sightings.values())
+
+    def identify(self, family: str, can_id: int, said: str) -> None:
+        """Keep what an identity read said; a family with several reads (RMD-X model and
+        software date) keeps each once, in the order heard."""
+        known = self.identities.get((family, can_id))
+        if known is None:
+            self.identities[(family, can_id)] = said
+        elif said not in known.split(", "):
+            self.identities[(family, can_id)] = f"{known}, {said}"
 
     def unknown(self, msg: can.Message) -> None:
         """Count a frame no family reads, by id; a flood of random ids is counted in one
@@ -358,12 +368,19 @@ class BusDoctor:
         for family, read in (("odrive", odrive_version), ("robstride", robstride_device_id)):
             identity = read(msg)
             if identity is not None:
-                self.findings.identities[(family, identity[0])] = identity[1]
+                self.findings.identify(family, *identity)
+        model_or_date = rmdx_identity(msg)
+        identified = model_or_date is not None and any(
+            c.profile == "rmd-x" and c.can_id == model_or_date[0]
+            for c in self.recogniser.candidates
+        )
+        if identified and model_or_date is not None:  # the profile reads no such answer
+            self.findings.identify("rmd-x", *model_or_date)
         status_of = actuator_status(msg)
         if status_of is not None:
             self.findings.actuators.setdefault(status_of[0], set()).add(status_of[1])
         if not candidates:
-            if said is None:
+            if said is None and not identified:
                 self.findings.unknown(msg)
             return
         mode = damiao_mode(msg)
