@@ -33,6 +33,14 @@ from mavservo.transport.bus_factory import (
 )
 
 from .families import facts
+from .node_info import (
+    ANSWER_WAIT_S,
+    MAX_NODES_ASKED,
+    TOOL_NODE_ID,
+    NodeInfo,
+    NodeInfoReader,
+    get_node_info_request,
+)
 from .recognise import (
     Candidate,
     Recogniser,
@@ -169,6 +177,11 @@ class BusFindings:
     """(family, id) -> what an identity read said (ODrive version, Robstride MCU id)."""
     actuators: dict[int, set[int]] = field(default_factory=dict)
     """DroneCAN node -> the actuator ids its actuator Status reports carry."""
+    node_infos: dict[int, NodeInfo] = field(default_factory=dict)
+    """DroneCAN node -> its answer to GetNodeInfo."""
+    node_info_asked: set[int] = field(default_factory=set)
+    node_info_skipped: str | None = None
+    """Why no GetNodeInfo was asked at all (the doctor's node id is taken on the bus)."""
     probed_bitrates: list[int] = field(default_factory=list)
     sent: int = 0
     enable_sent: int = 0
@@ -197,6 +210,17 @@ class BusFindings:
             self.identities[(family, can_id)] = said
         elif said not in known.split(", "):
             self.identities[(family, can_id)] = f"{known}, {said}"
+
+    def node_info_said(self, node: int) -> str:
+        """What GetNodeInfo told of DroneCAN ``node``, or why nothing."""
+        info = self.node_infos.get(node)
+        if info is not None:
+            return info.text()
+        if self.node_info_skipped is not None:
+            return self.node_info_skipped
+        if node in self.node_info_asked:
+            return "no GetNodeInfo answer"
+        return "GetNodeInfo not asked"
 
     def unknown(self, msg: can.Message) -> None:
         """Count a frame no family reads, by id; a flood of random ids is counted in one
@@ -235,6 +259,7 @@ class BusDoctor:
         listen_s: float = 1.5,
         allow_enable: bool = False,
         try_bitrates: bool = True,
+        node_id: int = TOOL_NODE_ID,
     ) -> None:
         self.bus = bus
         self.servos = list(servos)
@@ -243,6 +268,8 @@ class BusDoctor:
         self.listen_s = listen_s
         self.allow_enable = allow_enable
         self.try_bitrates = try_bitrates
+        self.node_id = node_id
+        self._node_info = NodeInfoReader(node_id)
         self.findings = BusFindings(bus, has_listen_only(bus.interface))
         if bus.interface in BITRATE_SET_OUTSIDE:
             self.try_bitrates = False  # the link's bitrate is not ours to change
@@ -376,6 +403,12 @@ class BusDoctor:
         )
         if identified and model_or_date is not None:  # the profile reads no such answer
             self.findings.identify("rmd-x", *model_or_date)
+        if self._node_info.accepts(msg):  # every frame of the answer is read, not unknown
+            identified = True
+            info = self._node_info.push(msg, time.monotonic())
+            if info is not None:
+                self.findings.node_infos[info.node_id] = info
+                self.findings.identify("dronecan", info.node_id, info.text())
         status_of = actuator_status(msg)
         if status_of is not None:
             self.findings.actuators.setdefault(status_of[0], set()).add(status_of[1])
@@ -411,9 +444,46 @@ class BusDoctor:
         self.findings.probed_bitrates.append(bitrate)
         try:
             self._probe(opened, probes, bitrate)
+            self._ask_node_info(opened, bitrate)
         finally:
             opened.close()
         return True
+
+    def _ask_node_info(self, opened: OpenedBus, bitrate: int) -> None:
+        """GetNodeInfo to each DroneCAN node heard by its NodeStatus and not yet asked (a
+        request changes nothing on a node: the specification's GetNodeInfo), from the
+        doctor's own node id; not at all when a node on the bus has that id."""
+        heard = sorted(set(self.findings.node_statuses) - self.findings.node_info_asked)
+        if not heard:
+            return
+        if self.node_id in self.findings.node_statuses:
+            self.findings.node_info_skipped = (
+                f"GetNodeInfo not asked: node id {self.node_id}, the doctor's, is taken on this "
+                "bus (pass --node-id with a free one)"
+            )
+            return
+        sender = SafeSender(
+            opened.bus, lambda msg, rx: self._record(msg, rx, bitrate), self._forbidden
+        )
+        occupants = self._occupants()
+        for node in heard[:MAX_NODES_ASKED]:
+            frames = get_node_info_request(node, self.node_id, transfer_id=0)
+            owner = next(
+                (
+                    name
+                    for name, group, frame_id in occupants
+                    if "dronecan" not in group and any(frame_id.matches(f) for f in frames)
+                ),
+                None,
+            )
+            if owner is not None:
+                self.findings.spared[owner] += 1
+                continue
+            self.findings.node_info_asked.add(node)
+            for frame in frames:
+                sender.send(frame)
+        self._collect(opened.bus, bitrate, ANSWER_WAIT_S, "heard", set())
+        self.findings.sent += sender.sent
 
     def _occupants(self) -> list[tuple[str, frozenset[str], FrameId]]:
         """The ids other devices take frames on: every configured servo, every motor heard or
