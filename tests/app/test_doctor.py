@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -596,6 +597,31 @@ def test_listen_seconds_are_bounded(listen: str, capsys: pytest.CaptureFixture[s
     assert "--listen" in capsys.readouterr().err
 
 
+_KNEE = "  - {name: knee, profile: cubemars-ak-mit, can_id: 3}\n"
+
+
+def _doctor_on(
+    make_bus: Callable[[], can.BusABC], servos: str, *, listen_s: float = 0.5, **kwargs: Any
+) -> BusDoctor:
+    """A doctor (no bitrate search, no log) on one bus of ``servos`` (YAML list items), whose
+    adapter is ``make_bus`` (reopened by the bus wrapper as a real one would be)."""
+    from mavservo.transport.resilient_bus import ResilientBus
+
+    def open_request(request: BusRequest) -> OpenedBus:
+        return OpenedBus(ResilientBus(make_bus))
+
+    config = load_config_text(f"servos:\n{servos}", "doctor.yaml")
+    return BusDoctor(
+        config.can.buses[0],
+        config.servos,
+        open_request,
+        lambda *_: None,
+        listen_s=listen_s,
+        try_bitrates=False,
+        **kwargs,
+    )
+
+
 def test_a_refused_disable_after_allow_enable_is_retried_and_reported(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
@@ -606,7 +632,6 @@ def test_a_refused_disable_after_allow_enable_is_retried_and_reported(
 
     from mavservo.app.doctor import print_bus
     from mavservo.app.doctor.families import EXIT_MOTOR_MODE
-    from mavservo.transport.resilient_bus import ResilientBus
 
     refused: list[bytes] = []
 
@@ -619,20 +644,8 @@ def test_a_refused_disable_after_allow_enable_is_retried_and_reported(
 
     channel = f"refuse-{time.monotonic_ns()}"
 
-    def open_request(request: BusRequest) -> OpenedBus:
-        return OpenedBus(ResilientBus(lambda: RefusesDisable(channel=channel)))
-
-    config = load_config_text(
-        "servos:\n  - {name: knee, profile: cubemars-ak-mit, can_id: 3}\n", "doctor.yaml"
-    )
-    doctor = BusDoctor(
-        config.can.buses[0],
-        config.servos,
-        open_request,
-        lambda *_: None,
-        listen_s=0.05,
-        allow_enable=True,
-        try_bitrates=False,
+    doctor = _doctor_on(
+        lambda: RefusesDisable(channel=channel), _KNEE, listen_s=0.05, allow_enable=True
     )
     findings = doctor.run()
     assert findings.enable_sent >= 1
@@ -648,7 +661,6 @@ def test_ctrl_c_while_an_enabled_motor_is_heard_still_disables_it() -> None:
     from can.interfaces.virtual import VirtualBus
 
     from mavservo.app.doctor.families import ENTER_MOTOR_MODE, EXIT_MOTOR_MODE
-    from mavservo.transport.resilient_bus import ResilientBus
 
     sent: list[bytes] = []
 
@@ -667,20 +679,8 @@ def test_ctrl_c_while_an_enabled_motor_is_heard_still_disables_it() -> None:
 
     channel = f"interrupt-{time.monotonic_ns()}"
 
-    def open_request(request: BusRequest) -> OpenedBus:
-        return OpenedBus(ResilientBus(lambda: InterruptedAfterEnable(channel=channel)))
-
-    config = load_config_text(
-        "servos:\n  - {name: knee, profile: cubemars-ak-mit, can_id: 3}\n", "doctor.yaml"
-    )
-    doctor = BusDoctor(
-        config.can.buses[0],
-        config.servos,
-        open_request,
-        lambda *_: None,
-        listen_s=0.05,
-        allow_enable=True,
-        try_bitrates=False,
+    doctor = _doctor_on(
+        lambda: InterruptedAfterEnable(channel=channel), _KNEE, listen_s=0.05, allow_enable=True
     )
     with pytest.raises(KeyboardInterrupt):
         doctor.run()
@@ -761,21 +761,7 @@ class _DroneCanNodes:
 
 
 def _doctor_on_virtual_bus(channel: str, servos: str, **kwargs: Any) -> BusDoctor:
-    from mavservo.transport.resilient_bus import ResilientBus
-
-    def open_request(request: BusRequest) -> OpenedBus:
-        return OpenedBus(ResilientBus(lambda: can.Bus(interface="virtual", channel=channel)))
-
-    config = load_config_text(f"servos:\n{servos}", "doctor.yaml")
-    return BusDoctor(
-        config.can.buses[0],
-        config.servos,
-        open_request,
-        lambda *_: None,
-        listen_s=0.5,
-        try_bitrates=False,
-        **kwargs,
-    )
+    return _doctor_on(lambda: can.Bus(interface="virtual", channel=channel), servos, **kwargs)
 
 
 def test_dronecan_get_node_info_names_each_node_heard(
