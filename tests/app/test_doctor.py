@@ -251,10 +251,15 @@ def test_scan_finds_an_unconfigured_servo_and_lists_it(
         "servos:\n  - {name: a, profile: rmd-x, can_id: 1}\n  - {name: b, profile: lk, can_id: 2}\n"
         "simulation:\n  servos:\n    b: {profile: rmd-x, can_id: 9}\n",
     )
-    code, out, _ = run_doctor(
+    code, out, log = run_doctor(
         capsys, path, tmp_path, "--no-bitrate-search", "--scan", "rmd-x", "--ids", "1-32"
     )
     assert "rmd-x 9" in out, out
+    # every id is polled; only the ids that answered get the model and software-date reads
+    # (MyActuator V4.2 0xB5, 0xB2), which would triple a scan's time on every id
+    sent = [(m.arbitration_id, m.data[0]) for m in _frames_sent(log) if not m.is_extended_id]
+    assert {i for i, command in sent if command == 0x9C} >= set(range(0x141, 0x161))
+    assert {i for i, command in sent if command in (0xB5, 0xB2)} == {0x141, 0x149}
     names = [entry["name"] for entry in suggested(out)["servos"]]
     assert "rmd_x_9" in names or any(e.get("can_id") == 9 for e in suggested(out)["servos"]), out
 

@@ -442,8 +442,16 @@ class BusDoctor:
         if opened is None:
             return False
         self.findings.probed_bitrates.append(bitrate)
+        configured_ids = {(s.profile, s.can_id) for s in self.servos}
         try:
-            self._probe(opened, probes, bitrate)
+            # a sibling's identity reads are not sent to a servo configured as another family
+            # (LK-Tech's document was not checked for MyActuator's 0xB2/0xB5)
+            self._probe(
+                opened,
+                probes,
+                bitrate,
+                identity=lambda c: True if (c.profile, c.can_id) in configured_ids else None,
+            )
             self._ask_node_info(opened, bitrate)
         finally:
             opened.close()
@@ -520,14 +528,23 @@ class BusDoctor:
                 return name
         return None
 
-    def _probe(self, opened: OpenedBus, probes: Sequence[Candidate], bitrate: int) -> None:
+    def _probe(
+        self,
+        opened: OpenedBus,
+        probes: Sequence[Candidate],
+        bitrate: int,
+        *,
+        identity: Callable[[Candidate], bool | None] = lambda candidate: True,
+    ) -> None:
+        """Send ``probes`` their safe requests (``identity(candidate)``: whether its identity
+        reads go too, see :func:`safe_requests`) in batches, and read the answers."""
         forbidden = self._forbidden | forbidden_frames(probes)
         sender = SafeSender(opened.bus, lambda msg, rx: self._record(msg, rx, bitrate), forbidden)
         frames: list[can.Message] = []
         askers: dict[tuple[int, bool, bytes], set[tuple[str, int]]] = {}
         occupants = self._occupants()
         for candidate in probes:  # two modes often share a read (the same frame): sent once
-            for msg in safe_requests(candidate, forbidden):
+            for msg in safe_requests(candidate, forbidden, identity=identity(candidate)):
                 owner = self._lands_on_another(candidate, msg, occupants)
                 if owner is not None:
                     self.findings.spared[owner] += 1
@@ -623,7 +640,18 @@ class BusDoctor:
             return
         started = time.monotonic()
         try:
-            self._probe(opened, probes, bitrate)
+            # the polls find a motor (a family no poll reaches, Robstride, is found by its
+            # identity read); only the ids that answered are asked who they are: an RMD-X's
+            # two identity reads on every id would triple a scan's time
+            self._probe(opened, probes, bitrate, identity=lambda candidate: None)
+            answered = {
+                (s.can_id, options_key(s.options))
+                for s in self.findings.sightings.values()
+                if s.profile == profile and s.how == "answered"
+            }
+            found = [c for c in probes if (c.can_id, options_key(c.raw_options)) in answered]
+            if found and any(facts(profile).identity(c.can_id, c.raw_options) for c in found):
+                self._probe(opened, found, bitrate)
         finally:
             opened.close()
         self.findings.scan_s = (self.findings.scan_s or 0.0) + time.monotonic() - started
@@ -639,15 +667,21 @@ def _receiving_ids(candidate: Candidate) -> list[FrameId]:
 
 
 def safe_requests(
-    candidate: Candidate, forbidden: set[tuple[int, bool, bytes]]
+    candidate: Candidate,
+    forbidden: set[tuple[int, bool, bytes]],
+    *,
+    identity: bool | None = True,
 ) -> list[can.Message]:
     """The telemetry polls of the profile (queries, ``ServoProfile.telemetry_requests``) and
-    the family's identity reads, less any frame that starts, releases or moves a motor: a
-    family whose poll is its enable (CubeMars MIT mode polls with enter-motor-mode) is not
-    polled."""
+    the family's identity reads (``identity``: True always, None only when no poll is safe),
+    less any frame that starts, releases or moves a motor: a family whose poll is its enable
+    (CubeMars MIT mode polls with enter-motor-mode) is not polled."""
     try:
         polls = list(candidate.instance.telemetry_requests())
     except Exception:  # noqa: BLE001 - a profile that cannot poll is not polled
         polls = []
-    frames = polls + facts(candidate.profile).identity(candidate.can_id, candidate.raw_options)
-    return [f for f in frames if _signature(f) not in forbidden]
+    frames = [f for f in polls if _signature(f) not in forbidden]
+    if identity or (identity is None and not frames):
+        reads = facts(candidate.profile).identity(candidate.can_id, candidate.raw_options)
+        frames += [f for f in reads if _signature(f) not in forbidden]
+    return frames
