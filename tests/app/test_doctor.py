@@ -697,7 +697,9 @@ class _DroneCanNodes:
     alone: each sends NodeStatus every 0.1 s and answers GetNodeInfo as the DSDL says; the
     requests they received are kept. Bounded: it stops after ``seconds``."""
 
-    def __init__(self, channel: str, nodes: dict[int, str], seconds: float = 6.0) -> None:
+    def __init__(
+        self, channel: str, nodes: dict[int, str], seconds: float = 6.0, answers: bool = True
+    ) -> None:
         import threading
 
         import dronecan
@@ -705,6 +707,7 @@ class _DroneCanNodes:
         self.dronecan = dronecan
         self.bus = can.Bus(interface="virtual", channel=channel)
         self.nodes = nodes
+        self.answers = answers
         self.requests: list[tuple[int, int]] = []
         self.deadline = time.monotonic() + seconds
         self.stopped = threading.Event()
@@ -742,6 +745,8 @@ class _DroneCanNodes:
             if node not in self.nodes or transfer.data_type_id != 1:
                 continue
             self.requests.append((node, transfer.source_node_id))
+            if not self.answers:
+                continue
             answer = protocol.GetNodeInfo.Response(name=self.nodes[node])
             answer.software_version.major, answer.software_version.minor = 1, 4
             answer.software_version.optional_field_flags = 1
@@ -845,6 +850,22 @@ def test_the_simulated_dronecan_node_is_asked_and_its_silence_said(
         said = out.split(f"DroneCAN node {node}: NodeStatus", 1)[1].splitlines()[0]
         assert said.endswith("no GetNodeInfo answer") or "GetNodeInfo: " in said, said
     assert_nothing_enabled_or_moved(path, log)
+
+
+def test_a_node_that_does_not_answer_get_node_info_is_said_so() -> None:
+    """A node heard by NodeStatus that ignores GetNodeInfo: asked once, then 'no GetNodeInfo
+    answer' (whatever the built-in simulation does)."""
+    pytest.importorskip("dronecan")
+    channel = f"nodeinfo-silent-{time.monotonic_ns()}"
+    nodes = _DroneCanNodes(channel, {42: "org.node"}, answers=False)
+    try:
+        doctor = _doctor_on_virtual_bus(channel, "  - {name: a, profile: dronecan, can_id: 42}\n")
+        findings = doctor.run()
+    finally:
+        nodes.stop()
+    assert nodes.requests == [(42, 127)]
+    assert findings.node_infos == {}
+    assert findings.node_info_said(42) == "no GetNodeInfo answer"
 
 
 @pytest.mark.parametrize("node_id", ["0", "128", "x"])
