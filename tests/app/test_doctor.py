@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +20,7 @@ from hypothesis import strategies as st
 from mavservo.app.bridge import Bridge
 from mavservo.app.doctor import main as doctor_main
 from mavservo.app.doctor.families import ENTER_MOTOR_MODE
+from mavservo.app.doctor.node_info import NodeInfoReader
 from mavservo.app.doctor.recognise import Recogniser, announcements
 from mavservo.app.doctor.session import BusDoctor
 from mavservo.app.doctor.wire_facts import (
@@ -28,6 +30,8 @@ from mavservo.app.doctor.wire_facts import (
     node_status,
     odrive_version,
     odrive_version_request,
+    rmdx_identity,
+    rmdx_identity_requests,
     robstride_device_id,
 )
 from mavservo.config import load_config, load_config_text
@@ -83,6 +87,8 @@ FAMILIES = [
 
 #: What the doctor learns beyond "it answers" (state, identity, mode registers).
 IDENTIFIED = {
+    # MyActuator V4.2 2.32 and 2.29: the simulated RMD-X answers the document's examples
+    "slcan.yaml": ["rmd-x id 1: OK", "model X8S2V10, software 2022-02-06"],
     "damiao.yaml": [
         "CTRL_MODE register: mit",
         # the simulated DM-J powers up in MIT mode
@@ -245,10 +251,15 @@ def test_scan_finds_an_unconfigured_servo_and_lists_it(
         "servos:\n  - {name: a, profile: rmd-x, can_id: 1}\n  - {name: b, profile: lk, can_id: 2}\n"
         "simulation:\n  servos:\n    b: {profile: rmd-x, can_id: 9}\n",
     )
-    code, out, _ = run_doctor(
+    code, out, log = run_doctor(
         capsys, path, tmp_path, "--no-bitrate-search", "--scan", "rmd-x", "--ids", "1-32"
     )
     assert "rmd-x 9" in out, out
+    # every id is polled; only the ids that answered get the model and software-date reads
+    # (MyActuator V4.2 0xB5, 0xB2), which would triple a scan's time on every id
+    sent = [(m.arbitration_id, m.data[0]) for m in _frames_sent(log) if not m.is_extended_id]
+    assert {i for i, command in sent if command == 0x9C} >= set(range(0x141, 0x161))
+    assert {i for i, command in sent if command in (0xB5, 0xB2)} == {0x141, 0x149}
     names = [entry["name"] for entry in suggested(out)["servos"]]
     assert "rmd_x_9" in names or any(e.get("can_id") == 9 for e in suggested(out)["servos"]), out
 
@@ -328,6 +339,37 @@ def test_robstride_device_id_answer() -> None:
     assert robstride_device_id(feedback) is None
 
 
+def test_rmdx_identity_reads_are_the_documents_bytes() -> None:
+    """MyActuator "Servo Motor Control Protocol" V4.2 (2024.05): 2.32.2 (B5) and 2.29.2 (B2)
+    are the command byte and seven zeros on 0x140 + id; the replies of 2.32.4 and 2.29.4 read
+    as the document reads them; a garbled or foreign answer reads as nothing."""
+    requests = rmdx_identity_requests(1)
+    assert [(m.arbitration_id, m.is_extended_id, bytes(m.data)) for m in requests] == [
+        (0x141, False, bytes.fromhex("B5 00 00 00 00 00 00 00")),
+        (0x141, False, bytes.fromhex("B2 00 00 00 00 00 00 00")),
+    ]
+
+    def reply(can_id: int, hex_data: str, *, extended: bool = False) -> can.Message:
+        return can.Message(
+            arbitration_id=can_id, data=bytes.fromhex(hex_data), is_extended_id=extended
+        )
+
+    assert rmdx_identity(reply(0x241, "B5 58 38 53 32 56 31 30")) == (1, "model X8S2V10")
+    assert rmdx_identity(reply(0x241, "B2 00 00 00 2E 89 34 01")) == (1, "software 2022-02-06")
+    assert rmdx_identity(reply(0x260, "B5 58 38 00 00 00 00 00")) == (32, "model X8")
+    for foreign in (
+        reply(0x241, "B5 58 0A 53 32 56 31 30"),  # a control character: not a model name
+        reply(0x241, "B5 00 00 00 00 00 00 00"),  # no name
+        reply(0x241, "B2 00 00 00 FF FF FF FF"),  # not a date
+        reply(0x241, "B2 01 00 00 2E 89 34 01"),  # bytes 1..3 are zero in the document
+        reply(0x141, "B5 58 38 53 32 56 31 30"),  # a request, not a reply
+        reply(0x261, "B5 58 38 53 32 56 31 30"),  # id 33: outside 1..32
+        reply(0x241, "B5 58 38 53 32 56 31 30", extended=True),
+        reply(0x241, "9C 00 00 00 00 00 00 00"),
+    ):
+        assert rmdx_identity(foreign) is None, foreign
+
+
 @given(
     st.integers(0, 0x1FFFFFFF),
     st.booleans(),
@@ -349,11 +391,19 @@ def test_hostile_frames_never_break_the_recognisers(
         dlc=len(data),
         check=False,
     )
-    for read in (announcements, actuator_status, odrive_version, robstride_device_id):
+    for read in (
+        announcements,
+        actuator_status,
+        odrive_version,
+        robstride_device_id,
+        rmdx_identity,
+    ):
         read(msg)
     _RECOGNISER.whose(msg)
+    _NODE_INFO.push(msg, 0.0)
 
 
+_NODE_INFO = NodeInfoReader(127)
 _RECOGNISER = Recogniser(
     {name: [] for name in ("rmd-x", "lk", "cubemars-ak", "damiao-dm", "odrive", "dronecan")},
     ids={"cubemars-ak": range(0, 8), "damiao-dm": range(1, 8), "dronecan": range(1, 8)},
@@ -552,6 +602,31 @@ def test_listen_seconds_are_bounded(listen: str, capsys: pytest.CaptureFixture[s
     assert "--listen" in capsys.readouterr().err
 
 
+_KNEE = "  - {name: knee, profile: cubemars-ak-mit, can_id: 3}\n"
+
+
+def _doctor_on(
+    make_bus: Callable[[], can.BusABC], servos: str, *, listen_s: float = 0.5, **kwargs: Any
+) -> BusDoctor:
+    """A doctor (no bitrate search, no log) on one bus of ``servos`` (YAML list items), whose
+    adapter is ``make_bus`` (reopened by the bus wrapper as a real one would be)."""
+    from mavservo.transport.resilient_bus import ResilientBus
+
+    def open_request(request: BusRequest) -> OpenedBus:
+        return OpenedBus(ResilientBus(make_bus))
+
+    config = load_config_text(f"servos:\n{servos}", "doctor.yaml")
+    return BusDoctor(
+        config.can.buses[0],
+        config.servos,
+        open_request,
+        lambda *_: None,
+        listen_s=listen_s,
+        try_bitrates=False,
+        **kwargs,
+    )
+
+
 def test_a_refused_disable_after_allow_enable_is_retried_and_reported(
     capsys: pytest.CaptureFixture[str],
 ) -> None:
@@ -562,7 +637,6 @@ def test_a_refused_disable_after_allow_enable_is_retried_and_reported(
 
     from mavservo.app.doctor import print_bus
     from mavservo.app.doctor.families import EXIT_MOTOR_MODE
-    from mavservo.transport.resilient_bus import ResilientBus
 
     refused: list[bytes] = []
 
@@ -575,20 +649,8 @@ def test_a_refused_disable_after_allow_enable_is_retried_and_reported(
 
     channel = f"refuse-{time.monotonic_ns()}"
 
-    def open_request(request: BusRequest) -> OpenedBus:
-        return OpenedBus(ResilientBus(lambda: RefusesDisable(channel=channel)))
-
-    config = load_config_text(
-        "servos:\n  - {name: knee, profile: cubemars-ak-mit, can_id: 3}\n", "doctor.yaml"
-    )
-    doctor = BusDoctor(
-        config.can.buses[0],
-        config.servos,
-        open_request,
-        lambda *_: None,
-        listen_s=0.05,
-        allow_enable=True,
-        try_bitrates=False,
+    doctor = _doctor_on(
+        lambda: RefusesDisable(channel=channel), _KNEE, listen_s=0.05, allow_enable=True
     )
     findings = doctor.run()
     assert findings.enable_sent >= 1
@@ -604,7 +666,6 @@ def test_ctrl_c_while_an_enabled_motor_is_heard_still_disables_it() -> None:
     from can.interfaces.virtual import VirtualBus
 
     from mavservo.app.doctor.families import ENTER_MOTOR_MODE, EXIT_MOTOR_MODE
-    from mavservo.transport.resilient_bus import ResilientBus
 
     sent: list[bytes] = []
 
@@ -623,21 +684,195 @@ def test_ctrl_c_while_an_enabled_motor_is_heard_still_disables_it() -> None:
 
     channel = f"interrupt-{time.monotonic_ns()}"
 
-    def open_request(request: BusRequest) -> OpenedBus:
-        return OpenedBus(ResilientBus(lambda: InterruptedAfterEnable(channel=channel)))
-
-    config = load_config_text(
-        "servos:\n  - {name: knee, profile: cubemars-ak-mit, can_id: 3}\n", "doctor.yaml"
-    )
-    doctor = BusDoctor(
-        config.can.buses[0],
-        config.servos,
-        open_request,
-        lambda *_: None,
-        listen_s=0.05,
-        allow_enable=True,
-        try_bitrates=False,
+    doctor = _doctor_on(
+        lambda: InterruptedAfterEnable(channel=channel), _KNEE, listen_s=0.05, allow_enable=True
     )
     with pytest.raises(KeyboardInterrupt):
         doctor.run()
     assert sent.index(EXIT_MOTOR_MODE) > sent.index(ENTER_MOTOR_MODE)
+
+
+class _DroneCanNodes:
+    """DroneCAN nodes on a python-can virtual bus, written with the ``dronecan`` package
+    alone: each sends NodeStatus every 0.1 s and answers GetNodeInfo as the DSDL says; the
+    requests they received are kept. Bounded: it stops after ``seconds``."""
+
+    def __init__(
+        self, channel: str, nodes: dict[int, str], seconds: float = 6.0, answers: bool = True
+    ) -> None:
+        import threading
+
+        import dronecan
+
+        self.dronecan = dronecan
+        self.bus = can.Bus(interface="virtual", channel=channel)
+        self.nodes = nodes
+        self.answers = answers
+        self.requests: list[tuple[int, int]] = []
+        self.deadline = time.monotonic() + seconds
+        self.stopped = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _send(self, transfer: Any) -> None:
+        for frame in transfer.to_frames():
+            self.bus.send(
+                can.Message(
+                    arbitration_id=frame.message_id, data=bytes(frame.bytes), is_extended_id=True
+                )
+            )
+
+    def _run(self) -> None:
+        dronecan = self.dronecan
+        protocol = dronecan.uavcan.protocol
+        next_status = 0.0
+        while not self.stopped.is_set() and time.monotonic() < self.deadline:
+            if time.monotonic() >= next_status:
+                next_status = time.monotonic() + 0.1
+                for node in self.nodes:
+                    status = protocol.NodeStatus(uptime_sec=3, health=0, mode=0)
+                    self._send(
+                        dronecan.transport.Transfer(
+                            transfer_id=0, source_node_id=node, payload=status
+                        )
+                    )
+            msg = self.bus.recv(0.02)
+            if msg is None or not msg.is_extended_id or not msg.arbitration_id & 0x80:
+                continue
+            transfer = dronecan.transport.Transfer()
+            transfer.from_frames([dronecan.transport.Frame(msg.arbitration_id, bytes(msg.data))])
+            node = transfer.dest_node_id
+            if node not in self.nodes or transfer.data_type_id != 1:
+                continue
+            self.requests.append((node, transfer.source_node_id))
+            if not self.answers:
+                continue
+            answer = protocol.GetNodeInfo.Response(name=self.nodes[node])
+            answer.software_version.major, answer.software_version.minor = 1, 4
+            answer.software_version.optional_field_flags = 1
+            answer.software_version.vcs_commit = 0x2B6F11C4
+            answer.hardware_version.major = 2
+            answer.hardware_version.unique_id = list(range(16))
+            self._send(
+                dronecan.transport.Transfer(
+                    transfer_id=transfer.transfer_id,
+                    source_node_id=node,
+                    dest_node_id=transfer.source_node_id,
+                    payload=answer,
+                    service_not_message=True,
+                    request_not_response=False,
+                )
+            )
+
+    def stop(self) -> None:
+        self.stopped.set()
+        self.thread.join(timeout=2.0)
+        self.bus.shutdown()
+
+
+def _doctor_on_virtual_bus(channel: str, servos: str, **kwargs: Any) -> BusDoctor:
+    return _doctor_on(lambda: can.Bus(interface="virtual", channel=channel), servos, **kwargs)
+
+
+def test_dronecan_get_node_info_names_each_node_heard(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """Every node heard by NodeStatus is asked GetNodeInfo from node 127 (the id the
+    DroneCAN specification reserves for tools), configured or not; the answers, encoded by
+    the ``dronecan`` package, print name, software and hardware version and unique id."""
+    pytest.importorskip("dronecan")
+    from mavservo.app.doctor import print_bus
+    from mavservo.app.doctor.verdict import judge
+
+    channel = f"nodeinfo-{time.monotonic_ns()}"
+    nodes = _DroneCanNodes(channel, {42: "org.ardupilot.ap_periph", 43: "com.example.\x1b[2Jx"})
+    try:
+        doctor = _doctor_on_virtual_bus(channel, "  - {name: a, profile: dronecan, can_id: 42}\n")
+        findings = doctor.run()
+    finally:
+        nodes.stop()
+    assert sorted(nodes.requests) == [(42, 127), (43, 127)]
+    said = findings.node_infos[42].text()
+    assert said == (
+        "GetNodeInfo: org.ardupilot.ap_periph, software 1.4 (vcs 0x2b6f11c4), hardware 2.0, "
+        "unique id 000102030405060708090a0b0c0d0e0f"
+    )
+    # a name is printed, never a terminal escape from a hostile node
+    assert findings.node_infos[43].name == "com.example.?[2Jx"
+    print_bus(findings, judge(findings, doctor.servos))
+    out = capsys.readouterr().out
+    assert f"DroneCAN node 42: NodeStatus OK, OPERATIONAL, up 3 s; {said}" in out, out
+    assert "frames no family reads" not in out, out  # the answers' frames are read
+    servo_line = out.split("a            dronecan id 42:", 1)[1]
+    assert said in servo_line, out
+
+
+def test_get_node_info_from_another_node_id_and_never_from_a_taken_one() -> None:
+    """``--node-id`` picks the doctor's id; when a node on the bus has it, the doctor asks
+    nothing (two nodes with one id would garble each other's transfers) and says why."""
+    pytest.importorskip("dronecan")
+    channel = f"nodeinfo-taken-{time.monotonic_ns()}"
+    nodes = _DroneCanNodes(channel, {42: "org.node", 100: "org.other"})
+    try:
+        servo = "  - {name: a, profile: dronecan, can_id: 42}\n"
+        taken = _doctor_on_virtual_bus(channel, servo, node_id=100).run()
+        asked_before = list(nodes.requests)
+        free = _doctor_on_virtual_bus(channel, servo, node_id=101).run()
+    finally:
+        nodes.stop()
+    assert asked_before == [] and taken.node_infos == {}
+    assert "node id 100, the doctor's, is taken" in taken.node_info_said(42)
+    assert sorted(nodes.requests) == [(42, 101), (100, 101)]
+    assert free.node_infos[42].name == "org.node"
+
+
+def test_the_simulated_dronecan_node_is_asked_and_its_silence_said(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    """The built-in simulated DroneCAN node answers no GetNodeInfo: the doctor asks each
+    node (the requests are in its CAN log: service frames, GetNodeInfo, from node 127) and
+    says there was no answer; the request enables and moves nothing."""
+    from mavservo.servos.dronecan import wire
+
+    path = REPO / "config" / "dronecan.yaml"
+    code, out, log = run_doctor(capsys, path, tmp_path, "--no-bitrate-search")
+    assert code == 0, out
+    requests = [wire.service_fields(m) for m in _frames_sent(log)]
+    asked = {
+        f.destination
+        for f in requests
+        if f is not None and f.dtid == wire.DTID_GET_NODE_INFO and f.request and f.source == 127
+    }
+    nodes = {servo.can_id for servo in load_config(path).servos}
+    assert asked == nodes
+    for node in nodes:
+        assert f"DroneCAN node {node}: NodeStatus OK, OPERATIONAL" in out
+        said = out.split(f"DroneCAN node {node}: NodeStatus", 1)[1].splitlines()[0]
+        assert said.endswith("no GetNodeInfo answer") or "GetNodeInfo: " in said, said
+    assert_nothing_enabled_or_moved(path, log)
+
+
+def test_a_node_that_does_not_answer_get_node_info_is_said_so() -> None:
+    """A node heard by NodeStatus that ignores GetNodeInfo: asked once, then 'no GetNodeInfo
+    answer' (whatever the built-in simulation does)."""
+    pytest.importorskip("dronecan")
+    channel = f"nodeinfo-silent-{time.monotonic_ns()}"
+    nodes = _DroneCanNodes(channel, {42: "org.node"}, answers=False)
+    try:
+        doctor = _doctor_on_virtual_bus(channel, "  - {name: a, profile: dronecan, can_id: 42}\n")
+        findings = doctor.run()
+    finally:
+        nodes.stop()
+    assert nodes.requests == [(42, 127)]
+    assert findings.node_infos == {}
+    assert findings.node_info_said(42) == "no GetNodeInfo answer"
+
+
+@pytest.mark.parametrize("node_id", ["0", "128", "x"])
+def test_node_id_must_be_a_dronecan_node_id(
+    node_id: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    with pytest.raises(SystemExit) as caught:
+        doctor_main(["--node-id", node_id])
+    assert caught.value.code == 2
+    assert "--node-id" in capsys.readouterr().err

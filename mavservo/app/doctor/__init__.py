@@ -36,6 +36,7 @@ from mavservo.transport.bus_factory import (
     open_bus,
 )
 
+from .node_info import TOOL_NODE_ID
 from .session import BusDoctor, BusFindings
 from .verdict import Verdict, extra_entries, judge
 
@@ -67,6 +68,17 @@ def _listen_seconds(text: str) -> float:
     if not 0 < seconds <= MAX_LISTEN_S:  # NaN fails both comparisons
         raise argparse.ArgumentTypeError(f"{text!r}: seconds in (0, {MAX_LISTEN_S:g}]")
     return seconds
+
+
+def _node_id(text: str) -> int:
+    """``--node-id``: a DroneCAN node id, 1..127."""
+    try:
+        node_id = int(text)
+    except ValueError:
+        node_id = 0
+    if not 1 <= node_id <= 127:
+        raise argparse.ArgumentTypeError(f"{text!r}: a DroneCAN node id is 1..127")
+    return node_id
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -101,6 +113,13 @@ def _parser() -> argparse.ArgumentParser:
         "--no-bitrate-search",
         action="store_true",
         help="stay at the configured bitrate instead of trying the standard ones",
+    )
+    parser.add_argument(
+        "--node-id",
+        type=_node_id,
+        default=TOOL_NODE_ID,
+        help="the DroneCAN node id the doctor asks GetNodeInfo from (default 127, the id the "
+        "DroneCAN specification reserves for tools)",
     )
     parser.add_argument("--log-dir", help="where doctor-<time>.asc goes (default: logging.dir)")
     return parser
@@ -182,6 +201,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 listen_s=args.listen,
                 allow_enable=args.allow_enable,
                 try_bitrates=not args.no_bitrate_search,
+                node_id=args.node_id,
                 scans=scans,
             )
             all_ok &= print_bus(findings, verdicts)
@@ -201,6 +221,7 @@ def diagnose_bus(
     allow_enable: bool,
     try_bitrates: bool,
     scans: Sequence[tuple[str, range]] = (),
+    node_id: int = TOOL_NODE_ID,
 ) -> tuple[BusFindings, list[Verdict]]:
     """Run the doctor on ``config``'s bus ``index`` (its simulation for ``channel: sim``)."""
     bus = config.can.buses[index]
@@ -222,6 +243,7 @@ def diagnose_bus(
         listen_s=listen_s,
         allow_enable=allow_enable,
         try_bitrates=try_bitrates,
+        node_id=node_id,
     )
     try:
         findings = doctor.run(scans)
@@ -326,7 +348,7 @@ def _print_who(findings: BusFindings) -> None:
     for node, status in sorted(findings.node_statuses.items()):
         print(
             f"  DroneCAN node {node}: NodeStatus {status.health}, {status.mode}, "
-            f"up {status.uptime_s} s"
+            f"up {status.uptime_s} s; {findings.node_info_said(node)}"
         )
     if findings.unknown_ids:
         ids = ", ".join(

@@ -18,7 +18,7 @@ from typing import Any
 
 import can
 
-from .wire_facts import damiao_mode_request, odrive_version_request
+from .wire_facts import damiao_mode_request, odrive_version_request, rmdx_identity_requests
 
 #: The MIT packing's special frames (CubeMars AK manual, "MIT mode" table; Damiao DM-J manual,
 #: "MIT control": the same bytes): enter motor mode (enable) and exit (disable).
@@ -142,6 +142,7 @@ FACTS: dict[str, FamilyFacts] = {
         "rmd-x",
         siblings=("lk",),
         mode_fix=_rmd_lk_mode,
+        identity=lambda can_id, options: rmdx_identity_requests(can_id),
         silence=(
             "an RMD-X answers every request on 0x240 + id at its firmware's bitrate (1 Mbit/s "
             "from the factory): check the id (MyActuator's tool, 'Motor ID'), CAN_H/CAN_L and a "

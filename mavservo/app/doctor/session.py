@@ -33,6 +33,14 @@ from mavservo.transport.bus_factory import (
 )
 
 from .families import facts
+from .node_info import (
+    ANSWER_WAIT_S,
+    MAX_NODES_ASKED,
+    TOOL_NODE_ID,
+    NodeInfo,
+    NodeInfoReader,
+    get_node_info_request,
+)
 from .recognise import (
     Candidate,
     Recogniser,
@@ -47,6 +55,7 @@ from .wire_facts import (
     actuator_status,
     damiao_mode,
     odrive_version,
+    rmdx_identity,
     robstride_device_id,
 )
 
@@ -168,6 +177,11 @@ class BusFindings:
     """(family, id) -> what an identity read said (ODrive version, Robstride MCU id)."""
     actuators: dict[int, set[int]] = field(default_factory=dict)
     """DroneCAN node -> the actuator ids its actuator Status reports carry."""
+    node_infos: dict[int, NodeInfo] = field(default_factory=dict)
+    """DroneCAN node -> its answer to GetNodeInfo."""
+    node_info_asked: set[int] = field(default_factory=set)
+    node_info_skipped: str | None = None
+    """Why no GetNodeInfo was asked at all (the doctor's node id is taken on the bus)."""
     probed_bitrates: list[int] = field(default_factory=list)
     sent: int = 0
     enable_sent: int = 0
@@ -187,6 +201,26 @@ class BusFindings:
         (never answering a request) is not taken for one."""
         unknown = sum(self.unknown_ids.values()) + self.unknown_overflow
         return unknown > sum(s.frames for s in self.sightings.values())
+
+    def identify(self, family: str, can_id: int, said: str) -> None:
+        """Keep what an identity read said; a family with several reads (RMD-X model and
+        software date) keeps each once, in the order heard."""
+        known = self.identities.get((family, can_id))
+        if known is None:
+            self.identities[(family, can_id)] = said
+        elif said not in known.split(", "):
+            self.identities[(family, can_id)] = f"{known}, {said}"
+
+    def node_info_said(self, node: int) -> str:
+        """What GetNodeInfo told of DroneCAN ``node``, or why nothing."""
+        info = self.node_infos.get(node)
+        if info is not None:
+            return info.text()
+        if self.node_info_skipped is not None:
+            return self.node_info_skipped
+        if node in self.node_info_asked:
+            return "no GetNodeInfo answer"
+        return "GetNodeInfo not asked"
 
     def unknown(self, msg: can.Message) -> None:
         """Count a frame no family reads, by id; a flood of random ids is counted in one
@@ -225,6 +259,7 @@ class BusDoctor:
         listen_s: float = 1.5,
         allow_enable: bool = False,
         try_bitrates: bool = True,
+        node_id: int = TOOL_NODE_ID,
     ) -> None:
         self.bus = bus
         self.servos = list(servos)
@@ -233,6 +268,8 @@ class BusDoctor:
         self.listen_s = listen_s
         self.allow_enable = allow_enable
         self.try_bitrates = try_bitrates
+        self.node_id = node_id
+        self._node_info = NodeInfoReader(node_id)
         self.findings = BusFindings(bus, has_listen_only(bus.interface))
         if bus.interface in BITRATE_SET_OUTSIDE:
             self.try_bitrates = False  # the link's bitrate is not ours to change
@@ -358,12 +395,25 @@ class BusDoctor:
         for family, read in (("odrive", odrive_version), ("robstride", robstride_device_id)):
             identity = read(msg)
             if identity is not None:
-                self.findings.identities[(family, identity[0])] = identity[1]
+                self.findings.identify(family, *identity)
+        model_or_date = rmdx_identity(msg)
+        identified = model_or_date is not None and any(
+            c.profile == "rmd-x" and c.can_id == model_or_date[0]
+            for c in self.recogniser.candidates
+        )
+        if identified and model_or_date is not None:  # the profile reads no such answer
+            self.findings.identify("rmd-x", *model_or_date)
+        if self._node_info.accepts(msg):  # every frame of the answer is read, not unknown
+            identified = True
+            info = self._node_info.push(msg, time.monotonic())
+            if info is not None:
+                self.findings.node_infos[info.node_id] = info
+                self.findings.identify("dronecan", info.node_id, info.text())
         status_of = actuator_status(msg)
         if status_of is not None:
             self.findings.actuators.setdefault(status_of[0], set()).add(status_of[1])
         if not candidates:
-            if said is None:
+            if said is None and not identified:
                 self.findings.unknown(msg)
             return
         mode = damiao_mode(msg)
@@ -392,11 +442,56 @@ class BusDoctor:
         if opened is None:
             return False
         self.findings.probed_bitrates.append(bitrate)
+        configured_ids = {(s.profile, s.can_id) for s in self.servos}
         try:
-            self._probe(opened, probes, bitrate)
+            # a sibling's identity reads are not sent to a servo configured as another family
+            # (LK-Tech's document was not checked for MyActuator's 0xB2/0xB5)
+            self._probe(
+                opened,
+                probes,
+                bitrate,
+                identity=lambda c: True if (c.profile, c.can_id) in configured_ids else None,
+            )
+            self._ask_node_info(opened, bitrate)
         finally:
             opened.close()
         return True
+
+    def _ask_node_info(self, opened: OpenedBus, bitrate: int) -> None:
+        """GetNodeInfo to each DroneCAN node heard by its NodeStatus and not yet asked (a
+        request changes nothing on a node: the specification's GetNodeInfo), from the
+        doctor's own node id; not at all when a node on the bus has that id."""
+        heard = sorted(set(self.findings.node_statuses) - self.findings.node_info_asked)
+        if not heard:
+            return
+        if self.node_id in self.findings.node_statuses:
+            self.findings.node_info_skipped = (
+                f"GetNodeInfo not asked: node id {self.node_id}, the doctor's, is taken on this "
+                "bus (pass --node-id with a free one)"
+            )
+            return
+        sender = SafeSender(
+            opened.bus, lambda msg, rx: self._record(msg, rx, bitrate), self._forbidden
+        )
+        occupants = self._occupants()
+        for node in heard[:MAX_NODES_ASKED]:
+            frames = get_node_info_request(node, self.node_id, transfer_id=0)
+            owner = next(
+                (
+                    name
+                    for name, group, frame_id in occupants
+                    if "dronecan" not in group and any(frame_id.matches(f) for f in frames)
+                ),
+                None,
+            )
+            if owner is not None:
+                self.findings.spared[owner] += 1
+                continue
+            self.findings.node_info_asked.add(node)
+            for frame in frames:
+                sender.send(frame)
+        self._collect(opened.bus, bitrate, ANSWER_WAIT_S, "heard", set())
+        self.findings.sent += sender.sent
 
     def _occupants(self) -> list[tuple[str, frozenset[str], FrameId]]:
         """The ids other devices take frames on: every configured servo, every motor heard or
@@ -433,14 +528,23 @@ class BusDoctor:
                 return name
         return None
 
-    def _probe(self, opened: OpenedBus, probes: Sequence[Candidate], bitrate: int) -> None:
+    def _probe(
+        self,
+        opened: OpenedBus,
+        probes: Sequence[Candidate],
+        bitrate: int,
+        *,
+        identity: Callable[[Candidate], bool | None] = lambda candidate: True,
+    ) -> None:
+        """Send ``probes`` their safe requests (``identity(candidate)``: whether its identity
+        reads go too, see :func:`safe_requests`) in batches, and read the answers."""
         forbidden = self._forbidden | forbidden_frames(probes)
         sender = SafeSender(opened.bus, lambda msg, rx: self._record(msg, rx, bitrate), forbidden)
         frames: list[can.Message] = []
         askers: dict[tuple[int, bool, bytes], set[tuple[str, int]]] = {}
         occupants = self._occupants()
         for candidate in probes:  # two modes often share a read (the same frame): sent once
-            for msg in safe_requests(candidate, forbidden):
+            for msg in safe_requests(candidate, forbidden, identity=identity(candidate)):
                 owner = self._lands_on_another(candidate, msg, occupants)
                 if owner is not None:
                     self.findings.spared[owner] += 1
@@ -536,7 +640,18 @@ class BusDoctor:
             return
         started = time.monotonic()
         try:
-            self._probe(opened, probes, bitrate)
+            # the polls find a motor (a family no poll reaches, Robstride, is found by its
+            # identity read); only the ids that answered are asked who they are: an RMD-X's
+            # two identity reads on every id would triple a scan's time
+            self._probe(opened, probes, bitrate, identity=lambda candidate: None)
+            answered = {
+                (s.can_id, options_key(s.options))
+                for s in self.findings.sightings.values()
+                if s.profile == profile and s.how == "answered"
+            }
+            found = [c for c in probes if (c.can_id, options_key(c.raw_options)) in answered]
+            if found and any(facts(profile).identity(c.can_id, c.raw_options) for c in found):
+                self._probe(opened, found, bitrate)
         finally:
             opened.close()
         self.findings.scan_s = (self.findings.scan_s or 0.0) + time.monotonic() - started
@@ -552,15 +667,21 @@ def _receiving_ids(candidate: Candidate) -> list[FrameId]:
 
 
 def safe_requests(
-    candidate: Candidate, forbidden: set[tuple[int, bool, bytes]]
+    candidate: Candidate,
+    forbidden: set[tuple[int, bool, bytes]],
+    *,
+    identity: bool | None = True,
 ) -> list[can.Message]:
     """The telemetry polls of the profile (queries, ``ServoProfile.telemetry_requests``) and
-    the family's identity reads, less any frame that starts, releases or moves a motor: a
-    family whose poll is its enable (CubeMars MIT mode polls with enter-motor-mode) is not
-    polled."""
+    the family's identity reads (``identity``: True always, None only when no poll is safe),
+    less any frame that starts, releases or moves a motor: a family whose poll is its enable
+    (CubeMars MIT mode polls with enter-motor-mode) is not polled."""
     try:
         polls = list(candidate.instance.telemetry_requests())
     except Exception:  # noqa: BLE001 - a profile that cannot poll is not polled
         polls = []
-    frames = polls + facts(candidate.profile).identity(candidate.can_id, candidate.raw_options)
-    return [f for f in frames if _signature(f) not in forbidden]
+    frames = [f for f in polls if _signature(f) not in forbidden]
+    if identity or (identity is None and not frames):
+        reads = facts(candidate.profile).identity(candidate.can_id, candidate.raw_options)
+        frames += [f for f in reads if _signature(f) not in forbidden]
+    return frames

@@ -219,3 +219,51 @@ def node_status(msg: can.Message) -> NodeStatus | None:
     uptime, packed = struct.unpack_from("<IB", data)
     mode = (packed >> 3) & 0x7
     return NodeStatus(node_id, uptime, HEALTH[packed >> 6], MODES.get(mode, f"mode {mode}"))
+
+
+#: MyActuator "Servo Motor Control Protocol" V4.2 (2024.05): requests on ``0x140 + id``,
+#: replies on ``0x240 + id``, 8 data bytes (1.1.2); 2.29 "System Software Version Date Read"
+#: (0xB2: the reply's bytes 4..7, little-endian, are the date as the decimal YYYYMMDD) and 2.32
+#: "Motor Model Reading" (0xB5: bytes 1..7 are the model in ASCII, e.g. ``X8S2V10``). Both
+#: send the command byte and seven zeros and change nothing. Cross-checked against
+#: 2b-t/myactuator_rmd (``command_type.hpp``: the same bytes; its version-date response also
+#: wants bytes 1..3 zero).
+RMDX_REQUEST_BASE, RMDX_REPLY_BASE = 0x140, 0x240
+RMDX_READ_VERSION_DATE, RMDX_READ_MODEL = 0xB2, 0xB5
+
+
+def rmdx_identity_requests(can_id: int) -> list[can.Message]:
+    """The model and software-date reads of an RMD-X (V4.2, 2.32 and 2.29)."""
+    return [
+        can.Message(
+            arbitration_id=RMDX_REQUEST_BASE + can_id,
+            data=bytes([command, 0, 0, 0, 0, 0, 0, 0]),
+            is_extended_id=False,
+        )
+        for command in (RMDX_READ_MODEL, RMDX_READ_VERSION_DATE)
+    ]
+
+
+def rmdx_identity(msg: can.Message) -> tuple[int, str] | None:
+    """``(motor id, "model X8S2V10")`` or ``(motor id, "software 2022-02-06")`` from an
+    RMD-X's answer to a model or version-date read; None for any other frame, and for an
+    answer whose text is not printable ASCII or whose date is not a date (a hostile or
+    garbled frame prints nothing)."""
+    if msg.is_extended_id or msg.is_remote_frame or msg.is_error_frame or len(msg.data) != 8:
+        return None
+    can_id = msg.arbitration_id - RMDX_REPLY_BASE
+    if not 1 <= can_id <= 32:
+        return None
+    data = bytes(msg.data)
+    if data[0] == RMDX_READ_MODEL:
+        text = data[1:].rstrip(b"\x00 ")
+        if not text or not all(0x21 <= c < 0x7F for c in text):
+            return None
+        return can_id, f"model {text.decode('ascii')}"
+    if data[0] == RMDX_READ_VERSION_DATE and data[1:4] == bytes(3):
+        date = int.from_bytes(data[4:8], "little")
+        year, month, day = date // 10000, date // 100 % 100, date % 100
+        if not (2000 <= year <= 2099 and 1 <= month <= 12 and 1 <= day <= 31):
+            return None
+        return can_id, f"software {year:04d}-{month:02d}-{day:02d}"
+    return None

@@ -13,6 +13,10 @@ What the device does, as the document states it (requests on ``0x140 + id``, rep
   (bytes 6..7);
 * ``80`` (motor shutdown) turns the motor off; ``B3`` sets the communication-loss time (ms,
   bytes 4..7): silent that long, the motor turns itself off; both echoed;
+* ``B5`` (2.32, motor model reading) answers the model in seven ASCII bytes (1..7), and ``B2``
+  (2.29, system software version date read) the date as the decimal YYYYMMDD in bytes 4..7
+  (bytes 1..3 zero); the simulated servo gives the document's examples, ``X8S2V10`` and
+  20220206; reads, they change nothing;
 * a model with a holding brake (the servo's ``brake`` option) starts with the brake locked:
   ``77`` releases it, ``78`` locks it (both echoed); a locked brake holds the output, so a
   position command does not move it.
@@ -28,6 +32,7 @@ _REQUEST_BASE, _REPLY_BASE = 0x140, 0x240
 _SHUTDOWN, _BRAKE_RELEASE, _BRAKE_LOCK, _COMM_LOSS = 0x80, 0x77, 0x78, 0xB3
 _ABSOLUTE_POSITION, _READ_STATUS_2 = 0xA4, 0x9C
 _READ_MULTI_TURN, _READ_STATUS_1 = 0x92, 0x9A
+_READ_SOFTWARE_DATE, _READ_MODEL = 0xB2, 0xB5
 
 _ERROR_WORD = (
     (Fault.STALL, 0x0002),
@@ -52,6 +57,10 @@ class RmdXV4Device:
     """One RMD-X V4 servo on a :class:`SimMotor` (module docstring)."""
 
     pushes = False
+    model = b"X8S2V10"
+    """The model the servo names (V4.2, 2.32.4's example: RMD-X8 S2 V10), 7 ASCII bytes."""
+    software_date = 20220206
+    """The software version date (V4.2, 2.29.4's example: 6 February 2022)."""
 
     def __init__(self, motor: SimMotor, can_id: int, options: ProfileOptions) -> None:
         setup = options.model_dump()
@@ -113,6 +122,12 @@ class RmdXV4Device:
             angle = _saturated(motor.position_deg * 100, -(2**31), 2**31 - 1)
             return [
                 self._reply(bytes([command, 0, 0, 0]) + angle.to_bytes(4, "little", signed=True))
+            ]
+        if command == _READ_MODEL:
+            return [self._reply(bytes([command]) + self.model[:7].ljust(7, b" "))]
+        if command == _READ_SOFTWARE_DATE:
+            return [
+                self._reply(bytes([command, 0, 0, 0]) + self.software_date.to_bytes(4, "little"))
             ]
         if command == _READ_STATUS_1:
             error = sum(bit for fault, bit in _ERROR_WORD if fault in motor.active_faults)
