@@ -44,3 +44,13 @@ class HostedComponent(Protocol):
 
     def requested_message(self, msg_id: int, now: float) -> Any | None:
         """The message answering MAV_CMD_REQUEST_MESSAGE(msg_id), or None if not published."""
+
+
+@runtime_checkable
+class CountingComponent(Protocol):
+    """A hosted component that counts what it refused (the gimbal device's ``GimbalCounters``):
+    the MAVLink core puts the counts in its stats, so they reach the summary and metrics.json."""
+
+    def counter_values(self) -> dict[str, int]:
+        """Each counter by name."""
+        ...

@@ -41,6 +41,7 @@ Rules it applies (the "why" of each is in the method that applies it):
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 import logging
 import math
@@ -295,6 +296,10 @@ class GimbalDevice:
         """kind of bad input -> (when its last line was logged, how many since)."""
 
     # ------------------------------------------------------------------ inputs
+
+    def counter_values(self) -> dict[str, int]:
+        """Each counter by name (:class:`~mavservo.mavlink.component.CountingComponent`)."""
+        return dataclasses.asdict(self.counters)
 
     def handle_message(self, msg: Any, now: float) -> None:
         """Consume one received message; anything not gimbal-related is ignored cheaply."""

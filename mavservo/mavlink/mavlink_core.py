@@ -13,7 +13,6 @@ as is, and the configured autopilot (system, component) is watched.
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 from collections import Counter
 from collections.abc import Callable, Mapping, Sequence, Sized
@@ -32,7 +31,12 @@ from mavservo.mavlink.commands import (
     Outgoing,
     RateLimitedLog,
 )
-from mavservo.mavlink.component import MAV_TYPE_GIMBAL, MAV_TYPE_SERVO, HostedComponent
+from mavservo.mavlink.component import (
+    MAV_TYPE_GIMBAL,
+    MAV_TYPE_SERVO,
+    CountingComponent,
+    HostedComponent,
+)
 from mavservo.mavlink.failsafe import FailsafeEvent, HeartbeatWatchdog
 from mavservo.mavlink.ftp import UNBUDGETED_BYTES_S
 from mavservo.mavlink.gimbal_discovery import GimbalDiscoveryWatch
@@ -452,11 +456,8 @@ class MavlinkCore:
         of hostile gimbal values was DENIED and counted, but the count stayed in the device."""
         out: dict[str, dict[str, int]] = {}
         for cid, device in self.gimbals.items():
-            counters = getattr(device, "counters", None)
-            if dataclasses.is_dataclass(counters) and not isinstance(counters, type):
-                out[str(cid)] = dataclasses.asdict(counters)
-            elif isinstance(counters, Mapping):
-                out[str(cid)] = dict(counters)
+            if isinstance(device, CountingComponent):
+                out[str(cid)] = device.counter_values()
         return out
 
 
