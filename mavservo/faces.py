@@ -18,12 +18,15 @@ from typing import Any
 
 def lazy_face(package: str, where: Mapping[str, str]) -> Callable[[str], Any]:
     """The module-level ``__getattr__`` (PEP 562) of ``package``: ``where`` maps each name of
-    its face to the submodule, relative to ``package``, that defines it."""
+    its face to the submodule, relative to ``package``, that defines it; ``"module:original"``
+    when the face gives a name a clearer one among its neighbours (``encode`` of the AA-55
+    codec is ``encode_aa55`` in the transport face)."""
 
     def __getattr__(name: str) -> Any:
-        module = where.get(name)
-        if module is None:
+        place = where.get(name)
+        if place is None:
             raise AttributeError(f"module {package!r} has no attribute {name!r}")
-        return vars(importlib.import_module(f"{package}.{module}"))[name]
+        module, _, original = place.partition(":")
+        return vars(importlib.import_module(f"{package}.{module}"))[original or name]
 
     return __getattr__

@@ -44,6 +44,42 @@ def _cross_layer_imports() -> dict[str, set[tuple[str, str]]]:
     return found
 
 
+def _reaching_past_a_face() -> list[str]:
+    """Every import, in a module of another layer (the app and the CLI included), that names a
+    layer's module instead of its face: ``from mavservo.mavlink.settings import X``,
+    ``import mavservo.mavlink.settings``, ``from mavservo.records import runlog``."""
+    found = []
+    for path in PACKAGE_DIR.rglob("*.py"):
+        rel = path.relative_to(PACKAGE_DIR)
+        own = rel.parts[0] if len(rel.parts) > 1 else None
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Import):
+                modules = [alias.name for alias in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                modules = [node.module] + [f"{node.module}.{alias.name}" for alias in node.names]
+            else:
+                continue
+            for module in modules:
+                parts = module.split(".")
+                if parts[0] != "mavservo" or len(parts) < 3 or parts[1] not in LAYERS:
+                    continue
+                if parts[1] == own or not _is_module(parts):
+                    continue
+                found.append(f"mavservo/{rel}:{node.lineno} imports {module}")
+    return sorted(set(found))
+
+
+def _is_module(parts: list[str]) -> bool:
+    where = PACKAGE_DIR.joinpath(*parts[1:])
+    return where.with_suffix(".py").exists() or where.is_dir()
+
+
+def test_other_layers_import_names_from_the_face_never_its_modules() -> None:
+    """Issue 31 item 4: what a layer keeps in its modules is its own business; another layer
+    sees only the face, so a module can be split or renamed without touching its users."""
+    assert _reaching_past_a_face() == []
+
+
 @pytest.mark.parametrize("layer", LAYERS)
 def test_the_face_names_everything_the_other_layers_import(layer: str) -> None:
     face = set(importlib.import_module(f"mavservo.{layer}").__all__)
@@ -53,6 +89,16 @@ def test_the_face_names_everything_the_other_layers_import(layer: str) -> None:
         if name not in face
     )
     assert not missing, f"add to mavservo/{layer}/__init__.py's face: {missing}"
+
+
+@pytest.mark.parametrize("layer", LAYERS)
+def test_no_name_of_the_face_is_also_a_module_of_the_layer(layer: str) -> None:
+    """Importing a submodule binds its name on the package, and that binding hides the lazy
+    face's name for good: ``from mavservo.transport import interface_options`` gave the function
+    until something imported the module ``interface_options``, then the module."""
+    package = importlib.import_module(f"mavservo.{layer}")
+    clashes = [name for name in package.__all__ if _is_module(["mavservo", layer, name])]
+    assert clashes == [], f"rename the module or the name: {clashes}"
 
 
 @pytest.mark.parametrize("layer", LAYERS)

@@ -27,33 +27,30 @@ import can
 from mavservo.app import node_state
 from mavservo.app.check import stop_behaviour_lines
 from mavservo.app.component_metadata import metadata_files
-from mavservo.config import BusConfig, Config
-from mavservo.config.overlay import overlay_path
-from mavservo.config.views import (
+from mavservo.config import (
+    BusConfig,
+    Config,
     gimbal_settings,
     mavlink_settings,
+    overlay_path,
     servo_specs,
     telemetry_rates,
     timing_config,
 )
-from mavservo.control.health import HealthEvent
-from mavservo.control.health_limits import health_limits
-from mavservo.control.health_watch import HealthWatch
-from mavservo.control.live_parameters import LiveParameters
-from mavservo.control.overlay_saver import OverlaySaver
-from mavservo.control.servo_backend import ServoBackend
-from mavservo.mavlink.backend import Health
-from mavservo.mavlink.gimbal import GimbalDevice
-from mavservo.mavlink.side import MavlinkSide
-from mavservo.records.metrics import round_trip_figures
-from mavservo.records.runlog import RunLog, new_run_dir
-from mavservo.scheduling.runner import Scheduler, SchedulerObserver, WriteObserver
-from mavservo.scheduling.schedule_core import FrameKind
+from mavservo.control import (
+    HealthEvent,
+    HealthWatch,
+    LiveParameters,
+    OverlaySaver,
+    ServoBackend,
+    health_limits,
+)
+from mavservo.mavlink import GimbalDevice, Health, MavlinkSide
+from mavservo.records import RunLog, new_run_dir, round_trip_figures
+from mavservo.scheduling import FrameKind, Scheduler, SchedulerObserver, WriteObserver
 from mavservo.servos import CountingNode, ServoState
-from mavservo.sim.bus_simulation import simulator_factory
-from mavservo.sim.pty_adapter import PtyAdapter
-from mavservo.transport.bus_factory import BusRequest, OpenedBus, open_bus
-from mavservo.transport.counters import transport_stats
+from mavservo.sim import PtyAdapter, simulator_factory
+from mavservo.transport import BusRequest, OpenedBus, open_bus, transport_stats
 
 log = logging.getLogger(__name__)
 
@@ -405,7 +402,7 @@ class Bridge:
         cfg = self.config
         settings = mavlink_settings(cfg)
         if cfg.mavlink.url == SIM:
-            from mavservo.sim.autopilot.factory import simulator_for
+            from mavservo.sim import simulator_for
 
             port = free_udp_port()
             settings = dataclasses.replace(settings, url=f"udpin:127.0.0.1:{port}")

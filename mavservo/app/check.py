@@ -16,19 +16,24 @@ from collections.abc import Sequence
 from typing import TextIO
 
 from mavservo.app.fleet_check import clashes
-from mavservo.config.budget import BusLoad, bus_loads, bus_nodes, servos_on
-from mavservo.config.endpoints import endpoint_lines
-from mavservo.config.loader import ConfigError
-from mavservo.config.overlay import LoadedConfig, load_config_with_overlay, overlay_path
-from mavservo.config.parameters import current_values
-from mavservo.config.schema import Config, ServoOutputChannel
-from mavservo.config.schema import allowed_values as _allowed
-from mavservo.control.health_limits import describe_limits, servo_limits
-from mavservo.control.mapping import ChannelMap, Rejected
-from mavservo.mavlink.bandwidth import BudgetPlan, plan_budget
-from mavservo.mavlink.params import WritePolicy
-from mavservo.mavlink.telemetry import AUTO_ESC_FIRST
-from mavservo.servos import node_family, registry, release_frames_of
+from mavservo.config import (
+    BusLoad,
+    Config,
+    ConfigError,
+    LoadedConfig,
+    ServoOutputChannel,
+    bus_loads,
+    bus_nodes,
+    current_values,
+    endpoint_lines,
+    load_config_with_overlay,
+    overlay_path,
+    servos_on,
+)
+from mavservo.config import allowed_values as _allowed
+from mavservo.control import ChannelMap, Rejected, describe_limits, servo_limits
+from mavservo.mavlink import AUTO_ESC_FIRST, BudgetPlan, WritePolicy, plan_budget
+from mavservo.servos import PLUGIN_HINT, load_errors, node_family, profiles, release_frames_of
 
 EXIT_OK = 0
 EXIT_INVALID = 2
@@ -147,7 +152,7 @@ def profiles_listing() -> str:
     """Every usable profile: name, origin, id range, telemetry shape, whether it can release,
     and each option with its default and allowed values."""
     lines = ["servo profiles:"]
-    for name, entry in registry.profiles().items():
+    for name, entry in profiles().items():
         cls = entry.profile
         can_release = "yes" if release_frames_of(cls(cls.min_id)) else "no"
         lines.append(
@@ -167,7 +172,7 @@ def profiles_listing() -> str:
                 about = f" - {field.description}" if field.description else ""
                 default = field.get_default(call_default_factory=True)
                 lines.append(f"      {key}: default {default!r}, allowed {_allowed(field)}{about}")
-    lines += ["", registry.PLUGIN_HINT]
+    lines += ["", PLUGIN_HINT]
     return "\n".join(lines)
 
 
@@ -276,7 +281,7 @@ def check_main(argv: Sequence[str], out: TextIO | None = None, err: TextIO | Non
         parser.print_usage(err)  # as argparse does for a missing argument
         print("mavservo check: error: give CONFIG file(s), --profiles, or both", file=err)
         return EXIT_INVALID
-    for error in registry.load_errors():  # one broken plug-in hides nothing else
+    for error in load_errors():  # one broken plug-in hides nothing else
         print(f"warning: {error.describe()}", file=err)
     if args.profiles:
         print(profiles_listing(), file=out)

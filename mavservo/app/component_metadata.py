@@ -18,13 +18,12 @@ import re
 from importlib.metadata import PackageNotFoundError, version
 from typing import Any
 
-from mavservo.config.parameters import Parameter, parameter_table
-from mavservo.config.schema import Config
-from mavservo.mavlink.ftp import crc32
-from mavservo.mavlink.metadata_service import (
+from mavservo.config import Config, Parameter, parameter_table
+from mavservo.mavlink import (
     COMP_METADATA_TYPE_PARAMETER,
     GENERAL_FILE,
     PARAMETER_FILE,
+    crc32,
     mftp_uri,
 )
 

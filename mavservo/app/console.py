@@ -28,7 +28,7 @@ from rich.console import Console
 from rich.live import Live
 from rich.table import Table
 
-from mavservo.mavlink.stream_request import WINDOW_S
+from mavservo.mavlink import WINDOW_S
 
 PLAIN_EVERY_S = 5.0
 CLOCK_FORMAT = "%H:%M:%S"
@@ -147,7 +147,7 @@ class StatusDisplay:
 
     def started(self, config_path: Path, bridge: Any) -> None:
         """Say what runs and where it connects, so hardware and simulation cannot be confused."""
-        from mavservo.config.endpoints import endpoint_lines
+        from mavservo.config import endpoint_lines
 
         line = f"mavservo: running {config_path}"
         if bridge.run_dir is not None:

@@ -20,7 +20,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from itertools import combinations
 
-from mavservo.config.schema import ActuatorChannel, Config, ServoOutputChannel
+from mavservo.config import ActuatorChannel, Config, ServoOutputChannel
 
 
 def _system(config: Config) -> str:

@@ -257,7 +257,7 @@ class MonitorState:
     @staticmethod
     def _on_fault_bits(view: ServoView, value: float) -> None:
         """``s<n>_flt``: the whole current fault set, replacing what STATUSTEXT built up."""
-        from mavservo.servos.base import Fault
+        from mavservo.servos import Fault
 
         if math.isnan(value):
             return
@@ -306,7 +306,7 @@ class MonitorState:
         return None
 
     def _on_gimbal_device_attitude_status(self, msg: Any, now: float) -> None:
-        from mavservo.mavlink.quaternion import quaternion_to_euler
+        from mavservo.mavlink import quaternion_to_euler
 
         roll, pitch, yaw = quaternion_to_euler(list(msg.q))
         self.gimbal = {
@@ -323,7 +323,7 @@ class MonitorState:
     @staticmethod
     def _on_health_bits(view: ServoView, value: float) -> None:
         """``s<n>_hlt``: the bridge's health findings (docs/health.md), the whole current set."""
-        from mavservo.mavlink.backend import Health
+        from mavservo.mavlink import Health
 
         if not math.isfinite(value) or value < 0:
             return
@@ -660,7 +660,7 @@ def _names_and_key(config_path: str | None, key_file: str | None) -> tuple[list[
     names: list[str] = []
     key: bytes | None = None
     if config_path:
-        from mavservo.config.loader import ConfigError, load_config
+        from mavservo.config import ConfigError, load_config
 
         try:
             config = load_config(config_path)
@@ -670,7 +670,7 @@ def _names_and_key(config_path: str | None, key_file: str | None) -> tuple[list[
         if config.mavlink.signing is not None:
             key = config.mavlink.signing.secret_key()
     if key_file:
-        from mavservo.config.schema import read_key_file
+        from mavservo.config import read_key_file
 
         try:
             key = read_key_file(key_file)
@@ -713,7 +713,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from rich.console import Console
     from rich.live import Live
 
-    from mavservo.mavlink.connection import open_connection
+    from mavservo.mavlink import open_connection
 
     console = Console()
     plain = args.plain or not console.is_terminal

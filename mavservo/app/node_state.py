@@ -17,10 +17,8 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from mavservo.config import BusConfig
-from mavservo.config.overlay import write_atomic
-from mavservo.config.smallfile import SmallFileError, read_small_file
-from mavservo.scheduling.runner import Scheduler
+from mavservo.config import BusConfig, SmallFileError, read_small_file, write_atomic
+from mavservo.scheduling import Scheduler
 from mavservo.servos import ProfileOptions, get_profile, node_family
 
 log = logging.getLogger(__name__)

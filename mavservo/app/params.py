@@ -19,9 +19,16 @@ from pathlib import Path
 from typing import Any
 
 from mavservo.app.component_metadata import parameter_metadata as metadata
-from mavservo.config.loader import ConfigError, default_config_path
-from mavservo.config.overlay import clear_overlay, load_config_with_overlay, overlay_path
-from mavservo.config.parameters import Parameter, current_values, parameter_table
+from mavservo.config import (
+    ConfigError,
+    Parameter,
+    clear_overlay,
+    current_values,
+    default_config_path,
+    load_config_with_overlay,
+    overlay_path,
+    parameter_table,
+)
 
 EXIT_OK = 0
 EXIT_INVALID = 2

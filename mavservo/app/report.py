@@ -23,9 +23,19 @@ from pathlib import Path
 from typing import Any
 
 from mavservo.errors import MavservoError
-from mavservo.records import runlog
-from mavservo.records.latency import STAGE_DESCRIPTIONS, STAGES, summarize
-from mavservo.records.metrics import percentile
+from mavservo.records import (
+    LATENCY_FILE,
+    METRICS_FILE,
+    REJECTIONS_FILE,
+    RUN_HEADER,
+    STAGE_DESCRIPTIONS,
+    STAGES,
+    TRACE_FILE,
+    can_log_files,
+    percentile,
+    read_can_log,
+    summarize,
+)
 
 FIGURES: dict[str, str] = {
     "response": "fig3_response.png",
@@ -102,12 +112,12 @@ def _nan(text: str) -> float:
 def load_run(directory: str | Path) -> Run:
     """Read a run directory; raise :class:`ReportError` if it is not one."""
     directory = Path(directory)
-    header_path = directory / runlog.RUN_HEADER
+    header_path = directory / RUN_HEADER
     if not directory.is_dir():
         raise ReportError(f"{directory}: no such directory")
     if not header_path.is_file():
         raise ReportError(
-            f"{directory} is not a mavservo run directory (no {runlog.RUN_HEADER}); "
+            f"{directory} is not a mavservo run directory (no {RUN_HEADER}); "
             "point at a directory written by 'mavservo run' under logging.dir"
         )
     try:
@@ -124,7 +134,7 @@ def load_run(directory: str | Path) -> Run:
     start = float(header.get("start_monotonic", 0.0))
 
     servos: dict[str, ServoTrace] = defaultdict(ServoTrace)
-    trace_path = directory / runlog.TRACE_FILE
+    trace_path = directory / TRACE_FILE
     if trace_path.is_file():
         with trace_path.open(newline="", encoding="utf-8") as handle:
             for row in csv.DictReader(handle):
@@ -150,7 +160,7 @@ def load_run(directory: str | Path) -> Run:
                     trace.lost += 1
 
     latency_rows: list[dict[str, str]] = []
-    latency_path = directory / runlog.LATENCY_FILE
+    latency_path = directory / LATENCY_FILE
     if latency_path.is_file():
         with latency_path.open(newline="", encoding="utf-8") as handle:
             latency_rows = list(csv.DictReader(handle))
@@ -158,13 +168,13 @@ def load_run(directory: str | Path) -> Run:
     frames: list[Any] = []
     frames_format = None
     for fmt in ("blf", "asc", "log", "csv"):
-        if runlog.can_log_files(directory, fmt):
-            frames = runlog.read_can_log(directory, fmt)
+        if can_log_files(directory, fmt):
+            frames = read_can_log(directory, fmt)
             frames_format = fmt
             break
 
     metrics: dict[str, Any] = {}
-    metrics_path = directory / runlog.METRICS_FILE
+    metrics_path = directory / METRICS_FILE
     if metrics_path.is_file():
         try:
             metrics = json.loads(metrics_path.read_text(encoding="utf-8"))
@@ -174,7 +184,7 @@ def load_run(directory: str | Path) -> Run:
             metrics = {}
 
     rejections = 0
-    rejections_path = directory / runlog.REJECTIONS_FILE
+    rejections_path = directory / REJECTIONS_FILE
     if rejections_path.is_file():
         with rejections_path.open(encoding="utf-8") as handle:
             rejections = sum(1 for line in handle if line.strip())
@@ -214,7 +224,7 @@ def bus_load_series(
     measure, so the series' maximum is the run's ``load.peak`` (up to the log's timestamp
     resolution) and not a fixed-bin average below it (the report said 6.58 % where the
     summary said 6.8 %)."""
-    from mavservo.scheduling.busload import message_bits
+    from mavservo.scheduling import message_bits
 
     by_channel: dict[int, list[tuple[float, int]]] = defaultdict(list)
     for msg in frames:

@@ -30,8 +30,8 @@ from mavservo.config import (
     OverrideError,
     apply_overrides,
     default_config_path,
+    load_config_with_overlay,
 )
-from mavservo.config.overlay import load_config_with_overlay
 from mavservo.errors import MavservoError
 
 log = logging.getLogger("mavservo")

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 # The bridge's own count (params 1..6 per set, param 7 the set): the script addresses actuators
 # exactly as the bridge numbers them, so the two cannot drift apart.
-from mavservo.mavlink.commands import ACTUATORS_PER_SET
+from mavservo.mavlink import ACTUATORS_PER_SET
 
 
 @dataclass(frozen=True)

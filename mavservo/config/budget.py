@@ -12,14 +12,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from mavservo.scheduling.bus_nodes import family_nodes
-from mavservo.scheduling.busload import FrameFlow, load_ratio, servo_traffic
-from mavservo.scheduling.schedule_core import STARTUP_RETRY_S
+from mavservo.scheduling import STARTUP_RETRY_S, FrameFlow, family_nodes, load_ratio, servo_traffic
 
 if TYPE_CHECKING:
     from mavservo.config.schema import BusConfig, Config, SchedulerConfig, ServoConfig
-    from mavservo.servos import ServoProfile
-    from mavservo.servos.base import BusNode
+    from mavservo.servos import BusNode, ServoProfile
 
 
 @dataclass(frozen=True)

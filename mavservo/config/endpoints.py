@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from mavservo.config.schema import BusConfig, Config
 from mavservo.config.urls import SIM, describe_url
-from mavservo.transport.bus_factory import SIMULATED_INTERFACES
+from mavservo.transport import SIMULATED_INTERFACES
 
 
 def bitrate_text(bitrate: int) -> str:

@@ -1,9 +1,9 @@
 """``servos[].health`` in the YAML: the thresholds of the bridge's own health checks.
 
 Every key is optional: left out (or null), it takes the default that
-``mavservo.control.health_limits`` derives from the servo's speed limit, slew, telemetry rate and
-(simulated) physics, which ``mavservo check`` prints. Strict like every section: unknown keys,
-YAML booleans for numbers and non-finite numbers are errors with their FILE:LINE.
+``mavservo.control.health_thresholds`` derives from the servo's speed limit, slew, telemetry
+rate and (simulated) physics, which ``mavservo check`` prints. Strict like every section:
+unknown keys, YAML booleans for numbers and non-finite numbers are errors with their FILE:LINE.
 """
 
 from __future__ import annotations

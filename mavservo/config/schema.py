@@ -31,11 +31,12 @@ from pydantic_core import PydanticCustomError
 from mavservo.config.health import HealthConfig
 from mavservo.config.smallfile import SmallFileError, read_small_file
 from mavservo.config.urls import url_problem
-from mavservo.mavlink.settings import TelemetryRates
+from mavservo.mavlink import TelemetryRates
 from mavservo.servos import ProfileOptions, ServoProfile, get_profile, node_family
-from mavservo.transport.aa55.codec import BITRATE_CODES
-from mavservo.transport.bus_factory import SIM_CHANNEL, SIMULATED_INTERFACES
-from mavservo.transport.interface_options import (
+from mavservo.transport import (
+    BITRATE_CODES,
+    SIM_CHANNEL,
+    SIMULATED_INTERFACES,
     UnknownInterfaceError,
     interface_options,
     option_problems,
@@ -344,7 +345,7 @@ class BusConfig(StrictModel):
     options: dict[str, Any] = Field(default_factory=dict)
     """Passed to the python-can interface as keyword arguments (slcan's ``tty_baudrate``, a
     PCAN's ``fd``...), checked against what that interface declares (see
-    :mod:`mavservo.transport.interface_options`)."""
+    :mod:`mavservo.transport.interface_signatures`)."""
     node: dict[str, dict[str, Any]] = Field(default_factory=dict)
     """The bridge's own node on this bus, per family that has one, keyed by profile name
     (``node: {dronecan: {node_id: 100}}``); checked by that profile's ``NodeOptions``."""

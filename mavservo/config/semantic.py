@@ -16,11 +16,11 @@ from mavservo.config.schema import (
     ServoConfig,
     ServoOutputChannel,
 )
-from mavservo.scheduling.bus_nodes import family_nodes
-from mavservo.servos import FrameId
-from mavservo.servos.base import (
+from mavservo.scheduling import family_nodes
+from mavservo.servos import (
     BusNodeError,
     ConfigWarnings,
+    FrameId,
     comm_timeout_of,
     release_frames_of,
 )

@@ -10,14 +10,14 @@ its own, so a key added to the schema has one place to reach the layer that uses
 from __future__ import annotations
 
 from mavservo.config.schema import BusConfig, Config, MavlinkConfig, TelemetryConfig
-from mavservo.mavlink.gimbal import GimbalSettings
-from mavservo.mavlink.settings import (
+from mavservo.mavlink import (
+    GimbalSettings,
     MavlinkSettings,
     SigningSettings,
     StreamRequestSettings,
     TelemetryRates,
 )
-from mavservo.scheduling.schedule_core import ServoSpec, TimingConfig
+from mavservo.scheduling import ServoSpec, TimingConfig
 
 
 def telemetry_rates(section: TelemetryConfig) -> TelemetryRates:

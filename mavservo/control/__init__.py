@@ -13,7 +13,7 @@ from mavservo.faces import lazy_face
 # other names are the package's own business.
 if TYPE_CHECKING:
     from .health import HealthEvent
-    from .health_limits import describe_limits, health_limits, servo_limits
+    from .health_thresholds import describe_limits, health_limits, servo_limits
     from .health_watch import HealthWatch
     from .live_parameters import LiveParameters
     from .mapping import ChannelMap, Rejected
@@ -42,8 +42,8 @@ __getattr__ = lazy_face(
         "OverlaySaver": "overlay_saver",
         "Rejected": "mapping",
         "ServoBackend": "servo_backend",
-        "describe_limits": "health_limits",
-        "health_limits": "health_limits",
-        "servo_limits": "health_limits",
+        "describe_limits": "health_thresholds",
+        "health_limits": "health_thresholds",
+        "servo_limits": "health_thresholds",
     },
 )

@@ -21,7 +21,7 @@ from collections import deque
 from dataclasses import dataclass, field
 from typing import Literal
 
-from mavservo.mavlink.backend import NO_HEALTH_PROBLEM, Health
+from mavservo.mavlink import NO_HEALTH_PROBLEM, Health
 
 TemperatureAction = Literal["warn", "slow", "hold", "release"]
 
@@ -52,7 +52,8 @@ LEARNED_SUPPLY_HIGH = 1.15
 @dataclass(frozen=True)
 class HealthLimits:
     """The thresholds of one servo (``servos[].health`` in the YAML; defaults derived from the
-    servo's speed limit, slew, telemetry rate and physics by ``mavservo.control.health_limits``).
+    servo's speed limit, slew, telemetry rate and physics by
+    ``mavservo.control.health_thresholds``).
     Angles in deg, speeds in deg/s, currents in A, temperatures in degC, times in s."""
 
     tolerance_deg: float = 3.0

@@ -21,7 +21,7 @@ from mavservo.control.health import (
     TemperatureAction,
     check_name,
 )
-from mavservo.mavlink.backend import NO_HEALTH_PROBLEM, Health, ServoStatus
+from mavservo.mavlink import NO_HEALTH_PROBLEM, Health, ServoStatus
 
 
 class HealthWatch:

@@ -16,16 +16,16 @@ import math
 import threading
 from collections.abc import Callable, Mapping
 
-from mavservo.config.parameters import (
+from mavservo.config import (
+    Config,
     ParameterError,
     current_values,
     float32,
     parameter_table,
     with_values,
 )
-from mavservo.config.schema import Config
 from mavservo.control.overlay_saver import OverlaySaver
-from mavservo.mavlink.params import SetResult
+from mavservo.mavlink import SetResult
 
 
 class LiveParameters:

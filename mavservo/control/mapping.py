@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal
 
 if TYPE_CHECKING:
-    from mavservo.config.schema import ActuatorChannel, Config, ServoOutputChannel
+    from mavservo.config import ActuatorChannel, Config, ServoOutputChannel
 
 #: PWM values outside this window are not positions (DO_SET_SERVO sanity bounds).
 PWM_VALID_US = (800.0, 2200.0)

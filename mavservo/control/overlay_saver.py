@@ -21,7 +21,7 @@ import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
-from mavservo.config.overlay import write_overlay
+from mavservo.config import write_overlay
 from mavservo.threads import BackgroundLoop
 
 log = logging.getLogger(__name__)

@@ -21,16 +21,9 @@ from typing import Protocol
 
 from mavservo.config import Config
 from mavservo.control.mapping import ChannelMap, Rejected, clamp, slew_limit
-from mavservo.mavlink.backend import (
-    ACCEPTED,
-    NO_HEALTH_PROBLEM,
-    ApplyResult,
-    Health,
-    Outcome,
-    ServoStatus,
-)
-from mavservo.scheduling.schedule_core import SetpointResult
-from mavservo.servos.base import ServoState
+from mavservo.mavlink import ACCEPTED, NO_HEALTH_PROBLEM, ApplyResult, Health, Outcome, ServoStatus
+from mavservo.scheduling import SetpointResult
+from mavservo.servos import ServoState
 
 log = logging.getLogger(__name__)
 

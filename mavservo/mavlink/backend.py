@@ -15,7 +15,7 @@ import enum
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
-from mavservo.servos.base import ServoState
+from mavservo.servos import ServoState
 
 
 class Outcome(enum.IntEnum):

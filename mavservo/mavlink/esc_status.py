@@ -33,7 +33,7 @@ from mavservo.mavlink.wip_messages import (
     EscInfo,
     EscStatus,
 )
-from mavservo.servos.base import Fault
+from mavservo.servos import Fault
 
 #: ESC_INFO is the slow half: common.xml recommends 1 Hz.
 ESC_INFO_HZ = 1.0

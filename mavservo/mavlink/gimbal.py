@@ -67,7 +67,7 @@ from mavservo.mavlink.quaternion import (
     yaw_of,
 )
 from mavservo.mavlink.telemetry import float32_field
-from mavservo.servos.base import Fault
+from mavservo.servos import Fault
 
 log = logging.getLogger(__name__)
 

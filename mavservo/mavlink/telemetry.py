@@ -41,7 +41,7 @@ from mavservo.mavlink.backend import ActuatorBackend, ServoStatus
 from mavservo.mavlink.esc_status import ESC_INFO_HZ, esc_info, esc_status
 from mavservo.mavlink.settings import TelemetryRates
 from mavservo.mavlink.statustext_queue import TextQueue
-from mavservo.servos.base import NO_FAULT, Fault
+from mavservo.servos import NO_FAULT, Fault
 
 log = logging.getLogger(__name__)
 

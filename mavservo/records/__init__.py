@@ -13,7 +13,17 @@ from mavservo.faces import lazy_face
 if TYPE_CHECKING:
     from .latency import STAGE_DESCRIPTIONS, STAGES, summarize
     from .metrics import LoadMeter, SchedulerMetrics, percentile, round_trip_figures, write_json
-    from .runlog import RunLog, new_run_dir
+    from .runlog import (
+        LATENCY_FILE,
+        METRICS_FILE,
+        REJECTIONS_FILE,
+        RUN_HEADER,
+        TRACE_FILE,
+        RunLog,
+        can_log_files,
+        new_run_dir,
+        read_can_log,
+    )
 
 __all__ = [
     "LoadMeter",
@@ -26,6 +36,13 @@ __all__ = [
     "round_trip_figures",
     "summarize",
     "write_json",
+    "RUN_HEADER",
+    "TRACE_FILE",
+    "LATENCY_FILE",
+    "METRICS_FILE",
+    "REJECTIONS_FILE",
+    "can_log_files",
+    "read_can_log",
 ]
 __getattr__ = lazy_face(
     __name__,
@@ -40,5 +57,12 @@ __getattr__ = lazy_face(
         "round_trip_figures": "metrics",
         "summarize": "latency",
         "write_json": "metrics",
+        "RUN_HEADER": "runlog",
+        "TRACE_FILE": "runlog",
+        "LATENCY_FILE": "runlog",
+        "METRICS_FILE": "runlog",
+        "REJECTIONS_FILE": "runlog",
+        "can_log_files": "runlog",
+        "read_can_log": "runlog",
     },
 )

@@ -63,7 +63,7 @@ from can.io.generic import FileIOMessageWriter
 
 from mavservo.records.latency import CSV_COLUMNS as LATENCY_COLUMNS
 from mavservo.records.latency import CommandTrace, LatencyTracer
-from mavservo.servos.base import ServoState
+from mavservo.servos import ServoState
 
 RUN_HEADER = "run.json"
 TRACE_FILE = "trace.csv"

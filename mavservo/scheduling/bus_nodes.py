@@ -20,7 +20,7 @@ from typing import Any
 
 import can
 
-from mavservo.servos.base import BusNode, NodeHealth, ProfileOptions, ServoProfile, node_family
+from mavservo.servos import BusNode, NodeHealth, ProfileOptions, ServoProfile, node_family
 
 from .busload import FrameFlow
 from .schedule_core import Outgoing, ScheduleError, ServoSpec, TimingConfig

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 import can
 
-from mavservo.servos.base import node_reports_of
+from mavservo.servos import node_reports_of
 
 from .busload import (
     FrameFlow,

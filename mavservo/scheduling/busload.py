@@ -26,7 +26,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Literal, Protocol
 
-from mavservo.servos.base import ServoProfile, node_reports_of, unsolicited_hz_of
+from mavservo.servos import ServoProfile, node_reports_of, unsolicited_hz_of
 
 Stuffing = Literal["worst", "none"]
 

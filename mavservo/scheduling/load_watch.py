@@ -9,7 +9,7 @@ knows whether to slow the bridge, its servos, or the other node. Pure: times han
 
 from __future__ import annotations
 
-from mavservo.records.metrics import LoadMeter
+from mavservo.records import LoadMeter
 
 CHECK_EVERY_S = 1.0
 """The measured load is compared with ``max_load`` this often."""

@@ -32,7 +32,7 @@ from typing import Any, ParamSpec, Protocol, runtime_checkable
 
 import can
 
-from mavservo.records.metrics import SchedulerMetrics, write_json
+from mavservo.records import SchedulerMetrics, write_json
 from mavservo.scheduling.outage_log import LateReplies, Line, OnlineLog
 from mavservo.scheduling.schedule_core import (
     Decision,
@@ -46,14 +46,7 @@ from mavservo.scheduling.schedule_core import (
     TimingConfig,
     exchange_key,
 )
-from mavservo.servos.base import (
-    Advising,
-    BusNode,
-    Fault,
-    ProfileOptions,
-    ServoState,
-    node_reports_of,
-)
+from mavservo.servos import Advising, BusNode, Fault, ProfileOptions, ServoState, node_reports_of
 
 from .bus_nodes import BusNodes
 from .busload import message_bits

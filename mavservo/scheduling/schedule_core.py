@@ -89,7 +89,7 @@ from typing import Literal
 import can
 
 from mavservo.errors import MavservoError
-from mavservo.servos.base import ServoProfile, SplitStartup, release_frames_of
+from mavservo.servos import ServoProfile, SplitStartup, release_frames_of
 
 from . import reply_matching
 from .bus_plan import REPLY_DLC, plan_bus

@@ -9,6 +9,10 @@ profiles by their short ``name``.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any
+
+from mavservo.faces import lazy_face
+
 from .base import (
     NO_FAULT,
     UNKNOWN,
@@ -38,22 +42,46 @@ from .base import (
     release_frames_of,
     unsolicited_hz_of,
 )
-from .registry import BUILT_IN, PROFILES, UnknownProfileError, get_profile, load_errors, profiles
+from .registry import (
+    BUILT_IN,
+    PLUGIN_HINT,
+    PROFILES,
+    UnknownProfileError,
+    get_profile,
+    load_errors,
+    profiles,
+)
+
+if TYPE_CHECKING:
+    from .dronecan.node_info import NodeInfo, NodeInfoReader, get_node_info_request
 
 _CLASSES = {line.profile.partition(":")[2]: name for name, line in BUILT_IN.items()}
 """Each built-in family's class name -> its YAML name (``RmdX`` -> ``rmd-x``), from the table."""
 
 
-def __getattr__(attribute: str) -> type[ServoProfile]:
-    """The family classes by their class names, imported on first use (PEP 562), so importing
-    the package imports no family."""
+_FAMILY_TOOLS = lazy_face(
+    __name__,
+    {
+        "NodeInfo": "dronecan.node_info",
+        "NodeInfoReader": "dronecan.node_info",
+        "get_node_info_request": "dronecan.node_info",
+    },
+)
+"""A family's tools another layer uses (the doctor asks DroneCAN nodes who they are), imported
+on first use like the families."""
+
+
+def __getattr__(attribute: str) -> Any:
+    """The family classes by their class names and the families' tools, imported on first use
+    (PEP 562), so importing the package imports no family."""
     if attribute in _CLASSES:
         return PROFILES[_CLASSES[attribute]]
-    raise AttributeError(f"module {__name__!r} has no attribute {attribute!r}")
+    return _FAMILY_TOOLS(attribute)
 
 
 __all__ = [
     "NO_FAULT",
+    "PLUGIN_HINT",
     "PROFILES",
     "UNKNOWN",
     "ActuatorOptions",
@@ -61,6 +89,9 @@ __all__ = [
     "BusNode",
     "BusNodeError",
     "NodeHealth",
+    "NodeInfo",
+    "NodeInfoReader",
+    "get_node_info_request",
     "BusNodeFamily",
     "CommTimeout",
     "ConfigWarnings",

@@ -23,7 +23,14 @@ from typing import Any
 
 import can
 
-from mavservo.transport.aa55 import codec as aa55
+from mavservo.transport import (
+    AA55_MODES,
+    AA55Decoder,
+    AA55Frame,
+    AA55Protocol,
+    AA55Settings,
+    encode_aa55,
+)
 
 from .pty_adapter import DIRECTIONS, LagMeter, LineCorrupter, LineFaults, PtyAdapter
 from .servo import SimServo
@@ -41,14 +48,14 @@ _IDLE_FLUSH_S = 0.005
 """Line idle this long with a partial candidate pending: it was a false start or truncated."""
 
 
-def host_decoder(protocol: aa55.ProtocolName) -> aa55.Decoder:
+def host_decoder(protocol: AA55Protocol) -> AA55Decoder:
     """The decoder for the host's bytes, as an adapter's firmware would read them.
 
     First structurally valid candidate wins, and nothing waits for the byte after a frame
     (``resolve_overlaps=False``): a firmware parser sends each frame out as soon as it is whole,
     and the host's side of the line is clean apart from injected faults.
     """
-    return aa55.Decoder(protocol, resolve_overlaps=False)
+    return AA55Decoder(protocol, resolve_overlaps=False)
 
 
 class AdapterEmulator(PtyAdapter):
@@ -66,7 +73,7 @@ class AdapterEmulator(PtyAdapter):
         servos: Iterable[SimServo],
         *,
         bitrate: int = 1_000_000,
-        protocol: aa55.ProtocolName = "variable",
+        protocol: AA55Protocol = "variable",
         line_faults: LineFaults | None = None,
         link_path: str | None = None,
         seed: int = 0,
@@ -74,11 +81,11 @@ class AdapterEmulator(PtyAdapter):
         nodes_bitrate: int | None = None,
     ) -> None:
         self.decoder = host_decoder(protocol)
-        self.protocol: aa55.ProtocolName = protocol
+        self.protocol: AA55Protocol = protocol
         self.mode = "normal"
         self.filter_id = 0
         self.mask = 0
-        self.settings: aa55.AdapterSettings | None = None
+        self.settings: AA55Settings | None = None
         self.frames_filtered = 0
         self.settings_received = 0
         super().__init__(
@@ -104,7 +111,7 @@ class AdapterEmulator(PtyAdapter):
 
     def _handle_items(self, items: list[Any], now: float, chunk: bytes = b"") -> None:
         for item in items:
-            if isinstance(item, aa55.AdapterSettings):
+            if isinstance(item, AA55Settings):
                 switched = item.protocol != self.protocol
                 self._apply_settings(item)
                 if switched:
@@ -116,7 +123,7 @@ class AdapterEmulator(PtyAdapter):
                         rest = chunk[at + len(item.raw) :]
                         self._handle_items(self.decoder.feed(rest, now), now, rest)
                     return
-            elif isinstance(item, aa55.Frame):
+            elif isinstance(item, AA55Frame):
                 self.frames_from_host += 1
                 msg = item.to_message(is_rx=False)
                 if self.mode in ("loopback", "loopback_silent"):
@@ -125,12 +132,12 @@ class AdapterEmulator(PtyAdapter):
                     self.canbus.submit(msg, now)
             # other control frames (status requests) get no answer, as on many clones
 
-    def _apply_settings(self, settings: aa55.AdapterSettings) -> None:
+    def _apply_settings(self, settings: AA55Settings) -> None:
         self.settings = settings
         self.settings_received += 1
         if settings.bitrate is not None:
             self.canbus.bitrate = settings.bitrate
-        self.mode = settings.mode if settings.mode in aa55.MODES else "normal"
+        self.mode = settings.mode if settings.mode in AA55_MODES else "normal"
         self.filter_id = settings.filter_id
         self.mask = settings.mask
         self.protocol = settings.protocol
@@ -147,7 +154,7 @@ class AdapterEmulator(PtyAdapter):
             if msg is not last:
                 last = msg
                 passes = not (msg.arbitration_id ^ self.filter_id) & self.mask
-                encoded = aa55.encode(msg, self.protocol) if passes else None
+                encoded = encode_aa55(msg, self.protocol) if passes else None
             if encoded is None:
                 self.frames_filtered += 1
             else:
@@ -156,4 +163,4 @@ class AdapterEmulator(PtyAdapter):
             self._write(b"".join(chunks), len(chunks))
 
     def _write_frame(self, msg: can.Message) -> None:
-        self._write(aa55.encode(msg, self.protocol), 1)
+        self._write(encode_aa55(msg, self.protocol), 1)

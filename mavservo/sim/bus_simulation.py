@@ -12,8 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from mavservo.config import Config
-from mavservo.config.simulation import Faults, Physics
+from mavservo.config import Config, Faults, Physics
 from mavservo.servos import get_profile
 
 from .adapter import AdapterEmulator

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import can
 
-from mavservo.scheduling.busload import frame_time
+from mavservo.scheduling import frame_time
 
 from .servo import SimServo
 

@@ -40,14 +40,14 @@ from typing import Any
 
 import can
 
-from mavservo.transport.aa55 import codec as aa55
+from mavservo.transport import AA55Frame
 
 from .adapter import AdapterEmulator, LineCorrupter, LineFaults, host_decoder
 from .canbus import HOST, ForeignNode
 from .servo import SimServo
 
 
-def frame_key(msg: can.Message | aa55.Frame) -> str:
+def frame_key(msg: can.Message | AA55Frame) -> str:
     """A frame as text, identical for the same frame on both sides of the pipe."""
     return (
         f"{msg.arbitration_id:x}:{int(msg.is_extended_id)}:{int(msg.is_remote_frame)}:"
@@ -238,7 +238,7 @@ class _Arrivals:
         if self._clean_protocol != self._emulator.protocol:
             self.reset_clean()
         for item in self._clean.feed(data):
-            if isinstance(item, aa55.Frame):
+            if isinstance(item, AA55Frame):
                 self._sent.add(frame_key(item))
 
     def reset_clean(self) -> None:

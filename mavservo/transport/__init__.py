@@ -12,6 +12,12 @@ from mavservo.faces import lazy_face
 # other names are the package's own business.
 if TYPE_CHECKING:
     from .aa55.codec import BITRATE_CODES
+    from .aa55.codec import MODES as AA55_MODES
+    from .aa55.codec import AdapterSettings as AA55Settings
+    from .aa55.codec import Decoder as AA55Decoder
+    from .aa55.codec import Frame as AA55Frame
+    from .aa55.codec import ProtocolName as AA55Protocol
+    from .aa55.codec import encode as encode_aa55
     from .bus_factory import (
         BITRATE_SET_OUTSIDE,
         SIM_CHANNEL,
@@ -23,7 +29,7 @@ if TYPE_CHECKING:
         open_bus,
     )
     from .counters import transport_stats
-    from .interface_options import UnknownInterfaceError, interface_options, option_problems
+    from .interface_signatures import UnknownInterfaceError, interface_options, option_problems
 
 __all__ = [
     "BITRATE_CODES",
@@ -39,6 +45,12 @@ __all__ = [
     "open_bus",
     "option_problems",
     "transport_stats",
+    "AA55Frame",
+    "AA55Decoder",
+    "AA55Settings",
+    "AA55_MODES",
+    "AA55Protocol",
+    "encode_aa55",
 ]
 __getattr__ = lazy_face(
     __name__,
@@ -50,11 +62,17 @@ __getattr__ = lazy_face(
         "SIMULATED_INTERFACES": "bus_factory",
         "SIM_CHANNEL": "bus_factory",
         "STANDARD_BITRATES": "bus_factory",
-        "UnknownInterfaceError": "interface_options",
+        "UnknownInterfaceError": "interface_signatures",
         "has_listen_only": "bus_factory",
-        "interface_options": "interface_options",
+        "interface_options": "interface_signatures",
         "open_bus": "bus_factory",
-        "option_problems": "interface_options",
+        "option_problems": "interface_signatures",
         "transport_stats": "counters",
+        "AA55Frame": "aa55.codec:Frame",
+        "AA55Decoder": "aa55.codec:Decoder",
+        "AA55Settings": "aa55.codec:AdapterSettings",
+        "AA55_MODES": "aa55.codec:MODES",
+        "AA55Protocol": "aa55.codec:ProtocolName",
+        "encode_aa55": "aa55.codec:encode",
     },
 )

@@ -20,7 +20,6 @@ from hypothesis import strategies as st
 from mavservo.app.bridge import Bridge
 from mavservo.app.doctor import main as doctor_main
 from mavservo.app.doctor.families import ENTER_MOTOR_MODE
-from mavservo.app.doctor.node_info import NodeInfoReader
 from mavservo.app.doctor.recognise import Recogniser, announcements
 from mavservo.app.doctor.session import BusDoctor
 from mavservo.app.doctor.wire_facts import (
@@ -35,6 +34,7 @@ from mavservo.app.doctor.wire_facts import (
     robstride_device_id,
 )
 from mavservo.config import load_config, load_config_text
+from mavservo.servos.dronecan.node_info import NodeInfoReader
 from mavservo.sim.bus_simulation import wired_servos
 from mavservo.sim.servo import SimServo
 from mavservo.sim.slcan import SlcanEmulator

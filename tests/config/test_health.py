@@ -9,7 +9,7 @@ import pytest
 
 from mavservo.app.check import check_main
 from mavservo.config import ConfigError, load_config_text
-from mavservo.control.health_limits import health_limits
+from mavservo.control.health_thresholds import health_limits
 from tests.config.test_loader import LINE_FORMAT, MARK, _marked_line
 
 SERVO = "servos:\n  - name: elevator\n    profile: rmd-x\n    can_id: 2\n"

@@ -23,18 +23,17 @@ from typing import Any
 import can
 import yaml
 
-from mavservo.config import Config, ConfigError, load_config
-from mavservo.config.endpoints import bitrate_text, describe_bus
-from mavservo.config.loader import default_config_path
-from mavservo.servos import UnknownProfileError, get_profile
-from mavservo.sim.bus_simulation import simulator_factory
-from mavservo.transport.bus_factory import (
-    BITRATE_SET_OUTSIDE,
-    SIM_CHANNEL,
-    BusRequest,
-    OpenedBus,
-    open_bus,
+from mavservo.config import (
+    Config,
+    ConfigError,
+    bitrate_text,
+    default_config_path,
+    describe_bus,
+    load_config,
 )
+from mavservo.servos import UnknownProfileError, get_profile
+from mavservo.sim import simulator_factory
+from mavservo.transport import BITRATE_SET_OUTSIDE, SIM_CHANNEL, BusRequest, OpenedBus, open_bus
 
 from .node_info import TOOL_NODE_ID
 from .session import BusDoctor, BusFindings

@@ -9,19 +9,11 @@ on the node; the response carries ``status`` (NodeStatus), ``software_version`` 
 ASCII bytes, a reversed domain name). A service transfer needs a node id of the sender: the
 doctor uses 127, an id kept for tools (MAVLink's "UAVCAN interaction" guide: "the values 126
 and 127 are typically used by debugging or monitoring equipment"); ``--node-id`` picks another,
-and nothing is asked when a node on the bus has it. The ``dronecan`` package encodes the
-request and decodes the response (through :mod:`mavservo.servos.dronecan.wire`, which owns the
-package's lazy import and a reassembler that counts, never raises on, a hostile transfer).
+and nothing is asked when a node on the bus has it. The request and the
+reader of the answers are the DroneCAN family's (:mod:`mavservo.servos.dronecan.node_info`).
 """
 
 from __future__ import annotations
-
-from dataclasses import dataclass
-from typing import Any
-
-import can
-
-from mavservo.servos.dronecan import wire
 
 #: The node id kept for tools (a GUI tool, a debugger; see the module docstring).
 TOOL_NODE_ID = 127
@@ -31,88 +23,3 @@ ANSWER_WAIT_S = 0.3
 #: The most nodes asked on one bus (a bus carries at most 127; a flood of spoofed NodeStatus
 #: ids cannot make the doctor send more).
 MAX_NODES_ASKED = 127
-NAME_MAX = 80
-
-
-@dataclass(frozen=True)
-class NodeInfo:
-    """What a node said of itself."""
-
-    node_id: int
-    name: str
-    software: str
-    hardware: str
-    unique_id: str
-
-    def text(self) -> str:
-        return (
-            f"GetNodeInfo: {self.name}, software {self.software}, hardware {self.hardware}, "
-            f"unique id {self.unique_id}"
-        )
-
-
-def get_node_info_request(node_id: int, source: int, transfer_id: int) -> list[can.Message]:
-    """The frames of one GetNodeInfo request from ``source`` to ``node_id``."""
-    request = wire.lib().uavcan.protocol.GetNodeInfo.Request()
-    return wire.encode_service(
-        request, source=source, destination=node_id, transfer_id=transfer_id, request=True
-    )
-
-
-def _printable(raw: bytes) -> str:
-    """A node's name, with anything not printable ASCII shown as ``?`` (a hostile node's
-    name goes to a terminal)."""
-    return "".join(chr(c) if 0x20 <= c < 0x7F else "?" for c in raw[:NAME_MAX]) or "(no name)"
-
-
-def _node_info(node_id: int, payload: Any) -> NodeInfo:
-    software = payload.software_version
-    version = f"{int(software.major)}.{int(software.minor)}"
-    flags = int(software.optional_field_flags)
-    if flags & 1:
-        version += f" (vcs 0x{int(software.vcs_commit):08x})"
-    if flags & 2:
-        version += f" (image crc 0x{int(software.image_crc):016x})"
-    hardware = payload.hardware_version
-    unique = bytes(int(b) & 0xFF for b in hardware.unique_id)
-    return NodeInfo(
-        node_id,
-        _printable(bytes(int(b) & 0xFF for b in payload.name)),
-        version,
-        f"{int(hardware.major)}.{int(hardware.minor)}",
-        unique.hex() if any(unique) else "(none)",
-    )
-
-
-class NodeInfoReader:
-    """GetNodeInfo responses addressed to ``own_id``, reassembled from the frames heard."""
-
-    def __init__(self, own_id: int) -> None:
-        self.own_id = own_id
-        self.reassembler = wire.Reassembler()
-
-    def accepts(self, msg: can.Message) -> bool:
-        """A frame of a GetNodeInfo response to the doctor's node (each frame of the
-        transfer, not only its last)."""
-        fields = wire.service_fields(msg)
-        return (
-            fields is not None
-            and not msg.is_error_frame
-            and fields.dtid == wire.DTID_GET_NODE_INFO
-            and not fields.request
-            and fields.destination == self.own_id
-            and 1 <= fields.source <= 127
-        )
-
-    def push(self, msg: can.Message, now: float) -> NodeInfo | None:
-        """The node's answer once its last frame is in; None before, and for any other
-        frame or a transfer that does not decode."""
-        if not self.accepts(msg):
-            return None
-        received = self.reassembler.push(msg, now)
-        if received is None or received.full_name != "uavcan.protocol.GetNodeInfo":
-            return None
-        try:
-            return _node_info(received.source, received.payload)
-        except (AttributeError, TypeError, ValueError):  # a payload the library let through oddly
-            return None

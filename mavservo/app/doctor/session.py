@@ -23,8 +23,15 @@ from typing import Any
 import can
 
 from mavservo.config import BusConfig, ServoConfig
-from mavservo.servos import FrameId, get_profile, release_frames_of
-from mavservo.transport.bus_factory import (
+from mavservo.servos import (
+    FrameId,
+    NodeInfo,
+    NodeInfoReader,
+    get_node_info_request,
+    get_profile,
+    release_frames_of,
+)
+from mavservo.transport import (
     BITRATE_SET_OUTSIDE,
     STANDARD_BITRATES,
     BusRequest,
@@ -33,14 +40,7 @@ from mavservo.transport.bus_factory import (
 )
 
 from .families import facts
-from .node_info import (
-    ANSWER_WAIT_S,
-    MAX_NODES_ASKED,
-    TOOL_NODE_ID,
-    NodeInfo,
-    NodeInfoReader,
-    get_node_info_request,
-)
+from .node_info import ANSWER_WAIT_S, MAX_NODES_ASKED, TOOL_NODE_ID
 from .recognise import (
     Candidate,
     Recogniser,

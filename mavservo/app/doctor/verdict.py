@@ -13,8 +13,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from mavservo.config import ServoConfig
-from mavservo.config.endpoints import bitrate_text
+from mavservo.config import ServoConfig, bitrate_text
 from mavservo.servos import Advising, get_profile
 
 from .families import facts

@@ -12,8 +12,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any, Literal
 
-from mavservo.config.autopilot_script import GimbalTarget, parse_script
-from mavservo.config.schema import SimAutopilotConfig
+from mavservo.config import GimbalTarget, SimAutopilotConfig, parse_script
 from mavservo.sim.autopilot.motion_scripts import Profile, RandomWalkProfile, get_profile
 from mavservo.sim.autopilot.replay import ReplayRunner
 from mavservo.sim.autopilot.stream import AutopilotStream, gimbal_demo_script

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from mavservo.errors import MavservoError
-from mavservo.mavlink.connection import mavlink2, open_connection
+from mavservo.mavlink import mavlink2, open_connection
 from mavservo.sim.autopilot.background import Background
 from mavservo.threads import BackgroundLoop
 

@@ -18,8 +18,7 @@ from pathlib import Path
 
 import yaml
 
-from mavservo.config.autopilot_script import Dropout, Event, parse_script
-from mavservo.config.schema import read_key_file
+from mavservo.config import Dropout, Event, parse_script, read_key_file
 from mavservo.sim.autopilot.motion_scripts import PROFILES, RandomWalkProfile, get_profile
 from mavservo.sim.autopilot.replay import BRIDGE_TYPES, TlogError, replay
 from mavservo.sim.autopilot.stream import AutopilotStream, gimbal_demo_script

@@ -35,7 +35,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
-from mavservo.config.autopilot_script import (
+from mavservo.config import (
     Action,
     Dropout,
     Event,
@@ -46,9 +46,8 @@ from mavservo.config.autopilot_script import (
     SetServo,
     repeat_servo_value,
 )
-from mavservo.mavlink.connection import mavlink2 as mav
-from mavservo.mavlink.connection import open_connection
-from mavservo.mavlink.quaternion import euler_to_quaternion
+from mavservo.mavlink import euler_to_quaternion, open_connection
+from mavservo.mavlink import mavlink2 as mav
 from mavservo.sim.autopilot.background import Background
 from mavservo.sim.autopilot.command_tracker import CommandRecord, CommandTracker
 from mavservo.sim.autopilot.motion_scripts import (

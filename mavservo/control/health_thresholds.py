@@ -9,9 +9,7 @@ servo's data sheet figures: ``current_limit_a``, ``continuous_current_a``, tempe
 
 from __future__ import annotations
 
-from mavservo.config import Config
-from mavservo.config.schema import ServoConfig
-from mavservo.config.simulation import Physics
+from mavservo.config import Config, Physics, ServoConfig
 from mavservo.control.health import HealthLimits
 
 #: the built-in simulation: an aa55 bus on the adapter emulator
