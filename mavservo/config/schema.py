@@ -28,7 +28,7 @@ from pydantic import (
 )
 from pydantic_core import PydanticCustomError
 
-from mavservo.config.health import HealthConfig
+from mavservo.config.health_schema import HealthConfig
 from mavservo.config.smallfile import SmallFileError, read_small_file
 from mavservo.config.urls import url_problem
 from mavservo.mavlink import TelemetryRates
@@ -481,7 +481,7 @@ class ServoConfig(StrictModel):
     telemetry_hz: Float = Field(10.0, gt=0)
     failsafe: FailsafeConfig = FailsafeConfig()
     options: dict[str, Any] = Field(default_factory=dict)
-    #: the bridge's own health checks of this servo (mavservo/config/health.py, docs/health.md)
+    #: the bridge's own health checks of this servo (mavservo/config/health_schema.py, docs/health.md)
     health: HealthConfig = HealthConfig()
 
     @field_validator("limits_deg")

@@ -53,7 +53,7 @@ from .registry import (
 )
 
 if TYPE_CHECKING:
-    from .dronecan.node_info import NodeInfo, NodeInfoReader, get_node_info_request
+    from .dronecan.get_node_info import NodeInfo, NodeInfoReader, get_node_info_request
 
 _CLASSES = {line.profile.partition(":")[2]: name for name, line in BUILT_IN.items()}
 """Each built-in family's class name -> its YAML name (``RmdX`` -> ``rmd-x``), from the table."""
@@ -62,9 +62,9 @@ _CLASSES = {line.profile.partition(":")[2]: name for name, line in BUILT_IN.item
 _FAMILY_TOOLS = lazy_face(
     __name__,
     {
-        "NodeInfo": "dronecan.node_info",
-        "NodeInfoReader": "dronecan.node_info",
-        "get_node_info_request": "dronecan.node_info",
+        "NodeInfo": "dronecan.get_node_info",
+        "NodeInfoReader": "dronecan.get_node_info",
+        "get_node_info_request": "dronecan.get_node_info",
     },
 )
 """A family's tools another layer uses (the doctor asks DroneCAN nodes who they are), imported

@@ -34,7 +34,7 @@ from mavservo.app.doctor.wire_facts import (
     robstride_device_id,
 )
 from mavservo.config import load_config, load_config_text
-from mavservo.servos.dronecan.node_info import NodeInfoReader
+from mavservo.servos.dronecan.get_node_info import NodeInfoReader
 from mavservo.sim.bus_simulation import wired_servos
 from mavservo.sim.servo import SimServo
 from mavservo.sim.slcan import SlcanEmulator

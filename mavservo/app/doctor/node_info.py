@@ -10,7 +10,7 @@ ASCII bytes, a reversed domain name). A service transfer needs a node id of the 
 doctor uses 127, an id kept for tools (MAVLink's "UAVCAN interaction" guide: "the values 126
 and 127 are typically used by debugging or monitoring equipment"); ``--node-id`` picks another,
 and nothing is asked when a node on the bus has it. The request and the
-reader of the answers are the DroneCAN family's (:mod:`mavservo.servos.dronecan.node_info`).
+reader of the answers are the DroneCAN family's (:mod:`mavservo.servos.dronecan.get_node_info`).
 """
 
 from __future__ import annotations
