@@ -481,7 +481,7 @@ class ServoConfig(StrictModel):
     telemetry_hz: Float = Field(10.0, gt=0)
     failsafe: FailsafeConfig = FailsafeConfig()
     options: dict[str, Any] = Field(default_factory=dict)
-    #: the bridge's own health checks of this servo (mavservo/config/health_schema.py, docs/health.md)
+    #: the bridge's own health checks of this servo (config/health_schema.py, docs/health.md)
     health: HealthConfig = HealthConfig()
 
     @field_validator("limits_deg")
