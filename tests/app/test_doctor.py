@@ -826,12 +826,13 @@ def test_get_node_info_from_another_node_id_and_never_from_a_taken_one() -> None
     assert free.node_infos[42].name == "org.node"
 
 
-def test_the_simulated_dronecan_node_is_asked_and_its_silence_said(
+def test_the_simulated_dronecan_node_is_asked_who_it_is_and_says(
     capsys: pytest.CaptureFixture[str], tmp_path: Path
 ) -> None:
-    """The built-in simulated DroneCAN node answers no GetNodeInfo: the doctor asks each
-    node (the requests are in its CAN log: service frames, GetNodeInfo, from node 127) and
-    says there was no answer; the request enables and moves nothing."""
+    """The built-in simulated DroneCAN node answers GetNodeInfo (written from the DSDL, through
+    the ``dronecan`` package, not from the doctor's reader): the doctor asks each node (the
+    requests are in its CAN log: service frames, GetNodeInfo, from node 127) and prints the
+    name, versions and unique id the node gave; the request enables and moves nothing."""
     from mavservo.servos.dronecan import wire
 
     path = REPO / "config" / "dronecan.yaml"
@@ -848,7 +849,11 @@ def test_the_simulated_dronecan_node_is_asked_and_its_silence_said(
     for node in nodes:
         assert f"DroneCAN node {node}: NodeStatus OK, OPERATIONAL" in out
         said = out.split(f"DroneCAN node {node}: NodeStatus", 1)[1].splitlines()[0]
-        assert said.endswith("no GetNodeInfo answer") or "GetNodeInfo: " in said, said
+        unique = (b"mavservo-sim" + node.to_bytes(4, "big")).hex()
+        assert (
+            f"GetNodeInfo: org.mavservo.sim.actuator, software 1.0, hardware 1.0, "
+            f"unique id {unique}" in said
+        ), said
     assert_nothing_enabled_or_moved(path, log)
 
 

@@ -33,6 +33,11 @@ The node's firmware is the servo's ``options.firmware``:
   speed 0 (its simulation convention), whatever the real output does. The attached servo turns
   the norm into an angle over the options' range (its real travel).
 
+The node answers ``uavcan.protocol.GetNodeInfo`` (DSDL ``uavcan/protocol/1.GetNodeInfo.uavcan``)
+addressed to it: its NodeStatus, software and hardware version 1.0, a unique id and a name
+(:data:`NODE_NAMES`), back to the asker with the request's transfer id and priority (the
+specification's service rules); a request from its own id (a squatter) is not answered.
+
 A servo with ``options.unique_id`` starts without a node id, as such a node does: it sends only
 anonymous ``dynamic_node_id.Allocation`` requests (its unique id in three parts, the next part
 as soon as the allocator echoes the previous ones, a new first part every second), ignores
@@ -45,7 +50,7 @@ import math
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import can
 import dronecan
@@ -59,6 +64,7 @@ _STATUS = _ACTUATOR.Status.default_dtid  # uavcan.equipment.actuator.Status
 _NODE_STATUS = dronecan.uavcan.protocol.NodeStatus.default_dtid  # uavcan.protocol.NodeStatus
 _SAFETY_STATE = dronecan.ardupilot.indication.SafetyState.default_dtid
 _ALLOCATION = dronecan.uavcan.protocol.dynamic_node_id.Allocation.default_dtid
+_GET_NODE_INFO = dronecan.uavcan.protocol.GetNodeInfo.default_dtid  # a service: its own id space
 # uavcan.equipment.actuator.Command.command_type constants
 _UNITLESS, _POSITION, _PWM = 0, 1, 4
 _SAFETY_OFF = 255  # ardupilot.indication.SafetyState.STATUS_SAFETY_OFF
@@ -73,6 +79,15 @@ _TRANSFER_TIMEOUT_S = 1.0
 _MAX_PENDING = 64
 _MAX_FRAMES = 64
 
+#: What a simulated node says of itself to ``uavcan.protocol.GetNodeInfo`` (its response
+#: section: NodeStatus, software and hardware version, unique id, name). AP_Periph's name is
+#: its ``CAN_APP_NODE_NAME`` default (``Tools/AP_Periph/AP_Periph.cpp``); the others are this
+#: simulation's own reversed domain name, so a doctor's report never mistakes one for a product.
+NODE_NAMES = {"ardupilot": "org.ardupilot.ap_periph"}
+GENERIC_NODE_NAME = "org.mavservo.sim.actuator"
+SOFTWARE_VERSION = (1, 0)
+HARDWARE_VERSION = (1, 0)
+
 # --- AP_Periph (``Tools/AP_Periph``), read for behaviour -------------------------------------
 ARDUPILOT_STATUS_PERIOD_S = 0.1
 """AP_Periph's actuator Status period while commanded (10 Hz)."""
@@ -85,6 +100,24 @@ ARDUPILOT_STATUS_DEG = 45.0
 def _is_message(msg: can.Message) -> bool:
     """A message frame: 29-bit id, service-not-message bit (bit 7) clear."""
     return bool(msg.is_extended_id) and not msg.is_remote_frame and not msg.arbitration_id & 0x80
+
+
+def _is_request_to(msg: can.Message, node_id: int | None, service: int) -> bool:
+    """A service request frame (29-bit id, bit 7 service, bit 15 request) of data type
+    ``service`` (bits 16..23) addressed to ``node_id`` (bits 8..14): the specification's
+    "CAN ID" table for service frames."""
+    ident = int(msg.arbitration_id)
+    return (
+        bool(msg.is_extended_id)
+        and not msg.is_remote_frame
+        and node_id is not None
+        and bool(ident & 0x80)
+        and bool(ident & 0x8000)
+        and (ident >> 8) & 0x7F == node_id
+        and (ident >> 16) & 0xFF == service
+        and 1 <= ident & 0x7F <= 127
+        and ident & 0x7F != node_id  # its own id as the asker: another node squatting it
+    )
 
 
 def _source(msg: can.Message) -> int:
@@ -116,6 +149,19 @@ def _broadcast(payload: Any, source: int, transfer_id: int, priority: int) -> li
     return _frames(transfer)
 
 
+class Received(NamedTuple):
+    """A whole transfer a node received: its data type id and payload, and for a service
+    request whom to answer (the response goes back with the request's transfer id and
+    priority: the specification's "service invocation" rules)."""
+
+    dtid: int
+    payload: Any
+    service: bool
+    source: int
+    transfer_id: int
+    priority: int
+
+
 class _Transfers:
     """Frames in, decoded payloads out: a node's receive side. Frames are collected by (CAN id,
     transfer id) from a start-of-transfer frame to an end-of-transfer frame (the tail byte);
@@ -126,8 +172,8 @@ class _Transfers:
         self._pending: dict[tuple[int, int], tuple[float, list[bytes]]] = {}
         self.dropped = 0
 
-    def push(self, msg: can.Message, now: float) -> tuple[int, Any] | None:
-        """``(data type id, payload)`` when ``msg`` completes a transfer that decodes."""
+    def push(self, msg: can.Message, now: float) -> Received | None:
+        """The transfer ``msg`` completes, when it decodes."""
         data = bytes(msg.data)
         if not data:
             return None
@@ -157,7 +203,14 @@ class _Transfers:
         except Exception:  # a hostile payload may trip anything in the package's decoder
             self.dropped += 1
             return None
-        return int(transfer.data_type_id), transfer.payload
+        return Received(
+            int(transfer.data_type_id),
+            transfer.payload,
+            bool(transfer.service_not_message),
+            int(transfer.source_node_id),
+            int(transfer.transfer_id),
+            int(transfer.transfer_priority),
+        )
 
 
 class SimNode:
@@ -200,7 +253,34 @@ class SimNode:
         )
         return _broadcast(status, node_id, self.tid(_NODE_STATUS), _PRIORITY_LOW)
 
-    def receive(self, msg: can.Message, now: float) -> tuple[int, Any] | None:
+    def node_info(self, node_id: int, request: Received, now: float) -> list[can.Message]:
+        """The response to a GetNodeInfo request: who the node is (module constants; the
+        unique id its first member's configured one, else derived from the node id)."""
+        if self.start is None:
+            self.start = now
+        response = dronecan.uavcan.protocol.GetNodeInfo.Response(
+            name=NODE_NAMES.get(self.firmware, GENERIC_NODE_NAME)
+        )
+        response.status.uptime_sec = max(0, min(0xFFFFFFFF, int(now - self.start)))
+        faulty = any(m.motor.active_faults != NO_FAULT for m in self.members)
+        response.status.health = _HEALTH_WARNING if faulty else _HEALTH_OK
+        response.status.mode = _MODE_OPERATIONAL
+        response.software_version.major, response.software_version.minor = SOFTWARE_VERSION
+        response.hardware_version.major, response.hardware_version.minor = HARDWARE_VERSION
+        unique = self.members[0].unique_id or b"mavservo-sim" + node_id.to_bytes(4, "big")
+        response.hardware_version.unique_id = list(unique[:16].ljust(16, b"\0"))
+        transfer = dronecan.transport.Transfer(
+            transfer_id=request.transfer_id,
+            source_node_id=node_id,
+            dest_node_id=request.source,
+            payload=response,
+            transfer_priority=request.priority,
+            service_not_message=True,
+            request_not_response=False,
+        )
+        return _frames(transfer)
+
+    def receive(self, msg: can.Message, now: float) -> Received | None:
         """Reassemble a frame once for the whole node (each member is handed the same frame)."""
         if self._handled is not None and self._handled[0] is msg and self._handled[1] == now:
             return None
@@ -288,11 +368,18 @@ class DroneCanDevice:
         return self.options.firmware == "ardupilot"
 
     def accepts(self, msg: can.Message) -> bool:
+        if self.answers(msg):
+            return True
         if not _is_message(msg) or _source(msg) in (0, self.node_id):
             return False
         if not self.node_id:
             return _message_type(msg) == _ALLOCATION
         return _message_type(msg) in (_ARRAY_COMMAND, _SAFETY_STATE)
+
+    def answers(self, msg: can.Message) -> bool:
+        """A GetNodeInfo request to this node (a service frame: :meth:`accepts` takes
+        messages only)."""
+        return _is_request_to(msg, self.node_id, _GET_NODE_INFO)
 
     def handle(self, msg: can.Message, now: float) -> list[can.Message]:
         if not self.node_id:
@@ -301,6 +388,10 @@ class DroneCanDevice:
                 return self._allocation_answer(received[1])
             return []
         received = self.node.receive(msg, now)
+        if received is not None and received.service:
+            if received.dtid == _GET_NODE_INFO and self.answers(msg):
+                return self.node.node_info(self.node_id, received, now)
+            return []
         if received is not None:
             for member in self.node.members:
                 member._take(received[0], received[1], now)
