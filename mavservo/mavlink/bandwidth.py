@@ -18,8 +18,9 @@ passes a token bucket (:class:`~mavservo.mavlink.pacing.TokenBucket`): rate ``r`
 and events (heartbeats, acknowledgements, STATUSTEXT) may run ``D`` into debt. In any interval of
 length T the link carries at most C + r*T + D bytes, so with C + r + D = budget no 1-second
 window exceeds the budget (issue 30, item 5: the average was under it, 25 of 60 seconds were
-not). Periodic telemetry and answers to requests take tokens only while half the depth stays
-for events (telemetry is then held back and counted, answers wait in their queue), events
+not). Periodic telemetry that does not fit waits in a line, one message per stream, and goes
+in turn (:meth:`LinkBudget.offer`, :meth:`LinkBudget.due`); answers to requests take tokens only
+while half the depth stays for events (they wait in their own queue), events
 (STATUSTEXT, COMMAND_ACK) may take the rest and the debt; heartbeats and CRITICAL texts always go
 (counted in ``essential_over_budget`` when they exceed it).
 Sizes are the worst case of each message type (MAVLink 2 trims trailing zeros: real frames are
@@ -28,7 +29,8 @@ shorter), so the bound holds for the bytes really sent.
 
 from __future__ import annotations
 
-from collections import Counter
+import enum
+from collections import Counter, OrderedDict
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -45,13 +47,13 @@ FRAME_OVERHEAD = 12
 SIGNATURE_BYTES = 13
 #: Share of the bucket's rate kept free for event traffic (STATUSTEXT, COMMAND_ACK, answers).
 EVENT_RESERVE = 0.1
+MAX_WAITING = 1024
+"""Most periodic messages waiting for the window (one per stream: 9 servos and a gimbal make
+~90 streams; a bound all the same, the oldest goes first and is counted)."""
 #: Share of the bucket's rate answers to requests (parameter lists and reads, FTP) may use at
 #: most: a read flood from a stranger starved the autopilot's telemetry when answers and
 #: telemetry competed for the same tokens without a cap. While answers flow, telemetry gets
-#: the rest (held back and counted in ``held_back_window``); without requests, all of it.
-RESERVATION_S = 1.0
-"""How long a periodic stream held back by the window keeps other streams waiting for it (its
-messages come again within its period; a stream that stopped frees the window after this)."""
+#: the rest (waiting in the line, see :meth:`LinkBudget.offer`); without requests, all of it.
 ANSWER_SHARE = 0.3
 #: Depth of the answers' own bucket: the largest MAVLink 2 frame (an FTP data packet, signed).
 ANSWER_DEPTH_BYTES = 280
@@ -238,6 +240,19 @@ def _fit(room: float, streams: tuple[StreamCost, ...]) -> dict[str, float]:
     return ratios
 
 
+_GOLDEN = (5**0.5 - 1) / 2
+"""The golden ratio's fraction: successive multiples of it spread over [0, 1) as evenly as any
+sequence can, whatever the number of streams."""
+
+
+class Admission(enum.Enum):
+    """What :meth:`LinkBudget.offer` did with a message."""
+
+    NOW = "now"
+    WAITS = "waits"
+    SKIPPED = "skipped"
+
+
 _STREAM_OF_TYPE = {
     "NAMED_VALUE_FLOAT": "NAMED_VALUE_FLOAT",
     "ACTUATOR_OUTPUT_STATUS": "ACTUATOR_OUTPUT_STATUS",
@@ -258,8 +273,8 @@ class LinkBudget:
         self._scratch = mavlink2.MAVLink(None)
         self._bucket: TokenBucket | None = None
         self._answers: TokenBucket | None = None
-        #: the periodic stream (its key) waiting for the window, and since when
-        self._reserved: tuple[tuple[Any, ...], float] | None = None
+        #: periodic messages waiting for the window, one per stream, oldest turn first
+        self._waiting: OrderedDict[tuple[Any, ...], tuple[int, Any]] = OrderedDict()
         self.replan(plan)
 
     def replan(self, plan: BudgetPlan, now: float | None = None) -> None:
@@ -307,54 +322,124 @@ class LinkBudget:
 
     def allow(self, component_id: int, msg: Any, now: float = 0.0) -> bool:
         """True when ``msg`` goes on the autopilot link now (it always goes to the monitors);
-        False for an event means "not yet" (the caller keeps it for the next tick)."""
+        False for an event means "not yet" (the caller keeps it for the next tick). A periodic
+        message is never kept here: one that does not fit now is held back (a command's
+        requested message, the property tests); the bridge's telemetry goes through
+        :meth:`offer`, which keeps its turn in the waiting line."""
+        kind = msg.get_type()
+        stream = self._stream(kind)
+        if stream is None:
+            return self._event(kind, msg, now, self._bucket)
+        key = self._key(component_id, kind, msg)
+        if not self._takes_turn(key, stream):
+            return False
+        bucket = self._bucket
+        if bucket is None or not self._waiting and bucket.take(self._cost(msg), now):
+            return True
+        self.counters["held_back_window"] += 1
+        return False
+
+    def offer(self, component_id: int, msg: Any, now: float) -> Admission:
+        """Where ``msg`` goes: on the link now (:attr:`Admission.NOW`), into the waiting line
+        for the link (:attr:`Admission.WAITS`: :meth:`due` hands it out when the window has
+        room, oldest first), or to the monitors only (:attr:`Admission.SKIPPED`: the plan's
+        decimation, or an event the bucket cannot take yet: the caller keeps those).
+
+        Why a waiting line: the plan gives each stream a rate that fits the budget on average,
+        but the bridge's telemetry comes in bursts (every stream of a tick at once) and the
+        window is first come first served: the many small NAMED_VALUE_FLOATs took the tokens
+        each time they came back, and a frame near the bucket's depth (ACTUATOR_OUTPUT_STATUS,
+        ESC_STATUS) needed a full bucket that was never left. The reservation tried before (one
+        held-back stream kept the window for up to a second) left the link idle while it
+        waited: with `config/ardupilot-sitl.yaml` the link carried 407 B/s of its 1,000 and
+        ACTUATOR_OUTPUT_STATUS got 39 % of its planned turns. In the line, a stream's message
+        waits for its turn instead of being lost; a newer message of the same stream takes its
+        place (fresher data, the same turn), so the line holds at most one message per stream
+        and no value is older than its period. The gimbal's attitude status
+        (:data:`_URGENT_STREAMS`) goes to the head: the autopilot calls the gimbal unhealthy
+        after 1 s without it."""
         kind = msg.get_type()
         stream = self._stream(kind)
         bucket = self._bucket
         if stream is None:
-            return self._event(kind, msg, now, bucket)
-        ratio = self.plan.ratios.get(stream, 1.0)
-        key = (component_id, kind, msg.name if kind == "NAMED_VALUE_FLOAT" else None)
+            return Admission.NOW if self._event(kind, msg, now, bucket) else Admission.SKIPPED
+        key = self._key(component_id, kind, msg)
+        if not self._takes_turn(key, stream):
+            return Admission.SKIPPED
+        if bucket is None:
+            return Admission.NOW
+        urgent = kind in _URGENT_STREAMS
+        first = (not self._waiting or urgent) and key not in self._waiting
+        if first and bucket.take(self._cost(msg), now):
+            return Admission.NOW
+        if key in self._waiting:  # a fresher value takes the place; the turn it used is kept
+            self.counters["waiting_superseded"] += 1
+            self._give_turn_back(key, stream)
+        self._waiting[key] = (component_id, msg)
+        if urgent:
+            self._waiting.move_to_end(key, last=False)
+        self.counters["waited"] += 1
+        while len(self._waiting) > MAX_WAITING:  # more streams than any config makes
+            self._waiting.popitem(last=False)
+            self.counters["waiting_dropped"] += 1
+        return Admission.WAITS
+
+    def due(self, now: float) -> list[tuple[int, Any]]:
+        """The waiting periodic messages the window takes now, oldest first; the line stops at
+        the first one that does not fit (a large frame is not overtaken by small ones, or it
+        would wait for ever)."""
+        bucket = self._bucket
+        if bucket is None:  # the budget was switched off: all of them
+            out = list(self._waiting.values())
+            self._waiting.clear()
+            return out
+        out = []
+        while self._waiting:
+            key, (component_id, msg) = next(iter(self._waiting.items()))
+            if not bucket.take(self._cost(msg), now):
+                break
+            del self._waiting[key]
+            out.append((component_id, msg))
+        return out
+
+    @staticmethod
+    def _key(component_id: int, kind: str, msg: Any) -> tuple[Any, ...]:
+        """The stream a periodic message belongs to: a NAMED_VALUE_FLOAT name, an ESC group."""
+        if kind == "NAMED_VALUE_FLOAT":
+            return (component_id, kind, msg.name)
         if kind in ("ESC_STATUS", "ESC_INFO"):  # one stream per ESC group (issue 30)
-            key = (component_id, kind, msg.index)
-        credit = self._credit.get(key, 1.0) + ratio if ratio < 1.0 else 1.0
+            return (component_id, kind, msg.index)
+        return (component_id, kind, None)
+
+    def _takes_turn(self, key: tuple[Any, ...], stream: str) -> bool:
+        """The plan's decimation: a stream at ratio r passes r of its messages, evenly spread
+        (a Bresenham credit per stream); the others are counted in ``held_back``.
+
+        A stream's first message always passes (a ground station sees every name soon after
+        it connects); after it, each stream starts from its own phase (the golden-ratio
+        sequence over the streams in the order they appear), so streams of one rate take
+        their turns spread over the period instead of all in the same tick: 63 names at
+        ratio 0.08 came as one burst every 12.8 s, and the burst held the line for seconds."""
+        ratio = self.plan.ratios.get(stream, 1.0)
+        if ratio >= 1.0:
+            return True
+        credit = self._credit.get(key)
+        if credit is None:
+            self._credit[key] = (len(self._credit) * _GOLDEN) % 1.0
+            return True
+        credit += ratio
         if credit < 1.0:
             self._credit[key] = credit
             self.counters["held_back"] += 1
             return False
-        if bucket is not None and not self._periodic_fits(bucket, key, msg, now):
-            # its turn is kept (the credit stays): it goes with the next message the window allows
-            self._credit[key] = min(credit, 1.0 + ratio) if ratio < 1.0 else 1.0
-            self.counters["held_back_window"] += 1
-            return False
-        if ratio < 1.0:
-            self._credit[key] = credit - 1.0
+        self._credit[key] = credit - 1.0
         return True
 
-    def _periodic_fits(
-        self, bucket: TokenBucket, key: tuple[Any, ...], msg: Any, now: float
-    ) -> bool:
-        """Tokens for a periodic message, first come first served except that a stream held
-        back by the window reserves its turn: until it has gone (or :data:`RESERVATION_S` has
-        passed) no other stream takes tokens. Without it a frame near the bucket's depth (an
-        ACTUATOR_OUTPUT_STATUS of 152 B in a 200 B bucket) needs a full bucket, which the many
-        small NAMED_VALUE_FLOATs never leave: it, ESC_STATUS and ESC_INFO starved although the
-        plan had room for them (0 of 17 ESC_STATUS in 4 s on a one-servo config). A stream in
-        :data:`_URGENT_STREAMS` goes before a reservation and takes it over when it is held back
-        itself: with one turn at a time for ~70 streams, the gimbal's status waited seconds for
-        its turn."""
-        held = self._reserved
-        urgent = key[1] in _URGENT_STREAMS
-        others_turn = held is not None and held[0] != key and now - held[1] < RESERVATION_S
-        if others_turn and not urgent:
-            return False
-        if bucket.take(self._cost(msg), now):
-            if held is not None and not others_turn:
-                self._reserved = None
-            return True
-        if held is None or held[0] != key and (urgent or not others_turn):
-            self._reserved = (key, now)
-        return False
+    def _give_turn_back(self, key: tuple[Any, ...], stream: str) -> None:
+        """A waiting message replaced by its stream's next one: the turn the first one took is
+        the stream's again (the plan's count of messages per second holds)."""
+        if self.plan.ratios.get(stream, 1.0) < 1.0 and key in self._credit:
+            self._credit[key] += 1.0
 
     def _take_keeping_half(self, bucket: TokenBucket, msg: Any, now: float) -> bool:
         """Tokens for ``msg`` if half the depth stays for events (or, for a frame larger than

@@ -923,15 +923,18 @@ class MavlinkLink:
         system_id: int,
         *,
         to_link: bool = True,
+        to_monitors: bool = True,
         reply_to: tuple[int, int] | None = None,
     ) -> None:
         """Encode ``msg`` from ``component_id`` (its own sequence number and signature) and send
-        it to the monitor outputs and, unless ``to_link`` is False, on the link: to every peer,
+        it to the monitor outputs (unless ``to_monitors`` is False: a message that waited for
+        the link budget, which the monitors had when it was made) and, unless ``to_link`` is
+        False, on the link: to every peer,
         or with ``reply_to`` (an answer) only to where that (system, component) was last heard
         on a UDP or TCP server (never to the other peers: issue 32, finding 3)."""
         try:
             with self._write_lock:
-                if self._monitors:
+                if self._monitors and to_monitors:
                     monitor = self._monitor_encoders[component_id]
                     monitor.srcSystem = system_id
                     monitor.send(msg)

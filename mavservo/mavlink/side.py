@@ -16,6 +16,7 @@ from typing import Any
 
 from mavservo.mavlink.answers import Answer
 from mavservo.mavlink.backend import ActuatorBackend
+from mavservo.mavlink.bandwidth import Admission
 from mavservo.mavlink.commands import Outgoing
 from mavservo.mavlink.component import HostedComponent
 from mavservo.mavlink.link import MavlinkLink
@@ -30,6 +31,9 @@ log = logging.getLogger(__name__)
 TICK_S = 0.01
 #: Events (STATUSTEXT chunks, ACKs) waiting for the link budget at most.
 MAX_HELD_EVENTS = 256
+#: Where a decided message goes: the link and the monitors, the monitors only (decimated, or
+#: waiting for the link), the link only (it waited; the monitors had it when it was made).
+_BOTH, _MONITORS, _LINK = "both", "monitors", "link"
 
 
 class MavlinkSide:
@@ -156,33 +160,38 @@ class MavlinkSide:
             self._loop.wait(delay)
 
     def _send(self, out: list[Outgoing]) -> None:
-        """Send ``out`` within the link budget: periodic telemetry the budget holds back goes
-        to the monitors only; an event (STATUSTEXT chunk, ACK) it cannot take now waits, in
-        order, for the next tick instead of being lost (a long text arrives whole)."""
+        """Send ``out`` within the link budget: periodic telemetry goes to the monitors at
+        once and to the link in its turn (the budget's waiting line: what waited goes first,
+        a message the plan decimates goes to the monitors only); an event (STATUSTEXT chunk,
+        ACK) the budget cannot take now waits, in order, for the next tick instead of being
+        lost (a long text arrives whole)."""
         with self._lock:  # the budget's bucket and the held events are shared by two threads
             decided = self._decide([*self._held, *out])
         system_id = self.core.system_id
-        for component_id, msg, to_link in decided:
-            self.link.send(component_id, msg, system_id, to_link=to_link)
-            if self.on_sent is not None:
+        for component_id, msg, where in decided:
+            self.link.send(
+                component_id, msg, system_id, to_link=where != _MONITORS, to_monitors=where != _LINK
+            )
+            if self.on_sent is not None and where != _LINK:  # when it first left
                 self.on_sent(msg, self._clock())
 
-    def _decide(self, pending: list[Outgoing]) -> list[tuple[int, Any, bool]]:
+    def _decide(self, pending: list[Outgoing]) -> list[tuple[int, Any, str]]:
         budget = self.core.budget
         now = self._clock()
         self._held.clear()
-        decided = []
+        decided = [(component_id, msg, _LINK) for component_id, msg in budget.due(now)]
         for component_id, msg in pending:
             event = budget.is_event(msg)
             if event and self._held:  # keep the order of events behind one that waits
                 self._hold(component_id, msg)
                 continue
-            if budget.allow(component_id, msg, now):
-                decided.append((component_id, msg, True))
+            admission = budget.offer(component_id, msg, now)
+            if admission is Admission.NOW:
+                decided.append((component_id, msg, _BOTH))
             elif event:
                 self._hold(component_id, msg)
-            else:
-                decided.append((component_id, msg, False))
+            else:  # the monitors now; the link in its turn (WAITS) or not (SKIPPED)
+                decided.append((component_id, msg, _MONITORS))
         return decided
 
     def _hold(self, component_id: int, msg: Any) -> None:
