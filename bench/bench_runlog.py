@@ -62,13 +62,14 @@ def paced(observer, rate: float, seconds: float) -> list[float]:
 
 
 def slowed(log: RunLog) -> RunLog:
-    original = log._write
+    files = log._files  # the writer thread's side: one event at a time
+    original = files.write
 
     def slow_write(item, _original=original):
         time.sleep(0.001)
         _original(item)
 
-    log._write = slow_write
+    files.write = slow_write
     return log
 
 

@@ -11,19 +11,11 @@ from mavservo.faces import lazy_face
 # name imported from its module on first use (:func:`mavservo.faces.lazy_face`); the modules'
 # other names are the package's own business.
 if TYPE_CHECKING:
+    from .can_log import can_log_files, read_can_log
     from .latency import STAGE_DESCRIPTIONS, STAGES, summarize
     from .metrics import LoadMeter, SchedulerMetrics, percentile, round_trip_figures, write_json
-    from .runlog import (
-        LATENCY_FILE,
-        METRICS_FILE,
-        REJECTIONS_FILE,
-        RUN_HEADER,
-        TRACE_FILE,
-        RunLog,
-        can_log_files,
-        new_run_dir,
-        read_can_log,
-    )
+    from .run_files import LATENCY_FILE, REJECTIONS_FILE, TRACE_FILE
+    from .runlog import METRICS_FILE, RUN_HEADER, RunLog, new_run_dir
 
 __all__ = [
     "LoadMeter",
@@ -58,11 +50,11 @@ __getattr__ = lazy_face(
         "summarize": "latency",
         "write_json": "metrics",
         "RUN_HEADER": "runlog",
-        "TRACE_FILE": "runlog",
-        "LATENCY_FILE": "runlog",
+        "TRACE_FILE": "run_files",
+        "LATENCY_FILE": "run_files",
         "METRICS_FILE": "runlog",
-        "REJECTIONS_FILE": "runlog",
-        "can_log_files": "runlog",
-        "read_can_log": "runlog",
+        "REJECTIONS_FILE": "run_files",
+        "can_log_files": "can_log",
+        "read_can_log": "can_log",
     },
 )

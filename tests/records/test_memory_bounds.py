@@ -188,7 +188,9 @@ def test_latency_tracer_stores_do_not_grow_while_commands_flow():
 def test_autopilot_commanded_log_is_bounded_by_keep_and_lookups_stay_exact():
     stream = AutopilotStream("udpout:127.0.0.1:9", keep=100)  # never started: no socket
     for i in range(N):
-        stream._record("servo", Commanded(float(i), 1, 1000 + i % 1000, "servo_output_raw"))
+        stream.commanded.record(
+            "servo", Commanded(float(i), 1, 1000 + i % 1000, "servo_output_raw")
+        )
     log = stream.commanded_log("servo")
     assert 50 <= len(log) <= 100
     assert log[-1].t == N - 1
@@ -201,7 +203,7 @@ def test_autopilot_commanded_log_is_bounded_by_keep_and_lookups_stay_exact():
 def test_autopilot_sent_and_received_logs_are_bounded_by_keep():
     stream = AutopilotStream("udpout:127.0.0.1:9", keep=100)
     for i in range(N):
-        stream._send("HEARTBEAT", float(i), lambda: None)
+        stream.link.send("HEARTBEAT", float(i), lambda: None)
     assert len(stream.sent_log) == 100 and stream.sent["HEARTBEAT"] == N
     assert stream.sent_log[-1] == (N - 1.0, "HEARTBEAT")
     assert stream.received._log.maxlen == 100

@@ -274,7 +274,7 @@ def test_factory_builds_what_the_config_asks_for(tmp_path) -> None:
         "udpout:127.0.0.1:9",
     )
     assert isinstance(stream, AutopilotStream) and isinstance(stream.profile, StaircaseProfile)
-    assert stream._intervals["SERVO_OUTPUT_RAW"] == pytest.approx(0.1)
+    assert stream.interval_s("SERVO_OUTPUT_RAW") == pytest.approx(0.1)
     assert [e.action for e in stream.script.events] == [SetServo(9, 1100)]
     runner = simulator_from_config(
         {"profile": "replay", "replay_file": str(tmp_path / "x.tlog")}, "udpout:127.0.0.1:9"
