@@ -24,6 +24,8 @@ ROOT = Path(__file__).resolve().parents[1]
 #: The pure cores named by the issue, besides every family's profile (found on disk below).
 CORES = (
     "mavservo.transport.aa55.codec",
+    "mavservo.transport.aa55.candidates",
+    "mavservo.transport.aa55.layout",
     "mavservo.servos.base",
     "mavservo.servos.mit",
     "mavservo.servos.cubemars.mit_mode",
