@@ -24,6 +24,9 @@ own actuator for this long, is warned about once (its commands are likely ignore
 
 
 class WatchedServoOptions(Protocol):
+    """What the watch reads of a servo's options: which actuator, which firmware, which
+    command type (said in the warnings)."""
+
     @property
     def actuator_id(self) -> int: ...
 

@@ -39,7 +39,7 @@ from pydantic import Field, field_validator, model_validator
 
 from ..base import BusNodeError, NodeHealth, ProfileOptions
 from . import wire
-from .actuator_watch import ActuatorWatch
+from .actuator_watch import ActuatorWatch, WatchedServoOptions
 from .bus_sharing import SENDERS_REPORTED as SENDERS_REPORTED
 from .bus_sharing import BusSharingWatch
 from .info_service import GET_NODE_INFO_PER_S as GET_NODE_INFO_PER_S
@@ -141,20 +141,12 @@ class NodeOptions(ProfileOptions):
         return self
 
 
-class CommandedServoOptions(Protocol):
-    """What the node reads of a DroneCAN servo's options (read-only)."""
-
-    @property
-    def actuator_id(self) -> int: ...
+class CommandedServoOptions(WatchedServoOptions, Protocol):
+    """What the node reads of a DroneCAN servo's options (read-only): what the actuator
+    watch reads, and the unique id the allocator hands a node id to."""
 
     @property
     def unique_id(self) -> str | None: ...
-
-    @property
-    def firmware(self) -> str: ...
-
-    @property
-    def command(self) -> str: ...
 
 
 class CommandedServo(Protocol):
