@@ -505,7 +505,7 @@ def test_a_scan_never_lands_on_another_familys_commands(
 def test_a_flood_of_random_ids_keeps_the_unknown_count_bounded(tmp_path: Path) -> None:
     """Every frame no family reads was counted by id in an unbounded Counter: a hostile
     stream of random 29-bit ids grew it by one entry per frame."""
-    from mavservo.app.doctor.session import MAX_UNKNOWN_IDS
+    from mavservo.app.doctor.findings import MAX_UNKNOWN_IDS
 
     path = write_config(tmp_path, "servos:\n  - {name: a, profile: rmd-x, can_id: 1}\n")
     config = load_config(path)
@@ -513,7 +513,7 @@ def test_a_flood_of_random_ids_keeps_the_unknown_count_bounded(tmp_path: Path) -
     frames = 3 * MAX_UNKNOWN_IDS
     for k in range(frames):
         msg = can.Message(arbitration_id=0x1ABC0000 + k, is_extended_id=True, data=b"\x01")
-        doctor._read(msg, 1_000_000, "heard")  # noqa: SLF001
+        doctor.reader.read(msg, 1_000_000, "heard")
     findings = doctor.findings
     assert len(findings.unknown_ids) <= MAX_UNKNOWN_IDS
     assert sum(findings.unknown_ids.values()) + findings.unknown_overflow == frames
@@ -567,7 +567,7 @@ def test_a_foreign_flood_adds_no_phantom_servos_to_the_yaml(tmp_path: Path) -> N
             is_extended_id=extended,
             data=bytes(rng.getrandbits(8) for _ in range(size)),
         )
-        doctor._read(msg, 1_000_000, "heard")  # noqa: SLF001
+        doctor.reader.read(msg, 1_000_000, "heard")
     findings = doctor.findings
     findings.working_bitrate = 1_000_000
     heard = {(s.profile, s.can_id) for s in findings.sightings.values()}

@@ -317,7 +317,7 @@ def test_the_budget_counts_the_bounded_answers_of_the_bridges_node() -> None:
         [DroneCanServo(11)], NodeOptions(node_id=100, allocator=True), (0, 1), 0.0
     )
     asked = wire.Received(None, wire.DTID_GET_NODE_INFO, 42, 0, True, True, 100, "", 16)
-    node_info = len(plain._node_info_response(asked, 0.0))
+    node_info = len(plain.node_info.response(asked, 0.0))
     assert node_info == plain.node_info_frames()
     rates = {round(rate, 6) for rate, _, _ in plain.bus_frames_per_second(1, 20.0)}
     assert GET_NODE_INFO_PER_S * node_info in rates

@@ -35,8 +35,9 @@ from mavservo.servos import UnknownProfileError, get_profile
 from mavservo.sim import simulator_factory
 from mavservo.transport import BITRATE_SET_OUTSIDE, SIM_CHANNEL, BusRequest, OpenedBus, open_bus
 
+from .findings import BusFindings
 from .node_info import TOOL_NODE_ID
-from .session import BusDoctor, BusFindings
+from .session import BusDoctor
 from .verdict import Verdict, extra_entries, judge
 
 EXIT_OK, EXIT_PROBLEMS, EXIT_INVALID = 0, 1, 2

@@ -1,4 +1,8 @@
-"""The doctor's work on one bus: listen, find the bitrate, probe, scan, and keep what it saw.
+"""The doctor's work on one bus: listen, find the bitrate, probe, scan.
+
+What it saw is kept in :class:`.findings.BusFindings`; each received frame is read into them by
+:class:`.frame_reader.FrameReader`; before a probe goes out, :class:`.occupants.Occupants` says
+whether another device would take it as its own. This module keeps the steps and their timing.
 
 Safe by default: it listens first, listen-only where the adapter has such a mode (AA-55 silent
 mode, LAWICEL ``L``, PCAN passive), at the configured bitrate and then at each standard one
@@ -15,18 +19,14 @@ import contextlib
 import functools
 import logging
 import time
-from collections import Counter, defaultdict
+from collections import defaultdict
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
 from typing import Any
 
 import can
 
 from mavservo.config import BusConfig, ServoConfig
 from mavservo.servos import (
-    FrameId,
-    NodeInfo,
-    NodeInfoReader,
     get_node_info_request,
     get_profile,
     release_frames_of,
@@ -40,23 +40,16 @@ from mavservo.transport import (
 )
 
 from .families import facts
+from .findings import BusFindings
+from .frame_reader import FrameReader
 from .node_info import ANSWER_WAIT_S, MAX_NODES_ASKED, TOOL_NODE_ID
+from .occupants import Occupants
 from .recognise import (
     Candidate,
     Recogniser,
-    announcements,
     family_variants,
     make_candidate,
     options_key,
-)
-from .wire_facts import (
-    NodeStatus,
-    ODriveHeartbeat,
-    actuator_status,
-    damiao_mode,
-    odrive_version,
-    rmdx_identity,
-    robstride_device_id,
 )
 
 log = logging.getLogger(__name__)
@@ -64,9 +57,6 @@ log = logging.getLogger(__name__)
 #: How long the replies to one batch of probes are waited for (a servo answers within ~1 ms;
 #: a USB adapter's latency and a loaded host add a few more).
 REPLY_WAIT_S = 0.05
-#: Distinct ids of unreadable frames counted one by one: a hostile stream of random ids
-#: (up to ~8,000 frames/s at 1 Mbit/s) cannot grow the count past this.
-MAX_UNKNOWN_IDS = 1024
 #: Sends of a disable frame before a motor is reported left enabled, each after a wait in
 #: which a refusing adapter is reopened (the bus wrapper's backoff starts at 0.1 s).
 DISABLE_TRIES = 5
@@ -133,121 +123,9 @@ def forbidden_frames(candidates: Iterable[Candidate]) -> set[tuple[int, bool, by
     return out
 
 
-@dataclass
-class Sighting:
-    """A motor the doctor heard or that answered: ``how`` is ``heard`` (unasked) or
-    ``answered`` (a probe's reply); ``bitrate`` where."""
-
-    profile: str
-    can_id: int
-    options: dict[str, Any]
-    bitrate: int
-    how: str
-    frames: int = 0
-    states: int = 0
-    """Frames that decoded to a whole state (what proves it is this servo)."""
-    alternatives: set[str] = field(default_factory=set)
-
-
-@dataclass
-class BusFindings:
-    """Everything the doctor learnt of one bus."""
-
-    bus: BusConfig
-    listen_only: bool
-    listened: dict[int, int] = field(default_factory=dict)
-    """Bitrate -> valid frames heard while listening."""
-    error_frames: dict[int, int] = field(default_factory=dict)
-    unsupported: dict[int, str] = field(default_factory=dict)
-    """Bitrates the adapter refused, and why."""
-    open_error: str | None = None
-    """Why the adapter did not open at all (at the configured bitrate): nothing else ran."""
-    working_bitrate: int | None = None
-    sightings: dict[tuple[str, int, tuple[tuple[str, Any], ...], int], Sighting] = field(
-        default_factory=dict
-    )
-    heartbeats: dict[int, ODriveHeartbeat] = field(default_factory=dict)
-    node_statuses: dict[int, NodeStatus] = field(default_factory=dict)
-    unknown_ids: Counter[tuple[int, bool]] = field(default_factory=Counter)
-    unknown_overflow: int = 0
-    """Frames of ids no family reads beyond the first :data:`MAX_UNKNOWN_IDS` distinct ones."""
-    damiao_modes: dict[int, str] = field(default_factory=dict)
-    """Damiao motor id -> its CTRL_MODE register as read."""
-    identities: dict[tuple[str, int], str] = field(default_factory=dict)
-    """(family, id) -> what an identity read said (ODrive version, Robstride MCU id)."""
-    actuators: dict[int, set[int]] = field(default_factory=dict)
-    """DroneCAN node -> the actuator ids its actuator Status reports carry."""
-    node_infos: dict[int, NodeInfo] = field(default_factory=dict)
-    """DroneCAN node -> its answer to GetNodeInfo."""
-    node_info_asked: set[int] = field(default_factory=set)
-    node_info_skipped: str | None = None
-    """Why no GetNodeInfo was asked at all (the doctor's node id is taken on the bus)."""
-    probed_bitrates: list[int] = field(default_factory=list)
-    sent: int = 0
-    enable_sent: int = 0
-    left_enabled: list[str] = field(default_factory=list)
-    """Motors enabled by ``--allow-enable`` whose disable the bus refused every time."""
-    scan_s: float | None = None
-    scanned: int = 0
-    spared: Counter[str] = field(default_factory=Counter)
-    """Device ("odrive 10") -> probes not sent because they land on that device's ids: a
-    frame that is another family's read can be this device's command (an RMD-X read on 0x14C
-    is Set_Input_Pos of ODrive node 10, 0x156 its Reboot, 0x15F its Enter_DFU_Mode)."""
-
-    @property
-    def noisy(self) -> bool:
-        """More frames no family reads than frames some family reads: on such a bus a frame
-        that fits a family's layout is as likely chance as a motor, so a motor only heard
-        (never answering a request) is not taken for one."""
-        unknown = sum(self.unknown_ids.values()) + self.unknown_overflow
-        return unknown > sum(s.frames for s in self.sightings.values())
-
-    def identify(self, family: str, can_id: int, said: str) -> None:
-        """Keep what an identity read said; a family with several reads (RMD-X model and
-        software date) keeps each once, in the order heard."""
-        known = self.identities.get((family, can_id))
-        if known is None:
-            self.identities[(family, can_id)] = said
-        elif said not in known.split(", "):
-            self.identities[(family, can_id)] = f"{known}, {said}"
-
-    def node_info_said(self, node: int) -> str:
-        """What GetNodeInfo told of DroneCAN ``node``, or why nothing."""
-        info = self.node_infos.get(node)
-        if info is not None:
-            return info.text()
-        if self.node_info_skipped is not None:
-            return self.node_info_skipped
-        if node in self.node_info_asked:
-            return "no GetNodeInfo answer"
-        return "GetNodeInfo not asked"
-
-    def unknown(self, msg: can.Message) -> None:
-        """Count a frame no family reads, by id; a flood of random ids is counted in one
-        bucket past :data:`MAX_UNKNOWN_IDS` distinct ones (what is printed is the top 8)."""
-        key = (msg.arbitration_id, msg.is_extended_id)
-        if key in self.unknown_ids or len(self.unknown_ids) < MAX_UNKNOWN_IDS:
-            self.unknown_ids[key] += 1
-        else:
-            self.unknown_overflow += 1
-
-    def seen(self, candidate: Candidate, bitrate: int, how: str, complete: bool) -> Sighting:
-        key = (*candidate.key, bitrate)
-        sighting = self.sightings.get(key)
-        if sighting is None:
-            sighting = Sighting(
-                candidate.profile, candidate.can_id, dict(candidate.raw_options), bitrate, how
-            )
-            self.sightings[key] = sighting
-        elif how == "answered":
-            sighting.how = how
-        sighting.frames += 1
-        sighting.states += complete
-        return sighting
-
-
 class BusDoctor:
-    """Diagnoses one bus of a config (see module)."""
+    """Diagnoses one bus of a config (see module): owns the bus's findings, the frame reader
+    that fills them and the safe sender of each step."""
 
     def __init__(
         self,
@@ -269,7 +147,6 @@ class BusDoctor:
         self.allow_enable = allow_enable
         self.try_bitrates = try_bitrates
         self.node_id = node_id
-        self._node_info = NodeInfoReader(node_id)
         self.findings = BusFindings(bus, has_listen_only(bus.interface))
         if bus.interface in BITRATE_SET_OUTSIDE:
             self.try_bitrates = False  # the link's bitrate is not ours to change
@@ -280,7 +157,8 @@ class BusDoctor:
                 configured.setdefault(sibling, [])
         self._families = dict(configured)
         self.recogniser = Recogniser(self._families)
-        self._configured = {(s.profile, s.can_id, options_key(s.options)) for s in self.servos}
+        configured_keys = {(s.profile, s.can_id, options_key(s.options)) for s in self.servos}
+        self.reader = FrameReader(self.findings, self.recogniser, configured_keys, node_id)
         self._forbidden = forbidden_frames(self.recogniser.candidates)
 
     # -- the steps -----------------------------------------------------------------------------
@@ -370,62 +248,8 @@ class BusDoctor:
                 self.findings.error_frames[bitrate] = self.findings.error_frames.get(bitrate, 0) + 1
                 continue
             valid += 1
-            self._read(msg, bitrate, how, asked)
+            self.reader.read(msg, bitrate, how, asked)
         return valid
-
-    def _read(
-        self,
-        msg: can.Message,
-        bitrate: int,
-        how: str,
-        asked: set[tuple[str, int]] | None = None,
-    ) -> None:
-        said = announcements(msg)
-        candidates = self.recogniser.whose(msg)
-        mine = [(c, whole) for c, whole in candidates if c.key in self._configured]
-        if mine:  # a configured servo's reading wins over the look-alikes (Damiao's 4-bit id)
-            candidates = mine
-        heartbeat = isinstance(said, ODriveHeartbeat)
-        if heartbeat and candidates and all(c.profile != "odrive" for c, _ in candidates):
-            said = None  # another family's frame that merely fits the heartbeat's layout
-        if isinstance(said, ODriveHeartbeat):
-            self.findings.heartbeats[said.node_id] = said
-        elif isinstance(said, NodeStatus):
-            self.findings.node_statuses[said.node_id] = said
-        for family, read in (("odrive", odrive_version), ("robstride", robstride_device_id)):
-            identity = read(msg)
-            if identity is not None:
-                self.findings.identify(family, *identity)
-        model_or_date = rmdx_identity(msg)
-        identified = model_or_date is not None and any(
-            c.profile == "rmd-x" and c.can_id == model_or_date[0]
-            for c in self.recogniser.candidates
-        )
-        if identified and model_or_date is not None:  # the profile reads no such answer
-            self.findings.identify("rmd-x", *model_or_date)
-        if self._node_info.accepts(msg):  # every frame of the answer is read, not unknown
-            identified = True
-            info = self._node_info.push(msg, time.monotonic())
-            if info is not None:
-                self.findings.node_infos[info.node_id] = info
-                self.findings.identify("dronecan", info.node_id, info.text())
-        status_of = actuator_status(msg)
-        if status_of is not None:
-            self.findings.actuators.setdefault(status_of[0], set()).add(status_of[1])
-        if not candidates:
-            if said is None and not identified:
-                self.findings.unknown(msg)
-            return
-        mode = damiao_mode(msg)
-        if mode is not None and any(c.profile == "damiao-dm" for c, _ in candidates):
-            self.findings.damiao_modes[mode[0]] = mode[1]
-        names = {f"{c.profile} {c.can_id}" for c, _ in candidates}
-        for candidate, complete in candidates:
-            mine_to_answer = asked is None or (candidate.profile, candidate.can_id) in asked
-            sighting = self.findings.seen(
-                candidate, bitrate, how if mine_to_answer else "heard", complete
-            )
-            sighting.alternatives |= names - {f"{candidate.profile} {candidate.can_id}"}
 
     def _probe_servos(self, bitrate: int) -> bool:
         """Ask every configured servo (and its other modes at its id) what the profiles
@@ -473,17 +297,10 @@ class BusDoctor:
         sender = SafeSender(
             opened.bus, lambda msg, rx: self._record(msg, rx, bitrate), self._forbidden
         )
-        occupants = self._occupants()
+        occupants = Occupants(self.servos, self.findings)
         for node in heard[:MAX_NODES_ASKED]:
             frames = get_node_info_request(node, self.node_id, transfer_id=0)
-            owner = next(
-                (
-                    name
-                    for name, group, frame_id in occupants
-                    if "dronecan" not in group and any(frame_id.matches(f) for f in frames)
-                ),
-                None,
-            )
+            owner = occupants.owner("dronecan", frames)
             if owner is not None:
                 self.findings.spared[owner] += 1
                 continue
@@ -492,41 +309,6 @@ class BusDoctor:
                 sender.send(frame)
         self._collect(opened.bus, bitrate, ANSWER_WAIT_S, "heard", set())
         self.findings.sent += sender.sent
-
-    def _occupants(self) -> list[tuple[str, frozenset[str], FrameId]]:
-        """The ids other devices take frames on: every configured servo, every motor heard or
-        answering, every ODrive heard by its heartbeat; each as (name, its family and the
-        families sharing its hardware, one receiving identifier)."""
-        devices: dict[tuple[str, int], Mapping[str, Any]] = {}
-        for servo in self.servos:
-            devices.setdefault((servo.profile, servo.can_id), servo.options)
-        for sighting in self.findings.sightings.values():
-            devices.setdefault((sighting.profile, sighting.can_id), sighting.options)
-        for node in self.findings.heartbeats:
-            devices.setdefault(("odrive", node), {})
-        out: list[tuple[str, frozenset[str], FrameId]] = []
-        for (profile, can_id), options in devices.items():
-            candidate = make_candidate(profile, can_id, options)
-            if candidate is None:
-                continue
-            group = frozenset((profile, *facts(profile).siblings))
-            out.extend(
-                (f"{profile} {can_id}", group, frame_id) for frame_id in _receiving_ids(candidate)
-            )
-        return out
-
-    def _lands_on_another(
-        self,
-        candidate: Candidate,
-        msg: can.Message,
-        occupants: Sequence[tuple[str, frozenset[str], FrameId]],
-    ) -> str | None:
-        """The device of another family that would take ``msg`` (meant for ``candidate``) as
-        one of its own frames, or None."""
-        for name, group, frame_id in occupants:
-            if candidate.profile not in group and frame_id.matches(msg):
-                return name
-        return None
 
     def _probe(
         self,
@@ -542,10 +324,10 @@ class BusDoctor:
         sender = SafeSender(opened.bus, lambda msg, rx: self._record(msg, rx, bitrate), forbidden)
         frames: list[can.Message] = []
         askers: dict[tuple[int, bool, bytes], set[tuple[str, int]]] = {}
-        occupants = self._occupants()
+        occupants = Occupants(self.servos, self.findings)
         for candidate in probes:  # two modes often share a read (the same frame): sent once
             for msg in safe_requests(candidate, forbidden, identity=identity(candidate)):
-                owner = self._lands_on_another(candidate, msg, occupants)
+                owner = occupants.owner(candidate.profile, [msg])
                 if owner is not None:
                     self.findings.spared[owner] += 1
                     continue
@@ -570,15 +352,13 @@ class BusDoctor:
         """``--allow-enable``: the silent ones that answer only when enabled, enabled once
         and disabled again at once."""
         found = {(s.profile, s.can_id) for s in self.findings.sightings.values()}
-        occupants = self._occupants()
+        occupants = Occupants(self.servos, self.findings)
         for candidate in probes:
             enable = facts(candidate.profile).enable
             if enable is None or (candidate.profile, candidate.can_id) in found:
                 continue
             on, off = enable(candidate.can_id, candidate.raw_options)
-            owner = next(
-                (o for m in on if (o := self._lands_on_another(candidate, m, occupants))), None
-            )
+            owner = next((o for m in on if (o := occupants.owner(candidate.profile, [m]))), None)
             if owner is not None:
                 self.findings.spared[owner] += len(on)
                 continue
@@ -656,14 +436,6 @@ class BusDoctor:
             opened.close()
         self.findings.scan_s = (self.findings.scan_s or 0.0) + time.monotonic() - started
         self.findings.scanned += len(probes)
-
-
-def _receiving_ids(candidate: Candidate) -> list[FrameId]:
-    """The identifiers ``candidate``'s motor takes frames on (its profile's own list)."""
-    try:
-        return [f for f in candidate.instance.identifiers() if f.direction == "to_servo"]
-    except Exception:  # noqa: BLE001 - a profile that cannot say occupies nothing known
-        return []
 
 
 def safe_requests(

@@ -17,7 +17,7 @@ from mavservo.config import ServoConfig, bitrate_text
 from mavservo.servos import Advising, get_profile
 
 from .families import facts
-from .session import BusFindings, Sighting
+from .findings import BusFindings, Sighting
 from .wire_facts import CLOSED_LOOP_CONTROL
 
 

@@ -17,13 +17,20 @@ the same servos): both would fight, silently. The node reports each such node id
 (:meth:`BridgeNode.take_notices`); the scheduler logs it and the bridge sends it as STATUSTEXT.
 
 Dynamic node id allocation (``allocator: true``): the server side of ``uavcan.protocol.
-dynamic_node_id.Allocation`` for nodes that start without an id, see :mod:`.dronecan_alloc`.
+dynamic_node_id.Allocation`` for nodes that start without an id, see :mod:`.alloc`.
+
+The node sends its own traffic and owns the parts that have a job and a state of their own, each
+in its module: the SafetyState broadcast (:mod:`.safety`), the GetNodeInfo answers at a bounded
+rate (:mod:`.info_service`), the watch on other masters of the bus (:mod:`.bus_sharing`), the
+watch on actuators that never or no longer report (:mod:`.actuator_watch`) and the allocation
+server (:mod:`.alloc`). They count in the node's counters and tell the crew through its notices
+(:mod:`.notices`), so the scheduler still sees one node.
 """
 
 from __future__ import annotations
 
 import re
-from collections import Counter, deque
+from collections import Counter
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any, Literal, Protocol
 
@@ -32,27 +39,20 @@ from pydantic import Field, field_validator, model_validator
 
 from ..base import BusNodeError, NodeHealth, ProfileOptions
 from . import wire
+from .actuator_watch import ActuatorWatch, WatchedServoOptions
+from .bus_sharing import SENDERS_REPORTED as SENDERS_REPORTED
+from .bus_sharing import BusSharingWatch
+from .info_service import GET_NODE_INFO_PER_S as GET_NODE_INFO_PER_S
+from .info_service import NodeInfoService
+from .notices import Notices
+from .safety import SAFETY_PERIOD_S as SAFETY_PERIOD_S
+from .safety import SafetyBroadcast
 
 if TYPE_CHECKING:  # imported where used at run time: only a bus with the allocator on needs it
     from .alloc import AllocationServer
 
 _HEX32 = re.compile(r"[0-9a-f]{32}")
-GET_NODE_INFO_PER_S = 4
-"""GetNodeInfo answers per second at most (a tool or node monitor asks once per node it
-sees): each answer is about nine frames for a one-frame request, so an unbounded answer rate
-would let any node on the bus fill it with the bridge's traffic. Requests beyond are counted
-(``get_node_info_limited``) and not answered; the asker asks again."""
 _HEALTH = {"ok": wire.HEALTH_OK, "warning": wire.HEALTH_WARNING, "error": wire.HEALTH_ERROR}
-SAFETY_PERIOD_S = 0.5
-"""``ardupilot.indication.SafetyState`` every 500 ms, as ArduPilot's flight controller sends it
-(``AP_DroneCAN``, its 2 Hz safety broadcast); a peripheral that hears nothing keeps its state."""
-SENDERS_REPORTED = 8
-"""Other nodes reported by name (a second ArrayCommand sender, a SafetyState broadcaster), at
-most: a source id costs a stranger nothing, and each report is a WARNING line and a STATUSTEXT;
-the senders beyond are counted (``senders_not_reported``) and said once."""
-SILENT_ACTUATOR_S = 3.0
-"""A servo whose node is alive and which is commanded, but which has sent no report of its
-own actuator for this long, is warned about once (its commands are likely ignored)."""
 
 
 class NodeOptions(ProfileOptions):
@@ -141,20 +141,12 @@ class NodeOptions(ProfileOptions):
         return self
 
 
-class CommandedServoOptions(Protocol):
-    """What the node reads of a DroneCAN servo's options (read-only)."""
-
-    @property
-    def actuator_id(self) -> int: ...
+class CommandedServoOptions(WatchedServoOptions, Protocol):
+    """What the node reads of a DroneCAN servo's options (read-only): what the actuator
+    watch reads, and the unique id the allocator hands a node id to."""
 
     @property
     def unique_id(self) -> str | None: ...
-
-    @property
-    def firmware(self) -> str: ...
-
-    @property
-    def command(self) -> str: ...
 
 
 class CommandedServo(Protocol):
@@ -188,7 +180,16 @@ def frames_for_commands(count: int) -> int:
 
 
 class BridgeNode:
-    """The bridge's node on one bus (module docstring)."""
+    """The bridge's node on one bus (module docstring).
+
+    It sends the node's own traffic (NodeStatus, the packed ArrayCommands, GetNodeInfo answers)
+    and owns the parts with a job and a state of their own: the SafetyState broadcast
+    (:class:`.safety.SafetyBroadcast`), the watch on other masters of the bus
+    (:class:`.bus_sharing.BusSharingWatch`), the watch on actuators that do not report
+    (:class:`.actuator_watch.ActuatorWatch`) and, with the allocator on, the allocation server
+    (:class:`.alloc.AllocationServer`); they count in the node's counters and say what they
+    find through its notices (:class:`.notices.Notices`).
+    """
 
     def __init__(
         self,
@@ -239,80 +240,93 @@ class BridgeNode:
         for servo in servos:
             servo.bridge_node_id = self.node_id
             servo.node_actuators = frozenset(on_node[servo.can_id])
-        self.safety_off = options.safety_state == "safety_off"
-        """The SafetyState plan: broadcast at all (SAFETY_OFF from start)."""
-        self._safety_next = start
-        self._safety_sent: bool | None = None
-        self._failsafe = False
-        self._commanded_since: dict[int, float | None] = {}
-        """Servo index -> when the node first saw it commanded (None: in the slot just packed,
-        the time comes with the next :meth:`due`)."""
-        self._silent_warned: set[int] = set()
-        self._packed: set[int] = set()
-        """Servo indexes commanded in the slots packed since the last :meth:`due`."""
-        self._last_commanded: dict[int, float] = {}
-        """Servo index -> when the node last packed a command for it (set in :meth:`due`)."""
-        self._stopped_warned: set[int] = set()
-        """Servos warned about for a Status that stopped (again once one comes)."""
-        if self.safety_off and options.safety_on != "never" and servos:
-            servos[0].shutdown_hook = self._safety_on_at_stop
-        self.ardupilot_nodes = sorted(
-            {s.can_id for s in servos if s.options.firmware == "ardupilot"}
-        )
+        self.counters: Counter[str] = Counter()
+        self._notices = Notices()
         self._transfer_ids: Counter[int] = Counter()
         self._payloads: dict[int, Any] = {}
         self._reassembler = wire.Reassembler()
         self._queue: list[can.Message] = []
-        self._info_answers: deque[float] = deque(maxlen=GET_NODE_INFO_PER_S)
         self._next_status = start
         self._health = wire.HEALTH_OK
-        self.counters: Counter[str] = Counter()
-        self.foreign_masters: set[int] = set()
-        """Other nodes reported for sending ArrayCommand (see :meth:`_foreign_command`)."""
-        self._masters_of_ours: set[int] = set()
-        """Those of them reported for commanding the bridge's actuators (two masters)."""
-        self.safety_senders: set[int] = set()
-        """Other nodes reported for broadcasting SafetyState (see :meth:`_foreign_safety`)."""
-        self._notices: list[str] = []
-        self._safety_warning_due = bool(self.ardupilot_nodes and not self.safety_off)
-        """Say it again with the first command: a ground station that connects after the
-        start never heard the start's text, and the first command is when it matters."""
-        if self._safety_warning_due:
-            self._notices.append(self._safety_warning())
-        self._conflict_noted = False
-        self._noted: set[str] = set()
+        self.node_info = NodeInfoService(
+            self.node_id,
+            options.name,
+            software_version,
+            self.unique_id,
+            self.status_payload,
+            self.counters,
+            self._notices,
+        )
+        self.safety = SafetyBroadcast(
+            self.node_id,
+            options.safety_state == "safety_off",
+            options.safety_on,
+            sorted({s.can_id for s in servos if s.options.firmware == "ardupilot"}),
+            start,
+            self.counters,
+            self._notices,
+        )
+        if self.safety.turns_on_at_stop and servos:
+            servos[0].shutdown_hook = self.safety.at_stop
+        self.sharing = BusSharingWatch(
+            self.node_id,
+            set(actuators),
+            self.safety.safety_off,
+            self._reassembler,
+            self.counters,
+            self._notices,
+        )
+        self.actuators = ActuatorWatch(self.servos, self.counters, self._notices)
         self.allocator: AllocationServer | None = None
         if options.allocator:
-            from .alloc import AllocationServer
+            self.allocator = self._allocation_server(servos, options, start)
 
-            configured = {
-                bytes.fromhex(servo.options.unique_id): servo.can_id
-                for servo in servos
-                if servo.options.unique_id is not None
-            }
-            static = {s.can_id for s in servos if s.options.unique_id is None}
-            table = {bytes.fromhex(k): v for k, v in options.allocation_table.items()}
-            self.allocator = AllocationServer(
-                self.node_id,
-                configured,
-                static,
-                options.allocation_first_id,
-                table,
-                max_entries=options.allocation_max_entries,
-                expire_s=options.allocation_expire_s,
-                start=start,
+    def _allocation_server(
+        self, servos: Sequence[CommandedServo], options: NodeOptions, start: float
+    ) -> AllocationServer:
+        """The allocation server of this bus: the servos' configured unique ids, the static
+        ids it must not hand out and the table kept from the last run."""
+        from .alloc import AllocationServer
+
+        configured = {
+            bytes.fromhex(servo.options.unique_id): servo.can_id
+            for servo in servos
+            if servo.options.unique_id is not None
+        }
+        static = {s.can_id for s in servos if s.options.unique_id is None}
+        table = {bytes.fromhex(k): v for k, v in options.allocation_table.items()}
+        allocator = AllocationServer(
+            self.node_id,
+            configured,
+            static,
+            options.allocation_first_id,
+            table,
+            max_entries=options.allocation_max_entries,
+            expire_s=options.allocation_expire_s,
+            start=start,
+        )
+        if allocator.dropped:
+            self._notices.add(
+                f"DroneCAN allocation table: {len(allocator.dropped)} entries ignored "
+                "(an id of the bridge, of a servo or of another entry): "
+                + ", ".join(f"{uid}={nid}" for uid, nid in allocator.dropped[:4])
             )
-            if self.allocator.dropped:
-                self._notices.append(
-                    f"DroneCAN allocation table: {len(self.allocator.dropped)} entries ignored "
-                    "(an id of the bridge, of a servo or of another entry): "
-                    + ", ".join(f"{uid}={nid}" for uid, nid in self.allocator.dropped[:4])
-                )
+        return allocator
 
     @property
     def errors(self) -> Counter[str]:
         """Received transfers addressed to the node that did not decode, by reason."""
         return self._reassembler.errors
+
+    @property
+    def foreign_masters(self) -> set[int]:
+        """Other nodes reported for sending ArrayCommand on this bus."""
+        return self.sharing.foreign_masters
+
+    @property
+    def safety_senders(self) -> set[int]:
+        """Other nodes reported for broadcasting SafetyState on this bus."""
+        return self.sharing.safety_senders
 
     def _next_tid(self, key: int) -> int:
         tid = self._transfer_ids[key] & 0x1F
@@ -329,18 +343,16 @@ class BridgeNode:
         None: releases only, the plan stays as it is."""
         tuples: list[tuple[int, int, float]] = []
         if in_failsafe is not None:
-            self._failsafe = in_failsafe and self.options.safety_on == "failsafe_and_stop"
+            self.safety.failsafe(in_failsafe)
         for msg in commands:
             known = None
             for index, servo in enumerate(self.servos):
                 known = servo.command_of(msg)
                 if known is not None:
-                    if self._safety_warning_due and servo.options.firmware == "ardupilot":
-                        self._safety_warning_due = False
-                        self._notices.append(self._safety_warning())
-                    self._commanded_since.setdefault(index, None)
-                    if known[1] != wire.COMMAND_TYPE_PWM or known[2] > 0:  # not a release
-                        self._packed.add(index)
+                    if servo.options.firmware == "ardupilot":
+                        self.safety.ardupilot_commanded()
+                    release = known[1] == wire.COMMAND_TYPE_PWM and known[2] <= 0
+                    self.actuators.commanded(index, release)
                     break
             if known is not None:
                 tuples.append(known)
@@ -392,157 +404,23 @@ class BridgeNode:
                 wire.PRIORITY_LOW,
             )
             self.counters["node_status"] += 1
-        out += self._safety_due(now)
-        self._check_silent_actuators(now)
+        out += self.safety.due(now)
+        self.actuators.check(now)
         if self.allocator is not None:
             out += self.allocator.due(now)
             if self.allocator.pool_empty_noted():
-                self._notices.append(
+                self._notices.add(
                     "DroneCAN allocation: no free node id left to hand out "
                     f"({self.allocator.describe_pool()}); a new node gets none until entries "
                     "expire"
                 )
         return out
 
-    # ------------------------------------------------------------------------- safety
-    def _safety_frames(self, off: bool) -> list[can.Message]:
-        self._safety_sent = off
-        self.counters["safety_off" if off else "safety_on"] += 1
-        return wire.encode_message(
-            wire.safety_state(off),
-            self.node_id,
-            self._next_tid(wire.DTID_SAFETY_STATE),
-            wire.PRIORITY_LOW,
-        )
-
-    def _safety_due(self, now: float) -> list[can.Message]:
-        """SafetyState every 500 ms (at once when it changes): SAFETY_OFF, or SAFETY_ON while
-        the plan says failsafe and every commanded servo is in failsafe."""
-        if not self.safety_off:
-            return []
-        off = not self._failsafe
-        if now < self._safety_next and off == self._safety_sent:
-            return []
-        self._safety_next = now + SAFETY_PERIOD_S
-        return self._safety_frames(off)
-
-    def _safety_on_at_stop(self) -> list[can.Message]:
-        """SAFETY_ON once as the bridge stops (the plan's ``stop``): outputs off."""
-        return self._safety_frames(False)
-
-    def _safety_warning(self) -> str:
-        nodes = ", ".join(map(str, self.ardupilot_nodes))
-        return (
-            f"DroneCAN nodes {nodes} run ArduPilot firmware, which keeps its outputs off until "
-            "it hears SafetyState SAFETY_OFF, and the bridge sends none (safety_state: none): "
-            "their servos will not move; set node.dronecan.safety_state: safety_off"
-        )
-
-    def safety_plan(self) -> str:
-        """The SafetyState plan, as ``check`` prints it."""
-        if not self.safety_off:
-            return (
-                "SafetyState: not sent (safety_state: none): ArduPilot peripherals (AP_Periph) "
-                "keep their outputs off; other DroneCAN servos do not care"
-            )
-        on = {
-            "stop": "SAFETY_ON when the bridge stops",
-            "failsafe_and_stop": "SAFETY_ON while every servo of the bus is in failsafe and "
-            "when the bridge stops",
-            "never": "never SAFETY_ON (outputs stay enabled after the bridge stops; "
-            "ArduPilot peripherals still zero them 200 ms after the last command)",
-        }[self.options.safety_on]
-        return (
-            f"SafetyState: SAFETY_OFF every {SAFETY_PERIOD_S * 1000:g} ms from start (as "
-            f"ArduPilot's flight controller); {on}"
-        )
-
-    # ------------------------------------------------------------------------- silence
-    def _check_silent_actuators(self, now: float) -> None:
-        """Warn once per servo whose node is alive and which is commanded but never reports
-        its actuator: the node ignores the command (a command type it does not act on, an
-        actuator id it does not have); and once per episode for one that did report and
-        stopped while its node goes on (:meth:`_check_stopped_actuators`)."""
-        for index in self._packed:
-            self._last_commanded[index] = now
-        self._packed.clear()
-        self._check_stopped_actuators(now)
-        for index, since in list(self._commanded_since.items()):
-            if since is None:
-                self._commanded_since[index] = now
-                continue
-            servo = self.servos[index]
-            if index in self._silent_warned or servo.actuator_reported_at is not None:
-                continue
-            alive = servo.node_heard_at
-            if alive is None or now - max(since, alive) < SILENT_ACTUATOR_S:
-                continue
-            self._silent_warned.add(index)
-            self.counters["silent_actuators"] += 1
-            options = servo.options
-            if options.firmware == "ardupilot":
-                # AP_Periph sends actuator Status only as a SITL build (rc_out.cpp,
-                # sim_update_actuator) or with its actuator telemetry set up (actuator_telem.cpp,
-                # no position): a real board that drives its outputs is silent here
-                self._notices.append(
-                    f"DroneCAN node {servo.can_id} is alive but never reports Status for "
-                    f"actuator {options.actuator_id}: expected of a real AP_Periph board (it "
-                    "sends actuator Status only as a SITL build, or with its ACT telemetry set "
-                    "up): the position is not known, the servo is online on NodeStatus alone; "
-                    "if the node is a SITL build, check the actuator id"
-                )
-                continue
-            self._notices.append(
-                f"DroneCAN node {servo.can_id} is alive but never reports Status for actuator "
-                f"{options.actuator_id}: commands ignored? check the command type (command: "
-                f"{options.command}; ArduPilot peripherals act on unitless and pwm only) and "
-                "the actuator id"
-            )
-
-    def _check_stopped_actuators(self, now: float) -> None:
-        """An actuator that reported and has sent nothing for :data:`SILENT_ACTUATOR_S` while
-        it is commanded and its node's NodeStatus goes on: the servo stays online on that
-        NodeStatus, its last position shown as if current, so the crew is told (once per
-        episode; a report ends it). A released servo is not commanded: an ArduPilot SITL node
-        stops its Status then, as it should."""
-        for index, servo in enumerate(self.servos):
-            reported = servo.actuator_reported_at
-            if reported is None:
-                continue
-            if now - reported < SILENT_ACTUATOR_S:
-                self._stopped_warned.discard(index)
-                continue
-            commanded = self._last_commanded.get(index)
-            node = servo.node_last_heard
-            if (
-                index in self._stopped_warned
-                or commanded is None
-                or now - commanded > 1.0
-                or node is None
-                or now - node > SILENT_ACTUATOR_S
-            ):
-                continue
-            self._stopped_warned.add(index)
-            self.counters["stopped_actuators"] += 1
-            self._notices.append(
-                f"DroneCAN node {servo.can_id} is alive but actuator "
-                f"{servo.options.actuator_id} has sent no Status for {now - reported:.0f} s "
-                "while commanded: its position shown is that old (the servo stays online on the "
-                "node's NodeStatus); a failed actuator or a broken output?"
-            )
-
     def next_due(self) -> float:
         if self._queue or (self.allocator is not None and self.allocator.pending()):
             return -float("inf")
-        if self.safety_off:
-            return min(self._next_status, self._safety_next)
-        return self._next_status
-
-    def _notice_once(self, kind: str, text: str) -> None:
-        """A notice the first time something of ``kind`` happens (the count goes on)."""
-        if kind not in self._noted:
-            self._noted.add(kind)
-            self._notices.append(text)
+        safety = self.safety.next_due()
+        return self._next_status if safety is None else min(self._next_status, safety)
 
     def stats(self) -> dict[str, int]:
         """Counts for the run summary: the node's own, received transfers that did not decode
@@ -558,8 +436,7 @@ class BridgeNode:
         return out
 
     def take_notices(self) -> list[str]:
-        notices, self._notices = self._notices, []
-        return notices
+        return self._notices.take()
 
     def describe(self, servo_names: Sequence[str]) -> list[str]:
         """The node's identity and the rule for sharing its bus."""
@@ -577,10 +454,10 @@ class BridgeNode:
             f"node id {self.node_id}, name {self.options.name}, NodeStatus 1 Hz, GetNodeInfo "
             f"answered (version {major}.{minor}, unique id {self.unique_id.hex()}); dynamic id "
             f"allocation {allocator}",
-            self.safety_plan(),
+            self.safety.plan(),
             *(
-                [f"warning: {self._safety_warning()}"]
-                if self.ardupilot_nodes and not self.safety_off
+                [f"warning: {self.safety.warning()}"]
+                if self.safety.ardupilot_nodes and not self.safety.safety_off
                 else []
             ),
             f"one ArrayCommand per command slot for actuators {actuators} "
@@ -612,7 +489,7 @@ class BridgeNode:
             (command_hz * frames_for_commands(servo_count), True, 8),
             (GET_NODE_INFO_PER_S * self.node_info_frames(), True, 8),
         ]
-        if self.safety_off:  # SafetyState: one single-frame transfer (1 byte and the tail)
+        if self.safety.safety_off:  # SafetyState: one single-frame transfer (1 byte and the tail)
             flows.append((1 / SAFETY_PERIOD_S, True, 2))
         if self.allocator is not None:
             from .alloc import ALLOCATION_ANSWER_FRAMES, ALLOCATION_ANSWERS_PER_S
@@ -621,10 +498,8 @@ class BridgeNode:
         return flows
 
     def node_info_frames(self) -> int:
-        """Frames of this node's GetNodeInfo answer: NodeStatus (7 bytes), software version
-        (15), hardware version with an empty certificate (19), the name (tail array, no length
-        byte), the transfer CRC; 7 bytes a frame."""
-        return -(-(7 + 15 + 19 + len(self.options.name) + 2) // 7)
+        """Frames of this node's GetNodeInfo answer (:meth:`.NodeInfoService.frames`)."""
+        return self.node_info.frames()
 
     # -------------------------------------------------------------------------- receiving
     def receive(self, msg: can.Message, now: float) -> bool:
@@ -640,19 +515,10 @@ class BridgeNode:
             if received is None:
                 return False
             if received.dtid == wire.DTID_GET_NODE_INFO:
-                answers = self._info_answers
-                if len(answers) == answers.maxlen and now - answers[0] < 1.0:
-                    self.counters["get_node_info_limited"] += 1
-                    self._notice_once(
-                        "get_node_info_limited",
-                        f"DroneCAN node {received.source} asks GetNodeInfo faster than "
-                        f"{GET_NODE_INFO_PER_S}/s: the requests beyond are not answered "
-                        "(counted in get_node_info_limited)",
-                    )
+                answer = self.node_info.answer(received, now)
+                if answer is None:
                     return False
-                answers.append(now)
-                self._queue += self._node_info_response(received, now)
-                self.counters["get_node_info"] += 1
+                self._queue += answer
                 return True
             self.counters["unanswered_service"] += 1
             return False
@@ -667,14 +533,14 @@ class BridgeNode:
                 rate_limited = self.allocator.rate_limited
                 answered = bool(self.allocator.receive(received, now))
                 if self.allocator.rate_limited != rate_limited:
-                    self._notice_once(
+                    self._notices.once(
                         "allocation_rate",
                         "DroneCAN allocation: unknown unique ids ask for new node ids faster "
                         "than the allocator hands them out: refused (counted in "
                         "allocation_rate_limited); a stranger making up unique ids?",
                     )
                 if self.allocator.limited != limited:
-                    self._notice_once(
+                    self._notices.once(
                         "allocation_limited",
                         "anonymous DroneCAN allocation requests come faster than the allocator "
                         "answers: the requests beyond are not answered (counted)",
@@ -683,115 +549,11 @@ class BridgeNode:
             return False
         if dtid == wire.DTID_ARRAY_COMMAND:
             # CAN does not echo a sender's own frames: one with the bridge's id is another's
-            self._foreign_command(msg, source, now)
+            self.sharing.command(msg, source, now)
         if dtid == wire.DTID_SAFETY_STATE:
-            self._foreign_safety(msg, source, now)
-        if dtid == wire.DTID_NODE_STATUS and source == self.node_id:
-            self.counters["node_id_conflict"] += 1
-            if not self._conflict_noted:
-                self._conflict_noted = True
-                self._notices.append(
-                    f"another DroneCAN node sends NodeStatus with the bridge's node id "
-                    f"{self.node_id}: give one of them another id"
-                )
-        if self.allocator is not None and dtid == wire.DTID_NODE_STATUS:
-            self.allocator.seen(source, now)
+            self.sharing.safety(msg, source, now)
+        if dtid == wire.DTID_NODE_STATUS:
+            self.sharing.node_status(source)
+            if self.allocator is not None:
+                self.allocator.seen(source, now)
         return False
-
-    def _foreign_command(self, msg: can.Message, source: int, now: float) -> None:
-        """Another node's ArrayCommand: reported once per sender, saying whether it commands
-        the bridge's actuators (two masters) or others (a second controller, maybe intended)."""
-        self.counters["foreign_commands"] += 1
-        if source == self.node_id:
-            self.counters["own_id_commands"] += 1
-        received = self._reassembler.push(msg, now)
-        if received is None or source in self._masters_of_ours:
-            return
-        ours = {servo.options.actuator_id for servo in self.servos}
-        theirs = sorted({int(c.actuator_id) for c in received.payload.commands})
-        shared = [a for a in theirs if a in ours]
-        if source in self.foreign_masters and not shared:
-            return  # reported already; a sender that turns to the bridge's actuators is again
-        if not self._may_report(source):
-            return
-        self.foreign_masters.add(source)
-        if shared:
-            self._masters_of_ours.add(source)
-        if source == self.node_id:
-            self._notices.append(
-                f"another DroneCAN node sends ArrayCommand with the bridge's own node id "
-                f"{source} (CAN does not echo the bridge's frames), for actuators "
-                f"{', '.join(map(str, theirs))}"
-                + (f", the bridge's {', '.join(map(str, shared))}" if shared else "")
-                + ": a spoofed or misconfigured sender (counted in own_id_commands)"
-            )
-        elif shared:
-            self._notices.append(
-                f"DroneCAN node {source} also sends ArrayCommand for actuators "
-                f"{', '.join(map(str, shared))} (the bridge's): two masters command these "
-                "servos (an autopilot?); give them one master"
-            )
-        else:
-            self._notices.append(
-                f"DroneCAN node {source} also sends ArrayCommand on this bus, for actuators "
-                f"{', '.join(map(str, theirs))} (not the bridge's)"
-            )
-
-    def _may_report(self, source: int) -> bool:
-        """True while another sender may still be reported by name (:data:`SENDERS_REPORTED`
-        distinct nodes; one already reported always may); beyond, counted and said once."""
-        reported = self.foreign_masters | self.safety_senders
-        if source in reported or len(reported) < SENDERS_REPORTED:
-            return True
-        self.counters["senders_not_reported"] += 1
-        self._notice_once(
-            "senders_not_reported",
-            f"more than {SENDERS_REPORTED} other DroneCAN nodes send ArrayCommand or "
-            "SafetyState on this bus: the others are counted (senders_not_reported), not "
-            "reported one by one (a stranger making up node ids?)",
-        )
-        return False
-
-    def _foreign_safety(self, msg: can.Message, source: int, now: float) -> None:
-        """Another node's ``ardupilot.indication.SafetyState``: an ArduPilot peripheral obeys
-        the last one it hears, so a flight controller (or a stranger) broadcasting it on this
-        bus turns the outputs on or off whatever the bridge's plan; reported once per sender,
-        every one counted (``foreign_safety_state``)."""
-        self.counters["foreign_safety_state"] += 1
-        received = self._reassembler.push(msg, now)
-        if received is None or received.dtid != wire.DTID_SAFETY_STATE:
-            return
-        if source in self.safety_senders or not self._may_report(source):
-            return
-        self.safety_senders.add(source)
-        state = "SAFETY_OFF" if int(received.payload.status) == wire.SAFETY_OFF else "SAFETY_ON"
-        who = (
-            f"another DroneCAN node sends SafetyState with the bridge's own node id {source}"
-            if source == self.node_id
-            else f"DroneCAN node {source} also broadcasts SafetyState"
-        )
-        plan = (
-            "the bridge's SAFETY_OFF and its SafetyState fight"
-            if self.safety_off
-            else "the bridge sends none (safety_state: none)"
-        )
-        self._notices.append(
-            f"{who} ({state}): ArduPilot peripherals obey the last one heard, so their outputs "
-            f"follow that node, not the bridge's plan ({plan}); only one node may own the "
-            "safety state of the bus (a flight controller's CAN driver sends it every 500 ms)"
-        )
-
-    def _node_info_response(self, request: wire.Received, now: float) -> list[can.Message]:
-        info = wire.lib().uavcan.protocol.GetNodeInfo.Response()
-        info.status = self.status_payload(now)
-        info.software_version.major, info.software_version.minor = self.software_version
-        info.hardware_version.unique_id.from_bytes(self.unique_id)
-        info.name = self.options.name
-        return wire.encode_service(
-            info,
-            source=self.node_id,
-            destination=request.source,
-            transfer_id=request.transfer_id,
-            request=False,
-            priority=request.priority,  # a response keeps its request's priority
-        )

@@ -30,6 +30,18 @@ from typing import Any, Literal, NamedTuple, Protocol
 import can
 from can.typechecking import Channel
 
+from .candidates import CandidateJudge, Verdict
+from .layout import CMD_FIXED_DATA as CMD_FIXED_DATA
+from .layout import CMD_SETTINGS_FIXED as CMD_SETTINGS_FIXED
+from .layout import CMD_SETTINGS_VARIABLE as CMD_SETTINGS_VARIABLE
+from .layout import CMD_STATUS as CMD_STATUS
+from .layout import DATA_ALTERNATIVES, LAYOUTS, checksum_ok, layout_pattern
+from .layout import END as END
+from .layout import FIXED_LENGTH as FIXED_LENGTH
+from .layout import MAX_EXT_ID as MAX_EXT_ID
+from .layout import MAX_STD_ID as MAX_STD_ID
+from .layout import START as START
+
 __all__ = [
     "BITRATE_CODES",
     "MODES",
@@ -46,16 +58,11 @@ __all__ = [
 ProtocolName = Literal["variable", "fixed"]
 PROTOCOLS: tuple[str, ...] = ("variable", "fixed")
 
-START = 0xAA
-END = 0x55
-FIXED_LENGTH = 20
 #: The decoder never holds this many bytes between calls. The most it holds: a 15-byte frame
 #: with a frame starting at its 13th byte and running 14 bytes past it, waiting for the frame
 #: after that to be whole (14 of its 15 bytes): 41. (Two 20-byte frames in the fixed protocol
 #: and the next byte: 40; an incomplete candidate: < 20.)
 MAX_PENDING = 42
-MAX_STD_ID = 0x7FF
-MAX_EXT_ID = 0x1FFFFFFF
 
 #: CAN bitrate -> the adapter's bitrate code in the settings frame.
 BITRATE_CODES: dict[int, int] = {
@@ -77,16 +84,6 @@ _BITRATES_BY_CODE = {code: rate for rate, code in BITRATE_CODES.items()}
 #: Operating mode name -> code in the settings frame.
 MODES: dict[str, int] = {"normal": 0, "loopback": 1, "silent": 2, "loopback_silent": 3}
 _MODES_BY_CODE = {code: name for name, code in MODES.items()}
-
-# Command bytes of the fixed 20-byte frames (byte 2).
-CMD_FIXED_DATA = 0x01
-CMD_SETTINGS_FIXED = 0x02  # settings, then use the fixed 20-byte protocol
-CMD_SETTINGS_VARIABLE = 0x12  # settings, then use the variable-length protocol
-CMD_STATUS = 0x04
-#: The commands the adapter's own 20-byte frames carry (data, settings echoes, status).
-_ADAPTER_COMMANDS = frozenset(
-    (CMD_FIXED_DATA, CMD_SETTINGS_FIXED, CMD_SETTINGS_VARIABLE, CMD_STATUS)
-)
 
 
 class Rejection(str, enum.Enum):
@@ -283,32 +280,11 @@ def settings_frame(
     return bytes(body)
 
 
-def _layout_pattern(ext: bool, rtr: bool, dlc: int) -> bytes:
-    """Regex for one valid variable-length frame of one layout (ID kind, remote or not, DLC).
-
-    The ID's top byte is bounded so out-of-range IDs never match, and the payload length is tied
-    to the DLC nibble (remote frames carry none).
-    """
-    type_byte = 0xC0 | (0x20 if ext else 0) | (0x10 if rtr else 0) | dlc
-    ident = rb"...[\x00-\x1f]" if ext else rb".[\x00-\x07]"
-    payload = b"" if rtr else b".{%d}" % dlc
-    return re.escape(bytes((START, type_byte))) + ident + payload + rb"\x55"
-
-
-_LAYOUTS = [(ext, rtr, dlc) for dlc in range(9) for ext in (False, True) for rtr in (False, True)]
-
 # Searching for the leftmost match of any layout from a position is the same as the byte-by-byte
 # state machine that rescans after every rejected 0xAA, but runs in C.
-_DATA_ALTERNATIVES = b"|".join(_layout_pattern(*layout) for layout in _LAYOUTS)
 _FIXED_ALTERNATIVE = rb"\xaa\x55.{18}"
-_VARIABLE_RE = re.compile(_FIXED_ALTERNATIVE + b"|" + _DATA_ALTERNATIVES, re.DOTALL)
+_VARIABLE_RE = re.compile(_FIXED_ALTERNATIVE + b"|" + DATA_ALTERNATIVES, re.DOTALL)
 _FIXED_RE = re.compile(_FIXED_ALTERNATIVE, re.DOTALL)
-_FIXED_START = b"\xaa\x55"
-
-
-def _checksum_ok(buf: bytes | bytearray, start: int) -> bool:
-    """Does the 20-byte frame at ``start`` carry the low byte of the sum of its bytes 2..18?"""
-    return sum(buf[start + 2 : start + 19]) & 0xFF == buf[start + 19]
 
 
 @dataclass(frozen=True)
@@ -324,23 +300,13 @@ class _Run:
 
 def _run_table() -> dict[int, _Run]:
     table = {}
-    for ext, rtr, dlc in _LAYOUTS:
+    for ext, rtr, dlc in LAYOUTS:
         type_byte = 0xC0 | (0x20 if ext else 0) | (0x10 if rtr else 0) | dlc
         payload = 0 if rtr else dlc
         fmt = "<2x" + ("I" if ext else "H") + (f"{payload}s" if payload else "") + "x"
-        pattern = re.compile(b"(?:" + _layout_pattern(ext, rtr, dlc) + b")+", re.DOTALL)
+        pattern = re.compile(b"(?:" + layout_pattern(ext, rtr, dlc) + b")+", re.DOTALL)
         table[type_byte] = _Run(pattern, struct.Struct(fmt), ext, rtr, dlc)
     return table
-
-
-class _Verdict(enum.Enum):
-    ACCEPT = "accept"
-    REJECT = "reject"
-    WAIT = "wait"
-
-
-#: One valid variable-length data frame of any layout (no fixed 20-byte frames).
-_DATA_RE = re.compile(_DATA_ALTERNATIVES, re.DOTALL)
 
 
 def _run_messages(
@@ -414,14 +380,19 @@ class Decoder:
     ) -> None:
         if protocol not in PROTOCOLS:
             raise ValueError(f"unknown protocol {protocol!r}; expected one of {PROTOCOLS}")
-        #: Judge a frame that overlaps a better-placed one (see :meth:`_judge`). Off: the first
-        #: structurally valid candidate always wins and nothing waits for a following byte
-        #: (what a simple adapter firmware does; the adapter emulator may want that).
+        #: Judge a frame that overlaps a better-placed one (:meth:`.CandidateJudge.judge`). Off:
+        #: the first structurally valid candidate always wins and nothing waits for a following
+        #: byte (what a simple adapter firmware does; the adapter emulator may want that).
         self.resolve_overlaps = resolve_overlaps
         self.messages = messages
         self.channel = channel
         self.protocol: ProtocolName = protocol
         self._pattern = _VARIABLE_RE if protocol == "variable" else _FIXED_RE
+        # the structural rules (:mod:`.candidates`), bound once: the scan calls them by name
+        candidates = CandidateJudge(protocol)
+        self._judge = candidates.judge
+        self._held_back = candidates.held_back
+        self._incomplete_start = candidates.incomplete_start
         self._buf = bytearray()
         self.frames = 0
         self.settings = 0
@@ -502,7 +473,7 @@ class Decoder:
                 type_byte = raw[1]
                 stop = m.end()
                 fixed = type_byte == END
-                if fixed and not _checksum_ok(raw, 0):
+                if fixed and not checksum_ok(raw, 0):
                     self._record(Rejection.BAD_CHECKSUM, raw)
                     pos = start + 1  # rescan after the 0xAA
                     gap = restart = True
@@ -511,8 +482,8 @@ class Decoder:
                 # (most frames) skip the judging.
                 if self.resolve_overlaps and raw.find(START, 1) >= 0:
                     verdict = self._judge(buf, start, stop, end, gap, idle, fixed)
-                    if verdict is not _Verdict.ACCEPT:
-                        if verdict is _Verdict.WAIT:
+                    if verdict is not Verdict.ACCEPT:
+                        if verdict is Verdict.WAIT:
                             held = pos = start
                             break
                         self._record(Rejection.OVERLAP, raw)
@@ -568,149 +539,18 @@ class Decoder:
             self._buf += buf[keep:]
         return out
 
-    def _judge(
-        self,
-        buf: bytes | bytearray,
-        start: int,
-        stop: int,
-        end: int,
-        gap: bool,
-        idle: bool,
-        fixed: bool = False,
-    ) -> _Verdict:
-        """Keep the frame matched at ``buf[start:stop]``, or is it a false start over a real one?
-
-        Without a checksum, a truncated frame or a garbage 0xAA can take the following frame's
-        bytes as its own and happen to end on a 0x55: the match is structurally valid and the
-        real frame inside it would be lost. Real frames follow each other back to back (or the
-        line goes idle), garbage and truncation sit *before* a frame, so a match is given up for
-        a valid frame starting inside it when
-
-        * the match came after garbage and the inner frame ends where the match ends or is
-          itself followed by a frame, or
-        * the match is followed by something that is not a frame start while the inner frame is,
-          or ends there too (then the line is damaged right after both, and a real frame whose
-          last bytes read as a frame, ~3 in 100,000, is rarer than a cut one or a garbage 0xAA
-          that runs exactly to the end of the next frame).
-
-        A frame followed at once by another frame, with no garbage before it, is always kept:
-        that is every frame of a clean stream, decided without looking further. Undecided cases
-        wait for more bytes (at most two frames' worth), or for the line to go idle.
-
-        ``fixed``: the match is a checksummed 20-byte frame. Its checksum passes by chance for
-        one false start in 256 (a frame cut short takes the next frame's first bytes as its
-        last; in the variable protocol, a payload ending in 0xAA before its 0x55 end marker
-        starts one), so the same rule runs with the frames inside it (20-byte frames, up to one
-        starting on its last byte, and variable ones in the variable protocol), and one more:
-        when neither is followed by a frame start (garbage after the inner one), the inner
-        frame wins. A real 20-byte frame loses that way only if garbage follows it and it holds
-        a valid frame: in the fixed protocol one with ``AA 55`` (~1 in 4,000 random frames)
-        whose 20 bytes pass the checksum by chance (1 in 256); in the variable one, where
-        20-byte frames are the adapter's rare replies, a structurally valid variable frame.
-        """
-        marker: bytes | int  # what starts an inner candidate: ``AA 55``, or a lone 0xAA
-        if fixed and self.protocol == "fixed":
-            if stop == end and buf[stop - 1] == START and not idle:
-                return _Verdict.WAIT  # is that last 0xAA the start of an ``AA 55`` frame?
-            marker, limit = _FIXED_START, min(stop + 1, end)
-        else:
-            marker, limit = START, stop
-        inner = buf.find(marker, start + 1, limit)
-        if inner < 0:
-            return _Verdict.ACCEPT
-        # A 20-byte frame on a variable-protocol line is one of the adapter's rare replies: one
-        # that holds a frame followed by a frame, or holds a frame and carries a command the
-        # adapter never sends, is taken for a false start even when it is followed by a frame
-        # start itself (20 bytes of short frames often end on one).
-        weak = fixed and self.protocol == "variable"
-        followed = self._follows(buf, stop, end, idle, fixed)
-        if followed and not gap and not weak:
-            return _Verdict.ACCEPT
-        while inner >= 0:
-            inner_stop = self._inner_frame_end(buf, inner, end, idle, fixed)
-            if inner_stop is None:
-                return _Verdict.WAIT
-            if inner_stop >= 0:
-                inner_followed = self._follows(buf, inner_stop, end, idle, fixed)
-                if inner_stop == stop and (gap or weak or followed is False):
-                    return _Verdict.REJECT  # same end, and garbage before it or after it
-                if (gap or weak) and inner_followed:
-                    return _Verdict.REJECT
-                if weak and buf[start + 2] not in _ADAPTER_COMMANDS:
-                    return _Verdict.REJECT  # no reply the adapter sends, and a frame inside
-                if inner_followed is None:
-                    return _Verdict.WAIT
-                if inner_followed or fixed:  # a frame inside a 20-byte one wins a tie
-                    if followed is None:
-                        return _Verdict.WAIT
-                    if not followed:
-                        return _Verdict.REJECT
-            inner = buf.find(marker, inner + 1, limit)
-        return _Verdict.ACCEPT
-
-    def _follows(
-        self, buf: bytes | bytearray, at: int, end: int, idle: bool, fixed: bool
-    ) -> bool | None:
-        """Does a frame start at ``at``, right after a judged frame (``fixed``: a 20-byte one)?
-        True also when the data ends there on an idle line; None: not known yet.
-
-        After a variable frame the whole follower must be a valid frame, not just start with
-        0xAA: a garbage 0xAA or a cut frame there means the line is damaged right there, which
-        makes a false start before it likelier. Deciding that waits for at most one more frame
-        (15 bytes), and only frames with a 0xAA inside are judged at all. After a 20-byte frame
-        its first bytes decide (holding back a 20-byte follower as well would double the
-        memory a decoder keeps).
-        """
-        if at >= end:
-            return True if idle else None
-        if buf[at] != START:
-            return False
-        if fixed:
-            if self.protocol == "variable":
-                return True
-            # frames start with AA 55 here, and both bytes are asked for: a false start that
-            # ran into a real 20-byte frame ends on one of its bytes, a 0xAA now and then
-            return buf[at + 1] == END if at + 1 < end else (True if idle else None)
-        if at + 1 < end and buf[at + 1] == END:
-            return True  # a 20-byte adapter reply: its checksum settles it when it is reached
-        if _DATA_RE.match(buf, at) is not None:
-            return True
-        return None if not idle and self._could_complete(buf, at, end) else False
-
-    def _inner_frame_end(
-        self, buf: bytes | bytearray, inner: int, end: int, idle: bool, fixed: bool
-    ) -> int | None:
-        """Where a frame that counts starts at ``inner`` ends (-1: none does; None: not known
-        until more bytes come).
-
-        Inside a variable-protocol frame only variable frames count: a 20-byte frame there (a
-        payload byte 0xAA before the 0x55 end marker starts one in 1 frame in 256) has its own
-        checksum to settle it when the scan reaches it.
-        """
-        if inner + 1 >= end:
-            return -1 if idle else None
-        if buf[inner + 1] == END:
-            if not fixed:
-                return -1
-            if inner + FIXED_LENGTH > end:
-                return -1 if idle else None
-            return inner + FIXED_LENGTH if _checksum_ok(buf, inner) else -1
-        match = _DATA_RE.match(buf, inner)
-        if match is not None:
-            return match.end()
-        return None if not idle and self._could_complete(buf, inner, end) else -1
-
     def _take_run(
         self, buf: bytes | bytearray, pos: int, run: _Run, timestamp: float, out: list[Decoded]
     ) -> tuple[int, int]:
         """Decode the frames of ``run``'s layout back to back from ``pos``; (new pos, count).
 
-        Same result as one regex match and one :meth:`_judge` per frame: a run that starts at
-        ``pos`` is exactly the sequence of leftmost matches from ``pos`` (each layout's frames
-        have one length and no other layout matches the same type byte), it is only taken right
-        after a frame (no garbage before it), and its last frame is left out unless it has no
-        0xAA inside, so every frame taken is followed by a whole frame (the next of the run) or
-        has nothing inside to judge: the cases :meth:`_judge` accepts without looking further.
+        Same result as one regex match and one judgement (:mod:`.candidates`) per frame: a run
+        that starts at ``pos`` is exactly the sequence of leftmost matches from ``pos`` (each
+        layout's frames have one length and no other layout matches the same type byte), it is
+        only taken right after a frame (no garbage before it), and its last frame is left out
+        unless it has no 0xAA inside, so every frame taken is followed by a whole frame (the
+        next of the run) or has nothing inside to judge: the cases the judge accepts without
+        looking further.
         Everything per frame happens in C: ``iter_unpack`` splits the fields, ``zip`` assembles
         them, ``tuple.__new__`` makes the :class:`Frame`. In ``messages`` mode one Python loop
         over ``iter_unpack`` fills each ``can.Message`` (:func:`_run_messages`).
@@ -813,44 +653,3 @@ class Decoder:
         if start + length > n:
             return Rejection.TRUNCATED
         return Rejection.BAD_END
-
-    def _held_back(self, buf: bytes | bytearray, pos: int, stop: int, end: int) -> bool:
-        """True when a 0xAA in ``buf[pos:stop]`` may still grow into a frame covering ``stop``.
-
-        Emitting the later match now would make the output depend on how the stream was chunked.
-        """
-        start = buf.find(START, max(pos, end - FIXED_LENGTH + 1), stop)
-        while start >= 0:
-            if self._could_complete(buf, start, end):
-                return True
-            start = buf.find(START, start + 1, stop)
-        return False
-
-    def _incomplete_start(self, buf: bytes | bytearray, pos: int, end: int) -> int:
-        """Index of the first 0xAA at or after ``pos`` that may still grow into a valid frame."""
-        start = buf.find(START, max(pos, end - FIXED_LENGTH + 1))
-        while start >= 0:
-            if self._could_complete(buf, start, end):
-                return start
-            start = buf.find(START, start + 1)
-        return end
-
-    def _could_complete(self, buf: bytes | bytearray, start: int, end: int) -> bool:
-        avail = end - start
-        if avail < 2:
-            return True
-        type_byte = buf[start + 1]
-        if type_byte == END:
-            return avail < FIXED_LENGTH
-        if self.protocol == "fixed" or type_byte & 0xC0 != 0xC0 or type_byte & 0x0F > 8:
-            return False
-        ext = bool(type_byte & 0x20)
-        id_len = 4 if ext else 2
-        length = 3 + id_len + (0 if type_byte & 0x10 else type_byte & 0x0F)
-        if avail >= length:
-            return False  # complete but did not match: not a valid frame
-        if avail >= 2 + id_len:
-            arb_id = int.from_bytes(buf[start + 2 : start + 2 + id_len], "little")
-            if arb_id > (MAX_EXT_ID if ext else MAX_STD_ID):
-                return False
-        return True
