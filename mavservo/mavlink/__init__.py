@@ -15,7 +15,8 @@ if TYPE_CHECKING:
     from .commands import ACTUATORS_PER_SET
     from .connection import mavlink2, open_connection
     from .ftp import crc32
-    from .gimbal import GimbalDevice, GimbalSettings
+    from .gimbal import GimbalDevice
+    from .gimbal_settings import GimbalSettings
     from .metadata_service import (
         COMP_METADATA_TYPE_PARAMETER,
         GENERAL_FILE,
@@ -64,7 +65,7 @@ __getattr__ = lazy_face(
     __name__,
     {
         "StreamRequestSettings": "settings",
-        "GimbalSettings": "gimbal",
+        "GimbalSettings": "gimbal_settings",
         "ACCEPTED": "backend",
         "ACTUATORS_PER_SET": "commands",
         "AUTO_ESC_FIRST": "telemetry",

@@ -224,7 +224,7 @@ def test_missing_axis_is_never_driven_and_reports_zero():
     )
     device.handle_message(set_attitude(10.0, -30.0, 20.0), now=1.0)
     assert_angles(backend.last, (None, -30.0, 20.0))
-    info = device.device_information(1.0)
+    info = device.report.device_information(1.0)
     assert not info.cap_flags & mav.GIMBAL_DEVICE_CAP_FLAGS_HAS_ROLL_AXIS
     assert info.cap_flags & mav.GIMBAL_DEVICE_CAP_FLAGS_HAS_PITCH_AXIS
     assert_angles(status_angles(device, 1.01), (0.0, -30.0, 20.0))
