@@ -12,7 +12,6 @@ from mavservo.faces import lazy_face
 if TYPE_CHECKING:
     from .backend import ACCEPTED, NO_HEALTH_PROBLEM, ApplyResult, Health, Outcome, ServoStatus
     from .bandwidth import BudgetPlan, plan_budget
-    from .commands import ACTUATORS_PER_SET
     from .connection import mavlink2, open_connection
     from .ftp import crc32
     from .gimbal import GimbalDevice
@@ -25,6 +24,7 @@ if TYPE_CHECKING:
     )
     from .params import SetResult, WritePolicy
     from .quaternion import euler_to_quaternion, quaternion_to_euler
+    from .servo_commands import ACTUATORS_PER_SET
     from .settings import MavlinkSettings, SigningSettings, TelemetryRates
     from .side import MavlinkSide
     from .stream_request import WINDOW_S, StreamRequestSettings
@@ -67,7 +67,7 @@ __getattr__ = lazy_face(
         "StreamRequestSettings": "settings",
         "GimbalSettings": "gimbal_settings",
         "ACCEPTED": "backend",
-        "ACTUATORS_PER_SET": "commands",
+        "ACTUATORS_PER_SET": "servo_commands",
         "AUTO_ESC_FIRST": "telemetry",
         "ApplyResult": "backend",
         "BudgetPlan": "bandwidth",
