@@ -232,10 +232,12 @@ class RetryTable:
 class CommandHandler:
     """Decides, applies and ACKs commands (the servo commands through :attr:`servo`, a
     :class:`~.servo_commands.ServoCommands`, the gimbals' through their component).
-    ``system_id`` is read at every call (it may follow the autopilot). ``request_message(msg_id, now)`` returns the servo component's answer to
-    REQUEST_MESSAGE (or None when it does not publish it); ``set_interval(msg_id, interval_us)``
-    returns whether the servo component publishes that message (or, a text, why it refuses
-    the rate); ``heartbeat(component_id)`` is that component's HEARTBEAT, sent at once when
+
+    ``system_id`` is read at every call (it may follow the autopilot).
+    ``request_message(msg_id, now)`` returns the servo component's answer to REQUEST_MESSAGE
+    (or None when it does not publish it); ``set_interval(msg_id, interval_us)`` returns whether
+    the servo component publishes that message (or, a text, why it refuses the rate);
+    ``heartbeat(component_id)`` is that component's HEARTBEAT, sent at once when
     REQUEST_MESSAGE asks for message 0 (every hosted component publishes one, so every one
     answers for it)."""
 
