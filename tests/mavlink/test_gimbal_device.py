@@ -560,3 +560,22 @@ def test_repeated_target_is_not_resent_but_a_refused_one_is():
     device.handle_message(set_attitude(0.0, -40.0, 0.0), now=2.02)
     assert len(backend.calls) == 3
     assert device.counters.rejected == 2
+
+
+# ---------------------------------------------------------------- settings replaced (PARAM_SET)
+
+
+def test_replaced_settings_reach_the_pointing_and_the_report_at_once():
+    """The bridge replaces ``device.settings`` on a PARAM_SET of the limits: the next demand
+    is clamped to the new limits and the information reports them (both parts follow)."""
+    device, backend = make_device()
+    device.settings = GimbalSettings(
+        name="cam",
+        axis_servos=AXIS_SERVOS,
+        limits_deg={**LIMITS, "pitch": (-45.0, 10.0)},
+        component_id=154,
+    )
+    device.handle_message(set_attitude(0.0, -80.0, 0.0), 1.0)
+    assert_angles(backend.last, (0.0, -45.0, 0.0))
+    info = device.requested_message(mav.MAVLINK_MSG_ID_GIMBAL_DEVICE_INFORMATION, 1.0)
+    assert math.isclose(info.pitch_min, math.radians(-45.0), abs_tol=1e-6)
