@@ -56,7 +56,6 @@ from mavservo.mavlink.servo_commands import (
     MAV_CMD_DO_REPEAT_SERVO,
     MAV_CMD_DO_SET_ACTUATOR,
     MAV_CMD_DO_SET_SERVO,
-    SERVO_COMMANDS,
     ServoCommands,
     actuator_values,
     denied,
@@ -511,8 +510,9 @@ class CommandHandler:
         self, cmd: Command, now: float, broadcast: bool
     ) -> tuple[ApplyResult, list] | None:
         """None = not for us (only possible for broadcast / autopilot-addressed commands)."""
-        if cmd.command in SERVO_COMMANDS:
-            result = self.servo.handle(cmd.command, cmd.params, cmd.is_int, now, broadcast)
+        handler = self.servo.handlers.get(cmd.command)
+        if handler is not None:
+            result = handler(cmd.params, cmd.is_int, now, broadcast)
             return None if result is None else (result, [])
         if cmd.command == MAV_CMD_REQUEST_MESSAGE:
             return self._request_message(cmd, now, broadcast)

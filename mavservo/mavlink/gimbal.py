@@ -25,7 +25,8 @@ Rules it applies (the "why" of each is in the method that applies it):
   target at each call (``handle_message``/``periodic``), clamped to the limits; NaN rates leave
   their axis alone. With a finite q, rates are feed-forward and ignored (servos track angles).
 * **Limits.** Targets are clamped to ``limits_deg``; while a clamped target is in effect the status
-  carries GIMBAL_DEVICE_ERROR_FLAGS_AT_{ROLL,PITCH,YAW}_LIMIT and ``clamp_count`` counts clamps.
+  carries GIMBAL_DEVICE_ERROR_FLAGS_AT_{ROLL,PITCH,YAW}_LIMIT; the ``clamped`` counter counts
+  clamps.
 * **Refusals.** A demand the backend refuses (TEMPORARILY_REJECTED while a servo is offline) is
   forgotten, never retried: carrying it out once the servos are back would apply a command after
   its refusal. The next demand is a fresh one.
@@ -150,7 +151,8 @@ class GimbalDevice:
 
     @property
     def settings(self) -> GimbalSettings:
-        """The gimbal's settings; a PARAM_SET replaces them in every part at once."""
+        """The gimbal's settings; a PARAM_SET replaces them in every part at once. (The
+        device's own code reads ``_settings``: no property call per message.)"""
         return self._settings
 
     @settings.setter
@@ -186,7 +188,7 @@ class GimbalDevice:
             self._on_set_attitude(kind, msg, now)
         elif kind == "GIMBAL_MANAGER_SET_ATTITUDE":
             if not (
-                self.settings.act_as_manager
+                self._settings.act_as_manager
                 and self._addressed_to_me(msg)
                 and addresses_this_gimbal(msg.gimbal_device_id, self.component_id)
             ):
@@ -231,7 +233,7 @@ class GimbalDevice:
             return
         self._bad_input_logged[kind] = (now, 0)
         more = f" (and {since} more since the last line)" if since else ""
-        log.warning("gimbal %s: %s ignored/denied: %s%s", self.settings.name, kind, detail, more)
+        log.warning("gimbal %s: %s ignored/denied: %s%s", self._settings.name, kind, detail, more)
 
     def handle_command(
         self,
@@ -249,7 +251,7 @@ class GimbalDevice:
         self.report.note_time(now)
         if command_id == CMD_DO_MOUNT_CONTROL:
             return self._do_mount_control(params, now)
-        if not self.settings.act_as_manager:
+        if not self._settings.act_as_manager:
             return None
         if command_id == CMD_DO_GIMBAL_MANAGER_PITCHYAW:
             if not addresses_this_gimbal(params[6], self.component_id):
@@ -270,7 +272,7 @@ class GimbalDevice:
         if command_id == CMD_DO_MOUNT_CONTROL:
             return True
         manager_commands = (CMD_DO_GIMBAL_MANAGER_PITCHYAW, CMD_DO_GIMBAL_MANAGER_CONFIGURE)
-        return bool(self.settings.act_as_manager) and command_id in manager_commands
+        return bool(self._settings.act_as_manager) and command_id in manager_commands
 
     def supports_message(self, message_id: int) -> bool:
         """Whether a MAV_CMD_REQUEST_MESSAGE for ``message_id`` is ours to answer.
@@ -281,7 +283,7 @@ class GimbalDevice:
         if message_id in (MSG_GIMBAL_DEVICE_INFORMATION, MSG_GIMBAL_DEVICE_ATTITUDE_STATUS):
             return True
         if message_id in (MSG_GIMBAL_MANAGER_INFORMATION, MSG_GIMBAL_MANAGER_STATUS):
-            return self.settings.act_as_manager
+            return self._settings.act_as_manager
         return False
 
     def requested_message(self, message_id: int, now: float) -> Any | None:
@@ -310,12 +312,12 @@ class GimbalDevice:
         if now >= self._next_status:
             out.append(self.attitude_status(now))
             self._next_status = _next_deadline(
-                self._next_status, 1.0 / self.settings.status_rate_hz, now
+                self._next_status, 1.0 / self._settings.status_rate_hz, now
             )
-        if self.settings.act_as_manager and now >= self._next_manager_status:
+        if self._settings.act_as_manager and now >= self._next_manager_status:
             out.append(self.manager_status(now))
             self._next_manager_status = _next_deadline(
-                self._next_manager_status, 1.0 / self.settings.manager_status_rate_hz, now
+                self._next_manager_status, 1.0 / self._settings.manager_status_rate_hz, now
             )
         return out
 
@@ -352,12 +354,12 @@ class GimbalDevice:
 
     def _is_retract_shadow(self, flags: int, q: Sequence[float], now: float) -> bool:
         """ArduPilot's identity target sent right after each RETRACT message (see module doc)."""
-        demand = self.demand
+        demand = self.pointing.demand
         if demand is None or demand.mode is not Mode.RETRACT or not demand.from_message_retract:
             return False
         if self._last_retract_message is None:
             return False
-        if now - self._last_retract_message > self.settings.retract_hold_s:
+        if now - self._last_retract_message > self._settings.retract_hold_s:
             return False
         return not (flags & NEUTRAL) and not is_nan_quaternion(q) and _is_identity(q)
 
@@ -426,11 +428,11 @@ class GimbalDevice:
     def _addressed_to_me(self, msg: Any) -> bool:
         if msg.target_component not in (0, self.component_id):
             return False
-        system_id = self.settings.system_id
+        system_id = self._settings.system_id
         return system_id is None or msg.target_system in (0, system_id)
 
     def _from_my_system(self, msg: Any) -> bool:
-        system_id = self.settings.system_id
+        system_id = self._settings.system_id
         return system_id is None or msg.get_srcSystem() in (0, system_id)
 
     @staticmethod

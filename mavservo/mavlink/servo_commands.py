@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from mavservo.mavlink.arbitration import CommandHold
@@ -44,8 +45,9 @@ MIN_REPEAT_HALF_CYCLE_S = 0.01
 #: DO_SET_ACTUATOR carries six values; param 7 is the index of the set of six they belong to.
 ACTUATORS_PER_SET = 6
 
-#: The commands this part carries out.
-SERVO_COMMANDS = frozenset({MAV_CMD_DO_SET_SERVO, MAV_CMD_DO_REPEAT_SERVO, MAV_CMD_DO_SET_ACTUATOR})
+#: A servo command's handler: (params, sent as COMMAND_INT, now, broadcast) -> its result, or
+#: None for a broadcast that concerns nothing mapped.
+ServoCommandHandler = Callable[[tuple[float, ...], bool, float, bool], ApplyResult | None]
 
 
 @dataclass
@@ -67,17 +69,14 @@ class ServoCommands:
         self.settings = settings
         self.hold = hold
         self._repeats: dict[int, _RepeatJob] = {}
-
-    def handle(
-        self, command: int, params: tuple[float, ...], is_int: bool, now: float, broadcast: bool
-    ) -> ApplyResult | None:
-        """Carry out a servo command (``command`` in :data:`SERVO_COMMANDS`): its result, or
-        None when a broadcast concerns nothing mapped (whoever owns it answers)."""
-        if command == MAV_CMD_DO_SET_SERVO:
-            return self._do_set_servo(params, now, broadcast)
-        if command == MAV_CMD_DO_REPEAT_SERVO:
-            return self._do_repeat_servo(params, now, broadcast)
-        return self._do_set_actuator(params, is_int, now, broadcast)
+        #: command id -> its handler ``(params, is_int, now, broadcast) -> result``: the
+        #: result, or None when a broadcast concerns nothing mapped (whoever owns it answers).
+        #: A table built once, so dispatching costs one lookup and one call per command.
+        self.handlers: dict[int, ServoCommandHandler] = {
+            MAV_CMD_DO_SET_SERVO: self._do_set_servo,
+            MAV_CMD_DO_REPEAT_SERVO: self._do_repeat_servo,
+            MAV_CMD_DO_SET_ACTUATOR: self._do_set_actuator,
+        }
 
     def tick(self, now: float) -> None:
         """Advance running DO_REPEAT_SERVO jobs."""
@@ -117,7 +116,7 @@ class ServoCommands:
         return channel
 
     def _do_set_servo(
-        self, params: tuple[float, ...], now: float, broadcast: bool
+        self, params: tuple[float, ...], is_int_message: bool, now: float, broadcast: bool
     ) -> ApplyResult | None:
         channel = self._servo_channel(params, broadcast)
         if not isinstance(channel, int):
@@ -132,7 +131,7 @@ class ServoCommands:
         return result
 
     def _do_repeat_servo(
-        self, params: tuple[float, ...], now: float, broadcast: bool
+        self, params: tuple[float, ...], is_int_message: bool, now: float, broadcast: bool
     ) -> ApplyResult | None:
         channel = self._servo_channel(params, broadcast)
         if not isinstance(channel, int):
