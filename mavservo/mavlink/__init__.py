@@ -12,10 +12,10 @@ from mavservo.faces import lazy_face
 if TYPE_CHECKING:
     from .backend import ACCEPTED, NO_HEALTH_PROBLEM, ApplyResult, Health, Outcome, ServoStatus
     from .bandwidth import BudgetPlan, plan_budget
-    from .commands import ACTUATORS_PER_SET
     from .connection import mavlink2, open_connection
     from .ftp import crc32
-    from .gimbal import GimbalDevice, GimbalSettings
+    from .gimbal import GimbalDevice
+    from .gimbal_settings import GimbalSettings
     from .metadata_service import (
         COMP_METADATA_TYPE_PARAMETER,
         GENERAL_FILE,
@@ -24,6 +24,7 @@ if TYPE_CHECKING:
     )
     from .params import SetResult, WritePolicy
     from .quaternion import euler_to_quaternion, quaternion_to_euler
+    from .servo_commands import ACTUATORS_PER_SET
     from .settings import MavlinkSettings, SigningSettings, TelemetryRates
     from .side import MavlinkSide
     from .stream_request import WINDOW_S, StreamRequestSettings
@@ -64,9 +65,9 @@ __getattr__ = lazy_face(
     __name__,
     {
         "StreamRequestSettings": "settings",
-        "GimbalSettings": "gimbal",
+        "GimbalSettings": "gimbal_settings",
         "ACCEPTED": "backend",
-        "ACTUATORS_PER_SET": "commands",
+        "ACTUATORS_PER_SET": "servo_commands",
         "AUTO_ESC_FIRST": "telemetry",
         "ApplyResult": "backend",
         "BudgetPlan": "bandwidth",

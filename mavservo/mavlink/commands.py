@@ -1,6 +1,10 @@
 """MAVLink commands in, COMMAND_ACKs out: DO_SET_SERVO, DO_REPEAT_SERVO, DO_SET_ACTUATOR, and the
 message services REQUEST_MESSAGE / SET_MESSAGE_INTERVAL, for every component the bridge hosts.
 
+This module decides who a command is for, whether it is a retry, and what ACK it gets; what the
+servo commands mean (their parameters, the running repeats) is ``servo_commands.ServoCommands``'
+job, and a gimbal's commands its own (``component.HostedComponent``).
+
 Addressing rules (why: real clients send the same command in different ways, see DESIGN.md):
 
 * addressed to one of our components -> handled there, exactly one ACK from that component;
@@ -47,34 +51,26 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from mavservo.mavlink.arbitration import CommandHold
 from mavservo.mavlink.backend import ActuatorBackend, ApplyResult, Outcome
 from mavservo.mavlink.component import HostedComponent
+from mavservo.mavlink.servo_commands import (
+    INT32_MAX,
+    MAV_CMD_DO_REPEAT_SERVO,
+    MAV_CMD_DO_SET_ACTUATOR,
+    MAV_CMD_DO_SET_SERVO,
+    ServoCommands,
+    actuator_values,
+    denied,
+    is_int,
+)
 from mavservo.mavlink.settings import MavlinkSettings
 
 log = logging.getLogger(__name__)
 
-MAV_CMD_DO_SET_SERVO = 183
-MAV_CMD_DO_REPEAT_SERVO = 184
-MAV_CMD_DO_SET_ACTUATOR = 187
 MAV_CMD_SET_MESSAGE_INTERVAL = 511
 MAV_CMD_REQUEST_MESSAGE = 512
 MSG_HEARTBEAT = 0
 #: COMPONENT_METADATA (common.xml 397), answered by each component that serves metadata
 MSG_COMPONENT_METADATA = 397
 
-INT32_MAX = 2**31 - 1
-#: DO_SET_ACTUATOR in COMMAND_INT carries actuators 5 and 6 in x/y, scaled by 1e7 (spec).
-COMMAND_INT_XY_SCALE = 1e7
-#: Widest PWM any hobby servo protocol uses; narrower limits come from the channel mapping.
-PWM_MIN_US = 500.0
-PWM_MAX_US = 2500.0
-#: A repeat longer than this is almost certainly a unit mix-up (ms read as s), so it is refused.
-MAX_REPEAT_COUNT = 1000
-MAX_REPEAT_CYCLE_S = 600.0
-#: Shortest DO_REPEAT_SERVO half cycle whatever the scheduler's period: the MAVLink side's tick
-#: (mavlink/side.py TICK_S, 10 ms) steps the repeats, so a shorter half cycle puts several
-#: steps into one tick (a 1 ms cycle and count 1000 gave 2,000 setpoints at once).
-MIN_REPEAT_HALF_CYCLE_S = 0.01
-#: DO_SET_ACTUATOR carries six values; param 7 is the index of the set of six they belong to.
-ACTUATORS_PER_SET = 6
 #: MAVLink 2 message ids are 24-bit: anything larger in REQUEST_MESSAGE / SET_MESSAGE_INTERVAL
 #: is not a message id.
 MAX_MESSAGE_ID = 2**24 - 1
@@ -166,14 +162,6 @@ class RateLimitedLog:
 
 
 @dataclass
-class _RepeatJob:
-    """A running DO_REPEAT_SERVO: alternate pwm and trim every half cycle, end on trim."""
-
-    channel: int
-    steps: list[tuple[float, float]]  # (due time, pwm), in order
-
-
-@dataclass
 class _Recent:
     """The last command for one or more outputs: what it was, what it got, when last seen."""
 
@@ -241,11 +229,14 @@ class RetryTable:
 
 @dataclass
 class CommandHandler:
-    """Decides, applies and ACKs commands. ``system_id`` is read at every call (it may follow
-    the autopilot). ``request_message(msg_id, now)`` returns the servo component's answer to
-    REQUEST_MESSAGE (or None when it does not publish it); ``set_interval(msg_id, interval_us)``
-    returns whether the servo component publishes that message (or, a text, why it refuses
-    the rate); ``heartbeat(component_id)`` is that component's HEARTBEAT, sent at once when
+    """Decides, applies and ACKs commands (the servo commands through :attr:`servo`, a
+    :class:`~.servo_commands.ServoCommands`, the gimbals' through their component).
+
+    ``system_id`` is read at every call (it may follow the autopilot).
+    ``request_message(msg_id, now)`` returns the servo component's answer to REQUEST_MESSAGE
+    (or None when it does not publish it); ``set_interval(msg_id, interval_us)`` returns whether
+    the servo component publishes that message (or, a text, why it refuses the rate);
+    ``heartbeat(component_id)`` is that component's HEARTBEAT, sent at once when
     REQUEST_MESSAGE asks for message 0 (every hosted component publishes one, so every one
     answers for it)."""
 
@@ -261,13 +252,14 @@ class CommandHandler:
     #: COMPONENT_METADATA of a hosted component (None: it serves no metadata)
     component_metadata: Callable[[int], Any | None] = lambda _cid: None
     counters: Counter[str] = field(default_factory=Counter)
-    _repeats: dict[int, _RepeatJob] = field(default_factory=dict)
+    servo: ServoCommands = field(init=False)
     _retries: RetryTable = field(init=False)
     _refusal_log: RateLimitedLog = field(init=False)
     _servo_of_output: dict[tuple[str, int], str] | None = None
     _now: float = 0.0
 
     def __post_init__(self) -> None:
+        self.servo = ServoCommands(self.backend, self.settings, self.hold)
         self._retries = RetryTable(self.settings.retry_window_s)
         self._refusal_log = RateLimitedLog(REFUSAL_LOG_INTERVAL_S)
 
@@ -311,28 +303,14 @@ class CommandHandler:
 
     def tick(self, now: float) -> None:
         """Advance running DO_REPEAT_SERVO jobs."""
-        for channel in list(self._repeats):
-            job = self._repeats[channel]
-            while job.steps and job.steps[0][0] <= now:
-                _, pwm = job.steps.pop(0)
-                result = self.backend.apply_servo_output(channel, pwm, "do_repeat_servo", now)
-                self.hold.note_command(("servo", channel), now)
-                log.debug("repeat servo %d -> %.0f us: %s", channel, pwm, result.outcome.name)
-            if not job.steps:
-                del self._repeats[channel]
-
-    def min_repeat_cycle_s(self) -> float:
-        """The shortest DO_REPEAT_SERVO cycle accepted: two half cycles, each at least one
-        command period of the scheduler (a shorter one would be overwritten before its slot
-        came, or, below the tick, several steps would go out at once) and one tick."""
-        return 2.0 * max(self.settings.command_period_s, MIN_REPEAT_HALF_CYCLE_S)
+        self.servo.tick(now)
 
     def repeating_channels(self) -> set[int]:
-        return set(self._repeats)
+        return self.servo.repeating_channels()
 
     def cancel_all(self) -> None:
         """Stop every running repeat (failsafe: nothing moves until fresh commands)."""
-        self._repeats.clear()
+        self.servo.cancel_all()
 
     # ------------------------------------------------------------------ routing
 
@@ -413,11 +391,11 @@ class CommandHandler:
         generic: tuple[Hashable, ...] = (("command", cmd.target_component, cmd.command),)
         if cmd.command in (MAV_CMD_DO_SET_SERVO, MAV_CMD_DO_REPEAT_SERVO):
             raw = cmd.params[0]
-            if _is_int(raw) and int(raw) in self.backend.mapped_servo_channels():
+            if is_int(raw) and int(raw) in self.backend.mapped_servo_channels():
                 return (self._driven(("servo", int(raw))),)
             return generic
         if cmd.command == MAV_CMD_DO_SET_ACTUATOR:
-            values = _actuator_values(cmd)
+            values = actuator_values(cmd.params, cmd.is_int)
             mapped = self.backend.mapped_actuator_indices()
             indices = sorted(i for i in values or () if i in mapped)
             driven = dict.fromkeys(self._driven(("actuator", i)) for i in indices)
@@ -469,7 +447,7 @@ class CommandHandler:
                 )
             target = cmd.target_component
             component = target if target in self.gimbals else self.settings.servo_component_id
-            return component, _denied("handler_error", "the handler raised"), []
+            return component, denied("handler_error", "the handler raised"), []
 
     def _dispatch(self, cmd: Command, now: float) -> tuple[int, ApplyResult, list] | None:
         """Returns (acking component, result, messages to send after the ACK) or None."""
@@ -518,7 +496,7 @@ class CommandHandler:
             # guard ran first and made 154 DENY broadcast NAV_TAKEOFF(inf) (finding B)
             if broadcast and not device.handles_command(cmd.command):
                 return None
-            return comp, _denied("bad_param", f"infinite param(s) {infinite}"), []
+            return comp, denied("bad_param", f"infinite param(s) {infinite}"), []
         raw = device.handle_command(cmd.command, cmd.params, now, sender=cmd.source)
         if raw is None:
             if broadcast:
@@ -532,13 +510,9 @@ class CommandHandler:
         self, cmd: Command, now: float, broadcast: bool
     ) -> tuple[ApplyResult, list] | None:
         """None = not for us (only possible for broadcast / autopilot-addressed commands)."""
-        handlers = {
-            MAV_CMD_DO_SET_SERVO: self._do_set_servo,
-            MAV_CMD_DO_REPEAT_SERVO: self._do_repeat_servo,
-            MAV_CMD_DO_SET_ACTUATOR: self._do_set_actuator,
-        }
-        if cmd.command in handlers:
-            result = handlers[cmd.command](cmd, now, broadcast)
+        handler = self.servo.handlers.get(cmd.command)
+        if handler is not None:
+            result = handler(cmd.params, cmd.is_int, now, broadcast)
             return None if result is None else (result, [])
         if cmd.command == MAV_CMD_REQUEST_MESSAGE:
             return self._request_message(cmd, now, broadcast)
@@ -548,97 +522,6 @@ class CommandHandler:
             return None
         return ApplyResult(Outcome.UNSUPPORTED, f"unsupported:command {cmd.command}"), []
 
-    # ------------------------------------------------------------------ servo commands
-
-    def _servo_channel(self, cmd: Command, broadcast: bool) -> int | ApplyResult | None:
-        """Validated, mapped channel from param 1, or the refusal, or None (not ours)."""
-        raw = cmd.params[0]
-        if not _is_int(raw) or raw < 1:
-            return None if broadcast else _denied("bad_param", f"servo instance {raw!r}")
-        channel = int(raw)
-        if channel not in self.backend.mapped_servo_channels():
-            return None if broadcast else _denied("unmapped", f"servo channel {channel}")
-        return channel
-
-    def _do_set_servo(self, cmd: Command, now: float, broadcast: bool) -> ApplyResult | None:
-        channel = self._servo_channel(cmd, broadcast)
-        if not isinstance(channel, int):
-            return channel
-        pwm = cmd.params[1]
-        if not _valid_pwm(pwm):
-            return _denied("bad_param", f"PWM {pwm!r} outside {PWM_MIN_US:.0f}..{PWM_MAX_US:.0f}")
-        self._repeats.pop(channel, None)
-        result = self.backend.apply_servo_output(channel, pwm, "do_set_servo", now)
-        if result.ok:
-            self.hold.note_command(("servo", channel), now)
-        return result
-
-    def _do_repeat_servo(self, cmd: Command, now: float, broadcast: bool) -> ApplyResult | None:
-        channel = self._servo_channel(cmd, broadcast)
-        if not isinstance(channel, int):
-            return channel
-        pwm, count, cycle = cmd.params[1], cmd.params[2], cmd.params[3]
-        if not _valid_pwm(pwm):
-            return _denied("bad_param", f"PWM {pwm!r}")
-        if not _is_int(count) or not 1 <= count <= MAX_REPEAT_COUNT:
-            return _denied("bad_param", f"repeat count {count!r}")
-        if not math.isfinite(cycle) or cycle <= 0:
-            return _denied("bad_param", f"cycle time {cycle!r}")
-        cycle_s = cycle / 1000.0 if self.settings.repeat_servo_cycle == "milliseconds" else cycle
-        if cycle_s > MAX_REPEAT_CYCLE_S:
-            return _denied("bad_param", f"cycle time {cycle_s} s")
-        shortest = self.min_repeat_cycle_s()
-        if cycle_s < shortest:
-            return _denied(
-                "cycle_too_short",
-                f"cycle time {cycle_s:g} s < {shortest:g} s (two command periods: each half "
-                "cycle needs a command slot of its own)",
-            )
-        result = self.backend.apply_servo_output(channel, pwm, "do_repeat_servo", now)
-        if not result.ok:
-            return result
-        self.hold.note_command(("servo", channel), now)
-        half = cycle_s / 2.0
-        trim = self.settings.trim_us(channel)
-        steps = [(now + k * half, trim if k % 2 else pwm) for k in range(1, 2 * int(count))]
-        self._repeats[channel] = _RepeatJob(channel, steps)
-        return result
-
-    def _do_set_actuator(self, cmd: Command, now: float, broadcast: bool) -> ApplyResult | None:
-        """Param 7 is the MAVLink spec's "index of actuator set (i.e. if set to 1, Actuator 1
-        becomes Actuator 7)": set 0 carries actuators 1..6, the 1-based numbers that
-        ``source: actuator`` channels map (PX4 acts on set 0 only)."""
-        values = _actuator_values(cmd)
-        if values is None:
-            return (
-                None
-                if broadcast
-                else _denied("bad_param", f"actuator set index (param 7) {cmd.params[6]!r}")
-            )
-        set_index = int(cmd.params[6])
-        mapped = self.backend.mapped_actuator_indices()
-        ours = {index: v for index, v in values.items() if index in mapped}
-        if not ours:
-            if broadcast:
-                return None
-            what = (
-                "no actuator value given"
-                if not values
-                else f"unmapped actuators {sorted(values)} (set index {set_index})"
-            )
-            return _denied("unmapped" if values else "bad_param", what)
-        bad = {index: v for index, v in ours.items() if not -1.0 <= v <= 1.0}
-        if bad:
-            return _denied("bad_param", f"actuator values outside [-1, 1]: {bad}")
-        worst = ApplyResult(Outcome.ACCEPTED)
-        for index, value in sorted(ours.items()):
-            result = self.backend.apply_actuator(index, value, "do_set_actuator", now)
-            if result.ok:
-                self.hold.note_command(("actuator", index), now)
-            elif worst.ok:
-                worst = result
-        return worst
-
     # ------------------------------------------------------------------ message services
 
     def _request_message(
@@ -646,7 +529,7 @@ class CommandHandler:
     ) -> tuple[ApplyResult, list] | None:
         msg_id = cmd.params[0]
         if not _is_message_id(msg_id):
-            return None if broadcast else (_denied("bad_param", f"message id {msg_id!r}"), [])
+            return None if broadcast else (denied("bad_param", f"message id {msg_id!r}"), [])
         messages = self.request_message(int(msg_id), now)
         if messages is None:
             if broadcast:
@@ -660,11 +543,11 @@ class CommandHandler:
         msg_id, interval = cmd.params[0], cmd.params[1]
         if not _is_message_id(msg_id) or not _valid_interval(interval):
             return (
-                None if broadcast else (_denied("bad_param", f"message interval {interval!r}"), [])
+                None if broadcast else (denied("bad_param", f"message interval {interval!r}"), [])
             )
         result = self.set_interval(int(msg_id), interval)
         if isinstance(result, str):
-            return None if broadcast else (_denied("rate", result), [])
+            return None if broadcast else (denied("rate", result), [])
         if not result:
             if broadcast:
                 return None
@@ -688,43 +571,11 @@ class CommandHandler:
 _MAV_RESULTS = frozenset(int(o) for o in Outcome)
 
 
-def _is_int(value: float) -> bool:
-    return math.isfinite(value) and float(value).is_integer()
-
-
 def _is_message_id(value: float) -> bool:
-    return _is_int(value) and 0 <= value <= MAX_MESSAGE_ID
+    return is_int(value) and 0 <= value <= MAX_MESSAGE_ID
 
 
 def _valid_interval(interval_us: float) -> bool:
     """-1 (stop), 0 (default rate) or a positive interval MESSAGE_INTERVAL can report; any
     other negative value means nothing (review3: -0.5 stopped the stream like -1)."""
     return math.isfinite(interval_us) and (interval_us == -1 or 0 <= interval_us <= MAX_INTERVAL_US)
-
-
-def _actuator_values(cmd: Command) -> dict[int, float] | None:
-    """DO_SET_ACTUATOR's values by 1-based actuator number (NaN = leave alone, left out), or
-    None when param 7, the actuator set index, is not a non-negative integer.
-
-    COMMAND_INT x/y are integers: the spec scales actuators 5/6 by 1e7 there and uses
-    INT32_MAX for "leave alone", since an integer cannot carry NaN."""
-    set_index = cmd.params[6]
-    if not _is_int(set_index) or set_index < 0:
-        return None
-    first = int(set_index) * ACTUATORS_PER_SET + 1
-    values: dict[int, float] = {}
-    for i, raw in enumerate(cmd.params[:ACTUATORS_PER_SET]):
-        value = raw
-        if cmd.is_int and i >= 4:
-            value = math.nan if raw == INT32_MAX else raw / COMMAND_INT_XY_SCALE
-        if not math.isnan(value):
-            values[first + i] = value
-    return values
-
-
-def _valid_pwm(value: float) -> bool:
-    return math.isfinite(value) and PWM_MIN_US <= value <= PWM_MAX_US
-
-
-def _denied(kind: str, detail: str) -> ApplyResult:
-    return ApplyResult(Outcome.DENIED, f"{kind}:{detail}")

@@ -8,7 +8,9 @@ and parsing uses a separate decoder that checks signatures.
 
 Signing: with a key, every outgoing message is signed; inbound messages that are unsigned (unless
 ``accept_unsigned``), badly signed, or timestamped more than ``SIGNING_FUTURE_S`` ahead of this
-computer's clock are counted here and never reach the core.
+computer's clock are counted here and never reach the core. The rules are
+:class:`~.signing.LinkSigning`'s; the link owns one and hands it its encoders, decoder and
+verified frames.
 
 Input is framed by :class:`~mavservo.mavlink.framing.FrameScanner`: each UDP datagram on its own
 (one sender's bytes never swallow another's), a stream (serial, TCP) resynchronising byte by
@@ -56,6 +58,7 @@ from mavservo.mavlink.commands import RateLimitedLog
 from mavservo.mavlink.connection import open_connection
 from mavservo.mavlink.framing import FrameScanner, redact_secrets
 from mavservo.mavlink.settings import SigningSettings
+from mavservo.mavlink.signing import MAX_SIGNED_STREAMS, LinkSigning
 from mavservo.threads import BackgroundLoop
 
 log = logging.getLogger(__name__)
@@ -65,13 +68,6 @@ BACKOFF_START_S = 0.25
 BACKOFF_MAX_S = 5.0
 #: At most one "cannot reopen" warning per this many seconds of one outage (the first at once).
 REOPEN_WARNING_INTERVAL_S = 30.0
-SIGNING_EPOCH = 1420070400  # MAVLink signing timestamps count 10 us units since 2015-01-01
-SIGNING_UNITS_PER_S = 100_000
-#: How far ahead of this computer's clock a signed frame's timestamp may be. The MAVLink spec
-#: bounds only the past (a new stream more than one minute behind the local timestamp is
-#: refused); without a bound ahead, one correctly keyed frame from a peer with a wrong clock
-#: (10 years ahead) raised pymavlink's local timestamp and locked out every new stream.
-SIGNING_FUTURE_S = 60.0
 UDP_MAX_DATAGRAM = 65535
 #: Most addresses a UDP server sends to; each one had to send a verified frame first.
 MAX_UDP_PEERS = 16
@@ -91,10 +87,6 @@ TCP_BACKLOG = 64
 TCP_UNVERIFIED_IDLE_S = 5.0
 #: A verified TCP client silent this long is closed (a ground station sends HEARTBEAT at 1 Hz).
 TCP_VERIFIED_IDLE_S = 10.0
-#: A signed stream (link id, system, component) is answered at the address it was first verified
-#: from; another address takes it over only once the first was silent this long (a restarted
-#: ground station on a new port), so a replay from elsewhere admits nobody.
-SIGNED_STREAM_REBIND_S = 2.0
 #: A privileged identity (the followed autopilot, an allowed source) pins one UDP address or
 #: holds one TCP slot: the one it was first verified from; another address claiming it takes
 #: the pin over only once the holder was silent this long (an autopilot rebooted on a new
@@ -103,8 +95,6 @@ SIGNED_STREAM_REBIND_S = 2.0
 #: 2,000 spoofed HEARTBEATs) and 16 of them locked every later ground station out; 8 TCP
 #: connections claiming it held every slot, the reserved ones included.
 PIN_REBIND_S = 3.0
-#: Signed streams remembered (least recently heard forgotten first).
-MAX_SIGNED_STREAMS = 256
 HANDLER_ERROR_SUMMARY_S = 60.0
 #: Receive buffer a UDP server asks for. Linux's default (net.core.rmem_default, 208 KiB) held
 #: too few datagrams: a 5,000/s command flood lost a median 441 per 10 s in the kernel, unseen.
@@ -119,74 +109,9 @@ SO_RXQ_OVFL: int | None = getattr(
 UDP_DROP_LOG_INTERVAL_S = 10.0
 
 
-def signing_timestamp(wall_time: float) -> int:
-    return int(max(0.0, wall_time - SIGNING_EPOCH) * SIGNING_UNITS_PER_S)
-
-
-def frame_signing_timestamp(msgbuf: bytes | bytearray) -> int:
-    """The 48-bit timestamp of a signed frame (the 6 bytes after the link id)."""
-    low, high = struct.unpack_from("<IH", msgbuf, len(msgbuf) - 12)
-    return int(low + (high << 32))
-
-
 class LinkBusyError(EndpointBusyError, OSError):
     """The endpoint is already used by another process (start-up refuses, with this text); an
     ``OSError`` too, with the ``errno`` of the failed bind, for callers of a socket API."""
-
-
-def _verify_signatures_against_the_clock(
-    decoder: mavlink2.MAVLink,
-    counters: Counter[str],
-    wall_clock: Callable[[], float] = time.time,
-    max_ahead_s: float | None = SIGNING_FUTURE_S,
-) -> None:
-    """Wrap pymavlink's signature check with three rules it lacks (pymavlink 2.4.50):
-
-    * a stream's timestamp is only recorded once the signature verified: pymavlink records it
-      *before*, so one forged far-future frame, made without the key, locked the genuine stream
-      out (found by tests/redteam/test_bridge_security.py);
-    * the timestamp of a correctly keyed frame may be at most ``max_ahead_s`` (default
-      ``SIGNING_FUTURE_S``; None: no bound, for a companion without a synchronised clock) ahead
-      of this computer's clock; further ahead it is refused and counted (``signing_future``);
-    * the local timestamp a new stream is compared with (spec: refused when more than one
-      minute behind it) is this computer's clock, never a received timestamp: pymavlink raised
-      it to the largest timestamp accepted, so one frame 10 years ahead refused every new
-      stream until restart.
-    """
-    check = decoder.check_signature
-    signing = decoder.signing
-    streams = signing.stream_timestamps
-
-    def check_signature(msgbuf: bytearray, src_system: int, src_component: int) -> bool:
-        now = signing_timestamp(wall_clock())
-        signing.timestamp = now
-        stream = (msgbuf[-13], src_system, src_component)
-        before = streams.get(stream)
-        verified = check(msgbuf, src_system, src_component)
-        signing.timestamp = now
-        ahead = frame_signing_timestamp(msgbuf) - now
-        if verified and max_ahead_s is not None and ahead > max_ahead_s * SIGNING_UNITS_PER_S:
-            verified = False
-            counters["signing_future"] += 1
-            if counters["signing_future"] == 1:
-                log.warning(
-                    "signed frame from %d/%d refused: its timestamp is %.0f s ahead of this "
-                    "computer's clock (at most %.0f s accepted, mavlink.signing."
-                    "max_clock_ahead_s; check both clocks; repeats counted in signing_future)",
-                    src_system,
-                    src_component,
-                    ahead / SIGNING_UNITS_PER_S,
-                    max_ahead_s,
-                )
-        if verified:
-            return True
-        if before is None:
-            streams.pop(stream, None)
-        else:
-            streams[stream] = before
-        return False
-
-    decoder.check_signature = check_signature
 
 
 class HandlerErrors:
@@ -813,7 +738,6 @@ class MavlinkLink:
         #: ``tap(direction, raw_frame, t)`` sees every frame in ("in") and out ("out"), for the
         #: run log's .tlog; it runs on the I/O threads and must not block.
         self.tap: Callable[[str, bytes, float], None] | None = None
-        self._signing = signing
         self._on_message = on_message
         self._on_event = on_event or (lambda text: None)
         self._clock = clock
@@ -825,6 +749,8 @@ class MavlinkLink:
         #: would read as lost packets in a ground station).
         self._monitor_encoders: dict[int, mavlink2.MAVLink] = {}
         self.counters: Counter[str] = Counter()
+        #: the key and the rules on signed frames (None: an unsigned link)
+        self._signing = None if signing is None else LinkSigning(signing, self.counters, clock)
         self.handler_errors = HandlerErrors()
         self._udp_totals = UdpServerTotals()
         self._udp_peers: tuple[tuple[str, int], ...] = ()
@@ -838,9 +764,6 @@ class MavlinkLink:
         #: whether a (system, component) is the followed autopilot or an allowed source: its
         #: address is pinned in the UDP peer table, its TCP client holds a reserved slot
         self.privileged: Callable[[tuple[int, int]], bool] = lambda source: False
-        self._stream_origins: OrderedDict[tuple[int, int, int], tuple[Hashable, float]] = (
-            OrderedDict()
-        )
         #: (system, component) -> where it was last heard (UDP address or TCP client)
         self._origins: OrderedDict[tuple[int, int], Any] = OrderedDict()
         #: where the frame being written goes (None: every peer); set under the write lock
@@ -852,13 +775,7 @@ class MavlinkLink:
         decoder = mavlink2.MAVLink(None)
         decoder.robust_parsing = True
         if self._signing is not None:
-            decoder.signing.secret_key = self._signing.key
-            decoder.signing.timestamp = signing_timestamp(time.time())
-            if self._signing.accept_unsigned:
-                decoder.signing.allow_unsigned_callback = lambda mav, msg_id: True
-            _verify_signatures_against_the_clock(
-                decoder, self.counters, max_ahead_s=self._signing.max_clock_ahead_s
-            )
+            self._signing.verify_inbound(decoder)
         return decoder
 
     def add_component(self, component_id: int, system_id: int, link_id: int = 0) -> None:
@@ -873,10 +790,7 @@ class MavlinkLink:
     ) -> mavlink2.MAVLink:
         encoder = mavlink2.MAVLink(writer, srcSystem=system_id, srcComponent=component_id)
         if self._signing is not None:
-            encoder.signing.secret_key = self._signing.key
-            encoder.signing.sign_outgoing = True
-            encoder.signing.link_id = link_id
-            encoder.signing.timestamp = signing_timestamp(time.time())
+            self._signing.sign_outbound(encoder, link_id)
         return encoder
 
     def open(self) -> None:
@@ -1144,32 +1058,10 @@ class MavlinkLink:
         return {source for source in sources if self.privileged(source)}
 
     def _bound_to_origin(self, messages: list[Any], origin: Hashable) -> list[Any]:
-        """``messages`` without signed frames of a stream first verified from elsewhere.
-
-        Why: a captured signed frame replayed first from a new address verified (a timestamp
-        newer than any the bridge had seen of that stream) and admitted that address for good
-        (issue 32, finding 5). A signed stream (link id, system, component) belongs to the
-        address it was first verified from; another address takes it over only after
-        :data:`SIGNED_STREAM_REBIND_S` of silence from the first (a restarted ground station)."""
+        """Signed frames only from where their stream was first verified (:mod:`.signing`)."""
         if self._signing is None:
             return messages
-        now = self._clock()
-        kept = []
-        for msg in messages:
-            if not getattr(msg, "_signed", False):
-                kept.append(msg)
-                continue
-            stream = (msg.get_msgbuf()[-13], msg.get_srcSystem(), msg.get_srcComponent())
-            bound = self._stream_origins.get(stream)
-            if bound is not None and bound[0] != origin and now - bound[1] < SIGNED_STREAM_REBIND_S:
-                self.counters["signed_stream_elsewhere"] += 1
-                continue
-            self._stream_origins[stream] = (origin, now)
-            self._stream_origins.move_to_end(stream)
-            while len(self._stream_origins) > MAX_SIGNED_STREAMS:
-                self._stream_origins.popitem(last=False)
-            kept.append(msg)
-        return kept
+        return self._signing.bound_to_origin(messages, origin)
 
     def _feed(self, messages: list[Any]) -> int:
         """Hand verified ``messages`` to the handler; returns how many there were."""

@@ -224,7 +224,7 @@ def test_missing_axis_is_never_driven_and_reports_zero():
     )
     device.handle_message(set_attitude(10.0, -30.0, 20.0), now=1.0)
     assert_angles(backend.last, (None, -30.0, 20.0))
-    info = device.device_information(1.0)
+    info = device.report.device_information(1.0)
     assert not info.cap_flags & mav.GIMBAL_DEVICE_CAP_FLAGS_HAS_ROLL_AXIS
     assert info.cap_flags & mav.GIMBAL_DEVICE_CAP_FLAGS_HAS_PITCH_AXIS
     assert_angles(status_angles(device, 1.01), (0.0, -30.0, 20.0))
@@ -560,3 +560,22 @@ def test_repeated_target_is_not_resent_but_a_refused_one_is():
     device.handle_message(set_attitude(0.0, -40.0, 0.0), now=2.02)
     assert len(backend.calls) == 3
     assert device.counters.rejected == 2
+
+
+# ---------------------------------------------------------------- settings replaced (PARAM_SET)
+
+
+def test_replaced_settings_reach_the_pointing_and_the_report_at_once():
+    """The bridge replaces ``device.settings`` on a PARAM_SET of the limits: the next demand
+    is clamped to the new limits and the information reports them (both parts follow)."""
+    device, backend = make_device()
+    device.settings = GimbalSettings(
+        name="cam",
+        axis_servos=AXIS_SERVOS,
+        limits_deg={**LIMITS, "pitch": (-45.0, 10.0)},
+        component_id=154,
+    )
+    device.handle_message(set_attitude(0.0, -80.0, 0.0), 1.0)
+    assert_angles(backend.last, (0.0, -45.0, 0.0))
+    info = device.requested_message(mav.MAVLINK_MSG_ID_GIMBAL_DEVICE_INFORMATION, 1.0)
+    assert math.isclose(info.pitch_min, math.radians(-45.0), abs_tol=1e-6)

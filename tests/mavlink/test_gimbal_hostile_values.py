@@ -160,7 +160,7 @@ def test_set_attitude_property_never_raises_and_drives_only_sane_targets(q, rate
         device.periodic(now)
     for call in backend.calls:
         assert angles_within_limits(call[1:])
-    for angle in device.measured_angles():
+    for angle in device.report.measured_angles():
         assert math.isfinite(angle)
     status = device.attitude_status(3.0)
     assert all(math.isfinite(c) for c in status.q)

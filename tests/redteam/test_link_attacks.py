@@ -36,8 +36,8 @@ from mavservo.mavlink.link import (
     HandlerErrors,
     LinkBusyError,
     MavlinkLink,
-    signing_timestamp,
 )
+from mavservo.mavlink.signing import signing_timestamp
 from tests.redteam.test_bridge_security import (
     DO_SET_SERVO,
     GCS,

@@ -18,7 +18,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from mavservo.app.bridge import Bridge
 from mavservo.config.loader import load_config_text
 from mavservo.mavlink.framing import FrameScanner
-from mavservo.mavlink.link import MAX_TCP_CLIENTS, MAX_UDP_PEERS, TcpServer, signing_timestamp
+from mavservo.mavlink.link import MAX_TCP_CLIENTS, MAX_UDP_PEERS, TcpServer
+from mavservo.mavlink.signing import signing_timestamp
 from tests.redteam.test_bridge_security import KEY, Rig
 from tests.redteam.test_tcp_server import Station, TcpRig, connect, free_tcp_port
 from tests.support.waiting import free_udp_port, wait_until
