@@ -25,12 +25,13 @@ from typing import Any
 import can
 
 from mavservo.app import node_state
+from mavservo.app.bridge_buses import BridgeBuses
 from mavservo.app.bridge_events import MAV_SEVERITY_ERROR, MAV_SEVERITY_NOTICE, BridgeEvents
+from mavservo.app.bridge_identity import BridgeIdentity
 from mavservo.app.check import stop_behaviour_lines
 from mavservo.app.component_metadata import metadata_files
 from mavservo.app.health_reporting import HealthReporter
 from mavservo.config import (
-    BusConfig,
     Config,
     gimbal_settings,
     mavlink_settings,
@@ -50,8 +51,6 @@ from mavservo.mavlink import GimbalDevice, MavlinkSide
 from mavservo.records import RunLog, new_run_dir, round_trip_figures
 from mavservo.scheduling import FrameKind, Scheduler, SchedulerObserver, WriteObserver
 from mavservo.servos import CountingNode, ServoState
-from mavservo.sim import PtyAdapter, simulator_factory
-from mavservo.transport import BusRequest, OpenedBus, open_bus, transport_stats
 
 log = logging.getLogger(__name__)
 
@@ -181,9 +180,10 @@ class Bridge:
         self.config_path = config_path
         #: the console line, the event list and STATUSTEXT every piece reports through
         self.notes = BridgeEvents(status or (lambda line: log.info("%s", line)))
-        self.emulators: dict[str, PtyAdapter] = {}
-        self.buses: dict[str, can.BusABC] = {}
-        self._opened: list[OpenedBus] = []
+        #: every configured bus, opened at start (``buses``, ``emulators`` by bus name)
+        self.bus_set = BridgeBuses(config, on_event=self.notes.event, on_reject=self._rejected)
+        self.buses = self.bus_set.buses
+        self.emulators = self.bus_set.emulators
         self.schedulers: dict[str, Scheduler] = {}
         #: what the bus nodes keep across restarts (DroneCAN allocation table), if any
         self.node_states: node_state.NodeStateKeeper | None = None
@@ -194,7 +194,8 @@ class Bridge:
         self.health_reporter: HealthReporter | None = None
         self.runlog: RunLog | None = None
         self.run_dir: Path | None = None
-        self._identity_shown: str | None = None
+        #: how the bridge shows itself on the vehicle (said at start and on each change)
+        self.identity: BridgeIdentity | None = None
         self._log_dir = log_dir
         self._stop = threading.Event()
         self._tick_thread: threading.Thread | None = None
@@ -233,8 +234,7 @@ class Bridge:
         cfg = self.config
         self._open_runlog()
         observer = _FanOut(self.runlog, *self._observers)
-        for bus_cfg in cfg.can.buses:
-            self.buses[bus_cfg.name] = self._open_bus(bus_cfg)
+        self.bus_set.open_all(self.runlog)
         sinks: dict[str, Scheduler] = {}
         saved: dict[str, Any] = {}
         state_file = None
@@ -281,8 +281,8 @@ class Bridge:
         self.mavlink.start()
         if self.overlay_saver is not None:
             self.overlay_saver.start()
-        self._identity_shown = self._identity_line()
-        self.notes.note(self._identity_shown)
+        self.identity = BridgeIdentity(self.mavlink, servos=len(cfg.servos), notes=self.notes)
+        self.identity.note_change()
         if self.autopilot_sim is not None:
             self.autopilot_sim.start()
         self._tick_thread = threading.Thread(target=self._tick, name="bridge-tick", daemon=True)
@@ -323,8 +323,7 @@ class Bridge:
             _quietly(self.overlay_saver.stop)
         for scheduler in self.schedulers.values():
             _quietly(scheduler.stop)
-        for opened in self._opened:
-            _quietly(opened.close)
+        self.bus_set.close()
         runlog = self.runlog
         if runlog is not None and not self._started:  # nothing ran: say why, record nothing
             reason = self._start_error or "stopped before start-up finished"
@@ -371,36 +370,6 @@ class Bridge:
             max_run_bytes=int(cfg.max_run_mb * 1024 * 1024),
             on_problem=self.notes.event,  # a full disk is said at once: console, STATUSTEXT
         )
-
-    def _open_bus(self, bus_cfg: BusConfig) -> can.BusABC:
-        """The transport layer's factory opens it (a device, or its simulation for ``sim``);
-        with ``logging.can_frames: all`` the run log gets every frame the adapter delivers."""
-        name = bus_cfg.name
-        options: dict[str, Any] = dict(bus_cfg.options)
-        if bus_cfg.interface == "aa55":
-            options = {
-                "serial_baud": bus_cfg.serial_baud,
-                "protocol": bus_cfg.protocol,
-                "read_interval_s": bus_cfg.read_interval_s,
-                **options,
-            }
-        request = BusRequest(name, bus_cfg.interface, bus_cfg.channel, bus_cfg.bitrate, options)
-        runlog = self.runlog
-        tap = None
-        if runlog is not None and self.config.logging.can_frames == "all":
-
-            def tap(msg: can.Message, t: float) -> None:
-                runlog.on_bus_frame(name, msg, t)
-
-        opened = open_bus(
-            request,
-            simulate=simulator_factory(self.config, self.emulators),
-            on_event=self.notes.event,
-            on_reject=lambda reason, raw: self._rejected(name, reason, raw),
-            on_frame=tap,
-        )
-        self._opened.append(opened)
-        return opened.bus
 
     def _rejected(self, bus_name: str, reason: object, raw: bytes) -> None:
         scheduler = self.schedulers.get(bus_name)
@@ -499,36 +468,9 @@ class Bridge:
                     self.notes.event(f"bus {scheduler.name}: {notice}")
             if self.node_states is not None:
                 self.node_states.update(self.schedulers.values())
-            self._note_identity_change()  # gcs (issue 30)
+            if self.identity is not None:
+                self.identity.note_change()  # gcs (issue 30)
             self._stop.wait(max(0.0, next_t - time.monotonic()))
-
-    def _note_identity_change(self) -> None:
-        """The ESC numbers move when another component publishes the same ones: the console,
-        the event list and the summary then say the numbers sent now, not those of the start."""
-        if self.mavlink is None:
-            return
-        line = self._identity_line()
-        if line != self._identity_shown:
-            self._identity_shown = line
-            self.notes.note(line)
-
-    def _identity_line(self) -> str:
-        """How this bridge shows itself on the vehicle: at start, on the console and in the
-        event list (a second bridge, or the autopilot's own ESCs, must not look the same)."""
-        assert self.mavlink is not None
-        core = self.mavlink.core
-        servos = len(self.config.servos)
-        first = core.telemetry.esc_first
-        plan = core.budget.plan
-        budget = (
-            "no link budget"
-            if plan.budget_bytes_s is None
-            else f"autopilot link {plan.link_bytes_s:,.0f} of {plan.budget_bytes_s:,.0f} B/s"
-        )
-        return (
-            f"MAVLink: servo component {self.config.mavlink.servo_component_id}, servos as ESC "
-            f"{first}-{first + servos - 1}, names {core.telemetry.name_prefix}1_*, {budget}"
-        )
 
     def _stopped_event(self, reason: str) -> None:
         """``stopped (end of --duration 5 s): servos told their failsafe action: hold 6,
@@ -583,15 +525,14 @@ class Bridge:
             "buses": {},
             "servos": {},
             "events": self.notes.recent(20),
-            "identity": self._identity_shown,
+            "identity": None if self.identity is None else self.identity.shown,
             "run_dir": None if self.run_dir is None else str(self.run_dir),
         }
         for name, scheduler in self.schedulers.items():
             metrics = scheduler.metrics()
-            bus = self.buses.get(name)
             out["buses"][name] = {
                 **{k: v for k, v in metrics.items() if k != "servos"},
-                "transport": transport_stats(bus),
+                "transport": self.bus_set.transport_stats(name),
                 # what the bus nodes (DroneCAN: the bridge's node) counted of hostile traffic
                 "nodes": [
                     node.stats() for node in scheduler.nodes if isinstance(node, CountingNode)
