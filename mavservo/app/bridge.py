@@ -31,6 +31,7 @@ from mavservo.app.bridge_identity import BridgeIdentity
 from mavservo.app.check import stop_behaviour_lines
 from mavservo.app.component_metadata import metadata_files
 from mavservo.app.health_reporting import HealthReporter
+from mavservo.app.run_records import open_run_log, tap_mavlink
 from mavservo.config import (
     Config,
     gimbal_settings,
@@ -48,7 +49,7 @@ from mavservo.control import (
     health_limits,
 )
 from mavservo.mavlink import GimbalDevice, MavlinkSide
-from mavservo.records import RunLog, new_run_dir, round_trip_figures
+from mavservo.records import RunLog, round_trip_figures
 from mavservo.scheduling import FrameKind, Scheduler, SchedulerObserver, WriteObserver
 from mavservo.servos import CountingNode, ServoState
 
@@ -232,7 +233,14 @@ class Bridge:
 
     def _start(self) -> None:
         cfg = self.config
-        self._open_runlog()
+        opened = open_run_log(
+            cfg,
+            self._log_dir,
+            config_path=self.config_path,
+            on_problem=self.notes.event,  # a full disk is said at once: console, STATUSTEXT
+        )
+        if opened is not None:
+            self.run_dir, self.runlog = opened
         observer = _FanOut(self.runlog, *self._observers)
         self.bus_set.open_all(self.runlog)
         sinks: dict[str, Scheduler] = {}
@@ -277,7 +285,7 @@ class Bridge:
         self.mavlink = self._make_mavlink()
         self.notes.announcer = self.mavlink
         if self.runlog is not None:
-            self._tap_mavlink(self.mavlink, self.runlog)
+            tap_mavlink(self.mavlink, self.runlog, [s.name for s in cfg.servos])
         self.mavlink.start()
         if self.overlay_saver is not None:
             self.overlay_saver.start()
@@ -342,34 +350,6 @@ class Bridge:
         self.stop()
 
     # ------------------------------------------------------------------ pieces
-
-    def _open_runlog(self) -> None:
-        if self._log_dir is False:
-            return
-        cfg = self.config.logging
-        given = self._log_dir  # True, like None and "", means the config's own directory
-        base = Path(given) if isinstance(given, (str, Path)) and given else cfg.dir
-        self.run_dir = new_run_dir(base)
-        buses = {
-            b.name: {"bitrate": b.bitrate, "max_load": b.max_load, "interface": b.interface}
-            for b in self.config.can.buses
-        }
-        servos = {
-            s.name: {"profile": s.profile, "can_id": s.can_id, "bus": self.config.bus_of(s).name}
-            for s in self.config.servos
-        }
-        self.runlog = RunLog(
-            self.run_dir,
-            formats=cfg.can_formats,
-            can_frames=cfg.can_frames,
-            rotate_bytes=int((cfg.rotate_mb or 1e6) * 1024 * 1024),
-            buses=buses,
-            servos=servos,
-            config_path=self.config_path,
-            tlog=cfg.tlog,
-            max_run_bytes=int(cfg.max_run_mb * 1024 * 1024),
-            on_problem=self.notes.event,  # a full disk is said at once: console, STATUSTEXT
-        )
 
     def _rejected(self, bus_name: str, reason: object, raw: bytes) -> None:
         scheduler = self.schedulers.get(bus_name)
@@ -437,22 +417,6 @@ class Bridge:
         """
         total = self.runlog.latency.summary().get("total", {}) if self.runlog is not None else {}
         return health_figures(self.schedulers.values(), total)
-
-    def _tap_mavlink(self, side: MavlinkSide, runlog: RunLog) -> None:
-        """MAVLink frames into the run's .tlog; telemetry sends close the latency traces."""
-        servo_names = [s.name for s in self.config.servos]
-
-        def tap(direction: str, raw: bytes, t: float) -> None:
-            (runlog.mavlink_in if direction == "in" else runlog.mavlink_out)(raw, t)
-
-        def sent(msg: Any, t: float) -> None:
-            # ACTUATOR_OUTPUT_STATUS carries every servo's measured position at once
-            if msg.get_type() == "ACTUATOR_OUTPUT_STATUS":
-                for name in servo_names:
-                    runlog.telemetry_sent(name, t)
-
-        side.link.tap = tap
-        side.on_sent = sent
 
     def _tick(self) -> None:
         period = self.config.scheduler.command_period_s
