@@ -83,16 +83,22 @@ def _running(config: Config) -> tuple[LiveParameters, ServoBackend, GimbalDevice
     targets = ConfigTargets(backend, health=watch, gimbals=[gimbal])
     core, _ = make_mavlink_core(gimbals=(gimbal,))
     targets.attach_telemetry(core)
-    saver = RecordingSaver()
-    owner = LiveParameters(
-        config,
-        base=config,
-        overlay={},
-        saver=saver,  # type: ignore[arg-type]
-        target=targets,
-        clock=lambda: 1.0,
-    )
+    owner, saver = _owner(config, targets)
     return owner, backend, gimbal, core, saver
+
+
+def _owner(config: Config, target: Any) -> tuple[LiveParameters, RecordingSaver]:
+    """The owner of ``config``'s parameters (the file is the envelope) with a recording saver."""
+    saver = RecordingSaver()
+    owner = LiveParameters(config, base=config, overlay={}, saver=saver, target=target)  # type: ignore[arg-type]
+    return owner, saver
+
+
+def _recorded(config: Config) -> tuple[LiveParameters, RecordingTarget, RecordingSaver]:
+    """An owner whose target and saver only record what they were handed."""
+    target = RecordingTarget()
+    owner, saver = _owner(config, target)
+    return owner, target, saver
 
 
 def test_a_set_takes_effect_in_the_mapping_the_gimbal_and_the_telemetry_at_once() -> None:
@@ -112,14 +118,7 @@ def test_a_set_takes_effect_in_the_mapping_the_gimbal_and_the_telemetry_at_once(
 
 def test_a_refused_value_reaches_nothing_and_says_why() -> None:
     config = load_config_text(CONFIG, "live.yaml")
-    target, saver = RecordingTarget(), RecordingSaver()
-    owner = LiveParameters(
-        config,
-        base=config,
-        overlay={},
-        saver=saver,  # type: ignore[arg-type]
-        target=target,
-    )
+    owner, target, saver = _recorded(config)
     result = owner.set("SRV1_MAX", 36_000.0, GCS)
     assert not result.accepted and result.value == 30.0
     assert "SRV1_MAX" in result.reason and "-30..30" in result.reason
@@ -131,14 +130,7 @@ def test_the_overlay_holds_only_differences_from_the_file() -> None:
     """A value set back to the file's value leaves the overlay (float32 as a ground station
     writes back what it read counts as that value)."""
     config = load_config_text(CONFIG, "live.yaml")
-    target, saver = RecordingTarget(), RecordingSaver()
-    owner = LiveParameters(
-        config,
-        base=config,
-        overlay={},
-        saver=saver,  # type: ignore[arg-type]
-        target=target,
-    )
+    owner, target, saver = _recorded(config)
     assert owner.set("SRV2_FS_TMO", 2.5, GCS).accepted
     assert owner.overlay == {"SRV2_FS_TMO": 2.5}
     assert owner.set("SRV2_FS_TMO", 1.0, GCS).accepted
@@ -148,7 +140,7 @@ def test_the_overlay_holds_only_differences_from_the_file() -> None:
 
 def test_each_component_serves_its_own_names() -> None:
     config = load_config_text(CONFIG, "live.yaml")
-    owner = LiveParameters(config, base=config, overlay={}, saver=None, target=RecordingTarget())
+    owner, _, _ = _recorded(config)
     everything = owner.names(config.mavlink.servo_component_id)
     assert "SRV1_TRIM" in everything and "GMB1_YAW_MAX" in everything
     assert owner.names(154) == [name for name in everything if name.startswith("GMB1_")]
