@@ -55,7 +55,9 @@ COMMANDS: dict[str, Command] = {
         "mavservo.app.doctor", "main", "read-only diagnosis of a real bus: bitrate, ids, modes"
     ),
     "params": Command(
-        "mavservo.app.params", "main", "MAVLink parameters of a config: list, overlay, metadata"
+        "mavservo.app.params_command",
+        "main",
+        "MAVLink parameters of a config: list, overlay, metadata",
     ),
     "report": Command(
         "mavservo.app.report", "main", "figures and a summary from a run's log directory"

@@ -25,47 +25,37 @@ from typing import Any
 import can
 
 from mavservo.app import node_state
+from mavservo.app.bridge_buses import BridgeBuses
+from mavservo.app.bridge_events import MAV_SEVERITY_ERROR, MAV_SEVERITY_NOTICE, BridgeEvents
+from mavservo.app.bridge_identity import BridgeIdentity
 from mavservo.app.check import stop_behaviour_lines
 from mavservo.app.component_metadata import metadata_files
+from mavservo.app.health_reporting import HealthReporter
+from mavservo.app.run_records import open_run_log, tap_mavlink
 from mavservo.config import (
-    BusConfig,
     Config,
     gimbal_settings,
     mavlink_settings,
     overlay_path,
     servo_specs,
-    telemetry_rates,
     timing_config,
 )
 from mavservo.control import (
-    HealthEvent,
+    ConfigTargets,
     HealthWatch,
     LiveParameters,
     OverlaySaver,
     ServoBackend,
     health_limits,
 )
-from mavservo.mavlink import GimbalDevice, Health, MavlinkSide
-from mavservo.records import RunLog, new_run_dir, round_trip_figures
+from mavservo.mavlink import GimbalDevice, MavlinkSide
+from mavservo.records import RunLog, round_trip_figures
 from mavservo.scheduling import FrameKind, Scheduler, SchedulerObserver, WriteObserver
 from mavservo.servos import CountingNode, ServoState
-from mavservo.sim import PtyAdapter, simulator_factory
-from mavservo.transport import BusRequest, OpenedBus, open_bus, transport_stats
 
 log = logging.getLogger(__name__)
 
 SIM = "sim"
-EVENTS_KEPT = 1000
-"""Events the bridge keeps in :attr:`Bridge.events` (the newest): every health transition and
-servo event is one, and a servo whose readings flicker across a threshold (or lie) makes them
-for as long as the run lasts."""
-MAV_SEVERITY_CRITICAL = 2
-MAV_SEVERITY_ERROR = 3
-MAV_SEVERITY_WARNING = 4
-MAV_SEVERITY_NOTICE = 5
-#: health checks whose onset is CRITICAL (the surface does not do what it is told, or the
-#: servo is at its temperature limit); the others are WARNINGs, every clearing a NOTICE
-CRITICAL_HEALTH = Health.JAMMED | Health.SLIPPING | Health.OVERHEATED
 
 
 def free_udp_port() -> int:
@@ -175,34 +165,38 @@ class Bridge:
         overlay: Mapping[str, float] | None = None,
         persist_parameters: bool = True,
     ) -> None:
-        self.config = config
+        self._config = config
         #: the config file without its overlay, and the overlay's values (PARAM_SET keeps the
         #: differences from the file in the overlay; see mavservo/config/overlay.py)
         self._parameter_base = parameter_base or config
         self._overlay = dict(overlay or {})
         self._persist_parameters = persist_parameters and config_path is not None
+        #: the owner of every PARAM_SET (validated, applied, saved): its config is the one
+        #: in force (:attr:`config`)
         self.parameters: LiveParameters | None = None
         #: writes the overlay in its own thread (None: parameters are not persisted)
         self.overlay_saver: OverlaySaver | None = None
         #: extra scheduler observers (tests, live tools) next to the run log's
         self._observers = tuple(observers)
         self.config_path = config_path
-        self._status = status or (lambda line: log.info("%s", line))
-        self.emulators: dict[str, PtyAdapter] = {}
-        self.buses: dict[str, can.BusABC] = {}
-        self._opened: list[OpenedBus] = []
+        #: the console line, the event list and STATUSTEXT every piece reports through
+        self.notes = BridgeEvents(status or (lambda line: log.info("%s", line)))
+        #: every configured bus, opened at start (``buses``, ``emulators`` by bus name)
+        self.bus_set = BridgeBuses(config, on_event=self.notes.event, on_reject=self._rejected)
+        self.buses = self.bus_set.buses
+        self.emulators = self.bus_set.emulators
         self.schedulers: dict[str, Scheduler] = {}
         #: what the bus nodes keep across restarts (DroneCAN allocation table), if any
         self.node_states: node_state.NodeStateKeeper | None = None
         self.autopilot_sim: Any = None
         self.mavlink: MavlinkSide | None = None
         self.backend: ServoBackend | None = None
-        #: the bridge's own servo health monitor (docs/health.md)
-        self.health: HealthWatch | None = None
+        #: the bridge's own servo health judgement and what follows from it (docs/health.md)
+        self.health_reporter: HealthReporter | None = None
         self.runlog: RunLog | None = None
         self.run_dir: Path | None = None
-        self.events: list[tuple[float, str]] = []
-        self._identity_shown: str | None = None
+        #: how the bridge shows itself on the vehicle (said at start and on each change)
+        self.identity: BridgeIdentity | None = None
         self._log_dir = log_dir
         self._stop = threading.Event()
         self._tick_thread: threading.Thread | None = None
@@ -210,6 +204,21 @@ class Bridge:
         self._start_error: str | None = None
         self._stopped = False
         self.started_at: float | None = None
+
+    @property
+    def config(self) -> Config:
+        """The config in force: the one given, then each PARAM_SET's validated rebuild."""
+        return self.parameters.config if self.parameters is not None else self._config
+
+    @property
+    def events(self) -> list[tuple[float, str]]:
+        """Every event said so far (monotonic s, text), the newest kept."""
+        return self.notes.events
+
+    @property
+    def health(self) -> HealthWatch | None:
+        """The bridge's own servo health monitor (docs/health.md)."""
+        return None if self.health_reporter is None else self.health_reporter.watch
 
     # ------------------------------------------------------------------ lifecycle
 
@@ -224,10 +233,16 @@ class Bridge:
 
     def _start(self) -> None:
         cfg = self.config
-        self._open_runlog()
+        opened = open_run_log(
+            cfg,
+            self._log_dir,
+            config_path=self.config_path,
+            on_problem=self.notes.event,  # a full disk is said at once: console, STATUSTEXT
+        )
+        if opened is not None:
+            self.run_dir, self.runlog = opened
         observer = _FanOut(self.runlog, *self._observers)
-        for bus_cfg in cfg.can.buses:
-            self.buses[bus_cfg.name] = self._open_bus(bus_cfg)
+        self.bus_set.open_all(self.runlog)
         sinks: dict[str, Scheduler] = {}
         saved: dict[str, Any] = {}
         state_file = None
@@ -250,30 +265,32 @@ class Bridge:
                 name=bus_cfg.name,
                 node_options=node_options,
             )
-            scheduler.on_event = self._event
+            scheduler.on_event = self.notes.event
             self.schedulers[bus_cfg.name] = scheduler
             for spec in specs:
                 sinks[spec.name] = scheduler
         if state_file is not None:
             self.node_states = node_state.NodeStateKeeper(state_file, saved)
-        self.health = HealthWatch(health_limits(cfg))
+        watch = HealthWatch(health_limits(cfg))
         self.backend = ServoBackend(
             cfg,
             sinks,
-            on_event=self._event,
+            on_event=self.notes.event,
             on_command=self.runlog.mavlink_received if self.runlog is not None else None,
             health=self._health,
             slew_step_s=cfg.scheduler.command_period_s,
-            health_flags=self.health.flags,
+            health_flags=watch.flags,
         )
+        self.health_reporter = HealthReporter(watch, self.backend, self.notes, runlog=self.runlog)
         self.mavlink = self._make_mavlink()
+        self.notes.announcer = self.mavlink
         if self.runlog is not None:
-            self._tap_mavlink(self.mavlink, self.runlog)
+            tap_mavlink(self.mavlink, self.runlog, [s.name for s in cfg.servos])
         self.mavlink.start()
         if self.overlay_saver is not None:
             self.overlay_saver.start()
-        self._identity_shown = self._identity_line()
-        self._note(self._identity_shown)
+        self.identity = BridgeIdentity(self.mavlink, servos=len(cfg.servos), notes=self.notes)
+        self.identity.note_change()
         if self.autopilot_sim is not None:
             self.autopilot_sim.start()
         self._tick_thread = threading.Thread(target=self._tick, name="bridge-tick", daemon=True)
@@ -314,8 +331,7 @@ class Bridge:
             _quietly(self.overlay_saver.stop)
         for scheduler in self.schedulers.values():
             _quietly(scheduler.stop)
-        for opened in self._opened:
-            _quietly(opened.close)
+        self.bus_set.close()
         runlog = self.runlog
         if runlog is not None and not self._started:  # nothing ran: say why, record nothing
             reason = self._start_error or "stopped before start-up finished"
@@ -334,64 +350,6 @@ class Bridge:
         self.stop()
 
     # ------------------------------------------------------------------ pieces
-
-    def _open_runlog(self) -> None:
-        if self._log_dir is False:
-            return
-        cfg = self.config.logging
-        given = self._log_dir  # True, like None and "", means the config's own directory
-        base = Path(given) if isinstance(given, (str, Path)) and given else cfg.dir
-        self.run_dir = new_run_dir(base)
-        buses = {
-            b.name: {"bitrate": b.bitrate, "max_load": b.max_load, "interface": b.interface}
-            for b in self.config.can.buses
-        }
-        servos = {
-            s.name: {"profile": s.profile, "can_id": s.can_id, "bus": self.config.bus_of(s).name}
-            for s in self.config.servos
-        }
-        self.runlog = RunLog(
-            self.run_dir,
-            formats=cfg.can_formats,
-            can_frames=cfg.can_frames,
-            rotate_bytes=int((cfg.rotate_mb or 1e6) * 1024 * 1024),
-            buses=buses,
-            servos=servos,
-            config_path=self.config_path,
-            tlog=cfg.tlog,
-            max_run_bytes=int(cfg.max_run_mb * 1024 * 1024),
-            on_problem=self._event,  # a full disk is said at once: console and STATUSTEXT
-        )
-
-    def _open_bus(self, bus_cfg: BusConfig) -> can.BusABC:
-        """The transport layer's factory opens it (a device, or its simulation for ``sim``);
-        with ``logging.can_frames: all`` the run log gets every frame the adapter delivers."""
-        name = bus_cfg.name
-        options: dict[str, Any] = dict(bus_cfg.options)
-        if bus_cfg.interface == "aa55":
-            options = {
-                "serial_baud": bus_cfg.serial_baud,
-                "protocol": bus_cfg.protocol,
-                "read_interval_s": bus_cfg.read_interval_s,
-                **options,
-            }
-        request = BusRequest(name, bus_cfg.interface, bus_cfg.channel, bus_cfg.bitrate, options)
-        runlog = self.runlog
-        tap = None
-        if runlog is not None and self.config.logging.can_frames == "all":
-
-            def tap(msg: can.Message, t: float) -> None:
-                runlog.on_bus_frame(name, msg, t)
-
-        opened = open_bus(
-            request,
-            simulate=simulator_factory(self.config, self.emulators),
-            on_event=self._event,
-            on_reject=lambda reason, raw: self._rejected(name, reason, raw),
-            on_frame=tap,
-        )
-        self._opened.append(opened)
-        return opened.bus
 
     def _rejected(self, bus_name: str, reason: object, raw: bytes) -> None:
         scheduler = self.schedulers.get(bus_name)
@@ -416,50 +374,36 @@ class Bridge:
             )
         assert self.backend is not None
         gimbals = [GimbalDevice(settings, self.backend) for settings in gimbal_settings(cfg)]
-        self._gimbal_devices = gimbals
+        # PARAM_SET: the MAVLink side checks the request, the owner validates, applies and saves
         if self._persist_parameters and self.config_path is not None:
             self.overlay_saver = OverlaySaver(
                 overlay_path(self.config_path),
                 Path(self.config_path).name,
                 on_failure=self._parameters_not_saved,
             )
+        targets = ConfigTargets(self.backend, health=self.health, gimbals=gimbals)
         self.parameters = LiveParameters(
             cfg,
             base=self._parameter_base,
             overlay=self._overlay,
             saver=self.overlay_saver,
-            servo_component=cfg.mavlink.servo_component_id,
-            gimbal_components={g.component_id: g.name for g in cfg.gimbals},
-            apply=self._apply_parameters,
+            target=targets,
         )
-        return MavlinkSide(
+        side = MavlinkSide(
             settings,
             self.backend,
             gimbals,
-            on_event=self._note,
+            on_event=self.notes.note,
             parameters=self.parameters,
             metadata_files=metadata_files(cfg, self._parameter_base),  # issue 30, 32
         )
+        targets.attach_telemetry(side.core)
+        return side
 
     def _parameters_not_saved(self, text: str) -> None:
         """The overlay saver's failure, to the ground station (STATUSTEXT) and the console."""
-        if self.mavlink is not None:
-            self.mavlink.announce(text, MAV_SEVERITY_ERROR)
-        self._note(text)
-
-    def _apply_parameters(self, updated: Config) -> None:
-        """A PARAM_SET the config's rules accepted: the mapping, the gimbals' limits and the
-        telemetry rates take it at once (called by the MAVLink thread, under its lock)."""
-        assert self.backend is not None and self.mavlink is not None
-        self.backend.reconfigure(updated, time.monotonic())
-        if self.health is not None:  # speed limits and slews are in the tracking allowance
-            self.health.reconfigure(health_limits(updated))
-        for device, settings in zip(self._gimbal_devices, gimbal_settings(updated), strict=True):
-            device.settings = settings
-        self.mavlink.core.set_telemetry_rates(
-            telemetry_rates(updated.mavlink.telemetry), time.monotonic()
-        )
-        self.config = updated
+        self.notes.announce(text, MAV_SEVERITY_ERROR)
+        self.notes.note(text)
 
     def _health(self) -> dict[str, float]:
         """Transport figures for telemetry (``ServoBackend.health`` hands them on).
@@ -474,22 +418,6 @@ class Bridge:
         total = self.runlog.latency.summary().get("total", {}) if self.runlog is not None else {}
         return health_figures(self.schedulers.values(), total)
 
-    def _tap_mavlink(self, side: MavlinkSide, runlog: RunLog) -> None:
-        """MAVLink frames into the run's .tlog; telemetry sends close the latency traces."""
-        servo_names = [s.name for s in self.config.servos]
-
-        def tap(direction: str, raw: bytes, t: float) -> None:
-            (runlog.mavlink_in if direction == "in" else runlog.mavlink_out)(raw, t)
-
-        def sent(msg: Any, t: float) -> None:
-            # ACTUATOR_OUTPUT_STATUS carries every servo's measured position at once
-            if msg.get_type() == "ACTUATOR_OUTPUT_STATUS":
-                for name in servo_names:
-                    runlog.telemetry_sent(name, t)
-
-        side.link.tap = tap
-        side.on_sent = sent
-
     def _tick(self) -> None:
         period = self.config.scheduler.command_period_s
         next_t = time.monotonic()
@@ -497,80 +425,16 @@ class Bridge:
             next_t += period
             if self.backend is not None:
                 self.backend.tick(time.monotonic())
-                self._watch_health()
+            if self.health_reporter is not None:
+                self.health_reporter.update()
             for scheduler in self.schedulers.values():
                 for notice in scheduler.take_notices():
-                    self._event(f"bus {scheduler.name}: {notice}")
+                    self.notes.event(f"bus {scheduler.name}: {notice}")
             if self.node_states is not None:
                 self.node_states.update(self.schedulers.values())
-            self._note_identity_change()  # gcs (issue 30)
+            if self.identity is not None:
+                self.identity.note_change()  # gcs (issue 30)
             self._stop.wait(max(0.0, next_t - time.monotonic()))
-
-    def _watch_health(self) -> None:
-        """Judge the servos' new states (``HealthWatch``) and say what changed."""
-        health, backend = self.health, self.backend
-        if health is None or backend is None:
-            return
-        for event in health.update(backend.servo_statuses()):
-            self._health_event(event)
-
-    def _health_event(self, event: HealthEvent) -> None:
-        """One health transition: console and event list, the run log's trace, STATUSTEXT
-        (once per episode, when the check's text spacing allows), and the temperature
-        limit's action. The fault bit (``s<n>_hlt``) and a gimbal's failure flags follow from
-        the servo's status by themselves."""
-        self._note(event.text)
-        if self.runlog is not None:
-            self.runlog.health_event(event.servo, event.name, event.active, event.figures, event.t)
-        if event.check is Health.OVERHEATED and self.backend is not None and self.health:
-            limits = self.health.servos[event.servo].limits
-            action = self.health.temperature_action(event.servo)
-            self.backend.set_health_action(
-                event.servo, action, time.monotonic(), slow_factor=limits.slow_factor
-            )
-        mavlink = self.mavlink
-        if mavlink is None or not event.announce:
-            return
-        severity = MAV_SEVERITY_NOTICE
-        if event.active:
-            critical = event.check & CRITICAL_HEALTH
-            severity = MAV_SEVERITY_CRITICAL if critical else MAV_SEVERITY_WARNING
-        _quietly(lambda: mavlink.announce(event.text, severity))
-
-    def _note_identity_change(self) -> None:
-        """The ESC numbers move when another component publishes the same ones: the console,
-        the event list and the summary then say the numbers sent now, not those of the start."""
-        if self.mavlink is None:
-            return
-        line = self._identity_line()
-        if line != self._identity_shown:
-            self._identity_shown = line
-            self._note(line)
-
-    def _event(self, text: str) -> None:
-        """An event of the servo side: console, event list, and STATUSTEXT to the autopilot."""
-        self._note(text)
-        mavlink = self.mavlink
-        if mavlink is not None:
-            _quietly(lambda: mavlink.announce(text, MAV_SEVERITY_WARNING))
-
-    def _identity_line(self) -> str:
-        """How this bridge shows itself on the vehicle: at start, on the console and in the
-        event list (a second bridge, or the autopilot's own ESCs, must not look the same)."""
-        assert self.mavlink is not None
-        core = self.mavlink.core
-        servos = len(self.config.servos)
-        first = core.telemetry.esc_first
-        plan = core.budget.plan
-        budget = (
-            "no link budget"
-            if plan.budget_bytes_s is None
-            else f"autopilot link {plan.link_bytes_s:,.0f} of {plan.budget_bytes_s:,.0f} B/s"
-        )
-        return (
-            f"MAVLink: servo component {self.config.mavlink.servo_component_id}, servos as ESC "
-            f"{first}-{first + servos - 1}, names {core.telemetry.name_prefix}1_*, {budget}"
-        )
 
     def _stopped_event(self, reason: str) -> None:
         """``stopped (end of --duration 5 s): servos told their failsafe action: hold 6,
@@ -578,12 +442,10 @@ class Bridge:
         actions = Counter(servo.failsafe.action for servo in self.config.servos)
         told = ", ".join(f"{action} {count}" for action, count in actions.items())
         text = f"stopped ({reason}): servos told their failsafe action: {told}"
-        self._note(text)
+        self.notes.note(text)
         for line in stop_behaviour_lines(self.config):
-            self._note(f"then on their own: {line}")
-        mavlink = self.mavlink
-        if mavlink is not None:
-            _quietly(lambda: mavlink.announce(text, MAV_SEVERITY_NOTICE))
+            self.notes.note(f"then on their own: {line}")
+        self.notes.announce(text, MAV_SEVERITY_NOTICE)
 
     def autopilot_heartbeat(self) -> tuple[tuple[int, int], float | None] | None:
         """The watched autopilot (system, component) and when its HEARTBEAT was last heard
@@ -593,13 +455,6 @@ class Bridge:
             return None
         core = mavlink.core
         return core.watched, core.watchdog.last_heartbeat
-
-    def _note(self, text: str) -> None:
-        """Console and event list only (the MAVLink side announces its own link events)."""
-        self.events.append((time.monotonic(), text))
-        if len(self.events) > 2 * EVENTS_KEPT:  # trimmed in place: readers may be iterating
-            del self.events[:-EVENTS_KEPT]
-        self._status(text)
 
     # ------------------------------------------------------------------ views
 
@@ -633,16 +488,15 @@ class Bridge:
             "uptime_s": None if self.started_at is None else time.monotonic() - self.started_at,
             "buses": {},
             "servos": {},
-            "events": [text for _, text in self.events[-20:]],
-            "identity": self._identity_shown,
+            "events": self.notes.recent(20),
+            "identity": None if self.identity is None else self.identity.shown,
             "run_dir": None if self.run_dir is None else str(self.run_dir),
         }
         for name, scheduler in self.schedulers.items():
             metrics = scheduler.metrics()
-            bus = self.buses.get(name)
             out["buses"][name] = {
                 **{k: v for k, v in metrics.items() if k != "servos"},
-                "transport": transport_stats(bus),
+                "transport": self.bus_set.transport_stats(name),
                 # what the bus nodes (DroneCAN: the bridge's node) counted of hostile traffic
                 "nodes": [
                     node.stats() for node in scheduler.nodes if isinstance(node, CountingNode)
@@ -653,8 +507,8 @@ class Bridge:
             out["mavlink"] = _quietly(self.mavlink.stats) or {}
         if self.backend is not None:
             out["backend"] = dict(self.backend.counters)
-        if self.health is not None:
-            out["health"] = self.health.summary()
+        if self.health_reporter is not None:
+            out["health"] = self.health_reporter.summary()
         return out
 
 

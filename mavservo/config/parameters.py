@@ -22,7 +22,7 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from mavservo.config.schema import Config
+from mavservo.config.schema import Config, KeptOptions
 from mavservo.config.semantic import budget_checks, cross_checks
 from mavservo.errors import MavservoError
 
@@ -123,18 +123,29 @@ def current_values(config: Config) -> dict[str, float]:
 
 
 def with_values(
-    config: Config, values: Mapping[str, float], *, envelope: Config | None = None
+    config: Config,
+    values: Mapping[str, float],
+    *,
+    envelope: Config | None = None,
+    table: Mapping[str, Parameter] | None = None,
 ) -> Config:
     """``config`` with ``values`` set, validated again as a whole like a YAML file.
 
     ``envelope``: the config file as written (without the overlay); the result must stay within
-    its limits (:func:`envelope_problem`).
+    its limits (:func:`envelope_problem`). ``table``: :func:`parameters_by_name` of ``config``
+    and ``envelope`` when the caller keeps it (the running bridge: no parameter changes which
+    parameters exist nor the envelope's ranges, so one table serves every PARAM_SET).
+
+    The rebuild is one validation of the whole config: the servos' and buses' typed options,
+    which no parameter writes, are taken over from ``config`` (:class:`KeptOptions`), not
+    validated again.
 
     Raises :class:`ParameterError` naming the parameter for an unknown name, a value that is
     not finite, outside the parameter's range, not one of its values, or that the config's own
     rules (models, cross-section checks, bus-load budget) refuse.
     """
-    table = parameters_by_name(config, envelope)
+    if table is None:
+        table = parameters_by_name(config, envelope)
     raw = config.model_dump()
     for name, value in values.items():
         parameter = table.get(name)
@@ -144,7 +155,7 @@ def with_values(
         _check_value(parameter, value)
         parameter.write(raw, value)
     try:
-        updated = Config.model_validate(raw)
+        updated = Config.model_validate(raw, context=KeptOptions(config).context())
     except ValidationError as exc:
         first = exc.errors()[0]
         reason = first["msg"].removeprefix("Value error, ")

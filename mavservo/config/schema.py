@@ -67,6 +67,46 @@ PWM_MAX_US = 2200
 _HEX_KEY = re.compile(r"^[0-9a-fA-F]{64}$")
 
 
+#: Validation context key of a rebuild (:func:`mavservo.config.parameters.with_values`): the
+#: :class:`KeptOptions` of the config it starts from.
+KEPT_OPTIONS = "kept_options"
+
+
+class KeptOptions:
+    """The typed options of a validated config, by servo and bus name, for a rebuild of it.
+
+    Why: a PARAM_SET validates the whole config again (its rules span sections), and each
+    servo's options and each bus's node options were validated anew with it (4 + 1 options
+    validations on config/dronecan.yaml for one TEL_NVF_HZ) although no parameter writes them.
+    A servo or bus whose mapping is identical (same types all the way down) keeps its model.
+    """
+
+    def __init__(self, config: Config) -> None:
+        self.servos = {servo.name: servo for servo in config.servos}
+        self.buses = {bus.name: bus for bus in config.can.buses}
+
+    def context(self) -> dict[str, KeptOptions]:
+        return {KEPT_OPTIONS: self}
+
+
+def _kept(info: ValidationInfo) -> KeptOptions | None:
+    context = info.context
+    kept = context.get(KEPT_OPTIONS) if isinstance(context, dict) else None
+    return kept if isinstance(kept, KeptOptions) else None
+
+
+def _identical(a: Any, b: Any) -> bool:
+    """Equal and of the same types all the way down (``1 == 1.0 == True`` in Python, while a
+    strict options model tells them apart), so a kept model is what validating would give."""
+    if type(a) is not type(b):
+        return False
+    if isinstance(a, dict):
+        return a.keys() == b.keys() and all(_identical(a[key], b[key]) for key in a)
+    if isinstance(a, (list, tuple)):
+        return len(a) == len(b) and all(map(_identical, a, b))
+    return bool(a == b)
+
+
 class StrictModel(BaseModel):
     """Base for every section: unknown keys are errors, numbers are finite, models immutable."""
 
@@ -357,9 +397,19 @@ class BusConfig(StrictModel):
     :meth:`_node_options_valid`, with what it was validated from."""
 
     @model_validator(mode="after")
-    def _node_options_valid(self) -> BusConfig:
+    def _node_options_valid(self, info: ValidationInfo) -> BusConfig:
         """Each ``node:`` entry checked by its family's ``NodeOptions``, once, and kept typed;
-        each problem on its own key's line."""
+        each problem on its own key's line. A rebuild (:data:`KEPT_OPTIONS` in the context)
+        takes the typed options of the same bus when its ``node`` is unchanged."""
+        kept = _kept(info)
+        prior = None if kept is None else kept.buses.get(self.name)
+        if (
+            prior is not None
+            and prior._node_options is not None
+            and _identical(prior.node, self.node)
+        ):
+            self._node_options = (self.node, prior._node_options[1])
+            return self
         self._keep_node_options()
         return self
 
@@ -513,7 +563,21 @@ class ServoConfig(StrictModel):
     :meth:`_options_valid`, with what it was validated from."""
 
     @model_validator(mode="after")
-    def _options_valid(self) -> ServoConfig:
+    def _options_valid(self, info: ValidationInfo) -> ServoConfig:
+        """``options`` checked by the profile's ``Options``, once, and kept typed. A rebuild
+        (:data:`KEPT_OPTIONS` in the context) takes the typed options of the same servo when
+        its profile and options are unchanged: a PARAM_SET never writes options, so validating
+        them again would give the same immutable model."""
+        kept = _kept(info)
+        prior = None if kept is None else kept.servos.get(self.name)
+        if (
+            prior is not None
+            and prior._options is not None
+            and prior.profile == self.profile
+            and _identical(prior.options, self.options)
+        ):
+            self._options = (self.profile, self.options, prior._options[2])
+            return self
         model = get_profile(self.profile).Options
         try:
             self._options = (self.profile, self.options, model.model_validate(self.options))

@@ -12,6 +12,7 @@ from mavservo.faces import lazy_face
 # name imported from its module on first use (:func:`mavservo.faces.lazy_face`); the modules'
 # other names are the package's own business.
 if TYPE_CHECKING:
+    from .config_targets import ConfigTargets
     from .health import HealthEvent
     from .health_thresholds import describe_limits, health_limits, servo_limits
     from .health_watch import HealthWatch
@@ -22,6 +23,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "ChannelMap",
+    "ConfigTargets",
     "HealthEvent",
     "HealthWatch",
     "LiveParameters",
@@ -36,6 +38,7 @@ __getattr__ = lazy_face(
     __name__,
     {
         "ChannelMap": "mapping",
+        "ConfigTargets": "config_targets",
         "HealthEvent": "health",
         "HealthWatch": "health_watch",
         "LiveParameters": "live_parameters",

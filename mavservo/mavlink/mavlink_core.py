@@ -44,8 +44,8 @@ from mavservo.mavlink.metadata_service import MetadataService
 from mavservo.mavlink.mirror import Mirror
 from mavservo.mavlink.params import (
     SERVICE_TYPES,
+    ParameterOwner,
     ParameterServer,
-    ParameterStore,
     SetResult,
     WritePolicy,
 )
@@ -85,7 +85,7 @@ class MavlinkCore:
         backend: ActuatorBackend,
         gimbals: Sequence[HostedComponent] = (),
         boot_time: float = 0.0,
-        parameters: ParameterStore | None = None,
+        parameters: ParameterOwner | None = None,
         metadata_files: Mapping[int, Mapping[str, bytes]] | None = None,
     ) -> None:
         self.settings = settings
@@ -129,7 +129,7 @@ class MavlinkCore:
         #: responses to unverified senders' commands, per sender, in turn (events)
         self.responses = AnswerQueue()
         #: parameters, and a prompt "not supported" to FTP and mission requests, on every
-        #: component (without a store the components serve no parameters but still answer)
+        #: component (without an owner the components serve no parameters but still answer)
         self.parameters = ParameterServer(
             parameters or _NoParameters(),
             self.components,
@@ -462,7 +462,7 @@ class MavlinkCore:
 
 
 class _NoParameters:
-    """The store of a bridge built without parameters: every component serves none."""
+    """The owner of a bridge built without parameters: every component serves none."""
 
     def names(self, component_id: int) -> list[str]:
         return []

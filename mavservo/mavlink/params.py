@@ -6,7 +6,7 @@ A component that stays silent makes them wait and print time-outs; one that answ
 integrator trim a control surface from the field. This module is the protocol, without I/O: it
 takes received messages and the passing of time and returns PARAM_VALUE / PARAM_ERROR /
 FILE_TRANSFER_PROTOCOL / MISSION_ACK messages to send from a component. What a value means,
-whether it is valid and how it takes effect belong to a :class:`ParameterStore`.
+whether it is valid and how it takes effect belong to a :class:`ParameterOwner`.
 
 Rules (https://mavlink.io/en/services/parameter.html):
 
@@ -16,7 +16,7 @@ Rules (https://mavlink.io/en/services/parameter.html):
 * PARAM_REQUEST_READ: by name when ``param_index`` is -1, else by index; an unknown one gets
   PARAM_ERROR (MAV_PARAM_ERROR_DOES_NOT_EXIST).
 * PARAM_SET: a PARAM_VALUE with the value now in force, accepted or not (the old value when
-  refused, plus a STATUSTEXT with the reason from the store and a counter).
+  refused, plus a STATUSTEXT with the reason from the owner and a counter).
 * Values travel as MAV_PARAM_TYPE_REAL32; every parameter of the bridge is a float (integral
   ones such as ``SRV1_REV`` are whole-number floats), so no ground station has to know whether
   integers are byte-wise or C-cast encoded.
@@ -102,8 +102,12 @@ class SetResult:
     reason: str = ""
 
 
-class ParameterStore(Protocol):
-    """The bridge's parameters as the protocol sees them (names, values, validated changes)."""
+class ParameterOwner(Protocol):
+    """The one owner of the bridge's parameters, as the protocol sees it: names, values and
+    changes. The protocol hands it a request it has checked for the wire (a name the component
+    serves, a value decoded from its ``param_type``, a sender allowed to write, within the
+    sender's rate); what the value means, whether the config's rules take it and how it takes
+    effect are the owner's (``mavservo.control.LiveParameters``)."""
 
     def names(self, component_id: int) -> list[str]:
         """The parameters ``component_id`` serves, in index order (empty: none)."""
@@ -119,7 +123,7 @@ class ParameterStore(Protocol):
 
 
 class ParameterServer:
-    """PARAM_* and "not supported" answers for the components in ``store``.
+    """PARAM_* and "not supported" answers for the components ``owner`` serves.
 
     ``announce(text)`` queues a STATUSTEXT (a refused PARAM_SET says why there, where the user
     looks); ``signing`` says whether the link signs (then unsigned frames are refused here).
@@ -127,14 +131,14 @@ class ParameterServer:
 
     def __init__(
         self,
-        store: ParameterStore,
+        owner: ParameterOwner,
         component_ids: Iterable[int],
         *,
         signing: bool,
         announce: Callable[[str], None],
         writers: WritePolicy | None = None,
     ) -> None:
-        self.store = store
+        self.owner = owner
         self.writers = writers if writers is not None else WritePolicy(open=True)
         self.component_ids = tuple(component_ids)
         self.signing = signing
@@ -163,7 +167,7 @@ class ParameterServer:
             self.counters["unsigned_refused"] += 1
             return []
         if len(targets) > 1 and kind == "PARAM_REQUEST_LIST":
-            targets = [cid for cid in targets if self.store.names(cid)]
+            targets = [cid for cid in targets if self.owner.names(cid)]
         elif len(targets) > 1:  # a broadcast: one answer, from the component that owns it
             owner = self._owner(kind, msg, targets)
             if owner is None:
@@ -188,7 +192,7 @@ class ParameterServer:
             kind == "PARAM_SET" or int(msg.param_index) < 0
         ):
             name = _param_id(msg.param_id)
-            serving = [cid for cid in targets if name in self.store.names(cid)]
+            serving = [cid for cid in targets if name in self.owner.names(cid)]
             return serving[-1] if serving else None
         return targets[0]
 
@@ -228,12 +232,12 @@ class ParameterServer:
     def _request_list(self, component_id: int) -> list[Outgoing]:
         """Every value of the component, in index order: the caller paces them (answers go
         through :class:`~mavservo.mavlink.answers.AnswerQueue`, per requester, in budget)."""
-        names = self.store.names(component_id)
+        names = self.owner.names(component_id)
         self.counters["list_requests"] += 1
         return [(component_id, self._value(names, index)) for index in range(len(names))]
 
     def _request_read(self, msg: Any, component_id: int, sender: tuple[int, int]) -> list[Outgoing]:
-        names = self.store.names(component_id)
+        names = self.owner.names(component_id)
         self.counters["read_requests"] += 1
         index = int(msg.param_index)
         name = _param_id(msg.param_id)
@@ -246,7 +250,7 @@ class ParameterServer:
         return [(component_id, self._value(names, names.index(name)))]
 
     def _set(self, msg: Any, component_id: int, sender: tuple[int, int]) -> list[Outgoing]:
-        names = self.store.names(component_id)
+        names = self.owner.names(component_id)
         name = _param_id(msg.param_id)
         if name not in names:
             self.counters["set_unknown"] += 1
@@ -263,7 +267,7 @@ class ParameterServer:
             self.counters["set_bad_type"] += 1
             self._refused(sender, f"{name}: param_type {int(msg.param_type)} not supported")
             return [self._error(component_id, sender, name, -1, "VALUE_OUT_OF_RANGE")]
-        result = self.store.set(name, value, sender)
+        result = self.owner.set(name, value, sender)
         if result.accepted:
             self.counters["set_accepted"] += 1
             self._log_set(
@@ -344,7 +348,7 @@ class ParameterServer:
     # ------------------------------------------------------------------ messages
 
     def _value(self, names: list[str], index: int) -> Any:
-        value = self.store.value(names[index])
+        value = self.owner.value(names[index])
         return mavlink2.MAVLink_param_value_message(
             names[index].encode("ascii"),
             value if math.isfinite(value) else 0.0,

@@ -21,7 +21,7 @@ from mavservo.mavlink.commands import Outgoing
 from mavservo.mavlink.component import HostedComponent
 from mavservo.mavlink.link import MavlinkLink
 from mavservo.mavlink.mavlink_core import MavlinkCore
-from mavservo.mavlink.params import ParameterStore
+from mavservo.mavlink.params import ParameterOwner
 from mavservo.mavlink.settings import MavlinkSettings
 from mavservo.mavlink.telemetry import MAV_SEVERITY_WARNING
 from mavservo.threads import BackgroundLoop
@@ -46,7 +46,7 @@ class MavlinkSide:
         gimbals: Sequence[HostedComponent] = (),
         clock: Callable[[], float] = time.monotonic,
         on_event: Callable[[str], None] | None = None,
-        parameters: ParameterStore | None = None,
+        parameters: ParameterOwner | None = None,
         metadata_files: Mapping[int, Mapping[str, bytes]] | None = None,
     ) -> None:
         self._clock = clock

@@ -1,8 +1,8 @@
 """The config is parsed once (issue 31, item 1): the schema validates a servo's options and a
-bus's node options into their typed models when the file is loaded (or a PARAM_SET rebuilds
-the config), and everything built from it afterwards (the schedulers' servo specs, the bus
-nodes, the bus-load budget, the cross checks, the MAVLink settings) uses those, never the
-mapping again."""
+bus's node options into their typed models when the file is loaded, and everything built from
+it afterwards (the schedulers' servo specs, the bus nodes, the bus-load budget, the cross
+checks, the MAVLink settings) uses those, never the mapping again; a PARAM_SET is one
+validation of the whole config that takes the unchanged options over."""
 
 from __future__ import annotations
 
@@ -13,9 +13,11 @@ from typing import Any
 
 import can
 import pytest
+from pydantic import ValidationError
 
 from mavservo.config import bus_loads, load_config
 from mavservo.config.parameters import with_values
+from mavservo.config.schema import Config, KeptOptions
 from mavservo.config.semantic import cross_checks
 from mavservo.config.views import mavlink_settings, servo_specs, telemetry_rates, timing_config
 from mavservo.mavlink.settings import TelemetryRates
@@ -68,18 +70,93 @@ def test_options_are_validated_once_when_the_file_is_loaded(validations: Counter
     assert validations == loaded
 
 
-def test_a_parameter_set_is_one_validated_rebuild(validations: Counter[str]) -> None:
+def test_a_parameter_set_is_one_validated_rebuild(
+    validations: Counter[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
     """PARAM_SET: the config validated once more as a whole (its typed views with it), and the
-    MAVLink side's rates read from the rebuilt config."""
+    MAVLink side's rates read from the rebuilt config. The options no parameter writes are
+    taken over, not validated again (before: 4 DroneCanOptions and 1 NodeOptions
+    validations on this config for one TEL_NVF_HZ)."""
     config = load_config(DRONECAN)
+    whole = _count_config_validations(monkeypatch)
     validations.clear()
     updated = with_values(config, {"TEL_NVF_HZ": 7.0})
-    assert validations == {"DroneCanOptions": len(config.servos), "NodeOptions": 1}
-    validations.clear()
+    assert validations == {} and whole == {"Config": 1}
     assert mavlink_settings(updated).telemetry.named_value_float_hz == 7.0
     assert telemetry_rates(updated.mavlink.telemetry).named_value_float_hz == 7.0
-    assert updated.servos[0].profile_options() == config.servos[0].profile_options()
-    assert not validations
+    assert updated.servos[0].profile_options() is config.servos[0].profile_options()
+    assert updated.can.buses[0].node_options() == config.can.buses[0].node_options()
+    assert not validations and whole == {"Config": 1}
+
+
+def test_a_rebuild_validates_options_that_differ_even_by_type_only(
+    validations: Counter[str],
+) -> None:
+    """Only an identical options mapping is taken over: one whose value changed, or whose
+    value has another type (1.0 for 1, which the strict options model refuses), is validated
+    and refused as from the file."""
+    config = load_config(DRONECAN)
+    kept = KeptOptions(config).context()
+    raw = config.model_dump()
+    raw["servos"][1]["options"]["actuator_id"] = 9
+    validations.clear()
+    rebuilt = Config.model_validate(raw, context=kept)
+    assert validations == {"DroneCanOptions": 1}
+    assert rebuilt.servos[1].profile_options().actuator_id == 9
+    assert rebuilt.servos[0].profile_options() is config.servos[0].profile_options()
+    raw["servos"][1]["options"]["actuator_id"] = 2.0
+    with pytest.raises(ValidationError, match="actuator_id"):
+        Config.model_validate(raw, context=kept)
+    raw["servos"][1]["options"]["actuator_id"] = 2
+    raw["can"]["buses"][0]["node"]["dronecan"]["node_id"] = 300
+    with pytest.raises(ValidationError, match="node_id"):
+        Config.model_validate(raw, context=kept)
+
+
+def test_a_live_parameter_set_is_one_walk_with_one_validation(
+    validations: Counter[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The owner's whole walk of one PARAM_SET: one validation of the config, no options
+    validated again, no parameter table rebuilt (before: 4 + 1 options validations and two
+    tables), the rebuilt config handed once to where it takes effect."""
+    from mavservo.config import parameters
+    from mavservo.control.live_parameters import LiveParameters
+
+    config = load_config(DRONECAN)
+    applied: list[Config] = []
+
+    class Target:
+        def apply(self, updated: Config, now: float) -> None:
+            applied.append(updated)
+
+    owner = LiveParameters(config, base=config, overlay={}, saver=None, target=Target())
+    whole = _count_config_validations(monkeypatch)
+    tables = Counter[str]()
+    table = parameters.parameter_table
+
+    def counting_table(*args: Any, **kwargs: Any) -> Any:
+        tables["parameter_table"] += 1
+        return table(*args, **kwargs)
+
+    monkeypatch.setattr(parameters, "parameter_table", counting_table)
+    validations.clear()
+    result = owner.set("TEL_NVF_HZ", 7.0, (255, 190))
+    assert result.accepted and result.value == 7.0
+    assert (validations, whole, tables) == ({}, {"Config": 1}, {})
+    assert [c.mavlink.telemetry.named_value_float_hz for c in applied] == [7.0]
+    assert owner.config is applied[0] and owner.value("TEL_NVF_HZ") == 7.0
+
+
+def _count_config_validations(monkeypatch: pytest.MonkeyPatch) -> Counter[str]:
+    counts: Counter[str] = Counter()
+    original = Config.model_validate.__func__  # type: ignore[attr-defined]
+
+    def counting(cls: Any, *args: Any, **kwargs: Any) -> Any:
+        counts[cls.__name__] += 1
+        return original(cls, *args, **kwargs)
+
+    monkeypatch.setattr(Config, "model_validate", classmethod(counting))
+    return counts
 
 
 def test_the_servo_profile_carries_the_validated_options() -> None:

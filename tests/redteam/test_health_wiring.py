@@ -136,11 +136,12 @@ def test_the_bridges_event_list_is_bounded() -> None:
     """Every health transition is an event (console, event list); the list grew for the whole
     run, so a servo flickering across a threshold (or a lying one) grew the bridge's memory
     without bound: 50,000 transitions kept 50,000 entries."""
-    from mavservo.app.bridge import EVENTS_KEPT, Bridge
+    from mavservo.app.bridge import Bridge
+    from mavservo.app.bridge_events import EVENTS_KEPT
 
     config = load_config_text(CONFIG, "backend.yaml")
     bridge = Bridge(config, log_dir=False, status=lambda line: None)
     for n in range(50_000):
-        bridge._note(f"elevator: hot, 66 C (warning 65 C) #{n}")  # noqa: SLF001
+        bridge.notes.note(f"elevator: hot, 66 C (warning 65 C) #{n}")
     assert len(bridge.events) <= 2 * EVENTS_KEPT
     assert bridge.events[-1][1].endswith("#49999")
