@@ -37,6 +37,7 @@ CORES = (
     "mavservo.servos.dronecan.info_service",
     "mavservo.servos.dronecan.notices",
     "mavservo.servos.dronecan.safety",
+    "mavservo.servos.dronecan.get_node_info",
     "mavservo.scheduling.schedule_core",
     "mavservo.scheduling.bus_plan",
     "mavservo.mavlink.mavlink_core",
