@@ -240,6 +240,9 @@ def _fit(room: float, streams: tuple[StreamCost, ...]) -> dict[str, float]:
     return ratios
 
 
+_MAX_TURNS_KEPT = 1.0
+"""Turns a waiting stream may keep for later (a stream that waited long catches up by one
+message, not by a burst)."""
 _GOLDEN = (5**0.5 - 1) / 2
 """The golden ratio's fraction: successive multiples of it spread over [0, 1) as evenly as any
 sequence can, whatever the number of streams."""
@@ -353,28 +356,34 @@ class LinkBudget:
         held-back stream kept the window for up to a second) left the link idle while it
         waited: with `config/ardupilot-sitl.yaml` the link carried 407 B/s of its 1,000 and
         ACTUATOR_OUTPUT_STATUS got 39 % of its planned turns. In the line, a stream's message
-        waits for its turn instead of being lost; a newer message of the same stream takes its
-        place (fresher data, the same turn), so the line holds at most one message per stream
-        and no value is older than its period. The gimbal's attitude status
-        (:data:`_URGENT_STREAMS`) goes to the head: the autopilot calls the gimbal unhealthy
-        after 1 s without it."""
+        waits for its turn instead of being lost; every newer message of the same stream,
+        decimated or not, takes its place (fresher data, the same turn), so the line holds at
+        most one message per stream and no value on the link is older than the stream's own
+        period. Periodic messages take tokens only while half the bucket's depth stays for
+        events and answers (a parameter read must not wait behind the line). The gimbal's
+        attitude status (:data:`_URGENT_STREAMS`) goes to the head: the autopilot calls the
+        gimbal unhealthy after 1 s without it."""
         kind = msg.get_type()
         stream = self._stream(kind)
         bucket = self._bucket
         if stream is None:
             return Admission.NOW if self._event(kind, msg, now, bucket) else Admission.SKIPPED
         key = self._key(component_id, kind, msg)
+        if key in self._waiting:
+            # a fresher value takes the waiting one's place (the link never gets a value older
+            # than the stream's own period); a turn it would have taken is the stream's later
+            if self._takes_turn(key, stream):
+                self._give_turn_back(key, stream)
+            self._waiting[key] = (component_id, msg)
+            self.counters["waiting_refreshed"] += 1
+            return Admission.WAITS
         if not self._takes_turn(key, stream):
             return Admission.SKIPPED
         if bucket is None:
             return Admission.NOW
         urgent = kind in _URGENT_STREAMS
-        first = (not self._waiting or urgent) and key not in self._waiting
-        if first and bucket.take(self._cost(msg), now):
+        if (not self._waiting or urgent) and self._take_keeping_half(bucket, msg, now):
             return Admission.NOW
-        if key in self._waiting:  # a fresher value takes the place; the turn it used is kept
-            self.counters["waiting_superseded"] += 1
-            self._give_turn_back(key, stream)
         self._waiting[key] = (component_id, msg)
         if urgent:
             self._waiting.move_to_end(key, last=False)
@@ -396,7 +405,7 @@ class LinkBudget:
         out = []
         while self._waiting:
             key, (component_id, msg) = next(iter(self._waiting.items()))
-            if not bucket.take(self._cost(msg), now):
+            if not self._take_keeping_half(bucket, msg, now):
                 break
             del self._waiting[key]
             out.append((component_id, msg))
@@ -436,10 +445,10 @@ class LinkBudget:
         return True
 
     def _give_turn_back(self, key: tuple[Any, ...], stream: str) -> None:
-        """A waiting message replaced by its stream's next one: the turn the first one took is
-        the stream's again (the plan's count of messages per second holds)."""
+        """A turn that came while the stream's message was still waiting: kept for after it
+        went (the plan's count of messages per second holds), at most one turn ahead."""
         if self.plan.ratios.get(stream, 1.0) < 1.0 and key in self._credit:
-            self._credit[key] += 1.0
+            self._credit[key] = min(self._credit[key] + 1.0, 1.0 + _MAX_TURNS_KEPT)
 
     def _take_keeping_half(self, bucket: TokenBucket, msg: Any, now: float) -> bool:
         """Tokens for ``msg`` if half the depth stays for events (or, for a frame larger than
