@@ -13,7 +13,8 @@ from mavservo.faces import lazy_face
 if TYPE_CHECKING:
     from .bus_nodes import family_nodes, node_unique_id, software_version
     from .busload import FrameFlow, frame_time, load_ratio, message_bits, servo_traffic
-    from .runner import Scheduler, SchedulerObserver, WriteObserver
+    from .observers import SchedulerObserver, WriteObserver
+    from .runner import Scheduler
     from .schedule_core import STARTUP_RETRY_S, FrameKind, ServoSpec, SetpointResult, TimingConfig
 
 __all__ = [
@@ -42,11 +43,11 @@ __getattr__ = lazy_face(
         "FrameKind": "schedule_core",
         "STARTUP_RETRY_S": "schedule_core",
         "Scheduler": "runner",
-        "SchedulerObserver": "runner",
+        "SchedulerObserver": "observers",
         "ServoSpec": "schedule_core",
         "SetpointResult": "schedule_core",
         "TimingConfig": "schedule_core",
-        "WriteObserver": "runner",
+        "WriteObserver": "observers",
         "frame_time": "busload",
         "load_ratio": "busload",
         "message_bits": "busload",
