@@ -13,9 +13,10 @@ from mavservo.faces import lazy_face
 if TYPE_CHECKING:
     from .bus_nodes import family_nodes, node_unique_id, software_version
     from .busload import FrameFlow, frame_time, load_ratio, message_bits, servo_traffic
+    from .lifecycle import STARTUP_RETRY_S
     from .observers import SchedulerObserver, WriteObserver
     from .runner import Scheduler
-    from .schedule_core import STARTUP_RETRY_S, FrameKind, ServoSpec, SetpointResult, TimingConfig
+    from .schedule_core import FrameKind, ServoSpec, SetpointResult, TimingConfig
 
 __all__ = [
     "family_nodes",
@@ -41,7 +42,7 @@ __getattr__ = lazy_face(
         "family_nodes": "bus_nodes",
         "FrameFlow": "busload",
         "FrameKind": "schedule_core",
-        "STARTUP_RETRY_S": "schedule_core",
+        "STARTUP_RETRY_S": "lifecycle",
         "Scheduler": "runner",
         "SchedulerObserver": "observers",
         "ServoSpec": "schedule_core",

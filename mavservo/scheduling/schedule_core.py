@@ -89,7 +89,7 @@ from typing import Literal
 import can
 
 from mavservo.errors import MavservoError
-from mavservo.servos import ServoProfile, SplitStartup, release_frames_of
+from mavservo.servos import ServoProfile
 
 from . import reply_matching
 from .bus_plan import REPLY_DLC, plan_bus
@@ -98,13 +98,13 @@ from .busload import (
     frame_time,
     message_bits,
 )
+from .lifecycle import STARTUP_RETRY_S, Lifecycles, ServoLifecycle
+from .liveness import Liveness
+from .poll_round import PollRound
 
 CommandMode = Literal["periodic", "immediate"]
 FrameKind = Literal["command", "refresh", "request", "lifecycle"]
 LifecyclePurpose = Literal["startup", "release", "shutdown"]
-STARTUP_RETRY_S = 1.0
-"""Start-up frames go out again at most this often for one servo (``needs_startup`` may stay
-true while a servo refuses to start); the budget counts them at this rate."""
 _TIMED_OUT_KEPT = 8
 
 
@@ -289,10 +289,9 @@ class Decision:
 @dataclass
 class _ServoSlot:
     spec: ServoSpec
+    life: ServoLifecycle
     poll_period: float | None
-    poll_cost_s: float
     command_cost_s: float
-    next_poll_due: float
     latest: Setpoint | None = None
     last_sent: Setpoint | None = None
     """The newest setpoint the bus took: what an offline servo is refreshed with."""
@@ -302,26 +301,10 @@ class _ServoSlot:
     last_command_time: float | None = None
     released: bool = False
     expected: deque[Expectation] = field(default_factory=deque)
-    missed_in_a_row: int = 0
     awaiting_first_reply_since: float | None = None
     replies: reply_matching.ReplyMatcher = field(default_factory=reply_matching.ReplyMatcher)
     timed_out: deque[Expectation] = field(default_factory=lambda: deque(maxlen=_TIMED_OUT_KEPT))
     """The latest expectations that timed out, so a late reply can tell how late it was."""
-    push_period: float | None = None
-    """A pushing servo's report period (None: polled, or pushes nothing)."""
-    last_heard: float = 0.0
-    """When a pushing servo last reported (or the schedule started): its silence is from here."""
-    started: bool = False
-    """Its start-up frames went out since the schedule began, it came back online, or it was
-    released (module docstring)."""
-    last_startup: float = -math.inf
-    continued: bool = False
-    """The early next step of its latest start-up went (``servos.base.SplitStartup``)."""
-    split_startup: SplitStartup | None = None
-    """Its profile as a :class:`SplitStartup` (resolved once: asked at every command slot)."""
-    release_due: float | None = None
-    """When its release frames go out (None: none pending): at once after ``release``, at the
-    next command slot after the bus refused them."""
 
     @property
     def has_unsent_setpoint(self) -> bool:
@@ -362,12 +345,8 @@ class ScheduleCore:
         self.warnings: list[str] = []
         self._slots: dict[str, _ServoSlot] = {}
         self._order = names
-        self._rank = {name: i for i, name in enumerate(names)}
         self._next_command_slot = start
-        self._poll_round: list[str] = []
-        self._offline_on_sends: set[str] = set()
-        """Servos offline because the bus refused their frames (not because replies stopped),
-        that have not answered since."""
+        self._lifecycles = Lifecycles([(spec.name, spec.profile) for spec in servos])
         plan = plan_bus(
             servos, timing, startup_retry_s=STARTUP_RETRY_S, packed=packed, extra_flows=extra_flows
         )
@@ -388,32 +367,35 @@ class ScheduleCore:
             # after another, so each sees exactly one request per T_t.
             self._slots[spec.name] = _ServoSlot(
                 spec=spec,
+                life=self._lifecycles.servos[spec.name],
                 poll_period=costs.poll_period,
-                poll_cost_s=costs.poll_cost_s,
                 command_cost_s=costs.command_cost_s,
-                next_poll_due=math.inf,
-                push_period=costs.push_period,
-                split_startup=spec.profile if isinstance(spec.profile, SplitStartup) else None,
             )
+        polled = [
+            (name, period, plan.servos[name].poll_cost_s)
+            for name in names
+            if (period := plan.servos[name].poll_period)
+        ]
+        self._liveness = Liveness(
+            [(name, plan.servos[name].push_period) for name in names],
+            timing.offline_after_missed,
+            timing.reply_timeout_s,
+        )
         self.telemetry_phase_s = plan.telemetry_phase_s
+        self._polls = PollRound(polled, timing.telemetry_period_s, plan.telemetry_phase_s)
+        self._request_outstanding = lambda name: self._slots[name].request_outstanding
         self.anchor(start)
 
     def anchor(self, start: float) -> None:
         """Move the time origin (the runner anchors the schedule when it actually starts)."""
         self.start = start
         self._next_command_slot = start
-        self._next_telemetry_tick = start + self.telemetry_phase_s
-        for slot in self._slots.values():
-            if slot.poll_period:
-                slot.next_poll_due = self._next_telemetry_tick
-            slot.last_heard = start
+        self._polls.anchor(start)
+        self._liveness.anchor(start)
 
     def push_silence_limit_s(self, name: str) -> float | None:
         """How long a pushing servo may stay silent before it is offline (None: not pushing)."""
-        period = self._slots[name].push_period
-        if period is None:
-            return None
-        return self.timing.offline_after_missed * period + self.timing.reply_timeout_s
+        return self._liveness.silence_limit_s(name)
 
     # ----------------------------------------------------------------------- upper layers
     @property
@@ -424,7 +406,7 @@ class ScheduleCore:
         return self._slots[name].latest
 
     def is_online(self, name: str) -> bool:
-        return self._slots[name].missed_in_a_row < self.timing.offline_after_missed
+        return self._liveness.is_online(name)
 
     def submit(self, name: str, angle_deg: float, source: str, t: float) -> SetpointResult:
         """Accept a setpoint unless it is unknown, invalid or older than the accepted one."""
@@ -449,7 +431,7 @@ class ScheduleCore:
         seq = slot.seq
         slot.latest = Setpoint(seq, angle_deg, source, t, msg)
         slot.released = False
-        slot.release_due = None
+        self._lifecycles.cancel_release(name)
         return SetpointResult(True, seq)
 
     def mark_failsafe(self, name: str) -> None:
@@ -464,24 +446,12 @@ class ScheduleCore:
         """Stop commanding and refreshing a servo until its next setpoint (failsafe release),
         and send its profile's release frames (motor off) at the next step; the next command
         is preceded by the start-up frames again."""
-        slot = self._slots[name]
-        slot.released = True
-        slot.release_due = -math.inf if release_frames_of(slot.spec.profile) else None
-        slot.started = False
-        # the next command's start-up is not a retry: it goes with that command even within
-        # STARTUP_RETRY_S of the last one (an LK motor off ignores A4 until 0x88, an RMD-X
-        # brake locked by the release would be driven against until 0x77). Releases come
-        # from a lost link or a health limit, each at most once per new setpoint.
-        slot.last_startup = -math.inf
+        self._slots[name].released = True
+        self._lifecycles.release(name)
 
     def wants_lifecycle_wake(self) -> bool:
         """True when release frames wait to go at once (the runner is woken for them)."""
-        return self._next_release() == -math.inf
-
-    def _next_release(self) -> float:
-        """When the earliest pending release frames are due (inf: none pending)."""
-        due = [s.release_due for s in self._slots.values() if s.release_due is not None]
-        return min(due, default=math.inf)
+        return self._lifecycles.wants_wake()
 
     def final_frames(self, now: float) -> list[Outgoing]:
         """What goes out when the scheduler stops: pending release frames, then every servo's
@@ -489,10 +459,9 @@ class ScheduleCore:
         out: list[Outgoing] = []
         for name in self._order:
             slot = self._slots[name]
-            if slot.release_due is not None:
-                slot.release_due = None
-                out += self._lifecycle(slot, release_frames_of(slot.spec.profile), "release", now)
-            out += self._lifecycle(slot, slot.spec.profile.shutdown_frames(), "shutdown", now)
+            release, shutdown = self._lifecycles.final_frames(name)
+            out += self._lifecycle(slot, release, "release", now)
+            out += self._lifecycle(slot, shutdown, "shutdown", now)
         return out
 
     def wants_immediate_wake(self, name: str) -> bool:
@@ -520,27 +489,13 @@ class ScheduleCore:
 
     def _start_up_if_needed(self, slot: _ServoSlot, now: float, decision: Decision) -> None:
         """Put the servo's start-up frames before its command when they are due."""
-        profile = slot.spec.profile
-        split = slot.split_startup
-        early = (
-            slot.started and not slot.continued and split is not None and split.startup_continues()
-        )
-        if now - slot.last_startup < STARTUP_RETRY_S and not early:
-            return  # the budget counts start-ups at this rate: it is a ceiling
-        if slot.started and not profile.needs_startup():
-            return
-        slot.continued = early  # one early step per start-up; a retry starts over
-        slot.started = True
-        slot.last_startup = now
-        decision.frames += self._lifecycle(slot, profile.startup_frames(), "startup", now)
+        frames = slot.life.startup_frames(now)
+        if frames is not None:
+            decision.frames += self._lifecycle(slot, frames, "startup", now)
 
     def _serve_releases(self, now: float, decision: Decision) -> None:
-        for name in self._order:
-            slot = self._slots[name]
-            if slot.release_due is not None and slot.release_due <= now:
-                slot.release_due = None
-                frames = release_frames_of(slot.spec.profile)
-                decision.frames += self._lifecycle(slot, frames, "release", now)
+        for name, frames in self._lifecycles.due_releases(now):
+            decision.frames += self._lifecycle(self._slots[name], frames, "release", now)
 
     def _command_frame(self, slot: _ServoSlot, kind: FrameKind, now: float) -> Outgoing:
         assert slot.latest is not None
@@ -566,7 +521,7 @@ class ScheduleCore:
             while slot.expected and slot.expected[0].deadline <= now:
                 slot.timed_out.append(slot.expected.popleft())
                 decision.lost.append(name)
-                if self._missed(slot, on_send=False):
+                if self._liveness.missed(name, on_send=False):
                     decision.went_offline.append(name)
                     dropped = self._drop_unsent(slot)
                     if dropped is not None:
@@ -574,27 +529,11 @@ class ScheduleCore:
 
     def _expire_silent_pushers(self, now: float, decision: Decision) -> None:
         """Take pushing servos whose pushes stopped offline (module docstring, Liveness)."""
-        for name, slot in self._slots.items():
-            limit = self.push_silence_limit_s(name)
-            if limit is None or not self.is_online(name) or now - slot.last_heard <= limit:
-                continue
-            slot.missed_in_a_row = self.timing.offline_after_missed
-            self._offline_on_sends.discard(name)
+        for name in self._liveness.fell_silent(now):
             decision.went_offline.append(name)
-            dropped = self._drop_unsent(slot)
+            dropped = self._drop_unsent(self._slots[name])
             if dropped is not None:
                 decision.dropped.append((name, dropped))
-
-    def _missed(self, slot: _ServoSlot, *, on_send: bool) -> bool:
-        """Count one miss; True if the servo goes offline with it."""
-        slot.missed_in_a_row += 1
-        if slot.missed_in_a_row != self.timing.offline_after_missed:
-            return False
-        if on_send:
-            self._offline_on_sends.add(slot.spec.name)
-        else:
-            self._offline_on_sends.discard(slot.spec.name)
-        return True
 
     @staticmethod
     def _drop_unsent(slot: _ServoSlot) -> Setpoint | None:
@@ -662,53 +601,27 @@ class ScheduleCore:
 
     def _serve_telemetry(self, now: float, decision: Decision) -> None:
         t = self.timing
-        if now >= self._next_telemetry_tick:
-            behind = math.floor((now - self._next_telemetry_tick) / t.telemetry_period_s + 1e-9)
-            decision.telemetry_tick = self._next_telemetry_tick + behind * t.telemetry_period_s
-            self._next_telemetry_tick = decision.telemetry_tick + t.telemetry_period_s
-            half_tick = t.telemetry_period_s / 2
-            due = [
-                name
-                for name, slot in self._slots.items()
-                if slot.poll_period and slot.next_poll_due - now <= half_tick
-            ]
-            due.sort(key=lambda name: (self._slots[name].next_poll_due, self._rank[name]))
-            # a new round keeps any leftovers of the previous one in front (they are older)
-            self._poll_round = [m for m in self._poll_round if m not in due] + due
-        if not self._poll_round:
+        polls = self._polls
+        decision.telemetry_tick = polls.tick(now)
+        if not polls.round:
             return
         # suspension: nothing may still occupy the bus at the next command slot
         # (the command frames of this very step go first and take their own bus time)
         bus_free_until = self._next_command_slot - t.command_guard_s
         budget = bus_free_until - now - sum(self._frame_cost(out) for out in decision.frames)
-        remaining: list[str] = []
-        for name in self._poll_round:
-            slot = self._slots[name]
-            if slot.request_outstanding:
-                remaining.append(name)
-                continue
-            if slot.poll_cost_s > budget:
-                remaining.append(name)
-                continue
-            budget -= slot.poll_cost_s
-            if now - slot.next_poll_due > t.telemetry_period_s / 2:
-                decision.late_polls.append(name)
-            replies = slot.spec.profile.replies_per_request
-            for req in slot.spec.profile.telemetry_requests():
-                key = exchange_key(slot.spec.profile, req)
+        for name in polls.take(now, budget, self._request_outstanding, decision.late_polls):
+            profile = self._slots[name].spec.profile
+            replies = profile.replies_per_request
+            for req in profile.telemetry_requests():
+                key = exchange_key(profile, req)
                 expectations = tuple(
                     Expectation("request", now, now + t.reply_timeout_s, key)
                     for _ in range(replies)
                 )
-                slot.expected.extend(expectations)
+                self._slots[name].expected.extend(expectations)
                 decision.frames.append(Outgoing(name, "request", req, None, expectations))
-            slot.spec.profile.poll_sent()  # the one place a poll goes out: count it here
-            assert slot.poll_period is not None
-            slot.next_poll_due += slot.poll_period
-            if slot.next_poll_due < now:  # far behind: do not try to catch up with a burst
-                slot.next_poll_due = now + slot.poll_period
-        decision.deferred_polls = len(remaining)
-        self._poll_round = remaining
+            profile.poll_sent()  # the one place a poll goes out: count it here
+        decision.deferred_polls = len(polls.round)
 
     def _frame_cost(self, out: Outgoing) -> float:
         """Bus time of a frame of this step and its replies (a command: its servo's cost)."""
@@ -738,17 +651,15 @@ class ScheduleCore:
         once per outstanding reply.
         """
         t = self.timing
-        candidates = [self._next_command_slot, self._next_telemetry_tick]
-        release_due = self._next_release()
+        candidates = [self._next_command_slot, self._polls.next_tick]
+        release_due = self._lifecycles.next_release()
         if release_due < math.inf:
             candidates.append(max(now, release_due))
         for slot in self._slots.values():
             if slot.spec.command_mode == "immediate" and slot.has_unsent_setpoint:
                 last = slot.last_command_time
                 candidates.append(now if last is None else last + t.immediate_min_spacing_s)
-        if self._poll_round and any(
-            not self._slots[name].request_outstanding for name in self._poll_round
-        ):
+        if self._polls.round and self._polls.waiting(self._request_outstanding):
             # deferred polls go right after the next command slot's frames
             candidates.append(self._next_command_slot)
         return min(candidates)
@@ -770,21 +681,14 @@ class ScheduleCore:
             slot.last_sent = out.setpoint
         if out.kind != "request" and slot.awaiting_first_reply_since is not None:
             slot.awaiting_first_reply_since = t
-        if not self._offline_on_sends:
+        if not self._liveness.offline_on_sends:
             return []  # the common case, on every frame: nothing to scan
-        back: list[str] = []
-        for name in list(self._offline_on_sends):
-            other = self._slots[name]
-            if (
-                other.latest is None
-                and other.poll_period is None
-                and other.push_period is None  # a pushing servo is back when it pushes
-                and not self.is_online(name)
-            ):
-                other.missed_in_a_row = 0
-                self._offline_on_sends.discard(name)
-                back.append(name)
-        return back
+        return self._liveness.back_on_send(self._nothing_to_probe)
+
+    def _nothing_to_probe(self, name: str) -> bool:
+        """No setpoint to refresh and no polls: only a working send can bring it back."""
+        slot = self._slots[name]
+        return slot.latest is None and slot.poll_period is None
 
     def send_failed(self, out: Outgoing) -> SendFailure:
         """The bus refused ``out``: forget its replies and let the next slot try again.
@@ -801,13 +705,13 @@ class ScheduleCore:
             # not a miss: the command after it (or the next poll) tells whether the servo is
             # there, and a bus that is down would otherwise be counted twice per slot
             if out.lifecycle == "startup":
-                slot.started = False  # they go again before the next command
-            elif out.lifecycle == "release" and slot.released:
-                slot.release_due = self._next_command_slot  # again, not in a tight loop
+                slot.life.restart()  # they go again before the next command
+            elif out.lifecycle == "release":  # again, not in a tight loop
+                self._lifecycles.release_refused(out.servo, slot.released, self._next_command_slot)
             return SendFailure(False, None)
         if out.seq is not None and slot.sent_seq == out.seq:
             slot.sent_seq = out.seq - 1
-        went_offline = self._missed(slot, on_send=True)
+        went_offline = self._liveness.missed(out.servo, on_send=True)
         dropped = None if self.is_online(out.servo) else self._drop_unsent(slot)
         return SendFailure(went_offline, dropped)
 
@@ -819,12 +723,9 @@ class ScheduleCore:
         False: a sign of life only (a DroneCAN NodeStatus, which any node can send with the
         servo's id): the servo is alive, but nothing is answered and no latency measured."""
         slot = self._slots[name]
-        back_online = slot.missed_in_a_row >= self.timing.offline_after_missed
+        back_online = self._liveness.heard(name, t)
         if back_online:
-            slot.started = False  # it may have been power-cycled: start it up again
-        slot.missed_in_a_row = 0
-        slot.last_heard = max(slot.last_heard, t)
-        self._offline_on_sends.discard(name)
+            slot.life.restart()  # it may have been power-cycled: start it up again
         if not answer:
             return ReplyMatch(None, None, None, back_online)
         index = slot.replies.pick(slot.expected, t, key)
