@@ -81,7 +81,6 @@ Rules (paper section 3.3):
 from __future__ import annotations
 
 import math
-from collections import deque
 from collections.abc import Hashable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Literal
@@ -91,7 +90,6 @@ import can
 from mavservo.errors import MavservoError
 from mavservo.servos import ServoProfile
 
-from . import reply_matching
 from .bus_plan import REPLY_DLC, plan_bus
 from .busload import (
     FrameFlow,
@@ -100,12 +98,12 @@ from .busload import (
 )
 from .lifecycle import STARTUP_RETRY_S, Lifecycles, ServoLifecycle
 from .liveness import Liveness
+from .owed_replies import Expectation, OwedReplies, ReplyMatch
 from .poll_round import PollRound
 
 CommandMode = Literal["periodic", "immediate"]
 FrameKind = Literal["command", "refresh", "request", "lifecycle"]
 LifecyclePurpose = Literal["startup", "release", "shutdown"]
-_TIMED_OUT_KEPT = 8
 
 
 class ScheduleError(MavservoError, ValueError):
@@ -217,20 +215,6 @@ class SetpointResult:
     reason: str = ""
 
 
-@dataclass
-class Expectation:
-    """A reply the bus owes us: ``kind`` of frame that provoked it, when, and until when.
-
-    ``key`` is the profile's ``exchange_key`` of the request (None: the profile cannot tell
-    its replies apart), which the reply must carry to answer it.
-    """
-
-    kind: FrameKind
-    t_tx: float
-    deadline: float
-    key: Hashable | None = None
-
-
 @dataclass(frozen=True)
 class Outgoing:
     """One frame to send, in order. ``seq`` is the setpoint's sequence number (None: request)."""
@@ -243,21 +227,6 @@ class Outgoing:
     setpoint: Setpoint | None = None
     lifecycle: LifecyclePurpose | None = None
     """For ``kind == "lifecycle"``: which of the profile's lifecycle lists the frame is from."""
-
-
-@dataclass(frozen=True)
-class ReplyMatch:
-    """What a decoded reply answered: ``kind`` None means unsolicited (push-style servo),
-    ``"late"`` a reply whose expectation had already timed out (counted timed out and late,
-    not lost)."""
-
-    kind: FrameKind | Literal["late"] | None
-    t_tx: float | None
-    latency_s: float | None
-    back_online: bool
-    late_latency_s: float | None = None
-    """For a ``"late"`` reply: how long after its request it came, when the timed-out
-    expectation it answers is still remembered (None otherwise)."""
 
 
 @dataclass(frozen=True)
@@ -290,6 +259,7 @@ class Decision:
 class _ServoSlot:
     spec: ServoSpec
     life: ServoLifecycle
+    owed: OwedReplies
     poll_period: float | None
     command_cost_s: float
     latest: Setpoint | None = None
@@ -300,19 +270,10 @@ class _ServoSlot:
     sent_seq: int = 0
     last_command_time: float | None = None
     released: bool = False
-    expected: deque[Expectation] = field(default_factory=deque)
-    awaiting_first_reply_since: float | None = None
-    replies: reply_matching.ReplyMatcher = field(default_factory=reply_matching.ReplyMatcher)
-    timed_out: deque[Expectation] = field(default_factory=lambda: deque(maxlen=_TIMED_OUT_KEPT))
-    """The latest expectations that timed out, so a late reply can tell how late it was."""
 
     @property
     def has_unsent_setpoint(self) -> bool:
         return not self.released and self.latest is not None and self.latest.seq > self.sent_seq
-
-    @property
-    def request_outstanding(self) -> bool:
-        return any(e.kind == "request" for e in self.expected)
 
 
 def exchange_key(profile: ServoProfile, msg: can.Message) -> Hashable | None:
@@ -350,15 +311,9 @@ class ScheduleCore:
         plan = plan_bus(
             servos, timing, startup_retry_s=STARTUP_RETRY_S, packed=packed, extra_flows=extra_flows
         )
-        if plan.worst_case_load > timing.max_load:
-            heaviest = sorted(plan.servo_loads.items(), key=lambda kv: -kv[1])[:3]
-            detail = ", ".join(f"{name} {share:.1%}" for name, share in heaviest)
-            raise ScheduleError(
-                f"worst-case bus load R = {plan.worst_case_load:.1%} exceeds max_load "
-                f"{timing.max_load:.1%} at {timing.bitrate} bit/s with {len(servos)} servos "
-                f"(heaviest: {detail}); lower telemetry_hz, lengthen command_period_s or "
-                "immediate_min_spacing_s, or raise the bitrate"
-            )
+        refusal = plan.over_budget(timing)
+        if refusal is not None:
+            raise ScheduleError(refusal)
         self.worst_case_load = plan.worst_case_load
         self.warnings.extend(plan.warnings)
         for spec in servos:
@@ -370,6 +325,11 @@ class ScheduleCore:
                 life=self._lifecycles.servos[spec.name],
                 poll_period=costs.poll_period,
                 command_cost_s=costs.command_cost_s,
+                owed=OwedReplies(
+                    only_when_asked=costs.poll_period is not None
+                    or bool(spec.profile.replies_per_request),
+                    keyed_pushes=spec.profile.telemetry == "pushed",
+                ),
             )
         polled = [
             (name, period, plan.servos[name].poll_cost_s)
@@ -383,7 +343,7 @@ class ScheduleCore:
         )
         self.telemetry_phase_s = plan.telemetry_phase_s
         self._polls = PollRound(polled, timing.telemetry_period_s, plan.telemetry_phase_s)
-        self._request_outstanding = lambda name: self._slots[name].request_outstanding
+        self._request_outstanding = lambda name: self._slots[name].owed.request_outstanding
         self.anchor(start)
 
     def anchor(self, start: float) -> None:
@@ -475,13 +435,12 @@ class ScheduleCore:
         """Outgoing lifecycle frames, each expecting the profile's ``replies_per_lifecycle``."""
         out = []
         profile = slot.spec.profile
+        timeout = self.timing.reply_timeout_s
         for msg in frames:
             key = exchange_key(profile, msg)
-            expectations = tuple(
-                Expectation("lifecycle", now, now + self.timing.reply_timeout_s, key)
-                for _ in range(profile.replies_per_lifecycle)
+            expectations = slot.owed.expect(
+                "lifecycle", now, timeout, key, profile.replies_per_lifecycle
             )
-            slot.expected.extend(expectations)
             out.append(
                 Outgoing(slot.spec.name, "lifecycle", msg, None, expectations, None, purpose)
             )
@@ -501,25 +460,21 @@ class ScheduleCore:
         assert slot.latest is not None
         replies = slot.spec.profile.replies_per_command
         key = exchange_key(slot.spec.profile, slot.latest.msg)
-        expectations = tuple(
-            Expectation("command", now, now + self.timing.reply_timeout_s, key)
-            for _ in range(replies)
-        )
-        slot.expected.extend(expectations)
+        expectations = slot.owed.expect("command", now, self.timing.reply_timeout_s, key, replies)
         slot.sent_seq = slot.latest.seq
         slot.last_command_time = now
         if not replies:
-            slot.awaiting_first_reply_since = now
+            slot.owed.awaiting_first_since = now
         return Outgoing(
             slot.spec.name, kind, slot.latest.msg, slot.latest.seq, expectations, slot.latest
         )
 
     def _expire(self, now: float, decision: Decision) -> None:
-        # Deadlines grow with position (send order, one timeout), so expired ones lead the
-        # deque even after replies have taken expectations out of its middle.
         for name, slot in self._slots.items():
-            while slot.expected and slot.expected[0].deadline <= now:
-                slot.timed_out.append(slot.expected.popleft())
+            expected = slot.owed.expected
+            if not expected or expected[0].deadline > now:
+                continue  # nearly every servo at nearly every step: no call
+            for _ in range(slot.owed.expire(now)):
                 decision.lost.append(name)
                 if self._liveness.missed(name, on_send=False):
                     decision.went_offline.append(name)
@@ -610,15 +565,12 @@ class ScheduleCore:
         bus_free_until = self._next_command_slot - t.command_guard_s
         budget = bus_free_until - now - sum(self._frame_cost(out) for out in decision.frames)
         for name in polls.take(now, budget, self._request_outstanding, decision.late_polls):
-            profile = self._slots[name].spec.profile
+            slot = self._slots[name]
+            profile = slot.spec.profile
             replies = profile.replies_per_request
             for req in profile.telemetry_requests():
                 key = exchange_key(profile, req)
-                expectations = tuple(
-                    Expectation("request", now, now + t.reply_timeout_s, key)
-                    for _ in range(replies)
-                )
-                self._slots[name].expected.extend(expectations)
+                expectations = slot.owed.expect("request", now, t.reply_timeout_s, key, replies)
                 decision.frames.append(Outgoing(name, "request", req, None, expectations))
             profile.poll_sent()  # the one place a poll goes out: count it here
         decision.deferred_polls = len(polls.round)
@@ -679,8 +631,8 @@ class ScheduleCore:
             slot.last_sent is None or out.setpoint.seq > slot.last_sent.seq
         ):
             slot.last_sent = out.setpoint
-        if out.kind != "request" and slot.awaiting_first_reply_since is not None:
-            slot.awaiting_first_reply_since = t
+        if out.kind != "request" and slot.owed.awaiting_first_since is not None:
+            slot.owed.awaiting_first_since = t
         if not self._liveness.offline_on_sends:
             return []  # the common case, on every frame: nothing to scan
         return self._liveness.back_on_send(self._nothing_to_probe)
@@ -698,9 +650,7 @@ class ScheduleCore:
         servo's setpoint to be retried on the next slot.
         """
         slot = self._slots[out.servo]
-        for expectation in out.expectations:
-            if expectation in slot.expected:
-                slot.expected.remove(expectation)
+        slot.owed.forget(out.expectations)
         if out.kind == "lifecycle":
             # not a miss: the command after it (or the next poll) tells whether the servo is
             # there, and a bus that is down would otherwise be counted twice per slot
@@ -728,35 +678,4 @@ class ScheduleCore:
             slot.life.restart()  # it may have been power-cycled: start it up again
         if not answer:
             return ReplyMatch(None, None, None, back_online)
-        index = slot.replies.pick(slot.expected, t, key)
-        if index is not None:
-            expectation = slot.expected[index]
-            del slot.expected[index]
-            timed = expectation.kind in ("command", "refresh")
-            latency = t - expectation.t_tx if timed else None
-            return ReplyMatch(expectation.kind, expectation.t_tx, latency, back_online)
-        outstanding = bool(slot.expected)
-        if outstanding and key is not None and slot.spec.profile.telemetry == "pushed":
-            # a push the profile tells apart (Robstride's active reports) while only answers
-            # of another kind are due: a push, not a late answer
-            outstanding = any(e.key is None or e.key == key for e in slot.expected)
-        if outstanding or slot.poll_period is not None or slot.spec.profile.replies_per_request:
-            # none of its kind outstanding, or this servo only speaks when asked: an unmatched
-            # reply came after its timeout. (A push-style servo, no requests, also pushes
-            # between commands: not late.)
-            return ReplyMatch("late", None, None, back_online, self._late_latency(slot, t, key))
-        if slot.awaiting_first_reply_since is not None:
-            since = slot.awaiting_first_reply_since
-            slot.awaiting_first_reply_since = None
-            return ReplyMatch(None, since, t - since, back_online)
-        return ReplyMatch(None, None, None, back_online)
-
-    @staticmethod
-    def _late_latency(slot: _ServoSlot, t: float, key: Hashable | None) -> float | None:
-        """Latency of a late reply: it answers the oldest remembered timed-out expectation of
-        its kind (a CAN node answers in order), which is then forgotten."""
-        for i, expectation in enumerate(slot.timed_out):
-            if key is None or expectation.key is None or expectation.key == key:
-                del slot.timed_out[i]
-                return t - expectation.t_tx
-        return None
+        return slot.owed.match(t, key, back_online)
