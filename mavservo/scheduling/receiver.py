@@ -19,17 +19,16 @@ from collections.abc import Callable, Sequence
 
 import can
 
-from mavservo.records import SchedulerMetrics
 from mavservo.servos import ServoState, node_reports_of
 
 from .advice import ServoAdvice
-from .bus_nodes import BusNodes
+from .bus_book import BusBook
 from .busload import message_bits
 from .failure_run import FailureRun
 from .load_watch import LoadWatch
 from .observers import ObserverFanout
-from .outage_log import LateReplies, Line, OnlineLog
-from .schedule_core import ScheduleCore, ServoSpec, TimingConfig, exchange_key
+from .outage_log import LateReplies, Line
+from .schedule_core import ServoSpec, TimingConfig, exchange_key
 
 log = logging.getLogger("mavservo.scheduling.runner")  # the scheduler's one logger
 
@@ -39,8 +38,8 @@ RECV_TIMEOUT_S = 0.05
 class FrameReceiver:
     """Reads ``bus`` until stopped and books every frame (see the module docstring).
 
-    ``lock`` guards ``core``, ``metrics``, ``states``, ``online_log`` and ``nodes``, which the
-    command loop uses too; ``wake`` wakes the command loop when a bus node has answers to send.
+    ``book`` is what it shares with the command loop, under the book's lock; ``wake`` wakes
+    the command loop when a bus node has answers to send.
     """
 
     def __init__(
@@ -51,12 +50,7 @@ class FrameReceiver:
         timing: TimingConfig,
         *,
         clock: Callable[[], float],
-        lock: threading.Lock,
-        core: ScheduleCore,
-        metrics: SchedulerMetrics,
-        states: dict[str, ServoState],
-        online_log: OnlineLog,
-        nodes: BusNodes,
+        book: BusBook,
         wake: threading.Event,
         advice: ServoAdvice,
         fanout: ObserverFanout,
@@ -64,12 +58,10 @@ class FrameReceiver:
         self._name = name
         self._bus = bus
         self._clock = clock
-        self._lock = lock
-        self._core = core
-        self._metrics = metrics
-        self._states = states
-        self._online_log = online_log
-        self._nodes = nodes
+        self._online_log = book.online_log
+        # bound once: the frame and step paths read them for every frame
+        self._lock, self._core, self._metrics = book.lock, book.core, book.metrics
+        self._states, self._nodes = book.states, book.nodes
         self._wake = wake
         self._advice = advice
         self._fanout = fanout

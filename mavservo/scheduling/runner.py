@@ -39,6 +39,7 @@ from mavservo.scheduling.schedule_core import (
 from mavservo.servos import BusNode, ProfileOptions, ServoState
 
 from .advice import ServoAdvice
+from .bus_book import BusBook
 from .bus_nodes import BusNodes
 from .failure_run import FailureRun
 from .observers import (
@@ -116,8 +117,8 @@ class Scheduler:
         self._states: dict[str, ServoState] = {}
         """The latest state of each servo heard (NO_REPLY added when it goes offline)."""
         self._lock = threading.Lock()
-        """Guards the core, the metrics, the states, the online log and the bus nodes: the
-        one lock both threads and the upper layers share."""
+        """Guards the core, the metrics, the states, the online log and the bus nodes (the
+        :class:`~.bus_book.BusBook`): the one lock both threads and the upper layers share."""
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
@@ -126,19 +127,11 @@ class Scheduler:
         self._fanout = ObserverFanout(observer)
         self._advice = ServoAdvice(self.name, servos)
         self._pacing = RunnerPacing(self.name, self.timing, clock, self._stop, self._wake)
-        online_log = OnlineLog()
+        book = BusBook(
+            self._lock, self._core, self._metrics, self._states, OnlineLog(), self._nodes
+        )
         self._writer = FrameWriter(
-            self.name,
-            bus,
-            clock=clock,
-            lock=self._lock,
-            core=self._core,
-            metrics=self._metrics,
-            states=self._states,
-            online_log=online_log,
-            nodes=self._nodes,
-            advice=self._advice,
-            fanout=self._fanout,
+            self.name, bus, clock=clock, book=book, advice=self._advice, fanout=self._fanout
         )
         self._receiver = FrameReceiver(
             self.name,
@@ -146,12 +139,7 @@ class Scheduler:
             servos,
             self.timing,
             clock=clock,
-            lock=self._lock,
-            core=self._core,
-            metrics=self._metrics,
-            states=self._states,
-            online_log=online_log,
-            nodes=self._nodes,
+            book=book,
             wake=self._wake,
             advice=self._advice,
             fanout=self._fanout,

@@ -11,21 +11,19 @@ observer never holds up the receive thread.
 from __future__ import annotations
 
 import logging
-import threading
 from collections.abc import Callable
 
 import can
 
-from mavservo.records import SchedulerMetrics
 from mavservo.servos import Fault, ServoState
 
 from .advice import ServoAdvice
-from .bus_nodes import BusNodes
+from .bus_book import BusBook
 from .busload import message_bits
 from .failure_run import FailureRun
 from .observers import ObserverFanout
-from .outage_log import Line, OnlineLog
-from .schedule_core import Decision, Outgoing, ScheduleCore, Setpoint
+from .outage_log import Line
+from .schedule_core import Decision, Outgoing, Setpoint
 
 log = logging.getLogger("mavservo.scheduling.runner")  # the scheduler's one logger
 
@@ -33,8 +31,7 @@ log = logging.getLogger("mavservo.scheduling.runner")  # the scheduler's one log
 class FrameWriter:
     """Steps the policy core and writes its frames to ``bus`` (see the module docstring).
 
-    ``lock`` guards ``core``, ``metrics``, ``states``, ``online_log`` and ``nodes``, which the
-    receive thread uses too.
+    ``book`` is what it shares with the receive thread, under the book's lock.
     """
 
     def __init__(
@@ -43,24 +40,17 @@ class FrameWriter:
         bus: can.BusABC,
         *,
         clock: Callable[[], float],
-        lock: threading.Lock,
-        core: ScheduleCore,
-        metrics: SchedulerMetrics,
-        states: dict[str, ServoState],
-        online_log: OnlineLog,
-        nodes: BusNodes,
+        book: BusBook,
         advice: ServoAdvice,
         fanout: ObserverFanout,
     ) -> None:
         self._name = name
         self._bus = bus
         self._clock = clock
-        self._lock = lock
-        self._core = core
-        self._metrics = metrics
-        self._states = states
-        self._online_log = online_log
-        self._nodes = nodes
+        self._online_log = book.online_log
+        # bound once: the frame and step paths read them for every frame
+        self._lock, self._core, self._metrics = book.lock, book.core, book.metrics
+        self._states, self._nodes = book.states, book.nodes
         self._advice = advice
         self._fanout = fanout
         self.failures = FailureRun()

@@ -11,6 +11,7 @@ import pytest
 
 from mavservo.records import SchedulerMetrics
 from mavservo.scheduling.advice import ServoAdvice
+from mavservo.scheduling.bus_book import BusBook
 from mavservo.scheduling.bus_nodes import BusNodes
 from mavservo.scheduling.observers import ObserverFanout, SchedulerObserver
 from mavservo.scheduling.outage_log import OnlineLog
@@ -81,25 +82,13 @@ class Sides:
         self.fanout = ObserverFanout(self.recorder)
         self.heard: list[tuple[str, ServoState]] = []
         self.fanout.subscribe(lambda servo, state: self.heard.append((servo, state)))
-        shared = {
-            "clock": self.clock,
-            "lock": threading.Lock(),
-            "core": self.core,
-            "metrics": self.metrics,
-            "states": self.states,
-            "online_log": OnlineLog(),
-            "nodes": BusNodes("bus0", specs, TIMING, {}, self.clock.now),
-            "advice": ServoAdvice("bus0", specs),
-            "fanout": self.fanout,
-        }
-        self.writer = FrameWriter("bus0", self.bus, **shared)
+        nodes = BusNodes("bus0", specs, TIMING, {}, self.clock.now)
+        book = BusBook(threading.Lock(), self.core, self.metrics, self.states, OnlineLog(), nodes)
+        parts = {"clock": self.clock, "book": book, "fanout": self.fanout}
+        parts["advice"] = ServoAdvice("bus0", specs)
+        self.writer = FrameWriter("bus0", self.bus, **parts)
         self.receiver = FrameReceiver(
-            "bus0",
-            self.bus,
-            specs,
-            TIMING,
-            wake=threading.Event(),
-            **shared,
+            "bus0", self.bus, specs, TIMING, wake=threading.Event(), **parts
         )
 
     def slot(self) -> None:
