@@ -1,5 +1,8 @@
-"""Who gets the bus when: the pure policy core, the runner thread that owns the only writer to
-the bus, the bus-load arithmetic (paper eq. 4), reply matching and the servo outage log."""
+"""Who gets the bus when: the pure policy core (``schedule_core`` with its parts ``bus_plan``,
+``lifecycle``, ``poll_round``, ``liveness``, ``owed_replies``, ``reply_matching``), the scheduler
+that owns the only writer to the bus (``runner`` with its write side ``sender``, receive side
+``receiver``, their shared ``bus_book``, ``pacing``, ``observers``, ``advice``, ``bus_nodes``),
+the bus-load arithmetic (paper eq. 4) and the servo outage log."""
 
 from __future__ import annotations
 
