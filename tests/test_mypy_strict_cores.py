@@ -40,6 +40,10 @@ CORES = (
     "mavservo.servos.dronecan.get_node_info",
     "mavservo.scheduling.schedule_core",
     "mavservo.scheduling.bus_plan",
+    "mavservo.scheduling.lifecycle",
+    "mavservo.scheduling.liveness",
+    "mavservo.scheduling.owed_replies",
+    "mavservo.scheduling.poll_round",
     "mavservo.mavlink.mavlink_core",
 )
 

@@ -1,5 +1,8 @@
-"""Who gets the bus when: the pure policy core, the runner thread that owns the only writer to
-the bus, the bus-load arithmetic (paper eq. 4), reply matching and the servo outage log."""
+"""Who gets the bus when: the pure policy core (``schedule_core`` with its parts ``bus_plan``,
+``lifecycle``, ``poll_round``, ``liveness``, ``owed_replies``, ``reply_matching``), the scheduler
+that owns the only writer to the bus (``runner`` with its write side ``sender``, receive side
+``receiver``, their shared ``bus_book``, ``pacing``, ``observers``, ``advice``, ``bus_nodes``),
+the bus-load arithmetic (paper eq. 4) and the servo outage log."""
 
 from __future__ import annotations
 
@@ -13,8 +16,10 @@ from mavservo.faces import lazy_face
 if TYPE_CHECKING:
     from .bus_nodes import family_nodes, node_unique_id, software_version
     from .busload import FrameFlow, frame_time, load_ratio, message_bits, servo_traffic
-    from .runner import Scheduler, SchedulerObserver, WriteObserver
-    from .schedule_core import STARTUP_RETRY_S, FrameKind, ServoSpec, SetpointResult, TimingConfig
+    from .lifecycle import STARTUP_RETRY_S
+    from .observers import SchedulerObserver, WriteObserver
+    from .runner import Scheduler
+    from .schedule_core import FrameKind, ServoSpec, SetpointResult, TimingConfig
 
 __all__ = [
     "family_nodes",
@@ -40,13 +45,13 @@ __getattr__ = lazy_face(
         "family_nodes": "bus_nodes",
         "FrameFlow": "busload",
         "FrameKind": "schedule_core",
-        "STARTUP_RETRY_S": "schedule_core",
+        "STARTUP_RETRY_S": "lifecycle",
         "Scheduler": "runner",
-        "SchedulerObserver": "runner",
+        "SchedulerObserver": "observers",
         "ServoSpec": "schedule_core",
         "SetpointResult": "schedule_core",
         "TimingConfig": "schedule_core",
-        "WriteObserver": "runner",
+        "WriteObserver": "observers",
         "frame_time": "busload",
         "load_ratio": "busload",
         "message_bits": "busload",

@@ -56,6 +56,20 @@ class BusPlan:
     telemetry_phase_s: float
     warnings: tuple[str, ...]
 
+    def over_budget(self, timing: TimingConfig) -> str | None:
+        """Why the bus cannot run this plan (its worst case over ``max_load``, naming the
+        heaviest servos and what to change); None when it fits."""
+        if self.worst_case_load <= timing.max_load:
+            return None
+        heaviest = sorted(self.servo_loads.items(), key=lambda kv: -kv[1])[:3]
+        detail = ", ".join(f"{name} {share:.1%}" for name, share in heaviest)
+        return (
+            f"worst-case bus load R = {self.worst_case_load:.1%} exceeds max_load "
+            f"{timing.max_load:.1%} at {timing.bitrate} bit/s with {len(self.servos)} servos "
+            f"(heaviest: {detail}); lower telemetry_hz, lengthen command_period_s or "
+            "immediate_min_spacing_s, or raise the bitrate"
+        )
+
 
 def plan_bus(
     servos: Sequence[ServoSpec],

@@ -6,15 +6,12 @@ priority is structural), and decodes replies in a second thread (``bus.recv``) t
 profiles. Upper layers talk to it through a small thread-safe API: ``set_setpoint``, ``state``,
 ``is_online``, ``subscribe``, ``release``, ``metrics``.
 
-Waiting: sleep until ``spin_s`` before the deadline, then spin (yielding the GIL on every turn
-so the receive thread is never starved). On a shared non-real-time machine that is what keeps a
-50 ms loop within a fraction of a millisecond when a core is free; ``realtime=True`` asks for
-SCHED_FIFO, which is what holds under load, and reports (never raises) when the OS refuses.
-A runner that finds itself under SCHED_FIFO or SCHED_RR (asked for, or inherited from the
-process, as under the systemd unit in deploy/) spins ``fifo_spin_s`` instead (default 0): its
-plain timed wake-up is late by 0.1-0.25 ms at p99 even with every core busy, a tenth of the
-command goal, while a spin at real-time priority is never preempted and cost a third of the
-scheduler's CPU (docs/benchmarks.md, Scheduler).
+The scheduler owns its parts and the one lock they share, and delegates: the write side
+(:mod:`.sender`: steps the core, writes its frames, books what the bus did), the receive side
+(:mod:`.receiver`: reads, decodes and books replies), the runner's waits and real-time policy
+(:mod:`.pacing`), the observers and subscribers (:mod:`.observers`), the advice to the user
+(:mod:`.advice`) and the bus nodes (:mod:`.bus_nodes`). What is left here is what ties them
+together: building them, starting and stopping the two threads, and the upper layers' API.
 """
 
 from __future__ import annotations
@@ -22,37 +19,43 @@ from __future__ import annotations
 import enum
 import itertools
 import logging
-import math
-import os
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any, ParamSpec, Protocol, runtime_checkable
+from typing import Any
 
 import can
 
 from mavservo.records import SchedulerMetrics, write_json
-from mavservo.scheduling.outage_log import LateReplies, Line, OnlineLog
+from mavservo.scheduling.outage_log import OnlineLog
 from mavservo.scheduling.schedule_core import (
-    Decision,
-    FrameKind,
-    Outgoing,
     ScheduleCore,
     ScheduleError,
     ServoSpec,
-    Setpoint,
     SetpointResult,
     TimingConfig,
-    exchange_key,
 )
-from mavservo.servos import Advising, BusNode, Fault, ProfileOptions, ServoState, node_reports_of
+from mavservo.servos import BusNode, ProfileOptions, ServoState
 
+from .advice import ServoAdvice
+from .bus_book import BusBook
 from .bus_nodes import BusNodes
-from .busload import message_bits
-from .load_watch import LoadWatch
+from .failure_run import FailureRun
+from .observers import (
+    ObserverFanout,
+    RejectReporting,
+    SchedulerObserver,
+    StateCallback,
+    WriteObserver,
+)
+from .pacing import RunnerPacing
+from .receiver import FrameReceiver
+from .sender import FrameWriter
 
 __all__ = [
+    "FailureRun",
+    "RejectReporting",
     "ScheduleError",
     "Scheduler",
     "SchedulerObserver",
@@ -64,133 +67,6 @@ __all__ = [
 ]
 
 log = logging.getLogger(__name__)
-_P = ParamSpec("_P")
-
-StateCallback = Callable[[str, ServoState], None]
-_RECV_TIMEOUT_S = 0.05
-
-
-class SchedulerObserver(Protocol):
-    """Hooks called from the scheduler's threads (the scheduler's observer boundary).
-
-    A Protocol: the run log implements it structurally; a class that subclasses it explicitly
-    inherits a no-op for every hook it does not override. Implementations MUST be non-blocking
-    (append to a queue, bump a counter): they run inside the command loop and the receive loop,
-    so a slow observer would delay commands. Exceptions are logged and swallowed; they never
-    stop the loop. ``bus`` is the scheduler's name.
-    """
-
-    def on_setpoint(self, servo: str, seq: int, angle_deg: float, source: str, t: float) -> None:
-        """A setpoint was accepted into the scheduler."""
-        return None
-
-    def on_tx(
-        self,
-        bus: str,
-        msg: can.Message,
-        t: float,
-        kind: FrameKind,
-        servo: str,
-        seq: int | None,
-    ) -> None:
-        """``bus.send`` returned for ``msg``; ``t`` is the monotonic time just after the write."""
-        return None
-
-    def on_rx(
-        self, bus: str, msg: can.Message, t: float, servo: str, state: ServoState | None
-    ) -> None:
-        """A reply from ``servo`` was decoded into ``state``; None for a frame that starts or
-        continues a multi-frame report (a DroneCAN Status), which is whole at its last frame."""
-        return None
-
-    def on_lost(self, bus: str, servo: str, t: float) -> None:
-        """A reply ``servo`` owed us did not arrive within ``reply_timeout_s``."""
-        return None
-
-    def on_reject(self, bus: str, reason: str, raw_bytes: bytes, t: float) -> None:
-        """The bus's frame decoder rejected bytes (forwarded through ``report_reject``)."""
-        return None
-
-
-@runtime_checkable
-class WriteObserver(Protocol):
-    """An observer that also wants to know when a servo's frames are all on the wire: a
-    capability of a :class:`SchedulerObserver`, checked with isinstance once, when the
-    scheduler is built (an observer without it is not called)."""
-
-    def on_written(self, bus: str, t: float, kind: FrameKind, servo: str, seq: int | None) -> None:
-        """Every frame carrying ``servo``'s ``kind`` frame (its ``seq``) is on the wire, the last
-        of them written at ``t``: called once per servo per write, after the frames' ``on_tx``.
-        A packed transfer (DroneCAN's ArrayCommand: 8 servos' commands in 5 frames) has fewer
-        frames than commands, so ``on_tx`` cannot say which commands it wrote; this does, for
-        every family alike."""
-        ...
-
-
-@runtime_checkable
-class RejectReporting(Protocol):
-    """A bus that reports the bytes its frame decoder rejected (the aa55 bus): ``on_reject``
-    is called with ``(reason, raw_bytes)``; None until someone listens."""
-
-    on_reject: Callable[[Any, bytes], None] | None
-
-
-class _NoObserver(SchedulerObserver):
-    """The observer of a scheduler nobody observes: every hook a no-op."""
-
-
-class FailureRun:
-    """Counts every failure of one repeating operation and says what to log, once per outage.
-
-    Why: when the adapter is unplugged every send fails, 20-80 times a second for as long as
-    it is away. One warning per failure buried the log (``--quiet`` does not hide warnings)
-    and said nothing the first one had not. So an outage is logged when it starts (the
-    caller logs ``failed`` returning True, with the reason) and when the operation works
-    again (``succeeded`` returns how many failed and for how long); in between failures are
-    only counted. ``total`` and ``outages`` count every failure and every outage. Not
-    thread-safe: the caller serialises (the scheduler calls it under its lock).
-    """
-
-    def __init__(self) -> None:
-        self.total = 0
-        self.outages = 0
-        self.failing_since: float | None = None
-        """When the current outage began (None while the operation works)."""
-        self._in_outage = 0
-
-    def failed(self, t: float) -> bool:
-        """Count a failure at ``t``; True if it starts an outage (the one to log)."""
-        self.total += 1
-        self._in_outage += 1
-        if self.failing_since is not None:
-            return False
-        self.failing_since = t
-        self.outages += 1
-        return True
-
-    def succeeded(self, t: float) -> tuple[int, float] | None:
-        """The operation worked at ``t``: ``(failures, seconds)`` of the outage it ends, if any."""
-        ended = self.ongoing(t)
-        self.failing_since = None
-        self._in_outage = 0
-        return ended
-
-    def ongoing(self, now: float) -> tuple[int, float] | None:
-        """``(failures, seconds)`` of the outage still going on at ``now``, if any.
-
-        Reads without ending it: at ``stop()`` an outage that lasted to the end is logged, but
-        it did not end in a success, so metrics written afterwards still show it failing.
-        """
-        if self.failing_since is None:
-            return None
-        return (self._in_outage, now - self.failing_since)
-
-    def to_dict(self, now: float) -> dict[str, Any]:
-        return {
-            "total": self.total,
-            "outages": self.outages,
-            "failing_for_s": None if self.failing_since is None else now - self.failing_since,
-        }
 
 
 class Scheduler:
@@ -217,8 +93,6 @@ class Scheduler:
         self.name = name or str(bus.channel_info)
         self._bus = bus
         self._clock = clock
-        self._observer: SchedulerObserver = observer or _NoObserver()
-        self._write_observer = observer if isinstance(observer, WriteObserver) else None
         self._nodes = BusNodes(self.name, servos, self.timing, node_options or {}, clock())
         self._core = ScheduleCore(
             servos,
@@ -241,44 +115,60 @@ class Scheduler:
                     1 / spec.telemetry_hz, self.timing.telemetry_period_s
                 )
         self._states: dict[str, ServoState] = {}
-        self._subscribers: list[StateCallback] = []
+        """The latest state of each servo heard (NO_REPLY added when it goes offline)."""
         self._lock = threading.Lock()
+        """Guards the core, the metrics, the states, the online log and the bus nodes (the
+        :class:`~.bus_book.BusBook`): the one lock both threads and the upper layers share."""
         self._wake = threading.Event()
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._started_at: float | None = None
-        self._cpu = {"runner_s": 0.0, "receiver_s": 0.0}
-        self._send_failures = FailureRun()
-        self._receive_failures = FailureRun()
-        self._online_log = OnlineLog()
-        self._late_replies = LateReplies(self.timing.reply_timeout_s)
-        self._load_watch = LoadWatch(
-            self.name, self.timing.bitrate, self.timing.load_window_s, self.timing.max_load
+        self._runner_cpu_s = 0.0
+        self._fanout = ObserverFanout(observer)
+        self._advice = ServoAdvice(self.name, servos)
+        self._pacing = RunnerPacing(self.name, self.timing, clock, self._stop, self._wake)
+        book = BusBook(
+            self._lock, self._core, self._metrics, self._states, OnlineLog(), self._nodes
         )
-        self.realtime_status = "not requested"
-        self.on_event: Callable[[str], None] | None = None
-        """Where advice about a servo goes besides the log (the bridge: console, event list
-        and STATUSTEXT); called from the scheduler's threads, must not block."""
-        self._advised: set[str] = set()
-        """Servos whose :meth:`_advise` line went out (once per servo and run)."""
-        self._node_reports = {
-            spec.name: reports
-            for spec in servos
-            if (reports := node_reports_of(spec.profile)) is not None
-        }
-        """The servos whose reports come from a node (resolved once, asked for every frame)."""
-        self._diagnosing = [
-            (spec.name, spec.profile) for spec in servos if isinstance(spec.profile, Advising)
-        ]
-        """Servos whose profile can say whose an unclaimed frame is (a foreign node's flood
-        costs nothing for the others)."""
-        self.spin_s = self.timing.spin_s
-        """The spin the runner actually uses (``fifo_spin_s`` once it runs real-time)."""
+        self._writer = FrameWriter(
+            self.name, bus, clock=clock, book=book, advice=self._advice, fanout=self._fanout
+        )
+        self._receiver = FrameReceiver(
+            self.name,
+            bus,
+            servos,
+            self.timing,
+            clock=clock,
+            book=book,
+            wake=self._wake,
+            advice=self._advice,
+            fanout=self._fanout,
+        )
         for warning in self._core.warnings:
             log.warning("scheduler %s: %s", self.name, warning)
         if isinstance(bus, RejectReporting) and bus.on_reject is None:
             # an aa55 bus with no rejection callback yet: count its decoder rejections here
             bus.on_reject = self.report_reject
+
+    @property
+    def on_event(self) -> Callable[[str], None] | None:
+        """Where advice about a servo goes besides the log (the bridge: console, event list
+        and STATUSTEXT); called from the scheduler's threads, must not block."""
+        return self._advice.on_event
+
+    @on_event.setter
+    def on_event(self, callback: Callable[[str], None] | None) -> None:
+        self._advice.on_event = callback
+
+    @property
+    def spin_s(self) -> float:
+        """The spin the runner actually uses (``fifo_spin_s`` once it runs real-time)."""
+        return self._pacing.spin_s
+
+    @property
+    def realtime_status(self) -> str:
+        """What the OS granted the runner: not requested, SCHED_FIFO, inherited, refused."""
+        return self._pacing.realtime_status
 
     def take_notices(self) -> list[str]:
         """Notices of the bus nodes since the last call (another master on a DroneCAN bus, a
@@ -341,10 +231,10 @@ class Scheduler:
         stopped = not any(thread.is_alive() for thread in self._threads)
         self._threads = []
         if was_running and stopped:  # a runner still in bus.send would be a second writer
-            self._send_final_frames()
+            self._writer.send_final_frames()
         now = self._clock()
         with self._lock:
-            runs = [("sends", self._send_failures), ("receives", self._receive_failures)]
+            runs = [("sends", self._writer.failures), ("receives", self._receiver.failures)]
             unfinished = [(what, run.ongoing(now)) for what, run in runs]
         for what, ended in unfinished:
             if ended is not None:  # an outage that lasted to the end still gets its count
@@ -353,37 +243,6 @@ class Scheduler:
                     self.name,
                     what,
                     *ended,
-                )
-
-    def _send_final_frames(self) -> None:
-        """Pending release frames and the shutdown frames, sent by the stopping thread once the
-        runner is gone (still one writer); a refused one is counted and the rest still go."""
-        with self._lock:
-            frames = self._core.final_frames(self._clock())
-        for out in frames:
-            try:
-                self._bus.send(out.msg)
-            except can.CanError as exc:
-                with self._lock:
-                    self._metrics.servos[out.servo].send_failed += 1
-                log.warning(
-                    "scheduler %s: %s frame to %s refused: %s",
-                    self.name,
-                    out.lifecycle,
-                    out.servo,
-                    exc,
-                )
-                continue
-            t = self._clock()
-            with self._lock:
-                self._metrics.frames_written += 1
-                self._account_tx(out, t)
-            self._notify_observer(
-                self._observer.on_tx, self.name, out.msg, t, out.kind, out.servo, out.seq
-            )
-            if self._write_observer is not None:
-                self._notify_observer(
-                    self._write_observer.on_written, self.name, t, out.kind, out.servo, out.seq
                 )
 
     def __enter__(self) -> Scheduler:
@@ -423,9 +282,7 @@ class Scheduler:
             wake = result.accepted and self._core.wants_immediate_wake(servo)
         if result.accepted:
             assert result.seq is not None
-            self._notify_observer(
-                self._observer.on_setpoint, servo, result.seq, angle_deg, source, when
-            )
+            self._fanout.setpoint(servo, result.seq, angle_deg, source, when)
         if wake:
             self._wake.set()
         return result
@@ -458,15 +315,7 @@ class Scheduler:
 
         Runs in the receive (or command) thread: keep it short. Returns an unsubscribe function.
         """
-        with self._lock:
-            self._subscribers.append(callback)
-
-        def unsubscribe() -> None:
-            with self._lock:
-                if callback in self._subscribers:
-                    self._subscribers.remove(callback)
-
-        return unsubscribe
+        return self._fanout.subscribe(callback)
 
     def report_reject(self, reason: object, raw_bytes: bytes, t: float | None = None) -> None:
         """Count a frame the bus's decoder rejected.
@@ -479,7 +328,7 @@ class Scheduler:
         text = str(reason.value if isinstance(reason, enum.Enum) else reason)
         with self._lock:
             self._metrics.bus_rejected += 1
-        self._notify_observer(self._observer.on_reject, self.name, text, bytes(raw_bytes), when)
+        self._fanout.reject(self.name, text, bytes(raw_bytes), when)
 
     def round_trip_samples(self, per_servo: int = 256) -> list[float]:
         """The latest wire round trips L of every servo (seconds, frame written -> its reply
@@ -514,8 +363,8 @@ class Scheduler:
             snapshot = self._metrics.to_dict(now)
             for name in self._specs:
                 snapshot["servos"][name]["online"] = self._core.is_online(name)
-            snapshot["send_failures"] = self._send_failures.to_dict(now)
-            snapshot["receive_failures"] = self._receive_failures.to_dict(now)
+            snapshot["send_failures"] = self._writer.failures.to_dict(now)
+            snapshot["receive_failures"] = self._receiver.failures.to_dict(now)
         # next to the measured loads, under one name everywhere (summary, metrics.json, report)
         snapshot["load"]["planned"] = self.worst_case_load
         snapshot["info"].update(
@@ -528,7 +377,7 @@ class Scheduler:
             realtime=self.realtime_status,
             spin_s=self.spin_s,
             uptime_s=None if self._started_at is None else now - self._started_at,
-            cpu=dict(self._cpu),
+            cpu={"runner_s": self._runner_cpu_s, "receiver_s": self._receiver.cpu_s},
         )
         return snapshot
 
@@ -537,421 +386,26 @@ class Scheduler:
         return write_json(path, self.metrics())
 
     # ------------------------------------------------------------------------ the threads
-    @staticmethod
-    def _notify_observer(hook: Callable[_P, None], *args: _P.args, **kwargs: _P.kwargs) -> None:
-        """Call one observer hook; an observer's failure is logged, never raised."""
-        try:
-            hook(*args, **kwargs)
-        except Exception:  # an observer must never stop the loop
-            log.exception("scheduler observer %s failed", getattr(hook, "__name__", hook))
-
-    def _notify_subscribers(self, servo: str, state: ServoState) -> None:
-        with self._lock:
-            subscribers = list(self._subscribers)
-        for callback in subscribers:
-            try:
-                callback(servo, state)
-            except Exception:
-                log.exception("scheduler subscriber failed for %s", servo)
-
-    def _apply_realtime(self, priority: int, role: str) -> None:
-        """SCHED_FIFO for the calling thread, if asked; a refusal is reported, never raised.
-
-        Both threads get it (the receive thread one step lower): a receive thread preempted by
-        ordinary load while it holds the scheduler's lock would otherwise stall the command
-        loop behind it (priority inversion).
-        """
-        if not self.timing.realtime:
-            return
-        try:
-            # pid 0 is the calling thread on Linux
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-            if role == "runner":
-                self.realtime_status = f"SCHED_FIFO priority {priority}"
-        except (AttributeError, OSError) as exc:
-            self.realtime_status = f"refused ({role}): {exc!r}"
-            log.warning("scheduler %s: real-time priority refused: %r", self.name, exc)
-
-    def _choose_spin(self) -> None:
-        """Pick the spin for the calling (runner) thread's actual scheduling policy."""
-        try:
-            policy = os.sched_getscheduler(0)
-        except (AttributeError, OSError):
-            return
-        if policy in (getattr(os, "SCHED_FIFO", -1), getattr(os, "SCHED_RR", -1)):
-            self.spin_s = self.timing.fifo_spin_s
-            if self.realtime_status == "not requested":
-                self.realtime_status = "inherited real-time policy"
-
-    def _wait_until(self, deadline: float) -> None:
-        """Sleep to ``spin`` before ``deadline``, then spin; return early when woken."""
-        spin = self.spin_s
-        while not self._stop.is_set():
-            remaining = deadline - self._clock()
-            if remaining <= 0:
-                return
-            if remaining > spin:
-                if self._wake.wait(remaining - spin):
-                    self._wake.clear()
-                    return
-                continue
-            while self._clock() < deadline:
-                if self._wake.is_set():
-                    self._wake.clear()
-                    return
-                time.sleep(0)  # yield the GIL so the receive thread keeps its timestamps true
-            return
-
-    def _run(self) -> None:
-        self._apply_realtime(self.timing.realtime_priority, "runner")
-        self._choose_spin()
-        while not self._stop.is_set():
-            decision = self._step()
-            self._send_all(decision)
-            if self._nodes:
-                self._send_node_frames()
-            with self._lock:
-                deadline = min(self._core.next_deadline(self._clock()), self._nodes.next_due())
-            self._cpu["runner_s"] = time.thread_time()
-            self._wait_until(deadline)
-
-    def _log(self, lines: list[Line]) -> None:
-        for level, text in lines:
-            log.log(level, "scheduler %s: %s", self.name, text)
-
-    def _go_offline(
-        self, servo: str, reason: str, dropped: Setpoint | None, now: float
-    ) -> tuple[list[Line], ServoState | None]:
-        """Book a servo going offline (caller holds the lock): its state carries NO_REPLY, as
-        for a silent servo; returns the lines to log and the state to tell subscribers."""
-        lines = self._online_log.offline(servo, reason, now)
-        if dropped is not None:
-            lines += self._dropped(servo, dropped, now)
-        state = self._states.get(servo)
-        if state is not None:
-            state = state.with_faults(state.faults | Fault.NO_REPLY)
-            self._states[servo] = state
-        return lines, state
-
-    def _dropped(self, servo: str, dropped: Setpoint, now: float) -> list[Line]:
-        """Count a setpoint dropped unsent (caller holds the lock) and say so."""
-        self._metrics.servos[servo].setpoints_dropped += 1
-        return [
-            (
-                logging.WARNING,
-                f"servo {servo} is offline: setpoint #{dropped.seq} ({dropped.angle_deg:g} deg "
-                f"from {dropped.source}, {now - dropped.t:.2f} s old) dropped unsent; the "
-                "servo moves again on a fresh setpoint once it is back",
-            )
-        ]
-
-    def _step(self) -> Decision:
-        now = self._clock()
-        offline_states: list[tuple[str, ServoState]] = []
-        lines: list[Line] = []
-        advice: list[tuple[str, str]] = []
-        with self._lock:
-            decision = self._core.step(now)
-            metrics = self._metrics
-            metrics.missed_command_slots += decision.missed_slots
-            if decision.command_slot is not None and not any(
-                out.kind in ("command", "refresh") for out in decision.frames
-            ):
-                # nothing to write in this slot: it is on time when the loop got round to it
-                # (a slot with frames is timed at its first write, in _send_all)
-                metrics.command_slot_served(decision.command_slot, now)
-            if decision.telemetry_tick is not None:
-                metrics.telemetry_ticks.mark(now)
-            for servo in decision.lost:
-                metrics.servos[servo].timed_out += 1
-            dropped = dict(decision.dropped)
-            for servo in decision.went_offline:
-                sent = self._metrics.servos[servo].lifecycle_sent
-                sent += self._metrics.servos[servo].commands_sent
-                if sent and servo not in self._states:  # spoken to, never heard: what to check
-                    profile = self._specs[servo].profile
-                    hint = profile.silence_hint() if isinstance(profile, Advising) else None
-                    if hint is not None:
-                        advice.append((servo, hint))
-                more, state = self._go_offline(servo, "no reply", dropped.get(servo), now)
-                lines += more
-                if state is not None:
-                    offline_states.append((servo, state))
-            lines += self._online_log.flush(now)
-        for servo in decision.lost:
-            self._notify_observer(self._observer.on_lost, self.name, servo, now)
-        self._log(lines)
-        for servo, text in advice:
-            self._advise(servo, text)
-        for servo, state in offline_states:
-            self._notify_subscribers(servo, state)
-        return decision
-
-    def _announce(self, text: str) -> None:
-        """A WARNING and ``on_event`` (STATUSTEXT through the bridge): advice about a servo,
-        the measured load over ``max_load`` (:mod:`.load_watch`, rate-limited there)."""
-        log.warning("scheduler %s: %s", self.name, text)
-        on_event = self.on_event
-        if on_event is not None:
-            try:
-                on_event(text)
-            except Exception:  # noqa: BLE001 - an observer must not stop the loop
-                log.exception("scheduler %s: on_event failed", self.name)
-
-    def _advise(self, servo: str, text: str) -> None:
-        """Say once per servo why it is not heard (a wrong protocol, host id, id...): a WARNING
-        and ``on_event`` (STATUSTEXT through the bridge). Users of other tools lose hours to a
-        motor that answers in a protocol the host does not speak."""
-        with self._lock:
-            if servo in self._advised:
-                return
-            self._advised.add(servo)
-        self._announce(f"servo {servo}: {text}")
-
-    def _diagnose(self, msg: can.Message) -> None:
-        """A frame no servo claims: ask each servo not yet advised whether it is its own in
-        another form (:class:`~mavservo.servos.base.Advising`)."""
-        for name, profile in self._diagnosing:
-            if name in self._advised:
-                continue
-            text = profile.diagnose(msg)
-            if text is not None:
-                self._advise(name, text)
-
-    def _send_all(self, decision: Decision) -> None:
-        slot_marked = decision.command_slot is None
-        with self._lock:  # a node packs commands: it shares state with the receive thread
-            batches = self._nodes.batches(decision.frames)
-        for outs, msgs in batches:
-            try:
-                for msg in msgs:
-                    self._bus.send(msg)
-            except can.CanError as exc:
-                now = self._clock()
-                for out in outs:
-                    self._refused(out, exc, now)
-                continue
-            t = self._clock()
-            with self._lock:
-                ended = self._send_failures.succeeded(t)
-                back = [servo for out in outs for servo in self._core.sent(out, t)]
-                lines = [line for servo in back for line in self._online_log.online(servo, t)]
-                for out in outs:
-                    self._account_tx(out, t, load=len(msgs) == 1 and len(outs) == 1)
-                self._metrics.frames_written += len(msgs)
-                if len(outs) != 1 or len(msgs) != 1:
-                    for msg in msgs:
-                        self._metrics.load.add(t, message_bits(msg))
-                if not slot_marked and any(out.kind in ("command", "refresh") for out in outs):
-                    assert decision.command_slot is not None
-                    self._metrics.command_slot_served(decision.command_slot, t)
-                    slot_marked = True
-            if ended is not None:
-                log.info("scheduler %s: sends work again: %d failed over %.1f s", self.name, *ended)
-            self._log(lines)
-            # every frame once in the CAN log, each tied to one servo it carries a command to
-            # (new setpoints first); a packed transfer has fewer frames than commands, so every
-            # command it carries is then reported written, at its last frame's write
-            paired = sorted(outs, key=lambda out: out.kind != "command")
-            for index, msg in enumerate(msgs):
-                out = paired[min(index, len(paired) - 1)]
-                self._notify_observer(
-                    self._observer.on_tx, self.name, msg, t, out.kind, out.servo, out.seq
-                )
-            if self._write_observer is not None:
-                written = self._write_observer.on_written
-                for out in outs:
-                    self._notify_observer(written, self.name, t, out.kind, out.servo, out.seq)
-
-    def _refused(self, out: Outgoing, exc: Exception, now: float) -> None:
-        """The bus refused ``out`` (or a frame of the transfer carrying it)."""
-        lines: list[Line] = []
-        state: ServoState | None = None
-        with self._lock:
-            failure = self._core.send_failed(out)
-            self._metrics.servos[out.servo].send_failed += 1
-            first = self._send_failures.failed(now)
-            if failure.went_offline:
-                lines, state = self._go_offline(out.servo, "sends failing", failure.dropped, now)
-            elif failure.dropped is not None:
-                lines = self._dropped(out.servo, failure.dropped, now)
-        if first:
-            log.warning(
-                "scheduler %s: send to %s failed: %s (further failed sends are "
-                "counted, not logged, until one works again)",
-                self.name,
-                out.servo,
-                exc,
-            )
-        self._log(lines)
-        if state is not None:
-            self._notify_subscribers(out.servo, state)
-
-    def _send_node_frames(self) -> None:
-        """The bus nodes' own frames (heartbeat, answers), after the step's frames."""
-        now = self._clock()
-        with self._lock:
-            frames = self._nodes.due(now, self._core.is_online)
-        for msg in frames:
-            try:
-                self._bus.send(msg)
-            except can.CanError as exc:
-                with self._lock:
-                    first = self._send_failures.failed(self._clock())
-                if first:
-                    log.warning("scheduler %s: node frame refused: %s", self.name, exc)
-                continue
-            t = self._clock()
-            with self._lock:
-                self._metrics.frames_written += 1
-                self._metrics.load.add(t, message_bits(msg))
-            self._notify_observer(self._observer.on_tx, self.name, msg, t, "lifecycle", "", None)
-
-    def _account_tx(self, out: Outgoing, t: float, load: bool = True) -> None:
-        servo = self._metrics.servos[out.servo]
-        if out.kind == "request":
-            servo.requests_sent += 1
-        elif out.kind == "lifecycle":
-            servo.lifecycle_sent += 1
-        else:
-            if out.kind == "command":
-                servo.commands_sent += 1
-            else:
-                servo.refreshes_sent += 1
-            servo.command_intervals.mark(t)
-        if load:
-            self._metrics.load.add(t, message_bits(out.msg))
-
-    def _receive(self) -> None:
-        self._apply_realtime(max(1, self.timing.realtime_priority - 1), "receiver")
-        # This thread's own view of whether receives are failing: the loop checks it on every
-        # message, so it is a local (no lock, no attribute lookup) and the shared FailureRun
-        # is only touched, under the lock, when a receive fails or works again. It starts from
-        # the run's state: stop() leaves an outage that lasted to the end open, and after a
-        # restart the first receive that works ends it.
-        with self._lock:
-            failing = self._receive_failures.failing_since is not None
-        while not self._stop.is_set():
-            try:
-                msg = self._bus.recv(timeout=_RECV_TIMEOUT_S)
-            except can.CanError as exc:
-                failing = True
-                with self._lock:
-                    first = self._receive_failures.failed(self._clock())
-                if first:
-                    log.warning(
-                        "scheduler %s: receive failed: %s (further failures are counted, "
-                        "not logged, until a receive works again)",
-                        self.name,
-                        exc,
-                    )
-                self._stop.wait(_RECV_TIMEOUT_S)
-                continue
-            if failing:
-                failing = False
-                now = self._clock()
-                with self._lock:
-                    ended = self._receive_failures.succeeded(now)
-                if ended is not None:
-                    log.info(
-                        "scheduler %s: receives work again: %d failed over %.1f s",
-                        self.name,
-                        *ended,
-                    )
-            if msg is not None:
-                self.handle_frame(msg, self._clock())
-                if self._nodes:
-                    # A DroneCAN transfer is decoded in pure Python (the dronecan package):
-                    # hand the interpreter lock over after each frame, so the runner, back
-                    # from a write, never waits a whole switch interval (5 ms) for it.
-                    time.sleep(0)
-            self._cpu["receiver_s"] = time.thread_time()
-
-    def _node_receive(self, msg: can.Message, t: float) -> None:
-        """Give a received frame to the bus nodes (caller holds the lock): answers wake the
-        runner, notices are logged here and kept for the bridge."""
-        wake, notices = self._nodes.receive(msg, t)
-        if wake:
-            self._wake.set()
-        for notice in notices:
-            log.warning("scheduler %s: %s", self.name, notice)
-
     def handle_frame(self, msg: can.Message, t: float) -> ServoState | None:
         """Decode one received frame (called by the receive thread; public for tests and for
         buses that deliver frames through a Notifier instead)."""
-        claimants = [name for name, spec in self._specs.items() if spec.profile.is_reply(msg)]
-        warning = None
-        with self._lock:
-            if not msg.is_error_frame and not msg.is_fd:
-                bits = message_bits(msg)
-                self._metrics.load.add(t, bits)
-                self._load_watch.received(t, bits, bool(claimants))
-                warning = self._load_watch.check(t, self._metrics.load.ratio(t))
-            if self._nodes:
-                self._node_receive(msg, t)
-        if warning is not None:
-            self._announce(warning)
-        if not claimants:
-            if not msg.is_error_frame:
-                self._diagnose(msg)
-            return None
-        if len(claimants) == 1:
-            servo = claimants[0]
-            return self._accept(servo, msg, t, self._specs[servo].profile.decode(msg, t))
-        # several servos share the sender (a DroneCAN node with several actuators): each
-        # decodes the frame; one actuator's Status is that servo's state and none of the
-        # others' business, the node's NodeStatus everyone's. A frame none of them takes is
-        # rejected once, on the first of them.
-        decoded = [(name, self._specs[name].profile.decode(msg, t)) for name in claimants]
-        taken = any(state is not None for _, state in decoded)
-        first: ServoState | None = None
-        for index, (name, state) in enumerate(decoded):
-            if state is None and (taken or index):
-                continue
-            result = self._accept(name, msg, t, state)
-            first = first if first is not None else result
-        return first
+        return self._receiver.handle_frame(msg, t)
 
-    def _accept(
-        self, servo: str, msg: can.Message, t: float, state: ServoState | None
-    ) -> ServoState | None:
-        """One servo's decoded report of ``msg`` (None: rejected): the scheduler's reply,
-        metrics, observers and subscribers."""
-        profile = self._specs[servo].profile
-        reports = self._node_reports.get(servo)
-        lines: list[Line] = []
-        if state is not None and reports is not None and not reports.completes_report(msg):
-            # the start of a multi-frame report: logged, but neither a reply nor a new state
-            # (state None for the observer: the run log's trace and the latency's round trip
-            # take the report at its last frame, as the metrics do)
-            self._notify_observer(self._observer.on_rx, self.name, msg, t, servo, None)
-            return state
-        answer = state is not None and not (reports is not None and reports.is_liveness_only(msg))
-        with self._lock:
-            servo_metrics = self._metrics.servos[servo]
-            if state is None:
-                servo_metrics.rejected += 1
-                return None
-            match = self._core.on_reply(servo, t, exchange_key(profile, msg), answer=answer)
-            servo_metrics.received += 1
-            if match.back_online:
-                lines += self._online_log.online(servo, t)
-            if match.kind == "late":
-                servo_metrics.late_replies += 1
-                lines += self._late_replies.late(servo, match.late_latency_s)
-            if match.latency_s is not None and math.isfinite(match.latency_s):
-                servo_metrics.latency.add(match.latency_s)
-            if match.kind in ("request", None):
-                servo_metrics.telemetry_intervals.mark(t)
-            if match.kind is None:
-                servo_metrics.pushed += 1
-            servo_metrics.state_intervals.mark(t)
-            self._states[servo] = state
-        self._log(lines)
-        # a sign of life only (NodeStatus) is no answer: the latency's round trip waits for
-        # the servo's own report
-        self._notify_observer(
-            self._observer.on_rx, self.name, msg, t, servo, state if answer else None
-        )
-        self._notify_subscribers(servo, state)
-        return state
+    def _run(self) -> None:
+        pacing = self._pacing
+        writer = self._writer
+        pacing.apply_realtime(self.timing.realtime_priority, "runner")
+        pacing.choose_spin()
+        while not self._stop.is_set():
+            decision = writer.step()
+            writer.send_all(decision)
+            if self._nodes:
+                writer.send_node_frames()
+            with self._lock:
+                deadline = min(self._core.next_deadline(self._clock()), self._nodes.next_due())
+            self._runner_cpu_s = time.thread_time()
+            pacing.wait_until(deadline)
+
+    def _receive(self) -> None:
+        self._pacing.apply_realtime(max(1, self.timing.realtime_priority - 1), "receiver")
+        self._receiver.run(self._stop)

@@ -81,7 +81,6 @@ Rules (paper section 3.3):
 from __future__ import annotations
 
 import math
-from collections import deque
 from collections.abc import Hashable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Literal
@@ -89,23 +88,22 @@ from typing import Literal
 import can
 
 from mavservo.errors import MavservoError
-from mavservo.servos import ServoProfile, SplitStartup, release_frames_of
+from mavservo.servos import ServoProfile
 
-from . import reply_matching
 from .bus_plan import REPLY_DLC, plan_bus
 from .busload import (
     FrameFlow,
     frame_time,
     message_bits,
 )
+from .lifecycle import STARTUP_RETRY_S, Lifecycles, ServoLifecycle
+from .liveness import Liveness
+from .owed_replies import Expectation, OwedReplies, ReplyMatch
+from .poll_round import PollRound
 
 CommandMode = Literal["periodic", "immediate"]
 FrameKind = Literal["command", "refresh", "request", "lifecycle"]
 LifecyclePurpose = Literal["startup", "release", "shutdown"]
-STARTUP_RETRY_S = 1.0
-"""Start-up frames go out again at most this often for one servo (``needs_startup`` may stay
-true while a servo refuses to start); the budget counts them at this rate."""
-_TIMED_OUT_KEPT = 8
 
 
 class ScheduleError(MavservoError, ValueError):
@@ -217,20 +215,6 @@ class SetpointResult:
     reason: str = ""
 
 
-@dataclass
-class Expectation:
-    """A reply the bus owes us: ``kind`` of frame that provoked it, when, and until when.
-
-    ``key`` is the profile's ``exchange_key`` of the request (None: the profile cannot tell
-    its replies apart), which the reply must carry to answer it.
-    """
-
-    kind: FrameKind
-    t_tx: float
-    deadline: float
-    key: Hashable | None = None
-
-
 @dataclass(frozen=True)
 class Outgoing:
     """One frame to send, in order. ``seq`` is the setpoint's sequence number (None: request)."""
@@ -243,21 +227,6 @@ class Outgoing:
     setpoint: Setpoint | None = None
     lifecycle: LifecyclePurpose | None = None
     """For ``kind == "lifecycle"``: which of the profile's lifecycle lists the frame is from."""
-
-
-@dataclass(frozen=True)
-class ReplyMatch:
-    """What a decoded reply answered: ``kind`` None means unsolicited (push-style servo),
-    ``"late"`` a reply whose expectation had already timed out (counted timed out and late,
-    not lost)."""
-
-    kind: FrameKind | Literal["late"] | None
-    t_tx: float | None
-    latency_s: float | None
-    back_online: bool
-    late_latency_s: float | None = None
-    """For a ``"late"`` reply: how long after its request it came, when the timed-out
-    expectation it answers is still remembered (None otherwise)."""
 
 
 @dataclass(frozen=True)
@@ -289,10 +258,10 @@ class Decision:
 @dataclass
 class _ServoSlot:
     spec: ServoSpec
+    life: ServoLifecycle
+    owed: OwedReplies
     poll_period: float | None
-    poll_cost_s: float
     command_cost_s: float
-    next_poll_due: float
     latest: Setpoint | None = None
     last_sent: Setpoint | None = None
     """The newest setpoint the bus took: what an offline servo is refreshed with."""
@@ -301,35 +270,10 @@ class _ServoSlot:
     sent_seq: int = 0
     last_command_time: float | None = None
     released: bool = False
-    expected: deque[Expectation] = field(default_factory=deque)
-    missed_in_a_row: int = 0
-    awaiting_first_reply_since: float | None = None
-    replies: reply_matching.ReplyMatcher = field(default_factory=reply_matching.ReplyMatcher)
-    timed_out: deque[Expectation] = field(default_factory=lambda: deque(maxlen=_TIMED_OUT_KEPT))
-    """The latest expectations that timed out, so a late reply can tell how late it was."""
-    push_period: float | None = None
-    """A pushing servo's report period (None: polled, or pushes nothing)."""
-    last_heard: float = 0.0
-    """When a pushing servo last reported (or the schedule started): its silence is from here."""
-    started: bool = False
-    """Its start-up frames went out since the schedule began, it came back online, or it was
-    released (module docstring)."""
-    last_startup: float = -math.inf
-    continued: bool = False
-    """The early next step of its latest start-up went (``servos.base.SplitStartup``)."""
-    split_startup: SplitStartup | None = None
-    """Its profile as a :class:`SplitStartup` (resolved once: asked at every command slot)."""
-    release_due: float | None = None
-    """When its release frames go out (None: none pending): at once after ``release``, at the
-    next command slot after the bus refused them."""
 
     @property
     def has_unsent_setpoint(self) -> bool:
         return not self.released and self.latest is not None and self.latest.seq > self.sent_seq
-
-    @property
-    def request_outstanding(self) -> bool:
-        return any(e.kind == "request" for e in self.expected)
 
 
 def exchange_key(profile: ServoProfile, msg: can.Message) -> Hashable | None:
@@ -362,24 +306,14 @@ class ScheduleCore:
         self.warnings: list[str] = []
         self._slots: dict[str, _ServoSlot] = {}
         self._order = names
-        self._rank = {name: i for i, name in enumerate(names)}
         self._next_command_slot = start
-        self._poll_round: list[str] = []
-        self._offline_on_sends: set[str] = set()
-        """Servos offline because the bus refused their frames (not because replies stopped),
-        that have not answered since."""
+        self._lifecycles = Lifecycles([(spec.name, spec.profile) for spec in servos])
         plan = plan_bus(
             servos, timing, startup_retry_s=STARTUP_RETRY_S, packed=packed, extra_flows=extra_flows
         )
-        if plan.worst_case_load > timing.max_load:
-            heaviest = sorted(plan.servo_loads.items(), key=lambda kv: -kv[1])[:3]
-            detail = ", ".join(f"{name} {share:.1%}" for name, share in heaviest)
-            raise ScheduleError(
-                f"worst-case bus load R = {plan.worst_case_load:.1%} exceeds max_load "
-                f"{timing.max_load:.1%} at {timing.bitrate} bit/s with {len(servos)} servos "
-                f"(heaviest: {detail}); lower telemetry_hz, lengthen command_period_s or "
-                "immediate_min_spacing_s, or raise the bitrate"
-            )
+        refusal = plan.over_budget(timing)
+        if refusal is not None:
+            raise ScheduleError(refusal)
         self.worst_case_load = plan.worst_case_load
         self.warnings.extend(plan.warnings)
         for spec in servos:
@@ -388,32 +322,40 @@ class ScheduleCore:
             # after another, so each sees exactly one request per T_t.
             self._slots[spec.name] = _ServoSlot(
                 spec=spec,
+                life=self._lifecycles.servos[spec.name],
                 poll_period=costs.poll_period,
-                poll_cost_s=costs.poll_cost_s,
                 command_cost_s=costs.command_cost_s,
-                next_poll_due=math.inf,
-                push_period=costs.push_period,
-                split_startup=spec.profile if isinstance(spec.profile, SplitStartup) else None,
+                owed=OwedReplies(
+                    only_when_asked=costs.poll_period is not None
+                    or bool(spec.profile.replies_per_request),
+                    keyed_pushes=spec.profile.telemetry == "pushed",
+                ),
             )
+        polled = [
+            (name, period, plan.servos[name].poll_cost_s)
+            for name in names
+            if (period := plan.servos[name].poll_period)
+        ]
+        self._liveness = Liveness(
+            [(name, plan.servos[name].push_period) for name in names],
+            timing.offline_after_missed,
+            timing.reply_timeout_s,
+        )
         self.telemetry_phase_s = plan.telemetry_phase_s
+        self._polls = PollRound(polled, timing.telemetry_period_s, plan.telemetry_phase_s)
+        self._request_outstanding = lambda name: self._slots[name].owed.request_outstanding
         self.anchor(start)
 
     def anchor(self, start: float) -> None:
         """Move the time origin (the runner anchors the schedule when it actually starts)."""
         self.start = start
         self._next_command_slot = start
-        self._next_telemetry_tick = start + self.telemetry_phase_s
-        for slot in self._slots.values():
-            if slot.poll_period:
-                slot.next_poll_due = self._next_telemetry_tick
-            slot.last_heard = start
+        self._polls.anchor(start)
+        self._liveness.anchor(start)
 
     def push_silence_limit_s(self, name: str) -> float | None:
         """How long a pushing servo may stay silent before it is offline (None: not pushing)."""
-        period = self._slots[name].push_period
-        if period is None:
-            return None
-        return self.timing.offline_after_missed * period + self.timing.reply_timeout_s
+        return self._liveness.silence_limit_s(name)
 
     # ----------------------------------------------------------------------- upper layers
     @property
@@ -424,7 +366,7 @@ class ScheduleCore:
         return self._slots[name].latest
 
     def is_online(self, name: str) -> bool:
-        return self._slots[name].missed_in_a_row < self.timing.offline_after_missed
+        return self._liveness.is_online(name)
 
     def submit(self, name: str, angle_deg: float, source: str, t: float) -> SetpointResult:
         """Accept a setpoint unless it is unknown, invalid or older than the accepted one."""
@@ -449,7 +391,7 @@ class ScheduleCore:
         seq = slot.seq
         slot.latest = Setpoint(seq, angle_deg, source, t, msg)
         slot.released = False
-        slot.release_due = None
+        self._lifecycles.cancel_release(name)
         return SetpointResult(True, seq)
 
     def mark_failsafe(self, name: str) -> None:
@@ -464,24 +406,12 @@ class ScheduleCore:
         """Stop commanding and refreshing a servo until its next setpoint (failsafe release),
         and send its profile's release frames (motor off) at the next step; the next command
         is preceded by the start-up frames again."""
-        slot = self._slots[name]
-        slot.released = True
-        slot.release_due = -math.inf if release_frames_of(slot.spec.profile) else None
-        slot.started = False
-        # the next command's start-up is not a retry: it goes with that command even within
-        # STARTUP_RETRY_S of the last one (an LK motor off ignores A4 until 0x88, an RMD-X
-        # brake locked by the release would be driven against until 0x77). Releases come
-        # from a lost link or a health limit, each at most once per new setpoint.
-        slot.last_startup = -math.inf
+        self._slots[name].released = True
+        self._lifecycles.release(name)
 
     def wants_lifecycle_wake(self) -> bool:
         """True when release frames wait to go at once (the runner is woken for them)."""
-        return self._next_release() == -math.inf
-
-    def _next_release(self) -> float:
-        """When the earliest pending release frames are due (inf: none pending)."""
-        due = [s.release_due for s in self._slots.values() if s.release_due is not None]
-        return min(due, default=math.inf)
+        return self._lifecycles.wants_wake()
 
     def final_frames(self, now: float) -> list[Outgoing]:
         """What goes out when the scheduler stops: pending release frames, then every servo's
@@ -489,10 +419,9 @@ class ScheduleCore:
         out: list[Outgoing] = []
         for name in self._order:
             slot = self._slots[name]
-            if slot.release_due is not None:
-                slot.release_due = None
-                out += self._lifecycle(slot, release_frames_of(slot.spec.profile), "release", now)
-            out += self._lifecycle(slot, slot.spec.profile.shutdown_frames(), "shutdown", now)
+            release, shutdown = self._lifecycles.final_frames(name)
+            out += self._lifecycle(slot, release, "release", now)
+            out += self._lifecycle(slot, shutdown, "shutdown", now)
         return out
 
     def wants_immediate_wake(self, name: str) -> bool:
@@ -506,13 +435,12 @@ class ScheduleCore:
         """Outgoing lifecycle frames, each expecting the profile's ``replies_per_lifecycle``."""
         out = []
         profile = slot.spec.profile
+        timeout = self.timing.reply_timeout_s
         for msg in frames:
             key = exchange_key(profile, msg)
-            expectations = tuple(
-                Expectation("lifecycle", now, now + self.timing.reply_timeout_s, key)
-                for _ in range(profile.replies_per_lifecycle)
+            expectations = slot.owed.expect(
+                "lifecycle", now, timeout, key, profile.replies_per_lifecycle
             )
-            slot.expected.extend(expectations)
             out.append(
                 Outgoing(slot.spec.name, "lifecycle", msg, None, expectations, None, purpose)
             )
@@ -520,53 +448,35 @@ class ScheduleCore:
 
     def _start_up_if_needed(self, slot: _ServoSlot, now: float, decision: Decision) -> None:
         """Put the servo's start-up frames before its command when they are due."""
-        profile = slot.spec.profile
-        split = slot.split_startup
-        early = (
-            slot.started and not slot.continued and split is not None and split.startup_continues()
-        )
-        if now - slot.last_startup < STARTUP_RETRY_S and not early:
-            return  # the budget counts start-ups at this rate: it is a ceiling
-        if slot.started and not profile.needs_startup():
-            return
-        slot.continued = early  # one early step per start-up; a retry starts over
-        slot.started = True
-        slot.last_startup = now
-        decision.frames += self._lifecycle(slot, profile.startup_frames(), "startup", now)
+        frames = slot.life.startup_frames(now)
+        if frames is not None:
+            decision.frames += self._lifecycle(slot, frames, "startup", now)
 
     def _serve_releases(self, now: float, decision: Decision) -> None:
-        for name in self._order:
-            slot = self._slots[name]
-            if slot.release_due is not None and slot.release_due <= now:
-                slot.release_due = None
-                frames = release_frames_of(slot.spec.profile)
-                decision.frames += self._lifecycle(slot, frames, "release", now)
+        for name, frames in self._lifecycles.due_releases(now):
+            decision.frames += self._lifecycle(self._slots[name], frames, "release", now)
 
     def _command_frame(self, slot: _ServoSlot, kind: FrameKind, now: float) -> Outgoing:
         assert slot.latest is not None
         replies = slot.spec.profile.replies_per_command
         key = exchange_key(slot.spec.profile, slot.latest.msg)
-        expectations = tuple(
-            Expectation("command", now, now + self.timing.reply_timeout_s, key)
-            for _ in range(replies)
-        )
-        slot.expected.extend(expectations)
+        expectations = slot.owed.expect("command", now, self.timing.reply_timeout_s, key, replies)
         slot.sent_seq = slot.latest.seq
         slot.last_command_time = now
         if not replies:
-            slot.awaiting_first_reply_since = now
+            slot.owed.awaiting_first_since = now
         return Outgoing(
             slot.spec.name, kind, slot.latest.msg, slot.latest.seq, expectations, slot.latest
         )
 
     def _expire(self, now: float, decision: Decision) -> None:
-        # Deadlines grow with position (send order, one timeout), so expired ones lead the
-        # deque even after replies have taken expectations out of its middle.
         for name, slot in self._slots.items():
-            while slot.expected and slot.expected[0].deadline <= now:
-                slot.timed_out.append(slot.expected.popleft())
+            expected = slot.owed.expected
+            if not expected or expected[0].deadline > now:
+                continue  # nearly every servo at nearly every step: no call
+            for _ in range(slot.owed.expire(now)):
                 decision.lost.append(name)
-                if self._missed(slot, on_send=False):
+                if self._liveness.missed(name, on_send=False):
                     decision.went_offline.append(name)
                     dropped = self._drop_unsent(slot)
                     if dropped is not None:
@@ -574,27 +484,11 @@ class ScheduleCore:
 
     def _expire_silent_pushers(self, now: float, decision: Decision) -> None:
         """Take pushing servos whose pushes stopped offline (module docstring, Liveness)."""
-        for name, slot in self._slots.items():
-            limit = self.push_silence_limit_s(name)
-            if limit is None or not self.is_online(name) or now - slot.last_heard <= limit:
-                continue
-            slot.missed_in_a_row = self.timing.offline_after_missed
-            self._offline_on_sends.discard(name)
+        for name in self._liveness.fell_silent(now):
             decision.went_offline.append(name)
-            dropped = self._drop_unsent(slot)
+            dropped = self._drop_unsent(self._slots[name])
             if dropped is not None:
                 decision.dropped.append((name, dropped))
-
-    def _missed(self, slot: _ServoSlot, *, on_send: bool) -> bool:
-        """Count one miss; True if the servo goes offline with it."""
-        slot.missed_in_a_row += 1
-        if slot.missed_in_a_row != self.timing.offline_after_missed:
-            return False
-        if on_send:
-            self._offline_on_sends.add(slot.spec.name)
-        else:
-            self._offline_on_sends.discard(slot.spec.name)
-        return True
 
     @staticmethod
     def _drop_unsent(slot: _ServoSlot) -> Setpoint | None:
@@ -662,53 +556,24 @@ class ScheduleCore:
 
     def _serve_telemetry(self, now: float, decision: Decision) -> None:
         t = self.timing
-        if now >= self._next_telemetry_tick:
-            behind = math.floor((now - self._next_telemetry_tick) / t.telemetry_period_s + 1e-9)
-            decision.telemetry_tick = self._next_telemetry_tick + behind * t.telemetry_period_s
-            self._next_telemetry_tick = decision.telemetry_tick + t.telemetry_period_s
-            half_tick = t.telemetry_period_s / 2
-            due = [
-                name
-                for name, slot in self._slots.items()
-                if slot.poll_period and slot.next_poll_due - now <= half_tick
-            ]
-            due.sort(key=lambda name: (self._slots[name].next_poll_due, self._rank[name]))
-            # a new round keeps any leftovers of the previous one in front (they are older)
-            self._poll_round = [m for m in self._poll_round if m not in due] + due
-        if not self._poll_round:
+        polls = self._polls
+        decision.telemetry_tick = polls.tick(now)
+        if not polls.round:
             return
         # suspension: nothing may still occupy the bus at the next command slot
         # (the command frames of this very step go first and take their own bus time)
         bus_free_until = self._next_command_slot - t.command_guard_s
         budget = bus_free_until - now - sum(self._frame_cost(out) for out in decision.frames)
-        remaining: list[str] = []
-        for name in self._poll_round:
+        for name in polls.take(now, budget, self._request_outstanding, decision.late_polls):
             slot = self._slots[name]
-            if slot.request_outstanding:
-                remaining.append(name)
-                continue
-            if slot.poll_cost_s > budget:
-                remaining.append(name)
-                continue
-            budget -= slot.poll_cost_s
-            if now - slot.next_poll_due > t.telemetry_period_s / 2:
-                decision.late_polls.append(name)
-            replies = slot.spec.profile.replies_per_request
-            for req in slot.spec.profile.telemetry_requests():
-                key = exchange_key(slot.spec.profile, req)
-                expectations = tuple(
-                    Expectation("request", now, now + t.reply_timeout_s, key)
-                    for _ in range(replies)
-                )
-                slot.expected.extend(expectations)
+            profile = slot.spec.profile
+            replies = profile.replies_per_request
+            for req in profile.telemetry_requests():
+                key = exchange_key(profile, req)
+                expectations = slot.owed.expect("request", now, t.reply_timeout_s, key, replies)
                 decision.frames.append(Outgoing(name, "request", req, None, expectations))
-            slot.spec.profile.poll_sent()  # the one place a poll goes out: count it here
-            assert slot.poll_period is not None
-            slot.next_poll_due += slot.poll_period
-            if slot.next_poll_due < now:  # far behind: do not try to catch up with a burst
-                slot.next_poll_due = now + slot.poll_period
-        decision.deferred_polls = len(remaining)
-        self._poll_round = remaining
+            profile.poll_sent()  # the one place a poll goes out: count it here
+        decision.deferred_polls = len(polls.round)
 
     def _frame_cost(self, out: Outgoing) -> float:
         """Bus time of a frame of this step and its replies (a command: its servo's cost)."""
@@ -738,17 +603,15 @@ class ScheduleCore:
         once per outstanding reply.
         """
         t = self.timing
-        candidates = [self._next_command_slot, self._next_telemetry_tick]
-        release_due = self._next_release()
+        candidates = [self._next_command_slot, self._polls.next_tick]
+        release_due = self._lifecycles.next_release()
         if release_due < math.inf:
             candidates.append(max(now, release_due))
         for slot in self._slots.values():
             if slot.spec.command_mode == "immediate" and slot.has_unsent_setpoint:
                 last = slot.last_command_time
                 candidates.append(now if last is None else last + t.immediate_min_spacing_s)
-        if self._poll_round and any(
-            not self._slots[name].request_outstanding for name in self._poll_round
-        ):
+        if self._polls.round and self._polls.waiting(self._request_outstanding):
             # deferred polls go right after the next command slot's frames
             candidates.append(self._next_command_slot)
         return min(candidates)
@@ -768,23 +631,16 @@ class ScheduleCore:
             slot.last_sent is None or out.setpoint.seq > slot.last_sent.seq
         ):
             slot.last_sent = out.setpoint
-        if out.kind != "request" and slot.awaiting_first_reply_since is not None:
-            slot.awaiting_first_reply_since = t
-        if not self._offline_on_sends:
+        if out.kind != "request" and slot.owed.awaiting_first_since is not None:
+            slot.owed.awaiting_first_since = t
+        if not self._liveness.offline_on_sends:
             return []  # the common case, on every frame: nothing to scan
-        back: list[str] = []
-        for name in list(self._offline_on_sends):
-            other = self._slots[name]
-            if (
-                other.latest is None
-                and other.poll_period is None
-                and other.push_period is None  # a pushing servo is back when it pushes
-                and not self.is_online(name)
-            ):
-                other.missed_in_a_row = 0
-                self._offline_on_sends.discard(name)
-                back.append(name)
-        return back
+        return self._liveness.back_on_send(self._nothing_to_probe)
+
+    def _nothing_to_probe(self, name: str) -> bool:
+        """No setpoint to refresh and no polls: only a working send can bring it back."""
+        slot = self._slots[name]
+        return slot.latest is None and slot.poll_period is None
 
     def send_failed(self, out: Outgoing) -> SendFailure:
         """The bus refused ``out``: forget its replies and let the next slot try again.
@@ -794,20 +650,18 @@ class ScheduleCore:
         servo's setpoint to be retried on the next slot.
         """
         slot = self._slots[out.servo]
-        for expectation in out.expectations:
-            if expectation in slot.expected:
-                slot.expected.remove(expectation)
+        slot.owed.forget(out.expectations)
         if out.kind == "lifecycle":
             # not a miss: the command after it (or the next poll) tells whether the servo is
             # there, and a bus that is down would otherwise be counted twice per slot
             if out.lifecycle == "startup":
-                slot.started = False  # they go again before the next command
-            elif out.lifecycle == "release" and slot.released:
-                slot.release_due = self._next_command_slot  # again, not in a tight loop
+                slot.life.restart()  # they go again before the next command
+            elif out.lifecycle == "release":  # again, not in a tight loop
+                self._lifecycles.release_refused(out.servo, slot.released, self._next_command_slot)
             return SendFailure(False, None)
         if out.seq is not None and slot.sent_seq == out.seq:
             slot.sent_seq = out.seq - 1
-        went_offline = self._missed(slot, on_send=True)
+        went_offline = self._liveness.missed(out.servo, on_send=True)
         dropped = None if self.is_online(out.servo) else self._drop_unsent(slot)
         return SendFailure(went_offline, dropped)
 
@@ -819,43 +673,9 @@ class ScheduleCore:
         False: a sign of life only (a DroneCAN NodeStatus, which any node can send with the
         servo's id): the servo is alive, but nothing is answered and no latency measured."""
         slot = self._slots[name]
-        back_online = slot.missed_in_a_row >= self.timing.offline_after_missed
+        back_online = self._liveness.heard(name, t)
         if back_online:
-            slot.started = False  # it may have been power-cycled: start it up again
-        slot.missed_in_a_row = 0
-        slot.last_heard = max(slot.last_heard, t)
-        self._offline_on_sends.discard(name)
+            slot.life.restart()  # it may have been power-cycled: start it up again
         if not answer:
             return ReplyMatch(None, None, None, back_online)
-        index = slot.replies.pick(slot.expected, t, key)
-        if index is not None:
-            expectation = slot.expected[index]
-            del slot.expected[index]
-            timed = expectation.kind in ("command", "refresh")
-            latency = t - expectation.t_tx if timed else None
-            return ReplyMatch(expectation.kind, expectation.t_tx, latency, back_online)
-        outstanding = bool(slot.expected)
-        if outstanding and key is not None and slot.spec.profile.telemetry == "pushed":
-            # a push the profile tells apart (Robstride's active reports) while only answers
-            # of another kind are due: a push, not a late answer
-            outstanding = any(e.key is None or e.key == key for e in slot.expected)
-        if outstanding or slot.poll_period is not None or slot.spec.profile.replies_per_request:
-            # none of its kind outstanding, or this servo only speaks when asked: an unmatched
-            # reply came after its timeout. (A push-style servo, no requests, also pushes
-            # between commands: not late.)
-            return ReplyMatch("late", None, None, back_online, self._late_latency(slot, t, key))
-        if slot.awaiting_first_reply_since is not None:
-            since = slot.awaiting_first_reply_since
-            slot.awaiting_first_reply_since = None
-            return ReplyMatch(None, since, t - since, back_online)
-        return ReplyMatch(None, None, None, back_online)
-
-    @staticmethod
-    def _late_latency(slot: _ServoSlot, t: float, key: Hashable | None) -> float | None:
-        """Latency of a late reply: it answers the oldest remembered timed-out expectation of
-        its kind (a CAN node answers in order), which is then forgotten."""
-        for i, expectation in enumerate(slot.timed_out):
-            if key is None or expectation.key is None or expectation.key == key:
-                del slot.timed_out[i]
-                return t - expectation.t_tx
-        return None
+        return slot.owed.match(t, key, back_online)

@@ -80,7 +80,7 @@ class StallingBus(can.BusABC):
 def run_slot(scheduler: Scheduler, clock: FakeClock, at: float) -> None:
     """One pass of the command loop at ``at``: what ``Scheduler._run`` does between waits."""
     clock.now = max(clock.now, at)
-    scheduler._send_all(scheduler._step())
+    scheduler._writer.send_all(scheduler._writer.step())
 
 
 def test_a_stall_between_wake_up_and_write_shows_in_the_slot_metrics():
