@@ -127,3 +127,16 @@ def test_importing_a_lazy_face_imports_none_of_its_modules(layer: str) -> None:
     )
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "[]"
+
+
+def test_no_module_name_repeats_across_the_package() -> None:
+    """Issue 31 item 4: a module's name says which one it is (two ``pacing.py``, one a token
+    bucket for the MAVLink link and one the scheduler's waits, read alike in a traceback and a
+    log). The family folders' ``profile.py`` and ``sim.py`` are the one shape every family has,
+    and ``__init__``/``__main__`` are Python's."""
+    shared = {"__init__.py", "__main__.py", "profile.py", "sim.py"}
+    seen: dict[str, list[str]] = {}
+    for path in PACKAGE_DIR.rglob("*.py"):
+        if path.name not in shared:
+            seen.setdefault(path.name, []).append(str(path.relative_to(PACKAGE_DIR)))
+    assert {name: where for name, where in seen.items() if len(where) > 1} == {}

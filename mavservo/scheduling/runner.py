@@ -49,8 +49,8 @@ from .observers import (
     StateCallback,
     WriteObserver,
 )
-from .pacing import RunnerPacing
 from .receiver import FrameReceiver
+from .runner_pacing import RunnerPacing
 from .sender import FrameWriter
 
 __all__ = [

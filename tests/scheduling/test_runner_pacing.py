@@ -1,10 +1,10 @@
-"""The runner's waits alone (scheduling/pacing.py), on a clock the test moves."""
+"""The runner's waits alone (scheduling/runner_pacing.py), on a clock the test moves."""
 
 from __future__ import annotations
 
 import threading
 
-from mavservo.scheduling.pacing import RunnerPacing
+from mavservo.scheduling.runner_pacing import RunnerPacing
 from mavservo.scheduling.schedule_core import TimingConfig
 
 
