@@ -5,6 +5,7 @@ pass ``mavservo check``."""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -29,22 +30,25 @@ def test_family_config_passes_check(config_name: str, capsys: pytest.CaptureFixt
     assert main(["check", str(REPO / "config" / config_name)]) == 0, capsys.readouterr()
 
 
-def test_every_family_config_runs_follows_and_loses_nothing(tmp_path: Path) -> None:
-    """Each family config's ``mavservo run``, all five started at once, side by side (each a
-    child process of its own with its own simulation, log directory and output), then each
-    judged in full: the five 8 s runs take the time of one. One test rather than one per config
-    because pytest-xdist hands out a module's first tests one per worker in turn, so a shared
-    module fixture would start all five on both workers. Every config is judged, and a failure
-    names the config and what failed (the others' verdicts with it)."""
-    runs = {name: ExampleRun(name, tmp_path / Path(name).stem) for name in FAMILY_CONFIGS}
-    failures: dict[str, str] = {}
+@pytest.fixture(scope="module")
+def family_runs(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, ExampleRun]]:
+    """Every family config's ``mavservo run``, all started at once, side by side (each a child
+    process of its own with its own simulation, log directory and output), so the five 8 s runs
+    take the time of one; each config's test judges its own run in full. pytest-xdist hands a
+    worker consecutive tests, so these five normally share one worker's fixture; one that gets
+    only some of them starts all five anyway (seconds of CPU, no extra waiting)."""
+    runs = {
+        name: ExampleRun(name, tmp_path_factory.mktemp(Path(name).stem)) for name in FAMILY_CONFIGS
+    }
     try:
-        for name, run in runs.items():
-            try:
-                run.assert_follows_and_loses_nothing()
-            except AssertionError as failure:
-                failures[name] = str(failure)
+        yield runs
     finally:
         for run in runs.values():
             run.kill()
-    assert failures == {}
+
+
+@pytest.mark.parametrize("config_name", FAMILY_CONFIGS)
+def test_family_config_runs_follows_and_loses_nothing(
+    config_name: str, family_runs: dict[str, ExampleRun]
+) -> None:
+    family_runs[config_name].assert_follows_and_loses_nothing()
