@@ -348,24 +348,18 @@ def assert_nothing_lost(summary: dict[str, Any], servos: Iterable[str]) -> None:
     assert summary["buses"]["bus0"]["bus_rejected"] == 0
 
 
-def run_example_config_follows_and_loses_nothing(config_name: str, tmp_path: Path) -> None:
-    """``mavservo run`` on the shipped ``config/CONFIG_NAME`` for 8 s on the built-in simulation:
-    it exits cleanly, every servo's summary row shows frames both ways with none lost or
-    rejected, and every servo follows the simulated autopilot's sweep in the trace.
+class ExampleRun:
+    """``mavservo run`` on the shipped ``config/CONFIG_NAME`` for 8 s on the built-in
+    simulation, started at construction in a child process of its own; judged once it ended by
+    :meth:`assert_follows_and_loses_nothing`: it exits cleanly, every servo's summary row shows
+    frames both ways with none lost or rejected, and every servo follows the simulated
+    autopilot's sweep in the trace.
 
     The example as shipped, except that a reply counts as lost only when it never comes: a
     loaded test machine can delay one past the 50 ms default, and timing is not judged here.
+    Several can run side by side (each its own config copy, log directory and output files),
+    so a test module can start all of its examples at once and judge each in its own test.
     """
-    ExampleRun(config_name, tmp_path).assert_follows_and_loses_nothing()
-
-
-class ExampleRun:
-    """``mavservo run`` on the shipped ``config/CONFIG_NAME`` (as
-    :func:`run_example_config_follows_and_loses_nothing` describes), started at construction
-    in a child process of its own, judged by :meth:`assert_follows_and_loses_nothing` once it
-    ended. Several can run side by side (each its own config copy, log directory and output
-    files), so a test module can start all of its examples at once and judge each in its own
-    test."""
 
     def __init__(self, config_name: str, tmp_path: Path) -> None:
         tmp_path.mkdir(parents=True, exist_ok=True)
@@ -381,6 +375,11 @@ class ExampleRun:
         command += ["--duration", "8", "--log-dir", str(self.logs)]
         with self._out.open("w") as out, self._err.open("w") as err:
             self.proc = subprocess.Popen(command, stdout=out, stderr=err, text=True, cwd=REPO)
+
+    def wait(self) -> None:
+        """Until the run ended by itself (its 8 s and the summary), at most 60 s."""
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            self.proc.wait(timeout=60)
 
     def kill(self) -> None:
         """Ends the run if it is still going (a test that failed before judging it)."""
@@ -443,7 +442,6 @@ __all__ = [
     "gimbal_config",
     "named_values",
     "pwm_to_angle",
-    "run_example_config_follows_and_loses_nothing",
     "running",
     "sim_servo",
     "status",
