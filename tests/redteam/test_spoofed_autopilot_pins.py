@@ -101,7 +101,7 @@ def test_tcp_connections_claiming_the_autopilot_cannot_hold_every_slot() -> None
         rig.sockets.append(gcs)
         gcs.heartbeat()
         gcs.set_servo(1, 1600)
-        got = gcs.messages(2.0)
+        got = gcs.messages(2.0, "COMMAND_ACK", quiet_s=0.0)  # until the first ACK
         assert [m for m in got if m.get_type() == "COMMAND_ACK"], rig.stats()["link"]
         assert rig.stats()["link"].get("tcp_clients_refused", 0) == 0
     finally:
