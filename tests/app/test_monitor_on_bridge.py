@@ -137,17 +137,33 @@ servos:
 """
 
 
-def _monitor_lines(url: str, *options: str) -> list[str]:
-    proc = subprocess.run(
-        [sys.executable, "-m", "mavservo", "monitor", url, "--duration", "4", "--plain"]
-        + list(options),
-        capture_output=True,
-        text=True,
-        timeout=30,
-        cwd=REPO,
-    )
-    assert proc.returncode == 0, proc.stderr
-    return proc.stdout.splitlines()
+def _monitors_lines(url: str, *option_sets: tuple[str, ...]) -> list[list[str]]:
+    """The plain lines of one ``mavservo monitor URL --duration 4 --plain OPTIONS`` per option
+    set, all running side by side (each a peer of its own: its own UDP port, its own signing or
+    none), so the bridge serves them at once, as it serves several ground stations."""
+    procs = [
+        subprocess.Popen(
+            [sys.executable, "-m", "mavservo", "monitor", url, "--duration", "4", "--plain"]
+            + list(options),
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            cwd=REPO,
+        )
+        for options in option_sets
+    ]
+    outputs = []
+    try:
+        for proc in procs:
+            out, err = proc.communicate(timeout=30)
+            assert proc.returncode == 0, err
+            outputs.append(out.splitlines())
+    finally:
+        for proc in procs:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait(10)
+    return outputs
 
 
 def test_monitor_signs_with_a_signed_configs_key_and_the_bridge_answers_it(
@@ -166,9 +182,9 @@ def test_monitor_signs_with_a_signed_configs_key_and_the_bridge_answers_it(
     values = re.compile(r"name=aileron setpoint=\S+ position=[-+]\d+\.\d+")
     bridge = Bridge(load_config(path), log_dir=False, status=lambda line: None).start()
     try:
-        signed = _monitor_lines(url, "--config", str(path))
-        by_file = _monitor_lines(url, "--signing-key-file", str(key_file))
-        unsigned = _monitor_lines(url)
+        signed, by_file, unsigned = _monitors_lines(
+            url, ("--config", str(path)), ("--signing-key-file", str(key_file)), ()
+        )
     finally:
         bridge.stop()
     assert any(values.search(line) for line in signed), "\n".join(signed[-20:])

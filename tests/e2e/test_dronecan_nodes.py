@@ -19,7 +19,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from pathlib import Path
 from typing import Any
 
 import can
@@ -37,7 +36,6 @@ from tests.support.bridge import (
     Peer,
     Recorder,
     pwm_to_angle,
-    run_example_config_follows_and_loses_nothing,
     running,
     status,
 )
@@ -287,10 +285,8 @@ def test_a_node_that_ignores_the_command_type_is_warned_about_once_within_second
             peer.close()
 
 
-def test_shipped_pwm_config_runs_follows_and_loses_nothing(tmp_path: Path) -> None:
-    """``config/dronecan-pwm.yaml``: four PWM outputs of one ArduPilot-style node, the bridge's
-    SafetyState, the simulated autopilot's sweep followed, telemetry back, nothing lost."""
-    run_example_config_follows_and_loses_nothing("dronecan-pwm.yaml", tmp_path)
+# config/dronecan-pwm.yaml run as shipped: tests/app/test_run_family_configs.py, beside the
+# other examples' runs.
 
 
 def test_check_prints_the_safety_plan_the_id_convention_and_each_familys_stop() -> None:

@@ -13,7 +13,6 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import can
@@ -30,7 +29,6 @@ from tests.support.bridge import (
     Peer,
     named_values,
     pwm_to_angle,
-    run_example_config_follows_and_loses_nothing,
     running,
     sim_servo,
 )
@@ -190,8 +188,8 @@ def test_shipped_dronecan_config_passes_check() -> None:
     assert proc.returncode == 0, proc.stderr + proc.stdout
 
 
-def test_shipped_dronecan_config_runs_follows_and_loses_nothing(tmp_path: Path) -> None:
-    run_example_config_follows_and_loses_nothing("dronecan.yaml", tmp_path)
+# config/dronecan.yaml run as shipped: tests/app/test_run_family_configs.py, beside the other
+# examples' runs.
 
 
 def test_another_array_command_sender_is_reported_once_by_statustext() -> None:

@@ -273,17 +273,19 @@ def test_ftp_gets_an_immediate_nak_and_a_mission_list_unsupported() -> None:
     name=st.binary(max_size=16),
     index=st.integers(min_value=-(2**15), max_value=2**15 - 1),
     value=st.floats(width=32),
-    payload=st.lists(st.integers(0, 255), min_size=251, max_size=251),
+    # any 251 bytes, drawn as bytes (a list of 251 drawn integers spans the same inputs at
+    # ten times the cost)
+    payload=st.binary(min_size=251, max_size=251),
 )
 def test_hostile_requests_never_raise(
-    kind: str, name: bytes, index: int, value: float, payload: list[int]
+    kind: str, name: bytes, index: int, value: float, payload: bytes
 ) -> None:
     server, _, _ = _server()
     msg = {
         "list": lambda: mavlink2.MAVLink_param_request_list_message(1, 0),
         "read": lambda: mavlink2.MAVLink_param_request_read_message(1, 140, name, index),
         "set": lambda: mavlink2.MAVLink_param_set_message(1, 140, name, value, 9),
-        "ftp": lambda: mavlink2.MAVLink_file_transfer_protocol_message(0, 1, 140, payload),
+        "ftp": lambda: mavlink2.MAVLink_file_transfer_protocol_message(0, 1, 140, list(payload)),
     }[kind]()
     _handle(server, msg)
     server.periodic(1.0)

@@ -25,7 +25,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from mavservo.app.bridge import Bridge
 from mavservo.config.loader import load_config_text
 from tests.redteam.test_bridge_security import KEY, Rig, acks
-from tests.redteam.test_link_attacks import drain, stranger
+from tests.redteam.test_link_attacks import QUIET_S, drain, stranger
 from tests.support.paths import REPO
 from tests.support.waiting import free_udp_port, wait_until
 
@@ -101,7 +101,7 @@ def test_a_change_back_after_do_set_actuator_on_the_same_servo_is_applied(
     command(gcs, (1, 140), DO_SET_SERVO, 9, 1100)
     command(gcs, (1, 140), DO_SET_ACTUATOR, 1.0, NAN, NAN, NAN, NAN, NAN, 0)
     command(gcs, (1, 140), DO_SET_SERVO, 9, 1100)
-    got = acks(gcs, DO_SET_SERVO, 3.0)
+    got = acks(gcs, DO_SET_SERVO, 3.0, QUIET_S)
     assert [a.result for a in got] == [ACCEPTED, ACCEPTED]
     assert sim_rig.stats()["commands"].get("retry_not_reapplied", 0) == 0
     assert sim_rig.setpoint("payload_release") == pytest.approx(0.0)
@@ -112,7 +112,7 @@ def test_an_identical_repeat_with_nothing_in_between_is_still_a_retry(sim_rig: S
     gcs = sim_rig.peer(GCS)
     command(gcs, (1, 140), DO_SET_SERVO, 9, 1900)
     command(gcs, (1, 140), DO_SET_SERVO, 9, 1900)
-    assert [a.result for a in acks(gcs, DO_SET_SERVO, 2.0)] == [ACCEPTED, ACCEPTED]
+    assert [a.result for a in acks(gcs, DO_SET_SERVO, 2.0, QUIET_S)] == [ACCEPTED, ACCEPTED]
     assert sim_rig.stats()["commands"]["retry_not_reapplied"] == 1
 
 
@@ -138,7 +138,7 @@ def test_a_broadcast_nothing_here_handles_draws_no_ack_even_with_inf(
     command(gcs, (1, 0), cmd, *params)
     command(gcs, (1, 140), DO_SET_SERVO, 10, 1500)  # a marker: once ACKed, the first was handled
     # every ACK for the command (for DO_SET_SERVO: the marker's only) within 2 s
-    assert [a.result for a in acks(gcs, DO_SET_SERVO, 2.0)] == [ACCEPTED]
+    assert [a.result for a in acks(gcs, DO_SET_SERVO, 2.0, QUIET_S)] == [ACCEPTED]
     if cmd != DO_SET_SERVO:
         assert acks(gcs, cmd, 0.3) == []
     commands = sim_rig.stats()["commands"]
@@ -153,7 +153,7 @@ def test_a_broadcast_gimbal_command_with_inf_is_still_denied_by_the_gimbal(
     infinite mode is DENIED by 154, never handed to it."""
     gcs = sim_rig.peer(GCS)
     command(gcs, (1, 0), 205, 0, 0, 0, 0, 0, 0, INF)
-    got = acks(gcs, 205, 2.0)
+    got = acks(gcs, 205, 2.0, QUIET_S)
     assert [(a.result, a.get_srcComponent()) for a in got] == [(2, 154)]
 
 

@@ -18,7 +18,7 @@ import time
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mavservo.mavlink.link import MAX_TCP_CLIENTS, UdpServer
-from tests.redteam.test_session_squatting import _drain, _heartbeat, _udp_bridge
+from tests.redteam.test_session_squatting import _drain, _heartbeat, _is_servo_ack, _udp_bridge
 from tests.redteam.test_tcp_server import Station, TcpRig
 
 DO_SET_SERVO = 183
@@ -40,10 +40,10 @@ def test_spoofed_autopilot_heartbeats_from_many_ports_do_not_lock_the_ground_sta
             encoder = mavlink2.MAVLink(None, srcSystem=255, srcComponent=190)
             command = encoder.command_long_encode(1, 140, DO_SET_SERVO, 0, 1, 1600, 0, 0, 0, 0, 0)
             gcs.sendto(command.pack(encoder), ("127.0.0.1", port))
-            got = _drain(gcs, 2.0)
+            got = _drain(gcs, 2.0, until=_is_servo_ack)
         finally:
             gcs.close()
-        assert [m for m in got if m.get_type() == "COMMAND_ACK" and m.command == DO_SET_SERVO]
+        assert [m for m in got if _is_servo_ack(m)]
         assert bridge.mavlink is not None
         link = bridge.mavlink.stats()["link"]
         assert link.get("peers_refused", 0) == 0
@@ -101,7 +101,7 @@ def test_tcp_connections_claiming_the_autopilot_cannot_hold_every_slot() -> None
         rig.sockets.append(gcs)
         gcs.heartbeat()
         gcs.set_servo(1, 1600)
-        got = gcs.messages(2.0)
+        got = gcs.messages(2.0, "COMMAND_ACK", quiet_s=0.0)  # until the first ACK
         assert [m for m in got if m.get_type() == "COMMAND_ACK"], rig.stats()["link"]
         assert rig.stats()["link"].get("tcp_clients_refused", 0) == 0
     finally:

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import contextlib
 import re
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Iterable, Iterator, Sequence
@@ -25,7 +27,7 @@ from mavservo.config import Config, load_config, load_config_text
 from mavservo.mavlink.connection import mavlink2, open_connection
 from mavservo.scheduling.runner import SchedulerObserver
 from mavservo.sim.servo import SimServo
-from tests.app.test_run_cli import REPO, assert_positions_followed, read_trace, run_mavservo
+from tests.app.test_run_cli import REPO, assert_positions_followed, read_trace
 from tests.support.waiting import wait_until
 
 MAV_CMD_DO_SET_SERVO = 183
@@ -346,38 +348,68 @@ def assert_nothing_lost(summary: dict[str, Any], servos: Iterable[str]) -> None:
     assert summary["buses"]["bus0"]["bus_rejected"] == 0
 
 
-def run_example_config_follows_and_loses_nothing(config_name: str, tmp_path: Path) -> None:
-    """``mavservo run`` on the shipped ``config/CONFIG_NAME`` for 8 s on the built-in simulation:
-    it exits cleanly, every servo's summary row shows frames both ways with none lost or
-    rejected, and every servo follows the simulated autopilot's sweep in the trace.
+class ExampleRun:
+    """``mavservo run`` on the shipped ``config/CONFIG_NAME`` for 8 s on the built-in
+    simulation, started at construction in a child process of its own; judged once it ended by
+    :meth:`assert_follows_and_loses_nothing`: it exits cleanly, every servo's summary row shows
+    frames both ways with none lost or rejected, and every servo follows the simulated
+    autopilot's sweep in the trace.
 
     The example as shipped, except that a reply counts as lost only when it never comes: a
     loaded test machine can delay one past the 50 ms default, and timing is not judged here.
+    Several can run side by side (each its own config copy, log directory and output files),
+    so a test module can start all of its examples at once and judge each in its own test.
     """
-    document = yaml.safe_load((REPO / "config" / config_name).read_text())
-    document["scheduler"]["reply_timeout_s"] = 0.5
-    document["logging"]["dir"] = str(tmp_path / "runs")
-    path = tmp_path / config_name
-    path.write_text(yaml.safe_dump(document))
-    logs = tmp_path / "runs"
-    proc = run_mavservo("run", "--config", str(path), "--duration", "8", "--log-dir", str(logs))
-    assert proc.returncode == 0, proc.stderr
-    assert "Traceback" not in proc.stderr
-    out = proc.stdout
-    assert "decoder rejections 0" in out
-    config = load_config(path)
-    for servo in config.servos:
-        # columns: sent, recv, pushed, lost, late, rej (a pushing servo's pushed is not lost)
-        row = re.search(rf"^\s+{servo.name}" + r"\s+(\d+)" * 6, out, re.M)
-        assert row, f"no summary row for {servo.name}:\n{out}"
-        sent, received, _pushed, lost, _late, rejected = map(int, row.groups())
-        assert sent > 0 and received > 0, row.group(0)
-        assert lost == 0 and rejected == 0, row.group(0)
-    [run_dir] = list(logs.iterdir())
-    trace = read_trace(run_dir / "trace.csv")
-    for servo in config.servos:
-        # the simulated autopilot sweeps every servo of these configs: each one follows
-        assert_positions_followed(servo.name, trace, span=20.0)
+
+    def __init__(self, config_name: str, tmp_path: Path) -> None:
+        tmp_path.mkdir(parents=True, exist_ok=True)
+        document = yaml.safe_load((REPO / "config" / config_name).read_text())
+        document["scheduler"]["reply_timeout_s"] = 0.5
+        document["logging"]["dir"] = str(tmp_path / "runs")
+        self.path = tmp_path / config_name
+        self.path.write_text(yaml.safe_dump(document))
+        self.logs = tmp_path / "runs"
+        self._out = tmp_path / "stdout.txt"
+        self._err = tmp_path / "stderr.txt"
+        command = [sys.executable, "-m", "mavservo", "run", "--config", str(self.path)]
+        command += ["--duration", "8", "--log-dir", str(self.logs)]
+        with self._out.open("w") as out, self._err.open("w") as err:
+            self.proc = subprocess.Popen(command, stdout=out, stderr=err, text=True, cwd=REPO)
+
+    def wait(self) -> None:
+        """Until the run ended by itself (its 8 s and the summary), at most 60 s."""
+        with contextlib.suppress(subprocess.TimeoutExpired):
+            self.proc.wait(timeout=60)
+
+    def kill(self) -> None:
+        """Ends the run if it is still going (a test that failed before judging it)."""
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(10)
+
+    def assert_follows_and_loses_nothing(self) -> None:
+        try:
+            returncode = self.proc.wait(timeout=60)
+        finally:
+            self.kill()
+        stderr = self._err.read_text()
+        assert returncode == 0, stderr
+        assert "Traceback" not in stderr
+        out = self._out.read_text()
+        assert "decoder rejections 0" in out
+        config = load_config(self.path)
+        for servo in config.servos:
+            # columns: sent, recv, pushed, lost, late, rej (a pushing servo's pushed is not lost)
+            row = re.search(rf"^\s+{servo.name}" + r"\s+(\d+)" * 6, out, re.M)
+            assert row, f"no summary row for {servo.name}:\n{out}"
+            sent, received, _pushed, lost, _late, rejected = map(int, row.groups())
+            assert sent > 0 and received > 0, row.group(0)
+            assert lost == 0 and rejected == 0, row.group(0)
+        [run_dir] = list(self.logs.iterdir())
+        trace = read_trace(run_dir / "trace.csv")
+        for servo in config.servos:
+            # the simulated autopilot sweeps every servo of these configs: each one follows
+            assert_positions_followed(servo.name, trace, span=20.0)
 
 
 def named_values(messages: Sequence[Any], name: str) -> list[float]:
@@ -400,6 +432,7 @@ __all__ = [
     "MAV_RESULT_TEMPORARILY_REJECTED",
     "MOTOR_ERROR",
     "Peer",
+    "ExampleRun",
     "Recorder",
     "ServoSpy",
     "assert_fault_reaches_statustext_and_gimbal_flags",
@@ -409,7 +442,6 @@ __all__ = [
     "gimbal_config",
     "named_values",
     "pwm_to_angle",
-    "run_example_config_follows_and_loses_nothing",
     "running",
     "sim_servo",
     "status",

@@ -25,7 +25,6 @@ from mavservo.sim.slcan import SlcanEmulator, format_frame, parse_frame
 from mavservo.sim.virtual import VirtualServoBus
 from mavservo.transport.bus_factory import BusRequest, open_bus
 from mavservo.transport.counters import transport_stats
-from tests.support.bridge import run_example_config_follows_and_loses_nothing
 from tests.support.waiting import wait_until
 
 SERVO = "servos:\n  - {name: s1, profile: rmd-x, can_id: 1}\n"
@@ -254,12 +253,8 @@ def test_slcan_at_the_wrong_bitrate_hears_nothing() -> None:
             opened.close()
 
 
-def test_mavservo_run_through_python_can_slcan_drives_servos_and_loses_nothing(
-    tmp_path: Path,
-) -> None:
-    """config/slcan.yaml as shipped: python-can's slcan interface, the simulated LAWICEL
-    adapter, servos that follow the simulated autopilot, telemetry back, 0 lost."""
-    run_example_config_follows_and_loses_nothing("slcan.yaml", tmp_path)
+# config/slcan.yaml run as shipped (python-can's slcan interface on the simulated LAWICEL
+# adapter): tests/app/test_run_family_configs.py, beside the other examples' runs.
 
 
 def test_an_aa55_key_given_as_an_option_is_refused() -> None:

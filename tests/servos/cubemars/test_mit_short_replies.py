@@ -3,6 +3,8 @@ current; issue 27 finding 3) are this driver's answers, decoded and kept online.
 
 from __future__ import annotations
 
+import time
+
 import can
 import pytest
 
@@ -75,8 +77,14 @@ def test_a_six_byte_driver_is_online_and_follows_through_the_bridge() -> None:
         try:
             assert peer.command(MAV_CMD_DO_SET_SERVO, [1, 1750]) == MAV_RESULT_ACCEPTED
             knee = sim_servo(bridge, "knee")
-            assert wait_until(lambda: abs(knee.position_deg - 45.0) < 0.5, 8), knee.position_deg
+            # at rest on the target, then a reply decoded after that: the state compared is
+            # the resting servo's (a snapshot while it still moved raced the 10 Hz telemetry)
+            assert wait_until(
+                lambda: abs(knee.position_deg - 45.0) < 0.5 and abs(knee.velocity_dps) < 0.1, 8
+            ), (knee.position_deg, knee.velocity_dps)
             assert wait_until(lambda: status(bridge, "knee").online, 3)
+            at_rest = time.monotonic()  # the scheduler's clock, which stamps decoded states
+            assert wait_until(lambda: status(bridge, "knee").state.timestamp > at_rest, 3)
             state = status(bridge, "knee").state
             assert state.position_deg == pytest.approx(knee.position_deg, abs=0.5)
         finally:

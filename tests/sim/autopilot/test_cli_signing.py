@@ -28,6 +28,10 @@ def _stream(*options: str) -> subprocess.Popen[str]:
 def test_stream_signs_with_the_key_file_and_a_bad_file_is_one_clear_line(tmp_path: Path) -> None:
     key_file = tmp_path / "signing.key"
     key_file.write_text(KEY_HEX + "\n")
+    bad = tmp_path / "bad.key"
+    bad.write_text("not a key")
+    # the bad key file's run goes alongside the good one (it ends at once, nothing to share)
+    proc_bad = _stream("--duration", "1", "--signing-key-file", str(bad))
     port = free_udp_port()
     listener = mavutil.mavlink_connection(f"udpin:127.0.0.1:{port}", source_system=255)
     types: set[str] = set()
@@ -53,9 +57,6 @@ def test_stream_signs_with_the_key_file_and_a_bad_file_is_one_clear_line(tmp_pat
     assert signing.sig_count > 0  # signed packets seen, every one verified:
     assert signing.badsig_count == 0 and signing.unsigned_count == 0
 
-    bad = tmp_path / "bad.key"
-    bad.write_text("not a key")
-    proc_bad = _stream("--duration", "1", "--signing-key-file", str(bad))
     _, err = proc_bad.communicate(timeout=20)
     assert proc_bad.returncode == 2
     expected = f"{bad} must hold 64 hex characters, found 9 bytes"
