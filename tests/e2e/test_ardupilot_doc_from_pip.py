@@ -23,8 +23,6 @@ from tests.support.paths import REPO
 from tests.support.venv import child_env, pip_install
 
 DOC = REPO / "docs" / "sitl.md"
-SESSION_S = 5
-"""How long the doc's ``mavservo run`` runs here (the doc says 20 s: a user's look at it)."""
 
 FAKE_ARDUPLANE = """#!/usr/bin/env python3
 # stand-in SITL: record the command line, then play ArduPlane on the SERIAL1 address
@@ -126,10 +124,6 @@ def test_docs_sitl_from_a_pip_install_never_rebuilds_or_fetches_and_runs(tmp_pat
     assert str(binary) in first.stdout  # the dry run shows the tree's built binary
     assert "sim_vehicle.py" not in first.stdout
 
-    # the doc's session as written but for how long the user watches the bridge: nothing
-    # judged below needs its 20 s (the stream request is answered in the first second)
-    session, watched = re.subn(r"--duration \d+", f"--duration {SESSION_S}", session)
-    assert watched == 1, session
     second = subprocess.run(
         ["sh", "-c", session], env=env, cwd=work, capture_output=True, text=True, timeout=120
     )
