@@ -33,6 +33,7 @@ MESSAGES = {
 @given(
     budget=st.sampled_from([400.0, 1000.0, 5000.0]),
     signed=st.booleans(),
+    waiting_line=st.booleans(),
     traffic=st.lists(
         st.tuples(st.sampled_from([0.0, 0.001, 0.01, 0.05]), st.sampled_from(sorted(MESSAGES))),
         min_size=100,
@@ -40,8 +41,11 @@ MESSAGES = {
     ),
 )
 def test_no_window_exceeds_the_budget(
-    budget: float, signed: bool, traffic: list[tuple[float, str]]
+    budget: float, signed: bool, waiting_line: bool, traffic: list[tuple[float, str]]
 ) -> None:
+    """Through :meth:`LinkBudget.allow` (one message, now or never) and through the waiting
+    line the bridge uses (:meth:`LinkBudget.offer`, :meth:`LinkBudget.due`: a message that
+    waited counts in the window it went in)."""
     plan = plan_budget(
         budget,
         servos=10,
@@ -52,16 +56,27 @@ def test_no_window_exceeds_the_budget(
         signed=signed,
     )
     link = LinkBudget(plan)
+    scratch = mavlink2.MAVLink(None)
     now, sent = 100.0, []
+
+    def went(msg: object) -> None:
+        size = len(msg.pack(scratch)) + (13 if signed else 0)  # type: ignore[attr-defined]
+        sent.append((now, size))
+
     for gap, kind in traffic:
         now += gap
+        if waiting_line:
+            for _, waited in link.due(now):
+                went(waited)
         msg = MESSAGES[kind]()
-        admitted = (
-            link.admit_answer(140, msg, now) if kind == "answer" else link.allow(140, msg, now)
-        )
+        if kind == "answer":
+            admitted = link.admit_answer(140, msg, now)
+        elif waiting_line:
+            admitted = link.offer(140, msg, now) is Admission.NOW
+        else:
+            admitted = link.allow(140, msg, now)
         if admitted:
-            size = len(msg.pack(mavlink2.MAVLink(None))) + (13 if signed else 0)
-            sent.append((now, size))
+            went(msg)
     assert link.counters["essential_over_budget"] == 0
     assert peak_window_bytes(sent) <= budget
 
@@ -150,47 +165,6 @@ def test_the_gimbal_status_reaches_the_autopilot_every_second_among_many_streams
     gaps = [b - a for a, b in zip(sent, sent[1:], strict=False)]
     assert len(sent) >= 60 * GIMBAL_STATUS_FLOOR_HZ * 0.9, len(sent)
     assert max(gaps) < 1.0, f"longest gap {max(gaps):.2f} s, {sum(g >= 1 for g in gaps)} over 1 s"
-
-
-@settings(max_examples=30, deadline=None)
-@given(
-    budget=st.sampled_from([400.0, 1000.0, 5000.0]),
-    traffic=st.lists(
-        st.tuples(st.sampled_from([0.0, 0.001, 0.01, 0.05]), st.sampled_from(sorted(MESSAGES))),
-        min_size=100,
-        max_size=800,
-    ),
-)
-def test_the_waiting_line_keeps_every_window_within_the_budget(
-    budget: float, traffic: list[tuple[float, str]]
-) -> None:
-    """The same promise through :meth:`LinkBudget.offer` and :meth:`LinkBudget.due` (what the
-    bridge uses): messages that waited and went later count in the window they went in."""
-    plan = plan_budget(
-        budget,
-        servos=10,
-        gimbals=1,
-        health_names=7,
-        components=2,
-        rates=TelemetryRates(),
-        signed=False,
-    )
-    link = LinkBudget(plan)
-    scratch = mavlink2.MAVLink(None)
-    now, sent = 100.0, []
-    for gap, kind in traffic:
-        now += gap
-        for _, waited in link.due(now):
-            sent.append((now, len(waited.pack(scratch))))
-        msg = MESSAGES[kind]()
-        if kind == "answer":
-            admitted = link.admit_answer(140, msg, now)
-        else:
-            admitted = link.offer(140, msg, now) is Admission.NOW
-        if admitted:
-            sent.append((now, len(msg.pack(scratch))))
-    assert link.counters["essential_over_budget"] == 0
-    assert peak_window_bytes(sent) <= budget
 
 
 @pytest.mark.parametrize(
