@@ -255,6 +255,11 @@ def test_scan_finds_an_unconfigured_servo_and_lists_it(
         capsys, path, tmp_path, "--no-bitrate-search", "--scan", "rmd-x", "--ids", "1-32"
     )
     assert "rmd-x 9" in out, out
+    # found by the scan, not configured: said with who it is (the reads below were not shown)
+    assert (
+        "(not configured) rmd-x id 9: answered the doctor's requests; "
+        "model X8S2V10, software 2022-02-06" in out
+    ), out
     # every id is polled; only the ids that answered get the model and software-date reads
     # (MyActuator V4.2 0xB5, 0xB2), which would triple a scan's time on every id
     sent = [(m.arbitration_id, m.data[0]) for m in _frames_sent(log) if not m.is_extended_id]

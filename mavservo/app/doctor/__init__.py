@@ -308,6 +308,8 @@ def print_bus(findings: BusFindings, verdicts: list[Verdict]) -> bool:
                 print(f"  {'':<12} fix: {verdict.fix}")
             for note in verdict.notes:
                 print(f"  {'':<12} {note}")
+    for entry in extra_entries(findings, verdicts):
+        _print_unconfigured(findings, entry)
     if findings.scan_s is not None:
         print(
             f"  probed {findings.scanned} ids in {findings.scan_s:.2f} s "
@@ -326,6 +328,22 @@ def print_bus(findings: BusFindings, verdicts: list[Verdict]) -> bool:
             "there); scan that family with the device unplugged, or on another bus"
         )
     return ok
+
+
+def _print_unconfigured(findings: BusFindings, entry: dict[str, Any]) -> None:
+    """A motor that answered or was heard but no configured servo explains (a scan found it,
+    or it talks on its own): how it was seen and who it said it is, so a scan's result reads
+    as fully as a configured servo's (before, its identity reads were sent and not shown)."""
+    key = (entry["profile"], entry["can_id"])
+    answered = any(
+        (s.profile, s.can_id) == key and s.how == "answered" for s in findings.sightings.values()
+    )
+    how = "answered the doctor's requests" if answered else "heard unasked"
+    said = [how]
+    identity = findings.identities.get(key)
+    if identity is not None:
+        said.append(identity)
+    print(f"  {'(not configured)':<12} {key[0]} id {key[1]}: " + "; ".join(said))
 
 
 def _print_who(findings: BusFindings) -> None:
