@@ -2,9 +2,9 @@
 flushes; everything it says is printed (run on the old and the new tree, compare)."""
 
 import random
-import sys
 
 import can
+from lives import print_lives
 
 from mavservo.transport.aa55.codec import Decoder, Frame, encode, settings_frame
 
@@ -96,7 +96,4 @@ def run(seed):
 
 
 if __name__ == "__main__":
-    first, count = int(sys.argv[1]), int(sys.argv[2])
-    for seed in range(first, first + count):
-        for line in run(seed):
-            print(seed, repr(line))
+    print_lives(run)

@@ -3,7 +3,8 @@ wire feedback, reply, setpoint, release and query."""
 
 import math
 import random
-import sys
+
+from lives import print_lives
 
 from mavservo.scheduling.schedule_core import ScheduleCore, ScheduleError, ServoSpec, TimingConfig
 from mavservo.servos import get_profile
@@ -135,7 +136,4 @@ def life(seed):
 
 
 if __name__ == "__main__":
-    first, count = int(sys.argv[1]), int(sys.argv[2])
-    for seed in range(first, first + count):
-        for line in life(seed):
-            print(seed, repr(line))
+    print_lives(life)

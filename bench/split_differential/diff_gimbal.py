@@ -4,21 +4,13 @@ PARAM_SET-style settings replacements; every result, backend call and message pr
 import dataclasses
 import math
 import random
-import sys
 
+from lives import norm, print_lives
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from mavservo.mavlink import mavlink2
 from mavservo.mavlink.gimbal import GimbalDevice, GimbalSettings
 from tests.support.mavlink_doubles import RecordingBackend, state, wire
-
-
-def norm(v):
-    if isinstance(v, float):
-        return "nan" if math.isnan(v) else round(v, 6)
-    if isinstance(v, (list, tuple)):
-        return [norm(x) for x in v]
-    return v
 
 
 def msgdict(msg):
@@ -143,7 +135,4 @@ def life(seed):
 
 
 if __name__ == "__main__":
-    first, count = int(sys.argv[1]), int(sys.argv[2])
-    for seed in range(first, first + count):
-        for line in life(seed):
-            print(seed, repr(line))
+    print_lives(life)

@@ -3,11 +3,11 @@
 
 import json
 import random
-import sys
 import tempfile
 from pathlib import Path
 
 import can
+from lives import print_lives
 
 from mavservo.records.runlog import RunLog
 from mavservo.servos.base import Fault, ServoState
@@ -108,7 +108,4 @@ def life(seed):
 
 
 if __name__ == "__main__":
-    first, count = int(sys.argv[1]), int(sys.argv[2])
-    for seed in range(first, first + count):
-        for line in life(seed):
-            print(seed, repr(line))
+    print_lives(life)

@@ -4,9 +4,9 @@ simulated servos answering; every observer, subscriber, event, notice and the me
 
 import math
 import random
-import sys
 
 import can
+from lives import print_lives
 
 from mavservo.scheduling.runner import Scheduler, ServoSpec, TimingConfig
 from mavservo.servos import get_profile
@@ -234,7 +234,4 @@ def life(seed):
 
 
 if __name__ == "__main__":
-    first, count = int(sys.argv[1]), int(sys.argv[2])
-    for seed in range(first, first + count):
-        for line in life(seed):
-            print(seed, repr(line))
+    print_lives(life)

@@ -16,32 +16,7 @@ import can
 from mavservo.scheduling.runner import Scheduler, SchedulerObserver, ServoSpec, TimingConfig
 from mavservo.servos import get_profile
 from mavservo.sim.servo import SimServo
-
-
-class Clock:
-    def __init__(self) -> None:
-        self.t = 100.0
-
-    def __call__(self) -> float:
-        return self.t
-
-
-class RecordingBus(can.BusABC):
-    """Takes every frame (or refuses them all, ``refusing``); never delivers one."""
-
-    def __init__(self) -> None:
-        self.sent: list[can.Message] = []
-        self.refusing = False
-        self.channel_info = "recording"
-        super().__init__(channel="recording")
-
-    def send(self, msg: can.Message, timeout: float | None = None) -> None:
-        if self.refusing:
-            raise can.CanError("unplugged")
-        self.sent.append(msg)
-
-    def _recv_internal(self, timeout: float | None) -> tuple[None, bool]:
-        return None, False
+from tests.support.scheduler_doubles import Clock, RecordingBus
 
 
 class Watcher(SchedulerObserver):
@@ -96,24 +71,24 @@ def test_no_observer_subscriber_or_event_is_called_with_the_scheduler_lock_held(
         before = len(bus.sent)
         writer.send_all(writer.step())
         for msg in bus.sent[before:]:
-            for _, reply in servo.receive(msg, clock.t) if answering else ():
-                scheduler.handle_frame(reply, clock.t)
+            for _, reply in servo.receive(msg, clock.now) if answering else ():
+                scheduler.handle_frame(reply, clock.now)
 
     for angle in (10.0, 20.0):  # commanded and answered
         scheduler.set_setpoint("s0", angle, "mav")
         scheduler.set_setpoint("s1", angle, "mav")
-        clock.t += 0.02
+        clock.now += 0.02
         turn(answering=True)
     for _ in range(20):  # s0 falls silent, s1 never answered: lost, offline, advice
-        clock.t += 0.02
+        clock.now += 0.02
         turn(answering=False)
-    bus.refusing = True  # the adapter is unplugged: refused sends take them offline
+    bus.refuse = True  # the adapter is unplugged: refused sends take them offline
     scheduler.set_setpoint("s0", 30.0, "mav")
     for _ in range(10):
-        clock.t += 0.02
+        clock.now += 0.02
         turn(answering=False)
     scheduler.report_reject("bad_checksum", b"\xaa\x55")
-    scheduler.handle_frame(can.Message(arbitration_id=0x7FF, is_extended_id=False), clock.t)
+    scheduler.handle_frame(can.Message(arbitration_id=0x7FF, is_extended_id=False), clock.now)
     bus.shutdown()
     hooks = {hook for hook, _ in watcher.calls}
     assert {"setpoint", "tx", "written", "rx", "lost", "reject", "state", "event"} <= hooks
