@@ -196,7 +196,6 @@ class RunLog:
         self._config_path = None if config_path is None else str(config_path)
         self._tlog_enabled = tlog
         self._extra_header = dict(header or {})
-        self.max_run_bytes = int(max_run_bytes)
         self._fallback_dir = Path(fallback_dir) if fallback_dir else Path(tempfile.gettempdir())
         self._outcome: dict[str, Any] = {}
         self._closed = False
@@ -212,7 +211,7 @@ class RunLog:
             tlog=tlog,
             channel_of=self._bus_channel,
             problems=self._problems,
-            max_run_bytes=self.max_run_bytes,
+            max_run_bytes=int(max_run_bytes),
         )
         self._pump = EventPump(self._files, self._problems, queue_size)
         self._put = self._pump.put  # bound once: the callers' hot path is one call deep
@@ -245,6 +244,16 @@ class RunLog:
     @property
     def last_error(self) -> str | None:
         return self._problems.last_error
+
+    @property
+    def max_run_bytes(self) -> int:
+        """The size the run's files are capped at: the files' own, so a cap set on the run log
+        is the one applied at the next size check (not a copy taken at construction)."""
+        return self._files.max_run_bytes
+
+    @max_run_bytes.setter
+    def max_run_bytes(self, value: int) -> None:
+        self._files.max_run_bytes = int(value)
 
     @property
     def capped(self) -> bool:

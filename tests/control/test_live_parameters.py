@@ -8,8 +8,11 @@ the overlay's saver. A refused value reaches none of them.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
+
+from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from mavservo.config import Config, gimbal_settings, load_config_text
 from mavservo.control.config_targets import ConfigTargets
@@ -35,6 +38,8 @@ gimbals:
   - {name: camera, component_id: 154, pitch: pitch, yaw: yaw}
 """
 GCS = (255, 190)
+MAV_CMD_DO_MOUNT_CONTROL = mav.MAV_CMD_DO_MOUNT_CONTROL
+TARGETING = mav.MAV_MOUNT_MODE_MAVLINK_TARGETING
 
 
 @dataclass
@@ -145,3 +150,30 @@ def test_each_component_serves_its_own_names() -> None:
     assert "SRV1_TRIM" in everything and "GMB1_YAW_MAX" in everything
     assert owner.names(154) == [name for name in everything if name.startswith("GMB1_")]
     assert owner.names(99) == []
+
+
+def test_a_gimbal_limit_set_reaches_the_pointing_and_the_report_and_a_slew_the_health_watch() -> (
+    None
+):
+    """The device's settings are read by two parts since the split (issue 31 item 4): the
+    pointing clamps with them, the report publishes them. A PARAM_SET must reach both, and the
+    health watch must judge with the new slew (review of the split against dc16de4)."""
+    config = load_config_text(CONFIG, "live.yaml")
+    sink = RecordingSink()
+    backend = ServoBackend(config, {s.name: sink for s in config.servos})
+    watch = HealthWatch(health_limits(config))
+    [settings] = gimbal_settings(config)
+    gimbal = GimbalDevice(settings, backend)
+    owner, _ = _owner(config, ConfigTargets(backend, health=watch, gimbals=[gimbal]))
+    assert owner.set("GMB1_PIT_MIN", -45.0, GCS).accepted
+    # the pointing: a demand below the new limit is driven to it, not to the file's -90
+    result = gimbal.handle_command(MAV_CMD_DO_MOUNT_CONTROL, (-80.0, 0, 0, 0, 0, 0, TARGETING), 1.0)
+    assert result == int(Outcome.ACCEPTED)
+    assert ("pitch", -45.0) in sink.sent and ("pitch", -80.0) not in sink.sent
+    # the report: what a ground station is told the gimbal can reach
+    information = gimbal.report.device_information(1.0)
+    assert math.isclose(information.pitch_min, math.radians(-45.0), rel_tol=1e-6)
+    # the health watch: the slew set is the speed the tracking allowance expects
+    assert watch.servos["surface"].limits.speed_dps != 20.0
+    assert owner.set("SRV1_SLEW", 20.0, GCS).accepted
+    assert watch.servos["surface"].limits.speed_dps == 20.0

@@ -226,3 +226,20 @@ def test_run_files_report_a_full_file_then_raise(tmp_path: Path) -> None:
     files.write((SETPOINT, "a", 1.0, 3.0))  # the other files go on
     files.close()
     assert "setpoint" in (tmp_path / TRACE_FILE).read_text()
+
+
+def test_the_run_logs_size_cap_is_one_value_its_files_judge_by(tmp_path: Path) -> None:
+    """``RunLog.max_run_bytes`` is what the files are capped at, read when they are judged.
+
+    Before the split (dc16de4) the writer read the run log's own ``max_run_bytes`` at each size
+    check; the split handed a copy to ``RunFiles`` at construction, so a cap changed afterwards
+    was reported by ``counters()`` and written in ``run.json`` but never applied (the review of
+    the split, issue 31 item 4)."""
+    from mavservo.records.runlog import RunLog
+
+    log = RunLog(tmp_path, formats=("asc",), autostart=False, max_run_bytes=10**9)
+    log.max_run_bytes = 1  # any file at all is over it
+    log._files.flush()  # noqa: SLF001 - the writer thread's once-a-second flush and size check
+    assert log.capped
+    assert log.counters()["max_run_bytes"] == 1
+    log.close()

@@ -19,35 +19,12 @@ from mavservo.scheduling.receiver import FrameReceiver
 from mavservo.scheduling.schedule_core import FrameKind, ScheduleCore, ServoSpec, TimingConfig
 from mavservo.scheduling.sender import FrameWriter
 from mavservo.servos import Fault, RmdX, ServoState
+from tests.support.scheduler_doubles import Clock, RecordingBus
 
 TIMING = TimingConfig(command_period_s=0.05, telemetry_period_s=0.1)
 REPLY = can.Message(
     arbitration_id=0x241, data=bytes([0xA4, 30, 0, 0, 0, 0, 0, 0]), is_extended_id=False
 )
-
-
-class Clock:
-    def __init__(self) -> None:
-        self.now = 100.0
-
-    def __call__(self) -> float:
-        return self.now
-
-
-class RecordingBus(can.BusABC):
-    def __init__(self) -> None:
-        self.sent: list[can.Message] = []
-        self.refuse = False
-        self.channel_info = "recording"
-        super().__init__(channel="recording")
-
-    def send(self, msg: can.Message, timeout: float | None = None) -> None:
-        if self.refuse:
-            raise can.CanOperationError("adapter unplugged")
-        self.sent.append(msg)
-
-    def _recv_internal(self, timeout: float | None) -> tuple[None, bool]:
-        return None, False
 
 
 class Recorder(SchedulerObserver):
