@@ -472,6 +472,18 @@ class LinkBudget:
         self.counters["events_delayed"] += 1
         return False
 
+    def admit_response(self, component_id: int, msg: Any, now: float) -> bool:
+        """A queued response to an unverified sender's command may go now: its ACK as an
+        event, a message it asked for (REQUEST_MESSAGE) as an answer (:meth:`admit_answer`).
+
+        Never a turn of the periodic stream of the message's type: a requested copy that
+        took the stream's decimation credit (through :meth:`allow`, retried each tick until
+        admitted) took the broadcast status's turns, and a stranger asking for the gimbal's
+        attitude status ten times a second held the autopilot's copy under its 5 Hz floor."""
+        if self.is_event(msg):
+            return self.allow(component_id, msg, now)
+        return self.admit_answer(component_id, msg, now)
+
     def admit_answer(self, component_id: int, msg: Any, now: float) -> bool:
         """An answer to a request may go now: within the answers' share of the rate
         (:data:`ANSWER_SHARE`, their own bucket) and with tokens for it while half the depth
