@@ -342,7 +342,9 @@ class LinkBudget:
         self.counters["held_back_window"] += 1
         return False
 
-    def offer(self, component_id: int, msg: Any, now: float) -> Admission:
+    def offer(
+        self, component_id: int, msg: Any, now: float, *, requested: bool = False
+    ) -> Admission:
         """Where ``msg`` goes: on the link now (:attr:`Admission.NOW`), into the waiting line
         for the link (:attr:`Admission.WAITS`: :meth:`due` hands it out when the window has
         room, oldest first), or to the monitors only (:attr:`Admission.SKIPPED`: the plan's
@@ -362,11 +364,16 @@ class LinkBudget:
         period. Periodic messages take tokens only while half the bucket's depth stays for
         events and answers (a parameter read must not wait behind the line). The gimbal's
         attitude status (:data:`_URGENT_STREAMS`) goes to the head: the autopilot calls the
-        gimbal unhealthy after 1 s without it."""
+        gimbal unhealthy after 1 s without it.
+
+        A message a peer asked for (``requested``: REQUEST_MESSAGE, "send it once, now") is an
+        event whatever its type: never decimated, never a turn of its stream's (before, a
+        ground station asking for ACTUATOR_OUTPUT_STATUS once a second got 1 of 10 on the
+        link at the stream's 4 %)."""
         kind = msg.get_type()
         stream = self._stream(kind)
         bucket = self._bucket
-        if stream is None:
+        if stream is None or requested:
             return Admission.NOW if self._event(kind, msg, now, bucket) else Admission.SKIPPED
         key = self._key(component_id, kind, msg)
         if key in self._waiting:

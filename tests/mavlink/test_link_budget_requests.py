@@ -12,14 +12,29 @@ from typing import Any
 
 from mavservo.mavlink.bandwidth import Admission, plan_budget
 from mavservo.mavlink.gimbal import GimbalDevice, GimbalSettings
-from mavservo.mavlink.settings import TelemetryRates
+from mavservo.mavlink.settings import MavlinkSettings, TelemetryRates
+from mavservo.mavlink.side import MavlinkSide
 from tests.support.mavlink_doubles import RecordingBackend, command_long, make_mavlink_core, wire
 
 NOW = Admission.NOW
 STRANGER = (77, 190)
 GIMBAL = (1, 154)
+SERVO = (1, 140)
 MSG_GIMBAL_DEVICE_ATTITUDE_STATUS = 285
 MAV_CMD_REQUEST_MESSAGE = 512
+
+
+def _sim_plan() -> Any:
+    """The plan of `config/sim.yaml` (nine servos and a gimbal at the default budget)."""
+    return plan_budget(
+        1000.0,
+        servos=9,
+        gimbals=1,
+        health_names=7,
+        components=2,
+        rates=TelemetryRates(),
+        signed=False,
+    )
 
 
 def _gimbal_core() -> Any:
@@ -28,20 +43,8 @@ def _gimbal_core() -> Any:
         RecordingBackend(),
     )
     core, _ = make_mavlink_core(gimbals=(gimbal,), link_budget_bytes_s=1000.0)
-    # the plan of `config/sim.yaml` (nine servos and a gimbal at the default budget): the
-    # gimbal's status at its floor, half of its 10 Hz on the link
-    core.budget.replan(
-        plan_budget(
-            1000.0,
-            servos=9,
-            gimbals=1,
-            health_names=7,
-            components=2,
-            rates=TelemetryRates(),
-            signed=False,
-        ),
-        0.0,
-    )
+    # the gimbal's status at its floor: half of its 10 Hz on the link
+    core.budget.replan(_sim_plan(), 0.0)
     assert core.budget.plan.ratios["GIMBAL_DEVICE_ATTITUDE_STATUS"] == 0.5
     return core
 
@@ -77,3 +80,35 @@ def test_a_strangers_requests_do_not_take_the_autopilots_gimbal_status_turns() -
     assert len(broadcast) >= 0.95 * planned, f"{len(broadcast)} of {planned:.0f} broadcast"
     assert max(gaps) < 1.0, f"{len(broadcast)} broadcast, longest gap {max(gaps):.2f} s"
     assert answered > 0  # the stranger is answered too
+
+
+GCS = (255, 190)
+MSG_ACTUATOR_OUTPUT_STATUS = 375
+
+
+def test_a_ground_stations_requested_message_reaches_the_link_every_time() -> None:
+    """A ground station in ``allowed_sources`` asks for ACTUATOR_OUTPUT_STATUS once a second
+    (REQUEST_MESSAGE: "send it once, now"). Its answers go out at once through the side's
+    budget (:meth:`MavlinkSide._send`); before, they went through the stream's decimation
+    like the periodic copies, so at the `config/sim.yaml` plan (the stream at 4 % of its
+    messages) the station got 1 of 10 on the link, the others to the monitors only."""
+    clock = [0.0]
+    side = MavlinkSide(
+        MavlinkSettings(system_id=1, link_budget_bytes_s=1000.0, allowed_sources=frozenset({GCS})),
+        RecordingBackend(),
+        clock=lambda: clock[0],
+    )
+    side.core.budget.replan(_sim_plan(), 0.0)
+    on_link: list[str] = []
+
+    def send(component_id: int, msg: Any, system_id: int, **where: Any) -> None:
+        if where.get("to_link", True):
+            on_link.append(msg.get_type())
+
+    side.link.send = send  # type: ignore[method-assign]  # the decision, not the socket
+    for second in range(10):
+        clock[0] = float(second)
+        request = command_long(SERVO, MAV_CMD_REQUEST_MESSAGE, MSG_ACTUATOR_OUTPUT_STATUS)
+        side._on_message(wire(request, GCS), clock[0])
+    assert on_link.count("ACTUATOR_OUTPUT_STATUS") == 10, on_link
+    assert on_link.count("COMMAND_ACK") == 10
