@@ -265,6 +265,15 @@ _STREAM_OF_TYPE = {
 }
 
 
+def _not_before(now: float | None, old: TokenBucket | None) -> float | None:
+    """The clock of a re-planned bucket: never before the old one's (a SET_MESSAGE_INTERVAL
+    re-plans at its receipt time, which may precede the tick that last took tokens: a clock
+    set back refilled that time twice, ``rate * lag`` bytes minted at each re-plan)."""
+    if old is None or old.at is None or now is None:
+        return now
+    return max(now, old.at)
+
+
 class LinkBudget:
     """Decides, message by message, what goes on the autopilot link (monitors get everything):
     periodic telemetry decimated by the plan, and everything within the token bucket."""
@@ -289,8 +298,10 @@ class LinkBudget:
             return
         rate, depth, _ = plan.bucket
         before = self._bucket, self._answers
-        self._bucket = TokenBucket(rate, depth, now)
-        self._answers = TokenBucket(rate * ANSWER_SHARE, ANSWER_DEPTH_BYTES, now)
+        self._bucket = TokenBucket(rate, depth, _not_before(now, before[0]))
+        self._answers = TokenBucket(
+            rate * ANSWER_SHARE, ANSWER_DEPTH_BYTES, _not_before(now, before[1])
+        )
         for old, new in zip(before, (self._bucket, self._answers), strict=True):
             if old is not None:  # a re-plan (a stranger's SET_MESSAGE_INTERVAL) refills nothing
                 new.tokens = min(old.tokens, new.capacity)

@@ -10,7 +10,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from mavservo.mavlink.bandwidth import Admission, plan_budget
+from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+from mavservo.mavlink.bandwidth import Admission, LinkBudget, plan_budget
 from mavservo.mavlink.gimbal import GimbalDevice, GimbalSettings
 from mavservo.mavlink.settings import MavlinkSettings, TelemetryRates
 from mavservo.mavlink.side import MavlinkSide
@@ -112,3 +114,24 @@ def test_a_ground_stations_requested_message_reaches_the_link_every_time() -> No
         side._on_message(wire(request, GCS), clock[0])
     assert on_link.count("ACTUATOR_OUTPUT_STATUS") == 10, on_link
     assert on_link.count("COMMAND_ACK") == 10
+
+
+def test_re_plans_with_a_late_receipt_time_mint_no_tokens() -> None:
+    """A SET_MESSAGE_INTERVAL re-plans the budget at its receipt time, which may be earlier
+    than the tick that last took tokens (the receive thread waited for the side's lock). The
+    new bucket started its clock there, and the next take refilled the time already counted:
+    each re-plan minted ``rate * lag`` bytes, so a stranger's stream of accepted intervals
+    (no rate limit of its own) widened the link's window past the budget."""
+    budget = LinkBudget(_sim_plan())
+    plan = budget.plan
+    text = mavlink2.MAVLink_statustext_message(4, b"x" * 50, 0, 0)
+    now = 10.0
+    sent = 0
+    while budget.offer(140, text, now) is NOW and sent < 100:  # down to the events' debt
+        sent += 1
+    minted = 0
+    for _ in range(100):
+        budget.replan(plan, now - 0.01)  # received 10 ms before the tick that took tokens
+        minted += budget.offer(140, text, now) is NOW  # the next tick, the same instant
+    assert 0 < sent < 100
+    assert minted == 0, f"{minted} texts of 66 B more in the same instant"
