@@ -164,12 +164,12 @@ class MavlinkSide:
         """Send ``out`` within the link budget: periodic telemetry goes to the monitors at
         once and to the link in its turn (the budget's waiting line: what waited goes first,
         a message the plan decimates goes to the monitors only); an event (STATUSTEXT chunk,
-        ACK) the budget cannot take now waits, in order, for the next tick instead of being
-        lost (a long text arrives whole). ``requested``: the responses to a peer's message
-        (its ACK, a message it asked for), events whatever their type."""
-        pending = [(component_id, msg, requested) for component_id, msg in out]
+        ACK) the budget cannot take now goes to the monitors at once and waits, in order, for
+        the link at a next tick instead of being lost (a long text arrives whole).
+        ``requested``: the responses to a peer's message (its ACK, a message it asked for),
+        events whatever their type."""
         with self._lock:  # the budget's bucket and the held events are shared by two threads
-            decided = self._decide([*self._held, *pending])
+            decided = self._decide(out, requested)
         system_id = self.core.system_id
         for component_id, msg, where in decided:
             self.link.send(
@@ -178,23 +178,33 @@ class MavlinkSide:
             if self.on_sent is not None and where != _LINK:  # when it first left
                 self.on_sent(msg, self._clock())
 
-    def _decide(self, pending: list[tuple[int, Any, bool]]) -> list[tuple[int, Any, str]]:
+    def _decide(self, out: list[Outgoing], requested: bool) -> list[tuple[int, Any, str]]:
+        """Where each message goes. The held events first (the monitors had them when they
+        were held: to the link only), then ``out`` (new: the monitors at once, whatever the
+        link takes; before, a held event reached the monitors only when the link took it,
+        and one dropped from the full held list never)."""
         budget = self.core.budget
         now = self._clock()
-        self._held.clear()
+        held, self._held = self._held, []
+        pending = [(cid, msg, asked, False) for cid, msg, asked in held]
+        pending += [(cid, msg, requested, True) for cid, msg in out]
         decided = [(component_id, msg, _LINK) for component_id, msg in budget.due(now)]
-        for component_id, msg, requested in pending:
-            event = requested or budget.is_event(msg)
-            if event and self._held:  # keep the order of events behind one that waits
-                self._hold(component_id, msg, requested)
+        for component_id, msg, asked, new in pending:
+            if not (asked or budget.is_event(msg)):
+                # periodic: the monitors now, the link now, in its turn (WAITS) or not (SKIPPED)
+                goes = budget.offer(component_id, msg, now) is Admission.NOW
+                decided.append((component_id, msg, _BOTH if goes else _MONITORS))
                 continue
-            admission = budget.offer(component_id, msg, now, requested=requested)
-            if admission is Admission.NOW:
-                decided.append((component_id, msg, _BOTH))
-            elif event:
-                self._hold(component_id, msg, requested)
-            else:  # the monitors now; the link in its turn (WAITS) or not (SKIPPED)
-                decided.append((component_id, msg, _MONITORS))
+            # an event: in order behind one that waits, or waits itself for the budget
+            goes = not self._held and budget.offer(component_id, msg, now, requested=asked) is (
+                Admission.NOW
+            )
+            if not goes:
+                self._hold(component_id, msg, asked)
+            if new:
+                decided.append((component_id, msg, _BOTH if goes else _MONITORS))
+            elif goes:
+                decided.append((component_id, msg, _LINK))
         return decided
 
     def _hold(self, component_id: int, msg: Any, requested: bool) -> None:

@@ -135,3 +135,37 @@ def test_re_plans_with_a_late_receipt_time_mint_no_tokens() -> None:
         minted += budget.offer(140, text, now) is NOW  # the next tick, the same instant
     assert 0 < sent < 100
     assert minted == 0, f"{minted} texts of 66 B more in the same instant"
+
+
+def test_monitors_get_every_held_event_at_once_and_the_link_each_once() -> None:
+    """An event the budget cannot take yet (a burst of STATUSTEXT) waits for the link, in
+    order; the monitor outputs are local and keep everything at once, as they do for the
+    telemetry waiting in the line. Before, a held event reached the monitors only when the
+    link took it (late in the recording), and one dropped from the full held list never."""
+    clock = [0.0]
+    side = MavlinkSide(
+        MavlinkSettings(system_id=1, link_budget_bytes_s=400.0),
+        RecordingBackend(),
+        clock=lambda: clock[0],
+    )
+    monitors: dict[int, list[float]] = {}
+    link: dict[int, list[float]] = {}
+
+    def send(component_id: int, msg: Any, system_id: int, **where: Any) -> None:
+        if where.get("to_monitors", True):
+            monitors.setdefault(id(msg), []).append(clock[0])
+        if where.get("to_link", True):
+            link.setdefault(id(msg), []).append(clock[0])
+
+    side.link.send = send  # type: ignore[method-assign]  # the decision, not the socket
+    texts = [
+        mavlink2.MAVLink_statustext_message(4, f"line {i} ".encode() * 6, 0, 0) for i in range(30)
+    ]
+    side._send([(140, text) for text in texts])
+    for step in range(1, 200):  # 20 s of ticks, more than the 30 texts need at 400 B/s
+        clock[0] = step * 0.1
+        side._send([])
+    assert all(monitors.get(id(text)) == [0.0] for text in texts), monitors
+    assert all(len(link.get(id(text), [])) == 1 for text in texts)
+    went = [link[id(text)][0] for text in texts]
+    assert went == sorted(went) and went[-1] > 0.0  # in order, and some had to wait
