@@ -491,15 +491,18 @@ class LinkBudget:
         return False
 
     def admit_response(self, component_id: int, msg: Any, now: float) -> bool:
-        """A queued response to an unverified sender's command may go now: its ACK as an
-        event, a message it asked for (REQUEST_MESSAGE) as an answer (:meth:`admit_answer`).
+        """A queued response to an unverified sender's command (its ACK, a message it asked
+        for with REQUEST_MESSAGE) may go now: as an answer (:meth:`admit_answer`: within the
+        answers' share, half the depth kept for the bridge's own events), never as an event
+        nor as a turn of the periodic stream of its type.
 
-        Never a turn of the periodic stream of the message's type: a requested copy that
-        took the stream's decimation credit (through :meth:`allow`, retried each tick until
-        admitted) took the broadcast status's turns, and a stranger asking for the gimbal's
-        attitude status ten times a second held the autopilot's copy under its 5 Hz floor."""
-        if self.is_event(msg):
-            return self.allow(component_id, msg, now)
+        Why (review rvlb): as events, a single stranger's 100 DO_SET_SERVO a second took
+        every token with their DENIED ACKs (events may run the bucket into debt), and the
+        gimbal status the autopilot needs every second got 0 of its 100 planned turns in 20 s;
+        a requested HEARTBEAT went as an essential message, over the budget. As a turn of its
+        stream (through :meth:`allow`), a stranger asking for the gimbal's attitude status ten
+        times a second took the broadcast copy's turns (63 of 100). The responses still go
+        before the service answers (they are admitted first at each tick)."""
         return self.admit_answer(component_id, msg, now)
 
     def admit_answer(self, component_id: int, msg: Any, now: float) -> bool:

@@ -16,6 +16,7 @@ from mavservo.mavlink.bandwidth import Admission, LinkBudget, plan_budget
 from mavservo.mavlink.gimbal import GimbalDevice, GimbalSettings
 from mavservo.mavlink.settings import MavlinkSettings, TelemetryRates
 from mavservo.mavlink.side import MavlinkSide
+from mavservo.records.metrics import peak_window_bytes
 from tests.support.mavlink_doubles import RecordingBackend, command_long, make_mavlink_core, wire
 
 NOW = Admission.NOW
@@ -24,6 +25,7 @@ GIMBAL = (1, 154)
 SERVO = (1, 140)
 MSG_GIMBAL_DEVICE_ATTITUDE_STATUS = 285
 MAV_CMD_REQUEST_MESSAGE = 512
+DO_SET_SERVO = 183
 
 
 def _sim_plan() -> Any:
@@ -169,3 +171,60 @@ def test_monitors_get_every_held_event_at_once_and_the_link_each_once() -> None:
     assert all(len(link.get(id(text), [])) == 1 for text in texts)
     went = [link[id(text)][0] for text in texts]
     assert went == sorted(went) and went[-1] > 0.0  # in order, and some had to wait
+
+
+def _run_flooded(flood: Any, seconds: float) -> tuple[list[float], list[tuple[float, int]], int]:
+    """The side's order in 10 ms ticks of simulated time with ``flood(core, now)`` each tick:
+    the gimbal statuses broadcast, every message on the link (time, bytes), answers sent."""
+    core = _gimbal_core()
+    budget = core.budget
+    scratch = mavlink2.MAVLink(None)
+    broadcast: list[float] = []
+    sent: list[tuple[float, int]] = []
+    answered = 0
+    for tick in range(int(seconds / 0.01)):
+        now = tick * 0.01
+        went = [msg for _, msg in budget.due(now)]
+        went += [msg for cid, msg in core.tick(now) if budget.offer(cid, msg, now) is NOW]
+        broadcast += [now for msg in went if msg.get_type() == "GIMBAL_DEVICE_ATTITUDE_STATUS"]
+        flood(core, now)
+        answers = [answer.msg for answer in core.answers_due(now)]
+        answered += len(answers)
+        sent += [(now, len(msg.pack(scratch))) for msg in went + answers]
+    return broadcast, sent, answered
+
+
+def _stranger_sends(core: Any, source: tuple[int, int], msg: Any, now: float) -> None:
+    out = core.on_message(wire(msg, source), now)
+    core.queue_responses(source, out, now)  # what the side does for an unverified sender
+
+
+def test_a_strangers_command_flood_does_not_starve_the_gimbal_status() -> None:
+    """One stranger, 100 DO_SET_SERVO a second on a channel nobody maps (each DENIED). Its
+    ACKs went as events, which may take the bucket into debt: 0 of the 100 planned gimbal
+    statuses reached the link in 20 s (the autopilot's mount check wants one a second)."""
+
+    def flood(core: Any, now: float) -> None:
+        _stranger_sends(core, STRANGER, command_long(SERVO, DO_SET_SERVO, 99, 1500), now)
+
+    broadcast, _, answered = _run_flooded(flood, 20.0)
+    gaps = [b - a for a, b in zip(broadcast, broadcast[1:], strict=False)]
+    assert len(broadcast) >= 95, f"{len(broadcast)} of 100 planned"
+    assert max(gaps) < 1.0
+    assert answered > 0  # the stranger is answered, within the answers' share
+
+
+def test_requested_heartbeats_from_spoofed_senders_stay_within_the_budget() -> None:
+    """16 spoofed senders ask for a HEARTBEAT (REQUEST_MESSAGE 0) every 10 ms. The answer
+    went as an essential message (the bridge's own heartbeat always goes, over the budget if
+    it must): 60 over the budget in 10 s and a 1-s window of 1,110 B on a 1,000 B/s budget."""
+
+    def flood(core: Any, now: float) -> None:
+        for component in range(100, 116):
+            _stranger_sends(
+                core, (66, component), command_long(SERVO, MAV_CMD_REQUEST_MESSAGE, 0), now
+            )
+
+    _, sent, answered = _run_flooded(flood, 10.0)
+    assert peak_window_bytes(sent) <= 1000.0
+    assert answered > 0
