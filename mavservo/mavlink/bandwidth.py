@@ -262,6 +262,10 @@ _STREAM_OF_TYPE = {
     "GIMBAL_DEVICE_ATTITUDE_STATUS": "GIMBAL_DEVICE_ATTITUDE_STATUS",
     "ESC_STATUS": "ESC_STATUS",  # gcs (issue 30)
     "ESC_INFO": "ESC_INFO",  # gcs (issue 30)
+    # a gimbal that is its own manager says this at 2 Hz: periodic, so it waits in the line
+    # (the newest one) instead of being held as an event and sent seconds old (review rvlb);
+    # not in the plan (no ratio: never decimated), a few dozen bytes a second per gimbal
+    "GIMBAL_MANAGER_STATUS": "GIMBAL_MANAGER_STATUS",
 }
 
 

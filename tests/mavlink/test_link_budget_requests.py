@@ -228,3 +228,41 @@ def test_requested_heartbeats_from_spoofed_senders_stay_within_the_budget() -> N
     _, sent, answered = _run_flooded(flood, 10.0)
     assert peak_window_bytes(sent) <= 1000.0
     assert answered > 0
+
+
+def test_the_gimbal_managers_periodic_status_never_goes_out_stale() -> None:
+    """GIMBAL_MANAGER_STATUS is periodic (2 Hz when a gimbal acts as its own manager) but was
+    not a stream of the budget: it went as an event, so behind a burst of held texts each one
+    was held in turn and all went later, in order, seconds old, taking places in the held
+    list that the texts need. A periodic message waits in the line like the others: the
+    newest of its stream, never older than its period."""
+    clock = [0.0]
+    side = MavlinkSide(
+        MavlinkSettings(system_id=1, link_budget_bytes_s=400.0),
+        RecordingBackend(),
+        clock=lambda: clock[0],
+    )
+    made: dict[int, float] = {}
+    ages: list[float] = []
+
+    def send(component_id: int, msg: Any, system_id: int, **where: Any) -> None:
+        if where.get("to_link", True) and id(msg) in made:
+            ages.append(clock[0] - made[id(msg)])
+
+    side.link.send = send  # type: ignore[method-assign]  # the decision, not the socket
+    texts = [
+        mavlink2.MAVLink_statustext_message(4, f"line {i} ".encode() * 6, 0, 0) for i in range(30)
+    ]
+    statuses = []
+    side._send([(140, text) for text in texts])
+    for step in range(1, 200):  # 20 s of 100 ms ticks, a manager status every 500 ms
+        clock[0] = step * 0.1
+        out = []
+        if step % 5 == 0 and step <= 100:
+            status = mavlink2.MAVLink_gimbal_manager_status_message(step * 100, 0, 154, 0, 0, 0, 0)
+            statuses.append(status)  # kept alive: ids stay unique
+            made[id(status)] = clock[0]
+            out.append((154, status))
+        side._send(out)
+    assert ages, "some manager statuses reach the link"
+    assert max(ages) <= 0.5, f"a manager status {max(ages):.1f} s old on the link"
