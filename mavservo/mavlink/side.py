@@ -195,8 +195,11 @@ class MavlinkSide:
                 goes = budget.offer(component_id, msg, now) is Admission.NOW
                 decided.append((component_id, msg, _BOTH if goes else _MONITORS))
                 continue
-            # an event: in order behind one that waits, or waits itself for the budget
-            goes = not self._held and budget.offer(component_id, msg, now, requested=asked) is (
+            # an event: in order behind one that waits, or waits itself for the budget; an
+            # essential one (heartbeat, CRITICAL text) never waits behind others (a heartbeat
+            # held behind a burst of texts went 6 s late: a component lost to its peers)
+            behind = bool(self._held) and not budget.essential(msg)
+            goes = not behind and budget.offer(component_id, msg, now, requested=asked) is (
                 Admission.NOW
             )
             if not goes:

@@ -266,3 +266,40 @@ def test_the_gimbal_managers_periodic_status_never_goes_out_stale() -> None:
         side._send(out)
     assert ages, "some manager statuses reach the link"
     assert max(ages) <= 0.5, f"a manager status {max(ages):.1f} s old on the link"
+
+
+def test_the_bridges_heartbeat_is_not_held_behind_waiting_texts() -> None:
+    """Heartbeats always go (over the budget if they must, counted): the autopilot and the
+    ground station call a component lost after a few seconds without one. Behind a burst of
+    held texts (30 at 400 B/s: seconds of them) the heartbeat was held too, "in order" with
+    events it has no order with."""
+    clock = [0.0]
+    side = MavlinkSide(
+        MavlinkSettings(system_id=1, link_budget_bytes_s=400.0),
+        RecordingBackend(),
+        clock=lambda: clock[0],
+    )
+    late: list[float] = []
+    beats: dict[int, float] = {}
+
+    def send(component_id: int, msg: Any, system_id: int, **where: Any) -> None:
+        if where.get("to_link", True) and id(msg) in beats:
+            late.append(clock[0] - beats[id(msg)])
+
+    side.link.send = send  # type: ignore[method-assign]  # the decision, not the socket
+    texts = [
+        mavlink2.MAVLink_statustext_message(4, f"line {i} ".encode() * 6, 0, 0) for i in range(30)
+    ]
+    side._send([(140, text) for text in texts])
+    kept = []
+    for step in range(1, 100):  # 10 s of 100 ms ticks, a heartbeat a second
+        clock[0] = step * 0.1
+        out = []
+        if step % 10 == 0:
+            beat = mavlink2.MAVLink_heartbeat_message(26, 8, 0, 0, 4, 3)
+            kept.append(beat)
+            beats[id(beat)] = clock[0]
+            out.append((140, beat))
+        side._send(out)
+    assert len(late) == len(kept) == 9
+    assert max(late) == 0.0, f"a heartbeat {max(late):.1f} s late"
