@@ -49,7 +49,7 @@ SIGNATURE_BYTES = 13
 EVENT_RESERVE = 0.1
 MAX_WAITING = 1024
 """Most periodic messages waiting for the window (one per stream: 9 servos and a gimbal make
-~90 streams; a bound all the same, the oldest goes first and is counted)."""
+~90 streams; a bound all the same, the oldest but the urgent ones goes first and is counted)."""
 #: Share of the bucket's rate answers to requests (parameter lists and reads, FTP) may use at
 #: most: a read flood from a stranger starved the autopilot's telemetry when answers and
 #: telemetry competed for the same tokens without a cap. While answers flow, telemetry gets
@@ -410,8 +410,12 @@ class LinkBudget:
         if urgent:
             self._waiting.move_to_end(key, last=False)
         self.counters["waited"] += 1
-        while len(self._waiting) > MAX_WAITING:  # more streams than any config makes
-            self._waiting.popitem(last=False)
+        while len(self._waiting) > MAX_WAITING:  # ~146 servos' names: no bound on servos
+            # the oldest that is not urgent (the urgent stream is at the head: dropping the
+            # head dropped the gimbal status the autopilot's health check needs)
+            first = next(iter(self._waiting))
+            oldest = next((k for k in self._waiting if k[1] not in _URGENT_STREAMS), first)
+            del self._waiting[oldest]
             self.counters["waiting_dropped"] += 1
         return Admission.WAITS
 

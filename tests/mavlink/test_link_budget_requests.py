@@ -12,7 +12,7 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from mavservo.mavlink.bandwidth import Admission, LinkBudget, plan_budget
+from mavservo.mavlink.bandwidth import MAX_WAITING, Admission, LinkBudget, plan_budget
 from mavservo.mavlink.gimbal import GimbalDevice, GimbalSettings
 from mavservo.mavlink.settings import MavlinkSettings, TelemetryRates
 from mavservo.mavlink.side import MavlinkSide
@@ -303,3 +303,34 @@ def test_the_bridges_heartbeat_is_not_held_behind_waiting_texts() -> None:
         side._send(out)
     assert len(late) == len(kept) == 9
     assert max(late) == 0.0, f"a heartbeat {max(late):.1f} s late"
+
+
+def test_a_full_waiting_line_never_drops_the_gimbal_status_first() -> None:
+    """The line holds one message per stream up to MAX_WAITING (1,024: seven names per servo,
+    about 146 servos, a config with no bound on servos reaches it); beyond it the oldest went
+    first, and the oldest is the head, where the gimbal's status (the autopilot's health
+    check) is put. The status survives the line's bound; a name is dropped instead."""
+    budget = LinkBudget(
+        plan_budget(
+            1000.0,
+            servos=160,
+            gimbals=1,
+            health_names=7,
+            components=2,
+            rates=TelemetryRates(),
+            signed=False,
+        )
+    )
+    now = 10.0
+    gimbal = mavlink2.MAVLink_gimbal_device_attitude_status_message(
+        0, 0, 0, 0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, 0
+    )
+    text = mavlink2.MAVLink_statustext_message(4, b"x" * 50, 0, 0)
+    for _ in range(100):  # events take the window down to their debt
+        if budget.offer(140, text, now) is not NOW:
+            break
+    assert budget.offer(154, gimbal, now) is Admission.WAITS
+    for name in [f"s{i}_pos".encode() for i in range(MAX_WAITING + 50)]:
+        budget.offer(140, mavlink2.MAVLink_named_value_float_message(0, name, 1.0), now)
+    assert budget.counters["waiting_dropped"] > 0
+    assert budget.due(now + 1.0)[0] == (154, gimbal)
