@@ -19,10 +19,12 @@ and events (heartbeats, acknowledgements, STATUSTEXT) may run ``D`` into debt. I
 length T the link carries at most C + r*T + D bytes, so with C + r + D = budget no 1-second
 window exceeds the budget (issue 30, item 5: the average was under it, 25 of 60 seconds were
 not). Periodic telemetry that does not fit waits in a line, one message per stream, and goes
-in turn (:meth:`LinkBudget.offer`, :meth:`LinkBudget.due`); answers to requests take tokens only
-while half the depth stays for events (they wait in their own queue), events
-(STATUSTEXT, COMMAND_ACK) may take the rest and the debt; heartbeats and CRITICAL texts always go
-(counted in ``essential_over_budget`` when they exceed it).
+in turn (:meth:`LinkBudget.offer`, :meth:`LinkBudget.due`); answers to requests (and every
+response to an unverified sender's command, its ACK included) take tokens only within their
+share and while half the depth stays for events (they wait in their own queue), the bridge's
+own events (STATUSTEXT, COMMAND_ACK to a verified sender) may take the rest and the debt;
+heartbeats and CRITICAL texts always go (counted in ``essential_over_budget`` when they exceed
+it).
 Sizes are the worst case of each message type (MAVLink 2 trims trailing zeros: real frames are
 shorter), so the bound holds for the bytes really sent.
 """
@@ -341,9 +343,10 @@ class LinkBudget:
     def allow(self, component_id: int, msg: Any, now: float = 0.0) -> bool:
         """True when ``msg`` goes on the autopilot link now (it always goes to the monitors);
         False for an event means "not yet" (the caller keeps it for the next tick). A periodic
-        message is never kept here: one that does not fit now is held back (a command's
-        requested message, the property tests); the bridge's telemetry goes through
-        :meth:`offer`, which keeps its turn in the waiting line."""
+        message is never kept here: one that does not fit now is held back (the property
+        tests); the bridge's telemetry goes through :meth:`offer`, which keeps its turn in
+        the waiting line, and a message a peer asked for is no turn of its stream's
+        (:meth:`offer` with ``requested``, :meth:`admit_response`)."""
         kind = msg.get_type()
         stream = self._stream(kind)
         if stream is None:
