@@ -350,7 +350,7 @@ class LinkBudget:
         kind = msg.get_type()
         stream = self._stream(kind)
         if stream is None:
-            return self._event(kind, msg, now, self._bucket)
+            return self._event(msg, now, self._bucket)
         key = self._key(component_id, kind, msg)
         if not self._takes_turn(key, stream):
             return False
@@ -392,7 +392,8 @@ class LinkBudget:
         stream = self._stream(kind)
         bucket = self._bucket
         if stream is None or requested:
-            return Admission.NOW if self._event(kind, msg, now, bucket) else Admission.SKIPPED
+            admitted = self._event(msg, now, bucket, requested)
+            return Admission.NOW if admitted else Admission.SKIPPED
         key = self._key(component_id, kind, msg)
         if key in self._waiting:
             # a fresher value takes the waiting one's place (the link never gets a value older
@@ -487,14 +488,19 @@ class LinkBudget:
             cost, now, keep=max(0.0, min(bucket.capacity / 2, bucket.capacity - cost))
         )
 
-    def _event(self, kind: str, msg: Any, now: float, bucket: TokenBucket | None) -> bool:
+    def _event(
+        self, msg: Any, now: float, bucket: TokenBucket | None, requested: bool = False
+    ) -> bool:
+        """An event within the bucket and its debt; the bridge's own essential ones beyond
+        (a HEARTBEAT a peer asked for is an answer, not the bridge's heartbeat: a spoofed
+        autopilot asking for one every 10 ms took 1-s windows to 2,254 B of 1,000)."""
         if bucket is None:
             return True
         cost = self._cost(msg)
         _, _, debt = self.plan.bucket
         if bucket.take(cost, now, debt=debt):
             return True
-        if self.essential(msg):
+        if self.essential(msg) and not requested:
             bucket.tokens -= cost
             self.counters["essential_over_budget"] += 1
             return True

@@ -198,7 +198,7 @@ class MavlinkSide:
             # an event: in order behind one that waits, or waits itself for the budget; an
             # essential one (heartbeat, CRITICAL text) never waits behind others (a heartbeat
             # held behind a burst of texts went 6 s late: a component lost to its peers)
-            behind = bool(self._held) and not budget.essential(msg)
+            behind = bool(self._held) and (asked or not budget.essential(msg))
             goes = not behind and budget.offer(component_id, msg, now, requested=asked) is (
                 Admission.NOW
             )
@@ -212,11 +212,16 @@ class MavlinkSide:
 
     def _hold(self, component_id: int, msg: Any, requested: bool) -> None:
         """Keep an event for the next tick; beyond :data:`MAX_HELD_EVENTS` the oldest one
-        that is not essential (CRITICAL text, heartbeat) is dropped and counted."""
+        that is not essential (the bridge's CRITICAL text, its heartbeat; one a peer asked for
+        is an answer) is dropped and counted."""
         self._held.append((component_id, msg, requested))
         if len(self._held) > MAX_HELD_EVENTS:
             victim = next(
-                (i for i, (_, m, _) in enumerate(self._held) if not self.core.budget.essential(m)),
+                (
+                    i
+                    for i, (_, m, asked) in enumerate(self._held)
+                    if asked or not self.core.budget.essential(m)  # one asked for: an answer
+                ),
                 None,
             )
             if victim is not None:

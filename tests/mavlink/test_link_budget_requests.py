@@ -334,3 +334,32 @@ def test_a_full_waiting_line_never_drops_the_gimbal_status_first() -> None:
         budget.offer(140, mavlink2.MAVLink_named_value_float_message(0, name, 1.0), now)
     assert budget.counters["waiting_dropped"] > 0
     assert budget.due(now + 1.0)[0] == (154, gimbal)
+
+
+def test_heartbeats_asked_for_by_a_spoofed_autopilot_stay_within_the_budget() -> None:
+    """On an unsigned link anyone can send as the autopilot (1/1), whose requests are answered
+    at once. A HEARTBEAT it asks for (REQUEST_MESSAGE 0) is an answer, not the bridge's own
+    heartbeat: it went as an essential message, over the budget whatever the rate (100 a
+    second: 1-s windows of 3 kB on a 1,000 B/s budget), and it was never dropped from the
+    held events, so real texts were dropped in its place."""
+    clock = [0.0]
+    side = MavlinkSide(
+        MavlinkSettings(system_id=1, link_budget_bytes_s=1000.0),
+        RecordingBackend(),
+        clock=lambda: clock[0],
+    )
+    scratch = mavlink2.MAVLink(None)
+    sent: list[tuple[float, int]] = []
+
+    def send(component_id: int, msg: Any, system_id: int, **where: Any) -> None:
+        if where.get("to_link", True):
+            sent.append((clock[0], len(msg.pack(scratch))))
+
+    side.link.send = send  # type: ignore[method-assign]  # the decision, not the socket
+    for tick in range(500):  # 5 s, a request every 10 ms
+        clock[0] = tick * 0.01
+        request = command_long(SERVO, MAV_CMD_REQUEST_MESSAGE, 0, tick)  # not a retry
+        side._on_message(wire(request, (1, 1)), clock[0])
+        side._send([])
+    assert peak_window_bytes(sent) <= 1000.0
+    assert side.core.budget.counters["essential_over_budget"] == 0
