@@ -12,11 +12,12 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
-from mavservo.mavlink.bandwidth import MAX_WAITING, Admission, LinkBudget, plan_budget
+from mavservo.mavlink.bandwidth import MAX_WAITING, Admission, LinkBudget
 from mavservo.mavlink.gimbal import GimbalDevice, GimbalSettings
-from mavservo.mavlink.settings import MavlinkSettings, TelemetryRates
+from mavservo.mavlink.settings import MavlinkSettings
 from mavservo.mavlink.side import MavlinkSide
 from mavservo.records.metrics import peak_window_bytes
+from tests.mavlink.test_link_budget_window import _default_plan
 from tests.support.mavlink_doubles import RecordingBackend, command_long, make_mavlink_core, wire
 
 NOW = Admission.NOW
@@ -30,15 +31,7 @@ DO_SET_SERVO = 183
 
 def _sim_plan() -> Any:
     """The plan of `config/sim.yaml` (nine servos and a gimbal at the default budget)."""
-    return plan_budget(
-        1000.0,
-        servos=9,
-        gimbals=1,
-        health_names=7,
-        components=2,
-        rates=TelemetryRates(),
-        signed=False,
-    )
+    return _default_plan(servos=9, gimbals=1)
 
 
 def _gimbal_core() -> Any:
@@ -51,6 +44,48 @@ def _gimbal_core() -> Any:
     core.budget.replan(_sim_plan(), 0.0)
     assert core.budget.plan.ratios["GIMBAL_DEVICE_ATTITUDE_STATUS"] == 0.5
     return core
+
+
+class _SideOnAClock:
+    """A MAVLink side on a simulated clock whose link records what it is told to send, and
+    where (the side's decision, not the socket's work)."""
+
+    def __init__(self, budget: float, **settings: Any) -> None:
+        self.now = 0.0
+        self.side = MavlinkSide(
+            MavlinkSettings(system_id=1, link_budget_bytes_s=budget, **settings),
+            RecordingBackend(),
+            clock=lambda: self.now,
+        )
+        #: (time, message, on the link, to the monitors)
+        self.sent: list[tuple[float, Any, bool, bool]] = []
+        self.side.link.send = self._record  # type: ignore[method-assign]
+
+    def _record(self, component_id: int, msg: Any, system_id: int, **where: Any) -> None:
+        self.sent.append(
+            (self.now, msg, where.get("to_link", True), where.get("to_monitors", True))
+        )
+
+    def on_link(self, msg: Any) -> list[float]:
+        return [t for t, m, link, _ in self.sent if m is msg and link]
+
+    def on_monitors(self, msg: Any) -> list[float]:
+        return [t for t, m, _, monitors in self.sent if m is msg and monitors]
+
+    def link_types(self) -> list[str]:
+        return [m.get_type() for _, m, link, _ in self.sent if link]
+
+    def link_bytes(self) -> list[tuple[float, int]]:
+        scratch = mavlink2.MAVLink(None)
+        return [(t, len(m.pack(scratch))) for t, m, link, _ in self.sent if link]
+
+
+def _texts(count: int) -> list[Any]:
+    """A burst of WARNING texts, 66 B each: seconds of a 400 B/s budget."""
+    return [
+        mavlink2.MAVLink_statustext_message(4, f"line {i} ".encode() * 6, 0, 0)
+        for i in range(count)
+    ]
 
 
 def test_a_strangers_requests_do_not_take_the_autopilots_gimbal_status_turns() -> None:
@@ -96,24 +131,13 @@ def test_a_ground_stations_requested_message_reaches_the_link_every_time() -> No
     budget (:meth:`MavlinkSide._send`); before, they went through the stream's decimation
     like the periodic copies, so at the `config/sim.yaml` plan (the stream at 4 % of its
     messages) the station got 1 of 10 on the link, the others to the monitors only."""
-    clock = [0.0]
-    side = MavlinkSide(
-        MavlinkSettings(system_id=1, link_budget_bytes_s=1000.0, allowed_sources=frozenset({GCS})),
-        RecordingBackend(),
-        clock=lambda: clock[0],
-    )
-    side.core.budget.replan(_sim_plan(), 0.0)
-    on_link: list[str] = []
-
-    def send(component_id: int, msg: Any, system_id: int, **where: Any) -> None:
-        if where.get("to_link", True):
-            on_link.append(msg.get_type())
-
-    side.link.send = send  # type: ignore[method-assign]  # the decision, not the socket
+    bridge = _SideOnAClock(1000.0, allowed_sources=frozenset({GCS}))
+    bridge.side.core.budget.replan(_sim_plan(), 0.0)
     for second in range(10):
-        clock[0] = float(second)
+        bridge.now = float(second)
         request = command_long(SERVO, MAV_CMD_REQUEST_MESSAGE, MSG_ACTUATOR_OUTPUT_STATUS)
-        side._on_message(wire(request, GCS), clock[0])
+        bridge.side._on_message(wire(request, GCS), bridge.now)
+    on_link = bridge.link_types()
     assert on_link.count("ACTUATOR_OUTPUT_STATUS") == 10, on_link
     assert on_link.count("COMMAND_ACK") == 10
 
@@ -144,32 +168,15 @@ def test_monitors_get_every_held_event_at_once_and_the_link_each_once() -> None:
     order; the monitor outputs are local and keep everything at once, as they do for the
     telemetry waiting in the line. Before, a held event reached the monitors only when the
     link took it (late in the recording), and one dropped from the full held list never."""
-    clock = [0.0]
-    side = MavlinkSide(
-        MavlinkSettings(system_id=1, link_budget_bytes_s=400.0),
-        RecordingBackend(),
-        clock=lambda: clock[0],
-    )
-    monitors: dict[int, list[float]] = {}
-    link: dict[int, list[float]] = {}
-
-    def send(component_id: int, msg: Any, system_id: int, **where: Any) -> None:
-        if where.get("to_monitors", True):
-            monitors.setdefault(id(msg), []).append(clock[0])
-        if where.get("to_link", True):
-            link.setdefault(id(msg), []).append(clock[0])
-
-    side.link.send = send  # type: ignore[method-assign]  # the decision, not the socket
-    texts = [
-        mavlink2.MAVLink_statustext_message(4, f"line {i} ".encode() * 6, 0, 0) for i in range(30)
-    ]
-    side._send([(140, text) for text in texts])
+    bridge = _SideOnAClock(400.0)
+    texts = _texts(30)
+    bridge.side._send([(140, text) for text in texts])
     for step in range(1, 200):  # 20 s of ticks, more than the 30 texts need at 400 B/s
-        clock[0] = step * 0.1
-        side._send([])
-    assert all(monitors.get(id(text)) == [0.0] for text in texts), monitors
-    assert all(len(link.get(id(text), [])) == 1 for text in texts)
-    went = [link[id(text)][0] for text in texts]
+        bridge.now = step * 0.1
+        bridge.side._send([])
+    assert all(bridge.on_monitors(text) == [0.0] for text in texts)
+    assert all(len(bridge.on_link(text)) == 1 for text in texts)
+    went = [bridge.on_link(text)[0] for text in texts]
     assert went == sorted(went) and went[-1] > 0.0  # in order, and some had to wait
 
 
@@ -236,34 +243,24 @@ def test_the_gimbal_managers_periodic_status_never_goes_out_stale() -> None:
     was held in turn and all went later, in order, seconds old, taking places in the held
     list that the texts need. A periodic message waits in the line like the others: the
     newest of its stream, never older than its period."""
-    clock = [0.0]
-    side = MavlinkSide(
-        MavlinkSettings(system_id=1, link_budget_bytes_s=400.0),
-        RecordingBackend(),
-        clock=lambda: clock[0],
-    )
-    made: dict[int, float] = {}
-    ages: list[float] = []
-
-    def send(component_id: int, msg: Any, system_id: int, **where: Any) -> None:
-        if where.get("to_link", True) and id(msg) in made:
-            ages.append(clock[0] - made[id(msg)])
-
-    side.link.send = send  # type: ignore[method-assign]  # the decision, not the socket
-    texts = [
-        mavlink2.MAVLink_statustext_message(4, f"line {i} ".encode() * 6, 0, 0) for i in range(30)
-    ]
-    statuses = []
-    side._send([(140, text) for text in texts])
+    bridge = _SideOnAClock(400.0)
+    bridge.side._send([(140, text) for text in _texts(30)])
     for step in range(1, 200):  # 20 s of 100 ms ticks, a manager status every 500 ms
-        clock[0] = step * 0.1
+        bridge.now = step * 0.1
         out = []
-        if step % 5 == 0 and step <= 100:
-            status = mavlink2.MAVLink_gimbal_manager_status_message(step * 100, 0, 154, 0, 0, 0, 0)
-            statuses.append(status)  # kept alive: ids stay unique
-            made[id(status)] = clock[0]
-            out.append((154, status))
-        side._send(out)
+        if step % 5 == 0 and step <= 100:  # made now: its time_boot_ms says when
+            out.append(
+                (
+                    154,
+                    mavlink2.MAVLink_gimbal_manager_status_message(step * 100, 0, 154, 0, 0, 0, 0),
+                )
+            )
+        bridge.side._send(out)
+    ages = [
+        t - m.time_boot_ms / 1000
+        for t, m, link, _ in bridge.sent
+        if link and m.get_type() == "GIMBAL_MANAGER_STATUS"
+    ]
     assert ages, "some manager statuses reach the link"
     assert max(ages) <= 0.5, f"a manager status {max(ages):.1f} s old on the link"
 
@@ -273,35 +270,18 @@ def test_the_bridges_heartbeat_is_not_held_behind_waiting_texts() -> None:
     ground station call a component lost after a few seconds without one. Behind a burst of
     held texts (30 at 400 B/s: seconds of them) the heartbeat was held too, "in order" with
     events it has no order with."""
-    clock = [0.0]
-    side = MavlinkSide(
-        MavlinkSettings(system_id=1, link_budget_bytes_s=400.0),
-        RecordingBackend(),
-        clock=lambda: clock[0],
-    )
-    late: list[float] = []
-    beats: dict[int, float] = {}
-
-    def send(component_id: int, msg: Any, system_id: int, **where: Any) -> None:
-        if where.get("to_link", True) and id(msg) in beats:
-            late.append(clock[0] - beats[id(msg)])
-
-    side.link.send = send  # type: ignore[method-assign]  # the decision, not the socket
-    texts = [
-        mavlink2.MAVLink_statustext_message(4, f"line {i} ".encode() * 6, 0, 0) for i in range(30)
-    ]
-    side._send([(140, text) for text in texts])
-    kept = []
+    bridge = _SideOnAClock(400.0)
+    bridge.side._send([(140, text) for text in _texts(30)])
+    beats: list[tuple[Any, float]] = []
     for step in range(1, 100):  # 10 s of 100 ms ticks, a heartbeat a second
-        clock[0] = step * 0.1
+        bridge.now = step * 0.1
         out = []
         if step % 10 == 0:
-            beat = mavlink2.MAVLink_heartbeat_message(26, 8, 0, 0, 4, 3)
-            kept.append(beat)
-            beats[id(beat)] = clock[0]
-            out.append((140, beat))
-        side._send(out)
-    assert len(late) == len(kept) == 9
+            beats.append((mavlink2.MAVLink_heartbeat_message(26, 8, 0, 0, 4, 3), bridge.now))
+            out.append((140, beats[-1][0]))
+        bridge.side._send(out)
+    late = [t - made for beat, made in beats for t in bridge.on_link(beat)]
+    assert len(late) == 9
     assert max(late) == 0.0, f"a heartbeat {max(late):.1f} s late"
 
 
@@ -310,17 +290,7 @@ def test_a_full_waiting_line_never_drops_the_gimbal_status_first() -> None:
     about 146 servos, a config with no bound on servos reaches it); beyond it the oldest went
     first, and the oldest is the head, where the gimbal's status (the autopilot's health
     check) is put. The status survives the line's bound; a name is dropped instead."""
-    budget = LinkBudget(
-        plan_budget(
-            1000.0,
-            servos=160,
-            gimbals=1,
-            health_names=7,
-            components=2,
-            rates=TelemetryRates(),
-            signed=False,
-        )
-    )
+    budget = LinkBudget(_default_plan(servos=160, gimbals=1))
     now = 10.0
     gimbal = mavlink2.MAVLink_gimbal_device_attitude_status_message(
         0, 0, 0, 0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, 0
@@ -342,24 +312,11 @@ def test_heartbeats_asked_for_by_a_spoofed_autopilot_stay_within_the_budget() ->
     heartbeat: it went as an essential message, over the budget whatever the rate (100 a
     second: 1-s windows of 3 kB on a 1,000 B/s budget), and it was never dropped from the
     held events, so real texts were dropped in its place."""
-    clock = [0.0]
-    side = MavlinkSide(
-        MavlinkSettings(system_id=1, link_budget_bytes_s=1000.0),
-        RecordingBackend(),
-        clock=lambda: clock[0],
-    )
-    scratch = mavlink2.MAVLink(None)
-    sent: list[tuple[float, int]] = []
-
-    def send(component_id: int, msg: Any, system_id: int, **where: Any) -> None:
-        if where.get("to_link", True):
-            sent.append((clock[0], len(msg.pack(scratch))))
-
-    side.link.send = send  # type: ignore[method-assign]  # the decision, not the socket
+    bridge = _SideOnAClock(1000.0)
     for tick in range(500):  # 5 s, a request every 10 ms
-        clock[0] = tick * 0.01
+        bridge.now = tick * 0.01
         request = command_long(SERVO, MAV_CMD_REQUEST_MESSAGE, 0, tick)  # not a retry
-        side._on_message(wire(request, (1, 1)), clock[0])
-        side._send([])
-    assert peak_window_bytes(sent) <= 1000.0
-    assert side.core.budget.counters["essential_over_budget"] == 0
+        bridge.side._on_message(wire(request, (1, 1)), bridge.now)
+        bridge.side._send([])
+    assert peak_window_bytes(bridge.link_bytes()) <= 1000.0
+    assert bridge.side.core.budget.counters["essential_over_budget"] == 0
