@@ -19,10 +19,12 @@ and events (heartbeats, acknowledgements, STATUSTEXT) may run ``D`` into debt. I
 length T the link carries at most C + r*T + D bytes, so with C + r + D = budget no 1-second
 window exceeds the budget (issue 30, item 5: the average was under it, 25 of 60 seconds were
 not). Periodic telemetry that does not fit waits in a line, one message per stream, and goes
-in turn (:meth:`LinkBudget.offer`, :meth:`LinkBudget.due`); answers to requests take tokens only
-while half the depth stays for events (they wait in their own queue), events
-(STATUSTEXT, COMMAND_ACK) may take the rest and the debt; heartbeats and CRITICAL texts always go
-(counted in ``essential_over_budget`` when they exceed it).
+in turn (:meth:`LinkBudget.offer`, :meth:`LinkBudget.due`); answers to requests (and every
+response to an unverified sender's command, its ACK included) take tokens only within their
+share and while half the depth stays for events (they wait in their own queue), the bridge's
+own events (STATUSTEXT, COMMAND_ACK to a verified sender) may take the rest and the debt;
+heartbeats and CRITICAL texts always go (counted in ``essential_over_budget`` when they exceed
+it).
 Sizes are the worst case of each message type (MAVLink 2 trims trailing zeros: real frames are
 shorter), so the bound holds for the bytes really sent.
 """
@@ -49,7 +51,7 @@ SIGNATURE_BYTES = 13
 EVENT_RESERVE = 0.1
 MAX_WAITING = 1024
 """Most periodic messages waiting for the window (one per stream: 9 servos and a gimbal make
-~90 streams; a bound all the same, the oldest goes first and is counted)."""
+~90 streams; a bound all the same, the oldest but the urgent ones goes first and is counted)."""
 #: Share of the bucket's rate answers to requests (parameter lists and reads, FTP) may use at
 #: most: a read flood from a stranger starved the autopilot's telemetry when answers and
 #: telemetry competed for the same tokens without a cap. While answers flow, telemetry gets
@@ -262,7 +264,20 @@ _STREAM_OF_TYPE = {
     "GIMBAL_DEVICE_ATTITUDE_STATUS": "GIMBAL_DEVICE_ATTITUDE_STATUS",
     "ESC_STATUS": "ESC_STATUS",  # gcs (issue 30)
     "ESC_INFO": "ESC_INFO",  # gcs (issue 30)
+    # a gimbal that is its own manager says this at 2 Hz: periodic, so it waits in the line
+    # (the newest one) instead of being held as an event and sent seconds old (review rvlb);
+    # not in the plan (no ratio: never decimated), a few dozen bytes a second per gimbal
+    "GIMBAL_MANAGER_STATUS": "GIMBAL_MANAGER_STATUS",
 }
+
+
+def _not_before(now: float | None, old: TokenBucket | None) -> float | None:
+    """The clock of a re-planned bucket: never before the old one's (a SET_MESSAGE_INTERVAL
+    re-plans at its receipt time, which may precede the tick that last took tokens: a clock
+    set back refilled that time twice, ``rate * lag`` bytes minted at each re-plan)."""
+    if old is None or old.at is None or now is None:
+        return now
+    return max(now, old.at)
 
 
 class LinkBudget:
@@ -289,8 +304,10 @@ class LinkBudget:
             return
         rate, depth, _ = plan.bucket
         before = self._bucket, self._answers
-        self._bucket = TokenBucket(rate, depth, now)
-        self._answers = TokenBucket(rate * ANSWER_SHARE, ANSWER_DEPTH_BYTES, now)
+        self._bucket = TokenBucket(rate, depth, _not_before(now, before[0]))
+        self._answers = TokenBucket(
+            rate * ANSWER_SHARE, ANSWER_DEPTH_BYTES, _not_before(now, before[1])
+        )
         for old, new in zip(before, (self._bucket, self._answers), strict=True):
             if old is not None:  # a re-plan (a stranger's SET_MESSAGE_INTERVAL) refills nothing
                 new.tokens = min(old.tokens, new.capacity)
@@ -326,13 +343,14 @@ class LinkBudget:
     def allow(self, component_id: int, msg: Any, now: float = 0.0) -> bool:
         """True when ``msg`` goes on the autopilot link now (it always goes to the monitors);
         False for an event means "not yet" (the caller keeps it for the next tick). A periodic
-        message is never kept here: one that does not fit now is held back (a command's
-        requested message, the property tests); the bridge's telemetry goes through
-        :meth:`offer`, which keeps its turn in the waiting line."""
+        message is never kept here: one that does not fit now is held back (the property
+        tests); the bridge's telemetry goes through :meth:`offer`, which keeps its turn in
+        the waiting line, and a message a peer asked for is no turn of its stream's
+        (:meth:`offer` with ``requested``, :meth:`admit_response`)."""
         kind = msg.get_type()
         stream = self._stream(kind)
         if stream is None:
-            return self._event(kind, msg, now, self._bucket)
+            return self._event(msg, now, self._bucket)
         key = self._key(component_id, kind, msg)
         if not self._takes_turn(key, stream):
             return False
@@ -342,7 +360,9 @@ class LinkBudget:
         self.counters["held_back_window"] += 1
         return False
 
-    def offer(self, component_id: int, msg: Any, now: float) -> Admission:
+    def offer(
+        self, component_id: int, msg: Any, now: float, *, requested: bool = False
+    ) -> Admission:
         """Where ``msg`` goes: on the link now (:attr:`Admission.NOW`), into the waiting line
         for the link (:attr:`Admission.WAITS`: :meth:`due` hands it out when the window has
         room, oldest first), or to the monitors only (:attr:`Admission.SKIPPED`: the plan's
@@ -362,12 +382,18 @@ class LinkBudget:
         period. Periodic messages take tokens only while half the bucket's depth stays for
         events and answers (a parameter read must not wait behind the line). The gimbal's
         attitude status (:data:`_URGENT_STREAMS`) goes to the head: the autopilot calls the
-        gimbal unhealthy after 1 s without it."""
+        gimbal unhealthy after 1 s without it.
+
+        A message a peer asked for (``requested``: REQUEST_MESSAGE, "send it once, now") is an
+        event whatever its type: never decimated, never a turn of its stream's (before, a
+        ground station asking for ACTUATOR_OUTPUT_STATUS once a second got 1 of 10 on the
+        link at the stream's 4 %)."""
         kind = msg.get_type()
         stream = self._stream(kind)
         bucket = self._bucket
-        if stream is None:
-            return Admission.NOW if self._event(kind, msg, now, bucket) else Admission.SKIPPED
+        if stream is None or requested:
+            admitted = self._event(msg, now, bucket, requested)
+            return Admission.NOW if admitted else Admission.SKIPPED
         key = self._key(component_id, kind, msg)
         if key in self._waiting:
             # a fresher value takes the waiting one's place (the link never gets a value older
@@ -388,8 +414,12 @@ class LinkBudget:
         if urgent:
             self._waiting.move_to_end(key, last=False)
         self.counters["waited"] += 1
-        while len(self._waiting) > MAX_WAITING:  # more streams than any config makes
-            self._waiting.popitem(last=False)
+        while len(self._waiting) > MAX_WAITING:  # ~146 servos' names: no bound on servos
+            # the oldest that is not urgent (the urgent stream is at the head: dropping the
+            # head dropped the gimbal status the autopilot's health check needs)
+            first = next(iter(self._waiting))
+            oldest = next((k for k in self._waiting if k[1] not in _URGENT_STREAMS), first)
+            del self._waiting[oldest]
             self.counters["waiting_dropped"] += 1
         return Admission.WAITS
 
@@ -458,19 +488,39 @@ class LinkBudget:
             cost, now, keep=max(0.0, min(bucket.capacity / 2, bucket.capacity - cost))
         )
 
-    def _event(self, kind: str, msg: Any, now: float, bucket: TokenBucket | None) -> bool:
+    def _event(
+        self, msg: Any, now: float, bucket: TokenBucket | None, requested: bool = False
+    ) -> bool:
+        """An event within the bucket and its debt; the bridge's own essential ones beyond
+        (a HEARTBEAT a peer asked for is an answer, not the bridge's heartbeat: a spoofed
+        autopilot asking for one every 10 ms took 1-s windows to 2,254 B of 1,000)."""
         if bucket is None:
             return True
         cost = self._cost(msg)
         _, _, debt = self.plan.bucket
         if bucket.take(cost, now, debt=debt):
             return True
-        if self.essential(msg):
+        if self.essential(msg) and not requested:
             bucket.tokens -= cost
             self.counters["essential_over_budget"] += 1
             return True
         self.counters["events_delayed"] += 1
         return False
+
+    def admit_response(self, component_id: int, msg: Any, now: float) -> bool:
+        """A queued response to an unverified sender's command (its ACK, a message it asked
+        for with REQUEST_MESSAGE) may go now: as an answer (:meth:`admit_answer`: within the
+        answers' share, half the depth kept for the bridge's own events), never as an event
+        nor as a turn of the periodic stream of its type.
+
+        Why (review rvlb): as events, a single stranger's 100 DO_SET_SERVO a second took
+        every token with their DENIED ACKs (events may run the bucket into debt), and the
+        gimbal status the autopilot needs every second got 0 of its 100 planned turns in 20 s;
+        a requested HEARTBEAT went as an essential message, over the budget. As a turn of its
+        stream (through :meth:`allow`), a stranger asking for the gimbal's attitude status ten
+        times a second took the broadcast copy's turns (63 of 100). The responses still go
+        before the service answers (they are admitted first at each tick)."""
+        return self.admit_answer(component_id, msg, now)
 
     def admit_answer(self, component_id: int, msg: Any, now: float) -> bool:
         """An answer to a request may go now: within the answers' share of the rate

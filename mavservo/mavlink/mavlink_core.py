@@ -220,7 +220,9 @@ class MavlinkCore:
         Queued command responses (see :meth:`queue_responses`) go first, as the events they
         would have been (a flood of parameter lists from 250 spoofed senders must not hold a
         ground station's ACK behind their answers); service answers take the answers' share."""
-        responses = self.responses.due(now, lambda cid, msg: self.budget.allow(cid, msg, now))
+        responses = self.responses.due(
+            now, lambda cid, msg: self.budget.admit_response(cid, msg, now)
+        )
         answers = self.answers.due(now, lambda cid, msg: self.budget.admit_answer(cid, msg, now))
         return responses + answers
 

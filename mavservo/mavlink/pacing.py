@@ -30,6 +30,11 @@ class TokenBucket:
         #: None: the clock starts at the first :meth:`level` (full until then)
         self._at = now
 
+    @property
+    def at(self) -> float | None:
+        """The time the tokens were last counted at (None: not yet)."""
+        return self._at
+
     def level(self, now: float) -> float:
         if self._at is None:
             self._at = now

@@ -77,8 +77,9 @@ class MavlinkSide:
         self.link.privileged = lambda source: source == self.core.watched or source in allowed
         self._loop = BackgroundLoop(self._tick_loop, name="mavlink-tick")
         self._tick_errors = 0  # failures the core's own guards did not catch
-        #: events the link budget could not take yet, in order (sent before newer ones)
-        self._held: list[Outgoing] = []
+        #: events the link budget could not take yet, in order (sent before newer ones), each
+        #: with whether a peer asked for it (a requested message is an event whatever its type)
+        self._held: list[tuple[int, Any, bool]] = []
         #: ``on_sent(msg, t)`` after each message went out (latency tracing); must not block.
         self.on_sent: Callable[[Any, float], None] | None = None
 
@@ -126,7 +127,7 @@ class MavlinkSide:
                 # everyone else's ACKs out): to it only, with the next tick
                 self.core.queue_responses(source, out, now)
                 return
-        self._send(out)
+        self._send(out, requested=True)
 
     def announce(self, text: str, severity: int = MAV_SEVERITY_WARNING) -> None:
         """Queue a STATUSTEXT from the servo component (thread-safe, for the other layers)."""
@@ -159,14 +160,16 @@ class MavlinkSide:
                 delay = 0
             self._loop.wait(delay)
 
-    def _send(self, out: list[Outgoing]) -> None:
+    def _send(self, out: list[Outgoing], requested: bool = False) -> None:
         """Send ``out`` within the link budget: periodic telemetry goes to the monitors at
         once and to the link in its turn (the budget's waiting line: what waited goes first,
         a message the plan decimates goes to the monitors only); an event (STATUSTEXT chunk,
-        ACK) the budget cannot take now waits, in order, for the next tick instead of being
-        lost (a long text arrives whole)."""
+        ACK) the budget cannot take now goes to the monitors at once and waits, in order, for
+        the link at a next tick instead of being lost (a long text arrives whole).
+        ``requested``: the responses to a peer's message (its ACK, a message it asked for),
+        events whatever their type."""
         with self._lock:  # the budget's bucket and the held events are shared by two threads
-            decided = self._decide([*self._held, *out])
+            decided = self._decide(out, requested)
         system_id = self.core.system_id
         for component_id, msg, where in decided:
             self.link.send(
@@ -175,32 +178,50 @@ class MavlinkSide:
             if self.on_sent is not None and where != _LINK:  # when it first left
                 self.on_sent(msg, self._clock())
 
-    def _decide(self, pending: list[Outgoing]) -> list[tuple[int, Any, str]]:
+    def _decide(self, out: list[Outgoing], requested: bool) -> list[tuple[int, Any, str]]:
+        """Where each message goes. The held events first (the monitors had them when they
+        were held: to the link only), then ``out`` (new: the monitors at once, whatever the
+        link takes; before, a held event reached the monitors only when the link took it,
+        and one dropped from the full held list never)."""
         budget = self.core.budget
         now = self._clock()
-        self._held.clear()
+        held, self._held = self._held, []
+        pending = [(cid, msg, asked, False) for cid, msg, asked in held]
+        pending += [(cid, msg, requested, True) for cid, msg in out]
         decided = [(component_id, msg, _LINK) for component_id, msg in budget.due(now)]
-        for component_id, msg in pending:
-            event = budget.is_event(msg)
-            if event and self._held:  # keep the order of events behind one that waits
-                self._hold(component_id, msg)
+        for component_id, msg, asked, new in pending:
+            if not (asked or budget.is_event(msg)):
+                # periodic: the monitors now, the link now, in its turn (WAITS) or not (SKIPPED)
+                goes = budget.offer(component_id, msg, now) is Admission.NOW
+                decided.append((component_id, msg, _BOTH if goes else _MONITORS))
                 continue
-            admission = budget.offer(component_id, msg, now)
-            if admission is Admission.NOW:
-                decided.append((component_id, msg, _BOTH))
-            elif event:
-                self._hold(component_id, msg)
-            else:  # the monitors now; the link in its turn (WAITS) or not (SKIPPED)
-                decided.append((component_id, msg, _MONITORS))
+            # an event: in order behind one that waits, or waits itself for the budget; an
+            # essential one (heartbeat, CRITICAL text) never waits behind others (a heartbeat
+            # held behind a burst of texts went 6 s late: a component lost to its peers)
+            behind = bool(self._held) and (asked or not budget.essential(msg))
+            goes = not behind and budget.offer(component_id, msg, now, requested=asked) is (
+                Admission.NOW
+            )
+            if not goes:
+                self._hold(component_id, msg, asked)
+            if new:
+                decided.append((component_id, msg, _BOTH if goes else _MONITORS))
+            elif goes:
+                decided.append((component_id, msg, _LINK))
         return decided
 
-    def _hold(self, component_id: int, msg: Any) -> None:
+    def _hold(self, component_id: int, msg: Any, requested: bool) -> None:
         """Keep an event for the next tick; beyond :data:`MAX_HELD_EVENTS` the oldest one
-        that is not essential (CRITICAL text, heartbeat) is dropped and counted."""
-        self._held.append((component_id, msg))
+        that is not essential (the bridge's CRITICAL text, its heartbeat; one a peer asked for
+        is an answer) is dropped and counted."""
+        self._held.append((component_id, msg, requested))
         if len(self._held) > MAX_HELD_EVENTS:
             victim = next(
-                (i for i, (_, m) in enumerate(self._held) if not self.core.budget.essential(m)),
+                (
+                    i
+                    for i, (_, m, asked) in enumerate(self._held)
+                    if asked or not self.core.budget.essential(m)  # one asked for: an answer
+                ),
                 None,
             )
             if victim is not None:
