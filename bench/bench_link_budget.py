@@ -46,8 +46,12 @@ class Counter:
             except (TimeoutError, OSError):
                 continue
             if self.counting:
-                self.bytes += len(data)
-                self.frames += 1
+                self.take(data)
+
+    def take(self, data: bytes) -> None:
+        """One datagram while counting (``bench_link_turns.py`` also reads what is in it)."""
+        self.bytes += len(data)
+        self.frames += 1
 
     def close(self) -> None:
         self._stop.set()

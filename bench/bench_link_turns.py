@@ -19,11 +19,11 @@ from __future__ import annotations
 import argparse
 import collections
 import socket
-import threading
 import time
 from pathlib import Path
 
 import yaml
+from bench_link_budget import Counter  # the same receiving thread (run from bench/)
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mavservo.app.bridge import Bridge, free_udp_port
@@ -38,44 +38,29 @@ STREAM_OF = {
 }
 
 
-class Listener:
-    """Parses the MAVLink arriving on a UDP socket, counting per type while ``counting``."""
+class Listener(Counter):
+    """Counts per message type, and the bytes of each datagram with its time, while
+    ``counting`` (the receiving thread is bench_link_budget's)."""
 
     def __init__(self, sock: socket.socket) -> None:
-        self.sock = sock
-        self.counting = False
         self.counts: collections.Counter[str] = collections.Counter()
         self.times: dict[str, list[float]] = collections.defaultdict(list)
         self.sizes: list[tuple[float, int]] = []
         self._parser = mavlink2.MAVLink(None)
         self._parser.robust_parsing = True
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
+        super().__init__(sock)
 
-    def _run(self) -> None:
-        self.sock.settimeout(0.05)
-        while not self._stop.is_set():
-            try:
-                data = self.sock.recv(65536)
-            except (TimeoutError, OSError):
-                continue
-            try:
-                messages = self._parser.parse_buffer(data) or []
-            except Exception:  # noqa: BLE001 - a message of another dialect: not counted
-                continue
-            if not self.counting:
-                continue
-            now = time.monotonic()
-            self.sizes.append((now, len(data)))
-            for msg in messages:
-                self.counts[msg.get_type()] += 1
-                self.times[msg.get_type()].append(now)
-
-    def close(self) -> None:
-        self._stop.set()
-        self._thread.join(2.0)
-        self.sock.close()
+    def take(self, data: bytes) -> None:
+        super().take(data)
+        try:
+            messages = self._parser.parse_buffer(data) or []
+        except Exception:  # noqa: BLE001 - a message of another dialect: not counted
+            return
+        now = time.monotonic()
+        self.sizes.append((now, len(data)))
+        for msg in messages:
+            self.counts[msg.get_type()] += 1
+            self.times[msg.get_type()].append(now)
 
 
 def stream_of(kind: str) -> str | None:
