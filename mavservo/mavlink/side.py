@@ -54,6 +54,13 @@ class MavlinkSide:
         self._on_event = on_event
         # re-entrant: the core calls the backend under this lock, and the backend may announce
         self._lock = threading.RLock()
+        #: held from a batch's decision to its last send (taken before ``_lock``, never inside
+        #: it): the receive thread and the tick thread each decide under ``_lock`` and used to send
+        #: outside it, so one's sends could overtake the other's already decided ones (a held
+        #: event released by one thread behind a newer one of the other, a waiting value of a
+        #: stream behind its newer one). The core is never blocked by a write: only the other
+        #: thread's sends wait, as they waited for the link's own write lock before.
+        self._send_order = threading.RLock()
         self.core = MavlinkCore(
             settings,
             backend,
@@ -144,11 +151,12 @@ class MavlinkSide:
         while not self._loop.stopping:
             now = self._clock()
             try:
-                with self._lock:
-                    out = self.core.tick(now)
-                    answers = self.core.answers_due(now)
-                self._send(out)
-                self._send_answers(answers)
+                with self._send_order:
+                    with self._lock:
+                        out = self.core.tick(now)
+                        answers = self.core.answers_due(now)
+                    self._send(out)
+                    self._send_answers(answers)
             except Exception:  # noqa: BLE001 - the only heartbeat source must never die
                 self._tick_errors += 1
                 if self._tick_errors == 1:
@@ -168,15 +176,20 @@ class MavlinkSide:
         the link at a next tick instead of being lost (a long text arrives whole).
         ``requested``: the responses to a peer's message (its ACK, a message it asked for),
         events whatever their type."""
-        with self._lock:  # the budget's bucket and the held events are shared by two threads
-            decided = self._decide(out, requested)
-        system_id = self.core.system_id
-        for component_id, msg, where in decided:
-            self.link.send(
-                component_id, msg, system_id, to_link=where != _MONITORS, to_monitors=where != _LINK
-            )
-            if self.on_sent is not None and where != _LINK:  # when it first left
-                self.on_sent(msg, self._clock())
+        with self._send_order:  # sent in the order decided, whichever thread decided first
+            with self._lock:  # the budget's bucket and the held events are shared by two threads
+                decided = self._decide(out, requested)
+            system_id = self.core.system_id
+            for component_id, msg, where in decided:
+                self.link.send(
+                    component_id,
+                    msg,
+                    system_id,
+                    to_link=where != _MONITORS,
+                    to_monitors=where != _LINK,
+                )
+                if self.on_sent is not None and where != _LINK:  # when it first left
+                    self.on_sent(msg, self._clock())
 
     def _decide(self, out: list[Outgoing], requested: bool) -> list[tuple[int, Any, str]]:
         """Where each message goes. The held events first (the monitors had them when they

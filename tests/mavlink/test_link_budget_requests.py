@@ -320,3 +320,45 @@ def test_heartbeats_asked_for_by_a_spoofed_autopilot_stay_within_the_budget() ->
         bridge.side._send([])
     assert peak_window_bytes(bridge.link_bytes()) <= 1000.0
     assert bridge.side.core.budget.counters["essential_over_budget"] == 0
+
+
+def test_two_threads_sends_leave_in_the_order_they_were_decided() -> None:
+    """The receive thread and the tick thread each decide where their messages go under the
+    side's lock; they used to send outside it, so a batch decided second could reach the link
+    before the end of a batch decided first (review rvlb). Here the first batch's first write
+    is slow (it waits up to 0.5 s for the second thread to decide): the second batch must
+    still leave after the whole first one."""
+    import threading
+
+    rig = _SideOnAClock(budget=None)  # type: ignore[arg-type]
+    first = [mavlink2.MAVLink_statustext_message(6, f"first {i}".encode(), 0, 0) for i in range(3)]
+    second = [
+        mavlink2.MAVLink_statustext_message(6, f"second {i}".encode(), 0, 0) for i in range(3)
+    ]
+    second_decided, first_writing = threading.Event(), threading.Event()
+    record = rig._record
+    decide = rig.side._decide
+
+    def slow_record(component_id: int, msg: Any, system_id: int, **where: Any) -> None:
+        if msg is first[0]:
+            first_writing.set()
+            second_decided.wait(0.5)  # bounded: with the order kept, the second waits for us
+        record(component_id, msg, system_id, **where)
+
+    def watched_decide(out: Any, requested: bool) -> Any:
+        decided = decide(out, requested)
+        if any(m is second[0] for _, m, _ in decided):
+            second_decided.set()
+        return decided
+
+    rig.side.link.send = slow_record  # type: ignore[method-assign]
+    rig.side._decide = watched_decide  # type: ignore[method-assign]
+    one = threading.Thread(target=rig.side._send, args=([(140, m) for m in first],))
+    one.start()
+    assert first_writing.wait(5.0)  # the first batch is being sent (its first write waits)
+    two = threading.Thread(target=rig.side._send, args=([(140, m) for m in second],))
+    two.start()
+    one.join(5.0)
+    two.join(5.0)
+    texts = [m.text for _, m, link, _ in rig.sent if link]
+    assert texts == [m.text for m in first + second], texts
