@@ -97,3 +97,17 @@ class BackgroundLoop:
             return False
         self._thread = None
         return True
+
+
+def set_from_signal_handler(event: threading.Event) -> None:
+    """Set ``event`` from a signal handler, without taking the event's lock in the handler.
+
+    Why: a handler runs in the main thread between two bytecodes, possibly while the main
+    thread itself is inside ``event.wait()`` holding the event's internal lock (a plain, not
+    re-entrant, Lock); ``event.set()`` in the handler then waits for that lock for ever. A
+    SIGTERM landing in that window hung ``mavservo sim`` (a test killed it after 20 s), and
+    ``mavservo run`` waits on its stop event the same way: under systemd the bridge would have
+    been SIGKILLed without telling its servos their stop action. A short-lived thread sets the
+    event instead: it waits, if it must, until the main thread has left the lock.
+    """
+    threading.Thread(target=event.set, name="signal-stop", daemon=True).start()

@@ -5,11 +5,14 @@ Every wait is bounded by an Event with a timeout; nothing sleeps a fixed time.
 
 from __future__ import annotations
 
+import subprocess
+import sys
 import threading
 
 import pytest
 
 from mavservo.threads import BackgroundLoop
+from tests.support.paths import REPO
 
 WAIT_S = 5.0
 
@@ -131,3 +134,44 @@ def test_a_started_simulator_used_as_a_context_runs_one_loop() -> None:
     assert emulator.error is None
     with VirtualServoBus([SimServo("rmd-x", 1)], channel="threads-test").start():
         assert [t.name for t in threading.enumerate()].count("sim-virtual-bus") == 1
+
+
+_SIGNAL_IN_THE_WAIT_WINDOW = """
+import os, signal, sys, threading
+from mavservo.threads import set_from_signal_handler
+event = threading.Event()
+handler = {handler}
+signal.signal(signal.SIGTERM, handler)
+# the window: the main thread holds the event's own lock, as inside event.wait() between
+# waking up and returning; the signal's handler runs here, in this thread
+with event._cond:
+    os.kill(os.getpid(), signal.SIGTERM)
+    sum(range(1000))  # a few bytecodes: the handler runs among them
+sys.exit(0 if event.wait(5.0) else 3)
+"""
+
+
+@pytest.mark.parametrize(
+    ("handler", "stops"),
+    [
+        pytest.param("lambda *_: set_from_signal_handler(event)", True, id="the helper"),
+        pytest.param("lambda *_: event.set()", False, id="event.set() in the handler"),
+    ],
+)
+def test_a_stop_signal_landing_inside_the_events_wait_still_stops(
+    handler: str, stops: bool
+) -> None:
+    """``mavservo run``/``sim``/``sitl`` stop on a signal by setting the event their main loop
+    waits on. A handler that calls ``event.set()`` deadlocks when the signal lands while the
+    main thread holds the event's lock inside ``event.wait()`` (it hung ``mavservo sim`` in
+    CI: killed after 20 s); the helper sets it from a thread. The window is held open here
+    on purpose, in a child process, bounded by a timeout."""
+    code = _SIGNAL_IN_THE_WAIT_WINDOW.format(handler=handler)
+    try:
+        done = subprocess.run(
+            [sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=6
+        )
+        stopped = done.returncode == 0
+    except subprocess.TimeoutExpired:
+        stopped = False  # the handler is still waiting for the lock its own thread holds
+    assert stopped is stops

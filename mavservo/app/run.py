@@ -33,6 +33,7 @@ from mavservo.config import (
     load_config_with_overlay,
 )
 from mavservo.errors import MavservoError
+from mavservo.threads import set_from_signal_handler
 
 log = logging.getLogger("mavservo")
 
@@ -146,7 +147,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     def on_signal(signum: int, _frame: Any) -> None:
         received.append(signal.Signals(signum).name)
-        stop.set()
+        set_from_signal_handler(stop)  # never stop.set() here: see the helper
 
     previous = {s: signal.signal(s, on_signal) for s in stop_signals()}
     try:

@@ -36,6 +36,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from ..servos import ActuatorOptions, get_profile
+from ..threads import set_from_signal_handler
 from .adapter import AdapterEmulator, LineFaults
 from .servo import Faults, Physics, SimServo, share_nodes
 
@@ -352,7 +353,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     stop = threading.Event()
     previous = {
-        sig: signal.signal(sig, lambda *_: stop.set())
+        sig: signal.signal(sig, lambda *_: set_from_signal_handler(stop))
         for sig in STOP_SIGNALS
         if not _ignored_hangup(sig)
     }

@@ -22,6 +22,7 @@ from mavservo.config import Dropout, Event, parse_script, read_key_file
 from mavservo.sim.autopilot.motion_scripts import PROFILES, RandomWalkProfile, get_profile
 from mavservo.sim.autopilot.replay import BRIDGE_TYPES, TlogError, replay
 from mavservo.sim.autopilot.stream import AutopilotStream, gimbal_demo_script
+from mavservo.threads import set_from_signal_handler
 
 
 def _target(text: str) -> tuple[int, int]:
@@ -251,7 +252,7 @@ _STOP = threading.Event()
 
 
 def _request_stop(signum: int, frame: object) -> None:
-    _STOP.set()
+    set_from_signal_handler(_STOP)  # the main thread may be inside _STOP.wait (a replay)
 
 
 def _stop_on_signals() -> dict[int, object]:
