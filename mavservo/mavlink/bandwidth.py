@@ -340,26 +340,6 @@ class LinkBudget:
         kind = msg.get_type()
         return kind == "HEARTBEAT" or (kind == "STATUSTEXT" and msg.severity <= _CRITICAL)
 
-    def allow(self, component_id: int, msg: Any, now: float = 0.0) -> bool:
-        """True when ``msg`` goes on the autopilot link now (it always goes to the monitors);
-        False for an event means "not yet" (the caller keeps it for the next tick). A periodic
-        message is never kept here: one that does not fit now is held back (the property
-        tests); the bridge's telemetry goes through :meth:`offer`, which keeps its turn in
-        the waiting line, and a message a peer asked for is no turn of its stream's
-        (:meth:`offer` with ``requested``, :meth:`admit_response`)."""
-        kind = msg.get_type()
-        stream = self._stream(kind)
-        if stream is None:
-            return self._event(msg, now, self._bucket)
-        key = self._key(component_id, kind, msg)
-        if not self._takes_turn(key, stream):
-            return False
-        bucket = self._bucket
-        if bucket is None or not self._waiting and bucket.take(self._cost(msg), now):
-            return True
-        self.counters["held_back_window"] += 1
-        return False
-
     def offer(
         self, component_id: int, msg: Any, now: float, *, requested: bool = False
     ) -> Admission:
@@ -517,9 +497,9 @@ class LinkBudget:
         every token with their DENIED ACKs (events may run the bucket into debt), and the
         gimbal status the autopilot needs every second got 0 of its 100 planned turns in 20 s;
         a requested HEARTBEAT went as an essential message, over the budget. As a turn of its
-        stream (through :meth:`allow`), a stranger asking for the gimbal's attitude status ten
-        times a second took the broadcast copy's turns (63 of 100). The responses still go
-        before the service answers (they are admitted first at each tick)."""
+        stream (through ``allow``, since removed), a stranger asking for the gimbal's attitude
+        status ten times a second took the broadcast copy's turns (63 of 100). The responses
+        still go before the service answers (they are admitted first at each tick)."""
         return self.admit_answer(component_id, msg, now)
 
     def admit_answer(self, component_id: int, msg: Any, now: float) -> bool:
