@@ -110,7 +110,9 @@ def _identical(a: Any, b: Any) -> bool:
 class StrictModel(BaseModel):
     """Base for every section: unknown keys are errors, numbers are finite, models immutable."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+    model_config = ConfigDict(
+        extra="forbid", frozen=True, allow_inf_nan=False, use_attribute_docstrings=True
+    )
 
 
 def _ordered_pair(value: tuple[float, float], what: str = "range") -> tuple[float, float]:
@@ -130,7 +132,9 @@ class ComponentAddress(StrictModel):
     """A MAVLink (system, component) pair."""
 
     system: Int = Field(1, ge=1, le=255)
+    """MAVLink system id."""
     component: Int = Field(1, ge=0, le=255)
+    """MAVLink component id (0: any component of the system, where a filter allows it)."""
 
 
 #: Largest key file read: 64 hex characters plus whitespace fit many times over; a device or a
@@ -147,12 +151,18 @@ class SigningConfig(StrictModel):
     """
 
     key: str | None = None
+    """The signing secret inline: 64 hexadecimal characters (32 bytes). Give this or
+    ``key_file``, not both."""
     key_file: Path | None = None
+    """A file holding the 64 hexadecimal characters; relative to the config file's folder. Keep
+    it mode 600."""
     accept_unsigned: Bool = False
-    #: How far ahead of this computer's clock a signed frame's timestamp may be (s); ``null``
-    #: for a companion whose clock is not synchronised at start (no RTC, no NTP/GPS time): a
-    #: clock behind its peers would otherwise refuse the autopilot's genuine frames.
+    """Also accept unsigned messages from the link (a migration aid; the bridge still signs what
+    it sends)."""
     max_clock_ahead_s: Annotated[Float, Field(gt=0)] | None = 60.0
+    """How far ahead of this computer's clock a signed frame's timestamp may be, in seconds;
+    null on a companion whose clock is not set at boot (no RTC, no NTP or GPS time), whose
+    clock would otherwise make it refuse the autopilot's genuine frames."""
 
     @field_validator("key")
     @classmethod
@@ -228,9 +238,12 @@ class MirrorConfig(StrictModel):
     """Which autopilot output streams the bridge follows without an explicit command."""
 
     servo_output_raw: Bool = True
+    """Follow the autopilot's SERVO_OUTPUT_RAW (ArduPilot's servo outputs)."""
     actuator_output_status: Bool = False
-    #: What ACTUATOR_OUTPUT_STATUS ``actuator[]`` values the autopilot sends: PWM us or [-1, 1].
+    """Follow ACTUATOR_OUTPUT_STATUS (PX4's actuator outputs)."""
     actuator_output_status_units: Literal["pwm", "normalized"] = "pwm"
+    """What ACTUATOR_OUTPUT_STATUS values are: ``pwm`` (microseconds) or ``normalized`` ([-1,
+    1])."""
 
 
 #: The MAVLink side's own defaults: the schema takes them from there, so they are written once.
@@ -246,16 +259,22 @@ class TelemetryConfig(StrictModel):
     """
 
     actuator_output_status_hz: Float = Field(_RATES.actuator_output_status_hz, ge=0, le=100)
+    """ACTUATOR_OUTPUT_STATUS with the measured positions, normalized through each channel's
+    mapping (0: off)."""
     esc_telemetry_hz: Float = Field(_RATES.esc_telemetry_hz, ge=0, le=100)
+    """ESC_TELEMETRY_x_TO_y per servo: temperature, current, speed (0: off). Mission Planner
+    shows it."""
     named_value_float_hz: Float = Field(_RATES.named_value_float_hz, ge=0, le=100)
+    """NAMED_VALUE_FLOAT per servo (``s1_pos``, ``s1_cur``, ``s1_flt``, ``s1_hlt``...; 0: off)."""
     gimbal_attitude_status_hz: Float = Field(_RATES.gimbal_attitude_status_hz, ge=0, le=100)
-    #: ESC index of the first servo in ESC_TELEMETRY_x_TO_y (1, 5, 9, ... 29: the messages carry
-    #: four ESCs each). "auto" starts at 17, above the motors of any common frame, and moves up
-    #: when the autopilot (or another bridge) is heard publishing the same ESC indices.
+    """GIMBAL_DEVICE_ATTITUDE_STATUS of each gimbal (ArduPilot needs at least 5 Hz)."""
     esc_first_index: Literal["auto"] | Annotated[Int, Field(ge=1, le=29)] = _RATES.esc_first_index
-    #: First letters of the NAMED_VALUE_FLOAT names (``s1_pos``): a second bridge on the same
-    #: vehicle takes another (``t1_pos``) so a ground station tells them apart.
+    """ESC number of servo 1 in the ESC messages: 1, 5, 9, ... 29, or ``auto``: 17, above the
+    motors of common frames, moving higher when the autopilot or another bridge is heard
+    using those numbers."""
     name_prefix: str = Field(_RATES.name_prefix, pattern=r"^[a-z]{1,3}$")
+    """First letters (1 to 3, lower case) of the NAMED_VALUE_FLOAT names: ``s`` gives
+    ``s1_pos``; a second bridge on the vehicle takes another, e.g. ``t``."""
 
     @field_validator("esc_first_index")
     @classmethod
@@ -276,8 +295,14 @@ class StreamRequestConfig(StrictModel):
     """
 
     enabled: Bool = True
+    """Ask the followed autopilot for the mirrored streams with MAV_CMD_SET_MESSAGE_INTERVAL (at
+    start, after it reboots or comes back); false for an autopilot that refuses the request
+    (the rate is still measured and reported)."""
     rate_hz: Annotated[Float, Field(gt=0, le=400)] | None = None
+    """The rate asked for; null: the command rate (1 / ``scheduler.command_period_s``, 20 Hz by
+    default)."""
     min_rate_hz: Annotated[Float, Field(gt=0, le=400)] | None = None
+    """Below this measured rate the bridge warns; null: 3/4 of the rate asked for."""
 
     @model_validator(mode="after")
     def _minimum_not_above_the_request(self) -> StreamRequestConfig:
@@ -297,31 +322,52 @@ class MavlinkConfig(StrictModel):
     """The MAVLink side: where the autopilot is and how the bridge presents itself."""
 
     url: str = "sim"
+    """Where the autopilot is, as a pymavlink connection string: ``udpin:0.0.0.0:14551``,
+    ``udpout:HOST:PORT``, ``tcp:HOST:PORT``, a serial device such as ``/dev/ttyAMA0`` or
+    ``/dev/serial0``; ``sim`` starts the built-in simulated autopilot."""
     baud: Int = Field(115200, gt=0)
+    """Serial links only: the baud rate (the autopilot's ``SERIALn_BAUD``, e.g. 921 for 921600)."""
     system_id: Literal["follow"] | Annotated[Int, Field(ge=1, le=255)] = "follow"
+    """The bridge's MAVLink system id: ``follow`` takes the autopilot's, or a fixed 1..255."""
     servo_component_id: Int = Field(140, description="MAV_COMP_ID_SERVO1..14 the servos use")
-    #: Channels per SERVO_OUTPUT_RAW ``port``: 16 is what ArduPilot sends in MAVLink 2.
     servo_output_port_width: Literal[8, 16] = 16
+    """Channels per SERVO_OUTPUT_RAW ``port``: 16 is what ArduPilot sends over MAVLink 2, 8 for
+    MAVLink 1 senders."""
     autopilot: ComponentAddress = ComponentAddress()
+    """The autopilot whose HEARTBEAT the bridge watches (failsafe) and whose streams it follows."""
     heartbeat_timeout_s: Float = Field(2.0, gt=0)
+    """Autopilot silent this long: the link is lost, and each servo takes its ``failsafe``
+    action after its own ``failsafe.timeout_s``."""
     signing: SigningConfig | None = None
+    """MAVLink 2 signing; null: no signing (anyone on the link may command)."""
     allowed_sources: list[ComponentAddress] = []
-    #: Who may set the bridge's parameters (PARAM_SET): "verified" = a signed sender or one
-    #: listed in allowed_sources; "anyone" opens it to every sender on the link (a bench).
+    """Senders (system, component) allowed to command; empty: anyone. A filter, not
+    authentication: use ``signing`` for that."""
     parameter_writers: Literal["verified", "anyone"] = "verified"
+    """Who may set the bridge's parameters from a ground station: ``verified`` (a signed sender,
+    or one in ``allowed_sources``) or ``anyone`` (a bench)."""
     act_on_autopilot_commands: Bool = False
+    """Also act on DO_SET_SERVO addressed to the autopilot (not to the bridge), for mapped
+    channels, without an ACK of its own."""
     repeat_servo_cycle: Literal["seconds", "milliseconds"] = "seconds"
+    """Unit of DO_REPEAT_SERVO's cycle time (param 4): ``seconds``, as the MAVLink specification
+    says, or ``milliseconds`` for a sender that uses them."""
     command_hold_s: Float = Field(2.0, ge=0)
+    """After an explicit command (DO_SET_SERVO, DO_SET_ACTUATOR...), mirroring the autopilot's
+    outputs waits this long before it moves that servo again."""
     mirror: MirrorConfig = MirrorConfig()
+    """Which autopilot output streams the bridge follows."""
     telemetry: TelemetryConfig = TelemetryConfig()
+    """What the bridge publishes about the servos, in Hz."""
     request_streams: StreamRequestConfig = StreamRequestConfig()
-    #: Output-only endpoints that get a copy of everything the bridge sends (mavservo monitor).
+    """How the bridge asks the autopilot for the streams it follows."""
     monitor_outputs: list[str] = []
-    #: Bytes per second the bridge's periodic telemetry may use on the autopilot link, which
-    #: ArduPilot forwards to the ground station's radio (a 57,600-baud radio carries about
-    #: 5.7 kB/s for everything): the telemetry rates on that link are scaled down to fit, the
-    #: monitor outputs keep the configured rates. null: no budget (a wired link).
+    """Output-only endpoints (``udpout:HOST:PORT``) that get a copy of everything the bridge
+    sends, for ``mavservo monitor``."""
     link_budget_bytes_s: Annotated[Float, Field(gt=0)] | None = 1000.0
+    """Bytes per second the periodic telemetry may use on the autopilot link, which ArduPilot
+    forwards to the ground station's radio (a 57,600-baud radio carries about 5,700 B/s in
+    all): the rates are scaled down to fit; null: no budget (a wired link)."""
 
     @field_validator("url")
     @classmethod
@@ -373,22 +419,35 @@ class BusConfig(StrictModel):
     """One CAN bus: the project's ``aa55`` adapter, or any python-can interface."""
 
     name: Name = "bus0"
+    """The bus's name, which ``servos[].bus`` refers to."""
     interface: str = "aa55"
+    """``aa55`` (the AA-55 USB-CAN adapter: Waveshare USB-CAN-A, Seeed) or any python-can
+    interface: ``socketcan``, ``slcan``, ``gs_usb``, ``pcan``..."""
     channel: str | Int = "sim"
+    """The device: a serial port for ``aa55`` and ``slcan`` (``/dev/ttyUSB0``,
+    ``/dev/ttyACM0``), a network interface for ``socketcan`` (``can0``), ``PCAN_USBBUS1`` for
+    ``pcan``; ``sim``: the built-in simulated adapter and servos (``aa55`` and ``slcan``)."""
     bitrate: Int = Field(1_000_000, gt=0)
+    """CAN bit rate in bit/s, the servos' (aa55: 1000000, 800000, 500000, 400000, 250000,
+    200000, 125000, 100000, 50000, 20000, 10000, 5000). SocketCAN takes it from ``ip link``:
+    here it is used for the bus-load budget."""
     serial_baud: Int = Field(2_000_000, gt=0)
+    """aa55 only: the USB serial speed of the adapter."""
     protocol: Literal["variable", "fixed"] = "variable"
+    """aa55 only: the framing on the USB line: ``variable`` (the adapter's everyday frames, no
+    checksum) or ``fixed`` (20-byte frames with a checksum: for a noisy or long USB line)."""
     read_interval_s: Literal["auto"] | Annotated[Float, Field(ge=0, le=0.05)] = "auto"
-    """aa55 only: least time between two reads of the adapter ("auto": none while the line is
-    lightly used, up to 8 ms while it is busy, e.g. under a foreign node's flood)."""
+    """aa55 only: least time between two reads of the adapter in seconds; ``auto``: none while
+    the line is lightly used, up to 8 ms while it is busy (saves CPU under a flood)."""
     max_load: Float = Field(0.35, gt=0, le=1)
+    """The bus-load budget R_max (0..1): a config whose worst-case load is above it is refused."""
     options: dict[str, Any] = Field(default_factory=dict)
-    """Passed to the python-can interface as keyword arguments (slcan's ``tty_baudrate``, a
-    PCAN's ``fd``...), checked against what that interface declares (see
-    :mod:`mavservo.transport.interface_signatures`)."""
+    """Passed to the python-can interface as keyword arguments (slcan's ``tty_baudrate`` and
+    ``sleep_after_open``, pcan's ``auto_reset``...), checked against what that interface
+    accepts."""
     node: dict[str, dict[str, Any]] = Field(default_factory=dict)
-    """The bridge's own node on this bus, per family that has one, keyed by profile name
-    (``node: {dronecan: {node_id: 100}}``); checked by that profile's ``NodeOptions``."""
+    """The bridge's own node on this bus, per servo family that has one, keyed by profile name:
+    ``{dronecan: {node_id: 100}}`` (see the DroneCAN bus node options below)."""
 
     _node_options: tuple[dict[str, dict[str, Any]], dict[str, ProfileOptions]] | None = PrivateAttr(
         None
@@ -485,6 +544,7 @@ class BusConfig(StrictModel):
 
 class CanConfig(StrictModel):
     buses: list[BusConfig] = Field(default_factory=lambda: [BusConfig()], min_length=1)
+    """One entry per CAN bus (adapter)."""
 
 
 # ---------------------------------------------------------------------------------------- servos
@@ -501,8 +561,14 @@ class FailsafeConfig(StrictModel):
     """
 
     action: Literal["hold", "neutral", "position", "release"] = "hold"
+    """What the servo does when its commands stop (autopilot link lost, shutdown): ``hold`` the
+    last target, go to ``neutral_deg``, go to ``position`` (``position_deg``), or ``release``
+    (motor off; only for families with a motor-off frame)."""
     position_deg: Float | None = None
+    """The angle of ``action: position``."""
     timeout_s: Float = Field(1.0, gt=0)
+    """How long after the link is declared lost the servo waits before acting (a throttle may
+    idle at once while surfaces hold a moment longer); on shutdown every action is immediate."""
 
     @model_validator(mode="after")
     def _position_needs_an_angle(self) -> FailsafeConfig:
@@ -521,18 +587,36 @@ class ServoConfig(StrictModel):
     """
 
     name: Name
+    """A unique name (letters, digits, ``_``, ``-``; at most 32), used in logs, telemetry and
+    ``channels``."""
     profile: str
+    """The servo family: ``rmd-x``, ``lk``, ``cubemars-ak``, ``cubemars-ak-mit``, ``damiao-dm``,
+    ``robstride``, ``odrive``, ``dronecan``, or a plug-in's name (``mavservo check
+    --profiles`` lists them)."""
     can_id: Int = Field(ge=0, le=0x1FFFFFFF)
+    """The servo's id on the bus, in its family's range (``mavservo check --profiles``;
+    DroneCAN: the node id)."""
     bus: Name | None = None
+    """The ``can.buses[].name`` it hangs on; may be left out when there is one bus."""
     max_speed_dps: Float = Field(360.0, gt=0)
+    """Speed limit sent with every position command, deg/s."""
     limits_deg: AngleRange = (-180.0, 180.0)
+    """Soft limits [low, high] in degrees: no command ever goes beyond them."""
     neutral_deg: Float = 0.0
+    """Where failsafe ``neutral`` goes (inside ``limits_deg``)."""
     command_mode: Literal["periodic", "immediate"] = "periodic"
+    """``periodic``: a command per command period; ``immediate``: sent on arrival (at most one
+    per ``scheduler.immediate_min_spacing_s``)."""
     telemetry_hz: Float = Field(10.0, gt=0)
+    """How often the servo is polled, or (push-style families) how often it reports on its own:
+    it is offline after a few missed reports."""
     failsafe: FailsafeConfig = FailsafeConfig()
+    """What the servo does when commands stop."""
     options: dict[str, Any] = Field(default_factory=dict)
-    #: the bridge's own health checks of this servo (config/health_schema.py, docs/health.md)
+    """Family options, checked by the profile (see the options by profile below)."""
     health: HealthConfig = HealthConfig()
+    """Thresholds of the bridge's own health checks of this servo (every key optional; defaults
+    derived from the servo, printed by ``mavservo check``)."""
 
     @field_validator("limits_deg")
     @classmethod
@@ -660,8 +744,12 @@ class PwmInput(StrictModel):
     """A PWM input range in microseconds; ``trim`` defaults to the middle."""
 
     min: Float = 1100
+    """PWM (us) that maps to the low end of ``output_deg`` (the high end when ``reverse``)."""
     max: Float = 1900
+    """PWM (us) that maps to the high end of ``output_deg``."""
     trim: Float | None = None
+    """PWM (us) that maps to the centre of ``output_deg`` (plus ``trim_deg``); null: the middle
+    of min and max."""
 
     @model_validator(mode="after")
     def _ordered(self) -> PwmInput:
@@ -682,8 +770,11 @@ class NormalizedInput(StrictModel):
     """A normalized input range (DO_SET_ACTUATOR values); defaults are the full [-1, 1]."""
 
     min: Float = -1.0
+    """Input value that maps to the low end of ``output_deg``."""
     max: Float = 1.0
+    """Input value that maps to the high end of ``output_deg``."""
     trim: Float | None = None
+    """Input value that maps to the centre of ``output_deg``; null: the middle of min and max."""
 
     @model_validator(mode="after")
     def _ordered(self) -> NormalizedInput:
@@ -702,10 +793,16 @@ class NormalizedInput(StrictModel):
 
 class _ChannelCommon(StrictModel):
     servo: Name
+    """The servo this input drives (a ``servos[].name``)."""
     output_deg: AngleRange | None = None  # None: the servo's limits_deg
+    """Angle range [low, high] the input range maps onto; null: the servo's ``limits_deg``."""
     reverse: Bool = False
+    """Reverse the mapping: the input's min gives the high angle."""
     trim_deg: Float = 0.0
+    """Shifts the angle the input's trim maps to, in degrees (a ground station can set it:
+    ``SRVn_TRIM``)."""
     max_slew_dps: Float | None = Field(None, gt=0)
+    """Rate limit on the target, deg/s; null: none."""
 
     @field_validator("output_deg")
     @classmethod
@@ -732,8 +829,13 @@ class ServoOutputChannel(_ChannelCommon):
     """
 
     source: Literal["servo_output"]
+    """``servo_output``: the autopilot's servo output channel (SERVO_OUTPUT_RAW, DO_SET_SERVO,
+    DO_REPEAT_SERVO), PWM input."""
     channel: Int = Field(ge=1, le=32)
+    """The output channel, 1..32 (ArduPilot's ``SERVOn``: channels 17..32 come as
+    SERVO_OUTPUT_RAW port 1)."""
     input: PwmInput = PwmInput()
+    """The PWM input range."""
 
     @property
     def key(self) -> int:
@@ -744,8 +846,12 @@ class ActuatorChannel(_ChannelCommon):
     """A DO_SET_ACTUATOR / ACTUATOR_OUTPUT_STATUS index (1-based), normalized input."""
 
     source: Literal["actuator"]
+    """``actuator``: an actuator index (DO_SET_ACTUATOR, PX4's ACTUATOR_OUTPUT_STATUS),
+    normalized input."""
     index: Int = Field(ge=1, le=32)
+    """The actuator number, 1..32 (DO_SET_ACTUATOR set 0 is actuators 1..6)."""
     input: NormalizedInput = NormalizedInput()
+    """The normalized input range."""
 
     @property
     def key(self) -> int:
@@ -762,8 +868,11 @@ class GimbalLimits(StrictModel):
     """Per-axis angle limits of a gimbal group; an omitted axis takes its servo's limits."""
 
     roll: AngleRange | None = None
+    """Roll limits [low, high], deg; null: the roll servo's ``limits_deg``."""
     pitch: AngleRange | None = None
+    """Pitch limits [low, high], deg; null: the pitch servo's ``limits_deg``."""
     yaw: AngleRange | None = None
+    """Yaw limits [low, high], deg; null: the yaw servo's ``limits_deg``."""
 
     @field_validator("roll", "pitch", "yaw")
     @classmethod
@@ -775,18 +884,28 @@ class GimbalConfig(StrictModel):
     """A gimbal device (protocol v2) made of up to three servos."""
 
     name: Name
+    """A unique name."""
     component_id: Int = 154
+    """The gimbal's MAVLink component: 154 (MAV_COMP_ID_GIMBAL) or 171..175."""
     roll: Name | None = None
+    """The servo that turns roll; leave out an axis the gimbal does not have."""
     pitch: Name | None = None
+    """The servo that turns pitch."""
     yaw: Name | None = None
+    """The servo that turns yaw (body frame; earth-frame targets are converted)."""
     limits_deg: GimbalLimits = GimbalLimits()
+    """Per-axis limits (a ground station may narrow them: ``GMBn_*``)."""
     act_as_manager: Bool = False
-    #: (roll, pitch, yaw) for RETRACT (None: the MAVLink layer's default stowed pose) and NEUTRAL.
+    """Also be the gimbal manager, for an autopilot without a mount backend (ArduPilot with
+    ``MNT1_TYPE 6`` is the manager: leave false)."""
     retract_pose_deg: tuple[Float, Float, Float] | None = None
+    """[roll, pitch, yaw] for RETRACT; null: the built-in stowed pose."""
     neutral_pose_deg: tuple[Float, Float, Float] = (0.0, 0.0, 0.0)
-    #: Reported in GIMBAL_DEVICE_INFORMATION (32 characters at most there).
+    """[roll, pitch, yaw] for NEUTRAL."""
     vendor_name: str = Field("mavservo", max_length=32)
+    """Reported in GIMBAL_DEVICE_INFORMATION (at most 32 characters)."""
     model_name: str = Field("CAN servo gimbal", max_length=32)
+    """Reported in GIMBAL_DEVICE_INFORMATION (at most 32 characters)."""
 
     @field_validator("component_id")
     @classmethod
@@ -814,11 +933,20 @@ class SchedulerConfig(StrictModel):
     """Timing of the dual-loop scheduler (paper: T_c = 50 ms, telemetry 80-100 ms)."""
 
     command_period_s: Float = Field(0.05, gt=0)
+    """Command loop period T_c, s: every periodic servo gets a command slot this often."""
     telemetry_period_s: Float = Field(0.09, gt=0)
+    """Telemetry polling loop period, s (suspended while commands go out)."""
     refresh_interval_s: Float = Field(0.2, gt=0)
+    """Re-send the last command this often when nothing new comes (keep-alive), s; at least
+    ``command_period_s``."""
     immediate_min_spacing_s: Float = Field(0.005, gt=0)
+    """Least gap between two commands of an ``immediate`` servo, s."""
     reply_timeout_s: Float = Field(0.05, gt=0)
+    """A reply later than this counts as missed, s; several missed in a row and the servo is
+    offline."""
     realtime: Bool = False
+    """Ask for SCHED_FIFO real-time priority (needs root or CAP_SYS_NICE; the bridge says so and
+    runs on when refused)."""
 
     @model_validator(mode="after")
     def _refresh_not_faster_than_commands(self) -> SchedulerConfig:
@@ -842,13 +970,23 @@ class SimAutopilotConfig(StrictModel):
     """
 
     profile: Literal["sweep", "steps", "staircase", "hold", "random-walk", "replay"] = "sweep"
+    """What the simulated autopilot's outputs do: ``sweep``, ``steps``, ``staircase``, ``hold``,
+    ``random-walk``, or ``replay`` a recorded .tlog."""
     servo_output_rate_hz: Float = Field(20.0, gt=0)
+    """SERVO_OUTPUT_RAW rate, Hz."""
     replay_file: Path | None = None  # a .tlog, for profile "replay"
+    """The .tlog of ``profile: replay``."""
     speed: Float = Field(1.0, gt=0)  # replay speed factor
+    """Replay speed factor."""
     seed: Int = 0  # random-walk seed
+    """Seed of ``random-walk``."""
     gimbal: Bool = False  # also act as a gimbal manager sending SET_ATTITUDE
+    """Also act as a gimbal manager, sending gimbal attitudes as ArduPilot's mount backend does."""
     command_target: tuple[Int, Int] = (1, 0)  # (system, component) commands are addressed to
+    """[system, component] the script's commands are addressed to (component 0: broadcast)."""
     script: list[dict[str, Any]] = []
+    """Mission-style commands at given times: ``{at: 1.0, do_set_servo: {channel: 5, pwm:
+    1700}}``, ``do_repeat_servo``, ``do_set_actuator`` (see ``config/sim.yaml``)."""
 
     @field_validator("script")
     @classmethod
@@ -878,13 +1016,16 @@ class SimServoConfig(StrictModel):
     terms."""
 
     physics: dict[str, SimValue] = {}
+    """The simulated servo's mechanics and thermals (keys listed below)."""
     faults: dict[str, SimValue] = {}
-    #: Injected wiring mistakes (``mavservo doctor`` finds them): the id, the protocol (a
-    #: profile name: ``cubemars`` for a CubeMars left in servo mode under a ``cubemars_mit``
-    #: config) and the options (``protocol: mit``) the simulated servo really has.
+    """Faults injected into the simulated servo (keys listed below)."""
     can_id: Int | None = Field(None, ge=0, le=0x1FFFFFFF)
+    """An injected wiring mistake: the id the simulated servo really has (``mavservo doctor``
+    finds it)."""
     profile: str | None = None
+    """An injected mistake: the protocol (profile name) the simulated servo really speaks."""
     options: dict[str, Any] | None = None
+    """An injected mistake: the options the simulated servo really has (e.g. another mode)."""
 
     @field_validator("profile")
     @classmethod
@@ -918,10 +1059,13 @@ class SimulationConfig(StrictModel):
     """
 
     autopilot: SimAutopilotConfig = SimAutopilotConfig()
+    """The simulated autopilot (used when ``mavlink.url`` is ``sim``)."""
     servos: dict[str, SimServoConfig] = {}
-    #: The bitrate the simulated servos of a bus really run at, by bus name (an injected
-    #: wrong-bitrate mistake: the adapter is set to the bus's ``bitrate``, they to this).
+    """Per servo name (or ``default`` for the others): its simulated physics and injected
+    faults."""
     bus_bitrates: dict[str, Annotated[Int, Field(gt=0)]] = {}
+    """An injected mistake: the bit rate the simulated servos of a bus really run at, by bus
+    name."""
 
 
 # --------------------------------------------------------------------------------------- logging
@@ -931,19 +1075,25 @@ class LoggingConfig(StrictModel):
     """Where a run's records go: CAN logs (python-can writers), MAVLink tlog, text log."""
 
     dir: Path = Path("runs")
-    #: Both by default, as the README promises: ASC for reading by eye and diffing, BLF for
-    #: exact timestamps and CAN tools (a config without ``logging:`` wrote only ASC).
+    """Where run directories go (one per run; relative to the working directory)."""
+    # Both by default, as the README promises: ASC for reading by eye and diffing, BLF for
+    # exact timestamps and CAN tools (a config without ``logging:`` wrote only ASC).
     can_formats: list[Literal["asc", "blf", "csv", "log", "trc"]] = ["asc", "blf"]
-    #: ``all``: every frame the adapter delivers (foreign nodes, frames no profile accepts,
-    #: error frames where the interface reports them) and every frame sent; ``servos``: the
-    #: frames sent and those matched to a configured servo (the logs before issue 29).
+    """CAN log formats written (python-can's): ``asc``, ``blf``, ``csv``, ``log``, ``trc``."""
     can_frames: Literal["all", "servos"] = "all"
+    """``all``: every frame sent and every frame the adapter delivers (foreign nodes, error
+    frames); ``servos``: only the configured servos' frames."""
     rotate_mb: Float | None = Field(50.0, gt=0)
-    #: Every file of a run together stops growing here (the run log said nothing and filled
-    #: 104 MB in 25 minutes, only the CAN logs rotated); 1 GiB is ~4 h of the built-in sim.
+    """Start a new CAN log file after this many MB; null: never."""
+    # Every file of a run together stops growing here (the run log said nothing and filled
+    # 104 MB in 25 minutes, only the CAN logs rotated); 1 GiB is ~4 h of the built-in sim.
     max_run_mb: Float = Field(1024.0, gt=0)
+    """A whole run (every file) stops growing here, in MB (the bridge says so and keeps
+    running)."""
     tlog: Bool = True
+    """Record the MAVLink traffic in and out as a .tlog."""
     level: Literal["debug", "info", "warning", "error"] = "info"
+    """Console and log level: ``debug``, ``info``, ``warning``, ``error``."""
 
 
 # ------------------------------------------------------------------------------------------ root
@@ -953,13 +1103,21 @@ class Config(StrictModel):
     """A whole mavservo configuration file."""
 
     mavlink: MavlinkConfig = MavlinkConfig()
+    """The autopilot side."""
     can: CanConfig = CanConfig()
+    """The servo side: the CAN buses."""
     servos: list[ServoConfig] = Field(min_length=1)
+    """The servos; at least one."""
     channels: list[ChannelConfig] = []
+    """Which MAVLink input drives which servo, and how."""
     gimbals: list[GimbalConfig] = []
+    """Gimbal devices (MAVLink gimbal protocol v2) made of servos."""
     scheduler: SchedulerConfig = SchedulerConfig()
+    """Timing of the dual-loop scheduler."""
     simulation: SimulationConfig = SimulationConfig()
+    """The built-in simulation; used only by ``sim`` endpoints."""
     logging: LoggingConfig = LoggingConfig()
+    """What a run records."""
 
     def servo(self, name: str) -> ServoConfig:
         """The servo called ``name`` (KeyError if there is none)."""
