@@ -1,4 +1,4 @@
-"""docs/sitl.md's ArduPilot SITL section, followed literally from a fresh pip install.
+"""docs/engineering/sitl.md's ArduPilot SITL section, followed literally from a fresh pip install.
 
 A fresh virtual environment gets the project by ``pip install`` (no repository on any path), a
 stand-in ArduPilot tree takes the place of a real one (what ArduPilot's docs leave a user with:
@@ -22,7 +22,7 @@ import pytest
 from tests.support.paths import REPO
 from tests.support.venv import child_env, pip_install
 
-DOC = REPO / "docs" / "sitl.md"
+DOC = REPO / "docs" / "engineering" / "sitl.md"
 
 FAKE_ARDUPLANE = """#!/usr/bin/env python3
 # stand-in SITL: record the command line, then play ArduPlane on the SERIAL1 address
