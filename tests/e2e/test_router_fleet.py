@@ -1,7 +1,7 @@
-"""Several bridges behind a router, as the README sets them up.
+"""Several bridges behind a router, as docs/multiple-bridges.md sets them up.
 
 * ``mavservo check a.yaml b.yaml`` names each clash between two bridges' configs;
-* the README's mavlink-router example, read from the README itself, runs in a small Python
+* the mavlink-router example of docs/multiple-bridges.md, read from the page, runs in a small Python
   router that behaves like mavlink-router where it matters here: a message addressed to a
   component goes only to the endpoints that component was seen on (broadcasts to all), and a
   TCP server is opened unless ``[General] TcpServerPort = 0``. Two bridges and a simulated
@@ -32,7 +32,7 @@ from mavservo.sim.autopilot.stream import AutopilotStream
 from tests.support.paths import REPO
 from tests.support.waiting import free_udp_port, wait_until
 
-README = REPO / "README.md"
+README = REPO / "docs" / "multiple-bridges.md"  # the router example users copy
 #: mavlink-router's TCP server port when [General] does not set one
 MAVLINK_ROUTER_DEFAULT_TCP_PORT = 5760
 
@@ -86,10 +86,10 @@ def test_check_names_each_clash_between_two_bridges(tmp_path: Path) -> None:
 
 
 def readme_router_config() -> configparser.ConfigParser:
-    """The README's mavlink-router main.conf, as a user would copy it."""
+    """The guide's mavlink-router main.conf, as a user would copy it."""
     text = README.read_text()
     match = re.search(r"```ini\n(# mavlink-router: [^\n]*\n.*?)```", text, re.S)
-    assert match, "README has no mavlink-router example"
+    assert match, "docs/multiple-bridges.md has no mavlink-router example"
     parser = configparser.ConfigParser(inline_comment_prefixes=("#",))
     parser.read_string(match.group(1))
     return parser
