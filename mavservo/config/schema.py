@@ -329,7 +329,9 @@ class MavlinkConfig(StrictModel):
     """Serial links only: the baud rate (the autopilot's ``SERIALn_BAUD``, e.g. 921 for 921600)."""
     system_id: Literal["follow"] | Annotated[Int, Field(ge=1, le=255)] = "follow"
     """The bridge's MAVLink system id: ``follow`` takes the autopilot's, or a fixed 1..255."""
-    servo_component_id: Int = Field(140, description="MAV_COMP_ID_SERVO1..14 the servos use")
+    servo_component_id: Int = 140
+    """The MAVLink component the servos are published as: 140..153 (MAV_COMP_ID_SERVO1..14); a
+    second bridge on the vehicle takes another."""
     servo_output_port_width: Literal[8, 16] = 16
     """Channels per SERVO_OUTPUT_RAW ``port``: 16 is what ArduPilot sends over MAVLink 2, 8 for
     MAVLink 1 senders."""
