@@ -37,6 +37,7 @@ from mavservo.config import (
     gimbal_settings,
     mavlink_settings,
     overlay_path,
+    refuse_simulated_autopilot_on_hardware,
     servo_specs,
     timing_config,
 )
@@ -233,6 +234,8 @@ class Bridge:
 
     def _start(self) -> None:
         cfg = self.config
+        # before anything opens: the simulated autopilot never drives a real bus (issue 37)
+        refuse_simulated_autopilot_on_hardware(cfg)
         opened = open_run_log(
             cfg,
             self._log_dir,

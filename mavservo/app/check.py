@@ -21,13 +21,14 @@ from mavservo.config import (
     Config,
     ConfigError,
     LoadedConfig,
+    OverrideError,
     ServoOutputChannel,
     bus_loads,
     bus_nodes,
     current_values,
     endpoint_lines,
-    load_config_with_overlay,
     overlay_path,
+    preflight,
     servos_on,
 )
 from mavservo.config import allowed_values as _allowed
@@ -288,13 +289,13 @@ def check_main(argv: Sequence[str], out: TextIO | None = None, err: TextIO | Non
     status = EXIT_OK
     valid: list[tuple[str, Config]] = []
     for path in args.configs:
-        try:
-            loaded = load_config_with_overlay(path)
-        except ConfigError as exc:
+        try:  # the same verdict `mavservo run` starts from (mavservo.config.preflight)
+            checked = preflight(path)
+        except (ConfigError, OverrideError) as exc:
             print(str(exc), file=err)
             status = EXIT_INVALID
             continue
-        config, warnings = loaded.config, loaded.warnings
+        loaded, config, warnings = checked.loaded, checked.config, checked.warnings
         valid.append((path, config))
         print(f"{path}: valid\n", file=out)
         if loaded.overlay:

@@ -28,9 +28,9 @@ from mavservo.app.console import ConsoleFormatter, HeartbeatNotices, StatusDispl
 from mavservo.config import (
     ConfigError,
     OverrideError,
-    apply_overrides,
+    Preflight,
     default_config_path,
-    load_config_with_overlay,
+    preflight,
 )
 from mavservo.errors import MavservoError
 from mavservo.threads import set_from_signal_handler
@@ -116,18 +116,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     for error in load_errors():  # a broken plug-in is named; the other profiles still work
         print(f"mavservo: warning: {error.describe()}", file=sys.stderr)
-    try:
-        loaded = load_config_with_overlay(path)
-        config = apply_overrides(loaded.config, args.mavlink, args.port)
-    except ConfigError as exc:
-        print(f"mavservo: invalid configuration\n{exc}", file=sys.stderr)
-        return 2
-    except OverrideError as exc:  # names the option: "--mavlink udpin:...:bad: port 'bad' ..."
-        print(f"mavservo: {exc}", file=sys.stderr)
-        return 2
-    except (OSError, ValueError) as exc:
-        print(f"mavservo: cannot use {path}: {exc}", file=sys.stderr)
-        return 2
+    checked = startup_config(path, args.mavlink, args.port)
+    if isinstance(checked, int):
+        return checked
+    loaded, config = checked.loaded, checked.config
 
     from mavservo.app.bridge import Bridge, settle_heap
 
@@ -182,6 +174,21 @@ def main(argv: Sequence[str] | None = None) -> int:
             signal.signal(sig, handler)
     print(format_summary(summary))
     return 0
+
+
+def startup_config(path: Path, mavlink: str | None, port: str | None) -> Preflight | int:
+    """The config a run starts from, or exit status 2 with the reasons printed: the verdict of
+    :func:`~mavservo.config.preflight`, the one ``mavservo check`` prints (a config check calls
+    valid is one run starts; issue 37). Touches no device."""
+    try:
+        return preflight(path, mavlink=mavlink, port=port)
+    except ConfigError as exc:
+        print(f"mavservo: invalid configuration\n{exc}", file=sys.stderr)
+    except OverrideError as exc:  # names the option: "--mavlink udpin:...:bad: port 'bad' ..."
+        print(f"mavservo: {exc}", file=sys.stderr)
+    except (OSError, ValueError) as exc:
+        print(f"mavservo: cannot use {path}: {exc}", file=sys.stderr)
+    return 2
 
 
 def _heartbeat_notice(bridge: Any, notices: HeartbeatNotices, display: StatusDisplay) -> None:

@@ -9,6 +9,7 @@ Public API::
     bus_loads(config) -> list[BusLoad]       # worst-case R per bus
     endpoint_lines(config) -> list[str]      # MAVLink URL and bus interfaces, in words
     apply_overrides(config, mavlink, port)   # --mavlink / --port; OverrideError names the option
+    preflight(path, mavlink=, port=)         # the verdict `check` prints and `run` starts from
 
 `mavservo check` (which also needs the channel mapping, a layer above) is :mod:`mavservo.app.check`.
 """
@@ -115,6 +116,12 @@ if TYPE_CHECKING:
     from .schema import SimAutopilotConfig, allowed_values, read_key_file
     from .simulation import Faults, Physics
     from .smallfile import SmallFileError, read_small_file
+    from .start_checks import (
+        Preflight,
+        SimulatedAutopilotError,
+        preflight,
+        refuse_simulated_autopilot_on_hardware,
+    )
     from .views import (
         gimbal_settings,
         mavlink_settings,
@@ -133,10 +140,12 @@ __all__ += [
     "Parameter",
     "ParameterError",
     "Physics",
+    "Preflight",
     "RepeatServo",
     "Script",
     "SetActuator",
     "SetServo",
+    "SimulatedAutopilotError",
     "SmallFileError",
     "allowed_values",
     "bitrate_text",
@@ -149,7 +158,9 @@ __all__ += [
     "overlay_path",
     "parameter_table",
     "parse_script",
+    "preflight",
     "read_key_file",
+    "refuse_simulated_autopilot_on_hardware",
     "read_small_file",
     "repeat_servo_value",
     "servos_on",
@@ -175,6 +186,10 @@ __getattr__ = lazy_face(
         "Parameter": "parameters",
         "ParameterError": "parameters",
         "Physics": "simulation",
+        "Preflight": "start_checks",
+        "SimulatedAutopilotError": "start_checks",
+        "preflight": "start_checks",
+        "refuse_simulated_autopilot_on_hardware": "start_checks",
         "RepeatServo": "autopilot_script",
         "Script": "autopilot_script",
         "SetActuator": "autopilot_script",

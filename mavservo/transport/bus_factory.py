@@ -29,6 +29,13 @@ SIM_CHANNEL = "sim"
 #: emulator and the LAWICEL/slcan emulator, both on a pty opened by the real driver).
 SIMULATED_INTERFACES = ("aa55", "slcan")
 
+#: python-can interfaces whose frames never leave this process (or machine) for a wire: a bus
+#: on one of them moves no real servo, whatever its channel. Every other interface reaches
+#: hardware unless it is on ``channel: sim`` (``udp_multicast`` is not listed: a gateway on the
+#: network may bridge it to a real bus). An interface added to the project (say, CAN over
+#: MAVLink) reaches hardware until it is listed here.
+SOFTWARE_INTERFACES = frozenset({"virtual"})
+
 #: How each interface is told to listen without transmitting (no ACK, no error frames, no
 #: frames of ours): the AA-55 settings frame's silent mode (Waveshare USB-CAN-A manual, the
 #: ``0x02`` mode byte), LAWICEL's ``L`` command instead of ``O`` (CAN232/CANUSB manual), a PCAN
@@ -112,6 +119,16 @@ class OpenedBus:
         finally:
             if self.simulator is not None:
                 self.simulator.stop()
+
+
+def reaches_hardware(interface: str, channel: str | int) -> bool:
+    """Whether a bus of ``interface`` on ``channel`` can move a real servo: False only for the
+    built-in simulation (``channel: sim`` of a :data:`SIMULATED_INTERFACES` interface) and the
+    :data:`SOFTWARE_INTERFACES`. The built-in simulated autopilot drives only buses for which
+    this is False (issue 37: it swept real servos of a config that lost its ``mavlink.url``)."""
+    if channel == SIM_CHANNEL and interface in SIMULATED_INTERFACES:
+        return False
+    return interface not in SOFTWARE_INTERFACES
 
 
 def has_listen_only(interface: str) -> bool:
