@@ -32,6 +32,7 @@ from mavservo.app.check import stop_behaviour_lines
 from mavservo.app.component_metadata import metadata_files
 from mavservo.app.health_reporting import HealthReporter
 from mavservo.app.run_records import open_run_log, tap_mavlink
+from mavservo.app.startup_errors import link_open_error
 from mavservo.config import (
     Config,
     gimbal_settings,
@@ -289,7 +290,10 @@ class Bridge:
         self.notes.announcer = self.mavlink
         if self.runlog is not None:
             tap_mavlink(self.mavlink, self.runlog, [s.name for s in cfg.servos])
-        self.mavlink.start()
+        try:
+            self.mavlink.start()
+        except OSError as exc:  # a serial port, a UDP/TCP port: named, with its usual causes
+            raise link_open_error(cfg.mavlink, exc) from exc
         if self.overlay_saver is not None:
             self.overlay_saver.start()
         self.identity = BridgeIdentity(self.mavlink, servos=len(cfg.servos), notes=self.notes)

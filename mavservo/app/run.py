@@ -25,6 +25,7 @@ from typing import Any
 import can
 
 from mavservo.app.console import ConsoleFormatter, HeartbeatNotices, StatusDisplay, format_summary
+from mavservo.app.startup_errors import DeviceOpenError, failure_lines
 from mavservo.config import (
     ConfigError,
     OverrideError,
@@ -145,6 +146,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         try:
             bridge.start()
+        except DeviceOpenError as exc:  # which bus or link, its line, the usual causes
+            print(
+                f"mavservo: cannot start: {failure_lines(exc, checked.place)[0]}", file=sys.stderr
+            )
+            print("\n".join(failure_lines(exc)[1:]), file=sys.stderr)
+            log.debug("start-up failure", exc_info=True)
+            return 1
         except EXPECTED_STARTUP_ERRORS as exc:
             print(f"mavservo: cannot start: {exc}", file=sys.stderr)
             log.debug("start-up failure", exc_info=True)

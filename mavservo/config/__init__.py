@@ -26,6 +26,7 @@ from mavservo.config.loader import (
     load_config,
     load_config_text,
     load_config_with_warnings,
+    load_located,
 )
 from mavservo.config.overrides import OverrideError, apply_overrides
 from mavservo.config.schema import (
@@ -43,7 +44,7 @@ from mavservo.config.schema import (
     SigningConfig,
     SimulationConfig,
 )
-from mavservo.config.yamlsource import Problem
+from mavservo.config.yamlsource import Problem, YamlDocument, format_path
 from mavservo.faces import lazy_face
 
 __all__ = [
@@ -77,6 +78,9 @@ __all__ = [
     "load_config",
     "load_config_text",
     "load_config_with_warnings",
+    "load_located",
+    "YamlDocument",
+    "format_path",
 ]
 
 # The face: what the other layers use from this package (``tests/test_package_faces.py``), each

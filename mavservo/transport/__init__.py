@@ -33,6 +33,7 @@ if TYPE_CHECKING:
     from .channel_rules import BusProblem, bus_problems, device_problems, serial_device_problem
     from .counters import transport_stats
     from .interface_signatures import UnknownInterfaceError, interface_options, option_problems
+    from .open_advice import open_causes, serial_causes
 
 __all__ = [
     "BITRATE_CODES",
@@ -50,8 +51,10 @@ __all__ = [
     "has_listen_only",
     "interface_options",
     "open_bus",
+    "open_causes",
     "option_problems",
     "reaches_hardware",
+    "serial_causes",
     "serial_device_problem",
     "transport_stats",
     "AA55Frame",
@@ -79,6 +82,8 @@ __getattr__ = lazy_face(
         "has_listen_only": "bus_factory",
         "interface_options": "interface_signatures",
         "open_bus": "bus_factory",
+        "open_causes": "open_advice",
+        "serial_causes": "open_advice",
         "option_problems": "interface_signatures",
         "reaches_hardware": "bus_factory",
         "serial_device_problem": "channel_rules",

@@ -20,6 +20,7 @@ from typing import Any, Protocol
 
 import can
 
+from mavservo.transport.channel_rules import SYS_CLASS_NET, interface_is_up
 from mavservo.transport.resilient_bus import ResilientBus
 
 #: The channel that asks for the built-in simulation instead of a device.
@@ -75,6 +76,11 @@ SimulatorFactory = Callable[[str, str, int], SimulatedAdapter | None]
 
 class NoSimulationError(can.CanInitializationError):
     """``channel: sim`` on an interface without a simulated adapter."""
+
+
+class LinkDownError(can.CanInitializationError):
+    """A SocketCAN interface that exists but is down: python-can opens it, and every send
+    fails with ``Network is down`` afterwards, so it is refused at the open."""
 
 
 @dataclass(frozen=True)
@@ -159,6 +165,8 @@ def open_bus(
                 "simulation (aa55 and slcan have one); give the device as `channel:`"
             )
         channel = simulator.path
+    if request.interface == "socketcan" and not interface_is_up(SYS_CLASS_NET / str(channel)):
+        raise LinkDownError(f"socketcan: interface {channel} is down")
     kwargs = request.kwargs(channel)
     if request.interface == "aa55" and on_reject is not None:
         kwargs["on_reject"] = on_reject

@@ -219,7 +219,8 @@ def netdev_problem(name: str, bitrate: int, sys_class_net: Path = SYS_CLASS_NET)
 
 
 def interface_is_up(entry: Path) -> bool:
-    """IFF_UP of ``/sys/class/net/<name>`` (True when it cannot be read: not ours to judge)."""
+    """IFF_UP of ``/sys/class/net/<name>`` (True when it cannot be read, or there is no such
+    interface: not ours to judge, the open says what is wrong)."""
     try:
         flags = int((entry / "flags").read_text().strip(), 16)
     except (OSError, ValueError):
