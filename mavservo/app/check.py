@@ -26,6 +26,7 @@ from mavservo.config import (
     bus_loads,
     bus_nodes,
     current_values,
+    default_text,
     endpoint_lines,
     overlay_path,
     preflight,
@@ -165,14 +166,18 @@ def profiles_listing() -> str:
             lines.append("    options: none")
         for key, field in fields.items():
             about = f" - {field.description}" if field.description else ""
-            lines.append(f"    {key}: default {field.default!r}, allowed {_allowed(field)}{about}")
+            lines.append(
+                f"    {key}: {_allowed(field)}; default {default_text(field.default)}{about}"
+            )
         family = node_family(cls)
         if family is not None:  # a family with a node on its bus (DroneCAN)
             lines.append(f"    bus node options (can.buses[].node.{name}):")
             for key, field in family.NodeOptions.model_fields.items():
                 about = f" - {field.description}" if field.description else ""
                 default = field.get_default(call_default_factory=True)
-                lines.append(f"      {key}: default {default!r}, allowed {_allowed(field)}{about}")
+                lines.append(
+                    f"      {key}: {_allowed(field)}; default {default_text(default)}{about}"
+                )
     lines += ["", PLUGIN_HINT]
     return "\n".join(lines)
 

@@ -117,7 +117,7 @@ if TYPE_CHECKING:
         parameter_table,
         with_values,
     )
-    from .schema import SimAutopilotConfig, allowed_values, read_key_file
+    from .schema import SimAutopilotConfig, allowed_values, default_text, read_key_file
     from .simulation import Faults, Physics
     from .smallfile import SmallFileError, read_small_file
     from .start_checks import (
@@ -152,6 +152,7 @@ __all__ += [
     "SimulatedAutopilotError",
     "SmallFileError",
     "allowed_values",
+    "default_text",
     "bitrate_text",
     "bus_nodes",
     "clear_overlay",
@@ -200,6 +201,7 @@ __getattr__ = lazy_face(
         "SetServo": "autopilot_script",
         "SmallFileError": "smallfile",
         "allowed_values": "schema",
+        "default_text": "schema",
         "bitrate_text": "endpoints",
         "bus_nodes": "budget",
         "clear_overlay": "overlay",

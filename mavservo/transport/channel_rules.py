@@ -131,7 +131,7 @@ def _channel_problems(interface: str, rule: InterfaceRule, channel: str | int) -
             return [
                 BusProblem(
                     "channel",
-                    f"a {interface} bus takes a serial device (e.g. {rule.example}, or a "
+                    f"interface {interface} takes a serial device (e.g. {rule.example}, or a "
                     f"stable /dev/serial/by-id/... path), got {text!r}"
                     + (f"; {hint}" if hint else ""),
                 )
@@ -142,7 +142,7 @@ def _channel_problems(interface: str, rule: InterfaceRule, channel: str | int) -
             return [
                 BusProblem(
                     "channel",
-                    f"a {interface} bus takes a network interface name (e.g. {rule.example}, "
+                    f"interface {interface} takes a network interface name (e.g. {rule.example}, "
                     f"vcan0; at most 15 characters, no '/'), got {text!r}"
                     + (f": that is a serial device; {hint}" if hint else ""),
                 )
@@ -153,7 +153,7 @@ def _channel_problems(interface: str, rule: InterfaceRule, channel: str | int) -
             return [
                 BusProblem(
                     "channel",
-                    f"a pcan bus takes a PCAN channel name (e.g. {rule.example}), got {text!r}",
+                    f"interface pcan takes a PCAN channel name (e.g. {rule.example}), got {text!r}",
                 )
             ]
     return []
