@@ -5,6 +5,11 @@ saying when a left-out key means the built-in simulation), warnings for settings
 do what they say, the servos, the channel mapping with the angles the input's
 min/trim/max land on (after reverse, trim and soft limits), the gimbal groups, and the
 worst-case bus load per bus. Touches no hardware: the bus load comes from arithmetic only.
+
+Its verdict is :func:`mavservo.config.preflight`'s, the one ``mavservo run`` starts from, so a
+config ``check`` calls valid is one ``run`` starts (issue 37): that includes the built-in
+simulated autopilot refused on a real bus, and each bus's channel and bitrate against its
+interface. Devices that are not on this machine (yet) are warnings, not errors.
 """
 
 from __future__ import annotations

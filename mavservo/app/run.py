@@ -1,8 +1,9 @@
 """``mavservo run``: load a config, run the bridge, show a live status, print a summary.
 
 Exit status: 0 after a clean run (duration elapsed, SIGINT, SIGTERM or SIGHUP); 2 for a bad
-config or bad arguments (nothing was touched); 1 when start-up fails for another reason (a port
-that cannot be opened...). An expected start-up failure (a
+config or bad arguments, the verdict ``mavservo check`` prints (:func:`startup_config`; nothing
+was touched); 1 when start-up fails for another reason (a port that cannot be opened: said with
+the bus or link it is, its FILE:LINE and the usual causes). An expected start-up failure (a
 :class:`~mavservo.errors.MavservoError` such as a busy port or a missing adapter, an
 ``OSError``, a python-can interface that cannot open) is one clear line; anything else is a bug
 and prints its traceback too, so it can be reported.

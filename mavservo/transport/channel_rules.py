@@ -124,39 +124,29 @@ def bus_problems(interface: str, channel: str | int, bitrate: int) -> list[BusPr
 
 
 def _channel_problems(interface: str, rule: InterfaceRule, channel: str | int) -> list[BusProblem]:
+    """The channel's form against the interface's: ``[]`` when it fits."""
     text = str(channel)
     if rule.channel == "serial":
-        if isinstance(channel, int) or not _SERIAL_FORM.match(_serial_channel(text, rule)):
-            hint = _SOCKETCAN_HINT if _NETDEV_FORM.match(text) else ""
-            return [
-                BusProblem(
-                    "channel",
-                    f"interface {interface} takes a serial device (e.g. {rule.example}, or a "
-                    f"stable /dev/serial/by-id/... path), got {text!r}"
-                    + (f"; {hint}" if hint else ""),
-                )
-            ]
+        fits = not isinstance(channel, int) and bool(
+            _SERIAL_FORM.match(_serial_channel(text, rule))
+        )
+        wanted = f"a serial device (e.g. {rule.example}, or a stable /dev/serial/by-id/... path)"
+        hint = f"; {_SOCKETCAN_HINT}" if _NETDEV_FORM.match(text) else ""
     elif rule.channel == "netdev":
-        if isinstance(channel, int) or not _NETDEV_FORM.match(text):
-            hint = _SLCAN_HINT if text.startswith("/") else ""
-            return [
-                BusProblem(
-                    "channel",
-                    f"interface {interface} takes a network interface name (e.g. {rule.example}, "
-                    f"vcan0; at most 15 characters, no '/'), got {text!r}"
-                    + (f": that is a serial device; {hint}" if hint else ""),
-                )
-            ]
+        fits = not isinstance(channel, int) and bool(_NETDEV_FORM.match(text))
+        wanted = (
+            f"a network interface name (e.g. {rule.example}, vcan0; at most 15 characters, no '/')"
+        )
+        hint = f": that is a serial device; {_SLCAN_HINT}" if text.startswith("/") else ""
     elif rule.channel == "pcan":
         names = _pcan_channels()
-        if names is not None and text not in names:
-            return [
-                BusProblem(
-                    "channel",
-                    f"interface pcan takes a PCAN channel name (e.g. {rule.example}), got {text!r}",
-                )
-            ]
-    return []
+        fits = names is None or text in names
+        wanted, hint = f"a PCAN channel name (e.g. {rule.example})", ""
+    else:
+        return []
+    if fits:
+        return []
+    return [BusProblem("channel", f"interface {interface} takes {wanted}, got {text!r}{hint}")]
 
 
 def _bitrate_problems(interface: str, rule: InterfaceRule, bitrate: int) -> list[BusProblem]:

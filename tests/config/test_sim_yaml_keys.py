@@ -8,7 +8,6 @@ import re
 import typing
 from collections.abc import Iterator
 
-import pytest
 from pydantic import BaseModel
 
 from mavservo.config import Config, default_config_path
@@ -42,13 +41,15 @@ def _section(name: str) -> str:
     return found.group(0)
 
 
-PATHS = sorted(set(_key_paths(Config)))
-
-
-@pytest.mark.parametrize("path", PATHS, ids=".".join)
-def test_every_schema_key_is_in_sim_yaml(path: tuple[str, ...]) -> None:
-    written = re.compile(rf"(^|[\s{{,#(\[]){re.escape(path[-1])}:", re.M)
-    assert written.search(_section(path[0])), f"{'.'.join(path)} is not in sim.yaml"
+def test_every_schema_key_is_in_sim_yaml() -> None:
+    paths = sorted(set(_key_paths(Config)))
+    assert len(paths) > 100  # the walk found the schema, not an empty model
+    missing = [
+        ".".join(path)
+        for path in paths
+        if not re.search(rf"(^|[\s{{,#(\[]){re.escape(path[-1])}:", _section(path[0]), re.M)
+    ]
+    assert missing == [], f"not in sim.yaml: {missing}"
 
 
 def test_every_built_in_family_is_named() -> None:
