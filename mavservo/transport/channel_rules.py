@@ -179,10 +179,21 @@ def device_problems(
     return [] if problem is None else [BusProblem("channel", problem, warning=True)]
 
 
+#: Serial devices of a Raspberry Pi's own UART (the header's GPIO14/15), as Raspberry Pi OS
+#: names them (documentation: "Configuring UARTs", primary and secondary UART).
+PI_UART_PATH = re.compile(r"^/dev/(serial[01]|ttyAMA\d+|ttyS0)$")
+
+
 def serial_device_problem(path: str) -> str | None:
     """Why ``path`` cannot be opened on this machine now, or None (a URL is not looked at)."""
     if not path.startswith("/") or Path(path).exists():
         return None
+    if PI_UART_PATH.match(path):
+        return (
+            f"{path} does not exist on this machine (yet): on a Raspberry Pi, turn the UART on "
+            "and its login console off (`sudo raspi-config` -> Interface Options -> Serial "
+            "Port; or `enable_uart=1` in /boot/firmware/config.txt), then reboot"
+        )
     return (
         f"{path} does not exist on this machine (yet): plug the adapter in, or name it by a "
         "stable /dev/serial/by-id/... path (`ls -l /dev/serial/by-id/`)"

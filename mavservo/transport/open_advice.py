@@ -14,11 +14,7 @@ from __future__ import annotations
 import errno
 import re
 
-from mavservo.transport.channel_rules import RULES
-
-#: Serial devices of a Raspberry Pi's own UART (the header's GPIO14/15), as Raspberry Pi OS
-#: names them (documentation: "Configuring UARTs", primary and secondary UART).
-_PI_UART = re.compile(r"^/dev/(serial[01]|ttyAMA\d+|ttyS0)$")
+from mavservo.transport.channel_rules import PI_UART_PATH, RULES
 
 _ERRNO_TEXT = re.compile(r"\[Errno (\d+)\]")
 
@@ -57,7 +53,7 @@ def serial_causes(device: str, exc: BaseException | str) -> list[str]:
     number = failure_errno(exc)
     text = str(exc).lower()
     causes: list[str] = []
-    if _PI_UART.match(device) and number not in _DENIED:
+    if PI_UART_PATH.match(device) and number not in _DENIED:
         causes.append(PI_UART)  # the Pi's own UART is missing or busy while it is a console
     if number in _DENIED:
         causes.append(DIALOUT)
