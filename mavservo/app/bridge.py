@@ -32,11 +32,13 @@ from mavservo.app.check import stop_behaviour_lines
 from mavservo.app.component_metadata import metadata_files
 from mavservo.app.health_reporting import HealthReporter
 from mavservo.app.run_records import open_run_log, tap_mavlink
+from mavservo.app.startup_errors import link_open_error
 from mavservo.config import (
     Config,
     gimbal_settings,
     mavlink_settings,
     overlay_path,
+    refuse_simulated_autopilot_on_hardware,
     servo_specs,
     timing_config,
 )
@@ -233,6 +235,8 @@ class Bridge:
 
     def _start(self) -> None:
         cfg = self.config
+        # before anything opens: the simulated autopilot never drives a real bus (issue 37)
+        refuse_simulated_autopilot_on_hardware(cfg)
         opened = open_run_log(
             cfg,
             self._log_dir,
@@ -286,7 +290,10 @@ class Bridge:
         self.notes.announcer = self.mavlink
         if self.runlog is not None:
             tap_mavlink(self.mavlink, self.runlog, [s.name for s in cfg.servos])
-        self.mavlink.start()
+        try:
+            self.mavlink.start()
+        except OSError as exc:  # a serial port, a UDP/TCP port: named, with its usual causes
+            raise link_open_error(cfg.mavlink, exc) from exc
         if self.overlay_saver is not None:
             self.overlay_saver.start()
         self.identity = BridgeIdentity(self.mavlink, servos=len(cfg.servos), notes=self.notes)

@@ -19,6 +19,7 @@ from typing import Any
 
 import can
 
+from mavservo.app.startup_errors import bus_open_error
 from mavservo.config import BusConfig, Config
 from mavservo.records import RunLog
 from mavservo.sim import PtyAdapter, simulator_factory
@@ -45,8 +46,13 @@ class BridgeBuses:
         self._opened: list[OpenedBus] = []
 
     def open_all(self, runlog: RunLog | None) -> None:
-        for bus_cfg in self._config.can.buses:
-            self.buses[bus_cfg.name] = self._open(bus_cfg, runlog)
+        """Open every bus; one that does not open is a :class:`DeviceOpenError` naming it, its
+        config key and the usual causes for its kind of device (issue 37)."""
+        for index, bus_cfg in enumerate(self._config.can.buses):
+            try:
+                self.buses[bus_cfg.name] = self._open(bus_cfg, runlog)
+            except (OSError, ValueError, can.CanError) as exc:
+                raise bus_open_error(index, bus_cfg, exc) from exc
 
     def _open(self, bus_cfg: BusConfig, runlog: RunLog | None) -> can.BusABC:
         """The transport layer's factory opens it (a device, or its simulation for ``sim``);

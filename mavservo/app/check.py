@@ -5,6 +5,11 @@ saying when a left-out key means the built-in simulation), warnings for settings
 do what they say, the servos, the channel mapping with the angles the input's
 min/trim/max land on (after reverse, trim and soft limits), the gimbal groups, and the
 worst-case bus load per bus. Touches no hardware: the bus load comes from arithmetic only.
+
+Its verdict is :func:`mavservo.config.preflight`'s, the one ``mavservo run`` starts from, so a
+config ``check`` calls valid is one ``run`` starts (issue 37): that includes the built-in
+simulated autopilot refused on a real bus, and each bus's channel and bitrate against its
+interface. Devices that are not on this machine (yet) are warnings, not errors.
 """
 
 from __future__ import annotations
@@ -21,13 +26,15 @@ from mavservo.config import (
     Config,
     ConfigError,
     LoadedConfig,
+    OverrideError,
     ServoOutputChannel,
     bus_loads,
     bus_nodes,
     current_values,
+    default_text,
     endpoint_lines,
-    load_config_with_overlay,
     overlay_path,
+    preflight,
     servos_on,
 )
 from mavservo.config import allowed_values as _allowed
@@ -164,14 +171,18 @@ def profiles_listing() -> str:
             lines.append("    options: none")
         for key, field in fields.items():
             about = f" - {field.description}" if field.description else ""
-            lines.append(f"    {key}: default {field.default!r}, allowed {_allowed(field)}{about}")
+            lines.append(
+                f"    {key}: {_allowed(field)}; default {default_text(field.default)}{about}"
+            )
         family = node_family(cls)
         if family is not None:  # a family with a node on its bus (DroneCAN)
             lines.append(f"    bus node options (can.buses[].node.{name}):")
             for key, field in family.NodeOptions.model_fields.items():
                 about = f" - {field.description}" if field.description else ""
                 default = field.get_default(call_default_factory=True)
-                lines.append(f"      {key}: default {default!r}, allowed {_allowed(field)}{about}")
+                lines.append(
+                    f"      {key}: {_allowed(field)}; default {default_text(default)}{about}"
+                )
     lines += ["", PLUGIN_HINT]
     return "\n".join(lines)
 
@@ -288,13 +299,13 @@ def check_main(argv: Sequence[str], out: TextIO | None = None, err: TextIO | Non
     status = EXIT_OK
     valid: list[tuple[str, Config]] = []
     for path in args.configs:
-        try:
-            loaded = load_config_with_overlay(path)
-        except ConfigError as exc:
+        try:  # the same verdict `mavservo run` starts from (mavservo.config.preflight)
+            checked = preflight(path)
+        except (ConfigError, OverrideError) as exc:
             print(str(exc), file=err)
             status = EXIT_INVALID
             continue
-        config, warnings = loaded.config, loaded.warnings
+        loaded, config, warnings = checked.loaded, checked.config, checked.warnings
         valid.append((path, config))
         print(f"{path}: valid\n", file=out)
         if loaded.overlay:

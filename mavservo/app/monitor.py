@@ -2,8 +2,11 @@
 
 The monitor is an ordinary MAVLink client: it listens to what the bridge publishes (see
 ``mavservo/mavlink/telemetry.py``), so it works on the companion computer and from a ground
-station laptop alike. Default URL ``udpin:0.0.0.0:14552``: configure the bridge with a second
-output ``udpout:<monitor host>:14552`` (or point the monitor at any link the telemetry is on).
+station laptop alike. Default URL ``udpin:127.0.0.1:14552``: the bridge's second output
+``udpout:127.0.0.1:14552`` on the same machine (``config/sim.yaml`` has it); from another
+machine, listen on its address explicitly (``mavservo monitor udpin:0.0.0.0:14552``) and point
+the bridge's output there. Not every interface by default: the monitor answers what it hears
+with a heartbeat, and a dashboard has no business being reachable from the whole network.
 
 Two halves, so the interesting part is testable without a terminal:
 
@@ -28,7 +31,9 @@ What it understands (all optional; missing ones show as "-"):
 * HEARTBEAT of every component (autopilot, servo group 140.., gimbal 154..), with its age;
 * STATUSTEXT (tail of the last lines; MAVLink 2 chunks (``id`` != 0) are joined back into one
   text; ``servo NAME fault ...``/``cleared``/``not responding`` also set the fault column of
-  the servo that NAME belongs to, once its name is known);
+  the servo that NAME belongs to when its name is known (``--config``); without names, the
+  periodic ``s<n>_flt`` sets it: a name never makes a row of its own, which stayed NO REPLY
+  beside the servo's real row);
 * GIMBAL_DEVICE_ATTITUDE_STATUS (roll/pitch/yaw and failure flags, by name);
 * NAMED_VALUE_FLOAT ``s<n>_hlt``, the bridge's own health findings (docs/health.md: jammed,
   slipping, tracking, ...), shown in the fault column after the servo's own faults.
@@ -47,7 +52,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-DEFAULT_URL = "udpin:0.0.0.0:14552"
+DEFAULT_URL = "udpin:127.0.0.1:14552"
 MONITOR_SYSTEM_ID = 255
 MONITOR_COMPONENT_ID = 191  # MAV_COMP_ID_ONBOARD_COMPUTER range is taken; 191 = user 1 / GCS tools
 STALE_AFTER_S = 2.0
@@ -165,14 +170,14 @@ class MonitorState:
             view = self.servos[number] = ServoView(number)
         return view
 
-    def _servo_by_name(self, name: str) -> ServoView:
+    def _servo_by_name(self, name: str) -> ServoView | None:
+        """The row of servo ``name``; None when no row has that name (no ``--config``): the
+        servo's numbered row gets its state from ``s<n>_flt`` instead (issue 37: a row made
+        for the name stayed NO REPLY forever, a phantom beside the servo's real row)."""
         for view in self.servos.values():
             if view.name == name:
                 return view
-        # Not yet tied to a number: keep it under a synthetic negative key until it is.
-        key = -1 - len([k for k in self.servos if k < 0])
-        view = self.servos[key] = ServoView(key, name=name)
-        return view
+        return None
 
     def update(self, msg: Any, now: float) -> None:
         """Account for one pymavlink message received at ``now``."""
@@ -277,15 +282,13 @@ class MonitorState:
                 return
         self.texts.append((now, int(msg.severity), text))
         self.text_count += 1
-        if match := _TEXT_FAULT.match(text):
-            view = self._servo_by_name(match.group(1))
+        if (match := _TEXT_FAULT.match(text)) and (view := self._servo_by_name(match.group(1))):
             names = {n for n in match.group(3).split("|") if n}
             if match.group(2) == "fault":
                 view.faults |= names
             else:
                 view.faults -= names
-        elif match := _TEXT_ONLINE.match(text):
-            view = self._servo_by_name(match.group(1))
+        elif (match := _TEXT_ONLINE.match(text)) and (view := self._servo_by_name(match.group(1))):
             view.responding = match.group(2) == "responding again"
 
     def _join_chunk(self, msg: Any, text_id: int, text: str) -> str | None:

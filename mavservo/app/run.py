@@ -1,8 +1,9 @@
 """``mavservo run``: load a config, run the bridge, show a live status, print a summary.
 
 Exit status: 0 after a clean run (duration elapsed, SIGINT, SIGTERM or SIGHUP); 2 for a bad
-config or bad arguments (nothing was touched); 1 when start-up fails for another reason (a port
-that cannot be opened...). An expected start-up failure (a
+config or bad arguments, the verdict ``mavservo check`` prints (:func:`startup_config`; nothing
+was touched); 1 when start-up fails for another reason (a port that cannot be opened: said with
+the bus or link it is, its FILE:LINE and the usual causes). An expected start-up failure (a
 :class:`~mavservo.errors.MavservoError` such as a busy port or a missing adapter, an
 ``OSError``, a python-can interface that cannot open) is one clear line; anything else is a bug
 and prints its traceback too, so it can be reported.
@@ -25,12 +26,13 @@ from typing import Any
 import can
 
 from mavservo.app.console import ConsoleFormatter, HeartbeatNotices, StatusDisplay, format_summary
+from mavservo.app.startup_errors import DeviceOpenError, failure_lines
 from mavservo.config import (
     ConfigError,
     OverrideError,
-    apply_overrides,
+    Preflight,
     default_config_path,
-    load_config_with_overlay,
+    preflight,
 )
 from mavservo.errors import MavservoError
 from mavservo.threads import set_from_signal_handler
@@ -116,18 +118,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     for error in load_errors():  # a broken plug-in is named; the other profiles still work
         print(f"mavservo: warning: {error.describe()}", file=sys.stderr)
-    try:
-        loaded = load_config_with_overlay(path)
-        config = apply_overrides(loaded.config, args.mavlink, args.port)
-    except ConfigError as exc:
-        print(f"mavservo: invalid configuration\n{exc}", file=sys.stderr)
-        return 2
-    except OverrideError as exc:  # names the option: "--mavlink udpin:...:bad: port 'bad' ..."
-        print(f"mavservo: {exc}", file=sys.stderr)
-        return 2
-    except (OSError, ValueError) as exc:
-        print(f"mavservo: cannot use {path}: {exc}", file=sys.stderr)
-        return 2
+    checked = startup_config(path, args.mavlink, args.port)
+    if isinstance(checked, int):
+        return checked
+    loaded, config = checked.loaded, checked.config
 
     from mavservo.app.bridge import Bridge, settle_heap
 
@@ -153,6 +147,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         try:
             bridge.start()
+        except DeviceOpenError as exc:  # which bus or link, its line, the usual causes
+            print(
+                f"mavservo: cannot start: {failure_lines(exc, checked.place)[0]}", file=sys.stderr
+            )
+            print("\n".join(failure_lines(exc)[1:]), file=sys.stderr)
+            log.debug("start-up failure", exc_info=True)
+            return 1
         except EXPECTED_STARTUP_ERRORS as exc:
             print(f"mavservo: cannot start: {exc}", file=sys.stderr)
             log.debug("start-up failure", exc_info=True)
@@ -182,6 +183,21 @@ def main(argv: Sequence[str] | None = None) -> int:
             signal.signal(sig, handler)
     print(format_summary(summary))
     return 0
+
+
+def startup_config(path: Path, mavlink: str | None, port: str | None) -> Preflight | int:
+    """The config a run starts from, or exit status 2 with the reasons printed: the verdict of
+    :func:`~mavservo.config.preflight`, the one ``mavservo check`` prints (a config check calls
+    valid is one run starts; issue 37). Touches no device."""
+    try:
+        return preflight(path, mavlink=mavlink, port=port)
+    except ConfigError as exc:
+        print(f"mavservo: invalid configuration\n{exc}", file=sys.stderr)
+    except OverrideError as exc:  # names the option: "--mavlink udpin:...:bad: port 'bad' ..."
+        print(f"mavservo: {exc}", file=sys.stderr)
+    except (OSError, ValueError) as exc:
+        print(f"mavservo: cannot use {path}: {exc}", file=sys.stderr)
+    return 2
 
 
 def _heartbeat_notice(bridge: Any, notices: HeartbeatNotices, display: StatusDisplay) -> None:

@@ -9,6 +9,7 @@ Public API::
     bus_loads(config) -> list[BusLoad]       # worst-case R per bus
     endpoint_lines(config) -> list[str]      # MAVLink URL and bus interfaces, in words
     apply_overrides(config, mavlink, port)   # --mavlink / --port; OverrideError names the option
+    preflight(path, mavlink=, port=)         # the verdict `check` prints and `run` starts from
 
 `mavservo check` (which also needs the channel mapping, a layer above) is :mod:`mavservo.app.check`.
 """
@@ -25,6 +26,7 @@ from mavservo.config.loader import (
     load_config,
     load_config_text,
     load_config_with_warnings,
+    load_located,
 )
 from mavservo.config.overrides import OverrideError, apply_overrides
 from mavservo.config.schema import (
@@ -42,7 +44,7 @@ from mavservo.config.schema import (
     SigningConfig,
     SimulationConfig,
 )
-from mavservo.config.yamlsource import Problem
+from mavservo.config.yamlsource import Problem, YamlDocument, format_path
 from mavservo.faces import lazy_face
 
 __all__ = [
@@ -76,6 +78,9 @@ __all__ = [
     "load_config",
     "load_config_text",
     "load_config_with_warnings",
+    "load_located",
+    "YamlDocument",
+    "format_path",
 ]
 
 # The face: what the other layers use from this package (``tests/test_package_faces.py``), each
@@ -112,9 +117,15 @@ if TYPE_CHECKING:
         parameter_table,
         with_values,
     )
-    from .schema import SimAutopilotConfig, allowed_values, read_key_file
+    from .schema import SimAutopilotConfig, allowed_values, default_text, read_key_file
     from .simulation import Faults, Physics
     from .smallfile import SmallFileError, read_small_file
+    from .start_checks import (
+        Preflight,
+        SimulatedAutopilotError,
+        preflight,
+        refuse_simulated_autopilot_on_hardware,
+    )
     from .views import (
         gimbal_settings,
         mavlink_settings,
@@ -133,12 +144,15 @@ __all__ += [
     "Parameter",
     "ParameterError",
     "Physics",
+    "Preflight",
     "RepeatServo",
     "Script",
     "SetActuator",
     "SetServo",
+    "SimulatedAutopilotError",
     "SmallFileError",
     "allowed_values",
+    "default_text",
     "bitrate_text",
     "bus_nodes",
     "clear_overlay",
@@ -149,7 +163,9 @@ __all__ += [
     "overlay_path",
     "parameter_table",
     "parse_script",
+    "preflight",
     "read_key_file",
+    "refuse_simulated_autopilot_on_hardware",
     "read_small_file",
     "repeat_servo_value",
     "servos_on",
@@ -175,12 +191,17 @@ __getattr__ = lazy_face(
         "Parameter": "parameters",
         "ParameterError": "parameters",
         "Physics": "simulation",
+        "Preflight": "start_checks",
+        "SimulatedAutopilotError": "start_checks",
+        "preflight": "start_checks",
+        "refuse_simulated_autopilot_on_hardware": "start_checks",
         "RepeatServo": "autopilot_script",
         "Script": "autopilot_script",
         "SetActuator": "autopilot_script",
         "SetServo": "autopilot_script",
         "SmallFileError": "smallfile",
         "allowed_values": "schema",
+        "default_text": "schema",
         "bitrate_text": "endpoints",
         "bus_nodes": "budget",
         "clear_overlay": "overlay",

@@ -60,10 +60,17 @@ def load_config_with_warnings(path: str | Path) -> tuple[Config, list[Problem]]:
     The warnings (e.g. a ``telemetry_hz`` above what the telemetry loop polls) carry lines like
     errors do; ``mavservo check`` prints them, and a config with warnings is still valid.
     """
+    config, warnings, _document = load_located(path)
+    return config, warnings
+
+
+def load_located(path: str | Path) -> tuple[Config, list[Problem], YamlDocument]:
+    """:func:`load_config_with_warnings`, plus the parsed document: where each key is, for the
+    problems found after loading (start-up checks, a bus that cannot open) to name their line."""
     path = Path(path)
     text = _read_text(path)
     config, document = _validate(text, str(path), path.resolve().parent)
-    return config, _located(advisories(config), document)
+    return config, located(advisories(config), document), document
 
 
 def _read_text(path: Path) -> str:
@@ -113,11 +120,15 @@ def _validate(text: str, filename: str, base_dir: Path) -> tuple[Config, YamlDoc
     for check in (cross_checks, budget_checks):
         findings = check(config)
         if findings:
-            raise ConfigError(filename, _located(findings, document))
+            raise ConfigError(filename, located(findings, document))
     return config, document
 
 
-def _located(findings: list[Finding], document: YamlDocument) -> list[Problem]:
+def located(findings: list[Finding], document: YamlDocument | None) -> list[Problem]:
+    """Each ``(key path, message)`` finding as a :class:`Problem` on its key's line (no line
+    without a document)."""
+    if document is None:
+        return [Problem(tuple(loc), None, message) for loc, message in findings]
     problems = []
     for loc, message in findings:
         _, line = document.line_of(loc)

@@ -22,11 +22,11 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from mavservo.config.loader import ConfigError, load_config_with_warnings
+from mavservo.config.loader import ConfigError, load_located
 from mavservo.config.parameters import ParameterError, parameters_by_name, with_values
 from mavservo.config.schema import Config
 from mavservo.config.smallfile import SmallFileError, read_small_file
-from mavservo.config.yamlsource import Problem, YamlSyntaxError, parse_yaml
+from mavservo.config.yamlsource import Problem, YamlDocument, YamlSyntaxError, parse_yaml
 
 #: An overlay holds a few hundred short lines at most; anything far larger is not one.
 MAX_OVERLAY_BYTES = 64 * 1024
@@ -62,16 +62,19 @@ class LoadedConfig:
     base: Config
     overlay: dict[str, float] = field(default_factory=dict)
     warnings: list[Problem] = field(default_factory=list)
+    #: the config file as parsed: the line of each key, for problems found after loading
+    document: YamlDocument | None = None
 
 
 def load_config_with_overlay(path: str | Path) -> LoadedConfig:
     """Load ``path`` and lay its overlay (if any) over it; ConfigError names the bad line."""
-    base, warnings = load_config_with_warnings(path)
+    base, warnings, document = load_located(path)
     overlay_file = overlay_path(path)
     values = read_overlay(overlay_file)
     if not values:
-        return LoadedConfig(base, base, {}, warnings)
-    return LoadedConfig(apply_overlay(base, values, overlay_file), base, values, warnings)
+        return LoadedConfig(base, base, {}, warnings, document)
+    config = apply_overlay(base, values, overlay_file)
+    return LoadedConfig(config, base, values, warnings, document)
 
 
 def read_overlay(path: Path) -> dict[str, float]:

@@ -82,7 +82,7 @@ def parameter_table(config: Config, envelope: Config | None = None) -> list[Para
         table.extend(_servo_parameters(config, number, servo.name, _servo_span(outer, servo.name)))
     for number, gimbal in enumerate(config.gimbals, start=1):
         table.extend(_gimbal_parameters(number, gimbal.name, _gimbal_spans(outer, gimbal.name)))
-    table.extend(_telemetry_parameters())
+    table.extend(_telemetry_parameters(gimbals=bool(config.gimbals)))
     return table
 
 
@@ -487,9 +487,16 @@ _RATES = (
 )
 
 
-def _telemetry_parameters() -> list[Parameter]:
+#: Rates of messages only a gimbal sends: listed only when the config has one (a ground station
+#: showed TEL_GAS_HZ, the gimbal attitude rate, for a bridge without a gimbal: issue 37).
+_GIMBAL_RATES = frozenset({"TEL_GAS_HZ"})
+
+
+def _telemetry_parameters(*, gimbals: bool) -> list[Parameter]:
     table = []
     for name, key, what in _RATES:
+        if name in _GIMBAL_RATES and not gimbals:
+            continue
         table.append(
             Parameter(
                 name,

@@ -12,8 +12,10 @@ from __future__ import annotations
 
 import re
 from pathlib import Path
-from typing import Annotated, Any, Literal
+from types import UnionType
+from typing import Annotated, Any, Literal, Union
 from typing import get_args as typing_args
+from typing import get_origin as typing_origin
 
 from pydantic import (
     BaseModel,
@@ -579,6 +581,36 @@ class FailsafeConfig(StrictModel):
         return self
 
 
+#: The largest id range searched for a frame id written as ``can_id`` (CubeMars: 0..255).
+_HINT_IDS = 256
+
+
+def frame_id_hint(profile: type[ServoProfile], name: str, value: int) -> str:
+    """When an out-of-range ``can_id`` is the CAN frame id of one of the family's servos (an
+    RMD-X's ``0x141`` is servo 1's request, ``0x140 + id``), what to write instead; else ``""``.
+    The profile's own :meth:`~mavservo.servos.ServoProfile.identifiers` say it, no table here."""
+    ids = range(profile.min_id, profile.max_id + 1)
+    if len(ids) > _HINT_IDS:
+        return ""
+    for servo_id in ids:
+        try:
+            frames = profile(servo_id).identifiers()
+        except Exception:  # noqa: BLE001 - a profile that cannot be built bare gives no hint
+            return ""
+        for frame in frames:
+            if (
+                frame.arbitration_id == value
+                and frame.direction == "to_servo"
+                and frame.id_mask == -1
+                and not frame.shared
+            ):
+                return (
+                    f" (0x{value:X}): that is the {frame.purpose} frame id of {name} servo "
+                    f"{servo_id} on the bus, not a servo id; write `can_id: {servo_id}`"
+                )
+    return ""
+
+
 class ServoConfig(StrictModel):
     """One CAN servo. ``bus`` may be omitted when there is exactly one bus.
 
@@ -640,7 +672,8 @@ class ServoConfig(StrictModel):
         profile = get_profile(name)
         if not profile.min_id <= value <= profile.max_id:
             raise ValueError(
-                f"a {name} servo id must be in {profile.min_id}..{profile.max_id}, got {value}"
+                f"{name} servo ids are {profile.min_id}..{profile.max_id}, got {value}"
+                + frame_id_hint(profile, name, value)
             )
         return value
 
@@ -709,12 +742,66 @@ def _option_problem(model: type[BaseModel], error: Any) -> tuple[str, str]:
         return key, f"unknown option {key!r}; allowed options: {allowed}"
     message = f"{error['msg']}, found {error.get('input')!r}"
     if field is not None:
-        message += f" (allowed: {allowed_values(field)}; default {field.default!r})"
+        message += f" (allowed: {allowed_values(field)}; default {default_text(field.default)})"
     return key, message
 
 
+#: Python types in the words of a YAML user (``check --profiles``, option errors).
+_TYPE_WORDS: dict[type, str] = {
+    bool: "true or false",
+    int: "a whole number",
+    float: "a number",
+    str: "text",
+    dict: "a mapping",
+    list: "a list",
+    tuple: "a list",
+    Path: "a file path",
+}
+
+
+def _members(annotation: Any) -> list[Any]:
+    """A union's members (Annotated unwrapped), or the annotation itself."""
+    origin = typing_origin(annotation)
+    if origin is Annotated:
+        return _members(typing_args(annotation)[0])
+    if origin in (Union, UnionType):
+        return [m for arg in typing_args(annotation) for m in _members(arg)]
+    return [annotation]
+
+
+def _type_words(annotation: Any) -> tuple[str, bool]:
+    """``(words, optional)``: what a value of ``annotation`` is (``one of: a, b``, ``a whole
+    number``), and whether null is allowed too."""
+    members = _members(annotation)
+    optional = type(None) in members
+    members = [m for m in members if m is not type(None)]
+    choices = [choice for m in members if typing_origin(m) is Literal for choice in typing_args(m)]
+    others = [m for m in members if typing_origin(m) is not Literal]
+    words = []
+    if choices:
+        words.append("one of: " + ", ".join(str(c) for c in choices))
+    for member in others:
+        base = typing_origin(member) or member
+        word = _TYPE_WORDS.get(base, getattr(base, "__name__", str(base)))
+        if word not in words:
+            words.append(word)
+    return " or ".join(words) or "anything", optional
+
+
+def default_text(value: Any) -> str:
+    """A default as a YAML file would write it: ``null``, ``false``, ``MF``, ``1000``."""
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (dict, list, tuple)) and not value:
+        return "{}" if isinstance(value, dict) else "[]"
+    return str(value)
+
+
 def allowed_values(field: Any) -> str:
-    """A field's bounds as ``1..40`` or ``> 0``, its choices, or its type."""
+    """A field's bounds as ``1..40`` or ``> 0``, its choices (``one of: a, b``), or its kind
+    (``text``, ``true or false``), with ``, optional`` when null is allowed."""
     low = high = None
     low_open = high_open = False
     for rule in field.metadata:
@@ -726,17 +813,15 @@ def allowed_values(field: Any) -> str:
                 low, low_open = value, bool(is_open)
             else:
                 high, high_open = value, bool(is_open)
-    annotation = getattr(field.annotation, "__name__", str(field.annotation))
-    choices = [a for a in typing_args(field.annotation) if isinstance(a, str)]
-    if choices:
-        return "one of " + ", ".join(choices)
-    if low is None and high is None:
-        return annotation
+    words, optional = _type_words(field.annotation)
+    suffix = ", optional" if optional else ""
+    if low is None and high is None or words.startswith("one of"):
+        return words + suffix
     left = f"{'>' if low_open else '>='} {low}" if low is not None else ""
     right = f"{'<' if high_open else '<='} {high}" if high is not None else ""
     if low is not None and high is not None and not low_open and not high_open:
-        return f"{low}..{high}"
-    return " and ".join(part for part in (left, right) if part)
+        return f"{low}..{high}{suffix}"
+    return " and ".join(part for part in (left, right) if part) + suffix
 
 
 # -------------------------------------------------------------------------------------- channels

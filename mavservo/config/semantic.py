@@ -366,7 +366,7 @@ def _channels(config: Config) -> Iterator[Finding]:
         if earlier != index:
             yield (
                 ("channels", index, "servo"),
-                f"servo {channel.servo!r} is already driven by a {channel.source} mapping "
+                f"servo {channel.servo!r} is already driven by source {channel.source} "
                 f"(channels[{earlier}]); one servo takes one mapping per source",
             )
         if servo is not None and channel.output_deg is None:

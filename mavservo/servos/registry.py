@@ -17,6 +17,7 @@ by its entry-point name; the others stay usable.
 
 from __future__ import annotations
 
+import difflib
 import functools
 import importlib
 import inspect
@@ -201,6 +202,21 @@ def load_errors() -> list[LoadError]:
     return list(_errors)
 
 
+def _folded(name: str) -> str:
+    return name.lower().replace("-", "").replace("_", "").replace(" ", "")
+
+
+def did_you_mean(name: object, known: list[str]) -> str:
+    """`` (did you mean 'rmd-x'?)`` for a near miss (``rmdx``, ``RMD_X``, ``lkk``), else ``""``."""
+    if not isinstance(name, str):
+        return ""
+    folded = {_folded(k): k for k in known}
+    close = folded.get(_folded(name)) or next(
+        iter(difflib.get_close_matches(name.lower(), known, n=1)), None
+    )
+    return f" (did you mean {close!r}?)" if close else ""
+
+
 def get_profile(name: str) -> type[ServoProfile]:
     """The profile class for a YAML name; the error lists the names that do exist, where
     plug-ins come from, and any plug-in that failed to load (it may be the one meant)."""
@@ -210,7 +226,9 @@ def get_profile(name: str) -> type[ServoProfile]:
     entry = plugins.get(name) if isinstance(name, str) else None
     if entry is not None:
         return entry.profile
-    message = f"unknown servo profile {name!r}; known profiles: {', '.join(names())}"
+    known = names()
+    message = f"unknown servo profile {name!r}{did_you_mean(name, known)}; known profiles: "
+    message += ", ".join(known)
     message += f"; {PLUGIN_HINT}"
     failed = [error.describe() for error in _errors]
     if failed:

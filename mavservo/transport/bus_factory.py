@@ -20,6 +20,7 @@ from typing import Any, Protocol
 
 import can
 
+from mavservo.transport.channel_rules import SYS_CLASS_NET, interface_is_up
 from mavservo.transport.resilient_bus import ResilientBus
 
 #: The channel that asks for the built-in simulation instead of a device.
@@ -28,6 +29,13 @@ SIM_CHANNEL = "sim"
 #: The interfaces with a simulated adapter behind ``channel: sim`` (mavservo.sim: the AA-55
 #: emulator and the LAWICEL/slcan emulator, both on a pty opened by the real driver).
 SIMULATED_INTERFACES = ("aa55", "slcan")
+
+#: python-can interfaces whose frames never leave this process (or machine) for a wire: a bus
+#: on one of them moves no real servo, whatever its channel. Every other interface reaches
+#: hardware unless it is on ``channel: sim`` (``udp_multicast`` is not listed: a gateway on the
+#: network may bridge it to a real bus). An interface added to the project (say, CAN over
+#: MAVLink) reaches hardware until it is listed here.
+SOFTWARE_INTERFACES = frozenset({"virtual"})
 
 #: How each interface is told to listen without transmitting (no ACK, no error frames, no
 #: frames of ours): the AA-55 settings frame's silent mode (Waveshare USB-CAN-A manual, the
@@ -68,6 +76,11 @@ SimulatorFactory = Callable[[str, str, int], SimulatedAdapter | None]
 
 class NoSimulationError(can.CanInitializationError):
     """``channel: sim`` on an interface without a simulated adapter."""
+
+
+class LinkDownError(can.CanInitializationError):
+    """A SocketCAN interface that exists but is down: python-can opens it, and every send
+    fails with ``Network is down`` afterwards, so it is refused at the open."""
 
 
 @dataclass(frozen=True)
@@ -114,6 +127,16 @@ class OpenedBus:
                 self.simulator.stop()
 
 
+def reaches_hardware(interface: str, channel: str | int) -> bool:
+    """Whether a bus of ``interface`` on ``channel`` can move a real servo: False only for the
+    built-in simulation (``channel: sim`` of a :data:`SIMULATED_INTERFACES` interface) and the
+    :data:`SOFTWARE_INTERFACES`. The built-in simulated autopilot drives only buses for which
+    this is False (issue 37: it swept real servos of a config that lost its ``mavlink.url``)."""
+    if channel == SIM_CHANNEL and interface in SIMULATED_INTERFACES:
+        return False
+    return interface not in SOFTWARE_INTERFACES
+
+
 def has_listen_only(interface: str) -> bool:
     """Whether :func:`open_bus` can open ``interface`` so that it never transmits."""
     return interface in LISTEN_ONLY
@@ -142,6 +165,8 @@ def open_bus(
                 "simulation (aa55 and slcan have one); give the device as `channel:`"
             )
         channel = simulator.path
+    if request.interface == "socketcan" and not interface_is_up(SYS_CLASS_NET / str(channel)):
+        raise LinkDownError(f"socketcan: interface {channel} is down")
     kwargs = request.kwargs(channel)
     if request.interface == "aa55" and on_reject is not None:
         kwargs["on_reject"] = on_reject

@@ -449,7 +449,9 @@ def test_an_adapter_that_is_not_there_is_said_once(
     )
     code, out, _ = run_doctor(capsys, path, tmp_path)
     assert code == 1
-    assert out.count("cannot open the adapter") == 1 and "no adapter there" in out, out
+    # the lines `mavservo run` prints: the bus, its line, the device and the usual causes
+    assert out.count(f"cannot open aa55 {missing}") == 1 and "no adapter there" in out, out
+    assert f"bus bus0 ({path}:3: can.buses[0].channel)" in out and "usual causes:" in out
     assert "what bus bus0 needs" not in out  # nothing learnt, nothing to paste
 
 

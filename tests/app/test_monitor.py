@@ -356,3 +356,31 @@ def test_esc_data_maps_to_servos_through_esc_first_and_motor_escs_are_left_out()
         state.update(msg, 2.0)
     assert set(state.servos) == {1}
     assert state.servos[1].current_a == 1.5 and state.servos[1].temperature_c == 33
+
+
+def test_without_config_a_servo_name_in_a_text_makes_no_phantom_row():
+    """issue 37: ``servo left not responding`` made a row of its own (servo ``?``) that stayed
+    NO REPLY beside the servo's real numbered row; the numbered row's ``s<n>_flt`` says it."""
+    from mavservo.servos import Fault
+
+    state = MonitorState()
+    msgs = _wire(
+        [
+            mavlink2.MAVLink_named_value_float_message(0, b"s1_pos", 1.0),
+            mavlink2.MAVLink_statustext_message(2, b"servo left not responding", 0, 0),
+            mavlink2.MAVLink_statustext_message(2, b"servo left fault over_current", 0, 0),
+            mavlink2.MAVLink_named_value_float_message(0, b"s1_flt", float(Fault.NO_REPLY.value)),
+        ]
+    )
+    for msg in msgs:
+        state.update(msg, now=10.0)
+    rows = state.servo_rows(now=10.1)
+    assert [(row["servo"], row["name"], row["status"]) for row in rows] == [("1", "s1", "NO REPLY")]
+    assert state.text_count == 2  # the texts are still shown in the tail
+
+
+def test_the_monitor_listens_on_this_machine_only_by_default():
+    from mavservo.app.monitor import DEFAULT_URL
+
+    assert DEFAULT_URL == "udpin:127.0.0.1:14552"
+    assert "udpout:127.0.0.1:14552" in (REPO / "config" / "sim.yaml").read_text()

@@ -20,8 +20,9 @@ from collections.abc import Iterator
 
 import pytest
 
-from mavservo.app.bridge import Bridge
+from mavservo.app.bridge import Bridge, free_udp_port
 from mavservo.config.loader import load_config_text
+from mavservo.sim import simulator_for
 from mavservo.sim.child import SimulatorProcess
 from tests.support.waiting import wait_until
 
@@ -30,9 +31,11 @@ BITRATE = 125_000
 WAIT_S = 6.0
 
 
-def _config(channel: str) -> str:
+def _config(channel: str, port: int) -> str:
+    # the bus is a pty (to the bridge, a real serial device): the simulated autopilot runs here
+    # and sends to the bridge, which would refuse `url: sim` on it (issue 37)
     lines = [
-        "mavlink: {url: sim, heartbeat_timeout_s: 30}",
+        f"mavlink: {{url: 'udpin:127.0.0.1:{port}', heartbeat_timeout_s: 30}}",
         "can:",
         "  buses:",
         f"    - {{name: bus0, interface: aa55, channel: '{channel}', bitrate: {BITRATE}}}",
@@ -57,15 +60,20 @@ def _config(channel: str) -> str:
 @pytest.fixture
 def rig() -> Iterator[tuple[Bridge, SimulatorProcess]]:
     sim = SimulatorProcess(SERVOS, bitrate=BITRATE)
-    bridge = Bridge(load_config_text(_config(sim.path)), log_dir=False)
+    port = free_udp_port()
+    config = load_config_text(_config(sim.path, port))
+    bridge = Bridge(config, log_dir=False)
+    autopilot = simulator_for(config.simulation.autopilot, f"udpout:127.0.0.1:{port}")
     try:
         bridge.start()
+        autopilot.start()
         # online and heard from (a servo that never answered has no state to flag)
         assert wait_until(
             lambda: all(r["online"] and r["position_deg"] is not None for r in bridge.status_rows())
         )
         yield bridge, sim
     finally:
+        autopilot.stop()
         bridge.stop()
         sim.stop()
 

@@ -96,9 +96,9 @@ servos:
             "      pole_pairs: 99",
             "servos[0].options.pole_pairs: Input should be less than or equal",
         ),
-        ("      pole_pairs: 99", "(allowed: 1..64; default None)"),
+        ("      pole_pairs: 99", "(allowed: 1..64, optional; default null)"),
         ("      polepairs: 14", "unknown option 'polepairs'; allowed options: model, pole_pairs"),
-        ("      model: AK99", "allowed: one of AK10-9, AK60-6"),
+        ("      model: AK99", "allowed: one of: AK10-9, AK60-6"),
         ("      pole_pairs: yes", "Input should be a valid integer"),
     ],
 )
@@ -111,9 +111,7 @@ def test_a_bad_option_gives_file_line_key_and_allowed_range(option: str, expecte
 
 
 def test_an_id_outside_the_profiles_range_names_the_range() -> None:
-    with pytest.raises(
-        ConfigError, match=r"servos\[0\]\.can_id: a rmd-x servo id must be in 1\.\.32"
-    ):
+    with pytest.raises(ConfigError, match=r"servos\[0\]\.can_id: rmd-x servo ids are 1\.\.32"):
         load_config_text("servos:\n  - {name: a, profile: rmd-x, can_id: 33}\n", "ids.yaml")
 
 

@@ -23,13 +23,16 @@ from typing import Any
 import can
 import yaml
 
+from mavservo.app.startup_errors import Loc, bus_open_error, failure_lines
 from mavservo.config import (
     Config,
     ConfigError,
+    YamlDocument,
     bitrate_text,
     default_config_path,
     describe_bus,
-    load_config,
+    format_path,
+    load_located,
 )
 from mavservo.servos import UnknownProfileError, get_profile
 from mavservo.sim import simulator_factory
@@ -162,7 +165,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     path = Path(args.config) if args.config else default_config_path()
     try:
-        config = load_config(path)
+        config, _warnings, document = load_located(path)
     except ConfigError as exc:
         print(f"mavservo doctor: invalid configuration\n{exc}", file=sys.stderr)
         return EXIT_INVALID
@@ -204,7 +207,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 node_id=args.node_id,
                 scans=scans,
             )
-            all_ok &= print_bus(findings, verdicts)
+            all_ok &= print_bus(findings, verdicts, index, _placer(path, document))
             if findings.open_error is None:
                 print_yaml(config, bus.name, findings, verdicts)
     finally:
@@ -253,8 +256,24 @@ def diagnose_bus(
     return findings, judge(findings, servos)
 
 
-def print_bus(findings: BusFindings, verdicts: list[Verdict]) -> bool:
-    """The bus's report; True when the bus and all its servos are as configured."""
+def _placer(path: Path, document: YamlDocument) -> Callable[[Loc], str]:
+    """``FILE:LINE: key`` of a key of the config, for the lines that name one."""
+
+    def place(loc: Loc) -> str:
+        line = document.line_of(loc)[1]
+        return f"{path}:{line}: {format_path(loc)}" if line is not None else format_path(loc)
+
+    return place
+
+
+def print_bus(
+    findings: BusFindings,
+    verdicts: list[Verdict],
+    index: int = 0,
+    place: Callable[[Loc], str] | None = None,
+) -> bool:
+    """The bus's report; True when the bus and all its servos are as configured. ``index``:
+    the bus's place in ``can.buses`` (``place`` turns its key into ``FILE:LINE``)."""
     bus = findings.bus
     print(f"\nbus {bus.name}: {describe_bus(bus)}")
     mode = "listen-only" if findings.listen_only else "normal mode (no listen-only on this adapter)"
@@ -268,8 +287,9 @@ def print_bus(findings: BusFindings, verdicts: list[Verdict]) -> bool:
         print(f"  {bitrate_text(bitrate)}: the adapter refused it ({why})")
     ok = True
     rate = findings.working_bitrate
-    if findings.open_error is not None:
-        print(f"  cannot open the adapter: {findings.open_error}")
+    if findings.open_error is not None:  # the lines `mavservo run` prints for it
+        for line in failure_lines(bus_open_error(index, bus, findings.open_error), place):
+            print(f"  {line}")
         return False
     if rate is None and bus.interface in BITRATE_SET_OUTSIDE:
         ok = False

@@ -109,7 +109,7 @@ def judge(findings: BusFindings, servos: list[ServoConfig]) -> list[Verdict]:
         elif other_id:
             heard = min(other_id, key=lambda s: s.can_id)
             verdict.cause = (
-                f"wrong id: nothing answers on id {servo.can_id}, a {_name(heard)} "
+                f"wrong id: nothing answers on id {servo.can_id}; {_name(heard)} "
                 f"{heard.how} on id {heard.can_id}"
             )
             verdict.fix = (
