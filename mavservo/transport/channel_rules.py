@@ -25,9 +25,10 @@ from typing import Literal
 #: The channel that asks for the built-in simulation (as :data:`bus_factory.SIM_CHANNEL`).
 _SIM = "sim"
 
-#: A serial device as pyserial opens it: a path, a Windows COM port, or one of pyserial's URL
-#: handlers (``serial.serial_for_url``: ``socket://``, ``rfc2217://``, ``loop://``, ...).
-_SERIAL_FORM = re.compile(r"^(/|COM\d+$|[a-z][a-z0-9+]*://)", re.IGNORECASE)
+#: A serial device as pyserial opens it: a path (absolute, or relative with a ``/`` such as
+#: ``./adapter``, the link ``mavservo sim --link`` makes), a Windows COM port, or one of pyserial's
+#: URL handlers (``serial.serial_for_url``: ``socket://``, ``rfc2217://``, ``loop://``, ...).
+_SERIAL_FORM = re.compile(r"^(/|\.{1,2}/|COM\d+$|[a-z][a-z0-9+]*://)", re.IGNORECASE)
 
 #: A Linux network interface name: 1..15 bytes (IFNAMSIZ 16 with its NUL, include/uapi/linux/
 #: if.h), no ``/``, no white space (net/core/dev.c, ``dev_valid_name``).
@@ -186,7 +187,7 @@ PI_UART_PATH = re.compile(r"^/dev/(serial[01]|ttyAMA\d+|ttyS0)$")
 
 def serial_device_problem(path: str) -> str | None:
     """Why ``path`` cannot be opened on this machine now, or None (a URL is not looked at)."""
-    if not path.startswith("/") or Path(path).exists():
+    if "://" in path or not path.startswith(("/", "./", "../")) or Path(path).exists():
         return None
     if PI_UART_PATH.match(path):
         return (

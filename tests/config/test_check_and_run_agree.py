@@ -108,6 +108,8 @@ MISTAKES: list[tuple[str, str, str | None]] = [
         LINK + _bus(interface="slcan", channel="/dev/ttyACM0@115200") + SERVO,
         None,
     ),
+    # `mavservo sim --link adapter` makes ./adapter, the path docs/first-run.md uses
+    ("relative device link", LINK + _bus(channel="./adapter-not-here") + SERVO, None),
     ("slcan loop url", LINK + _bus(interface="slcan", channel="'loop://'") + SERVO, None),
     ("virtual bus on sim url", _bus(interface="virtual", channel="bench") + SERVO, None),
     ("the quick start", SERVO, None),
