@@ -5,7 +5,7 @@ systemd's journal) it degrades to plain lines, one block every few seconds, so l
 
 Every event and log line on the console has one format, :func:`console_line`::
 
-    [18:05:40] WARNING scheduling.runner: servo aileron not responding
+    [18:05:40] WARNING scheduling.runner: scheduler bus0: servo aileron offline (no reply)
     [18:05:41] INFO    bridge: autopilot 1/1: heartbeat heard, 0.4 s after start
 
 the bridge's own events (:meth:`StatusDisplay.event`) and Python logging records
@@ -34,7 +34,8 @@ PLAIN_EVERY_S = 5.0
 CLOCK_FORMAT = "%H:%M:%S"
 #: Bridge events that report a recovery or a normal step; every other event is a problem.
 _INFO_EVENTS = re.compile(
-    r"responding again|failsafe cleared|link recovered|heartbeat heard|^stopped \(|cleared "
+    r"back online|responding again|failsafe cleared|link recovered|heartbeat heard"
+    r"|^stopped \(|cleared "
     # a health check clearing (mavservo/control/health.py, its clearing texts)
     r"|: following again|: moving again|: no longer slipping|: overload over|: temperature back"
     r"|: supply back"

@@ -15,7 +15,9 @@ carriers ground stations already understand (DESIGN.md, "MAVLink facts"):
   event), ``s<n>_hlt`` (the bridge's own health findings, :class:`~mavservo.mavlink.backend.
   Health` bits, docs/health.md), n = config position + 1 (all within the 10-character limit);
 * STATUSTEXT (253): fault onset and clearance, servo offline / back online (also when the very
-  first state is already bad), link events; every active problem is repeated every
+  first state is already bad; repeats of one servo's problem within 10 s are counted and summed
+  up, ``servo aileron offline (x5 in 10 s)``, :mod:`mavservo.records.repeats`), link events;
+  every active problem is repeated every
   ``REMINDER_S`` for ground stations that connect later; texts longer than 50 characters go out
   as MAVLink 2 chunks (``id`` != 0, ``chunk_seq``); at most ``STATUSTEXT_BURST`` texts per
   second so a flapping servo cannot flood the link.
@@ -41,6 +43,7 @@ from mavservo.mavlink.backend import ActuatorBackend, ServoStatus
 from mavservo.mavlink.esc_status import ESC_INFO_HZ, esc_info, esc_status
 from mavservo.mavlink.settings import TelemetryRates
 from mavservo.mavlink.statustext_queue import TextQueue
+from mavservo.records import BACK_ONLINE, OFFLINE, Key, Repeats
 from mavservo.servos import NO_FAULT, Fault
 
 log = logging.getLogger(__name__)
@@ -115,7 +118,7 @@ DEFAULT_NAME_PREFIX = "s"
 
 
 def _problems(status: ServoStatus) -> tuple[bool, Any]:
-    """(online, faults) as the events compare them; NO_REPLY is reported as "not responding"."""
+    """(online, faults) as the events compare them; NO_REPLY is reported as "offline"."""
     faults = status.state.faults if status.state is not None else NO_FAULT
     return status.online, faults & ~Fault.NO_REPLY
 
@@ -176,6 +179,7 @@ class Telemetry:
         }
         self._esc_info_count = 0
         self._known: dict[str, tuple[bool, Any]] = {}  # name -> (online, faults)
+        self._repeats = Repeats()
         self._texts = TextQueue(STATUSTEXT_QUEUE)
         self._text_sent_at: deque[float] = deque()
         self._text_id = 0
@@ -355,36 +359,51 @@ class Telemetry:
 
     def _detect_events(self, statuses: list[ServoStatus], now: float) -> None:
         """Announce changes; a servo first seen offline or faulted counts as a change from
-        "online, no fault", and active problems are repeated every ``REMINDER_S``."""
+        "online, no fault", and active problems are repeated every ``REMINDER_S``. Each
+        servo's onsets and clearings of one kind (offline, each fault bit) go through
+        :class:`~mavservo.records.Repeats`: a flapping servo's repeats within its interval are
+        counted and summed up in one text, as the console's scheduler log does."""
         for status in statuses:
             online, faults = _problems(status)
             was_online, old_faults = self._known.get(status.name, (True, NO_FAULT))
             self._known[status.name] = (online, faults)
+            subject = f"servo {status.name}"
             if was_online and not online:
-                self.announce(MAV_SEVERITY_CRITICAL, f"servo {status.name} not responding")
+                self._onset((subject, OFFLINE), f"{subject} {OFFLINE}", now)
             elif online and not was_online:
-                self.announce(MAV_SEVERITY_NOTICE, f"servo {status.name} responding again")
+                self._clear((subject, OFFLINE), f"{subject} {BACK_ONLINE}")
             if faults == old_faults:
                 continue
-            new = faults & ~old_faults
-            gone = old_faults & ~faults
-            if new:
-                self.announce(MAV_SEVERITY_CRITICAL, f"servo {status.name} fault {_names(new)}")
-            if gone:
-                self.announce(MAV_SEVERITY_NOTICE, f"servo {status.name} cleared {_names(gone)}")
+            for bit in _bits(faults & ~old_faults):
+                self._onset((subject, f"fault {bit}"), f"{subject} fault {bit}", now)
+            for bit in _bits(old_faults & ~faults):
+                self._clear((subject, f"fault {bit}"), f"{subject} cleared {bit}")
+        for summary in self._repeats.flush(now):
+            severity = MAV_SEVERITY_CRITICAL if summary.active else MAV_SEVERITY_WARNING
+            self.announce(severity, summary.text)
+        self.counters["statustext_repeats_counted"] = self._repeats.counted
         if self._next_reminder is None:
             self._next_reminder = now + REMINDER_S
         elif now >= self._next_reminder:
             self._next_reminder = max(self._next_reminder + REMINDER_S, now)
             self._remind()
 
+    def _onset(self, key: Key, text: str, now: float) -> None:
+        said = self._repeats.onset(key, text, now)
+        if said is not None:
+            self.announce(MAV_SEVERITY_CRITICAL, said)
+
+    def _clear(self, key: Key, text: str) -> None:
+        said = self._repeats.clear(key, text)
+        if said is not None:
+            self.announce(MAV_SEVERITY_NOTICE, said)
+
     def _remind(self) -> None:
         """Repeat the active problems, in the wording of the events, so a late listener (and
         ``mavservo monitor``) learns them; never at the cost of events already queued."""
         for name, (online, faults) in self._known.items():
-            texts = [] if online else [f"servo {name} not responding"]
-            if faults:
-                texts.append(f"servo {name} fault {_names(faults)}")
+            texts = [] if online else [f"servo {name} {OFFLINE}"]
+            texts.extend(f"servo {name} fault {bit}" for bit in _bits(faults))
             for text in texts:
                 if len(self._texts) >= STATUSTEXT_QUEUE // 2:
                     self.counters["reminders_skipped"] += 1
@@ -527,7 +546,7 @@ def _esc_view_rates(rates: TelemetryRates) -> dict[int, float]:
     }
 
 
-def _names(flags: Any) -> str:
-    """Readable names of an enum.Flag value (``stall|over_current``)."""
-    members = [m.name for m in type(flags) if m.value and m in flags and m.name]
-    return "|".join(members).lower() or str(flags)
+def _bits(flags: Any) -> list[str]:
+    """Readable names of the bits set in an enum.Flag value (``["stall", "over_current"]``)."""
+    members = [m.name.lower() for m in type(flags) if m.value and m in flags and m.name]
+    return members or ([str(flags)] if flags else [])

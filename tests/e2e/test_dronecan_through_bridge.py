@@ -114,7 +114,7 @@ def test_dronecan_servos_follow_and_a_node_missing_its_node_status_goes_offline_
             assert silent_for > NODE_SILENCE_LIMIT_S, silent_for
             assert Fault.NO_REPLY in status(bridge, "left").state.faults
             assert status(bridge, "right").online
-            assert wait_until(lambda: "servo left not responding" in peer.statustexts(mark), WAIT_S)
+            assert wait_until(lambda: "servo left offline" in peer.statustexts(mark), WAIT_S)
             assert peer.command(MAV_CMD_DO_SET_SERVO, [1, 1500]) == MAV_RESULT_TEMPORARILY_REJECTED
             left.faults.silent = False
             assert wait_until(lambda: status(bridge, "left").online, WAIT_S)
