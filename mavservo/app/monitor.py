@@ -304,7 +304,9 @@ class MonitorState:
             else None
         )
         if last is not None and all(seq in chunks for seq in range(last + 1)):
-            return "".join(chunks[seq] for seq in range(last + 1))
+            from mavservo.mavlink import join_statustext_chunks
+
+            return join_statustext_chunks([chunks[seq] for seq in range(last + 1)])
         self._chunks[key] = (severity, chunks)
         while len(self._chunks) > STATUSTEXT_PENDING:
             self._chunks.pop(next(iter(self._chunks)))

@@ -70,9 +70,10 @@ MAV_SEVERITY_CRITICAL = 2
 MAV_SEVERITY_WARNING = 4
 MAV_SEVERITY_NOTICE = 5
 STATUSTEXT_LENGTH = 50
-#: a longer text is sent in chunks; beyond this many it is cut (the last chunk always keeps
-#: room for the NUL that marks it as the last)
-STATUSTEXT_MAX_CHUNKS = 4
+#: a longer text is sent in chunks; beyond this many it is cut. Six hold 300 characters, the
+#: longest text the bridge says (the 237-character AP_Periph safety warning, with the setting
+#: that fixes it at its end, lost it when four chunks cut it at 199)
+STATUSTEXT_MAX_CHUNKS = 6
 #: every active problem (fault, offline) is announced again this often, for late listeners
 REMINDER_S = 20.0
 STATUSTEXT_BURST = 4  # per second
@@ -123,19 +124,53 @@ def _problems(status: ServoStatus) -> tuple[bool, Any]:
     return status.online, faults & ~Fault.NO_REPLY
 
 
-def statustext_messages(severity: int, text: str, text_id: int) -> list[Any]:
-    """STATUSTEXT for ``text``: one message (id 0) up to 50 characters, else MAVLink 2 chunks
-    numbered by ``chunk_seq`` under ``text_id`` (1..65535), the last one NUL-terminated."""
+def statustext_chunks(text: str) -> list[bytes]:
+    """``text`` as the ``text`` fields of its STATUSTEXT messages, each broken after a space.
+
+    MAVLink's STATUSTEXT (common.xml, message 253): ``text`` is 50 characters, "Any null
+    character in the text field is taken to mean this was the last chunk", so every chunk but
+    the last must be full; receivers rely on it (QGroundControl's StatusTextHandler takes a
+    chunk shorter than 50 as the last, as MAVProxy's mavproxy_link.py ``PendingText`` does).
+    A chunk is therefore broken after the last space that fits and padded with spaces to 50:
+    a ground station that shows chunks one by one never shows half a word, one that joins
+    them shows a few extra spaces (``mavservo monitor`` drops them). A word longer than a
+    chunk is broken where the chunk is full. A text that fills its last chunk exactly gets an
+    empty chunk, the NUL that ends it. Beyond :data:`STATUSTEXT_MAX_CHUNKS` the text is cut
+    at a word, with "...".
+    """
     data = text.encode("ascii", "replace")
     if len(data) <= STATUSTEXT_LENGTH:
-        return [mavlink2.MAVLink_statustext_message(severity, data, 0, 0)]
-    data = data[: STATUSTEXT_LENGTH * STATUSTEXT_MAX_CHUNKS - 1]
+        return [data]  # one message, id 0: "the only chunk in the sequence"
+    chunks: list[bytes] = []
+    while len(data) >= STATUSTEXT_LENGTH:
+        cut = data.rfind(b" ", 0, STATUSTEXT_LENGTH) + 1 or STATUSTEXT_LENGTH
+        chunks.append(data[:cut].ljust(STATUSTEXT_LENGTH))
+        data = data[cut:]
+    chunks.append(data)
+    if len(chunks) > STATUSTEXT_MAX_CHUNKS:
+        last = chunks[STATUSTEXT_MAX_CHUNKS - 1].rstrip()
+        chunks[STATUSTEXT_MAX_CHUNKS - 1 :] = [last[: STATUSTEXT_LENGTH - 4] + b"..."]
+    return chunks
+
+
+def join_statustext_chunks(chunks: list[str]) -> str:
+    """A chunked text as it was said, from its chunks' texts in ``chunk_seq`` order: a chunk
+    padded with spaces (:func:`statustext_chunks`) ends with one space."""
+    return "".join(
+        chunk.rstrip(" ") + " " if chunk.endswith(" ") and seq < len(chunks) - 1 else chunk
+        for seq, chunk in enumerate(chunks)
+    )
+
+
+def statustext_messages(severity: int, text: str, text_id: int) -> list[Any]:
+    """STATUSTEXT for ``text``: one message (id 0) up to 50 characters, else MAVLink 2 chunks
+    (:func:`statustext_chunks`) numbered by ``chunk_seq`` under ``text_id`` (1..65535)."""
+    chunks = statustext_chunks(text)
+    if len(chunks) == 1:
+        return [mavlink2.MAVLink_statustext_message(severity, chunks[0], 0, 0)]
     return [
-        mavlink2.MAVLink_statustext_message(
-            severity, data[start : start + STATUSTEXT_LENGTH], text_id, seq
-        )
-        # a text filling its last chunk exactly gets an empty chunk, the NUL that ends it
-        for seq, start in enumerate(range(0, len(data) + 1, STATUSTEXT_LENGTH))
+        mavlink2.MAVLink_statustext_message(severity, chunk, text_id, seq)
+        for seq, chunk in enumerate(chunks)
     ]
 
 

@@ -11,6 +11,9 @@ os.environ.setdefault("MAVLINK20", "1")
 
 from dataclasses import replace  # noqa: E402
 
+from hypothesis import given  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
 from mavservo.app.monitor import MonitorState  # noqa: E402
 from mavservo.mavlink.settings import MavlinkSettings, TelemetryRates  # noqa: E402
 from tests.mavlink.test_udp_peers import peer  # noqa: E402
@@ -219,3 +222,44 @@ def test_a_flapping_servo_gets_a_bounded_number_of_texts_with_a_count_and_its_st
     backend.offline.discard("drop")
     last = [t for t in texts(run(core, 60.0, 75.0)) if t.startswith("servo drop")]
     assert last[-1].startswith("servo drop back online")
+
+
+def test_long_texts_break_between_words_and_keep_their_end():
+    """Issue 37: chunks cut mid-word ("...on fresh comma" + "nds"), and four chunks cut the
+    237-character AP_Periph warning before the setting that fixes it. Every chunk but the last
+    is full (QGroundControl and MAVProxy take a shorter one as the last) and ends at a space."""
+    from mavservo.mavlink import join_statustext_chunks
+    from mavservo.mavlink.telemetry import statustext_chunks, statustext_messages
+
+    warning = (
+        "DroneCAN nodes 10, 11, 12 run ArduPilot firmware, which keeps its outputs off until "
+        "it hears SafetyState SAFETY_OFF, and the bridge sends none (safety_state: none): "
+        "their servos will not move; set node.dronecan.safety_state: safety_off"
+    )
+    chunks = statustext_chunks(warning)
+    assert all(len(c) == STATUSTEXT_LENGTH and c.endswith(b" ") for c in chunks[:-1])
+    assert len(chunks[-1]) < STATUSTEXT_LENGTH
+    assert chunks[-1].endswith(b"set node.dronecan.safety_state: safety_off")
+    assert join_statustext_chunks([c.decode() for c in chunks]) == warning
+    messages = statustext_messages(4, warning, 7)
+    assert [(m.id, m.chunk_seq) for m in messages] == [(7, k) for k in range(len(chunks))]
+    assert [len(c) for c in statustext_chunks("a" * 120)] == [50, 50, 20]  # one long word
+
+
+@given(st.lists(st.text("abcdefghij", min_size=1, max_size=12), min_size=1, max_size=40))
+def test_chunks_of_any_text_of_words(words):
+    from mavservo.mavlink import join_statustext_chunks
+    from mavservo.mavlink.telemetry import STATUSTEXT_MAX_CHUNKS, statustext_chunks
+
+    text = " ".join(words)
+    chunks = statustext_chunks(text)
+    assert len(chunks) <= STATUSTEXT_MAX_CHUNKS
+    if len(text) <= STATUSTEXT_LENGTH:
+        assert chunks == [text.encode()]
+        return
+    assert all(len(c) == STATUSTEXT_LENGTH and c.endswith(b" ") for c in chunks[:-1])
+    assert len(chunks[-1]) < STATUSTEXT_LENGTH
+    if not chunks[-1].endswith(b"..."):  # fits: said whole, broken only between words
+        assert join_statustext_chunks([c.decode() for c in chunks]) == text
+    else:  # six chunks of words of up to 12 letters hold 200 characters at least
+        assert len(text) > 200
