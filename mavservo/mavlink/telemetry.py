@@ -456,6 +456,7 @@ class Telemetry:
                 break
             severity, text = next_text
             self._text_sent_at.append(now)
+            self.counters["statustext_sent"] += 1
             if len(text) > STATUSTEXT_LENGTH:
                 self._text_id = self._text_id % UINT16_MAX + 1
             out.extend(statustext_messages(severity, text, self._text_id))
