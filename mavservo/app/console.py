@@ -358,7 +358,11 @@ def _safety_lines(summary: dict[str, Any]) -> list[str]:
     on = summary.get("safety_on", sum(int(node.get("safety_on", 0)) for node in nodes))
     if not off and not on:
         return []
-    return [f"  DroneCAN SafetyState: SAFETY_OFF sent {off} times, SAFETY_ON {on} times"]
+    return [f"  DroneCAN SafetyState sent: SAFETY_OFF {_times(off)}, SAFETY_ON {_times(on)}"]
+
+
+def _times(count: int) -> str:
+    return f"{count} time" if count == 1 else f"{count} times"
 
 
 def _mavlink_lines(mav: dict[str, Any]) -> list[str]:
