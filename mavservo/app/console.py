@@ -234,7 +234,7 @@ FRAME_COLUMNS: tuple[tuple[str, int, str], ...] = (
     ("sent", 6, "sent"),
     ("recv", 6, "received"),
     ("pushed", 6, "pushed"),
-    (OFFLINE, 7, "went_offline"),  # not a frame count: the servo's own field (_column_value)
+    (OFFLINE, 7, "went_offline"),
     (LOST, 5, "lost"),
     (LATE, 5, "late"),
     ("rej", 4, "rejected"),
@@ -249,7 +249,7 @@ TIMING_COLUMNS: tuple[tuple[str, int, str, str], ...] = (
 SUMMARY_LEGEND = (
     f"  {glossary_text()};\n"
     "  sent = commands, refreshes, requests (an entry of a shared transfer counts one);"
-    " recv = decoded replies, pushed = sent unasked;\n"
+    " recv = decoded replies, pushed = sent unasked by a push-style servo;\n"
     "  L (ms) = frame written -> reply decoded; state (ms) = between decoded states"
     " (docs/logs.md)"
 )
@@ -289,10 +289,7 @@ def _servo_table(servos: dict[str, Any]) -> list[str]:
     lines = [header]
     for name, servo in servos.items():
         frames = servo.get("frames", {})
-        row = f"  {name:<16}" + "".join(
-            f" {servo.get(k, 0) if k == 'went_offline' else frames.get(k, 0):>{w}}"
-            for _, w, k in FRAME_COLUMNS
-        )
+        row = f"  {name:<16}" + "".join(f" {frames.get(k, 0):>{w}}" for _, w, k in FRAME_COLUMNS)
         row += "".join(
             f" {_ms((servo.get(group) or {}).get(key)):>{w}}" for _, w, group, key in TIMING_COLUMNS
         )

@@ -318,8 +318,8 @@ class ServoMetrics:
                 "lost": self.lost,
                 "rejected": self.rejected,
                 "send_failed": self.send_failed,
+                "went_offline": self.went_offline,
             },
-            "went_offline": self.went_offline,
             "setpoints": {
                 "accepted": self.setpoints_accepted,
                 "rejected": self.setpoints_rejected,
