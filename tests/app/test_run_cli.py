@@ -19,6 +19,7 @@ from mavservo.config import Config, default_config_path, load_config
 from mavservo.records.runlog import read_can_log
 from mavservo.servos.rmdx.profile import CMD_POSITION, REQUEST_BASE
 from tests.support.paths import REPO
+from tests.support.signals import default_signal_dispositions
 
 SWEPT_CHANNELS = (1, 2, 3, 4)
 """SERVO_OUTPUT_RAW channels the default simulated autopilot sweeps (its ``sweep`` profile)."""
@@ -133,6 +134,7 @@ def test_sigterm_stops_cleanly_with_status_zero(tmp_path: Path) -> None:
         stderr=subprocess.PIPE,
         text=True,
         cwd=REPO,
+        preexec_fn=default_signal_dispositions,
     )
     try:
         deadline = time.monotonic() + 20
