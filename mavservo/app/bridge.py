@@ -271,7 +271,7 @@ class Bridge:
                 sinks[spec.name] = scheduler
         if state_file is not None:
             self.node_states = node_state.NodeStateKeeper(state_file, saved)
-        watch = HealthWatch(health_limits(cfg))
+        watch = HealthWatch(health_limits(cfg), clock=time.monotonic)
         self.backend = ServoBackend(
             cfg,
             sinks,
