@@ -211,6 +211,13 @@ class Peer:
     def statustexts(self, start: int = 0) -> list[str]:
         return [m.text for m in self.since(start, "STATUSTEXT")]
 
+    def joined_statustexts(self, start: int = 0) -> str:
+        """Every STATUSTEXT since ``start`` in one string, a long text's chunks joined as a
+        ground station joins them (a chunk broken between words loses its padding)."""
+        from mavservo.mavlink import join_statustext_chunks
+
+        return join_statustext_chunks(self.statustexts(start))
+
     def command(
         self,
         command: int,
