@@ -28,11 +28,11 @@ from mavservo.app import node_state
 from mavservo.app.bridge_buses import BridgeBuses
 from mavservo.app.bridge_events import MAV_SEVERITY_ERROR, MAV_SEVERITY_NOTICE, BridgeEvents
 from mavservo.app.bridge_identity import BridgeIdentity
-from mavservo.app.check import stop_behaviour_lines
 from mavservo.app.component_metadata import metadata_files
 from mavservo.app.health_reporting import HealthReporter
 from mavservo.app.run_records import open_run_log, tap_mavlink
 from mavservo.app.startup_errors import link_open_error
+from mavservo.app.stop_lines import servo_stop_lines
 from mavservo.config import (
     Config,
     gimbal_settings,
@@ -275,7 +275,7 @@ class Bridge:
                 sinks[spec.name] = scheduler
         if state_file is not None:
             self.node_states = node_state.NodeStateKeeper(state_file, saved)
-        watch = HealthWatch(health_limits(cfg))
+        watch = HealthWatch(health_limits(cfg), clock=time.monotonic)
         self.backend = ServoBackend(
             cfg,
             sinks,
@@ -338,6 +338,7 @@ class Bridge:
             _quietly(self.overlay_saver.stop)
         for scheduler in self.schedulers.values():
             _quietly(scheduler.stop)
+        self._count_stop_frames(summary)
         self.bus_set.close()
         runlog = self.runlog
         if runlog is not None and not self._started:  # nothing ran: say why, record nothing
@@ -349,6 +350,18 @@ class Bridge:
                 k: v for k, v in runlog.outcome().items() if k != "metrics"
             }
         return summary
+
+    def _count_stop_frames(self, summary: dict[str, Any]) -> None:
+        """The bus nodes' counters again, now that the schedulers have sent their stop frames
+        (DroneCAN's SAFETY_ON goes out then: the summary taken before the stop never counted
+        it), and ``safety_on``, the SafetyState SAFETY_ON broadcasts of the run, on top."""
+        safety_on = 0
+        for name, scheduler in self.schedulers.items():
+            nodes = [node.stats() for node in scheduler.nodes if isinstance(node, CountingNode)]
+            if name in summary["buses"]:
+                summary["buses"][name]["nodes"] = nodes
+            safety_on += sum(int(node.get("safety_on", 0)) for node in nodes)
+        summary["safety_on"] = safety_on
 
     def __enter__(self) -> Bridge:
         return self.start()
@@ -450,8 +463,8 @@ class Bridge:
         told = ", ".join(f"{action} {count}" for action, count in actions.items())
         text = f"stopped ({reason}): servos told their failsafe action: {told}"
         self.notes.note(text)
-        for line in stop_behaviour_lines(self.config):
-            self.notes.note(f"then on their own: {line}")
+        for line in servo_stop_lines(self.config):  # one INFO line per servo
+            self.notes.note(line)
         self.notes.announce(text, MAV_SEVERITY_NOTICE)
 
     def autopilot_heartbeat(self) -> tuple[tuple[int, int], float | None] | None:

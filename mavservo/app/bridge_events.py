@@ -23,6 +23,11 @@ MAV_SEVERITY_CRITICAL = 2
 MAV_SEVERITY_ERROR = 3
 MAV_SEVERITY_WARNING = 4
 MAV_SEVERITY_NOTICE = 5
+SAID_BY_THE_MAVLINK_SIDE = ("failsafe: ", "failsafe cleared: ")
+"""Events of the servo side whose STATUSTEXT the MAVLink side sends itself: the link's
+failsafe, entered and left there (``mavservo.mavlink.failsafe``, one text per transition).
+They go to the console and the event list only, so a ground station gets one text per
+event, not two (issue 37)."""
 
 
 class Announcer(Protocol):
@@ -56,9 +61,11 @@ class BridgeEvents:
         self._status(text)
 
     def event(self, text: str) -> None:
-        """An event of the servo side: console, event list, and a WARNING STATUSTEXT."""
+        """An event of the servo side: console, event list, and a WARNING STATUSTEXT (but
+        for :data:`SAID_BY_THE_MAVLINK_SIDE`)."""
         self.note(text)
-        self.announce(text, MAV_SEVERITY_WARNING)
+        if not text.startswith(SAID_BY_THE_MAVLINK_SIDE):
+            self.announce(text, MAV_SEVERITY_WARNING)
 
     def announce(self, text: str, severity: int) -> None:
         """STATUSTEXT only; a MAVLink side that fails to take it is logged, never raised into

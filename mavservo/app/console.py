@@ -5,7 +5,7 @@ systemd's journal) it degrades to plain lines, one block every few seconds, so l
 
 Every event and log line on the console has one format, :func:`console_line`::
 
-    [18:05:40] WARNING scheduling.runner: servo aileron not responding
+    [18:05:40] WARNING scheduling.runner: scheduler bus0: servo aileron offline (no reply)
     [18:05:41] INFO    bridge: autopilot 1/1: heartbeat heard, 0.4 s after start
 
 the bridge's own events (:meth:`StatusDisplay.event`) and Python logging records
@@ -29,12 +29,14 @@ from rich.live import Live
 from rich.table import Table
 
 from mavservo.mavlink import WINDOW_S
+from mavservo.records import LATE, LOST, OFFLINE, glossary_text
 
 PLAIN_EVERY_S = 5.0
 CLOCK_FORMAT = "%H:%M:%S"
 #: Bridge events that report a recovery or a normal step; every other event is a problem.
 _INFO_EVENTS = re.compile(
-    r"responding again|failsafe cleared|link recovered|heartbeat heard|^stopped \(|cleared "
+    r"back online|responding again|failsafe cleared|link recovered|heartbeat heard"
+    r"|^stopped \(|^after the stop: |cleared "
     # a health check clearing (mavservo/control/health.py, its clearing texts)
     r"|: following again|: moving again|: no longer slipping|: overload over|: temperature back"
     r"|: supply back"
@@ -232,8 +234,9 @@ FRAME_COLUMNS: tuple[tuple[str, int, str], ...] = (
     ("sent", 6, "sent"),
     ("recv", 6, "received"),
     ("pushed", 6, "pushed"),
-    ("lost", 5, "lost"),
-    ("late", 5, "late"),
+    (OFFLINE, 7, "went_offline"),
+    (LOST, 5, "lost"),
+    (LATE, 5, "late"),
     ("rej", 4, "rejected"),
 )
 #: (header, width, field of ``latency_s`` or ``state_interval_s``), values in ms.
@@ -244,12 +247,28 @@ TIMING_COLUMNS: tuple[tuple[str, int, str, str], ...] = (
     ("state p50", 9, "state_interval_s", "p50"),
 )
 SUMMARY_LEGEND = (
-    "  sent = commands, refreshes, requests for the servo (an entry of a shared transfer"
-    " counts one);\n"
-    "  recv = every decoded reply, pushed = sent unasked by a push-style servo;"
-    " lost = timed out, never came;\n"
-    "  late = came after its timeout; L (ms) = frame written -> reply decoded;"
-    " state (ms) = between decoded states (docs/logs.md)"
+    f"  {glossary_text()};\n"
+    "  sent = commands, refreshes, requests (an entry of a shared transfer counts one);"
+    " recv = decoded replies, pushed = sent unasked by a push-style servo;\n"
+    "  L (ms) = frame written -> reply decoded; state (ms) = between decoded states"
+    " (docs/logs.md)"
+)
+#: MAVLink counters of a run going as it should: in metrics.json, not in the summary a person
+#: reads (by their last name; ``link_budget.*`` is the identity line's, shown at the start)
+ROUTINE_COUNTERS = frozenset(
+    {
+        "received",
+        "sent",
+        "applied",
+        "result_accepted",
+        "zero_pwm_ignored",
+        "held_by_command",
+        "udp_datagrams",
+        "udp_rcvbuf_bytes",
+        "reminders",
+        "statustext_sent",
+        "statustext_repeats_counted",
+    }
 )
 
 
@@ -309,30 +328,68 @@ def format_summary(summary: dict[str, Any]) -> str:
             counts = ", ".join(f"{k} {v}" for k, v in node.items() if v)
             lines.append(f"  bus {name} node: {counts or 'nothing counted'}")
     lines += _servo_table(summary.get("servos", {}))
+    lines += _safety_lines(summary)
     mav = summary.get("mavlink") or {}
     if mav:
-        link = mav.get("link", {})
-        counters = {**_flat(mav, exclude=("link", "stream")), **_flat(link)}
-        shown = [
-            f"{k} {v}"
-            for k, v in counters.items()
-            # counts that happened; booleans and ids are state, not counters
-            if isinstance(v, int | float)
-            and not isinstance(v, bool)
-            and v
-            and k != "system_id"
-            and not k.startswith("mirror_")  # a flat duplicate of mirror.*
-        ]
-        lines.append("  mavlink: " + ", ".join(shown))
+        lines += _mavlink_lines(mav)
         lines += _stream_lines(mav.get("stream") or {})
     lines += _health_lines(summary.get("health") or {})
     if summary.get("identity"):
         lines.append(f"  identity at the end: {summary['identity']}")
-    for text in summary.get("events", []):
-        lines.append(f"  event: {text}")
+    problems = [text for text in summary.get("events", []) if event_level(text) != "INFO"]
+    lines.append(
+        "  problems said during the run"
+        + (f" (the last {len(problems)}):" if problems else ": none")
+    )
+    lines += [f"    {text}" for text in problems]
     if summary.get("run_dir"):
         lines += _run_log_lines(summary["run_dir"], summary.get("runlog") or {})
     return "\n".join(lines)
+
+
+def _safety_lines(summary: dict[str, Any]) -> list[str]:
+    """DroneCAN SafetyState broadcasts, when a bus node sent any: SAFETY_ON is what turned the
+    peripherals' outputs off (at the stop, or in a failsafe), so the crew sees it was sent."""
+    nodes = [node for bus in summary.get("buses", {}).values() for node in bus.get("nodes") or []]
+    off = sum(int(node.get("safety_off", 0)) for node in nodes)
+    on = summary.get("safety_on", sum(int(node.get("safety_on", 0)) for node in nodes))
+    if not off and not on:
+        return []
+    return [f"  DroneCAN SafetyState sent: SAFETY_OFF {_times(off)}, SAFETY_ON {_times(on)}"]
+
+
+def _times(count: int) -> str:
+    return f"{count} time" if count == 1 else f"{count} times"
+
+
+def _mavlink_lines(mav: dict[str, Any]) -> list[str]:
+    """The ground station's texts, and the MAVLink counters worth a look (refused, denied,
+    dropped, bad...); the routine ones (:data:`ROUTINE_COUNTERS`) stay in metrics.json."""
+    texts = mav.get("telemetry") or {}
+    lines = [
+        f"  ground station texts: {texts.get('statustext_sent', 0)} sent, "
+        f"{texts.get('statustext_repeats_counted', 0)} repeats counted (summed up, not sent "
+        f"one by one), {texts.get('statustext_dropped', 0)} dropped"
+    ]
+    link = mav.get("link", {})
+    counters = {**_flat(mav, exclude=("link", "stream")), **_flat(link)}
+    shown = [
+        f"{k} {v}"
+        for k, v in counters.items()
+        # counts that happened; booleans and ids are state, not counters
+        if isinstance(v, int | float)
+        and not isinstance(v, bool)
+        and v
+        and k != "system_id"
+        and not k.startswith(("mirror_", "link_budget.", "telemetry.statustext_dropped"))
+        and k.rsplit(".", 1)[-1] not in ROUTINE_COUNTERS
+    ]
+    lines.append(
+        "  mavlink, worth a look: " + ", ".join(shown)
+        if shown
+        else "  mavlink: nothing refused, denied or dropped"
+    )
+    return lines
 
 
 def _health_lines(health: dict[str, Any]) -> list[str]:
@@ -382,7 +439,10 @@ def _stream_lines(stream: dict[str, Any]) -> list[str]:
 def _run_log_lines(run_dir: str, outcome: dict[str, Any]) -> list[str]:
     """Where the run log is, and, when it failed (disk full, size cap), what it lacks."""
     if outcome.get("complete", True):
-        return [f"  run log: {run_dir}  (mavservo report {run_dir})"]
+        return [
+            f"  run log: {run_dir}  (mavservo report {run_dir}; every counter in "
+            f"{Path(run_dir) / 'metrics.json'})"
+        ]
     lines = [f"  run log: {run_dir}  INCOMPLETE (complete up to the failure):"]
     lines += [f"    {problem}" for problem in dict.fromkeys(outcome.get("problems", []))]
     metrics_path = outcome.get("metrics_path", "")

@@ -56,10 +56,14 @@ class HealthReporter:
             self.report(event)
 
     def report(self, event: HealthEvent) -> None:
-        """One health transition: console and event list, the run log's trace, STATUSTEXT,
-        and the temperature limit's action. The fault bit (``s<n>_hlt``) and a gimbal's
-        failure flags follow from the servo's status by themselves."""
-        self._events.note(event.text)
+        """One health transition: the run log's trace, the temperature limit's action, and
+        when it is announced the console, the event list and STATUSTEXT. The fault bit
+        (``s<n>_hlt``) and a gimbal's failure flags follow from the servo's status."""
+        if event.announce:
+            # the console says what the ground station is told, as often (issue 37): an
+            # episode inside its check's text spacing goes to the run log only, and the next
+            # text counts it ("(2 more since the last report)")
+            self._events.note(event.text)
         if self._runlog is not None:
             self._runlog.health_event(event.servo, event.name, event.active, event.figures, event.t)
         if event.check is Health.OVERHEATED:

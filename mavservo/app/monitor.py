@@ -17,7 +17,7 @@ Two halves, so the interesting part is testable without a terminal:
 What it understands (all optional; missing ones show as "-"):
 
 * NAMED_VALUE_FLOAT ``s<n>_pos|vel|cur|tmp|sp`` (deg, deg/s, A, degC, setpoint deg) for servo n
-  (1-based config position); ``s<n>_flt``, the servo's fault bits (NO_REPLY = not responding),
+  (1-based config position); ``s<n>_flt``, the servo's fault bits (NO_REPLY = offline),
   which sets the fault column from periodic telemetry, so a monitor started after a fault
   still shows it; ``bus<k>_load`` (ratio 0..1), and two latencies in ms that differ
   by two orders of magnitude on purpose (docs/logs.md, "Which latency is which"):
@@ -30,7 +30,7 @@ What it understands (all optional; missing ones show as "-"):
   position) for the same servo numbering;
 * HEARTBEAT of every component (autopilot, servo group 140.., gimbal 154..), with its age;
 * STATUSTEXT (tail of the last lines; MAVLink 2 chunks (``id`` != 0) are joined back into one
-  text; ``servo NAME fault ...``/``cleared``/``not responding`` also set the fault column of
+  text; ``servo NAME fault ...``/``cleared``/``offline`` also set the fault column of
   the servo that NAME belongs to when its name is known (``--config``); without names, the
   periodic ``s<n>_flt`` sets it: a name never makes a row of its own, which stayed NO REPLY
   beside the servo's real row);
@@ -80,8 +80,13 @@ _NVF_BUS = re.compile(r"^bus(\d+)_load$")
 _NVF_LATENCY = re.compile(r"^lat_(p50|p95|p99)$")
 _NVF_ROUND_TRIP = re.compile(r"^rtt_(p50|p95|p99)$")
 _ESC_GROUP = re.compile(r"^ESC_TELEMETRY_(\d+)_TO_\d+$")
-_TEXT_FAULT = re.compile(r"^servo (\S+) (fault|cleared) (.+)$")
-_TEXT_ONLINE = re.compile(r"^servo (\S+) (not responding|responding again)$")
+#: the bridge's servo texts (mavservo/mavlink/telemetry.py), with the count of repeats that
+#: may follow them ("(x5 in 10 s)", mavservo/records/repeats.py); "not responding" and
+#: "responding again" are an older bridge's words for "offline" and "back online"
+_TEXT_FAULT = re.compile(r"^servo (\S+) (fault|cleared) (\S+)(?: \(.*\))?$")
+_TEXT_ONLINE = re.compile(
+    r"^servo (\S+) (offline|back online|not responding|responding again)(?: \(.*\))?$"
+)
 
 MAV_TYPE_NAMES = {1: "fixed wing", 2: "quadrotor", 6: "GCS", 26: "gimbal", 33: "servo"}
 #: MAV_SEVERITY, by value: STATUSTEXT severities are shown by name, not as 0..7
@@ -289,7 +294,7 @@ class MonitorState:
             else:
                 view.faults -= names
         elif (match := _TEXT_ONLINE.match(text)) and (view := self._servo_by_name(match.group(1))):
-            view.responding = match.group(2) == "responding again"
+            view.responding = match.group(2) in ("back online", "responding again")
 
     def _join_chunk(self, msg: Any, text_id: int, text: str) -> str | None:
         """Collect one chunk of a long STATUSTEXT; the whole text once its last chunk is in."""
@@ -302,7 +307,9 @@ class MonitorState:
             else None
         )
         if last is not None and all(seq in chunks for seq in range(last + 1)):
-            return "".join(chunks[seq] for seq in range(last + 1))
+            from mavservo.mavlink import join_statustext_chunks
+
+            return join_statustext_chunks([chunks[seq] for seq in range(last + 1)])
         self._chunks[key] = (severity, chunks)
         while len(self._chunks) > STATUSTEXT_PENDING:
             self._chunks.pop(next(iter(self._chunks)))

@@ -32,6 +32,7 @@ from mavservo.records import (
     STAGES,
     TRACE_FILE,
     can_log_files,
+    glossary_text,
     percentile,
     read_can_log,
     summarize,
@@ -632,6 +633,7 @@ def servo_table(run: Run) -> list[str]:
         cells = [str(frames.get(key, 0)) for _, _, key in FRAME_COLUMNS]
         cells += [_ms((data.get(group) or {}).get(key)) for _, _, group, key in TIMING_COLUMNS]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    lines += ["", glossary_text() + " (the console's and the summary's words, docs/logs.md)."]
     return lines
 
 

@@ -38,6 +38,9 @@ MAX_SAMPLE_GAP_S = 0.5
 #: I^2 t is counted with currents up to this (a reading beyond is garbage or a short), so no
 #: reading can make it overflow
 MAX_CURRENT_A = 1000.0
+#: the commanded trajectory (:meth:`ServoHealth.command`) is kept this far back from the newest
+#: command: a state judged up to this old still finds the setpoints of its time
+TRAJECTORY_KEEP_S = 3.0
 #: slipping: the output moves at less than this fraction of the motor's reported speed
 SLIP_RATIO = 0.25
 #: a supply range learned from the first readings (none configured): down to this fraction
@@ -179,6 +182,10 @@ class ServoHealth:
         self._setpoints: deque[tuple[float, float]] = deque()
         #: (t, position, reported velocity) for the velocity from positions
         self._motion: deque[tuple[float, float, float]] = deque()
+        #: (t, setpoint) as commanded, stamped with the bridge's clock when it was in force
+        #: (:meth:`command`); None while nobody tells the commanded trajectory (the setpoints
+        #: seen with the states are used then)
+        self._trajectory: deque[tuple[float, float]] | None = None
         self._late_since: float | None = None
         self._late_budget_s = 0.0
         self._late_setpoint: float | None = None
@@ -232,6 +239,28 @@ class ServoHealth:
         self._motion.clear()
         self._late_since = None
 
+    def command(self, t: float, setpoint_deg: float | None) -> None:
+        """The setpoint in force at ``t``, on the clock the states are stamped with (the
+        bridge calls this every tick, before it judges the new states).
+
+        Why: a state is judged against the trajectory commanded up to its own time stamp, not
+        against the setpoints that happened to be in force when states came in. On a loaded
+        machine states come late and in bunches, the setpoint has moved on by then, and the
+        setpoints seen with the states had the wrong times: a DroneCAN servo following a
+        sweep was judged "not following, 16.7 deg behind" (issue 37). With the commanded
+        trajectory the allowance is the setpoint's motion from ``response_s`` before the
+        state was measured up to the newest command, whatever the state's age."""
+        if self._trajectory is None:
+            self._trajectory = deque()
+        trajectory = self._trajectory
+        if setpoint_deg is None or not math.isfinite(setpoint_deg):
+            trajectory.clear()
+            return
+        if not trajectory or trajectory[-1][1] != setpoint_deg:
+            trajectory.append((t, setpoint_deg))
+        while len(trajectory) > 1 and trajectory[1][0] <= t - TRAJECTORY_KEEP_S:
+            trajectory.popleft()
+
     def update(self, sample: Sample) -> list[HealthEvent]:
         """Judge a new state; the transitions it causes (usually none)."""
         if not self.limits.enabled:
@@ -281,9 +310,17 @@ class ServoHealth:
         while self._motion and self._motion[0][0] < s.t - MAX_DERIVATIVE_SPAN_S:
             self._motion.popleft()
 
-    def _recent_setpoint_motion(self, setpoint: float) -> float:
+    def _recent_setpoint_motion(self, setpoint: float, t: float | None = None) -> float:
         """How far the setpoint moved within the last ``response_s``: the lag a healthy servo
-        may have on top of the tolerance (a sweep is followed a little behind)."""
+        may have on top of the tolerance (a sweep is followed a little behind). With the
+        commanded trajectory (:meth:`command`) and the state's time ``t``: from the setpoint in
+        force ``response_s`` before ``t`` to the newest command."""
+        trajectory = self._trajectory
+        if trajectory and t is not None:
+            start = t - self.limits.response_s
+            since = [sp for when, sp in trajectory if when > start]
+            before = [sp for when, sp in trajectory if when <= start][-1:]
+            return max((abs(setpoint - old) for old in before + since), default=0.0)
         return max((abs(setpoint - old) for _, old in self._setpoints), default=0.0)
 
     def _speeds(self, t: float) -> tuple[float | None, float | None]:
@@ -308,7 +345,7 @@ class ServoHealth:
         if finite(s.setpoint_deg) and finite(s.position_deg):
             assert s.setpoint_deg is not None
             error = s.setpoint_deg - s.position_deg
-            allowance = lim.tolerance_deg + self._recent_setpoint_motion(s.setpoint_deg)
+            allowance = lim.tolerance_deg + self._recent_setpoint_motion(s.setpoint_deg, s.t)
             off_target = abs(error) > allowance
             if abs(error) <= lim.tolerance_deg:
                 self._settled_at = s.setpoint_deg

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import threading
 from collections import deque
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 
 from mavservo.control.health import (
     CHECKS,
@@ -28,8 +28,15 @@ class HealthWatch:
     """Every servo's :class:`ServoHealth`, fed from the backend's statuses (the bridge calls
     :meth:`update` every command period; a state is judged once, when it is new)."""
 
-    def __init__(self, limits: dict[str, HealthLimits]) -> None:
+    def __init__(
+        self, limits: dict[str, HealthLimits], clock: Callable[[], float] | None = None
+    ) -> None:
+        """``clock``: the clock the states are stamped with (the bridge: ``time.monotonic``);
+        with it each servo's commanded trajectory is recorded every update, stamped when it
+        was in force (:meth:`ServoHealth.command`), and the states are judged against it.
+        None (tests with states from a made-up clock): the setpoints seen with the states."""
         self.servos = {name: ServoHealth(name, lim) for name, lim in limits.items()}
+        self._clock = clock
         self.events: deque[HealthEvent] = deque(maxlen=1000)
         self.counts: dict[str, dict[str, int]] = {}
         #: the bridge's tick thread updates, any thread may ask for the summary
@@ -53,10 +60,13 @@ class HealthWatch:
 
     def _update(self, statuses: Iterable[ServoStatus]) -> list[HealthEvent]:
         events: list[HealthEvent] = []
+        now = None if self._clock is None else self._clock()
         for status in statuses:
             health = self.servos.get(status.name)
             if health is None:
                 continue
+            if now is not None:
+                health.command(now, status.setpoint_deg)
             state = status.state
             if not status.online or state is None:
                 health.offline()

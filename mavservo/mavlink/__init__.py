@@ -28,7 +28,7 @@ if TYPE_CHECKING:
     from .settings import MavlinkSettings, SigningSettings, TelemetryRates
     from .side import MavlinkSide
     from .stream_request import WINDOW_S, StreamRequestSettings
-    from .telemetry import AUTO_ESC_FIRST
+    from .telemetry import AUTO_ESC_FIRST, join_statustext_chunks
 
 __all__ = [
     "StreamRequestSettings",
@@ -60,6 +60,7 @@ __all__ = [
     "open_connection",
     "plan_budget",
     "quaternion_to_euler",
+    "join_statustext_chunks",
 ]
 __getattr__ = lazy_face(
     __name__,
@@ -69,6 +70,7 @@ __getattr__ = lazy_face(
         "ACCEPTED": "backend",
         "ACTUATORS_PER_SET": "servo_commands",
         "AUTO_ESC_FIRST": "telemetry",
+        "join_statustext_chunks": "telemetry",
         "ApplyResult": "backend",
         "BudgetPlan": "bandwidth",
         "COMP_METADATA_TYPE_PARAMETER": "metadata_service",

@@ -13,6 +13,14 @@ from __future__ import annotations
 
 import enum
 
+#: The one STATUSTEXT of each transition (CRITICAL, NOTICE; both essential: never dropped for
+#: other texts, never counted as a repeat). One message each: at most 50 characters, so no
+#: ground station shows one cut in two (issue 37: the failsafe sent two texts per event, the
+#: servo side's "failsafe cleared: servos move again on fresh commands" chunked mid-word;
+#: the servo side's words now go to the console only).
+LOST_TEXT = "servo bridge: autopilot lost, servos in failsafe"
+RECOVERED_TEXT = "servo bridge: autopilot back, waiting for commands"
+
 
 class FailsafeEvent(enum.Enum):
     LOST = "lost"

@@ -37,7 +37,12 @@ from mavservo.mavlink.component import (
     CountingComponent,
     HostedComponent,
 )
-from mavservo.mavlink.failsafe import FailsafeEvent, HeartbeatWatchdog
+from mavservo.mavlink.failsafe import (
+    LOST_TEXT,
+    RECOVERED_TEXT,
+    FailsafeEvent,
+    HeartbeatWatchdog,
+)
 from mavservo.mavlink.ftp import UNBUDGETED_BYTES_S
 from mavservo.mavlink.gimbal_discovery import GimbalDiscoveryWatch
 from mavservo.mavlink.metadata_service import MetadataService
@@ -336,11 +341,7 @@ class MavlinkCore:
             self.backend.leave_failsafe(now)
             self.mirror.reset()
             self.hold.release_all()
-            self.telemetry.announce(
-                MAV_SEVERITY_NOTICE,
-                "servo bridge: autopilot back, waiting for commands",
-                essential=True,
-            )
+            self.telemetry.announce(MAV_SEVERITY_NOTICE, RECOVERED_TEXT, essential=True)
         self._to_gimbals(msg, now)
         return []
 
@@ -365,9 +366,7 @@ class MavlinkCore:
             self.commands.cancel_all()
             self.backend.enter_failsafe("autopilot heartbeat lost", now)
             self.discovery.lost_autopilot()
-            self.telemetry.announce(
-                MAV_SEVERITY_CRITICAL, "servo bridge: autopilot lost, servos in failsafe"
-            )
+            self.telemetry.announce(MAV_SEVERITY_CRITICAL, LOST_TEXT, essential=True)
         if not self.watchdog.in_failsafe:
             self._guarded("commands", self.commands.tick, now)
             for gimbal, text in self.discovery.due(now):

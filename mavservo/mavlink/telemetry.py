@@ -15,7 +15,9 @@ carriers ground stations already understand (DESIGN.md, "MAVLink facts"):
   event), ``s<n>_hlt`` (the bridge's own health findings, :class:`~mavservo.mavlink.backend.
   Health` bits, docs/health.md), n = config position + 1 (all within the 10-character limit);
 * STATUSTEXT (253): fault onset and clearance, servo offline / back online (also when the very
-  first state is already bad), link events; every active problem is repeated every
+  first state is already bad; repeats of one servo's problem within 10 s are counted and summed
+  up, ``servo aileron offline (x5 in 10 s)``, :mod:`mavservo.records.repeats`), link events;
+  every active problem is repeated every
   ``REMINDER_S`` for ground stations that connect later; texts longer than 50 characters go out
   as MAVLink 2 chunks (``id`` != 0, ``chunk_seq``); at most ``STATUSTEXT_BURST`` texts per
   second so a flapping servo cannot flood the link.
@@ -41,6 +43,7 @@ from mavservo.mavlink.backend import ActuatorBackend, ServoStatus
 from mavservo.mavlink.esc_status import ESC_INFO_HZ, esc_info, esc_status
 from mavservo.mavlink.settings import TelemetryRates
 from mavservo.mavlink.statustext_queue import TextQueue
+from mavservo.records import BACK_ONLINE, OFFLINE, Key, Repeats
 from mavservo.servos import NO_FAULT, Fault
 
 log = logging.getLogger(__name__)
@@ -67,9 +70,10 @@ MAV_SEVERITY_CRITICAL = 2
 MAV_SEVERITY_WARNING = 4
 MAV_SEVERITY_NOTICE = 5
 STATUSTEXT_LENGTH = 50
-#: a longer text is sent in chunks; beyond this many it is cut (the last chunk always keeps
-#: room for the NUL that marks it as the last)
-STATUSTEXT_MAX_CHUNKS = 4
+#: a longer text is sent in chunks; beyond this many it is cut. Six hold 300 characters, the
+#: longest text the bridge says (the 237-character AP_Periph safety warning, with the setting
+#: that fixes it at its end, lost it when four chunks cut it at 199)
+STATUSTEXT_MAX_CHUNKS = 6
 #: every active problem (fault, offline) is announced again this often, for late listeners
 REMINDER_S = 20.0
 STATUSTEXT_BURST = 4  # per second
@@ -115,24 +119,58 @@ DEFAULT_NAME_PREFIX = "s"
 
 
 def _problems(status: ServoStatus) -> tuple[bool, Any]:
-    """(online, faults) as the events compare them; NO_REPLY is reported as "not responding"."""
+    """(online, faults) as the events compare them; NO_REPLY is reported as "offline"."""
     faults = status.state.faults if status.state is not None else NO_FAULT
     return status.online, faults & ~Fault.NO_REPLY
 
 
-def statustext_messages(severity: int, text: str, text_id: int) -> list[Any]:
-    """STATUSTEXT for ``text``: one message (id 0) up to 50 characters, else MAVLink 2 chunks
-    numbered by ``chunk_seq`` under ``text_id`` (1..65535), the last one NUL-terminated."""
+def statustext_chunks(text: str) -> list[bytes]:
+    """``text`` as the ``text`` fields of its STATUSTEXT messages, each broken after a space.
+
+    MAVLink's STATUSTEXT (common.xml, message 253): ``text`` is 50 characters, "Any null
+    character in the text field is taken to mean this was the last chunk", so every chunk but
+    the last must be full; receivers rely on it (QGroundControl's StatusTextHandler takes a
+    chunk shorter than 50 as the last, as MAVProxy's mavproxy_link.py ``PendingText`` does).
+    A chunk is therefore broken after the last space that fits and padded with spaces to 50:
+    a ground station that shows chunks one by one never shows half a word, one that joins
+    them shows a few extra spaces (``mavservo monitor`` drops them). A word longer than a
+    chunk is broken where the chunk is full. A text that fills its last chunk exactly gets an
+    empty chunk, the NUL that ends it. Beyond :data:`STATUSTEXT_MAX_CHUNKS` the text is cut
+    at a word, with "...".
+    """
     data = text.encode("ascii", "replace")
     if len(data) <= STATUSTEXT_LENGTH:
-        return [mavlink2.MAVLink_statustext_message(severity, data, 0, 0)]
-    data = data[: STATUSTEXT_LENGTH * STATUSTEXT_MAX_CHUNKS - 1]
+        return [data]  # one message, id 0: "the only chunk in the sequence"
+    chunks: list[bytes] = []
+    while len(data) >= STATUSTEXT_LENGTH:
+        cut = data.rfind(b" ", 0, STATUSTEXT_LENGTH) + 1 or STATUSTEXT_LENGTH
+        chunks.append(data[:cut].ljust(STATUSTEXT_LENGTH))
+        data = data[cut:]
+    chunks.append(data)
+    if len(chunks) > STATUSTEXT_MAX_CHUNKS:
+        last = chunks[STATUSTEXT_MAX_CHUNKS - 1].rstrip()
+        chunks[STATUSTEXT_MAX_CHUNKS - 1 :] = [last[: STATUSTEXT_LENGTH - 4] + b"..."]
+    return chunks
+
+
+def join_statustext_chunks(chunks: list[str]) -> str:
+    """A chunked text as it was said, from its chunks' texts in ``chunk_seq`` order: a chunk
+    padded with spaces (:func:`statustext_chunks`) ends with one space."""
+    return "".join(
+        chunk.rstrip(" ") + " " if chunk.endswith(" ") and seq < len(chunks) - 1 else chunk
+        for seq, chunk in enumerate(chunks)
+    )
+
+
+def statustext_messages(severity: int, text: str, text_id: int) -> list[Any]:
+    """STATUSTEXT for ``text``: one message (id 0) up to 50 characters, else MAVLink 2 chunks
+    (:func:`statustext_chunks`) numbered by ``chunk_seq`` under ``text_id`` (1..65535)."""
+    chunks = statustext_chunks(text)
+    if len(chunks) == 1:
+        return [mavlink2.MAVLink_statustext_message(severity, chunks[0], 0, 0)]
     return [
-        mavlink2.MAVLink_statustext_message(
-            severity, data[start : start + STATUSTEXT_LENGTH], text_id, seq
-        )
-        # a text filling its last chunk exactly gets an empty chunk, the NUL that ends it
-        for seq, start in enumerate(range(0, len(data) + 1, STATUSTEXT_LENGTH))
+        mavlink2.MAVLink_statustext_message(severity, chunk, text_id, seq)
+        for seq, chunk in enumerate(chunks)
     ]
 
 
@@ -176,6 +214,7 @@ class Telemetry:
         }
         self._esc_info_count = 0
         self._known: dict[str, tuple[bool, Any]] = {}  # name -> (online, faults)
+        self._repeats = Repeats()
         self._texts = TextQueue(STATUSTEXT_QUEUE)
         self._text_sent_at: deque[float] = deque()
         self._text_id = 0
@@ -355,36 +394,51 @@ class Telemetry:
 
     def _detect_events(self, statuses: list[ServoStatus], now: float) -> None:
         """Announce changes; a servo first seen offline or faulted counts as a change from
-        "online, no fault", and active problems are repeated every ``REMINDER_S``."""
+        "online, no fault", and active problems are repeated every ``REMINDER_S``. Each
+        servo's onsets and clearings of one kind (offline, each fault bit) go through
+        :class:`~mavservo.records.Repeats`: a flapping servo's repeats within its interval are
+        counted and summed up in one text, as the console's scheduler log does."""
         for status in statuses:
             online, faults = _problems(status)
             was_online, old_faults = self._known.get(status.name, (True, NO_FAULT))
             self._known[status.name] = (online, faults)
+            subject = f"servo {status.name}"
             if was_online and not online:
-                self.announce(MAV_SEVERITY_CRITICAL, f"servo {status.name} not responding")
+                self._onset((subject, OFFLINE), f"{subject} {OFFLINE}", now)
             elif online and not was_online:
-                self.announce(MAV_SEVERITY_NOTICE, f"servo {status.name} responding again")
+                self._clear((subject, OFFLINE), f"{subject} {BACK_ONLINE}")
             if faults == old_faults:
                 continue
-            new = faults & ~old_faults
-            gone = old_faults & ~faults
-            if new:
-                self.announce(MAV_SEVERITY_CRITICAL, f"servo {status.name} fault {_names(new)}")
-            if gone:
-                self.announce(MAV_SEVERITY_NOTICE, f"servo {status.name} cleared {_names(gone)}")
+            for bit in _bits(faults & ~old_faults):
+                self._onset((subject, f"fault {bit}"), f"{subject} fault {bit}", now)
+            for bit in _bits(old_faults & ~faults):
+                self._clear((subject, f"fault {bit}"), f"{subject} cleared {bit}")
+        for summary in self._repeats.flush(now):
+            severity = MAV_SEVERITY_CRITICAL if summary.active else MAV_SEVERITY_WARNING
+            self.announce(severity, summary.text)
+        self.counters["statustext_repeats_counted"] = self._repeats.counted
         if self._next_reminder is None:
             self._next_reminder = now + REMINDER_S
         elif now >= self._next_reminder:
             self._next_reminder = max(self._next_reminder + REMINDER_S, now)
             self._remind()
 
+    def _onset(self, key: Key, text: str, now: float) -> None:
+        said = self._repeats.onset(key, text, now)
+        if said is not None:
+            self.announce(MAV_SEVERITY_CRITICAL, said)
+
+    def _clear(self, key: Key, text: str) -> None:
+        said = self._repeats.clear(key, text)
+        if said is not None:
+            self.announce(MAV_SEVERITY_NOTICE, said)
+
     def _remind(self) -> None:
         """Repeat the active problems, in the wording of the events, so a late listener (and
         ``mavservo monitor``) learns them; never at the cost of events already queued."""
         for name, (online, faults) in self._known.items():
-            texts = [] if online else [f"servo {name} not responding"]
-            if faults:
-                texts.append(f"servo {name} fault {_names(faults)}")
+            texts = [] if online else [f"servo {name} {OFFLINE}"]
+            texts.extend(f"servo {name} fault {bit}" for bit in _bits(faults))
             for text in texts:
                 if len(self._texts) >= STATUSTEXT_QUEUE // 2:
                     self.counters["reminders_skipped"] += 1
@@ -402,6 +456,7 @@ class Telemetry:
                 break
             severity, text = next_text
             self._text_sent_at.append(now)
+            self.counters["statustext_sent"] += 1
             if len(text) > STATUSTEXT_LENGTH:
                 self._text_id = self._text_id % UINT16_MAX + 1
             out.extend(statustext_messages(severity, text, self._text_id))
@@ -527,7 +582,7 @@ def _esc_view_rates(rates: TelemetryRates) -> dict[int, float]:
     }
 
 
-def _names(flags: Any) -> str:
-    """Readable names of an enum.Flag value (``stall|over_current``)."""
-    members = [m.name for m in type(flags) if m.value and m in flags and m.name]
-    return "|".join(members).lower() or str(flags)
+def _bits(flags: Any) -> list[str]:
+    """Readable names of the bits set in an enum.Flag value (``["stall", "over_current"]``)."""
+    members = [m.name.lower() for m in type(flags) if m.value and m in flags and m.name]
+    return members or ([str(flags)] if flags else [])

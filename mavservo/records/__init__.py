@@ -14,8 +14,10 @@ if TYPE_CHECKING:
     from .can_log import can_log_files, read_can_log
     from .latency import STAGE_DESCRIPTIONS, STAGES, summarize
     from .metrics import LoadMeter, SchedulerMetrics, percentile, round_trip_figures, write_json
+    from .repeats import REPEAT_INTERVAL_S, Key, Repeats, Summary, repeated
     from .run_files import LATENCY_FILE, REJECTIONS_FILE, TRACE_FILE
     from .runlog import METRICS_FILE, RUN_HEADER, RunLog, new_run_dir
+    from .vocabulary import BACK_ONLINE, GLOSSARY, LATE, LOST, OFFLINE, glossary_text
 
 __all__ = [
     "LoadMeter",
@@ -35,6 +37,17 @@ __all__ = [
     "REJECTIONS_FILE",
     "can_log_files",
     "read_can_log",
+    "REPEAT_INTERVAL_S",
+    "Repeats",
+    "Summary",
+    "repeated",
+    "Key",
+    "BACK_ONLINE",
+    "GLOSSARY",
+    "LATE",
+    "LOST",
+    "OFFLINE",
+    "glossary_text",
 ]
 __getattr__ = lazy_face(
     __name__,
@@ -56,5 +69,16 @@ __getattr__ = lazy_face(
         "REJECTIONS_FILE": "run_files",
         "can_log_files": "can_log",
         "read_can_log": "can_log",
+        "REPEAT_INTERVAL_S": "repeats",
+        "Repeats": "repeats",
+        "Summary": "repeats",
+        "repeated": "repeats",
+        "Key": "repeats",
+        "BACK_ONLINE": "vocabulary",
+        "GLOSSARY": "vocabulary",
+        "LATE": "vocabulary",
+        "LOST": "vocabulary",
+        "OFFLINE": "vocabulary",
+        "glossary_text": "vocabulary",
     },
 )

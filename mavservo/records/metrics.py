@@ -279,6 +279,9 @@ class ServoMetrics:
     setpoints_rejected: int = 0
     setpoints_dropped: int = 0
     """Accepted setpoints dropped unsent because the servo went offline (bus down, no reply)."""
+    went_offline: int = 0
+    """Times the servo went offline (:data:`mavservo.records.vocabulary.OFFLINE`): the count
+    of the console's and the ground station's "servo NAME offline" events, said or counted."""
 
     def __post_init__(self) -> None:
         self.latency = SampleStats(self.window)
@@ -315,6 +318,7 @@ class ServoMetrics:
                 "lost": self.lost,
                 "rejected": self.rejected,
                 "send_failed": self.send_failed,
+                "went_offline": self.went_offline,
             },
             "setpoints": {
                 "accepted": self.setpoints_accepted,

@@ -7,103 +7,86 @@ Why rate-limited: under reply loss a servo flaps, offline after three lost repli
 the next one. The trial's journal got ``servo aileron offline (no reply)`` 8-29 times in 6-8 s
 and no recovery line at the default WARNING level, so it read as permanently offline. Now each
 servo's first offline is logged (WARNING) with its recovery (INFO); further offline events
-within ``interval_s`` of the last one logged are only counted, and one WARNING per interval
-sums them up and says whether the servo is online *now*, so the last line about a servo is
-always true.
+within ``interval_s`` of the last one logged are only counted, and one line per interval sums
+them up and says whether the servo is online *now* (WARNING while it is still offline, INFO
+once it is back), so the last line about a servo is always true. The rule and the words are
+the ground station's too (:class:`mavservo.records.Repeats`).
 
 Why late replies get one warning: a servo that answers consistently after ``reply_timeout_s``
 reads as losing most replies (``lost 50 of 76``, no latency) while staying online, and nothing
 said the timeout was too short. :class:`LateReplies` collects how late they come and, after
 ``warn_after`` of them, returns one warning naming the measured latency and the setting.
+
+Why the advice has a ceiling: a loaded host delayed every reply by ~270 ms and the warning
+advised a flight surface's bus to wait 401 ms for its replies, so a dead surface would have
+been noticed only after ``offline_after_missed`` such waits. A reply timeout is only ever
+advised up to :data:`MAX_ADVISED_TIMEOUT_S`; replies later than that have a cause to fix instead
+(a busy host or a congested bus), and the warning names it.
 """
 
 from __future__ import annotations
 
 import logging
 import statistics
-from dataclasses import dataclass
+
+from mavservo.records import BACK_ONLINE, OFFLINE, REPEAT_INTERVAL_S, Repeats
 
 Line = tuple[int, str]
 
-FLAP_INTERVAL_S = 10.0
+FLAP_INTERVAL_S = REPEAT_INTERVAL_S
 LATE_WARN_AFTER = 5
-
-
-@dataclass
-class _Track:
-    online: bool = True
-    offline_since: float | None = None
-    last_offline_logged: float | None = None
-    recovery_to_log: bool = False
-    repeats: int = 0
-    recoveries: int = 0
+#: the highest reply timeout the late-reply warning ever advises (the servos here answer in
+#: 1-30 ms; a timeout above this makes a dead servo known too late to be safe for a surface)
+MAX_ADVISED_TIMEOUT_S = 0.1
 
 
 class OnlineLog:
-    """Offline/online transitions of each servo into log lines, repeats rate-limited."""
+    """Offline/online transitions of each servo into log lines, repeats rate-limited by the
+    rule the ground station's texts follow too (:class:`~mavservo.records.Repeats`): the same
+    words ("offline", "back online") and the same count ("x5 in 10 s") on every output."""
 
     def __init__(self, interval_s: float = FLAP_INTERVAL_S) -> None:
         self.interval_s = interval_s
-        self._tracks: dict[str, _Track] = {}
+        self._repeats = Repeats(interval_s)
+        self._offline_since: dict[str, float] = {}
 
     def offline(self, servo: str, reason: str, t: float) -> list[Line]:
         """``servo`` went offline at ``t`` because of ``reason`` ("no reply", ...)."""
-        track = self._tracks.setdefault(servo, _Track())
-        track.online = False
-        track.offline_since = t
-        last = track.last_offline_logged
-        if last is not None and t - last < self.interval_s:
-            track.repeats += 1
-            return []
-        text = f"servo {servo} offline ({reason})"
-        if track.repeats:  # only after a quiet interval with no summary yet (flush not called)
-            text += f"; {self._summary(track, t - last)}"  # type: ignore[operator]
-        track.repeats = track.recoveries = 0
-        track.last_offline_logged = t
-        track.recovery_to_log = True
-        return [(logging.WARNING, text)]
+        self._offline_since[servo] = t
+        key = (f"servo {servo}", OFFLINE)
+        text = self._repeats.onset(key, f"servo {servo} {OFFLINE} ({reason})", t)
+        return [] if text is None else [(logging.WARNING, text)]
 
     def online(self, servo: str, t: float) -> list[Line]:
         """``servo`` answered again at ``t`` after being offline."""
-        track = self._tracks.setdefault(servo, _Track())
-        track.online = True
-        since, track.offline_since = track.offline_since, None
-        if not track.recovery_to_log:
-            track.recoveries += 1
-            return []
-        track.recovery_to_log = False
+        since = self._offline_since.pop(servo, None)
         away = "" if since is None else f" after {t - since:.1f} s"
-        return [(logging.INFO, f"servo {servo} back online{away}")]
+        key = (f"servo {servo}", OFFLINE)
+        text = self._repeats.clear(key, f"servo {servo} {BACK_ONLINE}{away}")
+        return [] if text is None else [(logging.INFO, text)]
 
     def flush(self, t: float) -> list[Line]:
-        """Summaries of the repeats counted for an interval (call regularly, e.g. each step)."""
-        lines: list[Line] = []
-        for servo, track in self._tracks.items():
-            last = track.last_offline_logged
-            if not track.repeats or last is None or t - last < self.interval_s:
-                continue
-            now = "online now" if track.online else "offline now"
-            summary = self._summary(track, t - last)
-            lines.append((logging.WARNING, f"servo {servo}: {summary}; {now}"))
-            track.repeats = track.recoveries = 0
-            track.last_offline_logged = t
-            track.recovery_to_log = not track.online
-        return lines
-
-    @staticmethod
-    def _summary(track: _Track, over_s: float) -> str:
-        return (
-            f"went offline {track.repeats} more times in {over_s:.1f} s "
-            f"(back online {track.recoveries} times; not logged one by one)"
-        )
+        """Summaries of the repeats counted for an interval (call regularly, e.g. each step):
+        WARNING while the servo is still offline, INFO once it is back."""
+        return [
+            (logging.WARNING if summary.active else logging.INFO, summary.text)
+            for summary in self._repeats.flush(t)
+        ]
 
 
 class LateReplies:
     """Counts each servo's replies that came after their timeout and warns once per servo."""
 
-    def __init__(self, reply_timeout_s: float, warn_after: int = LATE_WARN_AFTER) -> None:
+    def __init__(
+        self,
+        reply_timeout_s: float,
+        warn_after: int = LATE_WARN_AFTER,
+        ceiling_s: float = MAX_ADVISED_TIMEOUT_S,
+    ) -> None:
         self.reply_timeout_s = reply_timeout_s
         self.warn_after = warn_after
+        #: the highest reply timeout this warning may advise (module docstring)
+        self.ceiling_s = ceiling_s
         self._counts: dict[str, int] = {}
         self._latencies: dict[str, list[float]] = {}
         self._warned: set[str] = set()
@@ -123,17 +106,28 @@ class LateReplies:
         del self._latencies[servo], self._counts[servo]
         timeout_ms = self.reply_timeout_s * 1e3
         text = f"servo {servo}: {count} replies came after reply_timeout_s ({timeout_ms:g} ms)"
-        advice = "raise scheduler.reply_timeout_s"
-        if seen:
-            typical = statistics.median(seen)
-            text += (
-                f", typically {typical * 1e3:.0f} ms after the request "
-                f"({(typical - self.reply_timeout_s) * 1e3:.0f} ms late)"
+        if not seen:
+            return [(logging.WARNING, f"{text} (counted late, not lost); {self._cause()}")]
+        typical = statistics.median(seen)
+        text += (
+            f", typically {typical * 1e3:.0f} ms after the request "
+            f"({(typical - self.reply_timeout_s) * 1e3:.0f} ms late)"
+        )
+        advised = typical * 1.5
+        if advised <= self.ceiling_s:
+            advice = (
+                "if the servo is just slow, raise scheduler.reply_timeout_s "
+                f"to {advised * 1e3:.0f} ms"
             )
-            advice += f" above {typical * 1e3 * 1.5:.0f} ms"
-        return [
-            (
-                logging.WARNING,
-                f"{text} (counted late, not lost); if the servo is just slow, {advice}",
-            )
-        ]
+        else:
+            advice = self._cause()
+        return [(logging.WARNING, f"{text} (counted late, not lost); {advice}")]
+
+    def _cause(self) -> str:
+        """What to look at when replies are later than any safe timeout."""
+        return (
+            f"a servo answers within a few ms: replies this late mean a busy host or a "
+            f"congested bus (check the CPU load and the bus load; scheduler.realtime: true), "
+            f"not scheduler.reply_timeout_s to raise (never above {self.ceiling_s * 1e3:.0f} ms: "
+            "a dead servo would be noticed late)"
+        )

@@ -233,6 +233,7 @@ class FrameWriter:
     ) -> tuple[list[Line], ServoState | None]:
         """Book a servo going offline (caller holds the lock): its state carries NO_REPLY, as
         for a silent servo; returns the lines to log and the state to tell subscribers."""
+        self._metrics.servos[servo].went_offline += 1
         lines = self._online_log.offline(servo, reason, now)
         if dropped is not None:
             lines += self._dropped(servo, dropped, now)

@@ -16,7 +16,7 @@ import can
 import pytest
 
 from mavservo.app.bridge import health_figures
-from mavservo.mavlink.telemetry import STATUSTEXT_LENGTH
+from mavservo.mavlink.telemetry import STATUSTEXT_LENGTH, join_statustext_chunks
 from mavservo.scheduling.runner import Scheduler, ServoSpec
 from mavservo.servos import RmdX
 from tests.support.bridge import MAV_CMD_DO_SET_SERVO, MAV_RESULT_ACCEPTED, Peer, running
@@ -84,7 +84,9 @@ def whole_statustexts(messages: list) -> list[str]:
             texts.append(msg.text)
         else:
             chunks.setdefault(msg.id, {})[msg.chunk_seq] = msg.text
-    texts += ["".join(parts[k] for k in sorted(parts)) for parts in chunks.values()]
+    texts += [
+        join_statustext_chunks([parts[k] for k in sorted(parts)]) for parts in chunks.values()
+    ]
     return texts
 
 

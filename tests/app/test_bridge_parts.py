@@ -21,7 +21,7 @@ from mavservo.app.health_reporting import HealthReporter
 from mavservo.config import load_config_text
 from mavservo.control import HealthEvent, HealthWatch, health_limits
 from mavservo.mavlink import Health
-from tests.support.mavlink_doubles import RecordingBackend, make_mavlink_core
+from tests.support.mavlink_doubles import RecordingBackend, make_mavlink_core, wire
 
 CONFIG = """
 mavlink: {url: "udpin:127.0.0.1:14599"}
@@ -103,7 +103,9 @@ def test_health_onsets_are_warned_or_critical_clearings_noticed_and_overheating_
         ("elevator: moves", MAV_SEVERITY_NOTICE),
         ("elevator: 71 C", MAV_SEVERITY_CRITICAL),
     ]
-    assert "quiet" in console  # recorded on the console and the list, not said
+    # an episode inside its text spacing: in the run log, not said on either output (the
+    # console says what the ground station is told, issue 37)
+    assert "quiet" not in console
     # the watch has not seen the servo overheat: no action in force yet, and it is asked
     assert backend.actions == [("elevator", None)]
 
@@ -140,3 +142,40 @@ def test_the_buses_are_opened_from_the_config_by_name_and_closed() -> None:
         assert buses.emulators == {}  # no simulated adapter on a virtual bus
     finally:
         buses.close()
+
+
+def test_a_failsafe_is_one_statustext_per_event_never_cut() -> None:
+    """Issue 37: each failsafe transition sent two STATUSTEXTs, the servo side's
+    "failsafe cleared: servos move again on fresh commands" chunked mid-word. The servo side's
+    words go to the console; the MAVLink side says each transition once, in one message."""
+    from mavservo.control.servo_backend import ServoBackend
+    from tests.control.test_servo_backend import CONFIG as BACKEND_CONFIG
+    from tests.control.test_servo_backend import RecordingSink
+
+    events, console, announcer = _events()
+    config = load_config_text(BACKEND_CONFIG, "backend.yaml")
+    sink = RecordingSink()
+    backend = ServoBackend(config, {s.name: sink for s in config.servos}, on_event=events.event)
+    backend.enter_failsafe("autopilot heartbeat lost", 1.0)
+    backend.leave_failsafe(2.0)
+    assert any(line.startswith("failsafe: ") for line in console)
+    assert any(line.startswith("failsafe cleared: ") for line in console)
+    assert not any("failsafe" in text for text, _ in announcer.said)
+
+    core, _ = make_mavlink_core(heartbeat_timeout_s=2.0)
+    core.on_message(wire(_heartbeat(), (1, 1)), 10.0)
+    out = core.tick(12.5)
+    core.on_message(wire(_heartbeat(), (1, 1)), 14.0)
+    out += core.tick(14.1)
+    texts = [m for _, m in out if m.get_type() == "STATUSTEXT"]
+    assert [m.text for m in texts] == [
+        "servo bridge: autopilot lost, servos in failsafe",
+        "servo bridge: autopilot back, waiting for commands",
+    ]
+    assert [m.id for m in texts] == [0, 0]  # one message each, no chunks
+
+
+def _heartbeat() -> Any:
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+    return mavlink2.MAVLink_heartbeat_message(1, 3, 0, 0, 4, 3)

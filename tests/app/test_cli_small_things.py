@@ -21,6 +21,7 @@ import pytest
 from mavservo.sim.sim_command import build_parser as sim_parser
 from tests.app.test_run_cli import run_mavservo as mavservo
 from tests.support.paths import REPO
+from tests.support.signals import as_under_nohup, default_signal_dispositions
 
 MINIMAL = "mavlink: {url: sim}\nservos: [{name: a, profile: rmd-x, can_id: 1}]\n"
 
@@ -91,7 +92,7 @@ def running_sim(link: Path, nohup: bool = False) -> Iterator[subprocess.Popen[st
         stderr=subprocess.PIPE,
         text=True,
         cwd=REPO,
-        preexec_fn=_ignore_hangup if nohup else None,
+        preexec_fn=as_under_nohup if nohup else default_signal_dispositions,
     )
     try:
         assert proc.stdout is not None and proc.stdout.readline().strip() == str(link)
@@ -101,11 +102,6 @@ def running_sim(link: Path, nohup: bool = False) -> Iterator[subprocess.Popen[st
         if proc.poll() is None:
             proc.kill()
             proc.wait(5)
-
-
-def _ignore_hangup() -> None:
-    """What ``nohup`` does before it starts the command."""
-    signal.signal(signal.SIGHUP, signal.SIG_IGN)
 
 
 def test_sighup_stops_sim_and_removes_its_link(tmp_path: Path) -> None:
@@ -182,6 +178,7 @@ def test_sighup_ends_a_run_cleanly_with_the_failsafe_sent(tmp_path: Path) -> Non
         stderr=subprocess.PIPE,
         text=True,
         cwd=REPO,
+        preexec_fn=default_signal_dispositions,  # a SIGHUP ignored by nohup is not inherited
     )
     try:
         assert proc.stdout is not None

@@ -20,15 +20,15 @@ LINE = re.compile(r"^\[\d\d:\d\d:\d\d\] (INFO|WARNING|ERROR|DEBUG|CRITICAL) +[\w
 
 def test_log_records_and_bridge_events_share_one_format() -> None:
     stream = io.StringIO()
-    StatusDisplay(enabled=False, stream=stream).event("servo aileron not responding")
-    StatusDisplay(enabled=False, stream=stream).event("servo aileron responding again")
+    StatusDisplay(enabled=False, stream=stream).event("servo aileron offline")
+    StatusDisplay(enabled=False, stream=stream).event("servo aileron back online")
     record = logging.LogRecord(
         "mavservo.scheduling.runner", logging.WARNING, __file__, 1, "bus %s lost", ("b0",), None
     )
     lines = [*stream.getvalue().splitlines(), ConsoleFormatter().format(record)]
     assert all(LINE.match(line) for line in lines), lines
-    assert " WARNING bridge: servo aileron not responding" in lines[0]
-    assert " INFO    bridge: servo aileron responding again" in lines[1]
+    assert " WARNING bridge: servo aileron offline" in lines[0]
+    assert " INFO    bridge: servo aileron back online" in lines[1]
     assert lines[2].endswith(" WARNING scheduling.runner: bus b0 lost")
 
 

@@ -19,6 +19,7 @@ from mavservo.config import Config, default_config_path, load_config
 from mavservo.records.runlog import read_can_log
 from mavservo.servos.rmdx.profile import CMD_POSITION, REQUEST_BASE
 from tests.support.paths import REPO
+from tests.support.signals import default_signal_dispositions
 
 SWEPT_CHANNELS = (1, 2, 3, 4)
 """SERVO_OUTPUT_RAW channels the default simulated autopilot sweeps (its ``sweep`` profile)."""
@@ -43,9 +44,9 @@ def test_default_run_moves_servos_and_reports_both_directions(tmp_path: Path) ->
     # every configured servo has a summary row with frames sent and received, none lost
     names = [s.name for s in load_config(default_config_path()).servos]
     for name in names:
-        row = re.search(rf"^\s+{name}" + r"\s+(\d+)" * 6, out, re.M)
+        row = re.search(rf"^\s+{name}" + r"\s+(\d+)" * 7, out, re.M)
         assert row, f"no summary row for {name}:\n{out}"
-        sent, received, _pushed, lost, _late, rejected = map(int, row.groups())
+        sent, received, _pushed, _offline, lost, _late, rejected = map(int, row.groups())
         assert sent > 0 and received > 0, f"{name}: {row.group(0)}"
         assert lost == 0, f"{name} lost replies on the built-in simulation: {row.group(0)}"
         assert rejected == 0
@@ -133,6 +134,7 @@ def test_sigterm_stops_cleanly_with_status_zero(tmp_path: Path) -> None:
         stderr=subprocess.PIPE,
         text=True,
         cwd=REPO,
+        preexec_fn=default_signal_dispositions,
     )
     try:
         deadline = time.monotonic() + 20
@@ -150,6 +152,13 @@ def test_sigterm_stops_cleanly_with_status_zero(tmp_path: Path) -> None:
     # a normal end reads as one, at INFO, still saying what the servos were told
     assert "INFO    bridge: stopped (SIGTERM): servos told their failsafe action:" in out
     assert "failsafe: shutdown" not in out
+    # then one INFO line per servo with what it does by itself, and its own timeout's value
+    # (issue 37: every normal stop ended in WARNINGs naming comm_timeout_ms, not its value)
+    for servo in load_config(default_config_path()).servos:
+        (line,) = [x for x in out.splitlines() if f"after the stop: servo {servo.name} (" in x]
+        assert " INFO    bridge: " in line, line
+    assert "motor off 1 s after the last frame (comm_timeout_ms" in out  # the RMD-X default
+    assert "then on their own" not in out
 
 
 def test_bad_config_exits_2_with_file_and_line_and_no_traceback(tmp_path: Path) -> None:

@@ -6,6 +6,7 @@ too (moved from the DroneCAN and bus factory test files), so all eight run side 
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -80,7 +81,13 @@ def test_shipped_pwm_config_runs_follows_and_loses_nothing(
     """``config/dronecan-pwm.yaml``: four PWM outputs of one ArduPilot-style node, the bridge's
     SafetyState, the simulated autopilot's sweep followed, telemetry back, nothing lost. (From
     tests/e2e/test_dronecan_nodes.py.)"""
-    example_runs["dronecan-pwm.yaml"].assert_follows_and_loses_nothing()
+    run = example_runs["dronecan-pwm.yaml"]
+    run.assert_follows_and_loses_nothing()
+    # SAFETY_ON went out at the stop (safety_on: stop), and the summary and metrics.json say
+    # so (issue 37: both lacked it: they were taken before the stop frames went out)
+    [run_dir] = list(run.logs.iterdir())
+    assert json.loads((run_dir / "metrics.json").read_text())["safety_on"] == 1
+    assert "SAFETY_ON 1 time" in (run.logs.parent / "stdout.txt").read_text()
 
 
 def test_mavservo_run_through_python_can_slcan_drives_servos_and_loses_nothing(

@@ -56,7 +56,7 @@ def test_commands_during_an_adapter_outage_are_refused_and_never_run_after_it() 
             emulator.unplug()
             assert wait_until(lambda: not status(bridge, "hook").online, WAIT_S)
             assert wait_until(
-                lambda: any("not responding" in t for t in peer.statustexts(mark)), WAIT_S
+                lambda: any("offline" in t for t in peer.statustexts(mark)), WAIT_S
             ), peer.statustexts(mark)
             aos_mark = peer.count()
             assert wait_until(lambda: peer.since(aos_mark, "ACTUATOR_OUTPUT_STATUS"), WAIT_S)

@@ -73,9 +73,7 @@ channels:
 
 def says(peer: Peer, mark: int, text: str, wait_s: float = WAIT_S) -> None:
     """The ground station hears ``text`` (STATUSTEXT, chunks joined) within ``wait_s``."""
-    assert wait_until(lambda: text in "".join(peer.statustexts(mark)), wait_s), peer.statustexts(
-        mark
-    )
+    assert wait_until(lambda: text in peer.joined_statustexts(mark), wait_s), peer.statustexts(mark)
 
 
 def position(bridge: Bridge, name: str) -> float:
@@ -330,9 +328,9 @@ channels:
             for _ in range(200):  # 30 frames every 100 ms, until the warning (bounded)
                 emulator.inject([sensor] * 30)
                 time.sleep(0.1)
-                if wanted in "".join(peer.statustexts(mark)) or time.monotonic() > deadline:
+                if wanted in peer.joined_statustexts(mark) or time.monotonic() > deadline:
                     break
-            texts = "".join(peer.statustexts(mark))
+            texts = peer.joined_statustexts(mark)
             assert wanted in texts, texts
             assert "is over max_load 12%" in texts
         finally:

@@ -114,7 +114,7 @@ def test_dronecan_servos_follow_and_a_node_missing_its_node_status_goes_offline_
             assert silent_for > NODE_SILENCE_LIMIT_S, silent_for
             assert Fault.NO_REPLY in status(bridge, "left").state.faults
             assert status(bridge, "right").online
-            assert wait_until(lambda: "servo left not responding" in peer.statustexts(mark), WAIT_S)
+            assert wait_until(lambda: "servo left offline" in peer.statustexts(mark), WAIT_S)
             assert peer.command(MAV_CMD_DO_SET_SERVO, [1, 1500]) == MAV_RESULT_TEMPORARILY_REJECTED
             left.faults.silent = False
             assert wait_until(lambda: status(bridge, "left").online, WAIT_S)
@@ -177,7 +177,7 @@ def test_dronecan_position_and_status_reach_mavlink_telemetry() -> None:
             assert wait_until(lambda: other in named_values(peer.since(mark), "s1_flt"), WAIT_S), (
                 named_values(peer.since(mark), "s1_flt")
             )
-            assert wait_until(lambda: "servo left fault" in "".join(peer.statustexts(mark)), WAIT_S)
+            assert wait_until(lambda: "servo left fault" in peer.joined_statustexts(mark), WAIT_S)
             assert set(named_values(peer.since(mark), "s2_flt")) == {0.0}
         finally:
             peer.close()
@@ -216,11 +216,11 @@ def test_another_array_command_sender_is_reported_once_by_statustext() -> None:
                     scheduler.handle_frame(msg, time.monotonic())
             # STATUSTEXT carries 50 characters: a longer text comes in chunks
             wanted = "DroneCAN node 10 also sends ArrayCommand for actuators 2"
-            assert wait_until(lambda: wanted in "".join(peer.statustexts(mark)), WAIT_S), (
+            assert wait_until(lambda: wanted in peer.joined_statustexts(mark), WAIT_S), (
                 peer.statustexts(mark)
             )
             time.sleep(0.5)
-            assert "".join(peer.statustexts(mark)).count(wanted) == 1
+            assert peer.joined_statustexts(mark).count(wanted) == 1
         finally:
             peer.close()
 

@@ -132,7 +132,7 @@ def test_a_silent_axis_goes_offline_and_comes_back() -> None:
             device.faults.silent = True
             assert wait_until(lambda: not status(bridge, "direct").online, WAIT_S)
             assert wait_until(
-                lambda: "servo direct not responding" in peer.statustexts(mark), WAIT_S
+                lambda: "servo direct offline" in peer.statustexts(mark), WAIT_S
             )
             assert status(bridge, "geared").online  # the others keep pushing
             device.faults.silent = False

@@ -75,7 +75,7 @@ def test_pushing_gimbal_servos_go_offline_in_an_outage_and_refused_demands_never
             for name in AXES:
                 assert Fault.NO_REPLY in status(bridge, name).state.faults
                 assert wait_until(
-                    lambda n=name: f"servo {n} not responding" in peer.statustexts(mark), WAIT_S
+                    lambda n=name: f"servo {n} offline" in peer.statustexts(mark), WAIT_S
                 ), peer.statustexts(mark)
             esc_mark = peer.count()
             assert wait_until(lambda: len(esc_counts(peer, esc_mark)) >= 2, WAIT_S)
@@ -107,7 +107,7 @@ def test_an_uncommanded_pushing_servo_that_falls_silent_is_offline_until_it_push
             assert wait_until(lambda: not status(bridge, "gimbal_yaw").online, WAIT_S)
             assert status(bridge, "gimbal_roll").online  # the others keep pushing
             assert wait_until(
-                lambda: "servo gimbal_yaw not responding" in peer.statustexts(mark), WAIT_S
+                lambda: "servo gimbal_yaw offline" in peer.statustexts(mark), WAIT_S
             )
             # a gimbal command that needs the silent axis is refused, not accepted
             params = [0.0, 0.0, 30.0, 0.0, 0.0, 0.0, MAV_MOUNT_MODE_MAVLINK_TARGETING]
@@ -132,7 +132,7 @@ def test_uncommanded_pushing_servos_go_offline_when_the_adapter_is_unplugged() -
             assert wait_until(lambda: not any(status(bridge, n).online for n in AXES), WAIT_S)
             assert mount_control(peer, -30.0) == MAV_RESULT_TEMPORARILY_REJECTED
             assert wait_until(
-                lambda: all(f"servo {n} not responding" in peer.statustexts(mark) for n in AXES),
+                lambda: all(f"servo {n} offline" in peer.statustexts(mark) for n in AXES),
                 WAIT_S,
             ), peer.statustexts(mark)
             bridge.emulators["bus0"].replug()

@@ -146,7 +146,7 @@ def test_a_silent_motor_goes_offline_and_comes_back(name: str) -> None:
             device.faults.silent = True
             assert wait_until(lambda: not status(bridge, name).online, WAIT_S)
             assert wait_until(
-                lambda: f"servo {name} not responding" in peer.statustexts(mark), WAIT_S
+                lambda: f"servo {name} offline" in peer.statustexts(mark), WAIT_S
             )
             device.faults.silent = False
             assert wait_until(lambda: status(bridge, name).online, WAIT_S)

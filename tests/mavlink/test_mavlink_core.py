@@ -389,4 +389,4 @@ def test_statustext_on_fault_onset_clearance_and_offline():
     texts += [m.text for _, m in core.tick(2.0) if m.get_type() == "STATUSTEXT"]
     assert any("fault" in t for t in texts)
     assert any("cleared" in t for t in texts)
-    assert any("not responding" in t for t in texts)
+    assert any("offline" in t for t in texts)

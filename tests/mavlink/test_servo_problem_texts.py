@@ -11,6 +11,9 @@ os.environ.setdefault("MAVLINK20", "1")
 
 from dataclasses import replace  # noqa: E402
 
+from hypothesis import given  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
 from mavservo.app.monitor import MonitorState  # noqa: E402
 from mavservo.mavlink.settings import MavlinkSettings, TelemetryRates  # noqa: E402
 from tests.mavlink.test_udp_peers import peer  # noqa: E402
@@ -67,7 +70,7 @@ def test_fault_and_offline_present_from_the_first_state_are_announced():
     backend.offline.add("drop")
     first = texts(core.tick(0.0))
     assert "servo aileron fault over_current" in first
-    assert "servo drop not responding" in first
+    assert "servo drop offline" in first
     assert not any("flap" in t for t in first)
 
 
@@ -78,13 +81,13 @@ def test_active_problems_are_repeated_for_late_listeners_and_stop_once_cleared()
     run(core, 0.0, 1.0)
     repeated = texts(run(core, 1.5, 2 * REMINDER_S + 0.5))
     assert repeated.count("servo aileron fault over_current") == 2
-    assert repeated.count("servo drop not responding") == 2
+    assert repeated.count("servo drop offline") == 2
     backend.states["aileron"] = state(0.0)
     backend.offline.clear()
     later = texts(run(core, 2 * REMINDER_S + 1.0, 4 * REMINDER_S))
     assert "servo aileron cleared over_current" in later
-    assert "servo drop responding again" in later
-    assert not any("fault" in t or "not responding" in t for t in later)
+    assert "servo drop back online" in later
+    assert not any("fault" in t or "offline" in t for t in later)
 
 
 def test_fault_bits_published_periodically_and_read_by_the_monitor():
@@ -199,3 +202,64 @@ def test_an_offline_servo_publishes_no_old_values_as_current():
     names = {m.name for m in out if m.get_type() == "NAMED_VALUE_FLOAT"}
     assert {"s1_pos", "s3_pos", "s2_flt"} <= names
     assert not names & {"s2_pos", "s2_vel", "s2_cur", "s2_tmp"}
+
+
+def test_a_flapping_servo_gets_a_bounded_number_of_texts_with_a_count_and_its_state_now():
+    """Issue 37: two servos flapping "not responding" / "responding again" sent 57
+    STATUSTEXTs in 22 s. Flapping every tick for a minute, one servo's texts stay within
+    three per 10 s plus the reminders, and its last text says what is true at the end."""
+    core, backend = make_core()
+    out = []
+    for i in range(600):  # 60 s at 10 Hz, offline every other tick
+        if i % 2:
+            backend.offline.add("drop")
+        else:
+            backend.offline.discard("drop")
+        out += core.tick(i * 0.1)
+    said = [t for t in texts(out) if t.startswith("servo drop")]
+    assert len(said) <= 3 * 6 + 60 / REMINDER_S + 1
+    assert any("(x" in t and " in 10 s)" in t for t in said)  # the repeats are counted
+    backend.offline.discard("drop")
+    last = [t for t in texts(run(core, 60.0, 75.0)) if t.startswith("servo drop")]
+    assert last[-1].startswith("servo drop back online")
+
+
+def test_long_texts_break_between_words_and_keep_their_end():
+    """Issue 37: chunks cut mid-word ("...on fresh comma" + "nds"), and four chunks cut the
+    237-character AP_Periph warning before the setting that fixes it. Every chunk but the last
+    is full (QGroundControl and MAVProxy take a shorter one as the last) and ends at a space."""
+    from mavservo.mavlink import join_statustext_chunks
+    from mavservo.mavlink.telemetry import statustext_chunks, statustext_messages
+
+    warning = (
+        "DroneCAN nodes 10, 11, 12 run ArduPilot firmware, which keeps its outputs off until "
+        "it hears SafetyState SAFETY_OFF, and the bridge sends none (safety_state: none): "
+        "their servos will not move; set node.dronecan.safety_state: safety_off"
+    )
+    chunks = statustext_chunks(warning)
+    assert all(len(c) == STATUSTEXT_LENGTH and c.endswith(b" ") for c in chunks[:-1])
+    assert len(chunks[-1]) < STATUSTEXT_LENGTH
+    assert chunks[-1].endswith(b"set node.dronecan.safety_state: safety_off")
+    assert join_statustext_chunks([c.decode() for c in chunks]) == warning
+    messages = statustext_messages(4, warning, 7)
+    assert [(m.id, m.chunk_seq) for m in messages] == [(7, k) for k in range(len(chunks))]
+    assert [len(c) for c in statustext_chunks("a" * 120)] == [50, 50, 20]  # one long word
+
+
+@given(st.lists(st.text("abcdefghij", min_size=1, max_size=12), min_size=1, max_size=40))
+def test_chunks_of_any_text_of_words(words):
+    from mavservo.mavlink import join_statustext_chunks
+    from mavservo.mavlink.telemetry import STATUSTEXT_MAX_CHUNKS, statustext_chunks
+
+    text = " ".join(words)
+    chunks = statustext_chunks(text)
+    assert len(chunks) <= STATUSTEXT_MAX_CHUNKS
+    if len(text) <= STATUSTEXT_LENGTH:
+        assert chunks == [text.encode()]
+        return
+    assert all(len(c) == STATUSTEXT_LENGTH and c.endswith(b" ") for c in chunks[:-1])
+    assert len(chunks[-1]) < STATUSTEXT_LENGTH
+    if not chunks[-1].endswith(b"..."):  # fits: said whole, broken only between words
+        assert join_statustext_chunks([c.decode() for c in chunks]) == text
+    else:  # six chunks of words of up to 12 letters hold 200 characters at least
+        assert len(text) > 200

@@ -21,6 +21,7 @@ from mavservo.sim.adapter import AdapterEmulator, LineFaults
 from mavservo.sim.servo import Faults, Physics, SimServo
 from mavservo.transport.aa55.bus import AA55Bus
 from tests.support.paths import REPO
+from tests.support.signals import default_signal_dispositions
 
 ROOT = REPO
 
@@ -238,6 +239,7 @@ def test_sim_command_prints_the_path_first_and_exits_cleanly_on_sigterm():
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        preexec_fn=default_signal_dispositions,
         env=env,
         cwd=ROOT,
     )

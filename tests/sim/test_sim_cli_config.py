@@ -15,6 +15,7 @@ import pytest
 from mavservo.servos import get_profile
 from mavservo.sim.sim_command import build_emulator, build_parser, main
 from mavservo.transport.aa55.bus import AA55Bus
+from tests.support.signals import default_signal_dispositions
 from tests.support.waiting import wait_until
 
 TWO_BUSES = """\
@@ -129,6 +130,7 @@ def test_sim_gives_each_dronecan_servo_its_own_actuator_id(tmp_path: Path):
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        preexec_fn=default_signal_dispositions,
     )
     try:
         assert process.stdout is not None and process.stderr is not None

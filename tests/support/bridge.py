@@ -211,6 +211,13 @@ class Peer:
     def statustexts(self, start: int = 0) -> list[str]:
         return [m.text for m in self.since(start, "STATUSTEXT")]
 
+    def joined_statustexts(self, start: int = 0) -> str:
+        """Every STATUSTEXT since ``start`` in one string, a long text's chunks joined as a
+        ground station joins them (a chunk broken between words loses its padding)."""
+        from mavservo.mavlink import join_statustext_chunks
+
+        return join_statustext_chunks(self.statustexts(start))
+
     def command(
         self,
         command: int,
@@ -399,10 +406,11 @@ class ExampleRun:
         assert "decoder rejections 0" in out
         config = load_config(self.path)
         for servo in config.servos:
-            # columns: sent, recv, pushed, lost, late, rej (a pushing servo's pushed is not lost)
-            row = re.search(rf"^\s+{servo.name}" + r"\s+(\d+)" * 6, out, re.M)
+            # columns: sent, recv, pushed, offline, lost, late, rej (a pushing servo's pushed is
+            # not lost)
+            row = re.search(rf"^\s+{servo.name}" + r"\s+(\d+)" * 7, out, re.M)
             assert row, f"no summary row for {servo.name}:\n{out}"
-            sent, received, _pushed, lost, _late, rejected = map(int, row.groups())
+            sent, received, _pushed, _offline, lost, _late, rejected = map(int, row.groups())
             assert sent > 0 and received > 0, row.group(0)
             assert lost == 0 and rejected == 0, row.group(0)
         [run_dir] = list(self.logs.iterdir())

@@ -120,10 +120,7 @@ class RmdX(ServoProfile):
     degrees), None disables either; ``comm_timeout_ms`` goes to the servo at start-up (0xB3).
     """
 
-    STOP_BEHAVIOUR = (
-        "holds its last target; with comm_timeout_ms set (0xB3, V4 firmware) it turns its motor "
-        "off that long after the last frame"
-    )
+    STOP_BEHAVIOUR = "holds its last target (no timeout of its own before V4 firmware)"
 
     Options: ClassVar[type[ProfileOptions]] = RmdXOptions
     options: RmdXOptions
@@ -145,6 +142,18 @@ class RmdX(ServoProfile):
         self.multi_turn_poll_every = self.options.multi_turn_poll_every
         self.polls = 0
         """Telemetry polls sent so far (:meth:`poll_sent`); drives the 9A / 92 interleaving."""
+
+    def stop_behaviour(self) -> str:
+        """With ``comm_timeout_ms`` (written at start-up, 0xB3) its value: a stop line that
+        names the setting but not its value left the crew to look it up (issue 37). Not a
+        :class:`~mavservo.servos.base.CommTimeout`: firmware before V4 ignores 0xB3."""
+        timeout_ms = self.options.comm_timeout_ms
+        if not timeout_ms:
+            return self.STOP_BEHAVIOUR
+        return (
+            f"holds its last target; motor off {timeout_ms / 1000:g} s after the last frame "
+            "(comm_timeout_ms; firmware before V4 holds on)"
+        )
 
     @property
     def request_id(self) -> int:

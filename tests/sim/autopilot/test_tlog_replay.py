@@ -28,6 +28,7 @@ from mavservo.sim.autopilot.replay import (
 from mavservo.sim.autopilot.sitl_command import main
 from tests.support.autopilot import collect, of_type, peer
 from tests.support.paths import REPO, TEST_DATA
+from tests.support.signals import default_signal_dispositions
 from tests.support.waiting import free_udp_port
 
 DATA = TEST_DATA
@@ -280,6 +281,7 @@ def test_cli_exits_zero_on_sigint(command: list[str]) -> None:
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        preexec_fn=default_signal_dispositions,  # SIGINT is ignored in a background job
     )
     try:
         banner = proc.stdout.readline()  # printed once the signal handlers are in place
@@ -320,6 +322,7 @@ def test_cli_stream_scripted_and_on_demand_dropouts() -> None:
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        preexec_fn=default_signal_dispositions,  # SIGINT is ignored in a background job
     )
     try:
         assert proc.stdout.readline().startswith("sitl: streaming")
