@@ -42,6 +42,7 @@ from mavservo.mavlink.ftp import UNBUDGETED_BYTES_S
 from mavservo.mavlink.gimbal_discovery import GimbalDiscoveryWatch
 from mavservo.mavlink.metadata_service import MetadataService
 from mavservo.mavlink.mirror import Mirror
+from mavservo.mavlink.origin import Requester, describe, from_pinned, origin_of, requester_of
 from mavservo.mavlink.params import (
     SERVICE_TYPES,
     ParameterOwner,
@@ -69,6 +70,8 @@ MAV_AUTOPILOT_INVALID = 8
 MAV_STATE_ACTIVE = 4
 MAV_STATE_CRITICAL = 5
 HEARTBEAT_PERIOD_S = 1.0
+#: At most one STATUSTEXT per this many seconds per identity claimed from a second address.
+CLAIM_NOTICE_S = 10.0
 COMMAND_TYPES = ("COMMAND_LONG", "COMMAND_INT")
 PARAM_LIST = "PARAM_REQUEST_LIST"
 MIRROR_TYPES = ("SERVO_OUTPUT_RAW", "ACTUATOR_OUTPUT_STATUS")
@@ -121,6 +124,7 @@ class MavlinkCore:
         self._next_heartbeat = {cid: boot_time for cid in self.components}
         self.counters: Counter[str] = Counter()
         self._problem_log = RateLimitedLog(REFUSAL_LOG_INTERVAL_S)
+        self._claim_notice = RateLimitedLog(CLAIM_NOTICE_S)
         #: what of the periodic telemetry also goes on the autopilot link (monitors get all)
         self.budget = LinkBudget(self._plan(settings.telemetry))
         self._gimbal_hz = settings.telemetry.gimbal_attitude_status_hz
@@ -166,6 +170,8 @@ class MavlinkCore:
         if source[0] == self._system_id and source[1] in self.components:
             return []  # our own traffic echoed back by a router
         self.counters["received"] += 1
+        if self._claimed_elsewhere(msg, source, now):
+            return []
         if source == self.watched:
             for text in self.discovery.on_autopilot_message(msg, now):
                 log.info("%s", text)
@@ -199,7 +205,7 @@ class MavlinkCore:
             answers = self.parameters.handle(msg, self._system_id, source, now)
             # a list asked again replaces what is still queued of it (per component)
             tag = ("list", getattr(msg, "target_component", 0)) if kind == PARAM_LIST else None
-            self.answers.put(source, answers, now, tag)
+            self.answers.put(requester_of(msg), answers, now, tag)
             return []
         self._to_gimbals(msg, now)
         return []
@@ -212,7 +218,7 @@ class MavlinkCore:
             return
         if msg.target_system not in (0, self._system_id) or msg.target_component == 0:
             return
-        self.metadata.handle(msg, msg.target_component, source, now)
+        self.metadata.handle(msg, msg.target_component, requester_of(msg), now)
 
     def answers_due(self, now: float) -> list[Answer]:
         """Answers to requests that may go now: each to its requester only, paced per
@@ -226,7 +232,7 @@ class MavlinkCore:
         answers = self.answers.due(now, lambda cid, msg: self.budget.admit_answer(cid, msg, now))
         return responses + answers
 
-    def queue_responses(self, source: tuple[int, int], out: list[Outgoing], now: float) -> None:
+    def queue_responses(self, source: Requester, out: list[Outgoing], now: float) -> None:
         """Responses to a command from an unverified sender (its ACK, the messages it asked
         for): to that sender only, in turn with the other requesters, not ahead of everyone.
 
@@ -315,6 +321,29 @@ class MavlinkCore:
         yield_to = source == self.watched or source[1] < self.settings.servo_component_id
         self.telemetry.heard_esc(source, group, yield_to=yield_to)
 
+    def _claimed_elsewhere(self, msg: Any, source: tuple[int, int], now: float) -> bool:
+        """True for an unsigned frame claiming a privileged identity (the watched autopilot,
+        an allowed source) from another address or connection than the one it is pinned to
+        (the link tags it, :mod:`.origin`): refused whole, counted (``claims_refused``), said
+        in a STATUSTEXT naming that address at most every :data:`CLAIM_NOTICE_S` per identity.
+
+        Why (issue 40): on an unsigned link a stranger claiming 255/190 from another address
+        set SRV1_TRIM (2 of 2 applied) and its set flood took the station's set budget; its
+        spoofed autopilot HEARTBEATs kept the bridge out of failsafe while the real autopilot
+        was cut off. Only signing authenticates; this keeps a claim to the place it was
+        first heard from (until that place falls silent: ``link.PIN_REBIND_S``)."""
+        if from_pinned(msg) or getattr(msg, "_signed", False):
+            return False
+        self.counters["claims_refused"] += 1
+        name = f"{source[0]}/{source[1]}"
+        if self._claim_notice.quiet_since_last(name, now) is not None:
+            self.telemetry.announce(
+                MAV_SEVERITY_WARNING,
+                f"servo bridge: {name} claimed from {describe(origin_of(msg))}, not its "
+                "pinned address: refused (unsigned link)",
+            )
+        return True
+
     def _source_allowed(self, source: tuple[int, int]) -> bool:
         allowed = self.settings.allowed_sources
         return not allowed or source in allowed
@@ -396,8 +425,7 @@ class MavlinkCore:
         within the answers' share of the budget). Why (review3): sent with the tick's output
         they went to every peer: a stranger's burst read of the parameter metadata reached the
         other ground stations and the autopilot's port, 251-byte frames each."""
-        for component_id, reply in self.metadata.periodic(now):
-            requester = (reply.target_system, reply.target_component)
+        for requester, component_id, reply in self.metadata.replies(now):
             self.answers.put(requester, [(component_id, reply)], now)
 
     def _stream_requests(self, now: float) -> list[Any]:
