@@ -27,6 +27,13 @@ several clients, each framed on its own, answered once verified (pymavlink's ser
 A frame claiming one of the link's own hosted identities is never a peer's: dropped and counted
 (``own_identity``) before it can admit an address or reach the core.
 
+Every frame a server hands on is tagged with its origin (UDP address, TCP client) and whether
+that origin holds the pin of the privileged identity it claims (:mod:`.origin`): answers go
+back to the origin of their request, and the core refuses a privileged identity's unsigned
+frames from anywhere else (issue 40). A UDP server reads what waits in its socket before it
+handles any of it, the pinned addresses' datagrams first, so a stranger's backlog never holds
+the autopilot's HEARTBEAT (:data:`UDP_DRAIN_PER_PASS`).
+
 A handler that raises is counted per kind (message type and exception) and logged once per
 kind with its traceback, then summarised at most every ``HANDLER_ERROR_SUMMARY_S``.
 

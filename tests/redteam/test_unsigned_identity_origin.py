@@ -11,22 +11,28 @@ behind a stranger's backlog in the one UDP socket (a false failsafe).
 
 from __future__ import annotations
 
+import io
 import logging
 import socket
+import tempfile
 import threading
 import time
 from collections import Counter
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mavservo.app.bridge import Bridge
+from mavservo.app.check import check_main
 from mavservo.config.loader import load_config_text
+from mavservo.mavlink import link as link_module
 from mavservo.mavlink.framing import FrameScanner
-from mavservo.mavlink.link import TcpServer
+from mavservo.mavlink.link import TcpServer, UdpServer
+from mavservo.mavlink.params import WritePolicy
 from tests.redteam.test_session_squatting import _drain
 from tests.redteam.test_tcp_server import Station, TcpRig, connect, free_tcp_port
 from tests.support.waiting import free_udp_port, wait_until
@@ -316,3 +322,95 @@ def test_a_backlog_of_10000_stranger_datagrams_ahead_of_a_heartbeat_is_no_autopi
         assert stats["link"]["udp_kernel_drops"] == 0, stats["link"]
         assert stats["failsafe_count"] == 0, stats["link"]
         assert stats["link"]["udp_shed"] > 0  # the stranger's backlog beyond the bound, said
+
+
+def test_the_udp_server_handles_pinned_datagrams_first_keeps_each_senders_order_and_sheds(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Real sockets, the server driven by hand: what waits in the socket is read first, the
+    pinned address's datagrams come out ahead of a stranger's backlog, a stranger's own
+    datagrams keep their order, and beyond the bound the oldest waiting are shed (counted)."""
+    monkeypatch.setattr(link_module, "UDP_MAX_DEFERRED", 50)
+    server = UdpServer("127.0.0.1", 0)
+    autopilot, stranger = Peer(server.address[1], AUTOPILOT), Peer(server.address[1], (2, 1))
+    try:
+        pinned_at = autopilot.sock.getsockname()
+        assert server.admit(pinned_at, 0.0, {AUTOPILOT})
+        for n in range(80):
+            stranger.sock.sendto(n.to_bytes(2, "big"), stranger.target)
+        autopilot.sock.sendto(b"hb", autopilot.target)
+        assert wait_until(lambda: server.select(0.05))
+        time.sleep(0.1)  # all 81 in the socket
+        server.drain(0.0)
+        batch = server.next_batch(others=10)
+        assert batch[0] == (b"hb", pinned_at)
+        rest = [int.from_bytes(d, "big") for d, _ in batch[1:]]
+        for _ in range(10):  # bounded: the rest of the backlog, 10 a pass
+            rest += [int.from_bytes(d, "big") for d, _ in server.next_batch(others=10)]
+        assert rest == list(range(30, 80))  # in order; the 30 oldest shed
+        assert server.shed == 30
+    finally:
+        autopilot.close()
+        stranger.close()
+        server.close()
+
+
+def test_check_recommends_signing_wherever_writes_are_allowed() -> None:
+    listed = WritePolicy(frozenset({GCS}))
+    assert listed.signing_advice(signing=True) == []
+    (line,) = listed.signing_advice(signing=False)
+    assert "mavlink.signing" in line and "255/190" in line and "parameter sets" in line
+    (line,) = WritePolicy().signing_advice(signing=False)  # commands from anyone, no sets
+    assert "commands from anyone" in line and "parameter" not in line
+    out, err = io.StringIO(), io.StringIO()
+    port = free_udp_port()
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "rig.yaml"
+        path.write_text(_config(port))
+        assert check_main([str(path)], out, err) == 0, err.getvalue()
+    assert "recommended: mavlink.signing" in out.getvalue()
+
+
+# ------------------------------------------------------------------ sessions
+
+
+def test_ftp_sessions_and_answers_belong_to_the_ids_and_the_origin() -> None:
+    """Two origins claiming 255/190 (its ids are not privileged here, so both are served):
+    one's ResetSessions does not end the other's session, and each one's replies are
+    answers to its own origin. Keyed by the ids alone (02b724c), the reset ended both."""
+    from mavservo.mavlink import ftp
+    from mavservo.mavlink.mavlink_core import MavlinkCore
+    from mavservo.mavlink.origin import Requester, tag
+    from mavservo.mavlink.settings import MavlinkSettings
+    from tests.support.mavlink_doubles import RecordingBackend, wire
+
+    core = MavlinkCore(
+        MavlinkSettings(system_id=1, link_budget_bytes_s=None),
+        RecordingBackend(),
+        boot_time=0.0,
+        metadata_files={140: {"general.json": b"{}"}},
+    )
+    station, stranger = ("127.0.0.1", 14550), (STRANGER_HOST, 14550)
+
+    def send(origin: tuple[str, int], opcode: int, session: int = 0, data: bytes = b"") -> None:
+        header = ftp.HEADER.pack(1, session, opcode, len(data), 0, 0, 0, 0)
+        payload = list((header + data).ljust(ftp.PAYLOAD_BYTES, b"\x00"))
+        msg = wire(mavlink2.MAVLink_file_transfer_protocol_message(0, 1, 140, payload), GCS)
+        tag(msg, origin, True)
+        core.on_message(msg, 0.0)
+
+    def replies(now: float) -> list[tuple[Any, int, int]]:
+        core.tick(now)
+        return [
+            (a.to, bytes(a.msg.payload)[3], bytes(a.msg.payload)[2])  # to, opcode, session
+            for a in core.answers_due(now)
+            if a.msg.get_type() == "FILE_TRANSFER_PROTOCOL"
+        ]
+
+    send(station, ftp.OP_OPEN_FILE_RO, data=b"general.json")
+    ((to, opcode, session),) = replies(0.01)
+    assert (to, opcode) == (Requester(*GCS, station), ftp.OP_ACK)
+    send(stranger, ftp.OP_RESET_SESSIONS)
+    assert [r[:2] for r in replies(0.02)] == [(Requester(*GCS, stranger), ftp.OP_ACK)]
+    send(station, ftp.OP_READ_FILE, session=session)
+    assert [r[:2] for r in replies(0.03)] == [(Requester(*GCS, station), ftp.OP_ACK)]
