@@ -15,8 +15,9 @@ interpreters, so neither shares the bridge's GIL):
   SET_MESSAGE_INTERVAL (at the configured rates, so accepted or refused, never a stop), to
   1/140 and 1/154 in turn, each from the next of 250 spoofed system ids.
 
-Each run is first ``--baseline`` seconds without the flooder (the same session's baseline),
-then ``--seconds`` with it. Reported per phase and run, and the medians over runs:
+Each run: one bridge and one autopilot throughout, first ``--baseline`` seconds without the
+flooder (the same session's baseline), then ``--seconds`` with it (its first second, the
+flooder's start, left out). Reported per phase and run, and the medians over runs:
 
 * ``false_failsafes``: the bridge's failsafe count (the autopilot never stopped);
 * ``hb_age_p99_ms`` / ``hb_age_max_ms``: the age of the autopilot's last HEARTBEAT as the
@@ -39,6 +40,7 @@ import bisect
 import contextlib
 import json
 import os
+import signal
 import socket
 import statistics
 import subprocess
@@ -60,6 +62,8 @@ REQUESTED = (285, 375, 11030, 0, 397, 148)
 #: (message id, interval in us) at the configured rates: accepted, or refused for rate
 INTERVALS = ((285, 100_000), (375, 100_000), (11030, 250_000))
 GIMBAL_STATUS = "GIMBAL_DEVICE_ATTITUDE_STATUS"
+#: what the flooder sends: "both" (the issue's flood), "request" or "interval" only
+KINDS = os.environ.get("FLOOD_KINDS", "both")
 
 
 def free_udp_port() -> int:
@@ -96,7 +100,8 @@ def config_text(port: int) -> str:
 
 
 def autopilot(port: int, seconds: float) -> None:
-    """HEARTBEAT 1 Hz + SERVO_OUTPUT_RAW 20 Hz; records what arrives (time, bytes, type)."""
+    """HEARTBEAT 1 Hz + SERVO_OUTPUT_RAW 20 Hz until SIGTERM (or ``seconds``); records what
+    arrives (monotonic time, bytes, type) and prints it at the end."""
     from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -109,7 +114,9 @@ def autopilot(port: int, seconds: float) -> None:
     start = time.monotonic()
     next_beat = next_servo = start
     received: list[tuple[float, int, str]] = []
-    while (now := time.monotonic()) < start + seconds:
+    stopping: list[int] = []  # SIGTERM: stop, and print what arrived
+    signal.signal(signal.SIGTERM, lambda *_: stopping.append(1))
+    while (now := time.monotonic()) < start + seconds and not stopping:
         if now >= next_beat:
             sock.sendto(encoder.heartbeat_encode(1, 3, 81, 0, 4).pack(encoder), target)
             next_beat += 1.0
@@ -122,7 +129,7 @@ def autopilot(port: int, seconds: float) -> None:
             data = sock.recv(65535)
         except TimeoutError:
             continue
-        t = time.monotonic() - start
+        t = time.monotonic()  # the system-wide monotonic clock: the parent's too
         for msg in decoder.parse_buffer(data) or []:
             received.append((t, len(msg.get_msgbuf()), msg.get_type()))
     print(json.dumps(received))
@@ -143,7 +150,7 @@ def flooder(port: int, rate: float, seconds: float) -> None:
         while sent < due:
             encoder.srcSystem = 2 + sent % SPOOFED_IDS
             component = 140 if (sent // 2) % 2 else 154
-            if sent % 2:
+            if KINDS == "interval" or (KINDS == "both" and sent % 2):
                 msg_id, interval = INTERVALS[(sent // 2) % len(INTERVALS)]
                 msg = encoder.command_long_encode(
                     1, component, SET_MESSAGE_INTERVAL, 0, msg_id, interval, 0, 0, 0, 0, 0
@@ -177,12 +184,12 @@ def busiest_window(received: list[tuple[float, int, str]]) -> int:
     return best
 
 
-def gimbal_rates(received: list[tuple[float, int, str]], seconds: float) -> list[int]:
-    """GIMBAL_DEVICE_ATTITUDE_STATUS per whole second (the first and last second left out)."""
+def gimbal_rates(received: list[tuple[float, int, str]], start: float, end: float) -> list[int]:
+    """GIMBAL_DEVICE_ATTITUDE_STATUS per whole second from ``start`` to ``end``."""
     times = sorted(t for t, _, kind in received if kind == GIMBAL_STATUS)
     return [
-        bisect.bisect_left(times, s + 1.0) - bisect.bisect_left(times, float(s))
-        for s in range(1, int(seconds) - 1)
+        bisect.bisect_left(times, start + s + 1.0) - bisect.bisect_left(times, start + s)
+        for s in range(int(end - start))
     ]
 
 
@@ -191,74 +198,88 @@ def percentile(values: list[float], q: float) -> float:
     return ordered[min(len(ordered) - 1, int(q * len(ordered)))] if ordered else float("nan")
 
 
-def phase(bridge: Any, port: int, seconds: float, rate: float) -> dict[str, Any]:
-    """One phase: the autopilot child for ``seconds``, the flooder too when ``rate``."""
+def figures(
+    received: list[tuple[float, int, str]],
+    ages: list[tuple[float, float]],
+    start: float,
+    end: float,
+) -> dict[str, Any]:
+    """The figures of one phase, ``start`` to ``end`` (monotonic seconds)."""
+    inside = [r for r in received if start <= r[0] < end]
+    phase_ages = [age for t, age in ages if start <= t < end]
+    rates = gimbal_rates(received, start, end)
+    return {
+        "hb_age_p99_ms": round(percentile(phase_ages, 0.99) * 1e3, 1),
+        "hb_age_max_ms": round(max(phase_ages) * 1e3, 1) if phase_ages else None,
+        "gimbal_status_hz_min": min(rates) if rates else 0,
+        "gimbal_status_hz_mean": round(statistics.fmean(rates), 2) if rates else 0,
+        "busiest_window_bytes": busiest_window(inside),
+    }
+
+
+def run_once(seconds: float, baseline: float, rate: float) -> dict[str, Any]:
+    """One bridge, one autopilot for the whole run; the flooder after ``baseline`` seconds."""
+    from mavservo.app.bridge import Bridge
+    from mavservo.config.loader import load_config_text
+
+    port = free_udp_port()
+    bridge = Bridge(load_config_text(config_text(port)), log_dir=False).start()
     side = bridge.mavlink
-    failsafes0 = side.stats()["failsafe_count"]
-    children = [
-        subprocess.Popen(
-            [sys.executable, __file__, "--autopilot", str(port), str(seconds)],
-            stdout=subprocess.PIPE,
-            text=True,
-        )
-    ]
-    if rate:
-        children.append(
-            subprocess.Popen(
-                [sys.executable, __file__, "--flooder", str(port), str(rate), str(seconds)],
-                stdout=subprocess.PIPE,
-                text=True,
-            )
-        )
-    ages: list[float] = []
+    ages: list[tuple[float, float]] = []
     stop = threading.Event()
 
     def sample() -> None:
         while not stop.wait(0.01):
             last = side.core.watchdog.last_heartbeat
             if last is not None:
-                ages.append(time.monotonic() - last)
+                now = time.monotonic()
+                ages.append((now, now - last))
 
     sampler = threading.Thread(target=sample, daemon=True)
-    time.sleep(1.5)  # the autopilot's first heartbeat armed the watchdog
-    sampler.start()
-    outputs = [child.communicate(timeout=seconds + 60)[0] for child in children]
-    stop.set()
-    sampler.join(1.0)
-    received = json.loads(outputs[0].strip().splitlines()[-1])
-    stats = side.stats()
-    rates = gimbal_rates(received, seconds)
-    out = {
-        "false_failsafes": stats["failsafe_count"] - failsafes0,
-        "hb_age_p99_ms": round(percentile(ages, 0.99) * 1e3, 1),
-        "hb_age_max_ms": round(max(ages) * 1e3, 1) if ages else None,
-        "gimbal_status_hz_min": min(rates) if rates else 0,
-        "gimbal_status_hz_mean": round(statistics.fmean(rates), 2) if rates else 0,
-        "busiest_window_bytes": busiest_window(received),
-        "link_budget_bytes_s": stats["link_budget"]["budget_bytes_s"],
-        "udp_shed": stats["link"].get("udp_shed"),
-        "udp_kernel_drops": stats["link"].get("udp_kernel_drops"),
-    }
-    if rate:
-        flood = json.loads(outputs[1].strip().splitlines()[-1])
-        out["flood_sent_per_s"] = round(flood["sent"] / flood["seconds"], 1)
-    return out
-
-
-def run_once(seconds: float, baseline: float, rate: float) -> dict[str, Any]:
-    from mavservo.app.bridge import Bridge
-    from mavservo.config.loader import load_config_text
-
-    port = free_udp_port()
-    bridge = Bridge(load_config_text(config_text(port)), log_dir=False).start()
+    total = baseline + seconds + 2.0
     try:
         time.sleep(1.0)  # servos online
-        quiet = phase(bridge, port, baseline, 0.0)
-        time.sleep(2.5)  # the bridge idle between phases: it must stay out of failsafe
-        flood = phase(bridge, port, seconds, rate)
+        pilot = subprocess.Popen(
+            [sys.executable, __file__, "--autopilot", str(port), str(total + 30.0)],
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        for _ in range(3000):  # bounded: the autopilot's first heartbeat (its start is slow)
+            if side.core.watchdog.last_heartbeat is not None:
+                break
+            time.sleep(0.01)
+        failsafes0 = side.stats()["failsafe_count"]
+        sampler.start()
+        quiet_start = time.monotonic()
+        time.sleep(baseline)
+        flood_start = time.monotonic()
+        flood = subprocess.run(
+            [sys.executable, __file__, "--flooder", str(port), str(rate), str(seconds)],
+            capture_output=True,
+            text=True,
+            timeout=seconds + 60,
+            check=True,
+        )
+        flood_end = time.monotonic()
+        stats = side.stats()
+        pilot.terminate()
+        output = pilot.communicate(timeout=30)[0]
     finally:
+        stop.set()
         bridge.stop()
-    return {"baseline": quiet, "flood": flood}
+    received = json.loads(output.strip().splitlines()[-1]) if output.strip() else []
+    sent = json.loads(flood.stdout.strip().splitlines()[-1])
+    return {
+        "baseline": figures(received, ages, quiet_start, flood_start),
+        "flood": {
+            **figures(received, ages, flood_start + 1.0, flood_end),  # flooder's own start
+            "false_failsafes": stats["failsafe_count"] - failsafes0,
+            "flood_sent_per_s": round(sent["sent"] / sent["seconds"], 1),
+            "udp_shed": stats["link"].get("udp_shed"),
+            "udp_kernel_drops": stats["link"].get("udp_kernel_drops"),
+            "link_budget_bytes_s": stats["link_budget"]["budget_bytes_s"],
+        },
+    }
 
 
 def main() -> None:

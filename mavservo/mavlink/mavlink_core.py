@@ -258,8 +258,11 @@ class MavlinkCore:
         if refusal is not None:
             self.counters["interval_refused"] += 1
             return refusal
+        before = self.telemetry.rates_hz()
         accepted = self.telemetry.set_interval(msg_id, interval_us, self._now)
-        if accepted:
+        if accepted and self.telemetry.rates_hz() != before:
+            # only a change re-plans (issue 40: 250 spoofed ids repeating the configured
+            # rates re-planned 167 times a second and the gimbal status fell to 4 Hz)
             self.replan(self._now)
         return accepted
 

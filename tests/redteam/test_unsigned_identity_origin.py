@@ -414,3 +414,28 @@ def test_ftp_sessions_and_answers_belong_to_the_ids_and_the_origin() -> None:
     assert [r[:2] for r in replies(0.02)] == [(Requester(*GCS, stranger), ftp.OP_ACK)]
     send(station, ftp.OP_READ_FILE, session=session)
     assert [r[:2] for r in replies(0.03)] == [(Requester(*GCS, station), ftp.OP_ACK)]
+
+
+def test_set_message_interval_at_the_rate_in_force_does_not_replan_the_link_budget() -> None:
+    """The flood's SET_MESSAGE_INTERVALs repeat the configured rates: on 02b724c each accepted
+    one re-planned the budget (1,334 re-plans in 8 s) and the gimbal status fell to about
+    4 Hz on the autopilot link (bench/bench_unsigned_flood.py); only a change re-plans now."""
+    from mavservo.mavlink.mavlink_core import MavlinkCore
+    from mavservo.mavlink.settings import MavlinkSettings
+    from tests.support.mavlink_doubles import RecordingBackend, wire
+
+    settings = MavlinkSettings(system_id=1, link_budget_bytes_s=1000.0)
+    core = MavlinkCore(settings, RecordingBackend(), boot_time=0.0)
+    configured = 1e6 / core.settings.telemetry.actuator_output_status_hz
+    replans = core.budget.counters["replans"]
+    for n in range(50):  # 50 spoofed ids repeating the rate in force
+        msg = mavlink2.MAVLink_command_long_message(
+            1, 140, SET_MESSAGE_INTERVAL, 0, 375, configured, 0, 0, 0, 0, 0
+        )
+        core.on_message(wire(msg, (2 + n, 190)), 0.01 * n)
+    assert core.budget.counters["replans"] == replans
+    slower = mavlink2.MAVLink_command_long_message(
+        1, 140, SET_MESSAGE_INTERVAL, 0, 375, 2 * configured, 0, 0, 0, 0, 0
+    )
+    core.on_message(wire(slower, GCS), 1.0)
+    assert core.budget.counters["replans"] == replans + 1
