@@ -262,7 +262,7 @@ class UdpServer:
         self._others_bytes = 0
         self._waiting: Counter[tuple[str, int]] = Counter()
         self.shed = 0
-        self._shed_logged_at: float | None = None
+        self._shed_log = RateLimitedLog(UDP_DROP_LOG_INTERVAL_S)
         self._shed_logged = 0
         #: (identity, its pinned address, the other address claiming it), since last taken
         self._claims: list[tuple[Hashable, tuple[str, int], tuple[str, int]]] = []
@@ -308,28 +308,31 @@ class UdpServer:
         readable, _, _ = select.select([self._sock], [], [], timeout)
         return bool(readable)
 
-    def drain(self, now: float, limit: int = UDP_DRAIN_PER_PASS) -> None:
+    def drain(self, now: float, limit: int = UDP_DRAIN_PER_PASS) -> bool:
         """Read what waits in the socket (at most ``limit`` datagrams): a pinned address's
-        datagrams to the front line, the others' behind (bounded, see :meth:`_defer`)."""
+        datagrams to the front line, the others' behind (bounded, see :meth:`_defer`).
+        True when the socket is empty (everything that came before the call was read)."""
         pinned = set(self._pins.values())
         for _ in range(limit):
             received = self.recv_from()
             if received is None:
-                return
+                return True
             sender = received[1]
             if sender in pinned and not self._waiting[sender]:
                 self._pinned_queue.append(received)
             else:
                 self._defer(received, now)
+        return False
 
     def _defer(self, received: tuple[bytes, tuple[str, int]], now: float) -> None:
         self._others.append(received)
         self._others_bytes += len(received[0])
         self._waiting[received[1]] += 1
+        shed = self.shed
         while len(self._others) > UDP_MAX_DEFERRED or self._others_bytes > UDP_MAX_DEFERRED_BYTES:
             self._take_other()
             self.shed += 1
-        if self.shed != self._shed_logged:
+        if self.shed != shed:
             self._warn_shed(now)
 
     def _take_other(self) -> tuple[bytes, tuple[str, int]]:
@@ -341,8 +344,8 @@ class UdpServer:
         return data, sender
 
     def _warn_shed(self, now: float) -> None:
-        last = self._shed_logged_at
-        if last is not None and now - last < UDP_DROP_LOG_INTERVAL_S:
+        """One warning per ``UDP_DROP_LOG_INTERVAL_S`` at most, with the datagrams shed since."""
+        if self._shed_log.quiet_since_last("shed", now) is None:
             return
         log.warning(
             "MAVLink UDP %s:%d: %d datagrams from unpinned addresses shed (more than %d "
@@ -353,7 +356,6 @@ class UdpServer:
             UDP_MAX_DEFERRED,
             self.shed,
         )
-        self._shed_logged_at = now
         self._shed_logged = self.shed
 
     def next_batch(self, others: int = UDP_OTHERS_PER_PASS) -> list[tuple[bytes, tuple[str, int]]]:
@@ -914,8 +916,17 @@ class MavlinkLink:
         #: address is pinned in the UDP peer table, its TCP client holds a reserved slot
         self.privileged: Callable[[tuple[int, int]], bool] = lambda source: False
         self._claim_log = RateLimitedLog(CLAIM_LOG_INTERVAL_S)
+        self._read_until: float | None = None
+        self._read_mark: float | None = None
         #: where the frame being written goes (None: every peer); set under the write lock
         self._destination: Any = None
+
+    @property
+    def read_until(self) -> float | None:
+        """The time up to which everything received was read and handed on (None: no limit:
+        not read yet, or the endpoint is closed and nothing can wait in it): the failsafe
+        waits for it to pass its deadline (``HeartbeatWatchdog.check``)."""
+        return None if self._conn is None else self._read_until
 
     # ------------------------------------------------------------------ set-up
 
@@ -1088,6 +1099,8 @@ class MavlinkLink:
                 self._on_event("MAVLink link lost")
                 continue
             self._feed(messages)
+            if self._read_mark is not None:  # handed on: the reader is caught up to there
+                self._read_until, self._read_mark = self._read_mark, None
 
     def _reopen_failed(self, exc: BaseException) -> None:
         """A reopen that keeps failing is a warning naming the endpoint and the error: at the
@@ -1106,9 +1119,14 @@ class MavlinkLink:
 
     def _receive(self, conn: Any) -> list[Any]:
         """The verified messages of one datagram, or those completed by the next bytes of a
-        stream; empty when nothing came within ``POLL_S``."""
+        stream; empty when nothing came within ``POLL_S``. Marks how far the reader is
+        (:attr:`read_until`, once the messages are handed on)."""
+        mark = self._clock()
         if not conn.select(POLL_S):
+            self._read_mark = mark  # nothing was waiting
             return []
+        if not isinstance(conn, UdpServer):
+            self._read_mark = mark  # a stream, a client's socket: read as it comes
         if isinstance(conn, UdpServer):
             return self._receive_udp_server(conn)
         if isinstance(conn, TcpServer):
@@ -1124,7 +1142,8 @@ class MavlinkLink:
         :data:`UDP_DRAIN_PER_PASS`), each message tagged with its sender's address."""
         now = self._clock()
         conn.tick(now)
-        conn.drain(now)
+        if conn.drain(now):  # the socket emptied: what came before ``now`` is read
+            self._read_mark = now
         messages: list[Any] = []
         for datagram, sender in conn.next_batch():
             verified = self._not_our_own(self._scanner.datagram(datagram))

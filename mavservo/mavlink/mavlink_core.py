@@ -388,11 +388,13 @@ class MavlinkCore:
 
     # ------------------------------------------------------------------ time
 
-    def tick(self, now: float) -> list[Outgoing]:
-        """Everything due at ``now``: failsafe, repeats, heartbeats, telemetry, gimbal status."""
+    def tick(self, now: float, read_until: float | None = None) -> list[Outgoing]:
+        """Everything due at ``now``: failsafe, repeats, heartbeats, telemetry, gimbal status
+        (``read_until``: how far the link has read, for the failsafe: see
+        :meth:`~.failsafe.HeartbeatWatchdog.check`)."""
         self._now = now
         out: list[Outgoing] = []
-        if self.watchdog.check(now) is FailsafeEvent.LOST:
+        if self.watchdog.check(now, read_until) is FailsafeEvent.LOST:
             self.counters["failsafe_entered"] += 1
             self.commands.cancel_all()
             self.backend.enter_failsafe("autopilot heartbeat lost", now)
@@ -477,6 +479,7 @@ class MavlinkCore:
             "answers": dict(self.answers.counters),
             "responses": dict(self.responses.counters),
             "failsafe_count": self.watchdog.failsafe_count,
+            "failsafe_deferred": self.watchdog.deferred,
             "in_failsafe": self.watchdog.in_failsafe,
             "gimbals": self._gimbal_counters(),
             "stream": self.streams.stats(),

@@ -154,7 +154,7 @@ class MavlinkSide:
             try:
                 with self._send_order:
                     with self._lock:
-                        out = self.core.tick(now)
+                        out = self.core.tick(now, self.link.read_until)
                         answers = self.core.answers_due(now)
                     self._send(out)
                     self._send_answers(answers)
