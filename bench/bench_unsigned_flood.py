@@ -1,6 +1,7 @@
 """A command flood from 250 spoofed ids while the autopilot keeps sending (issue 40), by hand.
 
     PYTHONPATH=. python bench/bench_unsigned_flood.py --seconds 60 --runs 3
+    PYTHONPATH=. python bench/bench_unsigned_flood.py --backlog --runs 3   # as root
     cd /tmp && PYTHONPATH=/path/to/old/checkout python /path/to/bench/bench_unsigned_flood.py ...
 
 The bridge runs in this process on an unsigned ``udpin`` link (servo component 140 and a
@@ -282,6 +283,64 @@ def run_once(seconds: float, baseline: float, rate: float) -> dict[str, Any]:
     }
 
 
+def backlog_once(datagrams: int = 10_000, frames: int = 4) -> dict[str, Any]:
+    """``datagrams`` stranger datagrams (``frames`` commands each, 250 spoofed ids, anyone
+    may command) queued in the socket while the MAVLink side is held, then the autopilot's
+    HEARTBEAT: how long after the release the heartbeat is handled. Needs SO_RCVBUFFORCE
+    (root) for a socket buffer that holds them all."""
+    from pymavlink.dialects.v20 import ardupilotmega as mavlink2
+
+    from mavservo.app.bridge import Bridge
+    from mavservo.config.loader import load_config_text
+
+    port = free_udp_port()
+    bridge = Bridge(load_config_text(config_text(port)), log_dir=False).start()
+    side = bridge.mavlink
+    pilot = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    stranger = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    stranger.bind((STRANGER_HOST, 0))
+    try:
+        force = getattr(socket, "SO_RCVBUFFORCE", 33)
+        side.link._conn._sock.setsockopt(socket.SOL_SOCKET, force, 64 << 20)  # noqa: SLF001
+        ap = mavlink2.MAVLink(None, srcSystem=1, srcComponent=1)
+        spoof = mavlink2.MAVLink(None, srcSystem=2, srcComponent=190)
+        target = ("127.0.0.1", port)
+        pilot.sendto(ap.heartbeat_encode(1, 3, 81, 0, 4).pack(ap), target)
+        for _ in range(500):  # bounded: the first heartbeat armed the watchdog
+            if side.core.watchdog.last_heartbeat is not None:
+                break
+            time.sleep(0.01)
+        with side._lock:  # noqa: SLF001 - both MAVLink threads wait: an exact backlog
+            for n in range(datagrams):
+                data = b""
+                for k in range(frames):
+                    spoof.srcSystem = 2 + (n * frames + k) % SPOOFED_IDS
+                    command = SET_MESSAGE_INTERVAL if k % 2 else REQUEST_MESSAGE
+                    msg = spoof.command_long_encode(1, 140, command, 0, 375, 1e5, 0, 0, 0, 0, 0)
+                    data += msg.pack(spoof)
+                stranger.sendto(data, target)
+            pilot.sendto(ap.heartbeat_encode(1, 3, 81, 0, 4).pack(ap), target)
+            before = side.core.watchdog.last_heartbeat
+            released = time.monotonic()
+        handled = None
+        for _ in range(3000):  # bounded: 30 s
+            if side.core.watchdog.last_heartbeat != before:
+                handled = time.monotonic() - released
+                break
+            time.sleep(0.01)
+        time.sleep(0.5)
+        link = side.stats()["link"]
+    finally:
+        pilot.close()
+        stranger.close()
+        bridge.stop()
+    return {
+        "heartbeat_handled_after_s": None if handled is None else round(handled, 3),
+        "udp_shed": link.get("udp_shed"),
+        "udp_kernel_drops": link.get("udp_kernel_drops"),
+    }
+
+
 def main() -> None:
     if len(sys.argv) > 1 and sys.argv[1] == "--autopilot":
         autopilot(int(sys.argv[2]), float(sys.argv[3]))
@@ -297,10 +356,19 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=60.0)
     parser.add_argument("--baseline", type=float, default=10.0)
     parser.add_argument("--runs", type=int, default=3)
+    parser.add_argument(
+        "--backlog",
+        action="store_true",
+        help="10,000 stranger datagrams queued ahead of a heartbeat",
+    )
     args = parser.parse_args()
     import mavservo
 
     print(f"mavservo from {os.path.dirname(mavservo.__file__)}; load {os.getloadavg()}")
+    if args.backlog:
+        for n in range(args.runs):
+            print(f"backlog run {n + 1}: {json.dumps(backlog_once())}", flush=True)
+        return
     runs = []
     for n in range(args.runs):
         result = run_once(args.seconds, args.baseline, args.rate)
