@@ -226,6 +226,7 @@ def telemetry_lines(config: Config) -> list[str]:
     return [
         f"components: servos {config.mavlink.servo_component_id}, gimbals {gimbals}",
         writers.describe(signing=config.mavlink.signing is not None),
+        *writers.signing_advice(signing=config.mavlink.signing is not None),
         f"servo ESC numbers: {esc}" + (moves if telemetry.esc_first_index == "auto" else ""),
         f"NAMED_VALUE_FLOAT names: {prefix}1_pos .. {prefix}{servos}_flt "
         f"(health bits: {prefix}<n>_hlt)",

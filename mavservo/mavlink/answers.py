@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from mavservo.mavlink.commands import Outgoing
+from mavservo.mavlink.origin import Requester
 from mavservo.mavlink.pacing import TokenBucket
 
 #: Answers one requester gets a second at most (a parameter list of 90 in about 2 s).
@@ -34,11 +35,12 @@ MAX_REQUESTERS = 16
 
 @dataclass(frozen=True)
 class Answer:
-    """A message from ``component_id`` for the requester ``to`` (system, component) only."""
+    """A message from ``component_id`` for the requester ``to`` only (its ids and the origin
+    its request came from: :mod:`.origin`)."""
 
     component_id: int
     msg: Any
-    to: tuple[int, int]
+    to: Requester
 
 
 class _Requester:
@@ -51,15 +53,13 @@ class AnswerQueue:
     """Per-requester FIFO queues of answers, served in turn within a budget."""
 
     def __init__(self) -> None:
-        self._requesters: OrderedDict[tuple[int, int], _Requester] = OrderedDict()
+        self._requesters: OrderedDict[Requester, _Requester] = OrderedDict()
         self.counters: Counter[str] = Counter()
 
     def __len__(self) -> int:
         return sum(len(r.queue) for r in self._requesters.values())
 
-    def put(
-        self, to: tuple[int, int], answers: list[Outgoing], now: float, tag: Hashable = None
-    ) -> None:
+    def put(self, to: Requester, answers: list[Outgoing], now: float, tag: Hashable = None) -> None:
         """Queue ``answers`` for ``to``; with ``tag``, what is still queued under the same tag
         for ``to`` is dropped first (a list asked again restarts instead of doubling)."""
         requester = self._requesters.get(to)

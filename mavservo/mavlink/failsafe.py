@@ -35,6 +35,8 @@ class HeartbeatWatchdog:
         self.last_heartbeat: float | None = None
         self.in_failsafe = False
         self.failsafe_count = 0
+        #: checks past the deadline that waited for the reader to catch up
+        self.deferred = 0
 
     def heartbeat(self, now: float) -> FailsafeEvent | None:
         """The autopilot's HEARTBEAT arrived at ``now``; RECOVERED when it ends a failsafe."""
@@ -44,12 +46,24 @@ class HeartbeatWatchdog:
             return FailsafeEvent.RECOVERED
         return None
 
-    def check(self, now: float) -> FailsafeEvent | None:
-        """LOST once when no HEARTBEAT has arrived for ``timeout_s``."""
+    def check(self, now: float, read_until: float | None = None) -> FailsafeEvent | None:
+        """LOST once when no HEARTBEAT has arrived for ``timeout_s``.
+
+        ``read_until``: the time up to which everything the link received has been read and
+        handled (None: now). A heartbeat that arrived before the deadline may still wait
+        unread behind a backlog, or in a process the machine starved: the decision waits
+        until the reader has caught up with the deadline, at most one more ``timeout_s`` (a
+        reader stuck for good still ends in failsafe). Why (issue 40): under a 1,000/s flood
+        on a loaded machine the autopilot's heartbeat, sent on time, was read 2.6 s late and
+        the failsafe ran (throttle to idle) for a healthy autopilot."""
         if self.in_failsafe or self.last_heartbeat is None:
             return None
-        if now - self.last_heartbeat >= self.timeout_s:
-            self.in_failsafe = True
-            self.failsafe_count += 1
-            return FailsafeEvent.LOST
-        return None
+        deadline = self.last_heartbeat + self.timeout_s
+        if now < deadline:
+            return None
+        if read_until is not None and read_until < deadline and now < deadline + self.timeout_s:
+            self.deferred += 1
+            return None
+        self.in_failsafe = True
+        self.failsafe_count += 1
+        return FailsafeEvent.LOST

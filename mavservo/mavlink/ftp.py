@@ -32,6 +32,8 @@ from collections import Counter, deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
+from mavservo.mavlink.origin import Requester
+
 #: The header, as the MAVLink FTP page lays it out.
 HEADER = struct.Struct("<HBBBBBBI")
 HEADER_BYTES = HEADER.size  # 12
@@ -103,7 +105,10 @@ BURST_PACKETS = 16
 #: Without a link budget the server is still paced (a USB link, a monitor output).
 UNBUDGETED_BYTES_S = 20_000.0
 
-Sender = tuple[int, int]
+#: Who owns a session and gets its replies: the claimed (system, component) and the origin
+#: (address, connection) it spoke from (issue 40: keyed by the ids alone, anyone claiming a
+#: station's ids from elsewhere shared its sessions and its reply queue).
+Sender = Requester
 
 
 def crc32(data: bytes) -> int:

@@ -27,6 +27,13 @@ several clients, each framed on its own, answered once verified (pymavlink's ser
 A frame claiming one of the link's own hosted identities is never a peer's: dropped and counted
 (``own_identity``) before it can admit an address or reach the core.
 
+Every frame a server hands on is tagged with its origin (UDP address, TCP client) and whether
+that origin holds the pin of the privileged identity it claims (:mod:`.origin`): answers go
+back to the origin of their request, and the core refuses a privileged identity's unsigned
+frames from anywhere else (issue 40). A UDP server reads what waits in its socket before it
+handles any of it, the pinned addresses' datagrams first, so a stranger's backlog never holds
+the autopilot's HEARTBEAT (:data:`UDP_DRAIN_PER_PASS`).
+
 A handler that raises is counted per kind (message type and exception) and logged once per
 kind with its traceback, then summarised at most every ``HANDLER_ERROR_SUMMARY_S``.
 
@@ -46,7 +53,7 @@ import struct
 import sys
 import threading
 import time
-from collections import Counter, OrderedDict
+from collections import Counter, OrderedDict, deque
 from collections.abc import Callable, Hashable, Iterable, Sequence
 from typing import Any
 
@@ -57,8 +64,9 @@ from mavservo.errors import EndpointBusyError
 from mavservo.mavlink.commands import RateLimitedLog
 from mavservo.mavlink.connection import open_connection
 from mavservo.mavlink.framing import FrameScanner, redact_secrets
+from mavservo.mavlink.origin import Requester, describe, tag
 from mavservo.mavlink.settings import SigningSettings
-from mavservo.mavlink.signing import MAX_SIGNED_STREAMS, LinkSigning
+from mavservo.mavlink.signing import LinkSigning
 from mavservo.threads import BackgroundLoop
 
 log = logging.getLogger(__name__)
@@ -107,6 +115,25 @@ SO_RXQ_OVFL: int | None = getattr(
 )
 #: At most one warning about kernel drops per this many seconds (every drop is counted).
 UDP_DROP_LOG_INTERVAL_S = 10.0
+#: Datagrams a UDP server reads from its socket per pass at most before it handles some: it
+#: reads what is waiting first, so the pinned addresses' datagrams (the autopilot's, the allowed
+#: sources') are handled ahead of a stranger's backlog (issue 40: a 1,000/s flood from 250
+#: spoofed ids held the autopilot's HEARTBEAT behind the queue in the one socket: a false
+#: failsafe, "autopilot heartbeat lost" for 1 s with the throttle to idle).
+UDP_DRAIN_PER_PASS = 512
+#: Other addresses' datagrams handled per pass at most, between two reads of the socket.
+UDP_OTHERS_PER_PASS = 32
+#: Other addresses' datagrams waiting to be handled at most (and their bytes): beyond, the
+#: oldest is shed, counted in ``udp_shed`` and warned about like a kernel drop (a command that
+#: waited that long would be applied late).
+UDP_MAX_DEFERRED = 2048
+UDP_MAX_DEFERRED_BYTES = 1 << 20
+#: A TCP client's first frames are read before a newcomer may replace it: a client younger than
+#: this is never replaced (issue 40: in a reconnect storm the real autopilot's connection was
+#: closed right after its first frame, unread in its socket, for a newcomer).
+TCP_GRACE_S = 2.0
+#: At most one warning per identity per this many seconds about a second address claiming it.
+CLAIM_LOG_INTERVAL_S = 10.0
 
 
 class LinkBusyError(EndpointBusyError, OSError):
@@ -227,6 +254,18 @@ class UdpServer:
         self._kernel_drop_mark = 0
         self._drops_logged_at: float | None = None
         self._drops_logged = 0
+        #: datagrams read and not handled yet: from pinned addresses (handled first), from the
+        #: others (in arrival order, bounded: the oldest is shed), and how many of each other
+        #: address wait (its later datagrams wait behind them: one sender's order is kept)
+        self._pinned_queue: deque[tuple[bytes, tuple[str, int]]] = deque()
+        self._others: deque[tuple[bytes, tuple[str, int]]] = deque()
+        self._others_bytes = 0
+        self._waiting: Counter[tuple[str, int]] = Counter()
+        self.shed = 0
+        self._shed_log = RateLimitedLog(UDP_DROP_LOG_INTERVAL_S)
+        self._shed_logged = 0
+        #: (identity, its pinned address, the other address claiming it), since last taken
+        self._claims: list[tuple[Hashable, tuple[str, int], tuple[str, int]]] = []
 
     def _enlarge_receive_buffer(self, wanted: int) -> int:
         """Ask for ``wanted`` bytes of receive buffer; returns what the kernel granted (Linux
@@ -264,8 +303,77 @@ class UdpServer:
         return self._peers
 
     def select(self, timeout: float) -> bool:
+        if self._pinned_queue or self._others:
+            return True
         readable, _, _ = select.select([self._sock], [], [], timeout)
         return bool(readable)
+
+    def drain(self, now: float, limit: int = UDP_DRAIN_PER_PASS) -> bool:
+        """Read what waits in the socket (at most ``limit`` datagrams): a pinned address's
+        datagrams to the front line, the others' behind (bounded, see :meth:`_defer`).
+        True when the socket is empty (everything that came before the call was read)."""
+        pinned = set(self._pins.values())
+        for _ in range(limit):
+            received = self.recv_from()
+            if received is None:
+                return True
+            sender = received[1]
+            if sender in pinned and not self._waiting[sender]:
+                self._pinned_queue.append(received)
+            else:
+                self._defer(received, now)
+        return False
+
+    def _defer(self, received: tuple[bytes, tuple[str, int]], now: float) -> None:
+        self._others.append(received)
+        self._others_bytes += len(received[0])
+        self._waiting[received[1]] += 1
+        shed = self.shed
+        while len(self._others) > UDP_MAX_DEFERRED or self._others_bytes > UDP_MAX_DEFERRED_BYTES:
+            self._take_other()
+            self.shed += 1
+        if self.shed != shed:
+            self._warn_shed(now)
+
+    def _take_other(self) -> tuple[bytes, tuple[str, int]]:
+        data, sender = self._others.popleft()
+        self._others_bytes -= len(data)
+        self._waiting[sender] -= 1
+        if not self._waiting[sender]:
+            del self._waiting[sender]
+        return data, sender
+
+    def _warn_shed(self, now: float) -> None:
+        """One warning per ``UDP_DROP_LOG_INTERVAL_S`` at most, with the datagrams shed since."""
+        if self._shed_log.quiet_since_last("shed", now) is None:
+            return
+        log.warning(
+            "MAVLink UDP %s:%d: %d datagrams from unpinned addresses shed (more than %d "
+            "waiting: a flood; the autopilot's and allowed sources' addresses are read first; "
+            "%d in all, counted in udp_shed)",
+            *self.address,
+            self.shed - self._shed_logged,
+            UDP_MAX_DEFERRED,
+            self.shed,
+        )
+        self._shed_logged = self.shed
+
+    def next_batch(self, others: int = UDP_OTHERS_PER_PASS) -> list[tuple[bytes, tuple[str, int]]]:
+        """The datagrams to handle now: every pinned one, then at most ``others`` others."""
+        batch = list(self._pinned_queue)
+        self._pinned_queue.clear()
+        for _ in range(min(others, len(self._others))):
+            batch.append(self._take_other())
+        return batch
+
+    def pin_of(self, identity: Hashable) -> tuple[str, int] | None:
+        """The address ``identity`` is pinned to (None: not pinned)."""
+        return self._pins.get(identity)
+
+    def take_claims(self) -> list[tuple[Hashable, tuple[str, int], tuple[str, int]]]:
+        """The refused claims since the last call: (identity, pinned address, claimant)."""
+        claims, self._claims = self._claims, []
+        return claims
 
     def recv_from(self) -> tuple[bytes, tuple[str, int]] | None:
         try:
@@ -353,6 +461,8 @@ class UdpServer:
                 self._pins[identity] = address
             else:
                 self.refused_pins += 1
+                if holder is not None and len(self._claims) < MAX_UDP_PEERS:
+                    self._claims.append((identity, holder, address))
 
     def _expire(self, now: float) -> None:
         """Forget peers not heard from for ``idle_s`` (pinned ones excepted)."""
@@ -411,6 +521,7 @@ class UdpServerTotals:
             "udp_datagrams": totals["udp_datagrams"],
             "udp_kernel_drops": totals["udp_kernel_drops"],
             "udp_refused_pins": totals["udp_refused_pins"],
+            "udp_shed": totals["udp_shed"],
             "udp_rcvbuf_bytes": self._current.rcvbuf_bytes,
             "udp_kernel_drops_counted": self._current.counts_kernel_drops,
         }
@@ -421,6 +532,7 @@ class UdpServerTotals:
             "udp_datagrams": server.datagrams,
             "udp_kernel_drops": server.kernel_drops,
             "udp_refused_pins": server.refused_pins,
+            "udp_shed": server.shed,
         }
 
 
@@ -455,6 +567,8 @@ class TcpClient:
         #: why a writer gave up on it; the read thread closes it (only it closes sockets, so a
         #: socket is never closed under its select)
         self.dropped: str | None = None
+        #: claimed a privileged identity another client holds (evicted last among ordinary)
+        self.claims_privilege = False
 
 
 class TcpServer:
@@ -467,7 +581,8 @@ class TcpServer:
     not at all, never queued behind another client), at most ``max_clients`` at once; output
     goes to clients that sent a verified frame (:meth:`verify`), as on UDP; a client without
     a verified frame for ``idle_s`` is closed, and when the table is full the oldest such
-    client makes room for a newcomer (strangers cannot hold the port against a station); a
+    client past its grace period (``grace_s``: its first frames are read first) makes room for
+    a newcomer (strangers cannot hold the port against a station for longer); a
     client that does not read what it is sent (its socket buffer full) is closed rather than
     allowed to block the bridge's writers.
     """
@@ -484,6 +599,7 @@ class TcpServer:
         verified_idle_s: float = TCP_VERIFIED_IDLE_S,
         reserved: int = RESERVED_TCP_SLOTS,
         per_address: int = MAX_TCP_PER_ADDRESS,
+        grace_s: float = TCP_GRACE_S,
     ) -> None:
         self.max_clients = max_clients
         self.idle_s = idle_s
@@ -497,6 +613,9 @@ class TcpServer:
         self._clients: dict[socket.socket, TcpClient] = {}
         #: privileged identity -> the client holding its reserved slot (one each)
         self._holders: dict[Hashable, TcpClient] = {}
+        #: (identity, its holder, another client claiming it), since last taken
+        self._claims: list[tuple[Hashable, TcpClient, TcpClient]] = []
+        self.grace_s = grace_s
         self._listener = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
         # on Linux SO_REUSEADDR lets a restarted bridge bind past TIME_WAIT; it never lets
         # a second process listen on the same port
@@ -536,10 +655,11 @@ class TcpServer:
         with self._lock:
             return list(self._clients)
 
-    def receive(self) -> list[tuple[TcpClient, bytes]]:
-        """Accept whoever connects, then the bytes of every client that has some (without
-        waiting); a client that closed or failed is removed."""
-        self._accept()
+    def receive(self, accept: bool = True) -> list[tuple[TcpClient, bytes]]:
+        """The bytes of every client that has some (without waiting), then (unless
+        ``accept`` is False: the caller calls :meth:`accept` once it verified them) accept
+        whoever connects: a client's first frames are read before a newcomer is weighed
+        against it (a client that closed or failed is removed)."""
         ready, _, _ = select.select(self._sockets(), [], [], 0)
         received = []
         for sock in ready:
@@ -556,6 +676,8 @@ class TcpServer:
                 self._remove(client, client.dropped or "tcp_clients_closed")
                 continue
             received.append((client, data))
+        if accept:
+            self.accept()
         return received
 
     def verify(self, client: TcpClient, privileged_as: Iterable[Hashable] = ()) -> None:
@@ -573,6 +695,9 @@ class TcpServer:
                 and now - holder.last_heard <= PIN_REBIND_S
             ):
                 self._counters["tcp_privilege_refused"] += 1
+                client.claims_privilege = True
+                if len(self._claims) < MAX_TCP_CLIENTS:
+                    self._claims.append((identity, holder, client))
                 continue
             self._holders[identity] = client
             client.privileged = True
@@ -581,6 +706,15 @@ class TcpServer:
         if not client.verified:
             client.verified = True
             log.info("MAVLink TCP client %s answered from now on", _peer_name(client.sock))
+
+    def holder_of(self, identity: Hashable) -> TcpClient | None:
+        """The client holding ``identity``'s reserved slot (None: nobody)."""
+        return self._holders.get(identity)
+
+    def take_claims(self) -> list[tuple[Hashable, TcpClient, TcpClient]]:
+        """The refused claims since the last call: (identity, holder, claimant)."""
+        claims, self._claims = self._claims, []
+        return claims
 
     def write_to(self, buf: bytes, client: TcpClient) -> None:
         """Send to one client only (an answer to its request)."""
@@ -615,7 +749,8 @@ class TcpServer:
             client.sock.close()
         self._listener.close()
 
-    def _accept(self) -> None:
+    def accept(self) -> None:
+        """Accept whoever waits to connect (bounded per call), as room allows."""
         for _ in range(self.max_clients):  # bounded per call
             try:
                 sock, address = self._listener.accept()
@@ -625,8 +760,7 @@ class TcpServer:
                 return
             sock.setblocking(False)
             address = tuple(address[:2])
-            self._limit_address(address)
-            if not self._make_room():
+            if not (self._limit_address(address) and self._make_room()):
                 self._counters["tcp_clients_refused"] += 1
                 sock.close()
                 continue
@@ -637,34 +771,51 @@ class TcpServer:
 
     def _ordinary(self) -> list[TcpClient]:
         """Clients that hold no reserved slot, the first to make room first: those without a
-        verified frame (oldest first), then the verified ones least recently heard."""
+        verified frame (oldest first), then the verified ones least recently heard, those
+        claiming a privileged identity another client holds last (the real autopilot may be
+        the second to claim it: only signing tells)."""
         ordinary = [c for c in self._clients.values() if not c.privileged]
-        return sorted(ordinary, key=lambda c: (c.verified, c.last_heard if c.verified else c.since))
+        return sorted(
+            ordinary,
+            key=lambda c: (c.verified, c.claims_privilege, c.last_heard if c.verified else c.since),
+        )
 
     def _make_room(self) -> bool:
         """Room for a newcomer: strangers may hold ``max_clients - reserved`` slots, so the
         reserved ones stay free for the autopilot and allowed sources (a newcomer is anybody
-        until its first verified frame, so it always gets in, at an ordinary client's cost);
-        False when every slot is privileged."""
+        until its first verified frame, so it gets in at an ordinary client's cost, but never
+        at the cost of a client in its first :data:`TCP_GRACE_S`, whose first frames may be
+        waiting unread); False when every slot is privileged or in its grace period."""
         ordinary = self._ordinary()
         if (
             len(ordinary) < self.max_clients - self.reserved
             and len(self._clients) < self.max_clients
         ):
             return True
-        if not ordinary:
+        victim = next((c for c in ordinary if self._replaceable(c)), None)
+        if victim is None:
             return False
-        victim = ordinary[0]
         self._remove(
             victim, "tcp_clients_replaced" if not victim.verified else "tcp_clients_evicted"
         )
         return True
 
-    def _limit_address(self, address: tuple[str, int]) -> None:
-        """At most ``per_address`` ordinary clients from one address: its oldest makes room."""
+    def _limit_address(self, address: tuple[str, int]) -> bool:
+        """At most ``per_address`` ordinary clients from one address: its oldest past its
+        grace period makes room; False when none is (the newcomer is refused)."""
         same = [c for c in self._ordinary() if c.address[0] == address[0]]
-        if len(same) >= self.per_address:
-            self._remove(same[0], "tcp_clients_per_address")
+        if len(same) < self.per_address:
+            return True
+        victim = next((c for c in same if self._replaceable(c)), None)
+        if victim is None:
+            return False
+        self._remove(victim, "tcp_clients_per_address")
+        return True
+
+    def _replaceable(self, client: TcpClient) -> bool:
+        """A client a newcomer may replace: one whose first frames were read (verified), or
+        one without a verified frame after its grace period (``grace_s``)."""
+        return client.verified or self._clock() - client.since >= self.grace_s
 
     def _sweep(self) -> None:
         """Close the clients a writer gave up on, those idle without a verified frame, and
@@ -764,10 +915,18 @@ class MavlinkLink:
         #: whether a (system, component) is the followed autopilot or an allowed source: its
         #: address is pinned in the UDP peer table, its TCP client holds a reserved slot
         self.privileged: Callable[[tuple[int, int]], bool] = lambda source: False
-        #: (system, component) -> where it was last heard (UDP address or TCP client)
-        self._origins: OrderedDict[tuple[int, int], Any] = OrderedDict()
+        self._claim_log = RateLimitedLog(CLAIM_LOG_INTERVAL_S)
+        self._read_until: float | None = None
+        self._read_mark: float | None = None
         #: where the frame being written goes (None: every peer); set under the write lock
         self._destination: Any = None
+
+    @property
+    def read_until(self) -> float | None:
+        """The time up to which everything received was read and handed on (None: no limit:
+        not read yet, or the endpoint is closed and nothing can wait in it): the failsafe
+        waits for it to pass its deadline (``HeartbeatWatchdog.check``)."""
+        return None if self._conn is None else self._read_until
 
     # ------------------------------------------------------------------ set-up
 
@@ -838,14 +997,16 @@ class MavlinkLink:
         *,
         to_link: bool = True,
         to_monitors: bool = True,
-        reply_to: tuple[int, int] | None = None,
+        reply_to: Requester | None = None,
     ) -> None:
         """Encode ``msg`` from ``component_id`` (its own sequence number and signature) and send
         it to the monitor outputs (unless ``to_monitors`` is False: a message that waited for
         the link budget, which the monitors had when it was made) and, unless ``to_link`` is
         False, on the link: to every peer,
-        or with ``reply_to`` (an answer) only to where that (system, component) was last heard
-        on a UDP or TCP server (never to the other peers: issue 32, finding 3)."""
+        or with ``reply_to`` (an answer) only to the address or connection its request came
+        from on a UDP or TCP server (never to the other peers: issue 32, finding 3; never to
+        wherever the identity was heard last: a stranger claiming it from elsewhere took the
+        ground station's answers, issue 40)."""
         try:
             with self._write_lock:
                 if self._monitors and to_monitors:
@@ -856,7 +1017,7 @@ class MavlinkLink:
                     return
                 self._destination = None
                 if reply_to is not None and isinstance(self._conn, UdpServer | TcpServer):
-                    self._destination = self._origins.get(reply_to)
+                    self._destination = reply_to.origin
                     if self._destination is None:
                         self.counters["answers_unroutable"] += 1
                         return
@@ -938,6 +1099,8 @@ class MavlinkLink:
                 self._on_event("MAVLink link lost")
                 continue
             self._feed(messages)
+            if self._read_mark is not None:  # handed on: the reader is caught up to there
+                self._read_until, self._read_mark = self._read_mark, None
 
     def _reopen_failed(self, exc: BaseException) -> None:
         """A reopen that keeps failing is a warning naming the endpoint and the error: at the
@@ -956,26 +1119,74 @@ class MavlinkLink:
 
     def _receive(self, conn: Any) -> list[Any]:
         """The verified messages of one datagram, or those completed by the next bytes of a
-        stream; empty when nothing came within ``POLL_S``."""
+        stream; empty when nothing came within ``POLL_S``. Marks how far the reader is
+        (:attr:`read_until`, once the messages are handed on)."""
+        mark = self._clock()
         if not conn.select(POLL_S):
+            self._read_mark = mark  # nothing was waiting
             return []
+        if not isinstance(conn, UdpServer):
+            self._read_mark = mark  # a stream, a client's socket: read as it comes
         if isinstance(conn, UdpServer):
-            conn.tick(self._clock())
-            received = conn.recv_from()
-            if received is None:
-                return []
-            datagram, sender = received
-            messages = self._not_our_own(self._scanner.datagram(datagram))
-            messages = self._bound_to_origin(messages, sender)
-            self._answer_or_ignore(conn, sender, messages)  # before the answers go out
-            self._note_origin(messages, sender)
-            return messages
+            return self._receive_udp_server(conn)
         if isinstance(conn, TcpServer):
             return self._receive_tcp(conn)
         if isinstance(conn, mavutil.mavudp):
             return self._receive_udp_client(conn)
         data = conn.recv(4096)
         return self._not_our_own(self._scanner.stream(bytes(data))) if data else []
+
+    def _receive_udp_server(self, conn: UdpServer) -> list[Any]:
+        """The verified messages of the datagrams to handle now: what waits in the socket is
+        read first, the pinned addresses' datagrams handled ahead of the others' (see
+        :data:`UDP_DRAIN_PER_PASS`), each message tagged with its sender's address."""
+        now = self._clock()
+        conn.tick(now)
+        if conn.drain(now):  # the socket emptied: what came before ``now`` is read
+            self._read_mark = now
+        messages: list[Any] = []
+        for datagram, sender in conn.next_batch():
+            verified = self._not_our_own(self._scanner.datagram(datagram))
+            verified = self._bound_to_origin(verified, sender)
+            self._answer_or_ignore(conn, sender, verified)  # before the answers go out
+            self._tag_origin(verified, sender, conn.pin_of)
+            messages.extend(verified)
+        self._report_claims(conn.take_claims())
+        return messages
+
+    def _tag_origin(
+        self, messages: list[Any], origin: Hashable, holder_of: Callable[[Hashable], Any]
+    ) -> None:
+        """Tag each message with ``origin`` and whether it holds the pin of the privileged
+        identity the message claims (:mod:`.origin`)."""
+        for msg in messages:
+            identity = (msg.get_srcSystem(), msg.get_srcComponent())
+            holder = holder_of(identity) if self.privileged(identity) else None
+            tag(msg, origin, holder is None or holder == origin)
+
+    def _report_claims(self, claims: Iterable[tuple[Hashable, Hashable, Hashable]]) -> None:
+        for identity, holder, claimant in claims:
+            self._claimed_elsewhere(identity, describe(holder), describe(claimant))
+
+    def _claimed_elsewhere(self, identity: Hashable, holder: str, claimant: str) -> None:
+        """A privileged identity heard from a second address or connection while its pinned
+        one is heard: counted, and said at most every :data:`CLAIM_LOG_INTERVAL_S` per
+        identity with both places (on an unsigned link one of them is lying; only signing
+        tells which)."""
+        self.counters["identity_claimed_elsewhere"] += 1
+        name = "/".join(map(str, identity)) if isinstance(identity, tuple) else str(identity)
+        quiet = self._claim_log.quiet_since_last(name, self._clock())
+        if quiet is None:
+            return
+        log.warning(
+            "MAVLink %s is pinned to %s, and %s claims it too: its writes and heartbeats "
+            "from there are refused (%d more claims since the last line; on an unsigned link "
+            "ids are claims: use mavlink.signing)",
+            name,
+            holder,
+            claimant,
+            quiet,
+        )
 
     def _not_our_own(self, messages: list[Any]) -> list[Any]:
         """``messages`` without those claiming a hosted component's identity (our system id,
@@ -996,23 +1207,16 @@ class MavlinkLink:
         """The verified messages the ready TCP clients completed, each client framed on its
         own; a client is answered from its first verified frame (before the answers go out)."""
         messages: list[Any] = []
-        for client, data in conn.receive():
+        for client, data in conn.receive(accept=False):
             verified = self._not_our_own(client.scanner.stream(data))
             verified = self._bound_to_origin(verified, client.address)
             if verified:
                 conn.verify(client, self._privileged_identities(verified))
-            self._note_origin(verified, client)
+            self._tag_origin(verified, client, conn.holder_of)
             messages.extend(verified)
+        conn.accept()  # after verifying: a client's first frames count before a newcomer's
+        self._report_claims(conn.take_claims())
         return messages
-
-    def _note_origin(self, messages: list[Any], origin: Any) -> None:
-        """Where each identity was last heard: an answer to it goes there only."""
-        for msg in messages:
-            source = (msg.get_srcSystem(), msg.get_srcComponent())
-            self._origins[source] = origin
-            self._origins.move_to_end(source)
-        while len(self._origins) > MAX_SIGNED_STREAMS:
-            self._origins.popitem(last=False)
 
     def _receive_udp_client(self, conn: Any) -> list[Any]:
         """``udpout``/``udpbcast``: in broadcast mode pymavlink sends, from the first write on,

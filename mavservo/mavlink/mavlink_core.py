@@ -47,6 +47,7 @@ from mavservo.mavlink.ftp import UNBUDGETED_BYTES_S
 from mavservo.mavlink.gimbal_discovery import GimbalDiscoveryWatch
 from mavservo.mavlink.metadata_service import MetadataService
 from mavservo.mavlink.mirror import Mirror
+from mavservo.mavlink.origin import Requester, describe, from_pinned, origin_of, requester_of
 from mavservo.mavlink.params import (
     SERVICE_TYPES,
     ParameterOwner,
@@ -74,6 +75,8 @@ MAV_AUTOPILOT_INVALID = 8
 MAV_STATE_ACTIVE = 4
 MAV_STATE_CRITICAL = 5
 HEARTBEAT_PERIOD_S = 1.0
+#: At most one STATUSTEXT per this many seconds per identity claimed from a second address.
+CLAIM_NOTICE_S = 10.0
 COMMAND_TYPES = ("COMMAND_LONG", "COMMAND_INT")
 PARAM_LIST = "PARAM_REQUEST_LIST"
 MIRROR_TYPES = ("SERVO_OUTPUT_RAW", "ACTUATOR_OUTPUT_STATUS")
@@ -126,6 +129,7 @@ class MavlinkCore:
         self._next_heartbeat = {cid: boot_time for cid in self.components}
         self.counters: Counter[str] = Counter()
         self._problem_log = RateLimitedLog(REFUSAL_LOG_INTERVAL_S)
+        self._claim_notice = RateLimitedLog(CLAIM_NOTICE_S)
         #: what of the periodic telemetry also goes on the autopilot link (monitors get all)
         self.budget = LinkBudget(self._plan(settings.telemetry))
         self._gimbal_hz = settings.telemetry.gimbal_attitude_status_hz
@@ -171,6 +175,8 @@ class MavlinkCore:
         if source[0] == self._system_id and source[1] in self.components:
             return []  # our own traffic echoed back by a router
         self.counters["received"] += 1
+        if self._claimed_elsewhere(msg, source, now):
+            return []
         if source == self.watched:
             for text in self.discovery.on_autopilot_message(msg, now):
                 log.info("%s", text)
@@ -204,7 +210,7 @@ class MavlinkCore:
             answers = self.parameters.handle(msg, self._system_id, source, now)
             # a list asked again replaces what is still queued of it (per component)
             tag = ("list", getattr(msg, "target_component", 0)) if kind == PARAM_LIST else None
-            self.answers.put(source, answers, now, tag)
+            self.answers.put(requester_of(msg), answers, now, tag)
             return []
         self._to_gimbals(msg, now)
         return []
@@ -217,7 +223,7 @@ class MavlinkCore:
             return
         if msg.target_system not in (0, self._system_id) or msg.target_component == 0:
             return
-        self.metadata.handle(msg, msg.target_component, source, now)
+        self.metadata.handle(msg, msg.target_component, requester_of(msg), now)
 
     def answers_due(self, now: float) -> list[Answer]:
         """Answers to requests that may go now: each to its requester only, paced per
@@ -231,7 +237,7 @@ class MavlinkCore:
         answers = self.answers.due(now, lambda cid, msg: self.budget.admit_answer(cid, msg, now))
         return responses + answers
 
-    def queue_responses(self, source: tuple[int, int], out: list[Outgoing], now: float) -> None:
+    def queue_responses(self, source: Requester, out: list[Outgoing], now: float) -> None:
         """Responses to a command from an unverified sender (its ACK, the messages it asked
         for): to that sender only, in turn with the other requesters, not ahead of everyone.
 
@@ -257,8 +263,11 @@ class MavlinkCore:
         if refusal is not None:
             self.counters["interval_refused"] += 1
             return refusal
+        before = self.telemetry.rates_hz()
         accepted = self.telemetry.set_interval(msg_id, interval_us, self._now)
-        if accepted:
+        if accepted and self.telemetry.rates_hz() != before:
+            # only a change re-plans (issue 40: 250 spoofed ids repeating the configured
+            # rates re-planned 167 times a second and the gimbal status fell to 4 Hz)
             self.replan(self._now)
         return accepted
 
@@ -320,6 +329,29 @@ class MavlinkCore:
         yield_to = source == self.watched or source[1] < self.settings.servo_component_id
         self.telemetry.heard_esc(source, group, yield_to=yield_to)
 
+    def _claimed_elsewhere(self, msg: Any, source: tuple[int, int], now: float) -> bool:
+        """True for an unsigned frame claiming a privileged identity (the watched autopilot,
+        an allowed source) from another address or connection than the one it is pinned to
+        (the link tags it, :mod:`.origin`): refused whole, counted (``claims_refused``), said
+        in a STATUSTEXT naming that address at most every :data:`CLAIM_NOTICE_S` per identity.
+
+        Why (issue 40): on an unsigned link a stranger claiming 255/190 from another address
+        set SRV1_TRIM (2 of 2 applied) and its set flood took the station's set budget; its
+        spoofed autopilot HEARTBEATs kept the bridge out of failsafe while the real autopilot
+        was cut off. Only signing authenticates; this keeps a claim to the place it was
+        first heard from (until that place falls silent: ``link.PIN_REBIND_S``)."""
+        if from_pinned(msg) or getattr(msg, "_signed", False):
+            return False
+        self.counters["claims_refused"] += 1
+        name = f"{source[0]}/{source[1]}"
+        if self._claim_notice.quiet_since_last(name, now) is not None:
+            self.telemetry.announce(
+                MAV_SEVERITY_WARNING,
+                f"servo bridge: {name} claimed from {describe(origin_of(msg))}, not its "
+                "pinned address: refused (unsigned link)",
+            )
+        return True
+
     def _source_allowed(self, source: tuple[int, int]) -> bool:
         allowed = self.settings.allowed_sources
         return not allowed or source in allowed
@@ -357,11 +389,13 @@ class MavlinkCore:
 
     # ------------------------------------------------------------------ time
 
-    def tick(self, now: float) -> list[Outgoing]:
-        """Everything due at ``now``: failsafe, repeats, heartbeats, telemetry, gimbal status."""
+    def tick(self, now: float, read_until: float | None = None) -> list[Outgoing]:
+        """Everything due at ``now``: failsafe, repeats, heartbeats, telemetry, gimbal status
+        (``read_until``: how far the link has read, for the failsafe: see
+        :meth:`~.failsafe.HeartbeatWatchdog.check`)."""
         self._now = now
         out: list[Outgoing] = []
-        if self.watchdog.check(now) is FailsafeEvent.LOST:
+        if self.watchdog.check(now, read_until) is FailsafeEvent.LOST:
             self.counters["failsafe_entered"] += 1
             self.commands.cancel_all()
             self.backend.enter_failsafe("autopilot heartbeat lost", now)
@@ -395,8 +429,7 @@ class MavlinkCore:
         within the answers' share of the budget). Why (review3): sent with the tick's output
         they went to every peer: a stranger's burst read of the parameter metadata reached the
         other ground stations and the autopilot's port, 251-byte frames each."""
-        for component_id, reply in self.metadata.periodic(now):
-            requester = (reply.target_system, reply.target_component)
+        for requester, component_id, reply in self.metadata.replies(now):
             self.answers.put(requester, [(component_id, reply)], now)
 
     def _stream_requests(self, now: float) -> list[Any]:
@@ -445,6 +478,7 @@ class MavlinkCore:
             "answers": dict(self.answers.counters),
             "responses": dict(self.responses.counters),
             "failsafe_count": self.watchdog.failsafe_count,
+            "failsafe_deferred": self.watchdog.deferred,
             "in_failsafe": self.watchdog.in_failsafe,
             "gimbals": self._gimbal_counters(),
             "stream": self.streams.stats(),

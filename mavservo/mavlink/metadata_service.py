@@ -21,7 +21,7 @@ from typing import Any
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mavservo.mavlink.commands import Outgoing
-from mavservo.mavlink.ftp import ByteWindow, FtpServer, crc32
+from mavservo.mavlink.ftp import ByteWindow, FtpServer, Sender, crc32
 from mavservo.mavlink.wip_messages import ComponentMetadata
 
 #: The general metadata file's name on every component that serves metadata.
@@ -77,7 +77,7 @@ class MetadataService:
             uri=mftp_uri(component_id, GENERAL_FILE),
         )
 
-    def handle(self, msg: Any, component_id: int, sender: tuple[int, int], now: float) -> None:
+    def handle(self, msg: Any, component_id: int, sender: Sender, now: float) -> None:
         """A FILE_TRANSFER_PROTOCOL request addressed to ``component_id``."""
         server = self.servers.get(component_id)
         if server is not None:
@@ -85,13 +85,17 @@ class MetadataService:
 
     def periodic(self, now: float) -> list[Outgoing]:
         """The FTP answers each component may send now (paced by its server)."""
-        out: list[Outgoing] = []
+        return [(cid, reply) for _, cid, reply in self.replies(now)]
+
+    def replies(self, now: float) -> list[tuple[Sender, int, Any]]:
+        """As :meth:`periodic`, each with the requester it goes to (its ids and origin)."""
+        out: list[tuple[Sender, int, Any]] = []
         for cid, server in self.servers.items():
-            for (system, component), payload in server.periodic(now):
+            for sender, payload in server.periodic(now):
                 reply = mavlink2.MAVLink_file_transfer_protocol_message(
-                    0, system, component, list(payload)
+                    0, sender[0], sender[1], list(payload)
                 )
-                out.append((cid, reply))
+                out.append((sender, cid, reply))
         return out
 
     def stats(self) -> dict[str, dict[str, int]]:

@@ -40,6 +40,7 @@ from typing import Any, Protocol
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mavservo.mavlink.commands import Outgoing, RateLimitedLog
+from mavservo.mavlink.origin import from_pinned, requester_of
 from mavservo.mavlink.pacing import PerSender, RefusalDigest
 
 log = logging.getLogger(__name__)
@@ -72,8 +73,11 @@ class WritePolicy:
     allowed_sources: frozenset[tuple[int, int]] = frozenset()
     open: bool = False
 
-    def permits(self, signed: bool, sender: tuple[int, int]) -> bool:
-        return self.open or signed or sender in self.allowed_sources
+    def permits(self, signed: bool, sender: tuple[int, int], pinned: bool = True) -> bool:
+        """``pinned``: the frame came from the address or connection the sender's identity
+        is pinned to (:mod:`.origin`); on an unsigned link a listed source is one only there
+        (issue 40: a stranger claiming 255/190 from another address set SRV1_TRIM)."""
+        return self.open or signed or (pinned and sender in self.allowed_sources)
 
     def describe(self, signing: bool) -> str:
         """One line for ``mavservo check``: who may write parameters with this config."""
@@ -83,14 +87,41 @@ class WritePolicy:
         if signing:
             who.append("signed senders (mavlink.signing)")
         if self.allowed_sources:
-            listed = ", ".join(f"{s}/{c}" for s, c in sorted(self.allowed_sources))
-            who.append(f"allowed_sources {listed}")
+            who.append(f"allowed_sources {_listed(self.allowed_sources)}")
         if not who:
             return (
                 "parameters: read-only (no signing, no allowed_sources; nobody may set them; "
                 "add allowed_sources or set mavlink.parameter_writers: anyone to open them)"
             )
         return "parameters: may be set by " + " and ".join(who) + "; read by anyone"
+
+    def signing_advice(self, signing: bool) -> list[str]:
+        """For ``mavservo check``: a line recommending signing when the link takes writes
+        without it (commands always move servos; parameters when ``open`` or listed sources
+        may set them), else none. Why: without signing an id is a claim; pinning a privileged
+        id to the address it was first heard from (issue 40) is no authentication."""
+        if signing:
+            return []
+        commands = (
+            f"commands from allowed_sources {_listed(self.allowed_sources)}"
+            if self.allowed_sources
+            else "commands from anyone"
+        )
+        writes = [commands]
+        if self.open:
+            writes.append("parameter sets from anyone")
+        elif self.allowed_sources:
+            writes.append("parameter sets from the allowed sources")
+        return [
+            "recommended: mavlink.signing. Without it this link takes "
+            + " and ".join(writes)
+            + " on their word: a source id is a claim, held to the address it was first "
+            "heard from, which is no authentication (docs/security.md)"
+        ]
+
+
+def _listed(sources: frozenset[tuple[int, int]]) -> str:
+    return ", ".join(f"{s}/{c}" for s, c in sorted(sources))
 
 
 @dataclass(frozen=True)
@@ -213,7 +244,8 @@ class ParameterServer:
         if kind == "PARAM_REQUEST_READ":
             return self._request_read(msg, component_id, sender)
         if kind == "PARAM_SET":
-            if not self.writers.permits(bool(getattr(msg, "_signed", False)), sender):
+            signed = bool(getattr(msg, "_signed", False))
+            if not self.writers.permits(signed, sender, from_pinned(msg)):
                 return self._not_permitted(msg, component_id, sender)
             return self._set(msg, component_id, sender)
         if kind == "FILE_TRANSFER_PROTOCOL":
@@ -255,7 +287,9 @@ class ParameterServer:
         if name not in names:
             self.counters["set_unknown"] += 1
             return [self._error(component_id, sender, name, -1, "DOES_NOT_EXIST")]
-        if self._now is not None and not self._set_rate.allow(sender, self._now):
+        # per identity and origin: a flood claiming the station's ids from another address
+        # spends its own bucket, not the station's (issue 40: 0 of 10 sets applied)
+        if self._now is not None and not self._set_rate.allow(requester_of(msg), self._now):
             self.counters["set_rate_limited"] += 1
             self._refused(
                 sender,

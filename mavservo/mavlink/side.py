@@ -21,6 +21,7 @@ from mavservo.mavlink.commands import Outgoing
 from mavservo.mavlink.component import HostedComponent
 from mavservo.mavlink.link import MavlinkLink
 from mavservo.mavlink.mavlink_core import MavlinkCore
+from mavservo.mavlink.origin import requester_of
 from mavservo.mavlink.params import ParameterOwner
 from mavservo.mavlink.settings import MavlinkSettings
 from mavservo.mavlink.telemetry import MAV_SEVERITY_WARNING
@@ -132,7 +133,7 @@ class MavlinkSide:
             if out and not (self.link.privileged(source) or getattr(msg, "_signed", False)):
                 # an unverified sender's responses wait for its turn (a flood cannot push
                 # everyone else's ACKs out): to it only, with the next tick
-                self.core.queue_responses(source, out, now)
+                self.core.queue_responses(requester_of(msg), out, now)
                 return
         self._send(out, requested=True)
 
@@ -153,7 +154,7 @@ class MavlinkSide:
             try:
                 with self._send_order:
                     with self._lock:
-                        out = self.core.tick(now)
+                        out = self.core.tick(now, self.link.read_until)
                         answers = self.core.answers_due(now)
                     self._send(out)
                     self._send_answers(answers)

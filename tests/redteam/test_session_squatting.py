@@ -31,13 +31,12 @@ DO_SET_SERVO = 183
 def test_strangers_holding_every_tcp_slot_cannot_keep_the_autopilot_out() -> None:
     rig = TcpRig()
     try:
-        strangers = [Station(rig.port, (50 + n, 190)) for n in range(MAX_TCP_CLIENTS)]
-        rig.sockets.extend(strangers)
-        for stranger in strangers:
-            stranger.heartbeat()  # each one verified (an unsigned link)
-        assert wait_until(
-            lambda: rig.stats()["link"].get("tcp_clients_accepted", 0) == MAX_TCP_CLIENTS
-        )
+        for n in range(MAX_TCP_CLIENTS):  # each one verified (an unsigned link) in turn
+            stranger = Station(rig.port, (50 + n, 190))
+            rig.sockets.append(stranger)
+            stranger.heartbeat()
+            assert wait_until(lambda n=n: rig.stats()["link"].get("received", 0) > n)
+        assert rig.stats()["link"].get("tcp_clients_accepted", 0) == MAX_TCP_CLIENTS
         time.sleep(0.3)
         autopilot = Station(rig.port, (1, 1))
         rig.sockets.append(autopilot)
