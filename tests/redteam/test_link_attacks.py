@@ -30,12 +30,12 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mavservo.app.bridge import Bridge
+from mavservo.app.startup_errors import DeviceOpenError
 from mavservo.config.loader import load_config_text
 from mavservo.mavlink.framing import MAX_REFUSED_PER_DATAGRAM, redact_secrets
 from mavservo.mavlink.link import (
     MAX_UDP_PEERS,
     HandlerErrors,
-    LinkBusyError,
     MavlinkLink,
 )
 from mavservo.mavlink.signing import signing_timestamp
@@ -480,13 +480,14 @@ def test_a_bridge_refuses_a_udp_port_another_process_holds() -> None:
     with held_port() as holder:
         port = holder.getsockname()[1]
         bridge = Bridge(load_config_text(config_text(port, signing=True)), log_dir=False)
-        with pytest.raises(LinkBusyError, match=f"127.0.0.1:{port} is in use by another process"):
+        # the bridge names the link it could not open around the link's own error
+        with pytest.raises(DeviceOpenError, match=f"127.0.0.1:{port} is in use by another process"):
             bridge.start()
 
 
 def test_a_second_bridge_on_the_same_port_is_refused(signed_rig: Rig) -> None:
     second = Bridge(load_config_text(config_text(signed_rig.port, signing=True)), log_dir=False)
-    with pytest.raises(LinkBusyError, match="in use by another process"):
+    with pytest.raises(DeviceOpenError, match="in use by another process"):
         second.start()
     gcs = signed_rig.peer(GCS, key=KEY)  # the first one still has every command
     set_servo(gcs, 1, 1500)
@@ -508,7 +509,8 @@ def test_run_on_a_taken_udp_port_is_one_clear_line_and_status_1(tmp_path: Path) 
             cwd=REPO,
         )
     assert proc.returncode == 1
-    assert "mavservo: cannot start: mavlink: UDP port" in proc.stderr
+    assert "mavservo: cannot start: the autopilot link (" in proc.stderr  # (FILE:LINE: key)
+    assert "mavlink: UDP port" in proc.stderr
     assert "in use by another process" in proc.stderr and "stop it first" in proc.stderr
     assert "Traceback" not in proc.stderr
 
