@@ -48,7 +48,7 @@ from mavservo.control import (
     ServoBackend,
     health_limits,
 )
-from mavservo.mavlink import GimbalDevice, MavlinkSide
+from mavservo.mavlink import CanTunnel, GimbalDevice, MavlinkSide
 from mavservo.records import RunLog, round_trip_figures
 from mavservo.scheduling import FrameKind, Scheduler, SchedulerObserver, WriteObserver
 from mavservo.servos import CountingNode, ServoState
@@ -181,8 +181,14 @@ class Bridge:
         self.config_path = config_path
         #: the console line, the event list and STATUSTEXT every piece reports through
         self.notes = BridgeEvents(status or (lambda line: log.info("%s", line)))
+        #: CAN frames through the autopilot for ``mavlink-can`` buses (None: no such bus)
+        self.can_tunnel = (
+            CanTunnel() if any(b.interface == "mavlink-can" for b in config.can.buses) else None
+        )
         #: every configured bus, opened at start (``buses``, ``emulators`` by bus name)
-        self.bus_set = BridgeBuses(config, on_event=self.notes.event, on_reject=self._rejected)
+        self.bus_set = BridgeBuses(
+            config, on_event=self.notes.event, on_reject=self._rejected, carrier=self.can_tunnel
+        )
         self.buses = self.bus_set.buses
         self.emulators = self.bus_set.emulators
         self.schedulers: dict[str, Scheduler] = {}
@@ -396,6 +402,7 @@ class Bridge:
             on_event=self.notes.note,
             parameters=self.parameters,
             metadata_files=metadata_files(cfg, self._parameter_base),  # issue 30, 32
+            can_tunnel=self.can_tunnel,
         )
         targets.attach_telemetry(side.core)
         return side

@@ -115,6 +115,7 @@ if TYPE_CHECKING:
     from .schema import SimAutopilotConfig, allowed_values, read_key_file
     from .simulation import Faults, Physics
     from .smallfile import SmallFileError, read_small_file
+    from .tunnel_plan import tunnel_keeps_extended, tunnel_plan_lines
     from .views import (
         gimbal_settings,
         mavlink_settings,
@@ -153,6 +154,8 @@ __all__ += [
     "read_small_file",
     "repeat_servo_value",
     "servos_on",
+    "tunnel_keeps_extended",
+    "tunnel_plan_lines",
     "with_values",
     "write_atomic",
     "write_overlay",
@@ -195,6 +198,8 @@ __getattr__ = lazy_face(
         "read_small_file": "smallfile",
         "repeat_servo_value": "autopilot_script",
         "servos_on": "budget",
+        "tunnel_keeps_extended": "tunnel_plan",
+        "tunnel_plan_lines": "tunnel_plan",
         "with_values": "parameters",
         "write_atomic": "overlay",
         "write_overlay": "overlay",

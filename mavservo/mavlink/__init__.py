@@ -12,6 +12,7 @@ from mavservo.faces import lazy_face
 if TYPE_CHECKING:
     from .backend import ACCEPTED, NO_HEALTH_PROBLEM, ApplyResult, Health, Outcome, ServoStatus
     from .bandwidth import BudgetPlan, plan_budget
+    from .can_tunnel import CanTunnel, TunnelWireBytes, tunnel_wire_bytes
     from .connection import mavlink2, open_connection
     from .ftp import crc32
     from .gimbal import GimbalDevice
@@ -38,6 +39,9 @@ __all__ = [
     "AUTO_ESC_FIRST",
     "ApplyResult",
     "BudgetPlan",
+    "CanTunnel",
+    "TunnelWireBytes",
+    "tunnel_wire_bytes",
     "COMP_METADATA_TYPE_PARAMETER",
     "GENERAL_FILE",
     "GimbalDevice",
@@ -71,6 +75,9 @@ __getattr__ = lazy_face(
         "AUTO_ESC_FIRST": "telemetry",
         "ApplyResult": "backend",
         "BudgetPlan": "bandwidth",
+        "CanTunnel": "can_tunnel",
+        "TunnelWireBytes": "can_tunnel",
+        "tunnel_wire_bytes": "can_tunnel",
         "COMP_METADATA_TYPE_PARAMETER": "metadata_service",
         "GENERAL_FILE": "metadata_service",
         "GimbalDevice": "gimbal",

@@ -30,11 +30,15 @@ if TYPE_CHECKING:
     )
     from .counters import transport_stats
     from .interface_signatures import UnknownInterfaceError, interface_options, option_problems
+    from .tunnel_bus import MAVLINK_CAN, FrameCarrier, TunnelledCanBus
 
 __all__ = [
     "BITRATE_CODES",
     "BITRATE_SET_OUTSIDE",
     "BusRequest",
+    "FrameCarrier",
+    "MAVLINK_CAN",
+    "TunnelledCanBus",
     "OpenedBus",
     "SIMULATED_INTERFACES",
     "SIM_CHANNEL",
@@ -58,6 +62,9 @@ __getattr__ = lazy_face(
         "BITRATE_CODES": "aa55.codec",
         "BITRATE_SET_OUTSIDE": "bus_factory",
         "BusRequest": "bus_factory",
+        "FrameCarrier": "tunnel_bus",
+        "MAVLINK_CAN": "tunnel_bus",
+        "TunnelledCanBus": "tunnel_bus",
         "OpenedBus": "bus_factory",
         "SIMULATED_INTERFACES": "bus_factory",
         "SIM_CHANNEL": "bus_factory",

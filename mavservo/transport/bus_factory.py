@@ -21,6 +21,7 @@ from typing import Any, Protocol
 import can
 
 from mavservo.transport.resilient_bus import ResilientBus
+from mavservo.transport.tunnel_bus import MAVLINK_CAN, FrameCarrier, tunnel_factory
 
 #: The channel that asks for the built-in simulation instead of a device.
 SIM_CHANNEL = "sim"
@@ -126,11 +127,13 @@ def open_bus(
     on_event: Callable[[str], None] | None = None,
     on_reject: Callable[[Any, bytes], None] | None = None,
     on_frame: Callable[[can.Message, float], None] | None = None,
+    carrier: FrameCarrier | None = None,
 ) -> OpenedBus:
     """Open ``request`` (starting its simulation for ``channel: sim``), wrapped for reconnects.
 
     ``on_reject`` reaches the ``aa55`` bus's decoder rejections; ``on_frame`` sees every frame
-    received (see :class:`ResilientBus`).
+    received (see :class:`ResilientBus`). ``carrier``: the bridge's MAVLink link, which a
+    ``mavlink-can`` bus speaks through (:mod:`mavservo.transport.tunnel_bus`).
     """
     channel = request.channel
     simulator: SimulatedAdapter | None = None
@@ -148,6 +151,9 @@ def open_bus(
 
     def factory() -> can.BusABC:
         return can.Bus(**kwargs)
+
+    if request.interface == MAVLINK_CAN:  # an object to speak through, not a device
+        factory = tunnel_factory(kwargs, carrier)  # noqa: F811 - the interface's own opener
 
     try:
         bus = ResilientBus(
