@@ -71,6 +71,7 @@ STARTUP_GRACE_S = 5.0
 #: How long a reopened bus waits for the autopilot's answer before the reopen counts as failed.
 CONFIRM_S = 0.3
 RX_QUEUE_FRAMES = 1024
+_STAT_KEYS = ("sent", "received", "ignored", "dropped", "refused", "outages", "forward_requests")
 #: A driver's ``recv(None)`` still wakes this often to keep the forward alive.
 _MAX_WAIT_S = 0.1
 
@@ -274,16 +275,19 @@ class TunnelledCanBus(can.BusABC, TransportCounters):
             if due:
                 self._next_request = now + self._keepalive_s
         if due and self._lost is None:
-            self.counters["forward_requests"] += 1
-            if not self._carrier.request_forward(self.bus_number):
-                self.counters["forward_requests_unsent"] += 1
+            if self._carrier.request_forward(self.bus_number):
+                self.counters["forward_requests"] += 1
+            else:  # no autopilot yet: asked again at the next call, before the first frame
+                with self._lock:
+                    self._next_request = now
 
     def _wait_confirmed(self, seconds: float) -> bool:
-        """True once the autopilot answered (a frame or an accepted ACK) within ``seconds``."""
-        deadline = self._clock() + seconds
+        """True once the autopilot answered (a frame or an accepted ACK) within ``seconds``
+        of real time (a thread waits here, whatever clock the bus keeps)."""
+        deadline = time.monotonic() + seconds
         with self._lock:
             while not self._answered and self._lost is None:
-                left = deadline - self._clock()
+                left = deadline - time.monotonic()
                 if left <= 0:
                     return False
                 self._arrived.wait(min(left, _MAX_WAIT_S))
@@ -295,8 +299,11 @@ class TunnelledCanBus(can.BusABC, TransportCounters):
         return self._lost is None
 
     def stats(self) -> dict[str, Any]:
+        """``sent``/``received``: frames each way; ``ignored``: 29-bit frames dropped (the
+        autopilot's DroneCAN); ``dropped``: frames the full receive queue lost; ``refused``:
+        frames that could not go; ``outages``: forwards lost; ``forward_*``: the keep-alive."""
         with self._lock:
-            return {**self.counters, "queued": len(self._queue)}
+            return {**dict.fromkeys(_STAT_KEYS, 0), **self.counters, "queued": len(self._queue)}
 
     def shutdown(self) -> None:
         with self._lock:

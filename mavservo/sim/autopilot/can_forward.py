@@ -11,10 +11,12 @@ below), so CI tests the ``mavlink-can`` transport without an ArduPilot build:
   which is emptied onto the bus as far as the bus takes frames (l. 141-162); a frame pushed
   into the full buffer is lost (l. 112: ``push`` fails, nothing said), counted here.
 * Every frame the bus carries reaches the forward callback (its own sends included,
-  AP_HAL/CANIface.cpp l. 80-104); every 100th frame the callback stops forwarding if no request
-  came for 5 s (l. 268-279; ``frame_counter`` is a uint8_t, AP_MAVLinkCAN.h l. 56, left at 101
-  when the forward stops); a CAN_FILTER_MODIFY list keeps only frames whose DroneCAN-shaped id
-  is in it (l. 280-296); a frame the port has no room for is dropped silently (l. 315).
+  AP_HAL/CANIface.cpp l. 80-104); at ``frame_counter++ == 100`` (the 101st frame, then every
+  101st) the callback stops forwarding if no request came for 5 s (l. 268-279; the counter is a
+  uint8_t, AP_MAVLinkCAN.h l. 56, left at 101 when the forward stops, so after a new request the
+  next check comes 255 frames later); a CAN_FILTER_MODIFY list keeps only frames whose
+  DroneCAN-shaped id is in it (l. 280-296); a frame the port has no room for is dropped
+  silently (l. 315).
 
 :class:`CanForwarder` is that state machine, pure (times in milliseconds handed in, the CAN bus
 and the port's room behind callables). :class:`CanForwardLink` puts it between a python-can bus
