@@ -45,7 +45,10 @@ LISTEN_ONLY: dict[str, dict[str, Any]] = {
 #: Interfaces whose bitrate python-can does not set: SocketCAN takes it from the link (``ip link
 #: set can0 type can bitrate N``), the software buses have none. Opening them "at" another
 #: bitrate changes nothing, so the doctor does not search bitrates on them.
-BITRATE_SET_OUTSIDE = frozenset({"socketcan", "socketcand", "virtual", "udp_multicast"})
+BITRATE_SET_OUTSIDE = frozenset(
+    # mavlink-can: the autopilot's CAN_Px_BITRATE; sitl-mcast: a software bus
+    {"socketcan", "socketcand", "virtual", "udp_multicast", MAVLINK_CAN, "sitl-mcast"}
+)
 
 #: The standard CAN bitrates a bus is tried at when nothing is heard at the configured one,
 #: most common first (CiA 301's table; 1 Mbit/s and 500 kbit/s are what servo families ship at).

@@ -215,11 +215,7 @@ class TunnelledCanBus(can.BusABC, TransportCounters):
                 self._arrived.notify()
                 return
             self.counters["forward_refused"] += 1
-            self._lost = (
-                f"the autopilot refused to forward CAN bus {self.bus_number} (MAV_CMD_CAN_FORWARD "
-                f"result {result}): is CAN_P{self.bus_number}_DRIVER set, and its driver's "
-                "CAN_Dx_PROTOCOL DroneCAN (1)?"
-            )
+            self._lost = refusal_text(self.bus_number, result)
             self._arrived.notify()
 
     # ------------------------------------------------------------------ python-can side
@@ -313,6 +309,25 @@ class TunnelledCanBus(can.BusABC, TransportCounters):
             self._arrived.notify_all()
         self._carrier.unsubscribe(self.bus_index, self)
         super().shutdown()
+
+
+#: MAV_RESULT values (common.xml) an autopilot answers MAV_CMD_CAN_FORWARD with.
+MAV_RESULT_UNSUPPORTED = 3
+MAV_RESULT_FAILED = 4
+
+
+def refusal_text(number: int, result: int) -> str:
+    """Why the autopilot refused to forward CAN bus ``number`` (``result``: its MAV_RESULT)."""
+    if result == MAV_RESULT_UNSUPPORTED:  # PX4's commander answers unknown commands so
+        return (
+            f"the autopilot does not support CAN forwarding (MAV_CMD_CAN_FORWARD unsupported; "
+            f"PX4 has none): CAN bus {number} cannot be reached through MAVLink"
+        )
+    return (
+        f"the autopilot refused to forward CAN bus {number} (MAV_CMD_CAN_FORWARD result "
+        f"{result}): is CAN_P{number}_DRIVER set (ArduPilot answers FAILED for a bus without a "
+        "driver), and its CAN_Dx_PROTOCOL DroneCAN (1)?"
+    )
 
 
 def bus_number(channel: Any) -> int | None:

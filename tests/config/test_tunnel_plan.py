@@ -67,11 +67,15 @@ def test_a_signed_link_costs_13_bytes_more_per_frame() -> None:
 
 
 def test_one_mavlink_can_bus_per_autopilot() -> None:
-    text = config_text(baud=921_600).replace(
-        "[{name: fc, interface: mavlink-can, channel: 1}]",
-        "[{name: fc, interface: mavlink-can, channel: 1}, "
-        "{name: fc2, interface: mavlink-can, channel: 2}]",
-    ).replace("telemetry_hz: 10}", "telemetry_hz: 10, bus: fc}")
+    text = (
+        config_text(baud=921_600)
+        .replace(
+            "[{name: fc, interface: mavlink-can, channel: 1}]",
+            "[{name: fc, interface: mavlink-can, channel: 1}, "
+            "{name: fc2, interface: mavlink-can, channel: 2}]",
+        )
+        .replace("telemetry_hz: 10}", "telemetry_hz: 10, bus: fc}")
+    )
     with pytest.raises(ConfigError, match="only one mavlink-can bus per autopilot"):
         load_config_text(text, "fc.yaml")
 

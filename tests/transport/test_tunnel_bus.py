@@ -262,3 +262,19 @@ def test_channel_must_be_a_bus_number() -> None:
             TunnelledCanBus(channel, carrier=tunnel)
     with pytest.raises(can.CanInitializationError, match="bridge's MAVLink link"):
         TunnelledCanBus(1)
+
+
+def test_an_autopilot_without_can_forwarding_is_said_so(clock: FakeClock) -> None:
+    """PX4 answers MAV_CMD_CAN_FORWARD UNSUPPORTED (its commander's default case)."""
+    wire = Wire(clock)
+    try:
+        bus = open_bus(wire)
+        unsupported = mav.MAVLink_command_ack_message(
+            mav.MAV_CMD_CAN_FORWARD, mav.MAV_RESULT_UNSUPPORTED, 0, 0, *BRIDGE
+        )
+        wire.inject(unsupported)
+        with pytest.raises(can.CanOperationError, match="does not support CAN forwarding"):
+            bus.recv(timeout=0)
+        bus.shutdown()
+    finally:
+        wire.close()
