@@ -30,6 +30,7 @@ if TYPE_CHECKING:
     from .side import MavlinkSide
     from .stream_request import WINDOW_S, StreamRequestSettings
     from .telemetry import AUTO_ESC_FIRST
+    from .tunnel_link import TunnelLink
 
 __all__ = [
     "StreamRequestSettings",
@@ -55,6 +56,7 @@ __all__ = [
     "SetResult",
     "SigningSettings",
     "TelemetryRates",
+    "TunnelLink",
     "WINDOW_S",
     "WritePolicy",
     "crc32",
@@ -91,6 +93,7 @@ __getattr__ = lazy_face(
         "SetResult": "params",
         "SigningSettings": "settings",
         "TelemetryRates": "settings",
+        "TunnelLink": "tunnel_link",
         "WINDOW_S": "stream_request",
         "WritePolicy": "params",
         "crc32": "ftp",

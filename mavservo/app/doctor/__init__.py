@@ -30,10 +30,19 @@ from mavservo.config import (
     default_config_path,
     describe_bus,
     load_config,
+    mavlink_settings,
 )
+from mavservo.mavlink import TunnelLink
 from mavservo.servos import UnknownProfileError, get_profile
 from mavservo.sim import simulator_factory
-from mavservo.transport import BITRATE_SET_OUTSIDE, SIM_CHANNEL, BusRequest, OpenedBus, open_bus
+from mavservo.transport import (
+    BITRATE_SET_OUTSIDE,
+    MAVLINK_CAN,
+    SIM_CHANNEL,
+    BusRequest,
+    OpenedBus,
+    open_bus,
+)
 
 from .findings import BusFindings
 from .node_info import TOOL_NODE_ID
@@ -229,11 +238,15 @@ def diagnose_bus(
     simulator = None
     if bus.channel == SIM_CHANNEL:
         simulator = simulator_factory(config)(bus.name, bus.interface, bus.bitrate)
+    # mavlink-can: the autopilot's CAN port, reached through a MAVLink link of the doctor's own
+    tunnel = TunnelLink(mavlink_settings(config)) if bus.interface == MAVLINK_CAN else None
+    if tunnel is not None:
+        tunnel.start()
 
     def open_request(request: BusRequest) -> OpenedBus:
         if simulator is not None:
             request = dataclasses.replace(request, channel=simulator.path)
-        return open_bus(request)
+        return open_bus(request, carrier=None if tunnel is None else tunnel.tunnel)
 
     doctor = BusDoctor(
         bus,
@@ -250,6 +263,8 @@ def diagnose_bus(
     finally:
         if simulator is not None:
             simulator.stop()
+        if tunnel is not None:
+            tunnel.stop()
     return findings, judge(findings, servos)
 
 
