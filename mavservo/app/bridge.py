@@ -195,6 +195,8 @@ class Bridge:
         #: what the bus nodes keep across restarts (DroneCAN allocation table), if any
         self.node_states: node_state.NodeStateKeeper | None = None
         self.autopilot_sim: Any = None
+        #: the simulated flight-controller CAN port of a mavlink-can bus under ``url: sim``
+        self.sim_can_port: Any = None
         self.mavlink: MavlinkSide | None = None
         self.backend: ServoBackend | None = None
         #: the bridge's own servo health judgement and what follows from it (docs/health.md)
@@ -324,6 +326,8 @@ class Bridge:
         self._stop.set()
         if self.autopilot_sim is not None:
             _quietly(self.autopilot_sim.stop)
+        if self.sim_can_port is not None:
+            _quietly(self.sim_can_port.stop)
         if self.backend is not None and self._started:
             self.backend.failsafe_all(reason, time.monotonic(), announce=False)
             self._stopped_event(reason)
@@ -366,10 +370,14 @@ class Bridge:
         cfg = self.config
         settings = mavlink_settings(cfg)
         if cfg.mavlink.url == SIM:
-            from mavservo.sim import simulator_for
+            from mavservo.sim import simulated_can_port, simulator_for
 
             port = free_udp_port()
             settings = dataclasses.replace(settings, url=f"udpin:127.0.0.1:{port}")
+            # a mavlink-can bus: the simulated autopilot forwards a CAN port with its servos
+            tunnelled = [b for b in cfg.can.buses if b.interface == "mavlink-can"]
+            if tunnelled:
+                self.sim_can_port = simulated_can_port(cfg, tunnelled[0].name).start()
             self.autopilot_sim = simulator_for(
                 cfg.simulation.autopilot,
                 f"udpout:127.0.0.1:{port}",
@@ -377,6 +385,7 @@ class Bridge:
                 # the signing key
                 repeat_servo_cycle=cfg.mavlink.repeat_servo_cycle,
                 signing_key=settings.signing.key if settings.signing is not None else None,
+                can_forward=None if self.sim_can_port is None else self.sim_can_port.link,
             )
         assert self.backend is not None
         gimbals = [GimbalDevice(settings, self.backend) for settings in gimbal_settings(cfg)]

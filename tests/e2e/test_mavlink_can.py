@@ -61,6 +61,11 @@ def online(bridge: Bridge) -> dict[str, bool]:
     return {s.name: s.online for s in bridge.backend.servo_statuses()}
 
 
+def statuses(bridge: Bridge) -> list[Any]:
+    assert bridge.backend is not None
+    return list(bridge.backend.servo_statuses())
+
+
 def events(bridge: Bridge) -> list[str]:
     return [text for _, text in bridge.events]
 
@@ -104,3 +109,19 @@ def test_replies_the_autopilots_port_has_no_room_for_are_counted_lost_never_sile
     assert 0 < lost <= dropped_after, (lost, dropped_before, dropped_after)
     assert summary["buses"]["fc"]["transport"]["received"] > lost
     assert summary["buses"]["fc"]["transport"]["outages"] == 0  # the forward itself lived
+
+
+def test_the_built_in_simulation_has_a_flight_controller_can_port() -> None:
+    """``mavlink.url: sim`` with a ``mavlink-can`` bus: the simulated autopilot forwards a CAN
+    port with the bus's simulated servos, out of the box."""
+    config = load_config_text("mavlink: {url: sim}\n" + BODY, "<sim>")
+    bridge = Bridge(config, log_dir=False).start()
+    try:
+        port = bridge.sim_can_port
+        assert port is not None
+        assert wait_until(lambda: port.link.forwarder.counters["forwarded"] > 20, 10.0)
+        assert wait_until(lambda: all(s.state is not None for s in statuses(bridge)), 10.0)
+        assert all(online(bridge).values())
+    finally:
+        summary = bridge.stop()
+    assert summary["buses"]["fc"]["transport"]["received"] > 0

@@ -27,6 +27,7 @@ MAVLink link; :class:`SerialRoom` models the port's transmit buffer draining at 
 from __future__ import annotations
 
 import bisect
+import time
 from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -340,3 +341,25 @@ class CanForwardLink:
 
     def reboot(self) -> None:
         self.forwarder.reboot()
+
+
+class SimulatedCanPort:
+    """The built-in simulation's flight-controller CAN port (``mavlink.url: sim`` with a
+    ``mavlink-can`` bus): the bus's simulated servos on a python-can ``virtual`` channel of their
+    own, and the :class:`CanForwardLink` the simulated autopilot forwards it with.
+    ``start()``/``stop()`` run the servos; the link goes to the autopilot stream."""
+
+    def __init__(self, servos: list[Any], bus_index: int, channel: str) -> None:
+        from mavservo.sim.virtual import VirtualServoBus  # the sim layer's own part
+
+        self.servos = VirtualServoBus(servos, channel=channel)
+        self._can = can.Bus(interface="virtual", channel=channel)
+        self.link = CanForwardLink(self._can, bus_index=bus_index, clock=time.monotonic)
+
+    def start(self) -> SimulatedCanPort:
+        self.servos.start()
+        return self
+
+    def stop(self) -> None:
+        self.servos.stop()
+        self._can.shutdown()
