@@ -19,7 +19,7 @@ from typing import Any
 
 import can
 
-from mavservo.config import BusConfig, Config, tunnel_keeps_extended
+from mavservo.config import BusConfig, Config, tunnel_filter_ids, tunnel_keeps_extended
 from mavservo.records import RunLog
 from mavservo.sim import PtyAdapter, simulator_factory
 from mavservo.transport import (
@@ -72,6 +72,7 @@ class BridgeBuses:
             }
         if bus_cfg.interface == MAVLINK_CAN:  # the autopilot's own DroneCAN: dropped if unused
             options.setdefault("keep_extended", tunnel_keeps_extended(self._config, bus_cfg))
+            options["forward_filter_ids"] = tunnel_filter_ids(self._config, bus_cfg)
         request = BusRequest(name, bus_cfg.interface, bus_cfg.channel, bus_cfg.bitrate, options)
         tap = None
         if runlog is not None and self._config.logging.can_frames == "all":

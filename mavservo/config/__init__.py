@@ -115,7 +115,7 @@ if TYPE_CHECKING:
     from .schema import SimAutopilotConfig, allowed_values, read_key_file
     from .simulation import Faults, Physics
     from .smallfile import SmallFileError, read_small_file
-    from .tunnel_plan import tunnel_keeps_extended, tunnel_plan_lines
+    from .tunnel_plan import tunnel_filter_ids, tunnel_keeps_extended, tunnel_plan_lines
     from .views import (
         gimbal_settings,
         mavlink_settings,
@@ -154,6 +154,7 @@ __all__ += [
     "read_small_file",
     "repeat_servo_value",
     "servos_on",
+    "tunnel_filter_ids",
     "tunnel_keeps_extended",
     "tunnel_plan_lines",
     "with_values",
@@ -198,6 +199,7 @@ __getattr__ = lazy_face(
         "read_small_file": "smallfile",
         "repeat_servo_value": "autopilot_script",
         "servos_on": "budget",
+        "tunnel_filter_ids": "tunnel_plan",
         "tunnel_keeps_extended": "tunnel_plan",
         "tunnel_plan_lines": "tunnel_plan",
         "with_values": "parameters",

@@ -35,7 +35,7 @@ from mavservo.config.semantic import Finding
 from mavservo.config.urls import is_serial_url
 from mavservo.mavlink import tunnel_wire_bytes
 from mavservo.scheduling import ServoTraffic
-from mavservo.transport import MAVLINK_CAN
+from mavservo.transport import MAVLINK_CAN, filter_key
 
 #: The share of the serial link's capacity (each way) the plan gives CAN frames.
 TUNNEL_SHARE = 0.75
@@ -237,3 +237,26 @@ def tunnel_keeps_extended(config: Config, bus: BusConfig) -> bool:
         for servo in servos
         for frame in servo.make_profile().identifiers()
     )
+
+
+def tunnel_filter_ids(config: Config, bus: BusConfig) -> list[int] | None:
+    """The CAN_FILTER_MODIFY keys (:func:`~mavservo.transport.filter_key`) of every 11-bit id
+    a servo of ``bus`` may answer with: the autopilot then forwards those and not its own
+    DroneCAN traffic. None when the bus needs 29-bit frames (:func:`tunnel_keeps_extended`):
+    their keys would be DroneCAN's own."""
+    if tunnel_keeps_extended(config, bus):
+        return None
+    replies = [
+        frame
+        for servo in servos_on(config, bus)
+        for frame in servo.make_profile().identifiers()
+        if frame.direction == "from_servo"
+    ]
+    keys = {
+        filter_key(can_id)
+        for can_id in range(0x800)
+        for frame in replies
+        # the id alone decides the key: a frame's first-byte match does not narrow it
+        if not frame.extended and not (can_id ^ frame.arbitration_id) & frame.id_mask & 0x7FF
+    }
+    return sorted(keys) or None

@@ -43,6 +43,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 MAV_CMD_CAN_FORWARD = mavlink2.MAV_CMD_CAN_FORWARD
 _FRAME_TYPES = ("CAN_FRAME", "CANFD_FRAME")
 _DATA_LEN = {"CAN_FRAME": 8, "CANFD_FRAME": 64}
+#: CAN_FILTER_MODIFY carries at most this many ids (common.xml: ``uint16_t[16] ids``).
+_FILTER_IDS = 16
 
 
 class _Sink(Protocol):
@@ -111,6 +113,24 @@ class CanTunnel:
             )
         )
         self.counters["forward_requests"] += 1
+        return True
+
+    def set_filter(self, bus_number: int, ids: list[int]) -> bool:
+        """CAN_FILTER_MODIFY, replace: forward only frames whose DroneCAN-shaped key is in
+        ``ids`` (AP_MAVLinkCAN.cpp l. 167-251; ``bus`` 1-based there, l. 171; at most 16 ids,
+        l. 175). Replacing with the same list changes nothing (l. 194-198), so it is re-sent
+        with every keep-alive and survives an autopilot restart."""
+        target = self._autopilot()
+        send = self._send
+        if target is None or send is None or len(ids) > _FILTER_IDS:
+            return False
+        padded = list(ids) + [0] * (_FILTER_IDS - len(ids))
+        send(
+            mavlink2.MAVLink_can_filter_modify_message(
+                target[0], target[1], bus_number, mavlink2.CAN_FILTER_REPLACE, len(ids), padded
+            )
+        )
+        self.counters["filter_requests"] += 1
         return True
 
     # ------------------------------------------------------------------ the link's side

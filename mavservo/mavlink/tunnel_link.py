@@ -18,6 +18,8 @@ from mavservo.mavlink.can_tunnel import CanTunnel
 from mavservo.mavlink.link import MavlinkLink
 from mavservo.mavlink.settings import FOLLOW, MavlinkSettings
 
+#: How long :meth:`TunnelLink.start` waits for the autopilot (a little over two heartbeats).
+AUTOPILOT_WAIT_S = 2.5
 _MAV_TYPE_GCS = 6
 _MAV_AUTOPILOT_INVALID = 8
 
@@ -32,6 +34,7 @@ class TunnelLink:
         self._system_id = settings.autopilot_system if following else int(settings.system_id)
         self._following = following
         self._autopilot: tuple[int, int] | None = None
+        self._heard = threading.Event()
         self.tunnel = CanTunnel()
         self.link = MavlinkLink(
             settings.url, self._on_message, baud=settings.baud, signing=settings.signing
@@ -62,9 +65,13 @@ class TunnelLink:
                 self._system_id = source[0]
             if source == (self._system_id, settings.autopilot_component):
                 self._autopilot = source
+                self._heard.set()
 
-    def start(self) -> None:
+    def start(self, wait_s: float = AUTOPILOT_WAIT_S) -> bool:
+        """Open the link and wait up to ``wait_s`` for the autopilot's HEARTBEAT (1 Hz from
+        ArduPilot): a tool's first frames would otherwise be refused. True once heard."""
         self.link.start()
+        return self._heard.wait(wait_s)
 
     def stop(self) -> None:
         self.link.stop()

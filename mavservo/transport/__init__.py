@@ -30,7 +30,7 @@ if TYPE_CHECKING:
     )
     from .counters import transport_stats
     from .interface_signatures import UnknownInterfaceError, interface_options, option_problems
-    from .tunnel_bus import MAVLINK_CAN, FrameCarrier, TunnelledCanBus
+    from .tunnel_bus import MAVLINK_CAN, FrameCarrier, TunnelledCanBus, filter_key
 
 __all__ = [
     "BITRATE_CODES",
@@ -49,6 +49,7 @@ __all__ = [
     "open_bus",
     "option_problems",
     "transport_stats",
+    "filter_key",
     "AA55Frame",
     "AA55Decoder",
     "AA55Settings",
@@ -75,6 +76,7 @@ __getattr__ = lazy_face(
         "open_bus": "bus_factory",
         "option_problems": "interface_signatures",
         "transport_stats": "counters",
+        "filter_key": "tunnel_bus",
         "AA55Frame": "aa55.codec:Frame",
         "AA55Decoder": "aa55.codec:Decoder",
         "AA55Settings": "aa55.codec:AdapterSettings",

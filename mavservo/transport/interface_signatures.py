@@ -50,6 +50,7 @@ OWN_KEYS = {
         "clock": "set by the bridge",
         "startup_grace_s": "set by the bridge (the first open waits for the autopilot)",
         "confirm_s": "set by the bridge (a reopen waits for the autopilot's answer)",
+        "forward_filter_ids": "set by the bridge from the servos' reply ids",
     },
 }
 

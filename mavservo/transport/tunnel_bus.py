@@ -102,6 +102,9 @@ class FrameCarrier(Protocol):
     def request_forward(self, bus_number: int) -> bool:
         """MAV_CMD_CAN_FORWARD with param1 ``bus_number`` (1-based); False when not sent."""
 
+    def set_filter(self, bus_number: int, ids: list[int]) -> bool:
+        """CAN_FILTER_MODIFY: forward only frames whose :func:`filter_key` is in ``ids``."""
+
 
 class TunnelledCanBus(can.BusABC, TransportCounters):
     """The autopilot's CAN bus ``channel`` (1-based), through ``carrier``; see the module.
@@ -123,6 +126,8 @@ class TunnelledCanBus(can.BusABC, TransportCounters):
         keep_extended: bool = False,
         foreign_frames_hz: float = 30.0,
         rx_queue_frames: int = RX_QUEUE_FRAMES,
+        filter_at_autopilot: bool = True,
+        forward_filter_ids: list[int] | None = None,
         clock: Callable[[], float] = time.monotonic,
         **kwargs: Any,
     ) -> None:
@@ -147,6 +152,11 @@ class TunnelledCanBus(can.BusABC, TransportCounters):
         self._forward_timeout_s = forward_timeout_s
         self._keep_extended = keep_extended
         self.foreign_frames_hz = foreign_frames_hz
+        self._filter = (
+            sorted(set(forward_filter_ids))
+            if filter_at_autopilot and forward_filter_ids is not None
+            else None
+        )
         self._clock = clock
         self._lock = threading.Lock()
         self._arrived = threading.Condition(self._lock)
@@ -273,6 +283,8 @@ class TunnelledCanBus(can.BusABC, TransportCounters):
         if due and self._lost is None:
             if self._carrier.request_forward(self.bus_number):
                 self.counters["forward_requests"] += 1
+                if self._filter is not None:
+                    self._carrier.set_filter(self.bus_number, self._filter)
             else:  # no autopilot yet: asked again at the next call, before the first frame
                 with self._lock:
                     self._next_request = now
@@ -339,6 +351,18 @@ def bus_number(channel: Any) -> int | None:
     except (TypeError, ValueError):
         return None
     return number if 1 <= number <= MAX_BUS_NUMBER else None
+
+
+def filter_key(raw_id: int) -> int:
+    """The key ArduPilot matches a forwarded frame against a CAN_FILTER_MODIFY list with
+    (AP_MAVLinkCAN.cpp l. 281-292, written for DroneCAN ids): 0 when the low byte is 0, bits
+    16-23 when bit 7 is set (a service), else bits 8-23. An 11-bit id's key is 0..7, so a list of
+    the servos' keys keeps their replies and drops the autopilot's own DroneCAN messages."""
+    if raw_id & 0xFF == 0:
+        return 0
+    if raw_id & 0x80:
+        return (raw_id >> 16) & 0xFF
+    return (raw_id >> 8) & 0xFFFF
 
 
 def tunnel_factory(

@@ -10,7 +10,7 @@ import pytest
 
 from mavservo.app.check import check_main
 from mavservo.config import ConfigError, load_config_text
-from mavservo.config.tunnel_plan import tunnel_keeps_extended, tunnel_plans
+from mavservo.config.tunnel_plan import tunnel_filter_ids, tunnel_keeps_extended, tunnel_plans
 from mavservo.mavlink import tunnel_wire_bytes
 
 
@@ -105,3 +105,11 @@ def test_check_prints_the_plan_and_refuses_what_does_not_fit(tmp_path: Path) -> 
     out, err = io.StringIO(), io.StringIO()
     assert check_main([str(bad)], out, err) == 2
     assert "does not fit" in err.getvalue()
+
+
+def test_filter_keys_are_those_of_the_servos_reply_ids() -> None:
+    config = load_config_text(config_text(baud=921_600), "fc.yaml")
+    assert tunnel_filter_ids(config, config.can.buses[0]) == [2]  # RMD-X replies 0x241..0x244
+    robstride = config_text(baud=921_600, servos=1).replace("rmd-x", "robstride")
+    config = load_config_text(robstride, "fc.yaml")
+    assert tunnel_filter_ids(config, config.can.buses[0]) is None  # 29-bit: no filter

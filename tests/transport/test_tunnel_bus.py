@@ -278,3 +278,19 @@ def test_an_autopilot_without_can_forwarding_is_said_so(clock: FakeClock) -> Non
         bus.shutdown()
     finally:
         wire.close()
+
+
+def test_the_autopilot_is_told_to_forward_only_the_servos_replies(wire: Wire) -> None:
+    """CAN_FILTER_MODIFY with the keys of the servos' 11-bit reply ids (RMD-X 0x241: key 2):
+    the autopilot keeps its own DroneCAN traffic off the link."""
+    bus = open_bus(wire, forward_filter_ids=[2])
+    assert wire.sent_by_bridge == ["COMMAND_LONG", "CAN_FILTER_MODIFY"]
+    wire.node.send(NODE_STATUS)
+    wire.node.send(SERVO_REPLY)
+    wire.link.pump()
+    assert [m.arbitration_id for m in drain(bus)] == [0x241]
+    assert wire.link.forwarder.counters["filtered"] == 1 and bus.stats()["ignored"] == 0
+    bus.shutdown()
+    unfiltered = open_bus(wire, forward_filter_ids=[2], filter_at_autopilot=False)
+    assert wire.sent_by_bridge[-1] == "COMMAND_LONG"
+    unfiltered.shutdown()
