@@ -128,23 +128,29 @@ def metrics_of(logs: Path) -> dict[str, Any]:
 
 
 def figures(metrics: dict[str, Any], cpu_s: float) -> dict[str, Any]:
+    """The bridge's figures: replies lost, the command loop's period sigma (its ticks), the
+    servos' round trip (frame written -> reply decoded, median over servos of each p50/p95),
+    its CPU, the load stalls seen (longest command gap) and its bus events."""
     servos = metrics["servos"].values()
-    lost = sum(s["frames"]["lost"] for s in servos)
-    sent = sum(s["frames"]["sent"] for s in servos)
-    sigma = statistics.median(s["command_interval_s"]["interval"]["sigma"] or 0 for s in servos)
-    sigma *= 1e3
+    bus = next(iter(metrics["buses"].values()))
+    tick = bus["command_tick"]["interval"]
     p50 = statistics.median(s["latency_s"]["p50"] for s in servos) * 1e3
     p95 = statistics.median(s["latency_s"]["p95"] for s in servos) * 1e3
     uptime = metrics["uptime_s"]
     return {
-        "frames_sent": sent,
-        "lost": lost,
-        "command_interval_sigma_ms": round(sigma, 2),
+        "frames_sent": sum(s["frames"]["sent"] for s in servos),
+        "replies": sum(s["frames"]["received"] for s in servos),
+        "lost": sum(s["frames"]["lost"] for s in servos),
+        "late": sum(s["frames"]["late"] for s in servos),
+        "command_period_sigma_ms": round(tick["sigma"] * 1e3, 2),
+        "command_period_p50_ms": round(tick["p50"] * 1e3, 2),
+        "longest_command_gap_ms": round(bus["longest_command_gap_s"] * 1e3, 1),
         "round_trip_p50_ms": round(p50, 2),
         "round_trip_p95_ms": round(p95, 2),
         "cpu_s": round(cpu_s, 2),
         "cpu_percent": round(100 * cpu_s / uptime, 1),
-        "transport": next(iter(metrics["buses"].values())).get("transport", {}),
+        "events": metrics["events"],
+        "transport": bus.get("transport", {}),
     }
 
 
@@ -201,7 +207,7 @@ def main() -> int:
             for key in (
                 "round_trip_p50_ms",
                 "round_trip_p95_ms",
-                "command_interval_sigma_ms",
+                "command_period_sigma_ms",
                 "cpu_s",
             )
         }
