@@ -35,7 +35,13 @@ from mavservo.config.semantic import Finding
 from mavservo.config.urls import is_serial_url
 from mavservo.mavlink import tunnel_wire_bytes
 from mavservo.scheduling import ServoTraffic
-from mavservo.transport import MAVLINK_CAN, filter_key
+from mavservo.transport import (
+    MAVLINK_CAN,
+    TUNNEL_FORWARD_TIMEOUT_S,
+    TUNNEL_KEEPALIVE_S,
+    TUNNEL_OPTION_BOUNDS,
+    filter_key,
+)
 
 #: The share of the serial link's capacity (each way) the plan gives CAN frames.
 TUNNEL_SHARE = 0.75
@@ -46,8 +52,6 @@ STANDARD_BAUDS = (57_600, 115_200, 230_400, 460_800, 921_600, 1_500_000, 2_000_0
 #: Frames per second the autopilot's own nodes put on its CAN bus unless the bus says
 #: (``options.foreign_frames_hz``): ~27/s measured on ArduPlane SITL with DroneCAN on.
 DEFAULT_FOREIGN_HZ = 30.0
-#: The keep-alive the bus sends (tunnel_bus.KEEPALIVE_S) unless the bus says.
-DEFAULT_KEEPALIVE_S = 0.5
 
 
 def _out_hz(traffic: ServoTraffic) -> float:
@@ -171,7 +175,7 @@ def tunnel_plan(config: Config, bus: BusConfig, index: int) -> TunnelPlan:
     servo_out = sum(_out_hz(t) for t in traffic)
     servo_in = sum(_in_hz(t) for t in traffic)
     foreign = float(bus.options.get("foreign_frames_hz", DEFAULT_FOREIGN_HZ))
-    keepalive_hz = 1.0 / float(bus.options.get("keepalive_s", DEFAULT_KEEPALIVE_S))
+    keepalive_hz = 1.0 / float(bus.options.get("keepalive_s", TUNNEL_KEEPALIVE_S))
     out_hz = servo_out + sum(flow.rate_hz for flow in node)
     in_hz = servo_in + foreign
     wire = tunnel_wire_bytes(config.mavlink.signing is not None)
@@ -205,6 +209,10 @@ def tunnel_checks(config: Config) -> list[Finding]:
                 "for the other bus",
             )
         )
+    for index in tunnelled:
+        findings += _option_findings(config.can.buses[index], index)
+    if findings:
+        return findings
     for plan in tunnel_plans(config):
         if not plan.fits:
             findings.append(
@@ -214,6 +222,30 @@ def tunnel_checks(config: Config) -> list[Finding]:
                     f"room for, silently); would fit: {plan.what_fits()}",
                 )
             )
+    return findings
+
+
+def _option_findings(bus: BusConfig, index: int) -> list[Finding]:
+    """Options outside :data:`~mavservo.transport.TUNNEL_OPTION_BOUNDS`, and a forward timeout
+    not above two keep-alives (one missed answer must not read as a lost forward)."""
+    findings: list[Finding] = []
+    options = bus.options
+    for key, (low, high) in TUNNEL_OPTION_BOUNDS.items():
+        value = options.get(key)
+        if isinstance(value, int | float) and not low <= value <= high:
+            findings.append(
+                (("can", "buses", index, "options", key), f"{key} must be in {low:g}..{high:g}")
+            )
+    keepalive = float(options.get("keepalive_s", TUNNEL_KEEPALIVE_S))
+    timeout = float(options.get("forward_timeout_s", TUNNEL_FORWARD_TIMEOUT_S))
+    if not findings and timeout <= 2 * keepalive:
+        findings.append(
+            (
+                ("can", "buses", index, "options", "forward_timeout_s"),
+                f"forward_timeout_s ({timeout:g}) must exceed two keep-alives "
+                f"(2 x keepalive_s = {2 * keepalive:g} s)",
+            )
+        )
     return findings
 
 

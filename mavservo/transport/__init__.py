@@ -30,7 +30,10 @@ if TYPE_CHECKING:
     )
     from .counters import transport_stats
     from .interface_signatures import UnknownInterfaceError, interface_options, option_problems
+    from .tunnel_bus import FORWARD_TIMEOUT_S as TUNNEL_FORWARD_TIMEOUT_S
+    from .tunnel_bus import KEEPALIVE_S as TUNNEL_KEEPALIVE_S
     from .tunnel_bus import MAVLINK_CAN, FrameCarrier, TunnelledCanBus, filter_key
+    from .tunnel_bus import OPTION_BOUNDS as TUNNEL_OPTION_BOUNDS
 
 __all__ = [
     "BITRATE_CODES",
@@ -50,6 +53,9 @@ __all__ = [
     "option_problems",
     "transport_stats",
     "filter_key",
+    "TUNNEL_FORWARD_TIMEOUT_S",
+    "TUNNEL_KEEPALIVE_S",
+    "TUNNEL_OPTION_BOUNDS",
     "AA55Frame",
     "AA55Decoder",
     "AA55Settings",
@@ -77,6 +83,9 @@ __getattr__ = lazy_face(
         "option_problems": "interface_signatures",
         "transport_stats": "counters",
         "filter_key": "tunnel_bus",
+        "TUNNEL_FORWARD_TIMEOUT_S": "tunnel_bus:FORWARD_TIMEOUT_S",
+        "TUNNEL_KEEPALIVE_S": "tunnel_bus:KEEPALIVE_S",
+        "TUNNEL_OPTION_BOUNDS": "tunnel_bus:OPTION_BOUNDS",
         "AA55Frame": "aa55.codec:Frame",
         "AA55Decoder": "aa55.codec:Decoder",
         "AA55Settings": "aa55.codec:AdapterSettings",

@@ -71,6 +71,14 @@ STARTUP_GRACE_S = 5.0
 #: How long a reopened bus waits for the autopilot's answer before the reopen counts as failed.
 CONFIRM_S = 0.3
 RX_QUEUE_FRAMES = 1024
+#: The YAML's bounds of this interface's options (``mavservo check`` refuses others): the
+#: keep-alive well inside ArduPilot's 5 s, the timeout above two keep-alives.
+OPTION_BOUNDS: dict[str, tuple[float, float]] = {
+    "keepalive_s": (0.05, 2.0),
+    "forward_timeout_s": (0.2, 10.0),
+    "foreign_frames_hz": (0.0, 10_000.0),
+    "rx_queue_frames": (16, 100_000),
+}
 _STAT_KEYS = ("sent", "received", "ignored", "dropped", "refused", "outages", "forward_requests")
 #: A driver's ``recv(None)`` still wakes this often to keep the forward alive.
 _MAX_WAIT_S = 0.1
@@ -133,7 +141,11 @@ class TunnelledCanBus(can.BusABC, TransportCounters):
     ) -> None:
         """``foreign_frames_hz``: the frames per second the autopilot's own nodes put on that
         bus (its DroneCAN; ~27/s measured on ArduPlane SITL), forwarded over the link whether
-        kept or not: the link plan counts them (``mavservo check``)."""
+        kept or not: the link plan counts them (``mavservo check``). ``forward_filter_ids``
+        (set by the bridge from the servos' reply ids; None: none possible) goes to the
+        autopilot as CAN_FILTER_MODIFY with every keep-alive unless ``filter_at_autopilot`` is
+        False (:func:`filter_key`). The YAML's bounds are checked at load
+        (:data:`OPTION_BOUNDS`)."""
         if carrier is None:
             raise can.CanInitializationError(
                 "interface 'mavlink-can' speaks through the bridge's MAVLink link; it is "

@@ -113,3 +113,17 @@ def test_filter_keys_are_those_of_the_servos_reply_ids() -> None:
     robstride = config_text(baud=921_600, servos=1).replace("rmd-x", "robstride")
     config = load_config_text(robstride, "fc.yaml")
     assert tunnel_filter_ids(config, config.can.buses[0]) is None  # 29-bit: no filter
+
+
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        ("{keepalive_s: 6.0}", "keepalive_s must be in"),  # past ArduPilot's 5 s: never kept
+        ("{keepalive_s: 1.0, forward_timeout_s: 1.5}", "must exceed two keep-alives"),
+        ("{rx_queue_frames: 1}", "rx_queue_frames must be in"),
+    ],
+)
+def test_options_a_stranger_can_set_are_bounded(options: str, message: str) -> None:
+    text = config_text(baud=921_600).replace("channel: 1}", f"channel: 1, options: {options}}}")
+    with pytest.raises(ConfigError, match=message):
+        load_config_text(text, "fc.yaml")

@@ -125,3 +125,26 @@ def test_the_built_in_simulation_has_a_flight_controller_can_port() -> None:
     finally:
         summary = bridge.stop()
     assert summary["buses"]["fc"]["transport"]["received"] > 0
+
+
+def test_a_full_autopilot_buffer_is_counted_and_the_servos_offline_are_said() -> None:
+    """The autopilot's CAN transmit slots stay full (a bus-off port): its 20-frame buffer fills
+    and every further frame is lost (AP_MAVLinkCAN.cpp l. 112), counted there; the bridge sees
+    the forward alive (ACKs) but no reply: each servo goes offline with a STATUSTEXT, never
+    silently, and comes back when the port drains again."""
+    with flight_controller(BODY) as (bridge, autopilot, link, _servos):
+        forwarder = link.forwarder
+        assert wait_until(lambda: forwarder.counters["forwarded"] > 20, 10.0)
+        write = forwarder._write
+        forwarder._write = lambda *frame: False  # the CAN port takes nothing
+        assert wait_until(lambda: forwarder.counters["buffer_full"] > 20, 10.0)
+        assert wait_until(lambda: not any(online(bridge).values()), 10.0)
+
+        def said() -> list[str]:
+            return [m.text for _, m in autopilot.received.messages("STATUSTEXT")]
+
+        assert wait_until(lambda: sum("not responding" in t for t in said()) >= 2, 10.0), said()
+        assert bridge.bus_set.transport_stats("fc")["outages"] == 0  # the forward itself lived
+        forwarder._write = write
+        assert wait_until(lambda: all(online(bridge).values()), 10.0)
+        assert wait_until(lambda: all(s.state is not None for s in statuses(bridge)), 10.0)

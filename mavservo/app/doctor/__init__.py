@@ -246,7 +246,12 @@ def diagnose_bus(
     def open_request(request: BusRequest) -> OpenedBus:
         if simulator is not None:
             request = dataclasses.replace(request, channel=simulator.path)
-        return open_bus(request, carrier=None if tunnel is None else tunnel.tunnel)
+        if tunnel is None:
+            return open_bus(request)
+        # everything the port carries (the autopilot's DroneCAN nodes too), no filter at the
+        # autopilot: the doctor looks for whoever is there, not only the configured servos
+        options = {"keep_extended": True, **request.options, "filter_at_autopilot": False}
+        return open_bus(dataclasses.replace(request, options=options), carrier=tunnel.tunnel)
 
     doctor = BusDoctor(
         bus,
