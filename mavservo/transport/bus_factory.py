@@ -21,7 +21,12 @@ from typing import Any, Protocol
 import can
 
 from mavservo.transport.resilient_bus import ResilientBus
-from mavservo.transport.tunnel_bus import MAVLINK_CAN, FrameCarrier, tunnel_factory
+from mavservo.transport.tunnel_bus import (
+    MAVLINK_CAN,
+    TUNNEL_MAX_BACKOFF_S,
+    FrameCarrier,
+    tunnel_factory,
+)
 
 #: The channel that asks for the built-in simulation instead of a device.
 SIM_CHANNEL = "sim"
@@ -160,7 +165,12 @@ def open_bus(
 
     try:
         bus = ResilientBus(
-            factory, name=request.name, on_event=on_event, path=str(channel), on_frame=on_frame
+            factory,
+            name=request.name,
+            on_event=on_event,
+            path=str(channel),
+            on_frame=on_frame,
+            max_backoff_s=TUNNEL_MAX_BACKOFF_S if request.interface == MAVLINK_CAN else 2.0,
         )
     except BaseException:
         if simulator is not None:

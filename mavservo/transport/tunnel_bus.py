@@ -70,6 +70,10 @@ FORWARD_TIMEOUT_S = 1.5
 STARTUP_GRACE_S = 5.0
 #: How long a reopened bus waits for the autopilot's answer before the reopen counts as failed.
 CONFIRM_S = 0.3
+#: ResilientBus's backoff for this bus: a reopen is one small message and a bounded wait, and a
+#: restarted autopilot should be asked at once (with a USB adapter's 2 s the bus came back 1.6 s
+#: after the autopilot's heartbeat through SITL; docs/engineering/mavlink-can.md).
+TUNNEL_MAX_BACKOFF_S = 0.5
 RX_QUEUE_FRAMES = 1024
 #: The YAML's bounds of this interface's options (``mavservo check`` refuses others): the
 #: keep-alive well inside ArduPilot's 5 s, the timeout above two keep-alives.
