@@ -51,17 +51,18 @@ SERIAL2_PROTOCOL 2
 """
 
 
-def config(url: str, bus: str) -> str:
+def config(url: str, bus: str, count: int = SERVOS, scheduler: str = "") -> str:
     servos = "\n".join(
-        f"  - {{name: s{i}, profile: rmd-x, can_id: {i}}}" for i in range(1, SERVOS + 1)
+        f"  - {{name: s{i}, profile: rmd-x, can_id: {i}}}" for i in range(1, count + 1)
     )
     channels = "\n".join(
         f"  - {{servo: s{i}, source: servo_output, channel: {i}, output_deg: [-90, 90]}}"
-        for i in range(1, SERVOS + 1)
+        for i in range(1, count + 1)
     )
+    extra = f"scheduler: {scheduler}\n" if scheduler else ""
     return (
         f'mavlink: {{url: "{url}"}}\ncan:\n  buses: [{bus}]\n'
-        f"servos:\n{servos}\nchannels:\n{channels}\n"
+        f"servos:\n{servos}\nchannels:\n{channels}\n{extra}"
     )
 
 
@@ -127,6 +128,19 @@ def metrics_of(logs: Path) -> dict[str, Any]:
     return json.loads((run / "metrics.json").read_text())
 
 
+def metrics_of_after(process: subprocess.Popen[bytes], logs: Path, seconds: float) -> Any:
+    """The metrics of a bridge run once it ended (its CPU too, in the figures)."""
+    cpu = wait_cpu(process, seconds + 60)
+    metrics = metrics_of(logs)
+    metrics["_cpu_s"] = cpu
+    return metrics
+
+
+def _print(out: dict[str, Any]) -> int:
+    print(json.dumps(out, indent=1))
+    return 0
+
+
 def figures(metrics: dict[str, Any], cpu_s: float) -> dict[str, Any]:
     """The bridge's figures: replies lost, the command loop's period sigma (its ticks), the
     servos' round trip (frame written -> reply decoded, median over servos of each p50/p95),
@@ -137,6 +151,7 @@ def figures(metrics: dict[str, Any], cpu_s: float) -> dict[str, Any]:
     p50 = statistics.median(s["latency_s"]["p50"] for s in servos) * 1e3
     p95 = statistics.median(s["latency_s"]["p95"] for s in servos) * 1e3
     uptime = metrics["uptime_s"]
+    cpu_s = metrics.get("_cpu_s", cpu_s)
     return {
         "frames_sent": sum(s["frames"]["sent"] for s in servos),
         "replies": sum(s["frames"]["received"] for s in servos),
@@ -161,12 +176,25 @@ def main() -> int:
     parser.add_argument("--restart-at", type=float, default=15.0)
     parser.add_argument("--down-s", type=float, default=2.0)
     parser.add_argument("--restart-run-s", type=float, default=45.0)
+    parser.add_argument("--servos", type=int, default=SERVOS)
+    parser.add_argument("--scheduler", default="", help="YAML flow map for scheduler:")
+    parser.add_argument(
+        "--baud-limit",
+        type=int,
+        default=0,
+        help="SERIAL1_BAUD (ArduPilot's code: 57 = 57,600) with SIM_BAUDLIMIT_EN 1",
+    )
+    parser.add_argument(
+        "--tunnel-only", action="store_true", help="bridge A only: no baseline, no restart"
+    )
     args = parser.parse_args()
     home = Path(args.arduplane).resolve().parents[3]
     work = Path(tempfile.mkdtemp(prefix="mavcan-bench-"))
     parm = work / "can.parm"
-    parm.write_text(CAN_PARAMS)
+    limit = f"SERIAL1_BAUD {args.baud_limit}\nSIM_BAUDLIMIT_EN 1\n" if args.baud_limit else ""
+    parm.write_text(CAN_PARAMS + limit)
     out: dict[str, Any] = {"machine": os.uname().nodename, "cpus": os.cpu_count()}
+    out["servos"], out["scheduler"], out["baud_limit"] = args.servos, args.scheduler, limit
 
     def launch(wipe: bool) -> subprocess.Popen[bytes]:
         log = open(work / "sitl.log", "ab")  # noqa: SIM115 - kept for the child's life
@@ -180,21 +208,34 @@ def main() -> int:
 
     sitl = launch(wipe=True)
     mcast_servos = VirtualServoBus(
-        [SimServo("rmd-x", i) for i in range(1, SERVOS + 1)], channel=0, interface="sitl-mcast"
+        [SimServo("rmd-x", i) for i in range(1, args.servos + 1)],
+        channel=0,
+        interface="sitl-mcast",
     ).start()
-    emulator = AdapterEmulator([SimServo("rmd-x", i) for i in range(1, SERVOS + 1)]).start()
+    emulator = AdapterEmulator([SimServo("rmd-x", i) for i in range(1, args.servos + 1)]).start()
     try:
         time.sleep(5.0)  # SITL boots
         a_cfg, b_cfg = work / "a.yaml", work / "b.yaml"
         a_cfg.write_text(
-            config("udpin:127.0.0.1:14551", "{name: fc, interface: mavlink-can, channel: 1}")
+            config(
+                "udpin:127.0.0.1:14551",
+                "{name: fc, interface: mavlink-can, channel: 1}",
+                args.servos,
+                args.scheduler,
+            )
         )
         b_cfg.write_text(
             config(
                 "udpin:127.0.0.1:14552",
                 f'{{name: usb, interface: aa55, channel: "{emulator.path}"}}',
+                args.servos,
+                args.scheduler,
             )
         )
+        if args.tunnel_only:
+            a = start_bridge(a_cfg, work / "a", args.seconds)
+            out["mavlink_can"] = figures(metrics_of_after(a, work / "a", args.seconds), 0.0)
+            return _print(out)
         a = start_bridge(a_cfg, work / "a", args.seconds)
         b = start_bridge(b_cfg, work / "b", args.seconds)
         a_cpu = wait_cpu(a, args.seconds + 60)

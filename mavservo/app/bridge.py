@@ -335,12 +335,17 @@ class Bridge:
         if self._tick_thread is not None:
             self._tick_thread.join(1.0)
         summary = self.summary()
-        if self.mavlink is not None:
+        # through a mavlink-can bus the schedulers' last frames (release, shutdown) travel on
+        # the MAVLink link: it closes after them
+        link_last = self.can_tunnel is not None
+        if self.mavlink is not None and not link_last:
             _quietly(self.mavlink.stop)
         if self.overlay_saver is not None:
             _quietly(self.overlay_saver.stop)
         for scheduler in self.schedulers.values():
             _quietly(scheduler.stop)
+        if self.mavlink is not None and link_last:
+            _quietly(self.mavlink.stop)
         self.bus_set.close()
         runlog = self.runlog
         if runlog is not None and not self._started:  # nothing ran: say why, record nothing

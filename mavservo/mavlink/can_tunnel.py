@@ -59,21 +59,22 @@ class CanTunnel:
     """CAN frames over the bridge's MAVLink link (see the module docstring).
 
     ``attach(send, autopilot, own)`` is called by the MAVLink side: ``send(msg)`` writes a
-    message from the servo component on the link, ``autopilot()`` is the followed autopilot's
-    (system, component) once heard (None before), ``own()`` the servo component's address.
+    message from the servo component on the link (False: the link is not open, nothing went),
+    ``autopilot()`` is the followed autopilot's (system, component) once heard (None before),
+    ``own()`` the servo component's address.
     """
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
         self._sinks: dict[int, _Sink] = {}
-        self._send: Callable[[Any], None] | None = None
+        self._send: Callable[[Any], bool] | None = None
         self._autopilot: Callable[[], tuple[int, int] | None] = lambda: None
         self._own: Callable[[], tuple[int, int]] = lambda: (0, 0)
         self.counters: Counter[str] = Counter()
 
     def attach(
         self,
-        send: Callable[[Any], None],
+        send: Callable[[Any], bool],
         autopilot: Callable[[], tuple[int, int] | None],
         own: Callable[[], tuple[int, int]],
     ) -> None:
@@ -98,7 +99,8 @@ class CanTunnel:
         size = 64 if fd else 8
         payload = list(data) + [0] * (size - len(data))
         make = mavlink2.MAVLink_canfd_frame_message if fd else mavlink2.MAVLink_can_frame_message
-        send(make(target[0], target[1], bus_index, len(data), raw_id, payload))
+        if not send(make(target[0], target[1], bus_index, len(data), raw_id, payload)):
+            return False
         self.counters["frames_sent"] += 1
         return True
 
@@ -107,11 +109,11 @@ class CanTunnel:
         send = self._send
         if target is None or send is None:
             return False
-        send(
-            mavlink2.MAVLink_command_long_message(
-                target[0], target[1], MAV_CMD_CAN_FORWARD, 0, float(bus_number), 0, 0, 0, 0, 0, 0
-            )
+        request = mavlink2.MAVLink_command_long_message(
+            target[0], target[1], MAV_CMD_CAN_FORWARD, 0, float(bus_number), 0, 0, 0, 0, 0, 0
         )
+        if not send(request):
+            return False
         self.counters["forward_requests"] += 1
         return True
 
@@ -125,11 +127,11 @@ class CanTunnel:
         if target is None or send is None or len(ids) > _FILTER_IDS:
             return False
         padded = list(ids) + [0] * (_FILTER_IDS - len(ids))
-        send(
-            mavlink2.MAVLink_can_filter_modify_message(
-                target[0], target[1], bus_number, mavlink2.CAN_FILTER_REPLACE, len(ids), padded
-            )
+        replace = mavlink2.MAVLink_can_filter_modify_message(
+            target[0], target[1], bus_number, mavlink2.CAN_FILTER_REPLACE, len(ids), padded
         )
+        if not send(replace):
+            return False
         self.counters["filter_requests"] += 1
         return True
 

@@ -769,6 +769,11 @@ class MavlinkLink:
         #: where the frame being written goes (None: every peer); set under the write lock
         self._destination: Any = None
 
+    @property
+    def is_open(self) -> bool:
+        """Whether the endpoint is open now (not before ``start``, nor while being reopened)."""
+        return self._conn is not None
+
     # ------------------------------------------------------------------ set-up
 
     def _new_decoder(self) -> mavlink2.MAVLink:

@@ -97,7 +97,7 @@ class MavlinkSide:
         if can_tunnel is not None:
             servo = settings.servo_component_id
             can_tunnel.attach(
-                send=lambda msg: self.link.send(servo, msg, self.core.system_id, to_monitors=False),
+                send=lambda msg: self._send_tunnelled(servo, msg),
                 autopilot=self._heard_autopilot,
                 own=lambda: (self.core.system_id, servo),
             )
@@ -136,6 +136,13 @@ class MavlinkSide:
             return stats
 
     # ------------------------------------------------------------------ plumbing
+
+    def _send_tunnelled(self, component_id: int, msg: Any) -> bool:
+        """A tunnel's message on the link only; False when the link is not open."""
+        if not self.link.is_open:
+            return False
+        self.link.send(component_id, msg, self.core.system_id, to_monitors=False)
+        return True
 
     def _heard_autopilot(self) -> tuple[int, int] | None:
         """The followed autopilot's (system, component) once its HEARTBEAT was heard."""

@@ -42,10 +42,16 @@ class TunnelLink:
         component = settings.servo_component_id
         self.link.add_component(component, self._system_id)
         self.tunnel.attach(
-            send=lambda msg: self.link.send(component, msg, self._system_id, to_monitors=False),
+            send=lambda msg: self._send(component, msg),
             autopilot=lambda: self._autopilot,
             own=lambda: (self._system_id, component),
         )
+
+    def _send(self, component_id: int, msg: Any) -> bool:
+        if not self.link.is_open:
+            return False
+        self.link.send(component_id, msg, self._system_id, to_monitors=False)
+        return True
 
     def _on_message(self, msg: Any, now: float) -> None:
         if msg.get_type() == "HEARTBEAT":

@@ -52,11 +52,12 @@ class Wire:
         self.link.send = self._to_bridge
         self.sent_by_bridge: list[str] = []
 
-    def _to_autopilot(self, msg: Any) -> None:
+    def _to_autopilot(self, msg: Any) -> bool:
         self.sent_by_bridge.append(msg.get_type())
         for parsed in self._autopilot_in.parse_buffer(msg.pack(self._bridge_out)) or []:
             if self.alive:
                 self.link.take(parsed)
+        return True
 
     def _to_bridge(self, msg: Any) -> None:
         for parsed in self._bridge_in.parse_buffer(msg.pack(self._autopilot_out)) or []:
