@@ -16,10 +16,10 @@ and the app hands in) and is told what arrives through :class:`CarrierSink`: tra
 the CAN semantics (a python-can bus, its counters, its liveness), the MAVLink side owns the
 link. Neither imports the other.
 
-Keeping the forward alive: ArduPilot stops forwarding when no MAV_CMD_CAN_FORWARD came for
-5 s, checked once every 100 forwarded frames (l. 268-279). The bus sends it every
-``keepalive_s`` (0.5 s: ten times inside the 5 s), from its own send and receive calls (the
-scheduler makes both at least every 50 ms), so a restarted autopilot is asked again within
+Keeping the forward alive: ArduPilot stops forwarding when no MAV_CMD_CAN_FORWARD came for 5 s,
+checked at ``frame_counter++ == 100``, every 101st frame on the bus (l. 268-279). The bus sends
+it every ``keepalive_s`` (0.5 s: ten times inside the 5 s), from its own send and receive calls
+(the scheduler makes both at least every 50 ms), so a restarted autopilot is asked again within
 ``keepalive_s`` of answering.
 
 Liveness, as a USB adapter's: ArduPilot answers each request with COMMAND_ACK ACCEPTED
