@@ -234,8 +234,6 @@ def main() -> int:
     emulator = AdapterEmulator([SimServo("rmd-x", i) for i in range(1, args.servos + 1)]).start()
     try:
         time.sleep(5.0)  # SITL boots
-        if args.baud_limit:
-            limit_baud()
         a_cfg, b_cfg = work / "a.yaml", work / "b.yaml"
         a_cfg.write_text(
             config(
@@ -255,6 +253,11 @@ def main() -> int:
         )
         if args.tunnel_only:
             a = start_bridge(a_cfg, work / "a", args.seconds)
+            if args.baud_limit:
+                # only once the bridge listens: a SITL UDP port limited while nobody listens
+                # never sends again (this build)
+                time.sleep(3.0)
+                limit_baud()
             out["mavlink_can"] = figures(metrics_of_after(a, work / "a", args.seconds), 0.0)
             return _print(out)
         a = start_bridge(a_cfg, work / "a", args.seconds)
