@@ -13,6 +13,8 @@ from typing import Any
 
 import can
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from mavservo.mavlink.can_tunnel import CanTunnel
@@ -295,3 +297,41 @@ def test_the_autopilot_is_told_to_forward_only_the_servos_replies(wire: Wire) ->
     unfiltered = open_bus(wire, forward_filter_ids=[2], filter_at_autopilot=False)
     assert wire.sent_by_bridge[-1] == "COMMAND_LONG"
     unfiltered.shutdown()
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    extended=st.booleans(),
+    can_id=st.integers(0, 0x1FFFFFFF),
+    data=st.binary(max_size=8),
+    remote=st.booleans(),
+)
+def test_any_frame_crosses_the_tunnel_both_ways_unchanged(
+    extended: bool, can_id: int, data: bytes, remote: bool
+) -> None:
+    """Through pymavlink's CAN_FRAME and the AP_HAL flag bits, and back."""
+    msg = can.Message(
+        arbitration_id=can_id & (0x1FFFFFFF if extended else 0x7FF),
+        is_extended_id=extended,
+        is_remote_frame=remote,
+        data=b"" if remote else data,
+    )
+    wire = Wire(FakeClock())
+    try:
+        bus = open_bus(wire, keep_extended=True)
+        bus.send(msg)
+        out = wire.node.recv(0)
+        wire.node.send(msg)
+        wire.link.pump()
+        (back,) = drain(bus)
+        bus.shutdown()
+    finally:
+        wire.close()
+    for got in (out, back):
+        assert got is not None
+        assert (got.arbitration_id, got.is_extended_id, got.is_remote_frame, bytes(got.data)) == (
+            msg.arbitration_id,
+            msg.is_extended_id,
+            msg.is_remote_frame,
+            bytes(msg.data),
+        )
