@@ -50,7 +50,7 @@ from mavservo.control import (
     ServoBackend,
     health_limits,
 )
-from mavservo.mavlink import GimbalDevice, MavlinkSide
+from mavservo.mavlink import CanTunnel, GimbalDevice, MavlinkSide
 from mavservo.records import RunLog, round_trip_figures
 from mavservo.scheduling import FrameKind, Scheduler, SchedulerObserver, WriteObserver
 from mavservo.servos import CountingNode, ServoState
@@ -183,14 +183,22 @@ class Bridge:
         self.config_path = config_path
         #: the console line, the event list and STATUSTEXT every piece reports through
         self.notes = BridgeEvents(status or (lambda line: log.info("%s", line)))
+        #: CAN frames through the autopilot for ``mavlink-can`` buses (None: no such bus)
+        self.can_tunnel = (
+            CanTunnel() if any(b.interface == "mavlink-can" for b in config.can.buses) else None
+        )
         #: every configured bus, opened at start (``buses``, ``emulators`` by bus name)
-        self.bus_set = BridgeBuses(config, on_event=self.notes.event, on_reject=self._rejected)
+        self.bus_set = BridgeBuses(
+            config, on_event=self.notes.event, on_reject=self._rejected, carrier=self.can_tunnel
+        )
         self.buses = self.bus_set.buses
         self.emulators = self.bus_set.emulators
         self.schedulers: dict[str, Scheduler] = {}
         #: what the bus nodes keep across restarts (DroneCAN allocation table), if any
         self.node_states: node_state.NodeStateKeeper | None = None
         self.autopilot_sim: Any = None
+        #: the simulated flight-controller CAN port of a mavlink-can bus under ``url: sim``
+        self.sim_can_port: Any = None
         self.mavlink: MavlinkSide | None = None
         self.backend: ServoBackend | None = None
         #: the bridge's own servo health judgement and what follows from it (docs/health.md)
@@ -325,6 +333,8 @@ class Bridge:
         self._stop.set()
         if self.autopilot_sim is not None:
             _quietly(self.autopilot_sim.stop)
+        if self.sim_can_port is not None:
+            _quietly(self.sim_can_port.stop)
         if self.backend is not None and self._started:
             self.backend.failsafe_all(reason, time.monotonic(), announce=False)
             self._stopped_event(reason)
@@ -332,13 +342,18 @@ class Bridge:
         if self._tick_thread is not None:
             self._tick_thread.join(1.0)
         summary = self.summary()
-        if self.mavlink is not None:
+        # through a mavlink-can bus the schedulers' last frames (release, shutdown) travel on
+        # the MAVLink link: it closes after them
+        link_last = self.can_tunnel is not None
+        if self.mavlink is not None and not link_last:
             _quietly(self.mavlink.stop)
         if self.overlay_saver is not None:
             _quietly(self.overlay_saver.stop)
         for scheduler in self.schedulers.values():
             _quietly(scheduler.stop)
         self._count_stop_frames(summary)
+        if self.mavlink is not None and link_last:
+            _quietly(self.mavlink.stop)
         self.bus_set.close()
         runlog = self.runlog
         if runlog is not None and not self._started:  # nothing ran: say why, record nothing
@@ -380,10 +395,14 @@ class Bridge:
         cfg = self.config
         settings = mavlink_settings(cfg)
         if cfg.mavlink.url == SIM:
-            from mavservo.sim import simulator_for
+            from mavservo.sim import simulated_can_port, simulator_for
 
             port = free_udp_port()
             settings = dataclasses.replace(settings, url=f"udpin:127.0.0.1:{port}")
+            # a mavlink-can bus: the simulated autopilot forwards a CAN port with its servos
+            tunnelled = [b for b in cfg.can.buses if b.interface == "mavlink-can"]
+            if tunnelled:
+                self.sim_can_port = simulated_can_port(cfg, tunnelled[0].name).start()
             self.autopilot_sim = simulator_for(
                 cfg.simulation.autopilot,
                 f"udpout:127.0.0.1:{port}",
@@ -391,6 +410,7 @@ class Bridge:
                 # the signing key
                 repeat_servo_cycle=cfg.mavlink.repeat_servo_cycle,
                 signing_key=settings.signing.key if settings.signing is not None else None,
+                can_forward=None if self.sim_can_port is None else self.sim_can_port.link,
             )
         assert self.backend is not None
         gimbals = [GimbalDevice(settings, self.backend) for settings in gimbal_settings(cfg)]
@@ -416,6 +436,7 @@ class Bridge:
             on_event=self.notes.note,
             parameters=self.parameters,
             metadata_files=metadata_files(cfg, self._parameter_base),  # issue 30, 32
+            can_tunnel=self.can_tunnel,
         )
         targets.attach_telemetry(side.core)
         return side

@@ -20,10 +20,17 @@ from typing import Any
 import can
 
 from mavservo.app.startup_errors import bus_open_error
-from mavservo.config import BusConfig, Config
+from mavservo.config import BusConfig, Config, tunnel_filter_ids, tunnel_keeps_extended
 from mavservo.records import RunLog
 from mavservo.sim import PtyAdapter, simulator_factory
-from mavservo.transport import BusRequest, OpenedBus, open_bus, transport_stats
+from mavservo.transport import (
+    MAVLINK_CAN,
+    BusRequest,
+    FrameCarrier,
+    OpenedBus,
+    open_bus,
+    transport_stats,
+)
 
 log = logging.getLogger(__name__)
 
@@ -37,8 +44,11 @@ class BridgeBuses:
         *,
         on_event: Callable[[str], None],
         on_reject: Callable[[str, object, bytes], None],
+        carrier: FrameCarrier | None = None,
     ) -> None:
         self._config = config
+        #: the MAVLink link the ``mavlink-can`` buses speak through (the bridge's CanTunnel)
+        self._carrier = carrier
         self._on_event = on_event
         self._on_reject = on_reject
         self.emulators: dict[str, PtyAdapter] = {}
@@ -66,6 +76,9 @@ class BridgeBuses:
                 "read_interval_s": bus_cfg.read_interval_s,
                 **options,
             }
+        if bus_cfg.interface == MAVLINK_CAN:  # the autopilot's own DroneCAN: dropped if unused
+            options.setdefault("keep_extended", tunnel_keeps_extended(self._config, bus_cfg))
+            options["forward_filter_ids"] = tunnel_filter_ids(self._config, bus_cfg)
         request = BusRequest(name, bus_cfg.interface, bus_cfg.channel, bus_cfg.bitrate, options)
         tap = None
         if runlog is not None and self._config.logging.can_frames == "all":
@@ -79,6 +92,7 @@ class BridgeBuses:
             on_event=self._on_event,
             on_reject=lambda reason, raw: self._on_reject(name, reason, raw),
             on_frame=tap,
+            carrier=self._carrier,
         )
         self._opened.append(opened)
         return opened.bus

@@ -36,6 +36,7 @@ from mavservo.config import (
     overlay_path,
     preflight,
     servos_on,
+    tunnel_plan_lines,
 )
 from mavservo.config import allowed_values as _allowed
 from mavservo.control import ChannelMap, Rejected, describe_limits, servo_limits
@@ -318,6 +319,7 @@ def check_main(argv: Sequence[str], out: TextIO | None = None, err: TextIO | Non
             print(file=out)
         print(resolved_mapping(config), file=out)
         print(file=out)
+        print("".join(line + "\n\n" for line in tunnel_plan_lines(config)), end="", file=out)
     if len(valid) > 1:
         # gcs (issue 30): bridges meant for one vehicle must not fight over an identity, and
         # share one radio: their link loads add up

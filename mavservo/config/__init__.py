@@ -126,6 +126,7 @@ if TYPE_CHECKING:
         preflight,
         refuse_simulated_autopilot_on_hardware,
     )
+    from .tunnel_plan import tunnel_filter_ids, tunnel_keeps_extended, tunnel_plan_lines
     from .views import (
         gimbal_settings,
         mavlink_settings,
@@ -169,6 +170,9 @@ __all__ += [
     "read_small_file",
     "repeat_servo_value",
     "servos_on",
+    "tunnel_filter_ids",
+    "tunnel_keeps_extended",
+    "tunnel_plan_lines",
     "with_values",
     "write_atomic",
     "write_overlay",
@@ -216,6 +220,9 @@ __getattr__ = lazy_face(
         "read_small_file": "smallfile",
         "repeat_servo_value": "autopilot_script",
         "servos_on": "budget",
+        "tunnel_filter_ids": "tunnel_plan",
+        "tunnel_keeps_extended": "tunnel_plan",
+        "tunnel_plan_lines": "tunnel_plan",
         "with_values": "parameters",
         "write_atomic": "overlay",
         "write_overlay": "overlay",

@@ -16,6 +16,7 @@ from mavservo.scheduling import STARTUP_RETRY_S, FrameFlow, family_nodes, load_r
 
 if TYPE_CHECKING:
     from mavservo.config.schema import BusConfig, Config, SchedulerConfig, ServoConfig
+    from mavservo.scheduling import ServoTraffic
     from mavservo.servos import BusNode, ServoProfile
 
 
@@ -57,12 +58,12 @@ def is_polled(profile: ServoProfile) -> bool:
     return bool(profile.telemetry_requests())
 
 
-def servo_flows(
+def servo_traffic_of(
     servo: ServoConfig, timing: SchedulerConfig, *, packed: bool = False
-) -> list[FrameFlow]:
-    """Every frame flow one servo causes, from its profile's own frames. ``packed``: its
+) -> ServoTraffic:
+    """One servo's worst-case traffic, from its profile's own frames. ``packed``: its
     commands travel in its bus node's shared transfer, which :func:`node_flows` counts."""
-    traffic = servo_traffic(
+    return servo_traffic(
         profile_of(servo),
         command_hz=0.0 if packed else command_rate_hz(servo, timing),
         poll_hz=telemetry_rate_hz(servo, timing),
@@ -72,7 +73,13 @@ def servo_flows(
         max_speed_dps=servo.max_speed_dps,
         startup_hz=1 / STARTUP_RETRY_S,
     )
-    return traffic.flows()
+
+
+def servo_flows(
+    servo: ServoConfig, timing: SchedulerConfig, *, packed: bool = False
+) -> list[FrameFlow]:
+    """Every frame flow one servo causes (:func:`servo_traffic_of`)."""
+    return servo_traffic_of(servo, timing, packed=packed).flows()
 
 
 def bus_loads(config: Config) -> list[BusLoad]:

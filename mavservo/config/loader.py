@@ -22,6 +22,7 @@ from yaml.nodes import ScalarNode
 from mavservo.config.schema import Config
 from mavservo.config.semantic import Finding, advisories, budget_checks, cross_checks
 from mavservo.config.smallfile import FileTooLargeError, SmallFileError, read_small_file
+from mavservo.config.tunnel_plan import tunnel_checks
 from mavservo.config.yamlsource import (
     MAX_BYTES,
     Problem,
@@ -117,7 +118,7 @@ def _validate(text: str, filename: str, base_dir: Path) -> tuple[Config, YamlDoc
         config = Config.model_validate(document.data, context={"base_dir": base_dir})
     except ValidationError as exc:
         raise ConfigError(filename, _pydantic_problems(exc, document)) from None
-    for check in (cross_checks, budget_checks):
+    for check in (cross_checks, budget_checks, tunnel_checks):
         findings = check(config)
         if findings:
             raise ConfigError(filename, located(findings, document))

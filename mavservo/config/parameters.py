@@ -24,6 +24,7 @@ from pydantic import ValidationError
 
 from mavservo.config.schema import Config, KeptOptions
 from mavservo.config.semantic import budget_checks, cross_checks
+from mavservo.config.tunnel_plan import tunnel_checks
 from mavservo.errors import MavservoError
 
 #: MAVLink's PARAM_VALUE.param_id holds 16 characters.
@@ -162,7 +163,7 @@ def with_values(
         key = next((str(part) for part in reversed(first["loc"]) if isinstance(part, str)), "")
         detail = reason if first["type"] == "value_error" else f"{key}: {reason}"
         raise ParameterError(f"{_names(values)}: {detail}") from None
-    findings = cross_checks(updated) or budget_checks(updated)
+    findings = cross_checks(updated) or budget_checks(updated) or tunnel_checks(updated)
     if findings:
         raise ParameterError(f"{_names(values)}: {findings[0][1]}")
     problem = None if envelope is None else envelope_problem(envelope, updated)

@@ -37,6 +37,7 @@ from mavservo.mavlink import TelemetryRates
 from mavservo.servos import ProfileOptions, ServoProfile, get_profile, node_family
 from mavservo.transport import (
     BITRATE_CODES,
+    MAVLINK_CAN,
     SIM_CHANNEL,
     SIMULATED_INTERFACES,
     UnknownInterfaceError,
@@ -519,6 +520,11 @@ class BusConfig(StrictModel):
     @classmethod
     def _simulation_exists(cls, channel: str | int, info: ValidationInfo) -> str | int:
         interface = info.data.get("interface")
+        if interface == MAVLINK_CAN and not (isinstance(channel, int) and 1 <= channel <= 3):
+            raise ValueError(
+                "interface mavlink-can: channel is the autopilot's CAN bus number, 1..3 as in "
+                f"CAN_P1..CAN_P3 (the bus is reached through mavlink.url), got {channel!r}"
+            )
         simulated = interface is None or interface in SIMULATED_INTERFACES
         if channel == SIM_CHANNEL and not simulated:
             names = " and ".join(SIMULATED_INTERFACES)

@@ -33,6 +33,11 @@ _EXPECTED = (
 )
 
 
+def is_serial_url(url: str) -> bool:
+    """True for a serial device path (``/dev/ttyAMA0``, ``COM3``): a link of ``mavlink.baud``."""
+    return bool(_SERIAL.match(url))
+
+
 def url_problem(url: str, *, allow_sim: bool = True) -> str | None:
     """What is wrong with ``url`` as a MAVLink endpoint, or None when pymavlink can use it."""
     if url == SIM:

@@ -12,6 +12,7 @@ from mavservo.faces import lazy_face
 if TYPE_CHECKING:
     from .backend import ACCEPTED, NO_HEALTH_PROBLEM, ApplyResult, Health, Outcome, ServoStatus
     from .bandwidth import BudgetPlan, plan_budget
+    from .can_tunnel import CanTunnel, TunnelWireBytes, tunnel_wire_bytes
     from .connection import mavlink2, open_connection
     from .ftp import crc32
     from .gimbal import GimbalDevice
@@ -29,6 +30,7 @@ if TYPE_CHECKING:
     from .side import MavlinkSide
     from .stream_request import WINDOW_S, StreamRequestSettings
     from .telemetry import AUTO_ESC_FIRST, join_statustext_chunks
+    from .tunnel_link import TunnelLink
 
 __all__ = [
     "StreamRequestSettings",
@@ -38,6 +40,9 @@ __all__ = [
     "AUTO_ESC_FIRST",
     "ApplyResult",
     "BudgetPlan",
+    "CanTunnel",
+    "TunnelWireBytes",
+    "tunnel_wire_bytes",
     "COMP_METADATA_TYPE_PARAMETER",
     "GENERAL_FILE",
     "GimbalDevice",
@@ -51,6 +56,7 @@ __all__ = [
     "SetResult",
     "SigningSettings",
     "TelemetryRates",
+    "TunnelLink",
     "WINDOW_S",
     "WritePolicy",
     "crc32",
@@ -73,6 +79,9 @@ __getattr__ = lazy_face(
         "join_statustext_chunks": "telemetry",
         "ApplyResult": "backend",
         "BudgetPlan": "bandwidth",
+        "CanTunnel": "can_tunnel",
+        "TunnelWireBytes": "can_tunnel",
+        "tunnel_wire_bytes": "can_tunnel",
         "COMP_METADATA_TYPE_PARAMETER": "metadata_service",
         "GENERAL_FILE": "metadata_service",
         "GimbalDevice": "gimbal",
@@ -86,6 +95,7 @@ __getattr__ = lazy_face(
         "SetResult": "params",
         "SigningSettings": "settings",
         "TelemetryRates": "settings",
+        "TunnelLink": "tunnel_link",
         "WINDOW_S": "stream_request",
         "WritePolicy": "params",
         "crc32": "ftp",

@@ -928,6 +928,11 @@ class MavlinkLink:
         waits for it to pass its deadline (``HeartbeatWatchdog.check``)."""
         return None if self._conn is None else self._read_until
 
+    @property
+    def is_open(self) -> bool:
+        """Whether the endpoint is open now (not before ``start``, nor while being reopened)."""
+        return self._conn is not None
+
     # ------------------------------------------------------------------ set-up
 
     def _new_decoder(self) -> mavlink2.MAVLink:

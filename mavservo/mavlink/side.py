@@ -17,6 +17,7 @@ from typing import Any
 from mavservo.mavlink.answers import Answer
 from mavservo.mavlink.backend import ActuatorBackend
 from mavservo.mavlink.bandwidth import Admission
+from mavservo.mavlink.can_tunnel import CanTunnel
 from mavservo.mavlink.commands import Outgoing
 from mavservo.mavlink.component import HostedComponent
 from mavservo.mavlink.link import MavlinkLink
@@ -49,6 +50,7 @@ class MavlinkSide:
         on_event: Callable[[str], None] | None = None,
         parameters: ParameterOwner | None = None,
         metadata_files: Mapping[int, Mapping[str, bytes]] | None = None,
+        can_tunnel: CanTunnel | None = None,
     ) -> None:
         self._clock = clock
         #: also told about link loss / recovery (the bridge's console and event list)
@@ -90,6 +92,16 @@ class MavlinkSide:
         self._held: list[tuple[int, Any, bool]] = []
         #: ``on_sent(msg, t)`` after each message went out (latency tracing); must not block.
         self.on_sent: Callable[[Any, float], None] | None = None
+        #: CAN frames to and from the autopilot's CAN port (``mavlink-can`` buses), straight
+        #: on the link: addressed to the autopilot only, outside the radio's budget
+        self._can_tunnel = can_tunnel
+        if can_tunnel is not None:
+            servo = settings.servo_component_id
+            can_tunnel.attach(
+                send=lambda msg: self._send_tunnelled(servo, msg),
+                autopilot=self._heard_autopilot,
+                own=lambda: (self.core.system_id, servo),
+            )
 
     def start(self) -> None:
         self.link.start()
@@ -126,7 +138,22 @@ class MavlinkSide:
 
     # ------------------------------------------------------------------ plumbing
 
+    def _send_tunnelled(self, component_id: int, msg: Any) -> bool:
+        """A tunnel's message on the link only; False when the link is not open."""
+        if not self.link.is_open:
+            return False
+        self.link.send(component_id, msg, self.core.system_id, to_monitors=False)
+        return True
+
+    def _heard_autopilot(self) -> tuple[int, int] | None:
+        """The followed autopilot's (system, component) once its HEARTBEAT was heard."""
+        core = self.core
+        return core.watched if core.watchdog.last_heartbeat is not None else None
+
     def _on_message(self, msg: Any, now: float) -> None:
+        tunnel = self._can_tunnel
+        if tunnel is not None and tunnel.take(msg, now):
+            return  # a forwarded CAN frame: the mavlink-can bus's, not the core's
         with self._lock:
             out = self.core.on_message(msg, now)
             source = (msg.get_srcSystem(), msg.get_srcComponent())

@@ -15,7 +15,14 @@ from mavservo.faces import lazy_face
 # other names are the package's own business.
 if TYPE_CHECKING:
     from .bus_nodes import family_nodes, node_unique_id, software_version
-    from .busload import FrameFlow, frame_time, load_ratio, message_bits, servo_traffic
+    from .busload import (
+        FrameFlow,
+        ServoTraffic,
+        frame_time,
+        load_ratio,
+        message_bits,
+        servo_traffic,
+    )
     from .lifecycle import STARTUP_RETRY_S
     from .observers import SchedulerObserver, WriteObserver
     from .runner import Scheduler
@@ -24,6 +31,7 @@ if TYPE_CHECKING:
 __all__ = [
     "family_nodes",
     "FrameFlow",
+    "ServoTraffic",
     "FrameKind",
     "STARTUP_RETRY_S",
     "Scheduler",
@@ -44,6 +52,7 @@ __getattr__ = lazy_face(
     {
         "family_nodes": "bus_nodes",
         "FrameFlow": "busload",
+        "ServoTraffic": "busload",
         "FrameKind": "schedule_core",
         "STARTUP_RETRY_S": "lifecycle",
         "Scheduler": "runner",

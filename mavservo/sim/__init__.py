@@ -20,7 +20,7 @@ from .virtual import VirtualServoBus
 # started; the others are what the layer above uses (``tests/test_package_faces.py``).
 if TYPE_CHECKING:
     from .autopilot.factory import simulator_for, simulator_from_config
-    from .bus_simulation import simulator_factory
+    from .bus_simulation import simulated_can_port, simulator_factory
     from .child import SimulatorProcess
     from .pty_adapter import PtyAdapter
 
@@ -36,6 +36,7 @@ __all__ = [
     "SimulatorProcess",
     "VirtualServoBus",
     "simulator_factory",
+    "simulated_can_port",
     "simulator_from_config",
 ]
 __getattr__ = lazy_face(
@@ -45,6 +46,7 @@ __getattr__ = lazy_face(
         "PtyAdapter": "pty_adapter",
         "SimulatorProcess": "child",
         "simulator_factory": "bus_simulation",
+        "simulated_can_port": "bus_simulation",
         "simulator_from_config": "autopilot.factory",
     },
 )

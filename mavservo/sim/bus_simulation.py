@@ -16,6 +16,7 @@ from mavservo.config import Config, Faults, Physics
 from mavservo.servos import get_profile
 
 from .adapter import AdapterEmulator
+from .autopilot.can_forward import SimulatedCanPort
 from .pty_adapter import PtyAdapter
 from .servo import SimServo, simulated_servos
 from .slcan import SlcanEmulator
@@ -81,3 +82,11 @@ def simulator_factory(
         return emulator
 
     return make
+
+
+def simulated_can_port(config: Config, bus_name: str) -> SimulatedCanPort:
+    """The flight controller's CAN port behind a ``mavlink-can`` bus under ``mavlink.url: sim``:
+    the bus's servos, as wired, on the simulated autopilot's CAN (not started)."""
+    bus = next(b for b in config.can.buses if b.name == bus_name)
+    channel = f"mavservo-fc-can-{id(config)}-{bus_name}"
+    return SimulatedCanPort(wired_servos(config, bus_name), int(bus.channel) - 1, channel)

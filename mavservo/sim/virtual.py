@@ -31,11 +31,15 @@ class VirtualServoBus:
     def __init__(
         self,
         servos: Iterable[SimServo],
-        channel: str = "mavservo-sim",
+        channel: str | int = "mavservo-sim",
         bitrate: int = 1_000_000,
         clock: Callable[[], float] = time.monotonic,
+        interface: str = "virtual",
     ) -> None:
+        """``interface``: the python-can bus the servos sit on (``sitl-mcast``: ArduPilot
+        SITL's CAN, channel 0 for CAN_P1)."""
         self.channel = channel
+        self.interface = interface
         self.canbus = SimCanBus(servos, bitrate)
         self.clock = clock
         self._loop = BackgroundLoop(self._run, name="sim-virtual-bus")
@@ -48,7 +52,9 @@ class VirtualServoBus:
         return self.canbus.servos
 
     def start(self) -> VirtualServoBus:
-        self._bus = can.Bus(interface="virtual", channel=self.channel, receive_own_messages=False)
+        self._bus = can.Bus(
+            interface=self.interface, channel=self.channel, receive_own_messages=False
+        )
         self._loop.start()
         return self
 

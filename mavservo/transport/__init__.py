@@ -34,12 +34,19 @@ if TYPE_CHECKING:
     from .counters import transport_stats
     from .interface_signatures import UnknownInterfaceError, interface_options, option_problems
     from .open_advice import open_causes, serial_causes
+    from .tunnel_bus import FORWARD_TIMEOUT_S as TUNNEL_FORWARD_TIMEOUT_S
+    from .tunnel_bus import KEEPALIVE_S as TUNNEL_KEEPALIVE_S
+    from .tunnel_bus import MAVLINK_CAN, FrameCarrier, TunnelledCanBus, filter_key
+    from .tunnel_bus import OPTION_BOUNDS as TUNNEL_OPTION_BOUNDS
 
 __all__ = [
     "BITRATE_CODES",
     "BITRATE_SET_OUTSIDE",
     "BusProblem",
     "BusRequest",
+    "FrameCarrier",
+    "MAVLINK_CAN",
+    "TunnelledCanBus",
     "OpenedBus",
     "SIMULATED_INTERFACES",
     "SIM_CHANNEL",
@@ -57,6 +64,10 @@ __all__ = [
     "serial_causes",
     "serial_device_problem",
     "transport_stats",
+    "filter_key",
+    "TUNNEL_FORWARD_TIMEOUT_S",
+    "TUNNEL_KEEPALIVE_S",
+    "TUNNEL_OPTION_BOUNDS",
     "AA55Frame",
     "AA55Decoder",
     "AA55Settings",
@@ -71,6 +82,9 @@ __getattr__ = lazy_face(
         "BITRATE_SET_OUTSIDE": "bus_factory",
         "BusProblem": "channel_rules",
         "BusRequest": "bus_factory",
+        "FrameCarrier": "tunnel_bus",
+        "MAVLINK_CAN": "tunnel_bus",
+        "TunnelledCanBus": "tunnel_bus",
         "OpenedBus": "bus_factory",
         "SIMULATED_INTERFACES": "bus_factory",
         "SIM_CHANNEL": "bus_factory",
@@ -88,6 +102,10 @@ __getattr__ = lazy_face(
         "reaches_hardware": "bus_factory",
         "serial_device_problem": "channel_rules",
         "transport_stats": "counters",
+        "filter_key": "tunnel_bus",
+        "TUNNEL_FORWARD_TIMEOUT_S": "tunnel_bus:FORWARD_TIMEOUT_S",
+        "TUNNEL_KEEPALIVE_S": "tunnel_bus:KEEPALIVE_S",
+        "TUNNEL_OPTION_BOUNDS": "tunnel_bus:OPTION_BOUNDS",
         "AA55Frame": "aa55.codec:Frame",
         "AA55Decoder": "aa55.codec:Decoder",
         "AA55Settings": "aa55.codec:AdapterSettings",

@@ -22,6 +22,12 @@ import can
 
 from mavservo.transport.channel_rules import SYS_CLASS_NET, interface_is_up
 from mavservo.transport.resilient_bus import ResilientBus
+from mavservo.transport.tunnel_bus import (
+    MAVLINK_CAN,
+    TUNNEL_MAX_BACKOFF_S,
+    FrameCarrier,
+    tunnel_factory,
+)
 
 #: The channel that asks for the built-in simulation instead of a device.
 SIM_CHANNEL = "sim"
@@ -35,7 +41,7 @@ SIMULATED_INTERFACES = ("aa55", "slcan")
 #: hardware unless it is on ``channel: sim`` (``udp_multicast`` is not listed: a gateway on the
 #: network may bridge it to a real bus). An interface added to the project (say, CAN over
 #: MAVLink) reaches hardware until it is listed here.
-SOFTWARE_INTERFACES = frozenset({"virtual"})
+SOFTWARE_INTERFACES = frozenset({"virtual", "sitl-mcast"})  # sitl-mcast: SITL's UDP CAN
 
 #: How each interface is told to listen without transmitting (no ACK, no error frames, no
 #: frames of ours): the AA-55 settings frame's silent mode (Waveshare USB-CAN-A manual, the
@@ -52,7 +58,10 @@ LISTEN_ONLY: dict[str, dict[str, Any]] = {
 #: Interfaces whose bitrate python-can does not set: SocketCAN takes it from the link (``ip link
 #: set can0 type can bitrate N``), the software buses have none. Opening them "at" another
 #: bitrate changes nothing, so the doctor does not search bitrates on them.
-BITRATE_SET_OUTSIDE = frozenset({"socketcan", "socketcand", "virtual", "udp_multicast"})
+BITRATE_SET_OUTSIDE = frozenset(
+    # mavlink-can: the autopilot's CAN_Px_BITRATE; sitl-mcast: a software bus
+    {"socketcan", "socketcand", "virtual", "udp_multicast", MAVLINK_CAN, "sitl-mcast"}
+)
 
 #: The standard CAN bitrates a bus is tried at when nothing is heard at the configured one,
 #: most common first (CiA 301's table; 1 Mbit/s and 500 kbit/s are what servo families ship at).
@@ -134,6 +143,8 @@ def reaches_hardware(interface: str, channel: str | int) -> bool:
     this is False (issue 37: it swept real servos of a config that lost its ``mavlink.url``)."""
     if channel == SIM_CHANNEL and interface in SIMULATED_INTERFACES:
         return False
+    if interface == MAVLINK_CAN:  # the autopilot's own CAN port: behind the simulated
+        return False  # autopilot it is that autopilot's simulated bus, never a real one
     return interface not in SOFTWARE_INTERFACES
 
 
@@ -149,11 +160,13 @@ def open_bus(
     on_event: Callable[[str], None] | None = None,
     on_reject: Callable[[Any, bytes], None] | None = None,
     on_frame: Callable[[can.Message, float], None] | None = None,
+    carrier: FrameCarrier | None = None,
 ) -> OpenedBus:
     """Open ``request`` (starting its simulation for ``channel: sim``), wrapped for reconnects.
 
     ``on_reject`` reaches the ``aa55`` bus's decoder rejections; ``on_frame`` sees every frame
-    received (see :class:`ResilientBus`).
+    received (see :class:`ResilientBus`). ``carrier``: the bridge's MAVLink link, which a
+    ``mavlink-can`` bus speaks through (:mod:`mavservo.transport.tunnel_bus`).
     """
     channel = request.channel
     simulator: SimulatedAdapter | None = None
@@ -174,9 +187,17 @@ def open_bus(
     def factory() -> can.BusABC:
         return can.Bus(**kwargs)
 
+    if request.interface == MAVLINK_CAN:  # an object to speak through, not a device
+        factory = tunnel_factory(kwargs, carrier)  # noqa: F811 - the interface's own opener
+
     try:
         bus = ResilientBus(
-            factory, name=request.name, on_event=on_event, path=str(channel), on_frame=on_frame
+            factory,
+            name=request.name,
+            on_event=on_event,
+            path=str(channel),
+            on_frame=on_frame,
+            max_backoff_s=TUNNEL_MAX_BACKOFF_S if request.interface == MAVLINK_CAN else 2.0,
         )
     except BaseException:
         if simulator is not None:

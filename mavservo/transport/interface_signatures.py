@@ -36,6 +36,7 @@ RESERVED = {
     "on_reject": "set by the bridge (the run log's rejections)",
     "ignore_config": "set by the bridge (the YAML is the only configuration)",
     "config_context": "the YAML is the only configuration: give the option itself",
+    "carrier": "set by the bridge (its MAVLink link, for interface mavlink-can)",
 }
 
 #: Keys an interface's bus has its own YAML key for, per interface.
@@ -44,7 +45,13 @@ OWN_KEYS = {
         "serial_baud": "use the bus's own `serial_baud:` key",
         "protocol": "use the bus's own `protocol:` key",
         "read_interval_s": "use the bus's own `read_interval_s:` key",
-    }
+    },
+    "mavlink-can": {
+        "clock": "set by the bridge",
+        "startup_grace_s": "set by the bridge (the first open waits for the autopilot)",
+        "confirm_s": "set by the bridge (a reopen waits for the autopilot's answer)",
+        "forward_filter_ids": "set by the bridge from the servos' reply ids",
+    },
 }
 
 #: BusABC's own keyword arguments, accepted by every interface.

@@ -33,10 +33,19 @@ from mavservo.config import (
     describe_bus,
     format_path,
     load_located,
+    mavlink_settings,
 )
+from mavservo.mavlink import TunnelLink
 from mavservo.servos import UnknownProfileError, get_profile
 from mavservo.sim import simulator_factory
-from mavservo.transport import BITRATE_SET_OUTSIDE, SIM_CHANNEL, BusRequest, OpenedBus, open_bus
+from mavservo.transport import (
+    BITRATE_SET_OUTSIDE,
+    MAVLINK_CAN,
+    SIM_CHANNEL,
+    BusRequest,
+    OpenedBus,
+    open_bus,
+)
 
 from .findings import BusFindings
 from .node_info import TOOL_NODE_ID
@@ -232,11 +241,20 @@ def diagnose_bus(
     simulator = None
     if bus.channel == SIM_CHANNEL:
         simulator = simulator_factory(config)(bus.name, bus.interface, bus.bitrate)
+    # mavlink-can: the autopilot's CAN port, reached through a MAVLink link of the doctor's own
+    tunnel = TunnelLink(mavlink_settings(config)) if bus.interface == MAVLINK_CAN else None
+    if tunnel is not None:
+        tunnel.start()
 
     def open_request(request: BusRequest) -> OpenedBus:
         if simulator is not None:
             request = dataclasses.replace(request, channel=simulator.path)
-        return open_bus(request)
+        if tunnel is None:
+            return open_bus(request)
+        # everything the port carries (the autopilot's DroneCAN nodes too), no filter at the
+        # autopilot: the doctor looks for whoever is there, not only the configured servos
+        options = {"keep_extended": True, **request.options, "filter_at_autopilot": False}
+        return open_bus(dataclasses.replace(request, options=options), carrier=tunnel.tunnel)
 
     doctor = BusDoctor(
         bus,
@@ -253,6 +271,8 @@ def diagnose_bus(
     finally:
         if simulator is not None:
             simulator.stop()
+        if tunnel is not None:
+            tunnel.stop()
     return findings, judge(findings, servos)
 
 

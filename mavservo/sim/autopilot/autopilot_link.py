@@ -80,6 +80,11 @@ class AutopilotLink:
         self.sent[name] += 1
         self.sent_log.append((now, name))
 
+    def message(self, now: float, msg: Any) -> None:
+        """Send a ready pymavlink message (the CAN forward's CAN_FRAME and ACK), counted."""
+        if self._conn is not None:
+            self.send(msg.get_type(), now, self._conn.mav.send, msg)
+
     # -- ArduPlane's messages ------------------------------------------------------------------
 
     def heartbeat(self, now: float, armed: bool) -> None:

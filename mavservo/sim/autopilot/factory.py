@@ -13,6 +13,7 @@ from collections.abc import Mapping
 from typing import Any, Literal
 
 from mavservo.config import GimbalTarget, SimAutopilotConfig, parse_script
+from mavservo.sim.autopilot.can_forward import CanForwardLink
 from mavservo.sim.autopilot.motion_scripts import Profile, RandomWalkProfile, get_profile
 from mavservo.sim.autopilot.replay import ReplayRunner
 from mavservo.sim.autopilot.stream import AutopilotStream, gimbal_demo_script
@@ -25,6 +26,7 @@ def simulator_for(
     repeat_servo_cycle: Literal["seconds", "milliseconds"] = "seconds",
     signing_key: bytes | None = None,
     actuator_output_status_hz: float = 0.0,
+    can_forward: CanForwardLink | None = None,
 ) -> AutopilotStream | ReplayRunner:
     """An unstarted stream simulator (or tlog replayer) configured by ``section``; it reads
     DO_REPEAT_SERVO's cycle as ``repeat_servo_cycle`` (the bridge's ``mavlink`` setting) and
@@ -52,6 +54,7 @@ def simulator_for(
         command_target=section.command_target,
         repeat_servo_cycle=repeat_servo_cycle,
         signing_key=signing_key,
+        can_forward=can_forward,  # a mavlink-can bus's simulated port
     )
 
 

@@ -50,6 +50,7 @@ from mavservo.config import (
 from mavservo.mavlink import mavlink2 as mav
 from mavservo.sim.autopilot.autopilot_link import AutopilotLink
 from mavservo.sim.autopilot.background import Background
+from mavservo.sim.autopilot.can_forward import CanForwardLink
 from mavservo.sim.autopilot.command_tracker import CommandRecord, CommandTracker
 from mavservo.sim.autopilot.commanded import COMMANDED_KEEP, Commanded, CommandedLog
 from mavservo.sim.autopilot.message_rates import MessageRates, interval_of
@@ -122,6 +123,7 @@ class AutopilotStream(Background):
         gimbal_search_s: tuple[float, float] | None = None,
         armed: bool = False,
         boot_offset_s: float = BOOT_OFFSET_S,
+        can_forward: CanForwardLink | None = None,
     ) -> None:
         if repeat_servo_cycle not in ("seconds", "milliseconds"):
             raise ValueError("repeat_servo_cycle must be 'seconds' or 'milliseconds'")
@@ -182,6 +184,10 @@ class AutopilotStream(Background):
         self.sent: Counter[str] = self.link.sent
         self.sent_log: deque[tuple[float, str]] = self.link.sent_log
         self.dropouts: list[tuple[float, float]] = []
+        #: CAN forwarding to a MAVLink client (MAV_CMD_CAN_FORWARD, CAN_FRAME), if it has a bus
+        self.can_forward = can_forward
+        if can_forward is not None:
+            can_forward.send = lambda msg: self.link.message(time.monotonic(), msg)
 
         self._actions: queue.Queue[Action] = queue.Queue()
         self._dropout_until = 0.0
@@ -300,6 +306,8 @@ class AutopilotStream(Background):
                     except queue.Empty:
                         break
                 silent = now < self._dropout_until
+                if self.can_forward is not None:
+                    self.can_forward.pump(silent=silent)
                 for name in self.rates.due(now):
                     if not silent:
                         self._send_periodic(name, now)
@@ -323,6 +331,8 @@ class AutopilotStream(Background):
         self.boot_offset_s = BOOT_OFFSET_S  # a fresh boot, disarmed
         self.armed = False
         self.reboots += 1
+        if self.can_forward is not None:
+            self.can_forward.reboot()
 
     # ------------------------------------------------------------------ actions
 
@@ -430,6 +440,9 @@ class AutopilotStream(Background):
             if name == "BAD_DATA":
                 continue
             self.received.add(now, msg)
+            forward = self.can_forward
+            if forward is not None and now >= self._boot_at and forward.take(msg):
+                continue  # the CAN forward's (not while rebooting)
             if name == "COMMAND_ACK":
                 if self._addressed_to_me(msg):
                     self.commands.on_ack(
