@@ -56,9 +56,16 @@ MAX_WAITING = 1024
 #: most: a read flood from a stranger starved the autopilot's telemetry when answers and
 #: telemetry competed for the same tokens without a cap. While answers flow, telemetry gets
 #: the rest (waiting in the line, see :meth:`LinkBudget.offer`); without requests, all of it.
-ANSWER_SHARE = 0.3
+#: Half: at the default 1,000 B/s a full FTP data frame (266 B) can leave every 0.8 s, inside
+#: QGroundControl's 1,000 ms FTP time-out (``FTPManager.h``: ``_ackOrNakTimeoutMsecs = 1000``,
+#: ``_maxRetry = 3``); at 0.3 (before) it took 1.3 s, and the client's retries doubled the
+#: queue (issue 38).
+ANSWER_SHARE = 0.5
 #: Depth of the answers' own bucket: the largest MAVLink 2 frame (an FTP data packet, signed).
 ANSWER_DEPTH_BYTES = 280
+#: The link bucket is at least this deep, as a share of the budget, when that holds an FTP data
+#: frame: a frame deeper than the bucket had to leave it in debt, over the budget in that window.
+ANSWER_FRAME_DEPTH_SHARE = 0.4
 #: The token bucket's depth (at least the largest frame) and the events' debt, as shares of
 #: the budget; the rest is its rate.
 BUCKET_DEPTH_SHARE = 0.2
@@ -114,7 +121,8 @@ class BudgetPlan:
         budget (the depth at least one frame of the largest periodic message)."""
         budget = self.budget_bytes_s or 0.0
         largest = max((s.frame_bytes for s in self.streams), default=0)
-        depth = max(budget * BUCKET_DEPTH_SHARE, float(largest))
+        frame = min(float(ANSWER_DEPTH_BYTES), budget * ANSWER_FRAME_DEPTH_SHARE)
+        depth = max(budget * BUCKET_DEPTH_SHARE, float(largest), frame)
         debt = budget * EVENT_DEBT_SHARE
         return max(budget - depth - debt, budget * 0.1), depth, debt
 
@@ -293,6 +301,9 @@ class LinkBudget:
         self._answers: TokenBucket | None = None
         #: periodic messages waiting for the window, one per stream, oldest turn first
         self._waiting: OrderedDict[tuple[Any, ...], tuple[int, Any]] = OrderedDict()
+        #: bytes of an answer that waits for the link bucket only (its share has the tokens),
+        #: this round (:meth:`answers_round`); 0: none
+        self._answer_waiting = 0
         self.replan(plan)
 
     def replan(self, plan: BudgetPlan, now: float | None = None) -> None:
@@ -388,7 +399,7 @@ class LinkBudget:
         if bucket is None:
             return Admission.NOW
         urgent = kind in _URGENT_STREAMS
-        if (not self._waiting or urgent) and self._take_keeping_half(bucket, msg, now):
+        if (not self._waiting or urgent) and self._take_periodic(bucket, msg, now, urgent):
             return Admission.NOW
         self._waiting[key] = (component_id, msg)
         if urgent:
@@ -415,7 +426,7 @@ class LinkBudget:
         out = []
         while self._waiting:
             key, (component_id, msg) = next(iter(self._waiting.items()))
-            if not self._take_keeping_half(bucket, msg, now):
+            if not self._take_periodic(bucket, msg, now, key[1] in _URGENT_STREAMS):
                 break
             del self._waiting[key]
             out.append((component_id, msg))
@@ -460,6 +471,21 @@ class LinkBudget:
         if self.plan.ratios.get(stream, 1.0) < 1.0 and key in self._credit:
             self._credit[key] = min(self._credit[key] + 1.0, 1.0 + _MAX_TURNS_KEPT)
 
+    def _take_periodic(self, bucket: TokenBucket, msg: Any, now: float, urgent: bool) -> bool:
+        """Tokens for a periodic message: as :meth:`_take_keeping_half`, and, unless it is
+        urgent, leaving the tokens an answer waits for (:meth:`admit_answer`): the answer a
+        ground station waits for goes before periodic telemetry, which waits in the line
+        meanwhile (decimated: a newer value replaces the waiting one)."""
+        waiting = self._answer_waiting
+        if urgent or not waiting:
+            return self._take_keeping_half(bucket, msg, now)
+        cost = self._cost(msg)
+        keep = max(min(bucket.capacity / 2, bucket.capacity - cost), min(waiting, bucket.capacity))
+        if bucket.take(cost, now, keep=keep):
+            return True
+        self.counters["periodic_yielded_to_answers"] += 1
+        return False
+
     def _take_keeping_half(self, bucket: TokenBucket, msg: Any, now: float) -> bool:
         """Tokens for ``msg`` if half the depth stays for events (or, for a frame larger than
         half the depth, if the rest of the bucket is enough)."""
@@ -502,12 +528,21 @@ class LinkBudget:
         still go before the service answers (they are admitted first at each tick)."""
         return self.admit_answer(component_id, msg, now)
 
+    def answers_round(self) -> None:
+        """A new round of answers starts (each tick, before they are admitted): what waited
+        in the last round is asked for again, or nothing waits any more."""
+        self._answer_waiting = 0
+
     def admit_answer(self, component_id: int, msg: Any, now: float) -> bool:
         """An answer to a request may go now: within the answers' share of the rate
         (:data:`ANSWER_SHARE`, their own bucket) and with tokens for it while half the depth
-        stays for events (otherwise it waits in its queue). A frame deeper than the bucket (an
-        FTP data packet on a budget under ~1.3 kB/s) waits for a full bucket and leaves it in
-        debt: that one window may exceed the budget by the frame's excess over the depth."""
+        stays for events (otherwise it waits in its queue). When only the link bucket lacks the
+        tokens, the answer is noted as waiting: periodic telemetry then leaves them to it
+        (:meth:`_take_periodic`), so a reply a client waits for leaves within about
+        ``cost / rate`` (0.4 s for an FTP data frame at the default budget), not behind a burst
+        of telemetry that kept the bucket low (issue 38: 1.2-7 s). A frame deeper than the
+        bucket (an FTP data packet on a budget under ~700 B/s) waits for a full bucket and
+        leaves it in debt: that one window may exceed the budget by the frame's excess."""
         bucket, share = self._bucket, self._answers
         if bucket is None or share is None:
             return True
@@ -516,10 +551,12 @@ class LinkBudget:
             return False
         if cost > bucket.capacity:
             if bucket.level(now) < bucket.capacity:
+                self._answer_waiting = self._answer_waiting or cost
                 return False
             bucket.tokens -= cost
             self.counters["answers_deeper_than_bucket"] += 1
         elif not self._take_keeping_half(bucket, msg, now):
+            self._answer_waiting = self._answer_waiting or cost
             return False
         share.tokens -= cost
         return True

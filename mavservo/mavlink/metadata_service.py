@@ -15,11 +15,12 @@ right component. Sans-I/O.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from mavservo.mavlink.answers import Answer
 from mavservo.mavlink.commands import Outgoing
 from mavservo.mavlink.ftp import ByteWindow, FtpServer, crc32
 from mavservo.mavlink.wip_messages import ComponentMetadata
@@ -65,6 +66,7 @@ class MetadataService:
             cid: FtpServer(dict(files.get(cid, {})), bytes_per_s=bytes_per_s, window=window)
             for cid in component_ids
         }
+        self._first = 0
 
     def component_metadata(self, component_id: int, now: float) -> Any | None:
         """COMPONENT_METADATA of ``component_id``, or None when it serves no metadata."""
@@ -83,16 +85,32 @@ class MetadataService:
         if server is not None:
             server.handle(bytes(msg.payload), sender, now)
 
-    def periodic(self, now: float) -> list[Outgoing]:
-        """The FTP answers each component may send now (paced by its server)."""
-        out: list[Outgoing] = []
-        for cid, server in self.servers.items():
-            for (system, component), payload in server.periodic(now):
-                reply = mavlink2.MAVLink_file_transfer_protocol_message(
-                    0, system, component, list(payload)
-                )
-                out.append((cid, reply))
+    def due(self, now: float, admit: Callable[[int, Any], bool]) -> list[Answer]:
+        """The FTP replies that go now, each to its requester only: each component's server
+        in turn (the one served first rotates), each reply admitted by ``admit`` (the link
+        budget's answers: :meth:`~mavservo.mavlink.bandwidth.LinkBudget.admit_answer`)."""
+        out: list[Answer] = []
+        servers = list(self.servers.items())
+        if servers:
+            self._first = (self._first + 1) % len(servers)
+            servers = servers[self._first :] + servers[: self._first]
+        for cid, server in servers:
+
+            def admit_payload(payload: bytes, cid: int = cid) -> bool:
+                return admit(cid, _message(payload, (0, 0)))
+
+            for to, payload in server.due(now, admit_payload):
+                out.append(Answer(cid, _message(payload, to), to))
         return out
+
+    def periodic(self, now: float) -> list[Outgoing]:
+        """The FTP answers each component may send now, without a link budget."""
+        return [(a.component_id, a.msg) for a in self.due(now, lambda _cid, _msg: True)]
 
     def stats(self) -> dict[str, dict[str, int]]:
         return {str(cid): server.stats() for cid, server in self.servers.items()}
+
+
+def _message(payload: bytes, to: tuple[int, int]) -> Any:
+    """FILE_TRANSFER_PROTOCOL carrying ``payload`` to ``to`` (system, component)."""
+    return mavlink2.MAVLink_file_transfer_protocol_message(0, to[0], to[1], list(payload))
