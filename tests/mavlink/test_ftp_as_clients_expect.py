@@ -147,7 +147,9 @@ def test_strangers_refusals_never_go_before_a_ground_stations_read() -> None:
             opened = _request(ftp.OP_OPEN_FILE_RO, seq=round_, data=b"general.json")
             server.handle(opened, stranger, now + n * 1e-4)
         now += 0.1
-        read = _request(ftp.OP_READ_FILE, seq=2 * round_ + 3, session=session, size=239, offset=offset)
+        read = _request(
+            ftp.OP_READ_FILE, seq=2 * round_ + 3, session=session, size=239, offset=offset
+        )
         server.handle(read, GCS, now)
         one = [True]  # the link takes one reply at this tick
 

@@ -44,7 +44,11 @@ class QgcLikeFtp:
     """Downloads files from ``(target_system, target_component)`` over ``conn``."""
 
     def __init__(
-        self, conn: Any, target: tuple[int, int], timeout_s: float = TIMEOUT_S, retries: int = MAX_RETRY
+        self,
+        conn: Any,
+        target: tuple[int, int],
+        timeout_s: float = TIMEOUT_S,
+        retries: int = MAX_RETRY,
     ) -> None:
         self.conn = conn
         self.target = target
