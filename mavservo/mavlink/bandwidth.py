@@ -76,7 +76,10 @@ EVENT_DEBT_SHARE = 0.05
 #: 90700977c5) calls the gimbal unhealthy, and refuses to arm, after 1 s without a
 #: GIMBAL_DEVICE_ATTITUDE_STATUS; against ArduPlane SITL, behind ~70 other streams at the
 #: default budget, gaps of up to 6.3 s came out (docs/sitl.md).
-_URGENT_STREAMS = frozenset({"GIMBAL_DEVICE_ATTITUDE_STATUS"})
+#: GIMBAL_MANAGER_STATUS of a gimbal that is its own manager too: behind the other streams it
+#: went about once every 8 s at the default budget, and MAVSDK's Gimbal plugin showed a control
+#: granted 2 s late (issue 38); a client needs it at >= 1 Hz (it is planned as fixed bytes).
+_URGENT_STREAMS = frozenset({"GIMBAL_DEVICE_ATTITUDE_STATUS", "GIMBAL_MANAGER_STATUS"})
 #: MAV_SEVERITY_CRITICAL: STATUSTEXT this grave always goes.
 _CRITICAL = 2
 #: ArduPilot's mount driver wants the gimbal's attitude status at least this often.
@@ -173,14 +176,18 @@ def plan_budget(
     components: int,
     rates: Any,
     signed: bool,
+    manager_status_hz: float = 0.0,
 ) -> BudgetPlan:
     """Scale the periodic streams so they fit ``budget_bytes_s`` (None: no scaling).
 
     ``rates`` is the telemetry rates section (``..._hz`` attributes); ``components`` counts the
-    heartbeats (one per component per second), which are never scaled.
+    heartbeats (one per component per second), which are never scaled, like the
+    GIMBAL_MANAGER_STATUS of gimbals that are their own manager (``manager_status_hz``, all
+    together).
     """
     heartbeat = frame_bytes(mavlink2.MAVLink_heartbeat_message, signed)
-    fixed = components * heartbeat
+    manager = frame_bytes(mavlink2.MAVLink_gimbal_manager_status_message, signed)
+    fixed = components * heartbeat + manager_status_hz * manager
     esc_groups = -(-servos // 4) if servos else 0
     gimbal_hz = rates.gimbal_attitude_status_hz
     streams = (
@@ -274,7 +281,7 @@ _STREAM_OF_TYPE = {
     "ESC_INFO": "ESC_INFO",  # gcs (issue 30)
     # a gimbal that is its own manager says this at 2 Hz: periodic, so it waits in the line
     # (the newest one) instead of being held as an event and sent seconds old (review rvlb);
-    # not in the plan (no ratio: never decimated), a few dozen bytes a second per gimbal
+    # never decimated (no ratio), urgent (the head of the line), planned as fixed bytes
     "GIMBAL_MANAGER_STATUS": "GIMBAL_MANAGER_STATUS",
 }
 

@@ -39,6 +39,7 @@ from mavservo.mavlink.component import (
 )
 from mavservo.mavlink.failsafe import FailsafeEvent, HeartbeatWatchdog
 from mavservo.mavlink.ftp import UNBUDGETED_BYTES_S
+from mavservo.mavlink.gimbal import GimbalDevice
 from mavservo.mavlink.gimbal_discovery import GimbalDiscoveryWatch
 from mavservo.mavlink.metadata_service import MetadataService
 from mavservo.mavlink.mirror import Mirror
@@ -115,8 +116,11 @@ class MavlinkCore:
             gimbals=self.gimbals,
             component_metadata=lambda cid: self.metadata.component_metadata(cid, self._now),
         )
-        #: a hosted gimbal the autopilot never looks for is said, with the fix (issue 30)
-        self.discovery = GimbalDiscoveryWatch(self.gimbals)
+        #: a hosted gimbal the autopilot never looks for is said, with the fix (issue 30); not
+        #: one that is its own gimbal manager (a ground station drives it directly, issue 38)
+        self.discovery = GimbalDiscoveryWatch(
+            cid for cid, gimbal in self.gimbals.items() if not _own_manager(gimbal)
+        )
         self._now = boot_time
         self._next_heartbeat = {cid: boot_time for cid in self.components}
         self.counters: Counter[str] = Counter()
@@ -314,6 +318,11 @@ class MavlinkCore:
             components=len(self.components),
             rates=rates,
             signed=self.settings.signing is not None,
+            manager_status_hz=sum(
+                g.settings.manager_status_rate_hz
+                for g in self.gimbals.values()
+                if isinstance(g, GimbalDevice) and _own_manager(g)
+            ),
         )
 
     def _acks_our_request(self, msg: Any) -> bool:
@@ -502,6 +511,11 @@ class _NoParameters:
 
     def set(self, name: str, value: float, sender: tuple[int, int]) -> SetResult:
         raise KeyError(name)
+
+
+def _own_manager(gimbal: HostedComponent) -> bool:
+    """A hosted gimbal that is its own gimbal manager (``act_as_manager``)."""
+    return isinstance(gimbal, GimbalDevice) and bool(gimbal.settings.act_as_manager)
 
 
 def _safe_len(snapshot: Callable[[], Sized]) -> int:

@@ -144,6 +144,6 @@ class QgcLikeFtp:
             reply = (seq, session, opcode, size, req, complete, offset, payload[12 : 12 + size])
             if expect_seq is not None and seq == expect_seq:
                 return reply
-            if burst_from is not None and req == OP_BURST_READ_FILE:
-                if ((seq - burst_from) & 0xFFFF) <= 64:  # this burst's own advancing numbers
-                    return reply
+            ours = burst_from is not None and ((seq - burst_from) & 0xFFFF) <= 64
+            if ours and req == OP_BURST_READ_FILE:  # the burst's own advancing numbers
+                return reply
