@@ -56,15 +56,16 @@ MAX_WAITING = 1024
 #: most: a read flood from a stranger starved the autopilot's telemetry when answers and
 #: telemetry competed for the same tokens without a cap. While answers flow, telemetry gets
 #: the rest (waiting in the line, see :meth:`LinkBudget.offer`); without requests, all of it.
-#: Half: at the default 1,000 B/s a full FTP data frame (266 B) can leave every 0.8 s, inside
+#: 0.6: at the default 1,000 B/s a full FTP data frame (266 B) can leave every 0.66 s, inside
 #: QGroundControl's 1,000 ms FTP time-out (``FTPManager.h``: ``_ackOrNakTimeoutMsecs = 1000``,
-#: ``_maxRetry = 3``); at 0.3 (before) it took 1.3 s, and the client's retries doubled the
-#: queue (issue 38).
-ANSWER_SHARE = 0.5
+#: ``_maxRetry = 3``) with the urgent gimbal status and the heartbeats taking their ~350 B/s;
+#: at 0.3 (before) it took 1.3 s at best, and the client's retries doubled the queue (issue 38).
+ANSWER_SHARE = 0.6
 #: Depth of the answers' own bucket: the largest MAVLink 2 frame (an FTP data packet, signed).
 ANSWER_DEPTH_BYTES = 280
-#: The link bucket is at least this deep, as a share of the budget, when that holds an FTP data
-#: frame: a frame deeper than the bucket had to leave it in debt, over the budget in that window.
+#: The link bucket is at least an FTP data frame deep (less the events' debt, which answers that
+#: large may use), when that is at most this share of the budget: a frame deeper than the bucket
+#: and its debt had to leave it deeper in debt, over the budget in that window.
 ANSWER_FRAME_DEPTH_SHARE = 0.4
 #: The token bucket's depth (at least the largest frame) and the events' debt, as shares of
 #: the budget; the rest is its rate.
@@ -124,9 +125,12 @@ class BudgetPlan:
         budget (the depth at least one frame of the largest periodic message)."""
         budget = self.budget_bytes_s or 0.0
         largest = max((s.frame_bytes for s in self.streams), default=0)
-        frame = min(float(ANSWER_DEPTH_BYTES), budget * ANSWER_FRAME_DEPTH_SHARE)
-        depth = max(budget * BUCKET_DEPTH_SHARE, float(largest), frame)
         debt = budget * EVENT_DEBT_SHARE
+        # an FTP data frame fits the depth and the debt together (answers that large may take
+        # the bucket into the debt, :meth:`LinkBudget.admit_answer`): no deeper than needed,
+        # every byte of depth is a byte less of rate
+        frame = min(float(ANSWER_DEPTH_BYTES) - debt, budget * ANSWER_FRAME_DEPTH_SHARE)
+        depth = max(budget * BUCKET_DEPTH_SHARE, float(largest), frame)
         return max(budget - depth - debt, budget * 0.1), depth, debt
 
     @property
@@ -308,9 +312,11 @@ class LinkBudget:
         self._answers: TokenBucket | None = None
         #: periodic messages waiting for the window, one per stream, oldest turn first
         self._waiting: OrderedDict[tuple[Any, ...], tuple[int, Any]] = OrderedDict()
-        #: bytes of an answer that waits for the link bucket only (its share has the tokens),
-        #: this round (:meth:`answers_round`); 0: none
-        self._answer_waiting = 0
+        #: the link bucket's level the first answer a client waits for needs, this round
+        #: (:meth:`answers_round`); 0: none waits
+        self._answer_waiting = 0.0
+        #: when the waiting answer's share has its tokens
+        self._answer_ready_at = 0.0
         self.replan(plan)
 
     def replan(self, plan: BudgetPlan, now: float | None = None) -> None:
@@ -480,14 +486,19 @@ class LinkBudget:
 
     def _take_periodic(self, bucket: TokenBucket, msg: Any, now: float, urgent: bool) -> bool:
         """Tokens for a periodic message: as :meth:`_take_keeping_half`, and, unless it is
-        urgent, leaving the tokens an answer waits for (:meth:`admit_answer`): the answer a
-        ground station waits for goes before periodic telemetry, which waits in the line
-        meanwhile (decimated: a newer value replaces the waiting one)."""
+        urgent, leaving the tokens an answer a client waits for needs when its share is ready
+        (:meth:`admit_answer`): the answer goes before periodic telemetry, which waits in the
+        line meanwhile (decimated: a newer value replaces the waiting one). Just in time: the
+        tokens the link bucket earns (at half its rate, the urgent streams and heartbeats take
+        the rest) before the answer's share is ready are not reserved, so small answers (a
+        parameter read flood, limited by the share) hold little back."""
         waiting = self._answer_waiting
         if urgent or not waiting:
             return self._take_keeping_half(bucket, msg, now)
         cost = self._cost(msg)
-        keep = max(min(bucket.capacity / 2, bucket.capacity - cost), min(waiting, bucket.capacity))
+        lead = max(0.0, self._answer_ready_at - now) * bucket.rate * 0.25
+        needed = min(bucket.capacity, max(0.0, waiting - lead))
+        keep = max(min(bucket.capacity / 2, bucket.capacity - cost), needed)
         if bucket.take(cost, now, keep=keep):
             return True
         self.counters["periodic_yielded_to_answers"] += 1
@@ -535,35 +546,63 @@ class LinkBudget:
         still go before the service answers (they are admitted first at each tick)."""
         return self.admit_answer(component_id, msg, now)
 
+    def _urgent_waiting(self) -> Any | None:
+        """The urgent periodic message at the head of the waiting line, if one waits."""
+        for key, (_component_id, msg) in self._waiting.items():
+            return msg if key[1] in _URGENT_STREAMS else None
+        return None
+
     def answers_round(self) -> None:
         """A new round of answers starts (each tick, before they are admitted): what waited
         in the last round is asked for again, or nothing waits any more."""
-        self._answer_waiting = 0
+        self._answer_waiting = 0.0
 
-    def admit_answer(self, component_id: int, msg: Any, now: float) -> bool:
+    def admit_answer(
+        self, component_id: int, msg: Any, now: float, *, awaited: bool = True
+    ) -> bool:
         """An answer to a request may go now: within the answers' share of the rate
-        (:data:`ANSWER_SHARE`, their own bucket) and with tokens for it while half the depth
-        stays for events (otherwise it waits in its queue). When only the link bucket lacks the
-        tokens, the answer is noted as waiting: periodic telemetry then leaves them to it
-        (:meth:`_take_periodic`), so a reply a client waits for leaves within about
-        ``cost / rate`` (0.4 s for an FTP data frame at the default budget), not behind a burst
-        of telemetry that kept the bucket low (issue 38: 1.2-7 s). A frame deeper than the
-        bucket (an FTP data packet on a budget under ~700 B/s) waits for a full bucket and
-        leaves it in debt: that one window may exceed the budget by the frame's excess."""
+        (:data:`ANSWER_SHARE`, their own bucket) and with tokens for it in the link bucket:
+        a small one while half the depth stays for events, one larger than half the depth
+        (an FTP data frame) from a full bucket down into the events' debt at most (the bound
+        on every window, depth + rate + debt, holds).
+
+        An ``awaited`` answer that cannot go yet (one a client waits for: not an FTP refusal)
+        is noted: periodic telemetry then leaves the tokens to it (:meth:`_take_periodic`)
+        until it went, so a reply a client waits for leaves within about ``cost / rate`` of the
+        tokens left by the urgent streams and heartbeats (an FTP frame every ~0.8 s at the
+        default budget with the simulation's gimbal), not behind telemetry that kept the
+        bucket low (issue 38: 1.2-7 s, the client's retries doubling the queue). Refusals to
+        strangers do not hold the telemetry back. A frame deeper than the bucket (an FTP data
+        packet on a budget under ~700 B/s) waits for a full bucket and leaves it in debt: that
+        one window may exceed the budget by the frame's excess."""
         bucket, share = self._bucket, self._answers
         if bucket is None or share is None:
             return True
         cost = self._cost(msg)
-        if share.level(now) < min(cost, share.capacity):
-            return False
-        if cost > bucket.capacity:
-            if bucket.level(now) < bucket.capacity:
-                self._answer_waiting = self._answer_waiting or cost
-                return False
+        _, _, debt = self.plan.bucket
+        # the level of the link bucket the answer needs
+        if cost - debt > bucket.capacity:
+            level = bucket.capacity
+        elif cost > bucket.capacity / 2:
+            level = cost - debt
+        else:
+            level = cost + bucket.capacity / 2
+        urgent = self._urgent_waiting()
+        if urgent is not None:  # the autopilot's gimbal check first: leave it its tokens
+            urgent_cost = self._cost(urgent)
+            level = max(
+                level, cost + urgent_cost + min(bucket.capacity / 2, bucket.capacity - urgent_cost)
+            )
+        admitted = share.level(now) >= min(cost, share.capacity) and bucket.level(now) >= level
+        if admitted:
             bucket.tokens -= cost
-            self.counters["answers_deeper_than_bucket"] += 1
-        elif not self._take_keeping_half(bucket, msg, now):
-            self._answer_waiting = self._answer_waiting or cost
+            if cost - debt > bucket.capacity:
+                self.counters["answers_deeper_than_bucket"] += 1
+        else:
+            if awaited and not self._answer_waiting:
+                self._answer_waiting = level
+                short = max(0.0, min(cost, share.capacity) - share.level(now))
+                self._answer_ready_at = now + short / share.rate if share.rate > 0 else now
             return False
         share.tokens -= cost
         return True

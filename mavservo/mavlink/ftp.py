@@ -122,6 +122,13 @@ BURST_PACKETS = 16
 #: Without a link budget the server is still paced (a USB link, a monitor output).
 UNBUDGETED_BYTES_S = 20_000.0
 
+#: Data bytes of a read reply at least, however slow the link (ArduPilot's own server sends 48
+#: on a busy RP2350 USB link: GCS_FTP.cpp, ReadFile and BurstReadFile, ``MIN(..., 48)``).
+MIN_CHUNK = 48
+#: A read reply's frame is at most this share of the link's budget in bytes (see
+#: :func:`chunk_for_budget`).
+CHUNK_SHARE = 0.15
+
 Sender = tuple[int, int]
 #: A request as the client repeats it: (session, opcode, offset).
 _Key = tuple[int, int, int]
@@ -139,6 +146,22 @@ def crc32(data: bytes) -> int:
     the complement of its ``value`` argument and its result is complemented, so starting it at
     0xFFFFFFFF and complementing the result gives the register ArduPilot keeps."""
     return (zlib.crc32(data, 0xFFFFFFFF) ^ 0xFFFFFFFF) & 0xFFFFFFFF
+
+
+def chunk_for_budget(bytes_per_s: float | None) -> int:
+    """Data bytes per ReadFile / BurstReadFile reply on a link budgeted at ``bytes_per_s``.
+
+    Why: a client waits 1,000 ms for each reply (QGroundControl's FTPManager, and for each
+    packet of a burst) or 500 ms (MAVSDK). At the default 1,000 B/s, after the gimbal's
+    attitude status and the heartbeats, the answers get ~370 B/s: a full 266-byte frame every
+    0.72 s at best, retries and a stalled download as soon as anything else wants the link. A
+    reply of fewer bytes than asked is allowed (the reply's ``size`` says how many; ArduPilot
+    sends 48 on a busy link, and QGroundControl, MAVSDK and pymavlink's mavftp read on from
+    ``offset + size``): 123 bytes at 1,000 B/s leave every ~0.4 s, the same bytes a second."""
+    if bytes_per_s is None:
+        return MAX_DATA
+    fitting = int(bytes_per_s * CHUNK_SHARE) - FRAME_OVERHEAD - HEADER_BYTES
+    return max(MIN_CHUNK, min(MAX_DATA, fitting))
 
 
 def normalize_path(raw: bytes) -> str | None:
@@ -219,6 +242,8 @@ class FtpServer:
     bytes_per_s: float = UNBUDGETED_BYTES_S
     #: the link's window, when several servers share one link (else the server's own)
     window: ByteWindow | None = None
+    #: data bytes of a read reply at most (:func:`chunk_for_budget`)
+    chunk_bytes: int = MAX_DATA
     counters: Counter[str] = field(default_factory=Counter)
     _sessions: dict[int, _Session] = field(default_factory=dict)
     _requesters: OrderedDict[Sender, _Requester] = field(default_factory=OrderedDict)
@@ -391,7 +416,7 @@ class FtpServer:
         if request.offset >= len(content):
             self._nak(request, ERR_EOF, progress=True)
             return
-        data = content[request.offset : request.offset + min(request.size, MAX_DATA)]
+        data = content[request.offset : request.offset + min(request.size, self._chunk())]
         self.counters["read_bytes"] += len(data)
         self._ack(request, session.number, data=data, offset=request.offset)
 
@@ -404,11 +429,14 @@ class FtpServer:
             session.burst = None
             self._nak(request, ERR_EOF, progress=True)
             return
-        chunk = min(request.size, MAX_DATA) or MAX_DATA
+        chunk = min(request.size or MAX_DATA, self._chunk())
         # a new request (the client's retry, or its request for a gap) replaces the burst
         session.burst = _Burst(
             request.offset, chunk, (request.seq + 1) & 0xFFFF, BURST_PACKETS, request.seq
         )
+
+    def _chunk(self) -> int:
+        return max(MIN_CHUNK, min(MAX_DATA, self.chunk_bytes))
 
     def _crc(self, request: _Request, now: float) -> None:
         name = normalize_path(request.data)
@@ -488,13 +516,15 @@ class FtpServer:
 
     def periodic(self, now: float) -> list[tuple[Sender, bytes]]:
         """:meth:`due` without a link budget (the server's own byte window only)."""
-        return self.due(now, lambda _payload: True)
+        return self.due(now, lambda _payload, _awaited: True)
 
-    def due(self, now: float, admit: Callable[[bytes], bool]) -> list[tuple[Sender, bytes]]:
+    def due(self, now: float, admit: Callable[[bytes, bool], bool]) -> list[tuple[Sender, bytes]]:
         """Replies that go now, each (the requester, the 251-byte payload): requesters in turn,
         the ones whose next reply makes progress (an ACK, a burst packet, an end of file)
         before the ones whose next reply is a refusal; each reply within the byte window and
-        ``admit`` (the link budget: the first refusal ends the call, the reply stays queued)."""
+        ``admit(payload, awaited)`` (the link budget: the first refusal ends the call, the reply
+        stays queued; ``awaited``: a reply that makes progress, one a client waits for, not a
+        refusal)."""
         self._expire(now)
         window = self.window
         assert window is not None
@@ -507,7 +537,7 @@ class FtpServer:
             reply = requester.queue[0] if requester.queue else self._burst_packet(sender, True)
             assert reply is not None
             size = frame_bytes(reply.payload)
-            if not window.fits(size, now) or not admit(reply.payload):
+            if not window.fits(size, now) or not admit(reply.payload, reply.progress):
                 self.counters["waiting_for_budget"] += 1
                 return out
             if requester.queue:

@@ -38,7 +38,7 @@ from mavservo.mavlink.component import (
     HostedComponent,
 )
 from mavservo.mavlink.failsafe import FailsafeEvent, HeartbeatWatchdog
-from mavservo.mavlink.ftp import UNBUDGETED_BYTES_S
+from mavservo.mavlink.ftp import UNBUDGETED_BYTES_S, chunk_for_budget
 from mavservo.mavlink.gimbal import GimbalDevice
 from mavservo.mavlink.gimbal_discovery import GimbalDiscoveryWatch
 from mavservo.mavlink.metadata_service import MetadataService
@@ -157,6 +157,7 @@ class MavlinkCore:
             # out 1.2-7 s after its request, past every client's time-out (issue 38)
             bytes_per_s=UNBUDGETED_BYTES_S if budget is None else budget,
             boot_time=boot_time,
+            chunk_bytes=chunk_for_budget(budget),
         )
 
     @property
@@ -238,18 +239,21 @@ class MavlinkCore:
         :meth:`~mavservo.mavlink.bandwidth.LinkBudget.admit_answer`)."""
         self.budget.answers_round()
 
-        def admit(cid: int, msg: Any) -> bool:
-            return self.budget.admit_answer(cid, msg, now)
+        def admit(cid: int, msg: Any, awaited: bool = True) -> bool:
+            return self.budget.admit_answer(cid, msg, now, awaited=awaited)
+
+        def ftp_due(t: float) -> list[Answer]:
+            return self.metadata.due(t, admit)
 
         acks = self.acks.due(now, admit)
         responses = self.responses.due(now, admit)
         self._ftp_first = not self._ftp_first
         if self._ftp_first:
-            ftp = self._guarded("metadata", lambda t: self.metadata.due(t, admit), now)
+            ftp = self._guarded("metadata", ftp_due, now)
             services = [*ftp, *self.answers.due(now, admit)]
         else:
             params = self.answers.due(now, admit)
-            ftp = self._guarded("metadata", lambda t: self.metadata.due(t, admit), now)
+            ftp = self._guarded("metadata", ftp_due, now)
             services = [*params, *ftp]
         return [*acks, *responses, *services]
 

@@ -22,7 +22,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mavservo.mavlink.answers import Answer
 from mavservo.mavlink.commands import Outgoing
-from mavservo.mavlink.ftp import ByteWindow, FtpServer, crc32
+from mavservo.mavlink.ftp import MAX_DATA, ByteWindow, FtpServer, crc32
 from mavservo.mavlink.wip_messages import ComponentMetadata
 
 #: The general metadata file's name on every component that serves metadata.
@@ -59,11 +59,17 @@ class MetadataService:
         *,
         bytes_per_s: float,
         boot_time: float,
+        chunk_bytes: int = MAX_DATA,
     ) -> None:
         self._boot = boot_time
         window = ByteWindow(bytes_per_s)  # one link: every component's answers share it
         self.servers = {
-            cid: FtpServer(dict(files.get(cid, {})), bytes_per_s=bytes_per_s, window=window)
+            cid: FtpServer(
+                dict(files.get(cid, {})),
+                bytes_per_s=bytes_per_s,
+                window=window,
+                chunk_bytes=chunk_bytes,
+            )
             for cid in component_ids
         }
         self._first = 0
@@ -85,10 +91,12 @@ class MetadataService:
         if server is not None:
             server.handle(bytes(msg.payload), sender, now)
 
-    def due(self, now: float, admit: Callable[[int, Any], bool]) -> list[Answer]:
+    def due(self, now: float, admit: Callable[[int, Any, bool], bool]) -> list[Answer]:
         """The FTP replies that go now, each to its requester only: each component's server
-        in turn (the one served first rotates), each reply admitted by ``admit`` (the link
-        budget's answers: :meth:`~mavservo.mavlink.bandwidth.LinkBudget.admit_answer`)."""
+        in turn (the one served first rotates), each reply admitted by ``admit(component, msg,
+        awaited)`` (the link budget's answers:
+        :meth:`~mavservo.mavlink.bandwidth.LinkBudget.admit_answer`; ``awaited``: a reply a
+        client waits for, not a refusal)."""
         out: list[Answer] = []
         servers = list(self.servers.items())
         if servers:
@@ -96,8 +104,8 @@ class MetadataService:
             servers = servers[self._first :] + servers[: self._first]
         for cid, server in servers:
 
-            def admit_payload(payload: bytes, cid: int = cid) -> bool:
-                return admit(cid, _message(payload, (0, 0)))
+            def admit_payload(payload: bytes, awaited: bool, cid: int = cid) -> bool:
+                return admit(cid, _message(payload, (0, 0)), awaited)
 
             for to, payload in server.due(now, admit_payload):
                 out.append(Answer(cid, _message(payload, to), to))
@@ -105,7 +113,7 @@ class MetadataService:
 
     def periodic(self, now: float) -> list[Outgoing]:
         """The FTP answers each component may send now, without a link budget."""
-        return [(a.component_id, a.msg) for a in self.due(now, lambda _cid, _msg: True)]
+        return [(a.component_id, a.msg) for a in self.due(now, lambda _c, _m, _a: True)]
 
     def stats(self) -> dict[str, dict[str, int]]:
         return {str(cid): server.stats() for cid, server in self.servers.items()}

@@ -153,7 +153,7 @@ def test_strangers_refusals_never_go_before_a_ground_stations_read() -> None:
         server.handle(read, GCS, now)
         one = [True]  # the link takes one reply at this tick
 
-        def admit(_cid: int, _msg: Any, one: list[bool] = one) -> bool:
+        def admit(_cid: int, _msg: Any, _awaited: bool, one: list[bool] = one) -> bool:
             return one.pop() if one else False
 
         (answer,) = service.due(now, admit)
@@ -171,7 +171,7 @@ def test_a_burst_goes_one_packet_per_admission_and_stays_inside_it() -> None:
     session = _parse(server.periodic(0.0)[0][1])[1]
     server.handle(_request(ftp.OP_BURST_READ_FILE, seq=3, session=session, size=239), GCS, 0.0)
     allowed = [True, True]
-    got = server.due(0.1, lambda _p: allowed.pop() if allowed else False)
+    got = server.due(0.1, lambda _p, _a: allowed.pop() if allowed else False)
     assert len(got) == 2 and server.queued() == 0
     rest = server.periodic(0.2)
     data = b"".join(_parse(p)[7] for _to, p in got + rest)
@@ -194,3 +194,21 @@ def _parse(payload: bytes) -> tuple[Any, ...]:
 
 
 assert Path(REPO / "config" / "sim.yaml").exists()
+
+
+def test_on_a_slow_link_read_replies_carry_fewer_bytes_than_asked() -> None:
+    """At the default 1,000 B/s a reply carries 123 data bytes (a 150-byte frame, ~0.4 s of
+    the answers' tokens) instead of 239; the reply's size says so and the next read asks on
+    from there, as the clients do (ArduPilot sends 48 on a busy link)."""
+    assert ftp.chunk_for_budget(1000.0) == 123
+    assert ftp.chunk_for_budget(None) == ftp.chunk_for_budget(1e6) == ftp.MAX_DATA
+    assert ftp.chunk_for_budget(100.0) == ftp.MIN_CHUNK
+    server = FtpServer(FILES, chunk_bytes=ftp.chunk_for_budget(1000.0))
+    server.handle(_request(ftp.OP_OPEN_FILE_RO, seq=1, data=b"parameters.json.xz"), GCS, 0.0)
+    session = _parse(server.periodic(0.0)[0][1])[1]
+    server.handle(_request(ftp.OP_READ_FILE, seq=3, session=session, size=239), GCS, 0.0)
+    ((_to, reply),) = server.periodic(0.0)
+    assert _parse(reply)[3] == 123 and ftp.frame_bytes(reply) == 150
+    server.handle(_request(ftp.OP_BURST_READ_FILE, seq=5, session=session, size=239), GCS, 0.0)
+    sizes = [_parse(p)[3] for _to, p in server.periodic(0.0)]
+    assert sum(sizes) == len(FILES["parameters.json.xz"]) and max(sizes) == 123
