@@ -152,7 +152,7 @@ def qgc(rig: Rig, strangers: bool) -> dict[str, Any]:
     stop = threading.Event()
     attack = spoofers(rig.port, stop) if strangers else None
     if attack is not None:
-        time.sleep(2.0)  # every session taken before the ground station asks
+        time.sleep(5.0)  # the attack under way: every session taken, every spoofed id seen
     conn = open_connection(
         f"udpout:127.0.0.1:{rig.port}", source_system=GCS[0], source_component=GCS[1]
     )
@@ -165,7 +165,7 @@ def qgc(rig: Rig, strangers: bool) -> dict[str, Any]:
             try:
                 got = client.download(f"/{name}")
                 out[name] = {"s": got.seconds, "max_wait_s": max(got.waits), "retries": got.retries}
-            except FtpGaveUp as exc:
+            except (FtpGaveUp, RuntimeError) as exc:  # no reply in time, or a NAK
                 out[name] = {"failed": str(exc)}
     finally:
         stop.set()
@@ -173,6 +173,7 @@ def qgc(rig: Rig, strangers: bool) -> dict[str, Any]:
             attack.join(3.0)
         conn.close()
     out["busiest_window_B"] = rig.window_since(start)
+    out["ftp"] = rig.bridge.mavlink.stats()["ftp"]["140"]
     if rig.by_type:
         out["bytes_by_message_id"] = dict(sorted(rig.by_type.items(), key=lambda kv: -kv[1]))
     return out
@@ -261,6 +262,10 @@ def summarise(results: list[dict[str, Any]], scenario: str) -> dict[str, Any]:
             "requests": results[0]["requests"]
         }
     out: dict[str, Any] = {"busiest_window_B": _median([r["busiest_window_B"] for r in results])}
+    names = ("general.json", "parameters.json.xz")
+    failures = {str(r[n]["failed"])[:60] for r in results for n in names if "failed" in r[n]}
+    if failures:
+        out["why_failed"] = sorted(failures)
     for name in ("general.json", "parameters.json.xz"):
         runs = [r[name] for r in results]
         failed = sum("failed" in r for r in runs)

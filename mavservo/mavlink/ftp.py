@@ -119,6 +119,8 @@ MAX_QUEUED_PER_SENDER = 4
 #: nothing queued is forgotten first, so spoofed senders cannot grow the table.
 MAX_REQUESTERS = 32
 BURST_PACKETS = 16
+#: Senders remembered as squatters (a session of theirs closed unread) at most.
+MAX_SQUATTERS = 256
 #: Without a link budget the server is still paced (a USB link, a monitor output).
 UNBUDGETED_BYTES_S = 20_000.0
 
@@ -213,6 +215,8 @@ class _Session:
     name: str
     last_used: float
     burst: _Burst | None = None
+    #: its owner read from it (ReadFile or BurstReadFile)
+    read: bool = False
 
 
 @dataclass(frozen=True)
@@ -247,6 +251,10 @@ class FtpServer:
     counters: Counter[str] = field(default_factory=Counter)
     _sessions: dict[int, _Session] = field(default_factory=dict)
     _requesters: OrderedDict[Sender, _Requester] = field(default_factory=OrderedDict)
+    #: senders whose session went unread (see :meth:`_close`), least recent first
+    _squatters: OrderedDict[Sender, None] = field(default_factory=OrderedDict)
+    #: the time of the :meth:`due` call in progress
+    _now: float = 0.0
 
     def __post_init__(self) -> None:
         for name in self.files:
@@ -295,12 +303,16 @@ class FtpServer:
         return requester
 
     def _forget_one(self) -> None:
-        """Room for a new requester: the least recently served one with nothing queued, else
-        the one with the most queued (a flood), never a quiet one with little waiting."""
+        """Room for a new requester: the least recently served one with nothing queued and no
+        session, else one with nothing queued, else the one with the most queued (a flood),
+        never a quiet one with little waiting."""
+        owners = {session.owner for session in self._sessions.values()}
         idle = [s for s, r in self._requesters.items() if not r.queue]
-        victim = (
-            idle[0] if idle else max(self._requesters, key=lambda s: len(self._requesters[s].queue))
-        )
+        unattached = [s for s in idle if s not in owners]
+        if unattached or idle:
+            victim = (unattached or idle)[0]
+        else:
+            victim = max(self._requesters, key=lambda s: len(self._requesters[s].queue))
         self.counters["queue_full"] += len(self._requesters.pop(victim).queue)
         self.counters["requesters_forgotten"] += 1
 
@@ -395,10 +407,14 @@ class FtpServer:
             self._nak(request, ERR_FILE_NOT_FOUND)
             return
         mine = [s for s in self._sessions.values() if s.owner == request.sender]
-        if len(self._sessions) >= MAX_SESSIONS and len(mine) < MAX_SESSIONS_PER_SENDER:
-            self._evict_idle(now)
+        squatter = request.sender in self._squatters
+        if len(self._sessions) >= MAX_SESSIONS and not squatter and not mine:
+            self._evict_idle(now)  # only a sender without a session may take an idle one
         if len(self._sessions) >= MAX_SESSIONS or len(mine) >= MAX_SESSIONS_PER_SENDER:
             self.counters["no_session"] += 1
+            if squatter:  # counted, not answered: its sessions went unread, so does a NAK
+                self.counters["squatter_refused"] += 1
+                return
             self._nak(request, ERR_NO_SESSIONS_AVAILABLE)
             return
         number = next(n for n in range(MAX_SESSIONS) if n not in self._sessions)
@@ -412,6 +428,7 @@ class FtpServer:
         if session is None:
             return
         session.last_used = now
+        self._reading(session)
         content = self.files[session.name]
         if request.offset >= len(content):
             self._nak(request, ERR_EOF, progress=True)
@@ -425,6 +442,7 @@ class FtpServer:
         if session is None:
             return
         session.last_used = now
+        self._reading(session)
         if request.offset >= len(self.files[session.name]):
             session.burst = None
             self._nak(request, ERR_EOF, progress=True)
@@ -434,6 +452,11 @@ class FtpServer:
         session.burst = _Burst(
             request.offset, chunk, (request.seq + 1) & 0xFFFF, BURST_PACKETS, request.seq
         )
+
+    def _reading(self, session: _Session) -> None:
+        """The owner reads: a client, whatever it did before."""
+        session.read = True
+        self._squatters.pop(session.owner, None)
 
     def _chunk(self) -> int:
         return max(MIN_CHUNK, min(MAX_DATA, self.chunk_bytes))
@@ -461,13 +484,27 @@ class FtpServer:
         """The least recently used session, if idle :data:`SESSION_EVICT_IDLE_S`, goes."""
         oldest = min(self._sessions.values(), key=lambda s: s.last_used)
         if now - oldest.last_used >= SESSION_EVICT_IDLE_S:
-            del self._sessions[oldest.number]
+            self._close(oldest)
             self.counters["evicted"] += 1
 
     def _expire(self, now: float) -> None:
-        for number in [n for n, s in self._sessions.items() if now - s.last_used > SESSION_IDLE_S]:
-            del self._sessions[number]
+        for session in [s for s in self._sessions.values() if now - s.last_used > SESSION_IDLE_S]:
+            self._close(session)
             self.counters["expired"] += 1
+
+    def _close(self, session: _Session) -> None:
+        """A session evicted or expired; one its owner never read from marks the owner as a
+        squatter: its later opens take a free session but never evict another's.
+
+        Why: 64 spoofed ids opening a session a second each took every session as soon as one
+        had been idle the eviction time; a ground station's open lost that race to 64 others
+        (NAK NoSessionsAvailable for most of its tries). A client opens to read, at once."""
+        del self._sessions[session.number]
+        if not session.read:
+            self._squatters[session.owner] = None
+            self._squatters.move_to_end(session.owner)
+            while len(self._squatters) > MAX_SQUATTERS:
+                self._squatters.popitem(last=False)
 
     # ------------------------------------------------------------------ replies
 
@@ -493,14 +530,28 @@ class FtpServer:
 
     def _enqueue(self, sender: Sender, reply: _Reply) -> None:
         """Queue a reply; a sender's own oldest makes room beyond its share, and a full queue
-        takes room from the sender with the most queued (never from a quiet requester)."""
+        drops the oldest refusal waiting (a NAK nobody can make progress with), else the
+        oldest of the sender with the most queued (never a quiet requester's: with 65
+        requesters holding one reply each, the first in line was dropped, a ground station's
+        ACK among them)."""
         requester = self._requester(sender)
         if len(requester.queue) >= MAX_QUEUED_PER_SENDER:
             requester.queue.popleft()
             self.counters["queue_full"] += 1
         elif self.queued() >= MAX_QUEUED:
-            fullest = max(self._requesters.values(), key=lambda r: len(r.queue))
-            fullest.queue.popleft()
+            refusing = next(
+                (r for r in self._requesters.values() if any(not x.progress for x in r.queue)),
+                None,
+            )
+            if refusing is not None:
+                oldest = next(x for x in refusing.queue if not x.progress)
+                refusing.queue.remove(oldest)
+            elif not reply.progress:
+                self.counters["queue_full"] += 1
+                return  # a refusal never pushes out a reply that makes progress
+            else:
+                fullest = max(self._requesters.values(), key=lambda r: len(r.queue))
+                fullest.queue.popleft()
             self.counters["queue_full"] += 1
         requester.queue.append(reply)
 
@@ -526,6 +577,7 @@ class FtpServer:
         stays queued; ``awaited``: a reply that makes progress, one a client waits for, not a
         refusal)."""
         self._expire(now)
+        self._now = now
         window = self.window
         assert window is not None
         out: list[tuple[Sender, bytes]] = []
@@ -552,17 +604,26 @@ class FtpServer:
         return out
 
     def _next_requester(self) -> Sender | None:
-        """The least recently served requester with a reply that makes progress, else the
-        least recently served one with a refusal waiting, else None."""
-        refusing: Sender | None = None
+        """The least recently served requester of the first tier that has one: a reader (it
+        reads a file it opened) with a reply that makes progress; any requester with a reply
+        that makes progress (an open, a list, a CRC); one with a refusal waiting. Why tiers: a
+        download in progress must not share its turns with strangers' opens (16 spoofed ids'
+        open ACKs took 16 of every 17 turns, the ground station's burst packets came 1.5 s
+        apart), nor with their refusals."""
+        readers = {s.owner for s in self._sessions.values() if s.read}
+        best: tuple[int, Sender] | None = None
         for sender, requester in self._requesters.items():
             if requester.queue:
-                if requester.queue[0].progress:
-                    return sender
-                refusing = refusing or sender
+                tier = (0 if sender in readers else 1) if requester.queue[0].progress else 2
             elif self._bursting(sender) is not None:
+                tier = 0
+            else:
+                continue
+            if tier == 0:
                 return sender
-        return refusing
+            if best is None or tier < best[0]:
+                best = (tier, sender)
+        return None if best is None else best[1]
 
     def _bursting(self, sender: Sender) -> _Session | None:
         return next(
@@ -587,6 +648,9 @@ class FtpServer:
             payload, burst.request_seq, (session.number, OP_BURST_READ_FILE, burst.offset), True
         )
         if not peek:
+            # a burst going out is the session in use (it was evicted as idle mid-burst: no
+            # request comes while its packets flow)
+            session.last_used = max(session.last_used, self._now)
             self.counters["burst_bytes"] += len(data)
             burst.offset += len(data)
             burst.seq = (burst.seq + 1) & 0xFFFF

@@ -212,3 +212,61 @@ def test_on_a_slow_link_read_replies_carry_fewer_bytes_than_asked() -> None:
     server.handle(_request(ftp.OP_BURST_READ_FILE, seq=5, session=session, size=239), GCS, 0.0)
     sizes = [_parse(p)[3] for _to, p in server.periodic(0.0)]
     assert sum(sizes) == len(FILES["parameters.json.xz"]) and max(sizes) == 123
+
+
+@pytest.mark.parametrize("starts_at", [1.0, 5.0], ids=["early-in-the-attack", "under-way"])
+def test_a_ground_station_downloads_while_64_spoofed_ids_open_sessions(starts_at: float) -> None:
+    """On a simulated clock and link (432 B/s for answers, the default budget's share): 64
+    spoofed ids each open a session once a second and never read; a ground station opens
+    parameters metadata and burst-reads it as QGroundControl does, with its 1,000 ms time-out.
+    Every reply it waits for comes within 1 s, and the file arrives whole. Before: the queue
+    was one FIFO shared with the strangers' NAKs (239-478 B in 50 s, issue 38); then the
+    strangers' opens won every idle session and their ACKs took 16 of 17 turns."""
+    content = bytes(range(256)) * 7
+    server = FtpServer({"general.json": b"x" * 229, "p.xz": content}, chunk_bytes=123)
+    spoofed = [(100 + n, 190) for n in range(64)]
+    tokens, seq, session, offset, asked_at = 0.0, 0, None, 0, None
+    waits: list[float] = []
+
+    def gcs(opcode: int, now: float, **fields: Any) -> None:
+        nonlocal seq, asked_at
+        seq += 2
+        asked_at = now
+        server.handle(_request(opcode, seq=seq, **fields), GCS, now)
+
+    def admit(payload: bytes, _awaited: bool) -> bool:
+        nonlocal tokens
+        cost = ftp.frame_bytes(payload)
+        if tokens < cost:
+            return False
+        tokens -= cost
+        return True
+
+    for step in range(2000):  # 20 s of 10 ms ticks
+        now = step * 0.01
+        if step % 100 < 64:
+            opened = _request(ftp.OP_OPEN_FILE_RO, seq=step, data=b"/general.json")
+            server.handle(opened, spoofed[step % 100], now)
+        if abs(now - starts_at) < 1e-9:
+            gcs(ftp.OP_OPEN_FILE_RO, now, data=b"/p.xz")
+        tokens = min(tokens + 4.32, 300.0)
+        for to, payload in server.due(now, admit):
+            if to != GCS:
+                continue
+            _seq, number, opcode, size, req, complete, at, _data = _parse(payload)
+            assert asked_at is not None
+            waits.append(now - asked_at)
+            asked_at = now
+            assert opcode == ftp.OP_ACK, _parse(payload)
+            if req == ftp.OP_OPEN_FILE_RO:
+                session = number
+                gcs(ftp.OP_BURST_READ_FILE, now, session=session, size=239)
+            elif req == ftp.OP_BURST_READ_FILE and at == offset:
+                offset += size
+                if offset < len(content) and complete:
+                    gcs(ftp.OP_BURST_READ_FILE, now, session=session, size=239, offset=offset)
+        if offset >= len(content):
+            break
+    assert offset == len(content)
+    assert max(waits) < 1.0, max(waits)
+    assert server.counters["squatter_refused"] > 0
