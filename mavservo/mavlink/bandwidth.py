@@ -493,7 +493,11 @@ class LinkBudget:
         the rest) before the answer's share is ready are not reserved, so small answers (a
         parameter read flood, limited by the share) hold little back."""
         waiting = self._answer_waiting
-        if urgent or not waiting:
+        if urgent:  # a quarter of the depth left for events: answers leave it its own cost
+            cost = self._cost(msg)
+            keep = max(0.0, min(bucket.capacity / 4, bucket.capacity - cost))
+            return bucket.take(cost, now, keep=keep)
+        if not waiting:
             return self._take_keeping_half(bucket, msg, now)
         cost = self._cost(msg)
         lead = max(0.0, self._answer_ready_at - now) * bucket.rate * 0.25
@@ -558,13 +562,19 @@ class LinkBudget:
         self._answer_waiting = 0.0
 
     def admit_answer(
-        self, component_id: int, msg: Any, now: float, *, awaited: bool = True
+        self,
+        component_id: int,
+        msg: Any,
+        now: float,
+        *,
+        awaited: bool = True,
+        keep_share: float = 0.5,
     ) -> bool:
         """An answer to a request may go now: within the answers' share of the rate
         (:data:`ANSWER_SHARE`, their own bucket) and with tokens for it in the link bucket:
         a small one while half the depth stays for events, one larger than half the depth
-        (an FTP data frame) from a full bucket down into the events' debt at most (the bound
-        on every window, depth + rate + debt, holds).
+        (an FTP data frame) from a full bucket, a frame deeper than the bucket down into the
+        events' debt at most (the bound on every window, depth + rate + debt, holds).
 
         An ``awaited`` answer that cannot go yet (one a client waits for: not an FTP refusal)
         is noted: periodic telemetry then leaves the tokens to it (:meth:`_take_periodic`)
@@ -580,18 +590,16 @@ class LinkBudget:
             return True
         cost = self._cost(msg)
         _, _, debt = self.plan.bucket
-        # the level of the link bucket the answer needs
-        if cost - debt > bucket.capacity:
-            level = bucket.capacity
-        elif cost > bucket.capacity / 2:
-            level = cost - debt
-        else:
-            level = cost + bucket.capacity / 2
+        # the level of the link bucket the answer needs: half the depth left for events, or the
+        # full bucket for a large one (a frame deeper than the bucket goes into the debt);
+        # never less for a larger answer (an ACK needed more than the message it acknowledges
+        # and waited behind it: 1 ACK of 25 in 5 s)
+        level = min(cost + bucket.capacity * keep_share, bucket.capacity)
         urgent = self._urgent_waiting()
         if urgent is not None:  # the autopilot's gimbal check first: leave it its tokens
             urgent_cost = self._cost(urgent)
             level = max(
-                level, cost + urgent_cost + min(bucket.capacity / 2, bucket.capacity - urgent_cost)
+                level, cost + urgent_cost + min(bucket.capacity / 4, bucket.capacity - urgent_cost)
             )
         admitted = share.level(now) >= min(cost, share.capacity) and bucket.level(now) >= level
         if admitted:

@@ -70,6 +70,9 @@ MAV_AUTOPILOT_INVALID = 8
 MAV_STATE_ACTIVE = 4
 MAV_STATE_CRITICAL = 5
 HEARTBEAT_PERIOD_S = 1.0
+#: The part of the link bucket's depth a queued COMMAND_ACK leaves for the bridge's own events
+#: (other answers leave half): an ACK is tiny and a client waits for it (issue 38, item 2).
+ACK_KEEP_SHARE = 0.25
 COMMAND_TYPES = ("COMMAND_LONG", "COMMAND_INT")
 PARAM_LIST = "PARAM_REQUEST_LIST"
 MIRROR_TYPES = ("SERVO_OUTPUT_RAW", "ACTUATOR_OUTPUT_STATUS")
@@ -245,7 +248,10 @@ class MavlinkCore:
         def ftp_due(t: float) -> list[Answer]:
             return self.metadata.due(t, admit)
 
-        acks = self.acks.due(now, admit)
+        def admit_ack(cid: int, msg: Any) -> bool:
+            return self.budget.admit_answer(cid, msg, now, keep_share=ACK_KEEP_SHARE)
+
+        acks = self.acks.due(now, admit_ack)
         responses = self.responses.due(now, admit)
         self._ftp_first = not self._ftp_first
         if self._ftp_first:

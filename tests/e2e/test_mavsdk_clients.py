@@ -17,7 +17,6 @@ import json
 import lzma
 import threading
 from collections.abc import Iterator
-from pathlib import Path
 from typing import Any
 
 import pytest
@@ -272,6 +271,3 @@ def _select(param: Any, component_id: int) -> None:
 def _served(bridge: Bridge, name: str) -> bytes:
     """The file the bridge's servo component serves."""
     return bytes(bridge.mavlink.core.metadata.servers[SERVO].files[name])
-
-
-assert Path(REPO / "config" / "gimbal.yaml").exists()

@@ -12,7 +12,6 @@ station's read.
 from __future__ import annotations
 
 import json
-from pathlib import Path
 from typing import Any
 
 import pytest
@@ -24,6 +23,8 @@ from mavservo.config.loader import load_config
 from mavservo.mavlink import ftp
 from mavservo.mavlink.ftp import FtpServer, crc32
 from mavservo.mavlink.metadata_service import MetadataService
+from tests.mavlink.test_ftp_metadata import parse as _parse
+from tests.mavlink.test_ftp_metadata import request as _request
 from tests.support.paths import REPO
 
 GCS = (255, 190)
@@ -176,24 +177,6 @@ def test_a_burst_goes_one_packet_per_admission_and_stays_inside_it() -> None:
     rest = server.periodic(0.2)
     data = b"".join(_parse(p)[7] for _to, p in got + rest)
     assert data == FILES["parameters.json.xz"]
-
-
-# ------------------------------------------------------------------------------ helpers
-
-
-def _request(
-    opcode: int, *, seq: int = 1, session: int = 0, size: int = 0, offset: int = 0, data=b""
-) -> bytes:
-    header = ftp.HEADER.pack(seq, session, opcode, size or len(data), 0, 0, 0, offset)
-    return (header + data).ljust(ftp.PAYLOAD_BYTES, b"\x00")
-
-
-def _parse(payload: bytes) -> tuple[Any, ...]:
-    seq, session, opcode, size, req, burst, _pad, offset = ftp.HEADER.unpack_from(payload)
-    return seq, session, opcode, size, req, burst, offset, payload[12 : 12 + size]
-
-
-assert Path(REPO / "config" / "sim.yaml").exists()
 
 
 def test_on_a_slow_link_read_replies_carry_fewer_bytes_than_asked() -> None:
