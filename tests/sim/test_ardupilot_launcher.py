@@ -338,7 +338,9 @@ def test_a_gcs_behind_real_arduplane_gets_what_the_docs_say(tmp_path: Path) -> N
         sources = {(m.get_srcSystem(), m.get_srcComponent()) for _, m in seen}
         assert (1, 140) in sources, sorted(sources)
         from_bridge = {m.get_type() for _, m in seen if m.get_srcComponent() == 140}
-        assert {"HEARTBEAT", "NAMED_VALUE_FLOAT"} <= from_bridge, from_bridge
+        assert {"HEARTBEAT", "NAMED_VALUE_FLOAT", "ACTUATOR_OUTPUT_STATUS"} <= from_bridge
+        # Mission Planner's ESC view: ArduPilot forwards the bridge's ESC_TELEMETRY (ESC 17..)
+        assert any(kind.startswith("ESC_TELEMETRY_") for kind in from_bridge), from_bridge
         unknown = {m.get_type() for _, m in seen if m.get_type().startswith("UNKNOWN_")}
         assert not unknown & {"UNKNOWN_290", "UNKNOWN_291", "UNKNOWN_397"}, unknown
 
