@@ -56,9 +56,17 @@ MAX_WAITING = 1024
 #: most: a read flood from a stranger starved the autopilot's telemetry when answers and
 #: telemetry competed for the same tokens without a cap. While answers flow, telemetry gets
 #: the rest (waiting in the line, see :meth:`LinkBudget.offer`); without requests, all of it.
-ANSWER_SHARE = 0.3
+#: 0.6: at the default 1,000 B/s a full FTP data frame (266 B) can leave every 0.66 s, inside
+#: QGroundControl's 1,000 ms FTP time-out (``FTPManager.h``: ``_ackOrNakTimeoutMsecs = 1000``,
+#: ``_maxRetry = 3``) with the urgent gimbal status and the heartbeats taking their ~350 B/s;
+#: at 0.3 (before) it took 1.3 s at best, and the client's retries doubled the queue (issue 38).
+ANSWER_SHARE = 0.6
 #: Depth of the answers' own bucket: the largest MAVLink 2 frame (an FTP data packet, signed).
 ANSWER_DEPTH_BYTES = 280
+#: The link bucket is at least an FTP data frame deep (less the events' debt, which answers that
+#: large may use), when that is at most this share of the budget: a frame deeper than the bucket
+#: and its debt had to leave it deeper in debt, over the budget in that window.
+ANSWER_FRAME_DEPTH_SHARE = 0.4
 #: The token bucket's depth (at least the largest frame) and the events' debt, as shares of
 #: the budget; the rest is its rate.
 BUCKET_DEPTH_SHARE = 0.2
@@ -69,7 +77,10 @@ EVENT_DEBT_SHARE = 0.05
 #: 90700977c5) calls the gimbal unhealthy, and refuses to arm, after 1 s without a
 #: GIMBAL_DEVICE_ATTITUDE_STATUS; against ArduPlane SITL, behind ~70 other streams at the
 #: default budget, gaps of up to 6.3 s came out (docs/sitl.md).
-_URGENT_STREAMS = frozenset({"GIMBAL_DEVICE_ATTITUDE_STATUS"})
+#: GIMBAL_MANAGER_STATUS of a gimbal that is its own manager too: behind the other streams it
+#: went about once every 8 s at the default budget, and MAVSDK's Gimbal plugin showed a control
+#: granted 2 s late (issue 38); a client needs it at >= 1 Hz (it is planned as fixed bytes).
+_URGENT_STREAMS = frozenset({"GIMBAL_DEVICE_ATTITUDE_STATUS", "GIMBAL_MANAGER_STATUS"})
 #: MAV_SEVERITY_CRITICAL: STATUSTEXT this grave always goes.
 _CRITICAL = 2
 #: ArduPilot's mount driver wants the gimbal's attitude status at least this often.
@@ -114,8 +125,12 @@ class BudgetPlan:
         budget (the depth at least one frame of the largest periodic message)."""
         budget = self.budget_bytes_s or 0.0
         largest = max((s.frame_bytes for s in self.streams), default=0)
-        depth = max(budget * BUCKET_DEPTH_SHARE, float(largest))
         debt = budget * EVENT_DEBT_SHARE
+        # an FTP data frame fits the depth and the debt together (answers that large may take
+        # the bucket into the debt, :meth:`LinkBudget.admit_answer`): no deeper than needed,
+        # every byte of depth is a byte less of rate
+        frame = min(float(ANSWER_DEPTH_BYTES) - debt, budget * ANSWER_FRAME_DEPTH_SHARE)
+        depth = max(budget * BUCKET_DEPTH_SHARE, float(largest), frame)
         return max(budget - depth - debt, budget * 0.1), depth, debt
 
     @property
@@ -165,14 +180,18 @@ def plan_budget(
     components: int,
     rates: Any,
     signed: bool,
+    manager_status_hz: float = 0.0,
 ) -> BudgetPlan:
     """Scale the periodic streams so they fit ``budget_bytes_s`` (None: no scaling).
 
     ``rates`` is the telemetry rates section (``..._hz`` attributes); ``components`` counts the
-    heartbeats (one per component per second), which are never scaled.
+    heartbeats (one per component per second), which are never scaled, like the
+    GIMBAL_MANAGER_STATUS of gimbals that are their own manager (``manager_status_hz``, all
+    together).
     """
     heartbeat = frame_bytes(mavlink2.MAVLink_heartbeat_message, signed)
-    fixed = components * heartbeat
+    manager = frame_bytes(mavlink2.MAVLink_gimbal_manager_status_message, signed)
+    fixed = components * heartbeat + manager_status_hz * manager
     esc_groups = -(-servos // 4) if servos else 0
     gimbal_hz = rates.gimbal_attitude_status_hz
     streams = (
@@ -266,7 +285,7 @@ _STREAM_OF_TYPE = {
     "ESC_INFO": "ESC_INFO",  # gcs (issue 30)
     # a gimbal that is its own manager says this at 2 Hz: periodic, so it waits in the line
     # (the newest one) instead of being held as an event and sent seconds old (review rvlb);
-    # not in the plan (no ratio: never decimated), a few dozen bytes a second per gimbal
+    # never decimated (no ratio), urgent (the head of the line), planned as fixed bytes
     "GIMBAL_MANAGER_STATUS": "GIMBAL_MANAGER_STATUS",
 }
 
@@ -293,6 +312,11 @@ class LinkBudget:
         self._answers: TokenBucket | None = None
         #: periodic messages waiting for the window, one per stream, oldest turn first
         self._waiting: OrderedDict[tuple[Any, ...], tuple[int, Any]] = OrderedDict()
+        #: the link bucket's level the first answer a client waits for needs, this round
+        #: (:meth:`answers_round`); 0: none waits
+        self._answer_waiting = 0.0
+        #: when the waiting answer's share has its tokens
+        self._answer_ready_at = 0.0
         self.replan(plan)
 
     def replan(self, plan: BudgetPlan, now: float | None = None) -> None:
@@ -388,7 +412,7 @@ class LinkBudget:
         if bucket is None:
             return Admission.NOW
         urgent = kind in _URGENT_STREAMS
-        if (not self._waiting or urgent) and self._take_keeping_half(bucket, msg, now):
+        if (not self._waiting or urgent) and self._take_periodic(bucket, msg, now, urgent):
             return Admission.NOW
         self._waiting[key] = (component_id, msg)
         if urgent:
@@ -415,7 +439,7 @@ class LinkBudget:
         out = []
         while self._waiting:
             key, (component_id, msg) = next(iter(self._waiting.items()))
-            if not self._take_keeping_half(bucket, msg, now):
+            if not self._take_periodic(bucket, msg, now, key[1] in _URGENT_STREAMS):
                 break
             del self._waiting[key]
             out.append((component_id, msg))
@@ -460,6 +484,30 @@ class LinkBudget:
         if self.plan.ratios.get(stream, 1.0) < 1.0 and key in self._credit:
             self._credit[key] = min(self._credit[key] + 1.0, 1.0 + _MAX_TURNS_KEPT)
 
+    def _take_periodic(self, bucket: TokenBucket, msg: Any, now: float, urgent: bool) -> bool:
+        """Tokens for a periodic message: as :meth:`_take_keeping_half`, and, unless it is
+        urgent, leaving the tokens an answer a client waits for needs when its share is ready
+        (:meth:`admit_answer`): the answer goes before periodic telemetry, which waits in the
+        line meanwhile (decimated: a newer value replaces the waiting one). Just in time: the
+        tokens the link bucket earns (at half its rate, the urgent streams and heartbeats take
+        the rest) before the answer's share is ready are not reserved, so small answers (a
+        parameter read flood, limited by the share) hold little back."""
+        waiting = self._answer_waiting
+        if urgent:  # a quarter of the depth left for events: answers leave it its own cost
+            cost = self._cost(msg)
+            keep = max(0.0, min(bucket.capacity / 4, bucket.capacity - cost))
+            return bucket.take(cost, now, keep=keep)
+        if not waiting:
+            return self._take_keeping_half(bucket, msg, now)
+        cost = self._cost(msg)
+        lead = max(0.0, self._answer_ready_at - now) * bucket.rate * 0.25
+        needed = min(bucket.capacity, max(0.0, waiting - lead))
+        keep = max(min(bucket.capacity / 2, bucket.capacity - cost), needed)
+        if bucket.take(cost, now, keep=keep):
+            return True
+        self.counters["periodic_yielded_to_answers"] += 1
+        return False
+
     def _take_keeping_half(self, bucket: TokenBucket, msg: Any, now: float) -> bool:
         """Tokens for ``msg`` if half the depth stays for events (or, for a frame larger than
         half the depth, if the rest of the bucket is enough)."""
@@ -502,24 +550,67 @@ class LinkBudget:
         still go before the service answers (they are admitted first at each tick)."""
         return self.admit_answer(component_id, msg, now)
 
-    def admit_answer(self, component_id: int, msg: Any, now: float) -> bool:
+    def _urgent_waiting(self) -> Any | None:
+        """The urgent periodic message at the head of the waiting line, if one waits."""
+        for key, (_component_id, msg) in self._waiting.items():
+            return msg if key[1] in _URGENT_STREAMS else None
+        return None
+
+    def answers_round(self) -> None:
+        """A new round of answers starts (each tick, before they are admitted): what waited
+        in the last round is asked for again, or nothing waits any more."""
+        self._answer_waiting = 0.0
+
+    def admit_answer(
+        self,
+        component_id: int,
+        msg: Any,
+        now: float,
+        *,
+        awaited: bool = True,
+        keep_share: float = 0.5,
+    ) -> bool:
         """An answer to a request may go now: within the answers' share of the rate
-        (:data:`ANSWER_SHARE`, their own bucket) and with tokens for it while half the depth
-        stays for events (otherwise it waits in its queue). A frame deeper than the bucket (an
-        FTP data packet on a budget under ~1.3 kB/s) waits for a full bucket and leaves it in
-        debt: that one window may exceed the budget by the frame's excess over the depth."""
+        (:data:`ANSWER_SHARE`, their own bucket) and with tokens for it in the link bucket:
+        a small one while half the depth stays for events, one larger than half the depth
+        (an FTP data frame) from a full bucket, a frame deeper than the bucket down into the
+        events' debt at most (the bound on every window, depth + rate + debt, holds).
+
+        An ``awaited`` answer that cannot go yet (one a client waits for: not an FTP refusal)
+        is noted: periodic telemetry then leaves the tokens to it (:meth:`_take_periodic`)
+        until it went, so a reply a client waits for leaves within about ``cost / rate`` of the
+        tokens left by the urgent streams and heartbeats (an FTP frame every ~0.8 s at the
+        default budget with the simulation's gimbal), not behind telemetry that kept the
+        bucket low (issue 38: 1.2-7 s, the client's retries doubling the queue). Refusals to
+        strangers do not hold the telemetry back. A frame deeper than the bucket (an FTP data
+        packet on a budget under ~700 B/s) waits for a full bucket and leaves it in debt: that
+        one window may exceed the budget by the frame's excess."""
         bucket, share = self._bucket, self._answers
         if bucket is None or share is None:
             return True
         cost = self._cost(msg)
-        if share.level(now) < min(cost, share.capacity):
-            return False
-        if cost > bucket.capacity:
-            if bucket.level(now) < bucket.capacity:
-                return False
+        _, _, debt = self.plan.bucket
+        # the level of the link bucket the answer needs: half the depth left for events, or the
+        # full bucket for a large one (a frame deeper than the bucket goes into the debt);
+        # never less for a larger answer (an ACK needed more than the message it acknowledges
+        # and waited behind it: 1 ACK of 25 in 5 s)
+        level = min(cost + bucket.capacity * keep_share, bucket.capacity)
+        urgent = self._urgent_waiting()
+        if urgent is not None:  # the autopilot's gimbal check first: leave it its tokens
+            urgent_cost = self._cost(urgent)
+            level = max(
+                level, cost + urgent_cost + min(bucket.capacity / 4, bucket.capacity - urgent_cost)
+            )
+        admitted = share.level(now) >= min(cost, share.capacity) and bucket.level(now) >= level
+        if admitted:
             bucket.tokens -= cost
-            self.counters["answers_deeper_than_bucket"] += 1
-        elif not self._take_keeping_half(bucket, msg, now):
+            if cost - debt > bucket.capacity:
+                self.counters["answers_deeper_than_bucket"] += 1
+        else:
+            if awaited and not self._answer_waiting:
+                self._answer_waiting = level
+                short = max(0.0, min(cost, share.capacity) - share.level(now))
+                self._answer_ready_at = now + short / share.rate if share.rate > 0 else now
             return False
         share.tokens -= cost
         return True

@@ -264,6 +264,8 @@ class GimbalDevice:
             if not addresses_this_gimbal(params[6], self.component_id):
                 return int(Outcome.DENIED)
             ok = self.control.configure(params, sender)
+            if ok:  # who is in control goes out with the next tick, not the next period
+                self._next_manager_status = -math.inf
             return int(Outcome.ACCEPTED if ok else Outcome.DENIED)
         return None
 

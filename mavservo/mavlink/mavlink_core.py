@@ -23,7 +23,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from mavservo.mavlink.answers import Answer, AnswerQueue
 from mavservo.mavlink.arbitration import CommandHold
 from mavservo.mavlink.backend import ActuatorBackend
-from mavservo.mavlink.bandwidth import EVENT_RESERVE, BudgetPlan, LinkBudget, plan_budget
+from mavservo.mavlink.bandwidth import BudgetPlan, LinkBudget, plan_budget
 from mavservo.mavlink.commands import (
     REFUSAL_LOG_INTERVAL_S,
     Command,
@@ -43,7 +43,8 @@ from mavservo.mavlink.failsafe import (
     FailsafeEvent,
     HeartbeatWatchdog,
 )
-from mavservo.mavlink.ftp import UNBUDGETED_BYTES_S
+from mavservo.mavlink.ftp import UNBUDGETED_BYTES_S, chunk_for_budget
+from mavservo.mavlink.gimbal import GimbalDevice
 from mavservo.mavlink.gimbal_discovery import GimbalDiscoveryWatch
 from mavservo.mavlink.metadata_service import MetadataService
 from mavservo.mavlink.mirror import Mirror
@@ -77,6 +78,9 @@ MAV_STATE_CRITICAL = 5
 HEARTBEAT_PERIOD_S = 1.0
 #: At most one STATUSTEXT per this many seconds per identity claimed from a second address.
 CLAIM_NOTICE_S = 10.0
+#: The part of the link bucket's depth a queued COMMAND_ACK leaves for the bridge's own events
+#: (other answers leave half): an ACK is tiny and a client waits for it (issue 38, item 2).
+ACK_KEEP_SHARE = 0.25
 COMMAND_TYPES = ("COMMAND_LONG", "COMMAND_INT")
 PARAM_LIST = "PARAM_REQUEST_LIST"
 MIRROR_TYPES = ("SERVO_OUTPUT_RAW", "ACTUATOR_OUTPUT_STATUS")
@@ -123,8 +127,11 @@ class MavlinkCore:
             gimbals=self.gimbals,
             component_metadata=lambda cid: self.metadata.component_metadata(cid, self._now),
         )
-        #: a hosted gimbal the autopilot never looks for is said, with the fix (issue 30)
-        self.discovery = GimbalDiscoveryWatch(self.gimbals)
+        #: a hosted gimbal the autopilot never looks for is said, with the fix (issue 30); not
+        #: one that is its own gimbal manager (a ground station drives it directly, issue 38)
+        self.discovery = GimbalDiscoveryWatch(
+            cid for cid, gimbal in self.gimbals.items() if not _own_manager(gimbal)
+        )
         self._now = boot_time
         self._next_heartbeat = {cid: boot_time for cid in self.components}
         self.counters: Counter[str] = Counter()
@@ -135,8 +142,11 @@ class MavlinkCore:
         self._gimbal_hz = settings.telemetry.gimbal_attitude_status_hz
         #: answers to requests (parameters, FTP, missions), per requester, paced
         self.answers = AnswerQueue()
-        #: responses to unverified senders' commands, per sender, in turn (events)
+        #: responses to unverified senders' commands, per sender, in turn: their ACKs in a
+        #: lane of their own, served before any answer, then the messages they asked for
+        self.acks = AnswerQueue()
         self.responses = AnswerQueue()
+        self._ftp_first = False
         #: parameters, and a prompt "not supported" to FTP and mission requests, on every
         #: component (without an owner the components serve no parameters but still answer)
         self.parameters = ParameterServer(
@@ -154,8 +164,12 @@ class MavlinkCore:
         self.metadata = MetadataService(
             self.components,
             metadata_files or {},
-            bytes_per_s=UNBUDGETED_BYTES_S if budget is None else budget * EVENT_RESERVE,
+            # with a budget, the budget's answers share paces the replies (the window of the
+            # whole budget is only a second bound); 10 % of it (before) let a 239-byte reply
+            # out 1.2-7 s after its request, past every client's time-out (issue 38)
+            bytes_per_s=UNBUDGETED_BYTES_S if budget is None else budget,
             boot_time=boot_time,
+            chunk_bytes=chunk_for_budget(budget),
         )
 
     @property
@@ -228,14 +242,37 @@ class MavlinkCore:
     def answers_due(self, now: float) -> list[Answer]:
         """Answers to requests that may go now: each to its requester only, paced per
         requester, within the link budget (:class:`~mavservo.mavlink.answers.AnswerQueue`).
-        Queued command responses (see :meth:`queue_responses`) go first, as the events they
-        would have been (a flood of parameter lists from 250 spoofed senders must not hold a
-        ground station's ACK behind their answers); service answers take the answers' share."""
-        responses = self.responses.due(
-            now, lambda cid, msg: self.budget.admit_response(cid, msg, now)
-        )
-        answers = self.answers.due(now, lambda cid, msg: self.budget.admit_answer(cid, msg, now))
-        return responses + answers
+
+        Order: the COMMAND_ACKs of queued command responses first (an ACK never waits behind
+        answers, its own requested message included: a ground station asking for a message 5
+        times a second got 63 of 182 ACKs later than 300 ms when the ACK waited behind the
+        requested messages; issue 38), then the other queued responses (the messages asked
+        for), then the services' answers (FTP replies and parameter answers, which of the two
+        goes first alternates per tick so neither starves the other). While an answer waits
+        for the budget, periodic telemetry leaves it the tokens (see
+        :meth:`~mavservo.mavlink.bandwidth.LinkBudget.admit_answer`)."""
+        self.budget.answers_round()
+
+        def admit(cid: int, msg: Any, awaited: bool = True) -> bool:
+            return self.budget.admit_answer(cid, msg, now, awaited=awaited)
+
+        def ftp_due(t: float) -> list[Answer]:
+            return self.metadata.due(t, admit)
+
+        def admit_ack(cid: int, msg: Any) -> bool:
+            return self.budget.admit_answer(cid, msg, now, keep_share=ACK_KEEP_SHARE)
+
+        acks = self.acks.due(now, admit_ack)
+        responses = self.responses.due(now, admit)
+        self._ftp_first = not self._ftp_first
+        if self._ftp_first:
+            ftp = self._guarded("metadata", ftp_due, now)
+            services = [*ftp, *self.answers.due(now, admit)]
+        else:
+            params = self.answers.due(now, admit)
+            ftp = self._guarded("metadata", ftp_due, now)
+            services = [*params, *ftp]
+        return [*acks, *responses, *services]
 
     def queue_responses(self, source: Requester, out: list[Outgoing], now: float) -> None:
         """Responses to a command from an unverified sender (its ACK, the messages it asked
@@ -244,9 +281,23 @@ class MavlinkCore:
         Why (review3): sent at once to every peer, a stranger's REQUEST_MESSAGE flood (1,000/s
         for COMPONENT_METADATA) filled the held events with its ACKs and answers: 11,654
         events dropped in 7 s, and a ground station got 1 of 30 ACKs of its DO_SET_SERVO (all
-        30 applied). Queued per requester, the flood waits for its own turn."""
+        30 applied). Queued per requester, the flood waits for its own turn.
+
+        The ACK goes to its own lane, served first; a request repeated before its answers went
+        is answered once: what is still queued for the same command (its ACK) and the same
+        requested message type replaces the older copy instead of doubling the queue (issue
+        38: QGroundControl and MAVSDK retry a command after their ACK timeout)."""
         self.counters["responses_queued"] += len(out)
-        self.responses.put(source, out, now)
+        asked: list[Outgoing] = []
+        for component_id, msg in out:
+            if msg.get_type() == "COMMAND_ACK":  # the same command with the same outcome
+                tag = ("ack", component_id, msg.command, msg.result)
+                self.acks.put(source, [(component_id, msg)], now, tag)
+            else:
+                asked.append((component_id, msg))
+        if asked:  # the messages one request asked for, replaced as a whole by a repeat
+            kinds = tuple(sorted({(cid, msg.get_type()) for cid, msg in asked}))
+            self.responses.put(source, asked, now, ("asked", kinds))
 
     def set_telemetry_rates(self, rates: TelemetryRates, now: float) -> None:
         """New telemetry rates (TEL_*_HZ parameters): in force at once, the budget re-planned."""
@@ -291,6 +342,11 @@ class MavlinkCore:
             components=len(self.components),
             rates=rates,
             signed=self.settings.signing is not None,
+            manager_status_hz=sum(
+                g.settings.manager_status_rate_hz
+                for g in self.gimbals.values()
+                if isinstance(g, GimbalDevice) and _own_manager(g)
+            ),
         )
 
     def _acks_our_request(self, msg: Any) -> bool:
@@ -419,18 +475,9 @@ class MavlinkCore:
         out.extend((servo, m) for m in self._guarded("streams", self._stream_requests, now))
         out.extend((servo, m) for m in self._guarded("telemetry", self.telemetry.periodic, now))
         out.extend(self._guarded("parameters", self.parameters.periodic, now))
-        self._guarded("metadata", self._queue_ftp_replies, now)
         for cid, device in self.gimbals.items():
             out.extend((cid, m) for m in self._guarded(f"gimbal {cid}", device.periodic, now))
         return out
-
-    def _queue_ftp_replies(self, now: float) -> None:
-        """The FTP replies due now, to their requester only, as answers (paced per requester,
-        within the answers' share of the budget). Why (review3): sent with the tick's output
-        they went to every peer: a stranger's burst read of the parameter metadata reached the
-        other ground stations and the autopilot's port, 251-byte frames each."""
-        for requester, component_id, reply in self.metadata.replies(now):
-            self.answers.put(requester, [(component_id, reply)], now)
 
     def _stream_requests(self, now: float) -> list[Any]:
         """SET_MESSAGE_INTERVAL commands due now (sent from the servo component)."""
@@ -477,6 +524,7 @@ class MavlinkCore:
             "ftp": self.metadata.stats(),
             "answers": dict(self.answers.counters),
             "responses": dict(self.responses.counters),
+            "acks": dict(self.acks.counters),
             "failsafe_count": self.watchdog.failsafe_count,
             "failsafe_deferred": self.watchdog.deferred,
             "in_failsafe": self.watchdog.in_failsafe,
@@ -507,6 +555,11 @@ class _NoParameters:
 
     def set(self, name: str, value: float, sender: tuple[int, int]) -> SetResult:
         raise KeyError(name)
+
+
+def _own_manager(gimbal: HostedComponent) -> bool:
+    """A hosted gimbal that is its own gimbal manager (``act_as_manager``)."""
+    return isinstance(gimbal, GimbalDevice) and bool(gimbal.settings.act_as_manager)
 
 
 def _safe_len(snapshot: Callable[[], Sized]) -> int:

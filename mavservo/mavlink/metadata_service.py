@@ -15,13 +15,14 @@ right component. Sans-I/O.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from mavservo.mavlink.answers import Answer
 from mavservo.mavlink.commands import Outgoing
-from mavservo.mavlink.ftp import ByteWindow, FtpServer, Sender, crc32
+from mavservo.mavlink.ftp import MAX_DATA, ByteWindow, FtpServer, Sender, crc32
 from mavservo.mavlink.wip_messages import ComponentMetadata
 
 #: The general metadata file's name on every component that serves metadata.
@@ -58,13 +59,20 @@ class MetadataService:
         *,
         bytes_per_s: float,
         boot_time: float,
+        chunk_bytes: int = MAX_DATA,
     ) -> None:
         self._boot = boot_time
         window = ByteWindow(bytes_per_s)  # one link: every component's answers share it
         self.servers = {
-            cid: FtpServer(dict(files.get(cid, {})), bytes_per_s=bytes_per_s, window=window)
+            cid: FtpServer(
+                dict(files.get(cid, {})),
+                bytes_per_s=bytes_per_s,
+                window=window,
+                chunk_bytes=chunk_bytes,
+            )
             for cid in component_ids
         }
+        self._first = 0
 
     def component_metadata(self, component_id: int, now: float) -> Any | None:
         """COMPONENT_METADATA of ``component_id``, or None when it serves no metadata."""
@@ -83,20 +91,34 @@ class MetadataService:
         if server is not None:
             server.handle(bytes(msg.payload), sender, now)
 
-    def periodic(self, now: float) -> list[Outgoing]:
-        """The FTP answers each component may send now (paced by its server)."""
-        return [(cid, reply) for _, cid, reply in self.replies(now)]
+    def due(self, now: float, admit: Callable[[int, Any, bool], bool]) -> list[Answer]:
+        """The FTP replies that go now, each to its requester only: each component's server
+        in turn (the one served first rotates), each reply admitted by ``admit(component, msg,
+        awaited)`` (the link budget's answers:
+        :meth:`~mavservo.mavlink.bandwidth.LinkBudget.admit_answer`; ``awaited``: a reply a
+        client waits for, not a refusal)."""
+        out: list[Answer] = []
+        servers = list(self.servers.items())
+        if servers:
+            self._first = (self._first + 1) % len(servers)
+            servers = servers[self._first :] + servers[: self._first]
+        for cid, server in servers:
 
-    def replies(self, now: float) -> list[tuple[Sender, int, Any]]:
-        """As :meth:`periodic`, each with the requester it goes to (its ids and origin)."""
-        out: list[tuple[Sender, int, Any]] = []
-        for cid, server in self.servers.items():
-            for sender, payload in server.periodic(now):
-                reply = mavlink2.MAVLink_file_transfer_protocol_message(
-                    0, sender[0], sender[1], list(payload)
-                )
-                out.append((sender, cid, reply))
+            def admit_payload(payload: bytes, awaited: bool, cid: int = cid) -> bool:
+                return admit(cid, _message(payload, (0, 0)), awaited)
+
+            for to, payload in server.due(now, admit_payload):
+                out.append(Answer(cid, _message(payload, to), to))
         return out
+
+    def periodic(self, now: float) -> list[Outgoing]:
+        """The FTP answers each component may send now, without a link budget."""
+        return [(a.component_id, a.msg) for a in self.due(now, lambda _c, _m, _a: True)]
 
     def stats(self) -> dict[str, dict[str, int]]:
         return {str(cid): server.stats() for cid, server in self.servers.items()}
+
+
+def _message(payload: bytes, to: tuple[int, int] | Sender) -> Any:
+    """FILE_TRANSFER_PROTOCOL carrying ``payload`` to ``to`` (system, component)."""
+    return mavlink2.MAVLink_file_transfer_protocol_message(0, to[0], to[1], list(payload))

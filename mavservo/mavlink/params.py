@@ -15,8 +15,16 @@ Rules (https://mavlink.io/en/services/parameter.html):
   a list does not arrive as one burst on a radio, and goes to the requester only.
 * PARAM_REQUEST_READ: by name when ``param_index`` is -1, else by index; an unknown one gets
   PARAM_ERROR (MAV_PARAM_ERROR_DOES_NOT_EXIST).
-* PARAM_SET: a PARAM_VALUE with the value now in force, accepted or not (the old value when
-  refused, plus a STATUSTEXT with the reason from the owner and a counter).
+* PARAM_SET: a PARAM_VALUE with the value now in force. A refused set gets PARAM_ERROR (345,
+  common.xml; MAV_PARAM_ERROR) with the reason's code first: VALUE_OUT_OF_RANGE when the
+  config's rules refuse the value, PERMISSION_DENIED when the sender may not write,
+  TYPE_UNSUPPORTED for a ``param_type`` that cannot carry a value, DOES_NOT_EXIST for an unknown
+  name; then, for a name that exists, the old PARAM_VALUE for clients that predate PARAM_ERROR
+  (plus a STATUSTEXT with the owner's reason and a counter). Why the order: MAVSDK's parameter
+  client ends a set at the first PARAM_ERROR naming it (``process_param_error``, mapping the
+  codes to ValueOutOfRange, PermissionDenied, ...), but takes a PARAM_VALUE with another value
+  as a stale one and sends the set again (mavlink_parameter_client.cpp, ``WorkItemSet``); with
+  only the old PARAM_VALUE it retried and reported a time-out (issue 38).
 * Values travel as MAV_PARAM_TYPE_REAL32; every parameter of the bridge is a float (integral
   ones such as ``SRV1_REV`` are whole-number floats), so no ground station has to know whether
   integers are byte-wise or C-cast encoded.
@@ -300,27 +308,36 @@ class ParameterServer:
         if value is None:
             self.counters["set_bad_type"] += 1
             self._refused(sender, f"{name}: param_type {int(msg.param_type)} not supported")
-            return [self._error(component_id, sender, name, -1, "VALUE_OUT_OF_RANGE")]
+            return self._refusal(component_id, sender, names, name, "TYPE_UNSUPPORTED")
         result = self.owner.set(name, value, sender)
         if result.accepted:
             self.counters["set_accepted"] += 1
             self._log_set(
                 "accepted", "parameter %s set to %g by %d/%d", name, result.value, *sender
             )
-        else:
-            self.counters["set_refused"] += 1
-            self._log_set(
-                "refused",
-                "parameter %s = %s from %d/%d refused: %s",
-                name,
-                value,
-                *sender,
-                result.reason,
-            )
-            self._refused(
-                sender, f"{name} {value:g} refused: {result.reason.removeprefix(name + ': ')}"
-            )
-        return [(component_id, self._value(names, names.index(name)))]
+            return [(component_id, self._value(names, names.index(name)))]
+        self.counters["set_refused"] += 1
+        self._log_set(
+            "refused",
+            "parameter %s = %s from %d/%d refused: %s",
+            name,
+            value,
+            *sender,
+            result.reason,
+        )
+        self._refused(
+            sender, f"{name} {value:g} refused: {result.reason.removeprefix(name + ': ')}"
+        )
+        return self._refusal(component_id, sender, names, name, "VALUE_OUT_OF_RANGE")
+
+    def _refusal(
+        self, component_id: int, sender: tuple[int, int], names: list[str], name: str, error: str
+    ) -> list[Outgoing]:
+        """PARAM_ERROR with ``error``, then the value still in force (for older clients)."""
+        out = [self._error(component_id, sender, name, -1, error)]
+        if name in names:
+            out.append((component_id, self._value(names, names.index(name))))
+        return out
 
     def _log_set(self, kind: str, line: str, *args: Any) -> None:
         """One log line per kind (accepted, refused) a second at most; the rest counted."""
@@ -343,10 +360,12 @@ class ParameterServer:
         self, msg: Any, component_id: int, sender: tuple[int, int]
     ) -> list[Outgoing]:
         """A PARAM_SET from a sender not allowed to write: PARAM_ERROR PERMISSION_DENIED (the
-        ground station says why instead of timing out), counted; nothing changes."""
+        ground station says why instead of timing out) and the value in force, counted;
+        nothing changes."""
         self.counters["set_not_permitted"] += 1
         name = _param_id(msg.param_id)
-        return [self._error(component_id, sender, name, -1, "PERMISSION_DENIED")]
+        names = self.owner.names(component_id)
+        return self._refusal(component_id, sender, names, name, "PERMISSION_DENIED")
 
     def _ftp_nak(self, msg: Any, component_id: int) -> list[Outgoing]:
         """Every FTP request is answered NAK "unknown command" at once (MAVProxy then falls back
@@ -395,12 +414,25 @@ class ParameterServer:
         self, component_id: int, sender: tuple[int, int], name: str, index: int, error: str
     ) -> Outgoing:
         self.counters[f"error_{error.lower()}"] += 1
-        code = getattr(mavlink2, f"MAV_PARAM_ERROR_{error}")
+        code = _PARAM_ERRORS[error]
         message = mavlink2.MAVLink_param_error_message(
             sender[0], sender[1], name.encode("ascii", "replace")[:16], index, code
         )
         return (component_id, message)
 
+
+#: MAV_PARAM_ERROR (common.xml, tests/data/mavlink_xml/common.xml line 2917 ff.): pymavlink
+#: 2.4.50's bundled dialect stops at READ_ONLY (5); the later codes are the XML's values.
+_PARAM_ERRORS = {
+    "DOES_NOT_EXIST": 1,
+    "VALUE_OUT_OF_RANGE": 2,
+    "PERMISSION_DENIED": 3,
+    "COMPONENT_NOT_FOUND": 4,
+    "READ_ONLY": 5,
+    "TYPE_UNSUPPORTED": 6,
+    "TYPE_MISMATCH": 7,
+    "READ_FAIL": 8,
+}
 
 _INTEGER_TYPES = {
     mavlink2.MAV_PARAM_TYPE_UINT8: "<B",

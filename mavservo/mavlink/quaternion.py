@@ -89,20 +89,32 @@ def euler_to_quaternion(roll_deg: float, pitch_deg: float, yaw_deg: float) -> Qu
     )
 
 
+#: |sin(pitch)| beyond which the attitude is taken as gimbal lock (pitch within ~0.08 degrees of
+#: +-90): there the usual roll and yaw formulas divide noise by noise (atan2(0, 0) for an
+#: exact quaternion, float32 rounding otherwise).
+GIMBAL_LOCK_SIN = 1.0 - 1e-6
+
+
 def quaternion_to_euler(q: Sequence[float]) -> tuple[float, float, float]:
     """Unit quaternion ``(w, x, y, z)`` to ZYX Euler ``(roll, pitch, yaw)`` in degrees.
 
-    Roll and yaw are in ``[-180, 180)``, pitch in ``[-90, 90]``. At pitch +-90 (gimbal lock) roll
-    and yaw are not separable; the split returned there is whatever the formulas give, and only
-    their combination is meaningful. NaN components raise ``ValueError``: callers must test
-    :func:`is_nan_quaternion` first.
+    Roll and yaw are in ``[-180, 180)``, pitch in ``[-90, 90]``. At pitch +-90 (gimbal lock)
+    roll and yaw turn about the same axis and only their combination is in the quaternion
+    (yaw + roll at -90, yaw - roll at +90: twice ``atan2(z, w)`` either way); there the roll
+    is 0 and the yaw is that combination, so a demand of pitch -90 yaw 90 (no roll, a camera
+    looking down turned to the right) comes out as exactly that. Before, both formulas gave
+    ``atan2(0, 0)`` = 0: PX4 asked for pitch -90 yaw 90 and the yaw servo went to 0 (issue
+    38). NaN components raise ``ValueError``: callers must test :func:`is_nan_quaternion` first.
     """
     if is_nan_quaternion(q):
         raise ValueError("quaternion has NaN components (MAVLink 'no attitude')")
     w, x, y, z = normalize(q)
-    roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
     sin_pitch = max(-1.0, min(1.0, 2.0 * (w * y - z * x)))
     pitch = math.asin(sin_pitch)
+    if abs(sin_pitch) >= GIMBAL_LOCK_SIN:
+        pitch = math.copysign(math.pi / 2.0, sin_pitch)
+        return (0.0, math.degrees(pitch), wrap_180(math.degrees(2.0 * math.atan2(z, w))))
+    roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
     yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
     return (wrap_180(math.degrees(roll)), math.degrees(pitch), wrap_180(math.degrees(yaw)))
 

@@ -41,6 +41,7 @@ from mavservo.mavlink.params import (
     FTP_OPCODE_NAK,
     ParameterServer,
     SetResult,
+    WritePolicy,
 )
 from tests.support.mavlink_doubles import wire
 
@@ -236,11 +237,39 @@ def test_set_answers_the_value_in_force_and_a_refusal_says_why() -> None:
     server, store, texts = _server()
     (ok,) = _handle(server, mavlink2.MAVLink_param_set_message(1, 140, b"A_ONE", 5.0, 9))
     assert (ok.param_id, ok.param_value) == ("A_ONE", 5.0)
-    (refused,) = _handle(server, mavlink2.MAVLink_param_set_message(1, 140, b"A_ONE", -3.0, 9))
-    assert refused.param_value == 5.0  # the old value goes back
+    error, refused = _handle(server, mavlink2.MAVLink_param_set_message(1, 140, b"A_ONE", -3.0, 9))
+    # PARAM_ERROR first (MAVSDK and QGroundControl say why), then the old value (older clients)
+    assert (error.get_type(), error.param_id, error.error) == (
+        "PARAM_ERROR",
+        "A_ONE",
+        mavlink2.MAV_PARAM_ERROR_VALUE_OUT_OF_RANGE,
+    )
+    assert (error.target_system, error.target_component) == GCS
+    assert refused.get_type() == "PARAM_VALUE" and refused.param_value == 5.0
     assert texts == ["A_ONE -3 refused: must not be negative"]
     assert server.counters["set_refused"] == 1
     assert store.sets[-1][2] == GCS
+
+
+def test_every_refused_set_says_why_with_its_code_and_the_value_in_force() -> None:
+    """A type that carries no value, and a sender not allowed to write: each a PARAM_ERROR with
+    its own code, then the PARAM_VALUE still in force; an unknown name only the error."""
+    server, store, _ = _server()
+    int64 = mavlink2.MAV_PARAM_TYPE_INT64
+    error, value = _handle(server, mavlink2.MAVLink_param_set_message(1, 140, b"A_ONE", 5.0, int64))
+    assert (error.error, value.get_type()) == (
+        6,  # MAV_PARAM_ERROR_TYPE_UNSUPPORTED (common.xml; not in pymavlink 2.4.50)
+        "PARAM_VALUE",
+    )
+    (unknown,) = _handle(server, mavlink2.MAVLink_param_set_message(1, 140, b"NOPE", 5.0, 9))
+    assert unknown.error == mavlink2.MAV_PARAM_ERROR_DOES_NOT_EXIST
+    closed = ParameterServer(store, [140], signing=False, announce=len, writers=WritePolicy())
+    msg = wire(mavlink2.MAVLink_param_set_message(1, 140, b"A_ONE", 5.0, 9), GCS)
+    error, value = [m for _cid, m in closed.handle(msg, 1, GCS, 0.0)]
+    before = len(store.sets)
+    assert error.error == mavlink2.MAV_PARAM_ERROR_PERMISSION_DENIED
+    assert value.get_type() == "PARAM_VALUE" and value.param_id == "A_ONE"
+    assert len(store.sets) == before
 
 
 def test_unsigned_requests_on_a_signing_link_are_refused_and_counted() -> None:

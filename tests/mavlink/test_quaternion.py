@@ -123,3 +123,27 @@ def test_earth_to_body_yaw_examples():
 @given(roll_or_yaw, pitch_away_from_lock, roll_or_yaw)
 def test_yaw_of_matches_euler_yaw(roll, pitch, yaw):
     assert _close_angle(yaw_of(euler_to_quaternion(roll, pitch, yaw)), yaw, 1e-6)
+
+
+@given(
+    st.sampled_from([-90.0, 90.0]),
+    st.floats(-179.0, 179.0),
+    st.floats(-30.0, 30.0),
+    st.booleans(),
+)
+def test_at_gimbal_lock_the_yaw_asked_for_comes_back(pitch, yaw, roll, float32):
+    """Pitch +-90: a demand without roll comes back with exactly its yaw (PX4 asked for pitch
+    -90 yaw 90 and the yaw servo went to 0, issue 38); with roll, the decoded angles are the
+    same rotation (roll 0, the combination in the yaw); float32-rounded quaternions (as they
+    travel) too."""
+    import struct
+
+    def as_sent(q):
+        return tuple(struct.unpack("<4f", struct.pack("<4f", *q))) if float32 else q
+
+    r, p, y = quaternion_to_euler(as_sent(euler_to_quaternion(0.0, pitch, yaw)))
+    assert (r, p) == (0.0, pitch)
+    assert abs(angle_difference(y, yaw)) < 1e-3
+    q = euler_to_quaternion(roll, pitch, yaw)
+    back = euler_to_quaternion(*quaternion_to_euler(as_sent(q)))
+    assert abs(sum(a * b for a, b in zip(q, back, strict=True))) == pytest.approx(1.0, abs=1e-9)

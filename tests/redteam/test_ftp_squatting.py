@@ -61,9 +61,8 @@ def test_a_flooding_sender_cannot_fill_the_reply_queue_for_everyone() -> None:
     for n in range(200):
         server.handle(request(ftp.OP_NONE, seq=n), rogue, 0.0)
     server.handle(request(ftp.OP_OPEN_FILE_RO, data=b"general.json"), GCS, 0.0)
-    queued = [to for to, _ in server._queue]  # what waits for the window
-    assert GCS in queued
-    assert queued.count(rogue) <= ftp.MAX_QUEUED
+    assert server.queued_for(GCS) == 1  # what waits for the window
+    assert server.queued_for(rogue) <= ftp.MAX_QUEUED_PER_SENDER
 
 
 def test_over_udp_a_real_ftp_client_reads_past_squatted_sessions(tmp_path: Path) -> None:

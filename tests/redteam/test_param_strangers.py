@@ -73,25 +73,24 @@ def running(path: Path) -> Iterator[tuple[Bridge, Peer]]:
         bridge.stop()
 
 
-def answer(peer: Peer, start: int, name: str) -> Any:
-    """The PARAM_VALUE or PARAM_ERROR for ``name`` that arrived since ``start`` (None: none)."""
+def answer(peer: Peer, start: int, name: str, kind: str = "PARAM_VALUE") -> Any:
+    """The first ``kind`` message for ``name`` that arrived since ``start`` (None: none). A
+    refused set gets PARAM_ERROR first, then the PARAM_VALUE in force (older clients)."""
     found: list[Any] = []
 
     def arrived() -> bool:
-        found[:] = [
-            m
-            for m in peer.since(start)
-            if m.get_type() in ("PARAM_VALUE", "PARAM_ERROR") and m.param_id == name
-        ]
+        found[:] = [m for m in peer.since(start) if m.get_type() == kind and m.param_id == name]
         return bool(found)
 
-    return found[-1] if wait_until(arrived, 3.0) else None
+    return found[0] if wait_until(arrived, 3.0) else None
 
 
-def set_param(peer: Peer, name: str, value: float, param_type: int = 9, **src: int) -> Any:
+def set_param(
+    peer: Peer, name: str, value: float, param_type: int = 9, kind: str = "PARAM_VALUE", **src: int
+) -> Any:
     start = peer.count()
     peer.send(mavlink2.MAVLink_param_set_message(1, 140, name.encode(), value, param_type), **src)
-    return answer(peer, start, name)
+    return answer(peer, start, name, kind)
 
 
 # ------------------------------------------------------------------ 1: envelope, who may write
@@ -99,9 +98,8 @@ def set_param(peer: Peer, name: str, value: float, param_type: int = 9, **src: i
 
 def test_a_stranger_on_an_unsigned_link_cannot_set_parameters(tmp_path: Path) -> None:
     with running(write_config(tmp_path, free_udp_port())) as (bridge, peer):
-        reply = set_param(peer, "SRV1_MAX", 20.0)
-        assert reply is not None and reply.get_type() == "PARAM_ERROR"
-        assert reply.error == mavlink2.MAV_PARAM_ERROR_PERMISSION_DENIED
+        reply = set_param(peer, "SRV1_MAX", 20.0, kind="PARAM_ERROR")
+        assert reply is not None and reply.error == mavlink2.MAV_PARAM_ERROR_PERMISSION_DENIED
         assert bridge.parameters is not None and bridge.parameters.value("SRV1_MAX") == 30.0
         assert bridge.mavlink.stats()["parameters"]["set_not_permitted"] == 1
         # reading stays open: a ground station lists before it can sign anything
@@ -117,8 +115,11 @@ def test_no_parameter_leaves_the_yaml_envelope_even_for_a_permitted_writer(tmp_p
         for name, value in (("SRV1_MAX", 36000.0), ("SRV1_MIN", -31.0), ("SRV2_FS_POS", 91.0)):
             start = peer.count()
             reply = set_param(peer, name, value)
-            assert reply is not None and reply.get_type() == "PARAM_VALUE", name
-            assert reply.param_value != value, name  # the value in force, unchanged
+            assert reply is not None and reply.param_value != value, name  # the value in force
+            error = answer(peer, start, name, "PARAM_ERROR")  # and why, before it
+            assert (
+                error is not None and error.error == mavlink2.MAV_PARAM_ERROR_VALUE_OUT_OF_RANGE
+            ), name
             assert wait_until(lambda s=start: any("refused" in t for t in peer.statustexts(s)))
         narrowed = set_param(peer, "SRV1_MAX", 20.0)  # narrowing is allowed
         assert narrowed is not None and narrowed.param_value == 20.0
@@ -176,8 +177,8 @@ def test_param_type_is_honoured(tmp_path: Path) -> None:
         assert bridge.parameters is not None and bridge.parameters.value("SRV1_REV") == 1.0
         reply = set_param(peer, "SRV1_REV", 0.0, mavlink2.MAV_PARAM_TYPE_UINT8)
         assert bridge.parameters.value("SRV1_REV") == 0.0
-        reply = set_param(peer, "SRV1_TRIM", 1.0, 99)  # no such type
-        assert reply is not None and reply.get_type() == "PARAM_ERROR"
+        reply = set_param(peer, "SRV1_TRIM", 1.0, 99, kind="PARAM_ERROR")  # no such type
+        assert reply is not None and reply.error == 6  # MAV_PARAM_ERROR_TYPE_UNSUPPORTED
         assert bridge.parameters.value("SRV1_TRIM") == 0.0
 
 

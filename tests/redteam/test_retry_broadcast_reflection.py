@@ -102,7 +102,9 @@ def test_a_change_back_after_do_set_actuator_on_the_same_servo_is_applied(
     command(gcs, (1, 140), DO_SET_ACTUATOR, 1.0, NAN, NAN, NAN, NAN, NAN, 0)
     command(gcs, (1, 140), DO_SET_SERVO, 9, 1100)
     got = acks(gcs, DO_SET_SERVO, 3.0, QUIET_S)
-    assert [a.result for a in got] == [ACCEPTED, ACCEPTED]
+    # an ACK still queued when the same command's identical ACK comes is sent once (issue 38:
+    # a MAVLink ACK names only the command; a client's retry must not double the queue)
+    assert got and all(a.result == ACCEPTED for a in got)
     assert sim_rig.stats()["commands"].get("retry_not_reapplied", 0) == 0
     assert sim_rig.setpoint("payload_release") == pytest.approx(0.0)
 
@@ -112,7 +114,8 @@ def test_an_identical_repeat_with_nothing_in_between_is_still_a_retry(sim_rig: S
     gcs = sim_rig.peer(GCS)
     command(gcs, (1, 140), DO_SET_SERVO, 9, 1900)
     command(gcs, (1, 140), DO_SET_SERVO, 9, 1900)
-    assert [a.result for a in acks(gcs, DO_SET_SERVO, 2.0, QUIET_S)] == [ACCEPTED, ACCEPTED]
+    got = acks(gcs, DO_SET_SERVO, 2.0, QUIET_S)
+    assert got and all(a.result == ACCEPTED for a in got)  # answered (once, if still queued)
     assert sim_rig.stats()["commands"]["retry_not_reapplied"] == 1
 
 

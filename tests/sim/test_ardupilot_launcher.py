@@ -17,6 +17,7 @@ import signal
 import subprocess
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -304,6 +305,86 @@ def test_real_arduplane_streams_servo_outputs_and_obeys_do_set_servo(tmp_path: P
         conn.close()
         code = _stop(proc)
     assert code == 0, f"SITL did not stop cleanly on SIGTERM (status {code})"
+
+
+@pytest.mark.skipif(
+    _find_arduplane_binary() is None,
+    reason="no ArduPlane SITL binary (arduplane on PATH or $ARDUPILOT_HOME/build/sitl/bin/"
+    "arduplane); tests never build or download ArduPilot",
+)
+@pytest.mark.timeout(240)
+def test_a_gcs_behind_real_arduplane_gets_what_the_docs_say(tmp_path: Path) -> None:
+    """docs/ground-stations.md, "through ArduPilot": the bridge (config/ardupilot-sitl.yaml, the
+    default link budget) on SERIAL1, a ground station on SERIAL0 (TCP 5760). The ground station
+    sees the bridge's components and telemetry, reads a parameter of component 140, and
+    downloads both metadata files over MAVLink FTP with QGroundControl's time-out and retries
+    (issue 38: through ArduPlane general.json took 3-4 s and parameters.json.xz never came);
+    ESC_INFO, ESC_STATUS and COMPONENT_METADATA never arrive (ArduPilot drops ids it does not
+    know)."""
+    from mavservo.app.bridge import Bridge
+    from mavservo.config import load_config_text
+    from mavservo.mavlink.ftp import crc32
+    from tests.support.qgc_ftp import QgcLikeFtp
+
+    port = free_udp_port()
+    text = SITL_CONFIG.read_text().replace("udpin:127.0.0.1:14551", f"udpin:127.0.0.1:{port}")
+    bridge = Bridge(load_config_text(text, "<ardupilot-sitl.yaml>"), log_dir=False).start()
+    proc = _launch(tmp_path, port, env=_without_sim_vehicle())
+    gcs = None
+    try:
+        gcs = _serial0(90.0)
+        gcs.mav.heartbeat_send(6, 8, 0, 0, 0)
+        seen = collect(gcs, 10.0)
+        sources = {(m.get_srcSystem(), m.get_srcComponent()) for _, m in seen}
+        assert (1, 140) in sources, sorted(sources)
+        from_bridge = {m.get_type() for _, m in seen if m.get_srcComponent() == 140}
+        assert {"HEARTBEAT", "NAMED_VALUE_FLOAT", "ACTUATOR_OUTPUT_STATUS"} <= from_bridge
+        # Mission Planner's ESC view: ArduPilot forwards the bridge's ESC_TELEMETRY (ESC 17..)
+        assert any(kind.startswith("ESC_TELEMETRY_") for kind in from_bridge), from_bridge
+        unknown = {m.get_type() for _, m in seen if m.get_type().startswith("UNKNOWN_")}
+        assert not unknown & {"UNKNOWN_290", "UNKNOWN_291", "UNKNOWN_397"}, unknown
+
+        assert bridge.parameters is not None
+        name = bridge.parameters.names(140)[0]
+        gcs.mav.param_request_read_send(1, 140, name.encode(), -1)
+        reply = collect(
+            gcs, 10.0, until=lambda m: m.get_type() == "PARAM_VALUE" and m.param_id == name
+        )
+        assert of_type(reply, "PARAM_VALUE"), f"no PARAM_VALUE for {name} through ArduPilot"
+
+        served = bridge.mavlink.core.metadata.servers[140].files
+        client = QgcLikeFtp(gcs, (1, 140))
+        for file in ("general.json", "parameters.json.xz"):
+            got = client.download(f"/{file}")
+            assert got.data == served[file] and crc32(got.data) == crc32(served[file])
+            print(
+                f"\n{file}: {len(got.data)} B in {got.seconds:.1f} s through ArduPlane, "
+                f"longest wait {max(got.waits):.2f} s, {got.retries} retries"
+            )
+
+        gcs.mav.command_long_send(1, 140, 512, 0, 397, 0, 0, 0, 0, 0, 0)
+        after = collect(gcs, 3.0)
+        assert not [m for _, m in after if m.get_type() == "UNKNOWN_397"]
+    finally:
+        if gcs is not None:
+            gcs.close()
+        code = _stop(proc)
+        bridge.stop()
+    assert code == 0, f"SITL did not stop cleanly on SIGTERM (status {code})"
+
+
+def _serial0(timeout: float) -> Any:
+    """A ground station on SITL's SERIAL0 (TCP 5760), once SITL listens there."""
+    from mavservo.mavlink.connection import open_connection
+
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            return open_connection("tcp:127.0.0.1:5760", source_system=255, source_component=190)
+        except OSError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.5)
 
 
 def _launch(tmp_path: Path, port: int, env: dict[str, str] | None = None) -> subprocess.Popen:
