@@ -133,6 +133,20 @@ class ComponentAddress(StrictModel):
     component: Int = Field(1, ge=0, le=255)
 
 
+class AutopilotConfig(ComponentAddress):
+    """The autopilot the bridge follows: its address, what it is and what the link leads to.
+
+    ``flavour``: ``auto`` takes it from the autopilot's HEARTBEAT (MAV_AUTOPILOT 3 ArduPilot,
+    12 PX4); ``ardupilot`` or ``px4`` fixes it (a HEARTBEAT saying otherwise is logged).
+    ``link``: ``port`` when the bridge's link is the autopilot's own MAVLink port (it forwards
+    to the ground station only the messages it knows), ``router`` for mavlink-router, MAVProxy
+    or a ground station directly (everything arrives). See docs/px4.md.
+    """
+
+    flavour: Literal["auto", "ardupilot", "px4"] = "auto"
+    link: Literal["port", "router"] = "port"
+
+
 #: Largest key file read: 64 hex characters plus whitespace fit many times over; a device or a
 #: huge file is refused after this many bytes (red-team finding F).
 MAX_KEY_FILE_BYTES = 4096
@@ -302,7 +316,7 @@ class MavlinkConfig(StrictModel):
     servo_component_id: Int = Field(140, description="MAV_COMP_ID_SERVO1..14 the servos use")
     #: Channels per SERVO_OUTPUT_RAW ``port``: 16 is what ArduPilot sends in MAVLink 2.
     servo_output_port_width: Literal[8, 16] = 16
-    autopilot: ComponentAddress = ComponentAddress()
+    autopilot: AutopilotConfig = AutopilotConfig()
     heartbeat_timeout_s: Float = Field(2.0, gt=0)
     signing: SigningConfig | None = None
     allowed_sources: list[ComponentAddress] = []

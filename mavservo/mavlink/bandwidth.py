@@ -165,17 +165,19 @@ def plan_budget(
     components: int,
     rates: Any,
     signed: bool,
+    left_out: frozenset[str] = frozenset(),
 ) -> BudgetPlan:
     """Scale the periodic streams so they fit ``budget_bytes_s`` (None: no scaling).
 
     ``rates`` is the telemetry rates section (``..._hz`` attributes); ``components`` counts the
-    heartbeats (one per component per second), which are never scaled.
+    heartbeats (one per component per second), which are never scaled. ``left_out``: streams
+    not sent on the link at all (:mod:`.link_carriage`: the autopilot drops them), planned at 0.
     """
     heartbeat = frame_bytes(mavlink2.MAVLink_heartbeat_message, signed)
     fixed = components * heartbeat
     esc_groups = -(-servos // 4) if servos else 0
     gimbal_hz = rates.gimbal_attitude_status_hz
-    streams = (
+    streams: tuple[StreamCost, ...] = (
         StreamCost(
             "NAMED_VALUE_FLOAT",
             rates.named_value_float_hz,
@@ -215,6 +217,11 @@ def plan_budget(
             floor_ratio=min(1.0, GIMBAL_STATUS_FLOOR_HZ / gimbal_hz) if gimbal_hz > 0 else 0.0,
         ),
     )
+    if left_out:  # px4 (issue 38 item 5): not sent on the link, no share of it
+        streams = tuple(
+            StreamCost(s.name, s.hz, 0.0, s.frame_bytes, s.floor_ratio) if s.name in left_out else s
+            for s in streams
+        )
     ratios = {s.name: 1.0 for s in streams}
     plan = BudgetPlan(budget_bytes_s, fixed, streams, ratios, signed)
     if budget_bytes_s is not None:

@@ -203,6 +203,9 @@ class MavlinkSide:
         pending += [(cid, msg, requested, True) for cid, msg in out]
         decided = [(component_id, msg, _LINK) for component_id, msg in budget.due(now)]
         for component_id, msg, asked, new in pending:
+            if new and not self.core.link_carries(msg):  # px4: the autopilot would drop it
+                decided.append((component_id, msg, _MONITORS))
+                continue
             if not (asked or budget.is_event(msg)):
                 # periodic: the monitors now, the link now, in its turn (WAITS) or not (SKIPPED)
                 goes = budget.offer(component_id, msg, now) is Admission.NOW

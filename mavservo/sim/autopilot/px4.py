@@ -1,0 +1,262 @@
+"""A simulated PX4 on its onboard MAVLink link, beside the simulated ArduPilot (:mod:`.stream`).
+
+What it sends and does is read from PX4's source (PX4-Autopilot main bb59c637, Aug 2026; the
+file and line of each fact below), so the bridge's PX4 paths are tested in CI without a PX4
+build; the live test against PX4 SITL (tests/sim/test_px4_launcher.py) checks the same facts
+against the real thing.
+
+* HEARTBEAT with ``autopilot`` 12 (MAV_AUTOPILOT_PX4), a fixed wing (SIH airframe 10041).
+* The onboard link's default streams (``src/modules/mavlink/mavlink_main.cpp``,
+  MAVLINK_MODE_ONBOARD, lines 1709-1787): SERVO_OUTPUT_RAW_0 at 10 Hz, ATTITUDE (100 Hz there;
+  ``attitude_hz`` here, 50 by default to spare CI), SYS_STATUS 5 Hz, GIMBAL_DEVICE_SET_ATTITUDE
+  5 Hz; ACTUATOR_OUTPUT_STATUS is not streamed until a SET_MESSAGE_INTERVAL asks for it, which
+  PX4 accepts for any stream it has (``MavlinkReceiver::set_message_interval``). No
+  AUTOPILOT_STATE_FOR_GIMBAL_DEVICE: PX4 streams that only in MAVLINK_MODE_GIMBAL.
+* ACTUATOR_OUTPUT_STATUS with ``active`` = the number of outputs, not a bitmask
+  (``streams/ACTUATOR_OUTPUT_STATUS.hpp`` line 68: ``msg.active = act.noutputs``; 16 outputs in
+  SITL) and the outputs in their natural units, PWM us (``msg/ActuatorOutputs.msg``).
+* The gimbal manager (``src/modules/gimbal/output_mavlink.cpp``, OutputMavlinkV2::update):
+  MAV_CMD_REQUEST_MESSAGE(GIMBAL_DEVICE_INFORMATION) to every component (target 0/0) every
+  second until a device answers, at any time after boot (no search window as ArduPilot's);
+  then GIMBAL_DEVICE_SET_ATTITUDE to the device with YAW_IN_VEHICLE_FRAME, or YAW_LOCK and
+  YAW_IN_EARTH_FRAME for an absolute yaw (``_publish_gimbal_device_set_attitude``).
+* DO_SET_ACTUATOR is PX4's own: it drives the outputs whose function is "Peripheral via Actuator
+  Set n" and is never sent on to another component, so a script's ``do_set_actuator`` shows only
+  in the outputs here (``peripheral_outputs``: actuator n -> output channel).
+* Its parser knows the common dialect only: a frame of a message it does not know (ArduPilot's
+  ESC_TELEMETRY_x_TO_y) is dropped, and PX4 counts it as a sequence gap, "lost", for the sender
+  (on a loopback link the gaps are exactly these frames: :attr:`Px4Stream.dropped_unknown`);
+  ESC_INFO, ESC_STATUS and COMPONENT_METADATA are common messages it knows
+  (:attr:`Px4Stream.received_raw`: pymavlink's dialect cannot decode them).
+* A reboot forgets the gimbal device (it is looked for again) and every stream request.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Iterable
+from typing import Any
+
+from pymavlink.dialects.v20 import common as common_dialect
+
+from mavservo.config import Action, Event, GimbalTarget, Script, SetActuator
+from mavservo.mavlink import mavlink2 as mav
+from mavservo.sim.autopilot.autopilot_link import AutopilotLink
+from mavservo.sim.autopilot.commanded import Commanded
+from mavservo.sim.autopilot.message_rates import MessageRates, interval_of
+from mavservo.sim.autopilot.motion_scripts import Profile
+from mavservo.sim.autopilot.stream import GIMBAL_DEVICE_INFORMATION_ID, AutopilotStream
+
+MAV_AUTOPILOT_PX4 = 12
+#: PX4's main mode MANUAL in HEARTBEAT.custom_mode (px4_custom_mode.h: main mode in bits 16-23)
+_PX4_MANUAL = 1 << 16
+#: PX4 SITL's output count (MixingOutput's 16 channels): what ``active`` carries
+PX4_OUTPUTS = 16
+#: the onboard link's defaults (mavlink_main.cpp, MAVLINK_MODE_ONBOARD)
+PX4_ONBOARD_SERVO_OUTPUT_HZ = 10.0
+PX4_ONBOARD_GIMBAL_HZ = 5.0
+#: PWM of a peripheral actuator at -1 / +1 (PWM_MAIN_MIN/MAX defaults)
+_PWM_MIN, _PWM_MAX = 1000.0, 2000.0
+#: message ids PX4's parser knows: the common dialect, with the messages pymavlink's bundled
+#: dialect leaves out (ESC_INFO 290, ESC_STATUS 291, COMPONENT_METADATA 397)
+PX4_KNOWN_IDS = frozenset(common_dialect.mavlink_map) | {290, 291, 397}
+
+
+class Px4Link(AutopilotLink):
+    """The wire side of the simulated PX4: its HEARTBEAT, and ATTITUDE with a heading that a
+    test can change (a restarted PX4's estimator need not head where the old one did)."""
+
+    yaw_deg = -7.0
+
+    def attitude(self, now: float, boot_s: float) -> None:
+        wobble = 0.02 * math.sin(0.5 * boot_s)
+        self.send(
+            "ATTITUDE",
+            now,
+            self._conn.mav.attitude_send,
+            int(boot_s * 1000) & 0xFFFFFFFF,
+            wobble,
+            -wobble / 2,
+            math.radians(self.yaw_deg),
+            0.0,
+            0.0,
+            0.0,
+        )
+
+    def heartbeat(self, now: float, armed: bool) -> None:
+        base = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mav.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
+        self.send(
+            "HEARTBEAT",
+            now,
+            self._conn.mav.heartbeat_send,
+            mav.MAV_TYPE_FIXED_WING,
+            MAV_AUTOPILOT_PX4,
+            base | (mav.MAV_MODE_FLAG_SAFETY_ARMED if armed else 0),
+            _PX4_MANUAL,
+            mav.MAV_STATE_STANDBY,
+            3,
+        )
+
+
+class Px4Stream(AutopilotStream):
+    """The simulated PX4. Takes :class:`AutopilotStream`'s arguments; its defaults are PX4's."""
+
+    def __init__(
+        self,
+        url: str,
+        profile: Profile | str = "sweep",
+        script: Script | Iterable[Event] | None = None,
+        *,
+        servo_output_rate_hz: float = PX4_ONBOARD_SERVO_OUTPUT_HZ,
+        actuator_output_status_hz: float = 0.0,
+        attitude_hz: float = 50.0,
+        sys_status_hz: float = 5.0,
+        gimbal: bool = False,
+        gimbal_rate_hz: float = PX4_ONBOARD_GIMBAL_HZ,
+        peripheral_outputs: dict[int, int] | None = None,
+        **kwargs: Any,
+    ) -> None:
+        super().__init__(
+            url,
+            profile,
+            script,
+            servo_output_rate_hz=servo_output_rate_hz,
+            actuator_output_status_hz=actuator_output_status_hz,
+            attitude_hz=attitude_hz,
+            sys_status_hz=sys_status_hz,
+            gimbal=gimbal,
+            gimbal_rate_hz=gimbal_rate_hz,
+            gimbal_search_s=None,
+            **kwargs,
+        )
+        heartbeat_interval = self.rates.interval_s("HEARTBEAT")
+        self.rates = MessageRates(
+            {
+                "HEARTBEAT": heartbeat_interval,
+                "SYS_STATUS": interval_of(sys_status_hz),
+                "ATTITUDE": interval_of(attitude_hz),
+                "SERVO_OUTPUT_RAW": interval_of(servo_output_rate_hz),
+                # a stream PX4 has but does not send on the onboard link unless asked
+                "ACTUATOR_OUTPUT_STATUS": interval_of(actuator_output_status_hz),
+                "GIMBAL_DEVICE_SET_ATTITUDE": interval_of(gimbal_rate_hz) if gimbal else None,
+            },
+            unrequestable=("GIMBAL_DEVICE_SET_ATTITUDE",),
+        )
+        self.link = Px4Link(self.system_id, self.component_id, keep=self.keep)
+        self.sent = self.link.sent
+        self.sent_log = self.link.sent_log
+        #: "Peripheral via Actuator Set n" -> output channel (1-based both)
+        self.peripheral_outputs = dict(peripheral_outputs or {1: 5, 2: 6})
+        #: frames PX4's parser drops (a message it does not know), by message id
+        self.dropped_unknown: Counter[int] = Counter()
+        #: frames it knows that pymavlink's dialect cannot decode, by message id (ESC_INFO ...)
+        self.received_raw: Counter[int] = Counter()
+        #: each output's last ACTUATOR_OUTPUT_STATUS value (its changes go to ``commanded`` as
+        #: kind "actuator_output", key = output number)
+        self._last_status: dict[int, float] = {}
+        self._reboots_seen = 0
+
+    # ------------------------------------------------------------------ PX4's differences
+
+    def _apply(self, action: Action, now: float) -> None:
+        if not isinstance(action, SetActuator):
+            super()._apply(action, now)
+            return
+        # PX4 drives its "Peripheral via Actuator Set n" outputs itself; nothing is sent on
+        for index, value in action.actuators().items():
+            channel = self.peripheral_outputs.get(index)
+            if channel is None:
+                continue
+            pwm = round(_PWM_MIN + (max(-1.0, min(1.0, value)) + 1.0) / 2 * (_PWM_MAX - _PWM_MIN))
+            self.outputs.set_servo(channel, pwm)
+            self.commanded.record("actuator", Commanded(now, index, value, "do_set_actuator"))
+
+    def _send_periodic(self, name: str, now: float) -> None:
+        if name != "ACTUATOR_OUTPUT_STATUS":
+            super()._send_periodic(name, now)
+            return
+        boot_s = now - self._boot_at + self.boot_offset_s
+        frame = self.outputs.frame(self.elapsed(now), now)
+        values = [float(pwm) for pwm in frame[:PX4_OUTPUTS]]
+        values += [0.0] * (32 - len(values))
+        self.link.actuator_output_status(now, int(boot_s * 1e6), values, PX4_OUTPUTS)
+        for index, value in enumerate(values[:PX4_OUTPUTS], start=1):
+            if self._last_status.get(index) != value:
+                self._last_status[index] = value
+                self.commanded.record(
+                    "actuator_output", Commanded(now, index, value, "actuator_output_status")
+                )
+
+    def _send_gimbal_target(self, now: float) -> None:
+        flags, q, rates = self.mount.attitude()
+        self.link.gimbal_device_set_attitude(now, self.mount.component, px4_flags(flags), q, rates)
+        target = self.mount.new_target()
+        if target is not None:
+            value = (target.roll, target.pitch, target.yaw, target.flags)
+            self.commanded.record("gimbal", Commanded(now, 0, value, "gimbal"))
+
+    def _gimbal_discovery(self, now: float) -> None:
+        boot_s = now - self._boot_at + self.boot_offset_s
+        if self.mount.request_due(now, boot_s, self.armed):
+            params = (GIMBAL_DEVICE_INFORMATION_ID, 0, 0, 0, 0, 0, 0)
+            self.link.command_long(now, (0, 0), mav.MAV_CMD_REQUEST_MESSAGE, params)
+
+    def _reboot_if_asked(self, now: float) -> None:
+        super()._reboot_if_asked(now)
+        if self.reboots != self._reboots_seen:
+            self._reboots_seen = self.reboots
+            self.mount.device_info = None  # a new boot looks for the gimbal again
+            self.mount.target = GimbalTarget()
+
+    def _drain_incoming(self, now: float) -> None:
+        for _ in range(1000):  # bounded, as the base class
+            msg = self.link.recv()
+            if msg is None:
+                return
+            name = msg.get_type()
+            if name == "BAD_DATA":
+                continue  # noise, a bad CRC: PX4's parser drops it too
+            msg_id = _message_id(msg)
+            if msg_id not in PX4_KNOWN_IDS:
+                self.dropped_unknown[msg_id] += 1
+                continue
+            if name.startswith("UNKNOWN_"):
+                self.received_raw[msg_id] += 1
+                continue
+            self._handle_incoming(msg, now)
+
+    def _handle_incoming(self, msg: Any, now: float) -> None:
+        name = msg.get_type()
+        self.received.add(now, msg)
+        if name == "COMMAND_ACK":
+            if self._addressed_to_me(msg):
+                self.commands.on_ack(
+                    msg.command,
+                    msg.result,
+                    (msg.get_srcSystem(), msg.get_srcComponent()),
+                    (msg.target_system, msg.target_component),
+                    now,
+                )
+        elif name == "COMMAND_LONG":
+            if self._addressed_to_me(msg) and now >= self._boot_at:
+                self._handle_command(msg, now)
+        elif name == "GIMBAL_DEVICE_INFORMATION":
+            self.mount.heard(msg)
+
+
+def px4_flags(flags: int) -> int:
+    """GIMBAL_DEVICE_SET_ATTITUDE flags as PX4's OutputMavlinkV2 sets them: YAW_LOCK and
+    YAW_IN_EARTH_FRAME for an absolute yaw, YAW_IN_VEHICLE_FRAME otherwise."""
+    earth = mav.GIMBAL_DEVICE_FLAGS_YAW_LOCK | mav.GIMBAL_DEVICE_FLAGS_YAW_IN_EARTH_FRAME
+    if flags & earth:
+        return (flags | earth) & ~mav.GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME
+    return flags | mav.GIMBAL_DEVICE_FLAGS_YAW_IN_VEHICLE_FRAME
+
+
+def _message_id(msg: Any) -> int:
+    """A received message's id; pymavlink names one its dialect lacks ``UNKNOWN_<id>``."""
+    name = msg.get_type()
+    if name.startswith("UNKNOWN_"):
+        return int(name.removeprefix("UNKNOWN_"))
+    return int(msg.get_msgId())
