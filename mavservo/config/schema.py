@@ -861,6 +861,8 @@ class SimAutopilotConfig(StrictModel):
     speed: Float = Field(1.0, gt=0)  # replay speed factor
     seed: Int = 0  # random-walk seed
     gimbal: Bool = False  # also act as a gimbal manager sending SET_ATTITUDE
+    #: which autopilot to simulate: ArduPlane's port, or PX4's onboard link (its defaults)
+    autopilot: Literal["ardupilot", "px4"] = "ardupilot"
     command_target: tuple[Int, Int] = (1, 0)  # (system, component) commands are addressed to
     script: list[dict[str, Any]] = []
 

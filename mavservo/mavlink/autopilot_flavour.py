@@ -35,8 +35,6 @@ import logging
 from dataclasses import dataclass
 from typing import Literal
 
-from pymavlink.dialects.v20 import ardupilotmega as mavlink2
-
 log = logging.getLogger(__name__)
 
 #: MAV_AUTOPILOT (minimal.xml): the HEARTBEAT ``autopilot`` values this module tells apart.
@@ -48,10 +46,10 @@ Flavour = Literal["ardupilot", "px4", "other"]
 """What the followed autopilot is; "other" is any autopilot that is neither."""
 ConfiguredFlavour = Literal["auto", "ardupilot", "px4"]
 
-#: ESC_TELEMETRY_1_TO_4 .. 29_TO_32: ardupilotmega.xml only, unknown to a common-dialect parser.
-ESC_TELEMETRY_IDS = frozenset(
-    int(getattr(mavlink2, f"MAVLINK_MSG_ID_ESC_TELEMETRY_{n}_TO_{n + 3}")) for n in range(1, 33, 4)
-)
+#: ESC_TELEMETRY_1_TO_4 .. 29_TO_32 (ardupilotmega.xml: 11030-11032, then 11040-11044), unknown
+#: to a common-dialect parser. Written out, so the settings (and the config) do not import a
+#: dialect; tests/mavlink/test_autopilot_flavour.py checks them against pymavlink's.
+ESC_TELEMETRY_IDS = frozenset({11030, 11031, 11032, 11040, 11041, 11042, 11043, 11044})
 MSG_ESC_INFO = 290
 MSG_ESC_STATUS = 291
 MSG_COMPONENT_METADATA = 397

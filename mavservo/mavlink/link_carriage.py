@@ -74,21 +74,26 @@ class LinkCarriage:
 
     def left_out_streams(self) -> frozenset[str]:
         """The budget's periodic streams not sent on the link (not planned either)."""
-        blocked = blocked_ids(self.link, self.flavour.flavour)
-        return frozenset(name for name, ids in BUDGET_STREAMS.items() if ids <= blocked)
+        return left_out_streams(self.link, self.flavour.flavour)
+
+
+def left_out_streams(link: LinkKind, flavour: Flavour | None) -> frozenset[str]:
+    """The budget's periodic streams a link leaves out (for ``check``'s plan)."""
+    blocked = blocked_ids(link, flavour)
+    return frozenset(name for name, ids in BUDGET_STREAMS.items() if ids <= blocked)
 
 
 def carriage_lines(link: LinkKind, configured: str) -> list[str]:
     """``check``'s account of what each link gets, for a config's ``link`` and ``flavour``."""
     where = (
-        "a router or the ground station directly"
+        "a router or the ground station directly: everything arrives"
         if link == "router"
-        else "the autopilot's own MAVLink port (it forwards only what it knows)"
+        else "the autopilot's own MAVLink port: it forwards only what it knows"
     )
     flavours: list[Flavour | None] = (
         ["ardupilot", "px4", None] if configured == "auto" else [configured]  # type: ignore[list-item]
     )
-    lines = [f"autopilot link ({where}; mavlink.autopilot.link: {link}):"]
+    lines = [f"autopilot link (mavlink.autopilot.link: {link}, {where}):"]
     for flavour in flavours:
         blocked = blocked_ids(link, flavour)
         sent = [name for name, ids in PATH_DEPENDENT.items() if not ids <= blocked]

@@ -51,6 +51,12 @@ def _mirrored(autopilot: int, active: int, **settings) -> dict[int, float]:
     return {c[1]: c[2] for c in backend.servo_calls("actuator")}
 
 
+def test_the_esc_telemetry_ids_are_pymavlinks() -> None:
+    assert {
+        getattr(mav, f"MAVLINK_MSG_ID_ESC_TELEMETRY_{n}_TO_{n + 3}") for n in range(1, 33, 4)
+    } == ESC_TELEMETRY_IDS
+
+
 def test_the_heartbeat_names_the_flavour() -> None:
     assert flavour_of_heartbeat(ARDUPILOT_ID) == "ardupilot"
     assert flavour_of_heartbeat(PX4_ID) == "px4"
