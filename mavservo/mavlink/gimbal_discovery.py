@@ -34,6 +34,9 @@ _GIMBAL_TRAFFIC = ("GIMBAL_DEVICE_SET_ATTITUDE", "AUTOPILOT_STATE_FOR_GIMBAL_DEV
 _COMMANDS = ("COMMAND_LONG", "COMMAND_INT")
 #: MAV_AUTOPILOT_ARDUPILOTMEGA (minimal.xml): the HEARTBEAT of an ArduPilot vehicle.
 MAV_AUTOPILOT_ARDUPILOTMEGA = 3
+#: MAV_CMD_REQUEST_MESSAGE and GIMBAL_DEVICE_INFORMATION (common.xml)
+MAV_CMD_REQUEST_MESSAGE = 512
+MSG_GIMBAL_DEVICE_INFORMATION = 283
 
 
 def not_found_text(component_id: int) -> str:
@@ -67,13 +70,14 @@ class GimbalDiscoveryWatch:
         boot = boot_time_s(kind, msg)
         if boot is not None:
             self._uptime = (boot, now)
-        target = _gimbal_target(msg, kind)
-        if target is None or target not in self.gimbal_ids or target in self._found:
-            return []
-        self._found.add(target)
-        if target in self._warned:
-            return [f"gimbal {target} found by the autopilot after all"]
-        return []
+        out = []
+        for target in _gimbal_targets(msg, kind, self.gimbal_ids):
+            if target in self._found:
+                continue
+            self._found.add(target)
+            if target in self._warned:
+                out.append(f"gimbal {target} found by the autopilot after all")
+        return out
 
     def lost_autopilot(self) -> None:
         """The autopilot went silent: the wait starts again when it is heard."""
@@ -102,10 +106,18 @@ class GimbalDiscoveryWatch:
         return {"found": sorted(self._found), "warned": sorted(self._warned)}
 
 
-def _gimbal_target(msg: Any, kind: str) -> int | None:
-    """The component an autopilot message turns to, when it is gimbal business."""
-    if kind in _GIMBAL_TRAFFIC:
-        return int(msg.target_component)
-    if kind in _COMMANDS:
-        return int(msg.target_component)  # any command to the gimbal: it knows the gimbal
-    return None
+def _gimbal_targets(msg: Any, kind: str, gimbal_ids: tuple[int, ...]) -> tuple[int, ...]:
+    """The hosted gimbals an autopilot message turns to, when it is gimbal business.
+
+    PX4's gimbal manager asks every component at once (REQUEST_MESSAGE for
+    GIMBAL_DEVICE_INFORMATION to 0/0, ``src/modules/gimbal/output_mavlink.cpp``,
+    ``_request_gimbal_device_information``): that looks for every hosted gimbal."""
+    if kind not in _GIMBAL_TRAFFIC and kind not in _COMMANDS:
+        return ()
+    target = int(msg.target_component)
+    if target == 0 and kind in _COMMANDS:
+        asks_for_gimbals = (
+            msg.command == MAV_CMD_REQUEST_MESSAGE and msg.param1 == MSG_GIMBAL_DEVICE_INFORMATION
+        )
+        return gimbal_ids if asks_for_gimbals else ()
+    return (target,) if target in gimbal_ids else ()  # any command to it: it knows the gimbal

@@ -119,6 +119,7 @@ def test_px4_finds_the_gimbal_is_asked_for_setpoints_and_gets_no_unknown_message
         stats = side.stats()
     assert px4.error is None
     assert px4.sent["COMMAND_LONG"] >= 1  # the discovery requests, broadcast
+    assert stats["gimbal_discovery"]["found"] == [154]
     assert stats["autopilot_flavour"]["in_force"] == "px4"
     assert "GIMBAL_DEVICE_SET_ATTITUDE" in stats["stream"]["streams"]
     assert px4.dropped_unknown == {}, "PX4 would count these frames as lost"
@@ -157,3 +158,14 @@ def test_after_px4_restarts_the_old_gimbal_demand_is_not_driven_again() -> None:
     after_restart = backend.servo_calls("gimbal")[before:]
     old = [c for c in after_restart if c[3] == pytest.approx(-45.0)]
     assert not old, f"the old demand was driven after the restart: {old[:3]}"
+
+
+def test_the_built_in_simulation_can_be_a_px4() -> None:
+    """``simulation.autopilot.autopilot: px4`` (``mavlink.url: sim``) runs the simulated PX4."""
+    from mavservo.sim.autopilot.factory import simulator_from_config
+
+    px4 = simulator_from_config({"autopilot": "px4", "gimbal": True}, "udpout:127.0.0.1:9")
+    assert isinstance(px4, Px4Stream)
+    assert px4.interval_s("GIMBAL_DEVICE_SET_ATTITUDE") == pytest.approx(0.2)  # PX4's 5 Hz
+    assert px4.interval_s("AUTOPILOT_STATE_FOR_GIMBAL_DEVICE") is None  # gimbal mode only
+    assert px4.interval_s("ACTUATOR_OUTPUT_STATUS") is None  # until asked
