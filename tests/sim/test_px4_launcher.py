@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -34,6 +33,7 @@ from mavservo.sim.autopilot.px4_sitl import (
 )
 from tests.support.mavlink_doubles import RecordingBackend
 from tests.support.paths import REPO
+from tests.support.processes import stop_session
 from tests.support.waiting import wait_until
 
 PX4_CONFIG = REPO / "config" / "px4-sitl.yaml"
@@ -145,18 +145,6 @@ def _launch(work: Path) -> subprocess.Popen[bytes]:
     )
 
 
-def _stop(proc: subprocess.Popen[bytes]) -> int | None:
-    if proc.poll() is not None:
-        return proc.returncode
-    os.killpg(proc.pid, signal.SIGTERM)
-    try:
-        return proc.wait(20)
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait(5)
-        return None
-
-
 def _settings() -> MavlinkSettings:
     return dataclasses.replace(mavlink_settings(load_config(PX4_CONFIG)), signing=None)
 
@@ -189,7 +177,7 @@ def test_real_px4_is_followed_as_px4(tmp_path: Path) -> None:
             time.sleep(1.0)
             stats = side.stats()
     finally:
-        code = _stop(proc)
+        code = stop_session(proc)
     got = stats["stream"]["streams"]
     print(f"\nPX4 streams: {got}")
     assert (

@@ -43,19 +43,9 @@ def simulator_for(
     events = list(parse_script(section.script).events)
     if section.gimbal and not any(isinstance(e.action, GimbalTarget) for e in events):
         events += gimbal_demo_script()
-    if section.autopilot == "px4":  # px4 (issue 39): PX4's onboard link, its own defaults
-        return Px4Stream(
-            url,
-            profile,
-            events,
-            servo_output_rate_hz=section.servo_output_rate_hz,
-            actuator_output_status_hz=actuator_output_status_hz,
-            gimbal=section.gimbal,
-            command_target=section.command_target,
-            repeat_servo_cycle=repeat_servo_cycle,
-            signing_key=signing_key,
-        )
-    return AutopilotStream(
+    # px4 (issue 39): PX4's onboard link, its own defaults
+    simulator = Px4Stream if section.autopilot == "px4" else AutopilotStream
+    return simulator(
         url,
         profile,
         events,

@@ -33,7 +33,6 @@ against the real thing.
 
 from __future__ import annotations
 
-import math
 from collections import Counter
 from collections.abc import Iterable
 from typing import Any
@@ -46,6 +45,7 @@ from mavservo.sim.autopilot.autopilot_link import AutopilotLink
 from mavservo.sim.autopilot.commanded import Commanded
 from mavservo.sim.autopilot.message_rates import MessageRates, interval_of
 from mavservo.sim.autopilot.motion_scripts import Profile
+from mavservo.sim.autopilot.mount_driver import MountDriver
 from mavservo.sim.autopilot.stream import GIMBAL_DEVICE_INFORMATION_ID, AutopilotStream
 
 MAV_AUTOPILOT_PX4 = 12
@@ -64,25 +64,29 @@ PX4_KNOWN_IDS = frozenset(common_dialect.mavlink_map) | {290, 291, 397}
 
 
 class Px4Link(AutopilotLink):
-    """The wire side of the simulated PX4: its HEARTBEAT, and ATTITUDE with a heading that a
-    test can change (a restarted PX4's estimator need not head where the old one did)."""
+    """The wire side of the simulated PX4: its HEARTBEAT, and its parser, which drops a frame
+    of a message it does not know (:attr:`dropped_unknown`, by message id) before anything
+    sees it; :attr:`received_raw` counts the frames it knows that pymavlink's dialect cannot
+    decode (ESC_INFO, ESC_STATUS, COMPONENT_METADATA), by message id."""
 
-    yaw_deg = -7.0
+    def __init__(self, system_id: int = 1, component_id: int = 1, keep: int = 20_000) -> None:
+        super().__init__(system_id, component_id, keep)
+        self.dropped_unknown: Counter[int] = Counter()
+        self.received_raw: Counter[int] = Counter()
 
-    def attitude(self, now: float, boot_s: float) -> None:
-        wobble = 0.02 * math.sin(0.5 * boot_s)
-        self.send(
-            "ATTITUDE",
-            now,
-            self._conn.mav.attitude_send,
-            int(boot_s * 1000) & 0xFFFFFFFF,
-            wobble,
-            -wobble / 2,
-            math.radians(self.yaw_deg),
-            0.0,
-            0.0,
-            0.0,
-        )
+    def recv(self) -> Any | None:
+        """The next message PX4's parser lets through (None: nothing waiting)."""
+        while True:
+            msg = super().recv()
+            if msg is None or msg.get_type() == "BAD_DATA":
+                return msg  # noise or a bad CRC: the stream skips it, as PX4 drops it
+            msg_id = _message_id(msg)
+            if msg_id not in PX4_KNOWN_IDS:
+                self.dropped_unknown[msg_id] += 1
+                continue
+            if msg.get_type().startswith("UNKNOWN_"):
+                self.received_raw[msg_id] += 1
+            return msg
 
     def heartbeat(self, now: float, armed: bool) -> None:
         base = mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mav.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
@@ -97,6 +101,14 @@ class Px4Link(AutopilotLink):
             mav.MAV_STATE_STANDBY,
             3,
         )
+
+
+class Px4Mount(MountDriver):
+    """PX4's gimbal manager output: the attitude with PX4's frame flags (:func:`px4_flags`)."""
+
+    def attitude(self) -> tuple[int, tuple[float, float, float, float], tuple[float, float, float]]:
+        flags, q, rates = super().attitude()
+        return px4_flags(flags), q, rates
 
 
 class Px4Stream(AutopilotStream):
@@ -143,15 +155,20 @@ class Px4Stream(AutopilotStream):
             },
             unrequestable=("GIMBAL_DEVICE_SET_ATTITUDE",),
         )
-        self.link = Px4Link(self.system_id, self.component_id, keep=self.keep)
+        mount = self.mount
+        self.mount = Px4Mount(
+            mount.component,
+            enabled=mount.enabled,
+            wait_for_device=mount.wait_for_device,
+            search_s=None,
+            target=mount.target,
+        )
+        self._px4_link = Px4Link(self.system_id, self.component_id, keep=self.keep)
+        self.link = self._px4_link
         self.sent = self.link.sent
         self.sent_log = self.link.sent_log
         #: "Peripheral via Actuator Set n" -> output channel (1-based both)
         self.peripheral_outputs = dict(peripheral_outputs or {1: 5, 2: 6})
-        #: frames PX4's parser drops (a message it does not know), by message id
-        self.dropped_unknown: Counter[int] = Counter()
-        #: frames it knows that pymavlink's dialect cannot decode, by message id (ESC_INFO ...)
-        self.received_raw: Counter[int] = Counter()
         #: each output's last ACTUATOR_OUTPUT_STATUS value (its changes go to ``commanded`` as
         #: kind "actuator_output", key = output number)
         self._last_status: dict[int, float] = {}
@@ -188,14 +205,6 @@ class Px4Stream(AutopilotStream):
                     "actuator_output", Commanded(now, index, value, "actuator_output_status")
                 )
 
-    def _send_gimbal_target(self, now: float) -> None:
-        flags, q, rates = self.mount.attitude()
-        self.link.gimbal_device_set_attitude(now, self.mount.component, px4_flags(flags), q, rates)
-        target = self.mount.new_target()
-        if target is not None:
-            value = (target.roll, target.pitch, target.yaw, target.flags)
-            self.commanded.record("gimbal", Commanded(now, 0, value, "gimbal"))
-
     def _gimbal_discovery(self, now: float) -> None:
         boot_s = now - self._boot_at + self.boot_offset_s
         if self.mount.request_due(now, boot_s, self.armed):
@@ -209,40 +218,17 @@ class Px4Stream(AutopilotStream):
             self.mount.device_info = None  # a new boot looks for the gimbal again
             self.mount.target = GimbalTarget()
 
-    def _drain_incoming(self, now: float) -> None:
-        for _ in range(1000):  # bounded, as the base class
-            msg = self.link.recv()
-            if msg is None:
-                return
-            name = msg.get_type()
-            if name == "BAD_DATA":
-                continue  # noise, a bad CRC: PX4's parser drops it too
-            msg_id = _message_id(msg)
-            if msg_id not in PX4_KNOWN_IDS:
-                self.dropped_unknown[msg_id] += 1
-                continue
-            if name.startswith("UNKNOWN_"):
-                self.received_raw[msg_id] += 1
-                continue
-            self._handle_incoming(msg, now)
+    # ------------------------------------------------------------------ what PX4 received
 
-    def _handle_incoming(self, msg: Any, now: float) -> None:
-        name = msg.get_type()
-        self.received.add(now, msg)
-        if name == "COMMAND_ACK":
-            if self._addressed_to_me(msg):
-                self.commands.on_ack(
-                    msg.command,
-                    msg.result,
-                    (msg.get_srcSystem(), msg.get_srcComponent()),
-                    (msg.target_system, msg.target_component),
-                    now,
-                )
-        elif name == "COMMAND_LONG":
-            if self._addressed_to_me(msg) and now >= self._boot_at:
-                self._handle_command(msg, now)
-        elif name == "GIMBAL_DEVICE_INFORMATION":
-            self.mount.heard(msg)
+    @property
+    def dropped_unknown(self) -> Counter[int]:
+        """Frames PX4 dropped as unknown (it counts each as lost), by message id."""
+        return self._px4_link.dropped_unknown
+
+    @property
+    def received_raw(self) -> Counter[int]:
+        """Frames of ESC_INFO, ESC_STATUS, COMPONENT_METADATA received, by message id."""
+        return self._px4_link.received_raw
 
 
 def px4_flags(flags: int) -> int:

@@ -143,7 +143,7 @@ def test_after_px4_restarts_the_old_gimbal_demand_is_not_driven_again() -> None:
             timeout=6,
         )
         px4.reboot(2.5)
-        px4.link.yaw_deg = 35.0  # the new boot's estimator heads elsewhere
+        px4.link.yaw_rad = 0.6  # the new boot's estimator heads elsewhere
         assert wait_until(lambda: backend.failsafe_events == ["enter"], timeout=5)
         before = len(backend.servo_calls("gimbal"))
         assert wait_until(lambda: backend.failsafe_events == ["enter", "leave"], timeout=6)
