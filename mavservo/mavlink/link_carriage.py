@@ -72,6 +72,11 @@ class LinkCarriage:
     def carries(self, msg_id: int) -> bool:
         return msg_id not in blocked_ids(self.link, self.flavour.flavour)
 
+    def held_names(self) -> list[str]:
+        """The path-dependent messages not sent now, by name (for the log)."""
+        blocked = blocked_ids(self.link, self.flavour.flavour)
+        return [name for name, ids in PATH_DEPENDENT.items() if ids <= blocked]
+
     def left_out_streams(self) -> frozenset[str]:
         """The budget's periodic streams not sent on the link (not planned either)."""
         return left_out_streams(self.link, self.flavour.flavour)

@@ -41,7 +41,7 @@ from mavservo.mavlink.component import (
 )
 from mavservo.mavlink.failsafe import FailsafeEvent, HeartbeatWatchdog
 from mavservo.mavlink.ftp import UNBUDGETED_BYTES_S
-from mavservo.mavlink.gimbal_discovery import GimbalDiscoveryWatch
+from mavservo.mavlink.gimbal_discovery import GimbalDiscoveryWatch, log_hint
 from mavservo.mavlink.link_carriage import LinkCarriage
 from mavservo.mavlink.metadata_service import MetadataService
 from mavservo.mavlink.mirror import Mirror
@@ -365,6 +365,14 @@ class MavlinkCore:
         link carries follow it (px4: issue 39)."""
         self.streams.set_flavour(self.flavour.facts, now)
         self.replan(now)
+        held = self.carriage.held_names()
+        if held:
+            log.info(
+                "not sending %s on the autopilot link: %s drops them (mavlink.autopilot.link: "
+                "router if a router or the ground station is at the other end; docs/px4.md)",
+                ", ".join(held),
+                self.flavour.facts.name,
+            )
 
     def _forget_gimbal_demands(self) -> None:
         """The autopilot was lost or rebooted: each gimbal drops its demand (px4: issue 39;
@@ -416,11 +424,7 @@ class MavlinkCore:
             self._guarded("commands", self.commands.tick, now)
             for gimbal, text in self.discovery.due(now):
                 self.counters["gimbal_not_found"] += 1
-                log.warning(
-                    "%s (ArduPilot: MNT1_TYPE 6; it looks for component %d only then)",
-                    text,
-                    gimbal,
-                )
+                log.warning("%s (%s)", text, log_hint(gimbal, self.discovery.flavour or ""))
                 self.telemetry.announce(MAV_SEVERITY_WARNING, text)
         for cid, mav_type in self.components.items():
             if now >= self._next_heartbeat[cid]:

@@ -121,7 +121,9 @@ def test_the_link_carries_what_can_arrive(link, flavour, blocked) -> None:
     assert blocked_ids(link, flavour) == blocked
 
 
-def test_the_core_sends_the_esc_view_only_where_it_can_arrive() -> None:
+def test_the_core_sends_the_esc_view_only_where_it_can_arrive(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
     esc_info = EscInfo(
         index=16,
         time_usec=0,
@@ -139,7 +141,15 @@ def test_the_core_sends_the_esc_view_only_where_it_can_arrive() -> None:
     core.on_message(wire(heartbeat(autopilot=ARDUPILOT_ID), AUTOPILOT), 0.0)
     assert not core.link_carries(esc_info) and core.link_carries(esc_telemetry)
     px4, _ = make_mavlink_core()
-    px4.on_message(wire(heartbeat(autopilot=PX4_ID), AUTOPILOT), 0.0)
+    with caplog.at_level(logging.INFO, logger="mavservo.mavlink.mavlink_core"):
+        px4.on_message(wire(heartbeat(autopilot=PX4_ID), AUTOPILOT), 0.0)
+        px4.on_message(wire(heartbeat(autopilot=PX4_ID), AUTOPILOT), 1.0)
+    said = [r.getMessage() for r in caplog.records if "not sending" in r.getMessage()]
+    assert said == [
+        "not sending ESC_TELEMETRY_x_TO_y on the autopilot link: PX4 drops them "
+        "(mavlink.autopilot.link: router if a router or the ground station is at the other "
+        "end; docs/px4.md)"
+    ]
     assert px4.link_carries(esc_info) and not px4.link_carries(esc_telemetry)
     # the budget plans nothing for what is not sent
     streams = {s.name: s for s in px4.budget.plan.streams}
