@@ -171,7 +171,7 @@ def plan_budget(
 
     ``rates`` is the telemetry rates section (``..._hz`` attributes); ``components`` counts the
     heartbeats (one per component per second), which are never scaled. ``left_out``: streams
-    not sent on the link at all (:mod:`.link_carriage`: the autopilot drops them), planned at 0.
+    not sent on the link at all (:mod:`.link_carriage`: the autopilot drops them), ratio 0.
     """
     heartbeat = frame_bytes(mavlink2.MAVLink_heartbeat_message, signed)
     fixed = components * heartbeat
@@ -217,16 +217,14 @@ def plan_budget(
             floor_ratio=min(1.0, GIMBAL_STATUS_FLOOR_HZ / gimbal_hz) if gimbal_hz > 0 else 0.0,
         ),
     )
-    if left_out:  # px4 (issue 38 item 5): not sent on the link, no share of it
-        streams = tuple(
-            StreamCost(s.name, s.hz, 0.0, s.frame_bytes, s.floor_ratio) if s.name in left_out else s
-            for s in streams
-        )
-    ratios = {s.name: 1.0 for s in streams}
+    # px4 (issue 38 item 5): a stream left out is not sent on the link (ratio 0, no share of
+    # the budget); the monitor outputs still get it at its configured rate
+    ratios = {s.name: 0.0 if s.name in left_out else 1.0 for s in streams}
     plan = BudgetPlan(budget_bytes_s, fixed, streams, ratios, signed)
     if budget_bytes_s is not None:
         rate = plan.bucket[0]
-        ratios = _fit(rate * (1 - EVENT_RESERVE) - fixed, streams)
+        sent = tuple(s for s in streams if s.name not in left_out)
+        ratios.update(_fit(rate * (1 - EVENT_RESERVE) - fixed, sent))
     return BudgetPlan(budget_bytes_s, fixed, streams, ratios, signed)
 
 
