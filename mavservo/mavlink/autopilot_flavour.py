@@ -12,8 +12,10 @@ holds the facts, each with where it was read:
   in ``msg/ActuatorOutputs.msg``, 16 in SITL), so outputs 1..active are valid. ArduPilot does
   not send the message at all (no sender in ``libraries/GCS_MAVLink``, master 90700977c5: it
   sends SERVO_OUTPUT_RAW, ``GCS_MAVLINK::send_servo_output_raw``, GCS_Common.cpp line 3347), and
-  MAVSDK only passes the field through. Rule: from a PX4 the field is a count; from anything else
-  (the bridge's own telemetry, a spec-following sender) the spec's bitmask.
+  MAVSDK passes the field through uninterpreted (``TelemetryImpl::process_actuator_output_status``,
+  cpp/src/mavsdk/plugins/telemetry/telemetry_impl.cpp line 1400, MAVSDK 158e339). Rule: from a
+  PX4 the field is a count; from anything else (the bridge's own telemetry, a sender following
+  the spec) the spec's bitmask.
 * **Messages its parser knows.** ArduPilot fails messages 290 (ESC_INFO), 291 (ESC_STATUS) and
   397 (COMPONENT_METADATA) on its CRC check and never routes them (measured against ArduPlane
   90700977c5, ../shared/ARDUPILOT-SITL.md); PX4 does not know ArduPilot's ESC_TELEMETRY_x_TO_y
