@@ -248,4 +248,6 @@ class MavlinkSide:
         """Answers to requests (already admitted by the budget), each to its requester only."""
         system_id = self.core.system_id
         for answer in answers:
+            if not self.core.link_carries(answer.msg):  # px4: the autopilot would drop it
+                continue
             self.link.send(answer.component_id, answer.msg, system_id, reply_to=answer.to)
