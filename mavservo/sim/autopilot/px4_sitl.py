@@ -66,7 +66,13 @@ class Px4Command:
     workdir: Path
 
     def shell_text(self) -> str:
-        env = " ".join(f"{k}={shlex.quote(v)}" for k, v in self.env.items())
+        """The command as a shell line (PATH shown as the shim's folder before ``$PATH``)."""
+        env = " ".join(
+            f"PATH={shlex.quote(v.split(os.pathsep, 1)[0])}:$PATH"
+            if k == "PATH"
+            else f"{k}={shlex.quote(v)}"
+            for k, v in self.env.items()
+        )
         return f"cd {shlex.quote(str(self.workdir))} && {env} {shlex.join(self.argv)}"
 
 
@@ -174,7 +180,12 @@ def run_px4(argv: Sequence[str]) -> int:
         print(f"mavservo sitl px4: {params}", file=sys.stderr)
         return EXIT_USAGE
     found = find_px4(args.px4_home)
-    workdir = args.workdir or Path(tempfile.mkdtemp(prefix="mavservo-px4-"))
+    if args.workdir is not None:
+        workdir = args.workdir
+    elif args.dry_run:  # a dry run creates nothing
+        workdir = Path(tempfile.gettempdir()) / "mavservo-px4-WORKDIR"
+    else:
+        workdir = Path(tempfile.mkdtemp(prefix="mavservo-px4-"))
     if found is None:
         where = args.px4_home or "$PX4_HOME (unset)"
         print(
@@ -186,7 +197,8 @@ def run_px4(argv: Sequence[str]) -> int:
         )
         if not args.dry_run:
             return EXIT_NOT_BUILT
-        found = (Path(args.px4_home or "PX4_HOME") / BUILD_BINARY, Path("PX4_HOME/build/etc"))
+        home = Path(args.px4_home or "PX4_HOME")
+        found = (home / BUILD_BINARY, home / BUILD_BINARY.parent.parent / "etc")
     command = px4_command(found[0], found[1], args.airframe, workdir, params)
     if args.dry_run:
         print(command.shell_text())
