@@ -53,23 +53,25 @@ from mavservo.config.loader import load_config  # noqa: E402
 from mavservo.config.views import mavlink_settings  # noqa: E402
 from mavservo.mavlink import mavlink2 as mav  # noqa: E402
 from mavservo.mavlink import open_connection  # noqa: E402
-from mavservo.mavlink.backend import ACCEPTED, ServoStatus  # noqa: E402
+from mavservo.mavlink.backend import ACCEPTED  # noqa: E402
 from mavservo.mavlink.gimbal import GimbalDevice  # noqa: E402
 from mavservo.mavlink.gimbal_settings import GimbalSettings  # noqa: E402
 from mavservo.mavlink.side import MavlinkSide  # noqa: E402
 from mavservo.sim.autopilot.px4_sitl import find_px4  # noqa: E402
+from tests.support.mavlink_doubles import RecordingBackend  # noqa: E402
 
 CONFIG = REPO / "config" / "px4-sitl.yaml"
 GCS = (255, 190)
 
 
-class TimedBackend:
-    """Maps every servo output channel and actuator; records (t, kind, key, value)."""
+class TimedBackend(RecordingBackend):
+    """Maps every servo output channel and actuator; records (t, kind, key, value). Its three
+    servos (RecordingBackend's) make the bridge publish its telemetry, ESC_* included."""
 
     def __init__(self) -> None:
-        self.calls: list[tuple[float, str, Any, Any]] = []
+        super().__init__()
+        self.timed: list[tuple[float, str, Any, Any]] = []
         self.failsafe: list[tuple[float, str]] = []
-        self.lock = threading.Lock()
 
     def mapped_servo_channels(self) -> set[int]:
         return set(range(1, 17))
@@ -79,21 +81,18 @@ class TimedBackend:
 
     def apply_servo_output(self, channel: int, pwm_us: float, source: str, now: float) -> Any:
         with self.lock:
-            self.calls.append((time.monotonic(), "servo", channel, pwm_us))
+            self.timed.append((time.monotonic(), "servo", channel, pwm_us))
         return ACCEPTED
 
     def apply_actuator(self, index: int, value: float, source: str, now: float) -> Any:
         with self.lock:
-            self.calls.append((time.monotonic(), "actuator", index, value))
+            self.timed.append((time.monotonic(), "actuator", index, value))
         return ACCEPTED
 
     def apply_gimbal(self, gimbal: str, roll: Any, pitch: Any, yaw: Any, source: str, now: float):
         with self.lock:
-            self.calls.append((time.monotonic(), "gimbal", 0, (roll, pitch, yaw)))
+            self.timed.append((time.monotonic(), "gimbal", 0, (roll, pitch, yaw)))
         return ACCEPTED
-
-    def servo_statuses(self) -> list[ServoStatus]:
-        return []
 
     def enter_failsafe(self, reason: str, now: float) -> None:
         self.failsafe.append((time.monotonic(), "enter"))
@@ -101,12 +100,9 @@ class TimedBackend:
     def leave_failsafe(self, now: float) -> None:
         self.failsafe.append((time.monotonic(), "leave"))
 
-    def health(self) -> dict[str, float]:
-        return {}
-
     def of(self, kind: str) -> list[tuple[float, Any, Any]]:
         with self.lock:
-            return [(t, k, v) for t, c, k, v in self.calls if c == kind]
+            return [(t, k, v) for t, c, k, v in self.timed if c == kind]
 
 
 def pct(values: list[float], q: float) -> float:
