@@ -18,8 +18,9 @@ against the real thing.
 * The gimbal manager (``src/modules/gimbal/output_mavlink.cpp``, OutputMavlinkV2::update):
   MAV_CMD_REQUEST_MESSAGE(GIMBAL_DEVICE_INFORMATION) to every component (target 0/0) every
   second until a device answers, at any time after boot (no search window as ArduPilot's);
-  then GIMBAL_DEVICE_SET_ATTITUDE to the device with YAW_IN_VEHICLE_FRAME, or YAW_LOCK and
-  YAW_IN_EARTH_FRAME for an absolute yaw (``_publish_gimbal_device_set_attitude``).
+  GIMBAL_DEVICE_SET_ATTITUDE all the while, to component 0 until the device is found, NaN until
+  someone demands an attitude, with YAW_IN_VEHICLE_FRAME, or YAW_LOCK and YAW_IN_EARTH_FRAME for
+  an absolute yaw (``_publish_gimbal_device_set_attitude``; :class:`Px4Mount`).
 * DO_SET_ACTUATOR is PX4's own: it drives the outputs whose function is "Peripheral via Actuator
   Set n" and is never sent on to another component, so a script's ``do_set_actuator`` shows only
   in the outputs here (``peripheral_outputs``: actuator n -> output channel).
@@ -33,6 +34,7 @@ against the real thing.
 
 from __future__ import annotations
 
+import math
 from collections import Counter
 from collections.abc import Iterable
 from typing import Any
@@ -104,9 +106,50 @@ class Px4Link(AutopilotLink):
 
 
 class Px4Mount(MountDriver):
-    """PX4's gimbal manager output: the attitude with PX4's frame flags (:func:`px4_flags`)."""
+    """PX4's gimbal manager output (``src/modules/gimbal/output_mavlink.cpp``,
+    OutputMavlinkV2): between its requests for a device it publishes GIMBAL_DEVICE_SET_ATTITUDE
+    to the device found, component 0 (everyone) until then; with no demand yet its attitude
+    is NaN (``_q_setpoint`` starts NaN, output.h), flags ROLL_LOCK, PITCH_LOCK and
+    YAW_IN_VEHICLE_FRAME (``_absolute_angle`` {true, true, false}); a demand's flags as
+    :func:`px4_flags` says. Any component's GIMBAL_DEVICE_INFORMATION is the device."""
+
+    def __init__(self, *, enabled: bool, target: GimbalTarget | None) -> None:
+        super().__init__(0, enabled=enabled, wait_for_device=False, search_s=None)
+        self.demanded = target is not None
+        if target is not None:
+            self.target = target
+
+    @property
+    def component(self) -> int:
+        """Where the setpoints go: the device found, else 0 (every component)."""
+        return 0 if self.device_info is None else int(self.device_info.get_srcComponent())
+
+    @component.setter
+    def component(self, _value: int) -> None:
+        """PX4 is told no component: it takes the one that answers."""
+
+    @property
+    def target(self) -> GimbalTarget:
+        return self._target
+
+    @target.setter
+    def target(self, target: GimbalTarget) -> None:
+        self._target = target
+        self.demanded = True
+
+    def heard(self, msg: Any) -> None:
+        self.device_info = msg
+
+    def forget(self) -> None:
+        """A new boot: no device, no demand."""
+        self.device_info = None
+        self.demanded = False
 
     def attitude(self) -> tuple[int, tuple[float, float, float, float], tuple[float, float, float]]:
+        if not self.demanded:
+            nan = math.nan
+            locks = mav.GIMBAL_DEVICE_FLAGS_ROLL_LOCK | mav.GIMBAL_DEVICE_FLAGS_PITCH_LOCK
+            return px4_flags(locks), (nan, nan, nan, nan), (nan, nan, nan)
         flags, q, rates = super().attitude()
         return px4_flags(flags), q, rates
 
@@ -127,6 +170,7 @@ class Px4Stream(AutopilotStream):
         gimbal: bool = False,
         gimbal_rate_hz: float = PX4_ONBOARD_GIMBAL_HZ,
         peripheral_outputs: dict[int, int] | None = None,
+        initial_gimbal: GimbalTarget | None = None,
         **kwargs: Any,
     ) -> None:
         super().__init__(
@@ -140,6 +184,7 @@ class Px4Stream(AutopilotStream):
             gimbal=gimbal,
             gimbal_rate_hz=gimbal_rate_hz,
             gimbal_search_s=None,
+            initial_gimbal=initial_gimbal,
             **kwargs,
         )
         heartbeat_interval = self.rates.interval_s("HEARTBEAT")
@@ -155,14 +200,8 @@ class Px4Stream(AutopilotStream):
             },
             unrequestable=("GIMBAL_DEVICE_SET_ATTITUDE",),
         )
-        mount = self.mount
-        self.mount = Px4Mount(
-            mount.component,
-            enabled=mount.enabled,
-            wait_for_device=mount.wait_for_device,
-            search_s=None,
-            target=mount.target,
-        )
+        self._px4_mount = Px4Mount(enabled=gimbal, target=initial_gimbal)
+        self.mount = self._px4_mount
         self._px4_link = Px4Link(self.system_id, self.component_id, keep=self.keep)
         self.link = self._px4_link
         self.sent = self.link.sent
@@ -215,8 +254,7 @@ class Px4Stream(AutopilotStream):
         super()._reboot_if_asked(now)
         if self.reboots != self._reboots_seen:
             self._reboots_seen = self.reboots
-            self.mount.device_info = None  # a new boot looks for the gimbal again
-            self.mount.target = GimbalTarget()
+            self._px4_mount.forget()  # a new boot looks for the gimbal again, has no demand
 
     # ------------------------------------------------------------------ what PX4 received
 
