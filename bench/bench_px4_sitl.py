@@ -56,6 +56,7 @@ from mavservo.mavlink import open_connection  # noqa: E402
 from mavservo.mavlink.backend import ACCEPTED  # noqa: E402
 from mavservo.mavlink.gimbal import GimbalDevice  # noqa: E402
 from mavservo.mavlink.gimbal_settings import GimbalSettings  # noqa: E402
+from mavservo.mavlink.quaternion import quaternion_to_euler  # noqa: E402
 from mavservo.mavlink.side import MavlinkSide  # noqa: E402
 from mavservo.sim.autopilot.px4_sitl import find_px4  # noqa: E402
 from tests.support.mavlink_doubles import RecordingBackend  # noqa: E402
@@ -149,25 +150,34 @@ class Px4:
         return self.proc.returncode
 
 
-def rx_loss(bin_dir: Path) -> dict[str, str]:
-    """PX4's ``mavlink status`` per instance: mode and rx loss, by UDP port."""
-    done = subprocess.run(
-        [str(bin_dir / "px4-mavlink"), "--instance", "0", "status"],
-        capture_output=True,
-        text=True,
-        timeout=20,
-        check=False,
-    )
-    out: dict[str, str] = {}
-    for block in re.split(r"\ninstance #", done.stdout):
-        port = re.search(r"local port: (\d+)|udp port: (\d+)|port (\d+)", block)
-        loss = re.search(r"rx loss: ([\d.]+)%", block)
-        mode = re.search(r"mode: (\w+)", block)
-        if loss:
-            key = next((g for g in port.groups() if g), "?") if port else block[:20]
-            out[key] = f"{mode.group(1) if mode else '?'}: rx loss {loss.group(1)} %"
-    if not out:
-        out["raw"] = done.stdout[-2000:] + done.stderr[-500:]
+def rx_loss(bin_dir: Path) -> dict[str, Any]:
+    """PX4's own count of what it received and lost on each MAVLink instance (the uORB topic
+    telemetry_status, ``listener telemetry_status -i N``): rx messages, lost (sequence gaps:
+    a frame its parser dropped counts here), parse errors. The bridge's link is the onboard
+    instance at 4,000,000 B/s (mode 2)."""
+    out: dict[str, Any] = {}
+    for instance in range(5):
+        done = subprocess.run(
+            [str(bin_dir / "px4-listener"), "telemetry_status", "-n", "1", "-i", str(instance)],
+            capture_output=True,
+            text=True,
+            timeout=20,
+            check=False,
+        )
+        fields = dict(re.findall(r"^\s+(\w+): (\S+)", done.stdout, re.MULTILINE))
+        if "rx_message_count" not in fields:
+            continue
+        out[f"instance {instance}"] = {
+            key: fields.get(key)
+            for key in (
+                "mode",
+                "data_rate",
+                "rx_message_count",
+                "rx_message_lost_count",
+                "rx_parse_errors",
+                "rx_message_lost_rate",
+            )
+        }
     return out
 
 
@@ -189,6 +199,12 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     bin_dir = found[0].parent
     results: dict[str, Any] = {"px4": str(found[0]), "command_period_s": None}
     settings = dataclasses.replace(mavlink_settings(load_config(CONFIG)), signing=None)
+    if not args.stream_requests:  # PX4's own onboard rates: 10 Hz, none, 5 Hz
+        settings = dataclasses.replace(
+            settings,
+            stream_request=dataclasses.replace(settings.stream_request, enabled=False),
+        )
+    results["stream_requests"] = args.stream_requests
     if args.flavour != "px4":
         settings = dataclasses.replace(settings, autopilot_flavour=args.flavour)
     results["flavour"] = settings.autopilot_flavour
@@ -248,7 +264,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
             assert wait(lambda: side.stats()["autopilot_flavour"]["heard"] == "px4", 120)
             results["boot_to_heartbeat_s"] = round(time.monotonic() - started, 1)
             assert wait(lambda: gcs_seen["HEARTBEAT"] > 0, 30), "no GCS link"
-            assert wait(lambda: stream("ACTUATOR_OUTPUT_STATUS").get("answer") == "accepted", 30)
+            assert not args.stream_requests or wait(
+                lambda: stream("ACTUATOR_OUTPUT_STATUS").get("answer") == "accepted", 30
+            )
             wait(lambda: 154 in side.stats()["gimbal_discovery"]["found"], 20)
             wait(lambda: stream("GIMBAL_DEVICE_SET_ATTITUDE").get("received_hz") is not None, 20)
             time.sleep(6.0)
@@ -290,7 +308,9 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
                 i += 1
                 time.sleep(0.05)
             time.sleep(1.0)
-            results["mirror"] = mirror_figures(arrivals, backend, mark, commands)
+            results["mirror"] = mirror_figures(
+                arrivals, backend, (mark, time.monotonic()), commands
+            )
 
             # ---------------------------------------------------------------- 2. gimbal
             gcs.mav.command_long_send(
@@ -354,7 +374,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 def mirror_figures(
     arrivals: dict[str, list[tuple[float, Any]]],
     backend: TimedBackend,
-    mark: float,
+    window: tuple[float, float],
     commands: list[tuple[float, int, float]],
 ) -> dict[str, Any]:
     """Per stream and output: changes that arrived, setpoints, mismatches, lag."""
@@ -364,16 +384,19 @@ def mirror_figures(
         "ACTUATOR_OUTPUT_STATUS": backend.of("actuator"),
     }
     for name, kind_calls in applied.items():
-        msgs = [(t, m) for t, m in arrivals[name] if t >= mark]
+        mark, end = window
+        msgs = [(t, m) for t, m in arrivals[name] if mark <= t <= end]
         if not msgs:
             out[name] = {"messages": 0}
             continue
-        offset = min(t - m.time_usec / 1e6 for t, m in msgs)  # the fastest sample's transit
+        # PX4's clock and this machine's drift apart (SIH time is not wall time): the transit
+        # is taken from the fastest sample within a second either side, not over the whole run
+        offsets = _local_offsets([(t, m.time_usec / 1e6) for t, m in msgs])
         per_output: dict[int, Any] = {}
         for output in range(1, 7):
             changes: list[tuple[float, float]] = []
             last = None
-            for _t, m in msgs:
+            for (_t, m), offset in zip(msgs, offsets, strict=True):
                 value = (
                     float(getattr(m, f"servo{output}_raw"))
                     if name == "SERVO_OUTPUT_RAW"
@@ -382,7 +405,7 @@ def mirror_figures(
                 if value != last:
                     changes.append((m.time_usec / 1e6 + offset, value))
                     last = value
-            sets = [(t, v) for t, k, v in kind_calls if k == output and t >= mark]
+            sets = [(t, v) for t, k, v in kind_calls if k == output and mark <= t <= end + 1]
             if name == "ACTUATOR_OUTPUT_STATUS":
                 expect = [(t, (v - 1500.0) / 500.0) for t, v in changes if v != 0]
             else:
@@ -409,9 +432,14 @@ def mirror_figures(
                 "mismatches": mismatches,
                 "lag": ms(lags),
             }
-        out[name] = {"messages": len(msgs), "outputs": per_output}
+        arrival = [t_set - t_arr for t_arr, t_set in _arrival_to_setpoint(msgs, kind_calls, name)]
+        out[name] = {
+            "messages": len(msgs),
+            "arrival_to_setpoint": ms(arrival),
+            "outputs": per_output,
+        }
     # DO_SET_ACTUATOR (to PX4) -> PX4's output 5 -> ACTUATOR_OUTPUT_STATUS -> servo setpoint
-    sets5 = [(t, v) for t, k, v in backend.of("actuator") if k == 5 and t >= mark]
+    sets5 = [(t, v) for t, k, v in backend.of("actuator") if k == 5 and window[0] <= t]
     cmd_lags = []
     for t_cmd, _output, value in commands:
         hit = next((t for t, v in sets5 if t >= t_cmd and abs(v - value) < 0.0021), None)
@@ -419,6 +447,37 @@ def mirror_figures(
             cmd_lags.append(hit - t_cmd)
     out["do_set_actuator_to_setpoint"] = {"commands": len(commands), **ms(cmd_lags)}
     return out
+
+
+def _local_offsets(samples: list[tuple[float, float]], half_window_s: float = 1.0) -> list[float]:
+    """For each (arrival, sample time): the smallest arrival - sample time within
+    ``half_window_s`` of it (the transit of the fastest nearby sample, drift left out)."""
+    out = []
+    for t, _ in samples:
+        out.append(min(a - b for a, b in samples if abs(a - t) <= half_window_s))
+    return out
+
+
+def _arrival_to_setpoint(
+    msgs: list[tuple[float, Any]], calls: list[tuple[float, Any, Any]], name: str
+) -> list[tuple[float, float]]:
+    """(message arrival, setpoint) pairs: for each message that changed output 1's value, the
+    first setpoint of that value after it arrived (the bridge's own part of the lag)."""
+    pairs = []
+    last = None
+    for t, m in msgs:
+        value = float(m.servo1_raw) if name == "SERVO_OUTPUT_RAW" else float(m.actuator[0])
+        if name == "ACTUATOR_OUTPUT_STATUS":
+            value = max(-1.0, min(1.0, (value - 1500.0) / 500.0))
+        if value == last:
+            continue
+        last = value
+        hit = next(
+            (ts for ts, k, v in calls if k == 1 and ts >= t and math.isclose(v, value)), None
+        )
+        if hit is not None:
+            pairs.append((t, hit))
+    return pairs
 
 
 def gimbal_figures(
@@ -446,6 +505,24 @@ def gimbal_figures(
             exact_90.append(hit[1][1])
     received = [t for t, _m in setpoints if t >= mark]
     span = (received[-1] - received[0]) if len(received) > 1 else 0.0
+    # every distinct pitch PX4 sent the gimbal must become a servo setpoint (in order)
+    pitches: list[float] = []
+    for t, m in setpoints:
+        if t < mark or any(math.isnan(x) for x in m.q):
+            continue
+        pitch = round(quaternion_to_euler(m.q)[1], 2)
+        if not pitches or pitches[-1] != pitch:
+            pitches.append(pitch)
+    applied = [round(v[1], 2) for _t, v in calls if v[1] is not None]
+    missed, j = 0, 0
+    for pitch in pitches:
+        k = j
+        while k < len(applied) and abs(applied[k] - pitch) > 0.011:
+            k += 1
+        if k == len(applied):
+            missed += 1
+            continue
+        j = k + 1
     return {
         "commands": len(sent),
         "followed": len(lags),
@@ -453,6 +530,8 @@ def gimbal_figures(
         "command_to_servo": ms(lags),
         "pitch_at_minus_90": sorted(set(round(p, 4) for p in exact_90)),
         "set_attitude_hz": round((len(received) - 1) / span, 1) if span else None,
+        "px4_setpoints_distinct": len(pitches),
+        "px4_setpoints_not_applied": missed,
     }
 
 
@@ -461,6 +540,13 @@ def main() -> int:
     parser.add_argument("--mirror-s", type=float, default=30.0)
     parser.add_argument("--gimbal-s", type=float, default=15.0)
     parser.add_argument("--flavour", default="px4", choices=("px4", "ardupilot", "auto"))
+    parser.add_argument(
+        "--no-stream-requests",
+        dest="stream_requests",
+        action="store_false",
+        help="do not ask PX4 for rates (its onboard defaults: SERVO_OUTPUT_RAW 10 Hz, "
+        "ACTUATOR_OUTPUT_STATUS none, GIMBAL_DEVICE_SET_ATTITUDE 5 Hz)",
+    )
     parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
     results = run(args)
