@@ -62,6 +62,10 @@ from mavservo.sim.autopilot.px4_sitl import find_px4  # noqa: E402
 from tests.support.mavlink_doubles import RecordingBackend  # noqa: E402
 
 CONFIG = REPO / "config" / "px4-sitl.yaml"
+#: a gimbal setpoint later than this after its command belongs to a later command
+FOLLOW_S = 0.5
+#: GimbalSettings.apply_deadband_deg (0.05) plus float32 rounding
+DEADBAND_DEG = 0.06
 GCS = (255, 190)
 
 
@@ -489,11 +493,14 @@ def gimbal_figures(
     calls = [(t, v) for t, _k, v in backend.of("gimbal") if t >= mark]
     lags, missing, exact_90 = [], 0, []
     for t_cmd, pitch in sent:
+        # followed: a setpoint of this pitch within FOLLOW_S of the command (later ones are a
+        # later command of the same pitch: the sine comes back); a command the next one
+        # replaced before PX4's stream sent it is "not followed" (PX4 sends the latest)
         hit = next(
             (
                 (t, v)
                 for t, v in calls
-                if t >= t_cmd and v[1] is not None and abs(v[1] - pitch) < 0.01
+                if t_cmd <= t <= t_cmd + FOLLOW_S and v[1] is not None and abs(v[1] - pitch) < 0.01
             ),
             None,
         )
@@ -517,7 +524,8 @@ def gimbal_figures(
     missed, j = 0, 0
     for pitch in pitches:
         k = j
-        while k < len(applied) and abs(applied[k] - pitch) > 0.011:
+        # a setpoint within the gimbal's apply deadband (0.05 deg) of the last is not re-sent
+        while k < len(applied) and abs(applied[k] - pitch) > DEADBAND_DEG:
             k += 1
         if k == len(applied):
             missed += 1
