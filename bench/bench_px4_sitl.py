@@ -34,7 +34,6 @@ import dataclasses
 import json
 import math
 import os
-import re
 import signal
 import statistics
 import subprocess
@@ -58,7 +57,7 @@ from mavservo.mavlink.gimbal import GimbalDevice  # noqa: E402
 from mavservo.mavlink.gimbal_settings import GimbalSettings  # noqa: E402
 from mavservo.mavlink.quaternion import quaternion_to_euler  # noqa: E402
 from mavservo.mavlink.side import MavlinkSide  # noqa: E402
-from mavservo.sim.autopilot.px4_sitl import find_px4  # noqa: E402
+from mavservo.sim.autopilot.px4_sitl import find_px4, telemetry_status  # noqa: E402
 from tests.support.mavlink_doubles import RecordingBackend  # noqa: E402
 
 CONFIG = REPO / "config" / "px4-sitl.yaml"
@@ -155,34 +154,12 @@ class Px4:
 
 
 def rx_loss(bin_dir: Path) -> dict[str, Any]:
-    """PX4's own count of what it received and lost on each MAVLink instance (the uORB topic
-    telemetry_status, ``listener telemetry_status -i N``): rx messages, lost (sequence gaps:
-    a frame its parser dropped counts here), parse errors. The bridge's link is the onboard
-    instance at 4,000,000 B/s (mode 2)."""
-    out: dict[str, Any] = {}
-    for instance in range(5):
-        done = subprocess.run(
-            [str(bin_dir / "px4-listener"), "telemetry_status", "-n", "1", "-i", str(instance)],
-            capture_output=True,
-            text=True,
-            timeout=20,
-            check=False,
-        )
-        fields = dict(re.findall(r"^\s+(\w+): (\S+)", done.stdout, re.MULTILINE))
-        if "rx_message_count" not in fields:
-            continue
-        out[f"instance {instance}"] = {
-            key: fields.get(key)
-            for key in (
-                "mode",
-                "data_rate",
-                "rx_message_count",
-                "rx_message_lost_count",
-                "rx_parse_errors",
-                "rx_message_lost_rate",
-            )
-        }
-    return out
+    """PX4's received / lost / parse errors per MAVLink instance (:func:`telemetry_status`)."""
+    keys = ("mode", "data_rate", "rx_message_count", "rx_message_lost_count", "rx_parse_errors")
+    return {
+        f"instance {n}": {key: fields.get(key) for key in keys}
+        for n, fields in telemetry_status(bin_dir).items()
+    }
 
 
 def gimbal_device(backend: TimedBackend) -> GimbalDevice:

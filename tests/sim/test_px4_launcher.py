@@ -29,6 +29,8 @@ from mavservo.sim.autopilot.px4_sitl import (
     COMPANION_PARAMS,
     ONBOARD_REMOTE_PORT,
     find_px4,
+    onboard_link,
+    telemetry_status,
     write_param_shim,
 )
 from tests.support.mavlink_doubles import RecordingBackend
@@ -174,8 +176,10 @@ def test_real_px4_is_followed_as_px4(tmp_path: Path) -> None:
                 lambda: streams()["ACTUATOR_OUTPUT_STATUS"]["received_hz"] is not None,
                 timeout=30,
             )
-            time.sleep(1.0)
+            time.sleep(3.0)  # the bridge's telemetry flows (ESC messages included)
             stats = side.stats()
+            assert _PX4 is not None
+            onboard = onboard_link(telemetry_status(_PX4[0].parent))
     finally:
         code = stop_session(proc)
     got = stats["stream"]["streams"]
@@ -185,4 +189,10 @@ def test_real_px4_is_followed_as_px4(tmp_path: Path) -> None:
     )
     assert backend.servo_calls("servo"), "SERVO_OUTPUT_RAW never mirrored"
     assert {c[1] for c in backend.servo_calls("actuator")} >= {1}, "output 1 never mirrored"
+    assert stats["autopilot_flavour"]["heard"] == "px4"
+    assert onboard is not None, "no onboard MAVLink instance in PX4's telemetry_status"
+    print(f"PX4's onboard link: {onboard}")
+    assert int(onboard["rx_message_count"]) > 0
+    # nothing the bridge sends is dropped by PX4 as unknown (ESC_TELEMETRY would be)
+    assert int(onboard["rx_message_lost_count"]) == 0
     assert code == 0, f"PX4 did not stop cleanly on SIGTERM (status {code})"

@@ -27,8 +27,10 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import shlex
 import shutil
+import subprocess
 import sys
 import tempfile
 from collections.abc import Sequence
@@ -220,3 +222,36 @@ def run_px4(argv: Sequence[str]) -> int:
     os.dup2(stdin, 0)
     os.execve(command.argv[0], command.argv, {**os.environ, **command.env})
     return 0  # not reached
+
+
+def telemetry_status(bin_dir: Path, instances: int = 5) -> dict[int, dict[str, str]]:
+    """PX4's own account of each running MAVLink instance (the uORB topic telemetry_status,
+    ``px4-listener telemetry_status -i N`` from the binary's folder): mode, data rate, and what
+    it received and lost. ``rx_message_lost_count`` counts sequence gaps, so a frame its parser
+    dropped as unknown shows there. The bridge's link in SITL is the onboard instance (mode 2)
+    at 4,000,000 B/s."""
+    out: dict[int, dict[str, str]] = {}
+    for instance in range(instances):
+        done = subprocess.run(
+            [str(bin_dir / "px4-listener"), "telemetry_status", "-n", "1", "-i", str(instance)],
+            capture_output=True,
+            text=True,
+            timeout=20,
+            check=False,
+        )
+        fields = dict(re.findall(r"^\s+(\w+): (\S+)", done.stdout, re.MULTILINE))
+        if "rx_message_count" in fields:
+            out[instance] = fields
+    return out
+
+
+def onboard_link(status: dict[int, dict[str, str]]) -> dict[str, str] | None:
+    """The onboard (API) instance the bridge is on: mode 2 at 4,000,000 B/s."""
+    return next(
+        (
+            fields
+            for fields in status.values()
+            if fields.get("mode") == "2" and float(fields.get("data_rate", 0)) >= 1e6
+        ),
+        None,
+    )
