@@ -12,6 +12,7 @@ loopback only, one at a time, in a network namespace that has only ``lo``::
 
 from __future__ import annotations
 
+import ast
 import dataclasses
 import os
 import subprocess
@@ -196,3 +197,28 @@ def test_real_px4_is_followed_as_px4(tmp_path: Path) -> None:
     # nothing the bridge sends is dropped by PX4 as unknown (ESC_TELEMETRY would be)
     assert int(onboard["rx_message_lost_count"]) == 0
     assert code == 0, f"PX4 did not stop cleanly on SIGTERM (status {code})"
+
+
+def test_sitl_stream_can_be_the_simulated_px4(capsys: pytest.CaptureFixture[str]) -> None:
+    """``mavservo sitl stream --autopilot px4`` runs mavservo/sim/autopilot/px4.py: PX4's
+    onboard defaults (SERVO_OUTPUT_RAW 10 Hz), its HEARTBEAT, its gimbal discovery."""
+    from mavservo.sim.autopilot.sitl_command import main
+
+    code = main(
+        [
+            "stream",
+            "--autopilot",
+            "px4",
+            "--gimbal",
+            "--duration",
+            "1.0",
+            "--url",
+            "udpout:127.0.0.1:9",
+        ]
+    )
+    out = capsys.readouterr().out
+    assert code == 0
+    sent = ast.literal_eval(out.split("sitl: sent ", 1)[1].splitlines()[0])
+    # 10 Hz for 1 s (a loaded machine sends fewer, never more: ArduPilot's 20 Hz would be ~20)
+    assert 1 <= sent["SERVO_OUTPUT_RAW"] <= 12
+    assert sent["COMMAND_LONG"] >= 1  # REQUEST_MESSAGE(GIMBAL_DEVICE_INFORMATION) to 0/0
