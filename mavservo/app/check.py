@@ -20,6 +20,7 @@ import sys
 from collections.abc import Sequence
 from typing import TextIO
 
+from mavservo.app.check_links import left_out, link_lines
 from mavservo.app.fleet_check import clashes
 from mavservo.config import (
     BusLoad,
@@ -70,6 +71,7 @@ def resolved_mapping(config: Config) -> str:
     lines += ["  " + line for line in endpoint_lines(config)]
     lines += ["", "MAVLink telemetry:"]
     lines += ["  " + line for line in telemetry_lines(config)]
+    lines += link_lines(config)  # px4: what each link gets (issue 38 item 5)
     lines += ["", "servos:"]
     lines += [
         "  " + row
@@ -245,6 +247,7 @@ def link_plan(config: Config) -> BudgetPlan:
         components=1 + len(config.gimbals),
         rates=config.mavlink.telemetry,
         signed=config.mavlink.signing is not None,
+        left_out=left_out(config),  # px4: what the configured autopilot would drop
     )
 
 

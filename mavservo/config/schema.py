@@ -140,6 +140,26 @@ class ComponentAddress(StrictModel):
     """MAVLink component id (0: any component of the system, where a filter allows it)."""
 
 
+class AutopilotConfig(ComponentAddress):
+    """The autopilot the bridge follows: its address, what it is and what the link leads to.
+
+    ``flavour``: ``auto`` takes it from the autopilot's HEARTBEAT (MAV_AUTOPILOT 3 ArduPilot,
+    12 PX4); ``ardupilot`` or ``px4`` fixes it (a HEARTBEAT saying otherwise is logged).
+    ``link``: ``port`` when the bridge's link is the autopilot's own MAVLink port (it forwards
+    to the ground station only the messages it knows), ``router`` for mavlink-router, MAVProxy
+    or a ground station directly (everything arrives). See docs/px4.md.
+    """
+
+    flavour: Literal["auto", "ardupilot", "px4"] = "auto"
+    """What the autopilot is: ``auto`` reads it from its HEARTBEAT (3 ArduPilot, 12 PX4);
+    ``ardupilot`` or ``px4`` fixes it. It decides how ACTUATOR_OUTPUT_STATUS is read and which
+    messages the bridge sends to it."""
+    link: Literal["port", "router"] = "port"
+    """What the bridge's link leads to: ``port``, the autopilot's own MAVLink port (ArduPilot
+    drops messages it does not know, PX4 drops ESC_TELEMETRY_x_TO_y); ``router``, a MAVLink
+    router, MAVProxy or a ground station directly (everything arrives)."""
+
+
 #: Largest key file read: 64 hex characters plus whitespace fit many times over; a device or a
 #: huge file is refused after this many bytes (red-team finding F).
 MAX_KEY_FILE_BYTES = 4096
@@ -338,8 +358,10 @@ class MavlinkConfig(StrictModel):
     servo_output_port_width: Literal[8, 16] = 16
     """Channels per SERVO_OUTPUT_RAW ``port``: 16 is what ArduPilot sends over MAVLink 2, 8 for
     MAVLink 1 senders."""
-    autopilot: ComponentAddress = ComponentAddress()
-    """The autopilot whose HEARTBEAT the bridge watches (failsafe) and whose streams it follows."""
+    autopilot: AutopilotConfig = AutopilotConfig()
+    """The autopilot whose HEARTBEAT the bridge watches (failsafe) and whose streams it follows:
+    its address, its ``flavour`` (auto, ardupilot, px4) and what the ``link`` leads to (port,
+    router)."""
     heartbeat_timeout_s: Float = Field(2.0, gt=0)
     """Autopilot silent this long: the link is lost, and each servo takes its ``failsafe``
     action after its own ``failsafe.timeout_s``."""
@@ -1075,6 +1097,9 @@ class SimAutopilotConfig(StrictModel):
     """Seed of ``random-walk``."""
     gimbal: Bool = False  # also act as a gimbal manager sending SET_ATTITUDE
     """Also act as a gimbal manager, sending gimbal attitudes as ArduPilot's mount backend does."""
+    autopilot: Literal["ardupilot", "px4"] = "ardupilot"
+    """Which autopilot to simulate: ArduPlane's companion port, or PX4's onboard link (with
+    PX4's defaults: ACTUATOR_OUTPUT_STATUS.active as a count, gimbal setpoints at 5 Hz)."""
     command_target: tuple[Int, Int] = (1, 0)  # (system, component) commands are addressed to
     """[system, component] the script's commands are addressed to (component 0: broadcast)."""
     script: list[dict[str, Any]] = []

@@ -67,6 +67,8 @@ def mavlink_settings(config: Config) -> MavlinkSettings:
         system_id=section.system_id,
         autopilot_system=section.autopilot.system,
         autopilot_component=section.autopilot.component,
+        autopilot_flavour=section.autopilot.flavour,
+        autopilot_link=section.autopilot.link,
         heartbeat_timeout_s=section.heartbeat_timeout_s,
         signing=signing_settings(section),
         allowed_sources=frozenset((s.system, s.component) for s in section.allowed_sources),
@@ -92,6 +94,7 @@ def mavlink_settings(config: Config) -> MavlinkSettings:
             enabled=streams.enabled,
             rate_hz=streams.rate_hz,
             min_rate_hz=streams.min_rate_hz,
+            gimbals=bool(config.gimbals),
         ),
     )
 

@@ -17,6 +17,7 @@ if TYPE_CHECKING:
     from .ftp import crc32
     from .gimbal import GimbalDevice
     from .gimbal_settings import GimbalSettings
+    from .link_carriage import carriage_lines, left_out_streams
     from .metadata_service import (
         COMP_METADATA_TYPE_PARAMETER,
         GENERAL_FILE,
@@ -59,7 +60,9 @@ __all__ = [
     "TunnelLink",
     "WINDOW_S",
     "WritePolicy",
+    "carriage_lines",
     "crc32",
+    "left_out_streams",
     "euler_to_quaternion",
     "mavlink2",
     "mftp_uri",
@@ -98,7 +101,9 @@ __getattr__ = lazy_face(
         "TunnelLink": "tunnel_link",
         "WINDOW_S": "stream_request",
         "WritePolicy": "params",
+        "carriage_lines": "link_carriage",
         "crc32": "ftp",
+        "left_out_streams": "link_carriage",
         "euler_to_quaternion": "quaternion",
         "mavlink2": "connection",
         "mftp_uri": "metadata_service",

@@ -181,20 +181,22 @@ def plan_budget(
     rates: Any,
     signed: bool,
     manager_status_hz: float = 0.0,
+    left_out: frozenset[str] = frozenset(),
 ) -> BudgetPlan:
     """Scale the periodic streams so they fit ``budget_bytes_s`` (None: no scaling).
 
     ``rates`` is the telemetry rates section (``..._hz`` attributes); ``components`` counts the
     heartbeats (one per component per second), which are never scaled, like the
     GIMBAL_MANAGER_STATUS of gimbals that are their own manager (``manager_status_hz``, all
-    together).
+    together). ``left_out``: streams not sent on the link at all (:mod:`.link_carriage`: the
+    autopilot drops them), ratio 0.
     """
     heartbeat = frame_bytes(mavlink2.MAVLink_heartbeat_message, signed)
     manager = frame_bytes(mavlink2.MAVLink_gimbal_manager_status_message, signed)
     fixed = components * heartbeat + manager_status_hz * manager
     esc_groups = -(-servos // 4) if servos else 0
     gimbal_hz = rates.gimbal_attitude_status_hz
-    streams = (
+    streams: tuple[StreamCost, ...] = (
         StreamCost(
             "NAMED_VALUE_FLOAT",
             rates.named_value_float_hz,
@@ -234,11 +236,14 @@ def plan_budget(
             floor_ratio=min(1.0, GIMBAL_STATUS_FLOOR_HZ / gimbal_hz) if gimbal_hz > 0 else 0.0,
         ),
     )
-    ratios = {s.name: 1.0 for s in streams}
+    # px4 (issue 38 item 5): a stream left out is not sent on the link (ratio 0, no share of
+    # the budget); the monitor outputs still get it at its configured rate
+    ratios = {s.name: 0.0 if s.name in left_out else 1.0 for s in streams}
     plan = BudgetPlan(budget_bytes_s, fixed, streams, ratios, signed)
     if budget_bytes_s is not None:
         rate = plan.bucket[0]
-        ratios = _fit(rate * (1 - EVENT_RESERVE) - fixed, streams)
+        sent = tuple(s for s in streams if s.name not in left_out)
+        ratios.update(_fit(rate * (1 - EVENT_RESERVE) - fixed, sent))
     return BudgetPlan(budget_bytes_s, fixed, streams, ratios, signed)
 
 

@@ -54,3 +54,13 @@ class CountingComponent(Protocol):
     def counter_values(self) -> dict[str, int]:
         """Each counter by name."""
         ...
+
+
+@runtime_checkable
+class DemandHolder(Protocol):
+    """A hosted component that holds a demand of the autopilot's (the gimbal device): the
+    MAVLink core makes it forget the demand when the autopilot is lost or restarts."""
+
+    def forget_demand(self) -> None:
+        """The autopilot that gave the demand is gone: drop it, drive nothing until a new one."""
+        ...

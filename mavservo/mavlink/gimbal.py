@@ -213,6 +213,19 @@ class GimbalDevice:
                 return
             self.pointing.follow_vehicle_yaw(wrap_180(math.degrees(msg.yaw)), now)
 
+    def forget_demand(self) -> None:
+        """The autopilot was lost or restarted: its demand is over.
+
+        Why (px4: issue 39): PX4 streams ATTITUDE at up to 100 Hz, and each one re-drives an
+        earth-frame demand (the ATTITUDE branch of :meth:`handle_message`); after PX4 restarted,
+        its first ATTITUDE drove the gimbal back to the demand of the PX4 before, which the new
+        one never sent (the new one sends nothing until it has found the gimbal again). A
+        demand kept through the restart would be a command applied late; the gimbal holds
+        where the failsafe left it until a fresh demand comes (the servos' rule after a
+        failsafe too: "servos move again on fresh commands")."""
+        self.pointing.forget()
+        self._last_retract_message = None
+
     def _on_set_attitude(self, kind: str, msg: Any, now: float) -> None:
         """A device or manager SET_ATTITUDE addressed to us: validated, then the demand."""
         rates = self._rates_of(msg)

@@ -8,6 +8,13 @@ gimbal's component), then streams GIMBAL_DEVICE_SET_ATTITUDE and
 AUTOPILOT_STATE_FOR_GIMBAL_DEVICE. A bridge started after that window is never found: ArduPilot
 still ACKs MAV_CMD_DO_GIMBAL_MANAGER_PITCHYAW as ACCEPTED and nothing moves, without a word.
 
+PX4's gimbal manager (``src/modules/gimbal/output_mavlink.cpp``, OutputMavlinkV2::update) asks
+every component for GIMBAL_DEVICE_INFORMATION every second from boot until a device answers, so
+there is no start order to keep; it does so only with ``MNT_MODE_OUT 2`` (MAVLink gimbal v2)
+and ``MNT_MODE_IN`` set (the gimbal module runs only then), and a PX4 without them never turns
+to the gimbal, as silently. A PX4 heard for :data:`GRACE_S` that has not asked gets its own
+warning with those parameters.
+
 So for each hosted gimbal of an ArduPilot vehicle (its HEARTBEAT says so) this watch waits
 until the autopilot has been heard for
 :data:`GRACE_S` and is at least :data:`SEARCH_STARTS_S` + :data:`GRACE_S` past its own boot (its
@@ -21,6 +28,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 from typing import Any
 
+from mavservo.mavlink.autopilot_flavour import flavour_of_heartbeat
 from mavservo.mavlink.stream_request import boot_time_s
 
 #: ArduPilot starts looking for gimbals this long after its boot (AP_Mount_Gremsy.cpp).
@@ -32,17 +40,30 @@ GRACE_S = 5.0
 #: What the autopilot sends a gimbal it has found.
 _GIMBAL_TRAFFIC = ("GIMBAL_DEVICE_SET_ATTITUDE", "AUTOPILOT_STATE_FOR_GIMBAL_DEVICE")
 _COMMANDS = ("COMMAND_LONG", "COMMAND_INT")
-#: MAV_AUTOPILOT_ARDUPILOTMEGA (minimal.xml): the HEARTBEAT of an ArduPilot vehicle.
-MAV_AUTOPILOT_ARDUPILOTMEGA = 3
+#: MAV_CMD_REQUEST_MESSAGE and GIMBAL_DEVICE_INFORMATION (common.xml)
+MAV_CMD_REQUEST_MESSAGE = 512
+MSG_GIMBAL_DEVICE_INFORMATION = 283
 
 
-def not_found_text(component_id: int) -> str:
+def not_found_text(component_id: int, flavour: str = "ardupilot") -> str:
     """The warning: what happened, why, and the fix (fits four STATUSTEXT chunks)."""
+    if flavour == "px4":
+        return (
+            f"gimbal {component_id} not found by the autopilot: PX4 looks for a MAVLink gimbal "
+            "only with MNT_MODE_OUT 2 and MNT_MODE_IN 4 (or 0); set them and reboot PX4"
+        )
     return (
         f"gimbal {component_id} not found by the autopilot: ArduPilot looks for gimbals only "
         "10-60 s after boot (longer while disarmed). Reboot the autopilot with the bridge "
         "running; start the bridge first"
     )
+
+
+def log_hint(component_id: int, flavour: str) -> str:
+    """What the log line adds to the warning (the parameter to check)."""
+    if flavour == "px4":
+        return "PX4: MNT_MODE_OUT 2, MNT_MODE_IN 4; it asks every second once they are set"
+    return f"ArduPilot: MNT1_TYPE 6; it looks for component {component_id} only then"
 
 
 class GimbalDiscoveryWatch:
@@ -54,8 +75,8 @@ class GimbalDiscoveryWatch:
         self._uptime: tuple[float, float] | None = None  # (autopilot boot time s, our time)
         self._found: set[int] = set()
         self._warned: set[int] = set()
-        #: the search window is ArduPilot's: another autopilot gets no advice about it
-        self._ardupilot = False
+        #: the followed autopilot's flavour (its HEARTBEAT): the search rules differ
+        self.flavour: str | None = None
 
     def on_autopilot_message(self, msg: Any, now: float) -> list[str]:
         """A message from the watched autopilot (HEARTBEAT included). Returns notices."""
@@ -63,17 +84,18 @@ class GimbalDiscoveryWatch:
             self._heard_since = now
         kind = msg.get_type()
         if kind == "HEARTBEAT":
-            self._ardupilot = int(msg.autopilot) == MAV_AUTOPILOT_ARDUPILOTMEGA
+            self.flavour = flavour_of_heartbeat(int(msg.autopilot))
         boot = boot_time_s(kind, msg)
         if boot is not None:
             self._uptime = (boot, now)
-        target = _gimbal_target(msg, kind)
-        if target is None or target not in self.gimbal_ids or target in self._found:
-            return []
-        self._found.add(target)
-        if target in self._warned:
-            return [f"gimbal {target} found by the autopilot after all"]
-        return []
+        out = []
+        for target in _gimbal_targets(msg, kind, self.gimbal_ids):
+            if target in self._found:
+                continue
+            self._found.add(target)
+            if target in self._warned:
+                out.append(f"gimbal {target} found by the autopilot after all")
+        return out
 
     def lost_autopilot(self) -> None:
         """The autopilot went silent: the wait starts again when it is heard."""
@@ -82,11 +104,11 @@ class GimbalDiscoveryWatch:
 
     def due(self, now: float) -> list[tuple[int, str]]:
         """(gimbal, warning) for each gimbal the autopilot should have found by now."""
-        if not self.gimbal_ids or not self._ardupilot or self._heard_since is None:
+        if not self.gimbal_ids or self._heard_since is None:
             return []
-        if now - self._heard_since < GRACE_S:
+        if self.flavour not in ("ardupilot", "px4") or now - self._heard_since < GRACE_S:
             return []
-        if self._uptime is not None:
+        if self.flavour == "ardupilot" and self._uptime is not None:
             boot, at = self._uptime
             if boot + (now - at) < SEARCH_STARTS_S + GRACE_S:
                 return []  # the autopilot is not looking yet
@@ -95,17 +117,25 @@ class GimbalDiscoveryWatch:
             if gimbal in self._found or gimbal in self._warned:
                 continue
             self._warned.add(gimbal)
-            out.append((gimbal, not_found_text(gimbal)))
+            out.append((gimbal, not_found_text(gimbal, self.flavour)))
         return out
 
     def stats(self) -> dict[str, list[int]]:
         return {"found": sorted(self._found), "warned": sorted(self._warned)}
 
 
-def _gimbal_target(msg: Any, kind: str) -> int | None:
-    """The component an autopilot message turns to, when it is gimbal business."""
-    if kind in _GIMBAL_TRAFFIC:
-        return int(msg.target_component)
-    if kind in _COMMANDS:
-        return int(msg.target_component)  # any command to the gimbal: it knows the gimbal
-    return None
+def _gimbal_targets(msg: Any, kind: str, gimbal_ids: tuple[int, ...]) -> tuple[int, ...]:
+    """The hosted gimbals an autopilot message turns to, when it is gimbal business.
+
+    PX4's gimbal manager asks every component at once (REQUEST_MESSAGE for
+    GIMBAL_DEVICE_INFORMATION to 0/0, ``src/modules/gimbal/output_mavlink.cpp``,
+    ``_request_gimbal_device_information``): that looks for every hosted gimbal."""
+    if kind not in _GIMBAL_TRAFFIC and kind not in _COMMANDS:
+        return ()
+    target = int(msg.target_component)
+    if target == 0 and kind in _COMMANDS:
+        asks_for_gimbals = (
+            msg.command == MAV_CMD_REQUEST_MESSAGE and msg.param1 == MSG_GIMBAL_DEVICE_INFORMATION
+        )
+        return gimbal_ids if asks_for_gimbals else ()
+    return (target,) if target in gimbal_ids else ()  # any command to it: it knows the gimbal

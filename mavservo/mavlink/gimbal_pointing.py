@@ -239,6 +239,15 @@ class GimbalPointing:
             self._forget_refused_demand()
         return result
 
+    def forget(self) -> None:
+        """Drop the demand in effect and what was applied (the autopilot that gave it was lost
+        or restarted, px4: issue 39): nothing is driven until a fresh demand, and a fresh one
+        equal to the old is applied again (the servos went to their failsafe meanwhile)."""
+        self.demand = None
+        self.last_result = None
+        self._applied_angles = None
+        self.clamped_axes = frozenset()
+
     def _forget_refused_demand(self) -> None:
         """A refused demand is over: its sender got the refusal, so carrying it out later would
         be a command applied after its NACK. (It used to be retried on every status tick, and

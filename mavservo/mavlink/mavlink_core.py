@@ -22,6 +22,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
 from mavservo.mavlink.answers import Answer, AnswerQueue
 from mavservo.mavlink.arbitration import CommandHold
+from mavservo.mavlink.autopilot_flavour import MSG_COMPONENT_METADATA, AutopilotFlavour
 from mavservo.mavlink.backend import ActuatorBackend
 from mavservo.mavlink.bandwidth import BudgetPlan, LinkBudget, plan_budget
 from mavservo.mavlink.commands import (
@@ -35,6 +36,7 @@ from mavservo.mavlink.component import (
     MAV_TYPE_GIMBAL,
     MAV_TYPE_SERVO,
     CountingComponent,
+    DemandHolder,
     HostedComponent,
 )
 from mavservo.mavlink.failsafe import (
@@ -45,7 +47,8 @@ from mavservo.mavlink.failsafe import (
 )
 from mavservo.mavlink.ftp import UNBUDGETED_BYTES_S, chunk_for_budget
 from mavservo.mavlink.gimbal import GimbalDevice
-from mavservo.mavlink.gimbal_discovery import GimbalDiscoveryWatch
+from mavservo.mavlink.gimbal_discovery import GimbalDiscoveryWatch, log_hint
+from mavservo.mavlink.link_carriage import LinkCarriage
 from mavservo.mavlink.metadata_service import MetadataService
 from mavservo.mavlink.mirror import Mirror
 from mavservo.mavlink.origin import Requester, describe, from_pinned, origin_of, requester_of
@@ -112,10 +115,17 @@ class MavlinkCore:
         self._system_id_known = not following
         self.watched = (settings.autopilot_system, settings.autopilot_component)
         self.hold = CommandHold(settings.command_hold_s)
-        self.mirror = Mirror(backend, settings, self.hold)
+        #: ArduPilot or PX4 (px4: issue 39): configured, or from the autopilot's HEARTBEAT
+        self.flavour = AutopilotFlavour(settings.autopilot_flavour)
+        #: what the autopilot link carries for that autopilot (px4: issue 38 item 5)
+        self.carriage = LinkCarriage(settings.autopilot_link, self.flavour)
+        self.mirror = Mirror(
+            backend, settings, self.hold, lambda: self.flavour.facts.active_is_count
+        )
         self.telemetry = Telemetry(backend, settings.telemetry, boot_time)
         self.watchdog = HeartbeatWatchdog(settings.heartbeat_timeout_s)
         self.streams = StreamRequester(settings.stream_request, settings.heartbeat_timeout_s)
+        self.streams.set_flavour(self.flavour.facts, boot_time)
         self.commands = CommandHandler(
             backend=backend,
             settings=settings,
@@ -125,7 +135,7 @@ class MavlinkCore:
             set_interval=self._set_interval,
             heartbeat=lambda cid: self._heartbeat_message(self.components[cid]),
             gimbals=self.gimbals,
-            component_metadata=lambda cid: self.metadata.component_metadata(cid, self._now),
+            component_metadata=self._component_metadata,
         )
         #: a hosted gimbal the autopilot never looks for is said, with the fix (issue 30); not
         #: one that is its own gimbal manager (a ground station drives it directly, issue 38)
@@ -201,7 +211,10 @@ class MavlinkCore:
             return self._heartbeat(msg, source, now)
         from_autopilot = source == self.watched
         if from_autopilot:
+            restarts = self.streams.autopilot_restarts
             self.streams.on_message(msg, now)
+            if self.streams.autopilot_restarts != restarts:  # its boot time went back
+                self._forget_gimbal_demands()
             if kind == "COMMAND_ACK" and self._acks_our_request(msg):
                 self.streams.on_ack(msg.command, msg.result, now)
                 return []
@@ -347,6 +360,7 @@ class MavlinkCore:
                 for g in self.gimbals.values()
                 if isinstance(g, GimbalDevice) and _own_manager(g)
             ),
+            left_out=self.carriage.left_out_streams(),
         )
 
     def _acks_our_request(self, msg: Any) -> bool:
@@ -424,6 +438,8 @@ class MavlinkCore:
             self.watched = source
             log.info("following autopilot system id %d", source[0])
         if source == self.watched:
+            if self.flavour.on_heartbeat(msg.autopilot):
+                self._flavour_changed(now)
             self.streams.on_heartbeat(source, now)
         if source == self.watched and self.watchdog.heartbeat(now) is FailsafeEvent.RECOVERED:
             self.backend.leave_failsafe(now)
@@ -432,6 +448,41 @@ class MavlinkCore:
             self.telemetry.announce(MAV_SEVERITY_NOTICE, RECOVERED_TEXT, essential=True)
         self._to_gimbals(msg, now)
         return []
+
+    def _flavour_changed(self, now: float) -> None:
+        """The autopilot's flavour is known (or changed): what is asked of it and what the
+        link carries follow it (px4: issue 39)."""
+        self.streams.set_flavour(self.flavour.facts, now)
+        self.replan(now)
+        held = self.carriage.held_names()
+        if held:
+            log.info(
+                "not sending %s on the autopilot link: %s drops them (mavlink.autopilot.link: "
+                "router if a router or the ground station is at the other end; docs/px4.md)",
+                ", ".join(held),
+                self.flavour.facts.name,
+            )
+
+    def _forget_gimbal_demands(self) -> None:
+        """The autopilot was lost or rebooted: each gimbal drops its demand (px4: issue 39;
+        :meth:`~mavservo.mavlink.gimbal.GimbalDevice.forget_demand`)."""
+        for device in self.gimbals.values():
+            if isinstance(device, DemandHolder):
+                device.forget_demand()
+        self.counters["gimbal_demands_forgotten"] += 1
+
+    def _component_metadata(self, component_id: int) -> Any | None:
+        """COMPONENT_METADATA of a component, None (UNSUPPORTED) when the link cannot carry
+        it: ArduPilot drops message 397, a ground station behind it would wait in vain."""
+        if not self.carriage.carries(MSG_COMPONENT_METADATA):
+            self.counters["metadata_not_carried"] += 1
+            return None
+        return self.metadata.component_metadata(component_id, self._now)
+
+    def link_carries(self, msg: Any) -> bool:
+        """Whether ``msg`` goes on the autopilot link (:mod:`.link_carriage`); the monitor
+        outputs get it either way."""
+        return self.carriage.carries(msg.get_msgId())
 
     def _to_gimbals(self, msg: Any, now: float) -> None:
         """Deliver a message to each gimbal it is addressed to (or broadcast to)."""
@@ -455,17 +506,14 @@ class MavlinkCore:
             self.counters["failsafe_entered"] += 1
             self.commands.cancel_all()
             self.backend.enter_failsafe("autopilot heartbeat lost", now)
+            self._forget_gimbal_demands()
             self.discovery.lost_autopilot()
             self.telemetry.announce(MAV_SEVERITY_CRITICAL, LOST_TEXT, essential=True)
         if not self.watchdog.in_failsafe:
             self._guarded("commands", self.commands.tick, now)
             for gimbal, text in self.discovery.due(now):
                 self.counters["gimbal_not_found"] += 1
-                log.warning(
-                    "%s (ArduPilot: MNT1_TYPE 6; it looks for component %d only then)",
-                    text,
-                    gimbal,
-                )
+                log.warning("%s (%s)", text, log_hint(gimbal, self.discovery.flavour or ""))
                 self.telemetry.announce(MAV_SEVERITY_WARNING, text)
         for cid, mav_type in self.components.items():
             if now >= self._next_heartbeat[cid]:
@@ -531,6 +579,7 @@ class MavlinkCore:
             "gimbals": self._gimbal_counters(),
             "stream": self.streams.stats(),
             "gimbal_discovery": self.discovery.stats(),
+            "autopilot_flavour": self.flavour.stats(),
         }
 
     def _gimbal_counters(self) -> dict[str, dict[str, int]]:

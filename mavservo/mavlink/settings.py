@@ -13,6 +13,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Literal
 
+from mavservo.mavlink.autopilot_flavour import ConfiguredFlavour
+from mavservo.mavlink.link_carriage import LinkKind
+
 FOLLOW: Literal["follow"] = "follow"
 
 #: MAV_COMP_ID_SERVO1: the component every servo group is published as by default.
@@ -57,6 +60,10 @@ class StreamRequestSettings:
     enabled: bool = True
     rates_hz: Mapping[str, float] = field(default_factory=dict)
     min_hz: Mapping[str, float] = field(default_factory=dict)
+    #: GIMBAL_DEVICE_SET_ATTITUDE from an autopilot that streams it (PX4: 5 Hz by default on
+    #: its onboard link), asked once the autopilot is known to be one; 0: not asked
+    gimbal_setpoint_hz: float = 0.0
+    gimbal_setpoint_min_hz: float = 0.0
 
     @classmethod
     def for_mirror(
@@ -67,16 +74,21 @@ class StreamRequestSettings:
         enabled: bool = True,
         rate_hz: float | None = None,
         min_rate_hz: float | None = None,
+        gimbals: bool = False,
     ) -> StreamRequestSettings:
         """Every mirrored message at ``rate_hz`` (None: the scheduler's command rate,
         1 / command_period_s: a faster stream is never carried to a servo, a slower one moves
-        it in steps), warning below ``min_rate_hz`` (None: MIN_RATE_FRACTION of that rate)."""
+        it in steps), warning below ``min_rate_hz`` (None: MIN_RATE_FRACTION of that rate);
+        with hosted ``gimbals`` the gimbal setpoints too (from an autopilot that streams them),
+        at the same rates."""
         rate = 1.0 / command_period_s if rate_hz is None else rate_hz
         low = MIN_RATE_FRACTION * rate if min_rate_hz is None else min_rate_hz
         return cls(
             enabled=enabled,
             rates_hz={name: rate for name in mirrored},
             min_hz={name: low for name in mirrored},
+            gimbal_setpoint_hz=rate if gimbals else 0.0,
+            gimbal_setpoint_min_hz=low if gimbals else 0.0,
         )
 
 
@@ -96,6 +108,12 @@ class MavlinkSettings:
     system_id: int | Literal["follow"] = FOLLOW
     autopilot_system: int = 1
     autopilot_component: int = 1
+    #: "auto" (from the followed autopilot's HEARTBEAT), "ardupilot" or "px4"
+    #: (:mod:`~mavservo.mavlink.autopilot_flavour`)
+    autopilot_flavour: ConfiguredFlavour = "auto"
+    #: what the link leads to: the autopilot's own port, or a router / the GCS directly
+    #: (:mod:`~mavservo.mavlink.link_carriage`)
+    autopilot_link: LinkKind = "port"
     heartbeat_timeout_s: float = 2.0
     signing: SigningSettings | None = None
     allowed_sources: frozenset[tuple[int, int]] = frozenset()

@@ -231,6 +231,9 @@ class MavlinkSide:
         pending += [(cid, msg, requested, True) for cid, msg in out]
         decided = [(component_id, msg, _LINK) for component_id, msg in budget.due(now)]
         for component_id, msg, asked, new in pending:
+            if new and not self.core.link_carries(msg):  # px4: the autopilot would drop it
+                decided.append((component_id, msg, _MONITORS))
+                continue
             if not (asked or budget.is_event(msg)):
                 # periodic: the monitors now, the link now, in its turn (WAITS) or not (SKIPPED)
                 goes = budget.offer(component_id, msg, now) is Admission.NOW
@@ -273,4 +276,6 @@ class MavlinkSide:
         """Answers to requests (already admitted by the budget), each to its requester only."""
         system_id = self.core.system_id
         for answer in answers:
+            if not self.core.link_carries(answer.msg):  # px4: the autopilot would drop it
+                continue
             self.link.send(answer.component_id, answer.msg, system_id, reply_to=answer.to)

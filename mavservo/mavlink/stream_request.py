@@ -20,6 +20,13 @@ An accepted request whose rate stays low (under :data:`REASK_FRACTION` of the as
 whole window) is asked again, at most every :data:`REASK_INTERVAL_S`: behind a router several
 bridges (and a ground station) set the same autopilot port's rate, and the last request wins,
 so a second bridge asking 10 Hz drops the first one to 10 Hz until someone asks again.
+PX4 (its HEARTBEAT says so, or ``mavlink.autopilot.flavour``) streams the gimbal setpoints
+(GIMBAL_DEVICE_SET_ATTITUDE) at 5 Hz on its onboard link by default (``mavlink_main.cpp``,
+MAVLINK_MODE_ONBOARD), which moved a hosted gimbal 30-205 ms after its command (PX4 SITL); with
+gimbals hosted, that stream is asked for at the same rate as the outputs and measured and warned
+about like them (:meth:`StreamRequester.set_flavour`). ArduPilot's mount driver sends them from
+its own update, not as a stream: it is not asked.
+
 Pure: no I/O, time comes in as an argument.
 """
 
@@ -32,6 +39,7 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from mavservo.mavlink.autopilot_flavour import ARDUPILOT, FlavourFacts
 from mavservo.mavlink.commands import RateLimitedLog
 from mavservo.mavlink.settings import StreamRequestSettings
 
@@ -53,6 +61,8 @@ RESTART_HOLDOFF_S = 5.0
 REASK_FRACTION = 0.8
 #: ... at most this often (s), so a port that cannot deliver costs one command per interval.
 REASK_INTERVAL_S = 15.0
+#: The gimbal setpoints, asked of an autopilot that streams them (PX4).
+GIMBAL_SETPOINT = "GIMBAL_DEVICE_SET_ATTITUDE"
 #: SERVO_OUTPUT_RAW.time_usec is a uint32 of microseconds: it wraps every ~71.6 minutes.
 UINT32_US_WRAP_S = 2**32 / 1e6
 
@@ -109,6 +119,29 @@ class StreamRequester:
         self._last_heartbeat: float | None = None
         self._boot_time: dict[str, float] = {}
         self._warn = RateLimitedLog(WARN_INTERVAL_S)
+        #: how to raise a rate on the autopilot in force (ArduPilot's until told otherwise)
+        self._advice = ARDUPILOT.rate_advice
+        self._autopilot_name = "autopilot"
+
+    def set_flavour(self, facts: FlavourFacts, now: float) -> None:
+        """The autopilot's flavour (px4: issue 39): its advice in the warnings, and the gimbal
+        setpoints asked of it when it streams them (and gimbals are hosted)."""
+        self._advice = facts.rate_advice
+        self._autopilot_name = facts.name
+        wanted = facts.streams_gimbal_setpoints and self.settings.gimbal_setpoint_hz > 0
+        present = GIMBAL_SETPOINT in self.streams
+        if wanted and not present:
+            stream = _Stream(
+                name=GIMBAL_SETPOINT,
+                msg_id=_message_id(GIMBAL_SETPOINT),
+                rate_hz=self.settings.gimbal_setpoint_hz,
+                min_hz=self.settings.gimbal_setpoint_min_hz,
+            )
+            self.streams[GIMBAL_SETPOINT] = stream
+            if self.target is not None:
+                self._start(stream, now)
+        elif present and not wanted:
+            del self.streams[GIMBAL_SETPOINT]
 
     # ------------------------------------------------------------------ what the autopilot says
 
@@ -150,11 +183,12 @@ class StreamRequester:
             log.info("autopilot accepted %s at %g Hz", stream.name, stream.rate_hz)
         else:
             log.warning(
-                "autopilot refused SET_MESSAGE_INTERVAL for %s (%s): it streams at the rate its "
-                "parameters set (ArduPilot: MAVn_* / SRn_*, see docs/sitl.md); set "
-                "mavlink.request_streams.enabled false to stop asking",
+                "%s refused SET_MESSAGE_INTERVAL for %s (%s): it streams at the rate its "
+                "settings give (%s); set mavlink.request_streams.enabled false to stop asking",
+                self._autopilot_name,
                 stream.name,
                 stream.result,
+                self._advice,
             )
 
     # ------------------------------------------------------------------ time
@@ -228,13 +262,17 @@ class StreamRequester:
         if self.settings.enabled and self.streams:
             log.info("asking for %s: %s", _rates_text(self.streams), why)
         for stream in self.streams.values():
-            stream.attempts = 0
-            stream.next_send = now if self.settings.enabled else None
-            stream.result = "not sent"
-            stream.window_start = now
-            stream.window_count = 0
-            stream.received_hz = None  # the rate of before the (re)start is not this one's
-            stream.verdict_due = None
+            self._start(stream, now)
+
+    def _start(self, stream: _Stream, now: float) -> None:
+        """(Re)start one stream's request and rate window from now."""
+        stream.attempts = 0
+        stream.next_send = now if self.settings.enabled else None
+        stream.result = "not sent"
+        stream.window_start = now
+        stream.window_count = 0
+        stream.received_hz = None  # the rate of before the (re)start is not this one's
+        stream.verdict_due = None
 
     def _autopilot_heard(self, now: float) -> bool:
         return (
@@ -313,16 +351,24 @@ class StreamRequester:
         quiet = self._warn.quiet_since_last(stream.name, now)
         if quiet is None:
             return
+        gimbal = stream.name == GIMBAL_SETPOINT
         log.warning(
-            "%s arrives at %.1f Hz, below the %g Hz the servos need (asked %s, autopilot's "
-            "answer: %s); servos move in steps. On ArduPilot set the port's stream rate "
-            "(MAVn_RC_CHAN on 4.7+, SRn_RC_CHAN before) or let the bridge ask "
-            "(mavlink.request_streams)%s",
+            "%s arrives at %.1f Hz, below the %g Hz the %s need (asked %s, %s's answer: %s); "
+            "%s move in steps. %s%s%s",
             stream.name,
             stream.received_hz,
             stream.min_hz,
+            "gimbal servos" if gimbal else "servos",
             f"{stream.rate_hz:g} Hz" if self.settings.enabled else "nothing",
+            self._autopilot_name,
             stream.result if self.settings.enabled else "disabled",
+            "gimbal servos" if gimbal else "servos",
+            self._advice,
+            # PX4 streams no setpoints without a MAVLink gimbal (gimbal module, output_mavlink)
+            " (none at all: PX4 needs MNT_MODE_OUT 2, MAVLink gimbal v2, and has to find the "
+            "gimbal)"
+            if gimbal and stream.received_hz == 0
+            else "",
             f" ({quiet} low windows since the last line)" if quiet else "",
         )
 

@@ -188,7 +188,7 @@ def test_mavlink_settings_take_every_key_of_the_section(tmp_path: Path) -> None:
         "mavlink:\n"
         "  url: udpin:127.0.0.1:14600\n"
         "  system_id: 7\n"
-        "  autopilot: {system: 3, component: 2}\n"
+        "  autopilot: {system: 3, component: 2, flavour: px4, link: router}\n"
         "  heartbeat_timeout_s: 3.5\n"
         "  allowed_sources: [{system: 255, component: 190}]\n"
         "  parameter_writers: anyone\n"
@@ -217,6 +217,8 @@ def test_mavlink_settings_take_every_key_of_the_section(tmp_path: Path) -> None:
         "system_id": 7,
         "autopilot_system": 3,
         "autopilot_component": 2,
+        "autopilot_flavour": "px4",
+        "autopilot_link": "router",
         "heartbeat_timeout_s": 3.5,
         "allowed_sources": frozenset({(255, 190)}),
         "parameter_writers": "anyone",
@@ -240,6 +242,8 @@ def test_mavlink_settings_take_every_key_of_the_section(tmp_path: Path) -> None:
         "enabled": True,
         "rates_hz": {"ACTUATOR_OUTPUT_STATUS": 10.0},
         "min_hz": {"ACTUATOR_OUTPUT_STATUS": 7.5},
+        "gimbal_setpoint_hz": 0.0,  # no gimbal in this config: none asked of PX4
+        "gimbal_setpoint_min_hz": 0.0,
     }
 
 

@@ -62,7 +62,16 @@ def test_the_watch_warns_once_past_the_search_window_and_not_before() -> None:
     px4 = GimbalDiscoveryWatch([154])  # ArduPilot's search window is no advice for PX4
     px4.on_autopilot_message(ardupilot(autopilot=12), 0.0)
     px4.on_autopilot_message(attitude(75.0), 0.0)
-    assert px4.due(60.0) == []
+    assert px4.due(GRACE_S - 0.1) == []
+    ((_gimbal, text),) = px4.due(GRACE_S)  # PX4 asks every second from boot: it is off
+    assert "MNT_MODE_OUT 2" in text and "start the bridge first" not in text
+    asking = GimbalDiscoveryWatch([154])  # PX4 asks every component at once (0/0)
+    asking.on_autopilot_message(ardupilot(autopilot=12), 0.0)
+    asking.on_autopilot_message(request_info(0), 0.5)
+    assert asking.due(60.0) == [] and asking.stats()["found"] == [154]
+    generic = GimbalDiscoveryWatch([154])  # another autopilot: no advice at all
+    generic.on_autopilot_message(ardupilot(autopilot=0), 0.0)
+    assert generic.due(60.0) == []
 
 
 @pytest.mark.parametrize("looking", [False, True], ids=["stopped-looking", "looking"])

@@ -13,7 +13,6 @@ from __future__ import annotations
 import dataclasses
 import os
 import shutil
-import signal
 import subprocess
 import time
 from pathlib import Path
@@ -30,6 +29,7 @@ from mavservo.mavlink.stream_request import WINDOW_S
 from tests.support.autopilot import collect, of_type, peer
 from tests.support.mavlink_doubles import RecordingBackend
 from tests.support.paths import REPO
+from tests.support.processes import stop_session
 from tests.support.waiting import free_udp_port, wait_until
 
 AUTOPILOT = REPO / "mavservo" / "sim" / "autopilot"  # the simulator and its ArduPilot files
@@ -249,7 +249,7 @@ def test_real_arduplane_boots_without_a_gcs(tmp_path: Path) -> None:
         boot = collect(conn, 90.0, until=lambda m: m.get_type() == "SERVO_OUTPUT_RAW")
     finally:
         conn.close()
-        code = _stop(proc)
+        code = stop_session(proc)
     assert of_type(boot, "SERVO_OUTPUT_RAW"), "SITL sent no SERVO_OUTPUT_RAW within 90 s"
     heartbeats = of_type(boot, "HEARTBEAT")
     assert heartbeats and heartbeats[0].autopilot == mav.MAV_AUTOPILOT_ARDUPILOTMEGA
@@ -303,7 +303,7 @@ def test_real_arduplane_streams_servo_outputs_and_obeys_do_set_servo(tmp_path: P
         assert asked["received_hz"] >= needed
     finally:
         conn.close()
-        code = _stop(proc)
+        code = stop_session(proc)
     assert code == 0, f"SITL did not stop cleanly on SIGTERM (status {code})"
 
 
@@ -368,7 +368,7 @@ def test_a_gcs_behind_real_arduplane_gets_what_the_docs_say(tmp_path: Path) -> N
     finally:
         if gcs is not None:
             gcs.close()
-        code = _stop(proc)
+        code = stop_session(proc)
         bridge.stop()
     assert code == 0, f"SITL did not stop cleanly on SIGTERM (status {code})"
 
@@ -388,7 +388,7 @@ def _serial0(timeout: float) -> Any:
 
 
 def _launch(tmp_path: Path, port: int, env: dict[str, str] | None = None) -> subprocess.Popen:
-    """The launcher, SERIAL1 to ``port``, nobody on SERIAL0; its own session, so _stop ends
+    """The launcher, SERIAL1 to ``port``, nobody on SERIAL0; its own session, so stop_session ends
     SITL with it."""
     return subprocess.Popen(
         ["bash", str(SCRIPT), "--port", str(port)],
@@ -405,16 +405,3 @@ def _bridge_settings(port: int) -> MavlinkSettings:
     cfg = load_config(SITL_CONFIG)
     settings = mavlink_settings(cfg)
     return dataclasses.replace(settings, url=f"udpin:127.0.0.1:{port}", signing=None)
-
-
-def _stop(proc: subprocess.Popen) -> int | None:
-    """SIGTERM, then (bounded) SIGKILL; the exit status SIGTERM gave (None: it had to be killed)."""
-    if proc.poll() is not None:
-        return proc.returncode
-    os.killpg(proc.pid, signal.SIGTERM)
-    try:
-        return proc.wait(20)
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait(5)
-        return None

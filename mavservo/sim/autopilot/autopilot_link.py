@@ -34,6 +34,10 @@ class AutopilotLink:
     type) pairs. Not open until :meth:`open`; a closed link waits by sleeping.
     """
 
+    #: the heading ATTITUDE reports (rad); a simulated autopilot may change it (a restarted
+    #: PX4's estimator need not head where the old one did)
+    yaw_rad = -0.12
+
     def __init__(self, system_id: int = 1, component_id: int = 1, keep: int = 20_000) -> None:
         self.system_id = system_id
         self.component_id = component_id
@@ -130,7 +134,7 @@ class AutopilotLink:
             int(boot_s * 1000) & 0xFFFFFFFF,
             wobble,
             -wobble / 2,
-            -0.12,
+            self.yaw_rad,
             0.0,
             0.0,
             0.0,

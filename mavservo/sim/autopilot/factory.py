@@ -15,6 +15,7 @@ from typing import Any, Literal
 from mavservo.config import GimbalTarget, SimAutopilotConfig, parse_script
 from mavservo.sim.autopilot.can_forward import CanForwardLink
 from mavservo.sim.autopilot.motion_scripts import Profile, RandomWalkProfile, get_profile
+from mavservo.sim.autopilot.px4 import Px4Stream
 from mavservo.sim.autopilot.replay import ReplayRunner
 from mavservo.sim.autopilot.stream import AutopilotStream, gimbal_demo_script
 
@@ -44,7 +45,9 @@ def simulator_for(
     events = list(parse_script(section.script).events)
     if section.gimbal and not any(isinstance(e.action, GimbalTarget) for e in events):
         events += gimbal_demo_script()
-    return AutopilotStream(
+    # px4 (issue 39): PX4's onboard link, its own defaults
+    simulator = Px4Stream if section.autopilot == "px4" else AutopilotStream
+    return simulator(
         url,
         profile,
         events,

@@ -20,6 +20,8 @@ import yaml
 
 from mavservo.config import Dropout, Event, parse_script, read_key_file
 from mavservo.sim.autopilot.motion_scripts import PROFILES, RandomWalkProfile, get_profile
+from mavservo.sim.autopilot.px4 import Px4Stream
+from mavservo.sim.autopilot.px4_sitl import run_px4
 from mavservo.sim.autopilot.replay import BRIDGE_TYPES, TlogError, replay
 from mavservo.sim.autopilot.stream import AutopilotStream, gimbal_demo_script
 from mavservo.threads import set_from_signal_handler
@@ -58,16 +60,35 @@ def build_parser(prog: str = "sitl") -> argparse.ArgumentParser:
         add_help=False,
     )
 
-    s = sub.add_parser("stream", help="run the simulated ArduPilot autopilot stream")
+    sub.add_parser(
+        "px4",
+        help="run a built PX4 SITL (SIH airframe 10041, headless) for the bridge's onboard "
+        "link (never builds or fetches; 'px4 --help' for its options)",
+        add_help=False,
+    )
+
+    s = sub.add_parser("stream", help="run the simulated ArduPilot (or --autopilot px4) stream")
     s.add_argument(
         "--url",
         default="udpout:127.0.0.1:14551",
         help="pymavlink connection string (default: %(default)s)",
     )
+    s.add_argument(
+        "--autopilot",
+        choices=("ardupilot", "px4"),
+        default="ardupilot",
+        help="which autopilot to simulate: ArduPlane's port, or PX4's onboard link "
+        "(mavservo/sim/autopilot/px4.py; its defaults are PX4's) (default: %(default)s)",
+    )
     s.add_argument("--profile", default="sweep", choices=sorted(PROFILES))
     s.add_argument("--seed", type=int, default=0, help="random-walk seed")
     s.add_argument("--duration", type=float, default=None, help="seconds (default: until Ctrl-C)")
-    s.add_argument("--servo-rate", type=float, default=20.0, help="SERVO_OUTPUT_RAW Hz")
+    s.add_argument(
+        "--servo-rate",
+        type=float,
+        default=None,
+        help="SERVO_OUTPUT_RAW Hz (default: 20 for ArduPilot, PX4's onboard 10)",
+    )
     s.add_argument(
         "--actuator-rate",
         type=float,
@@ -176,11 +197,11 @@ def _run_stream(args: argparse.Namespace) -> int:
         except ValueError as exc:
             print(f"sitl: --signing-key-file: {exc}", file=sys.stderr)
             return 2
-    stream = AutopilotStream(
+    stream = (Px4Stream if args.autopilot == "px4" else AutopilotStream)(
         args.url,
         profile,
         events,
-        servo_output_rate_hz=args.servo_rate,
+        **({} if args.servo_rate is None else {"servo_output_rate_hz": args.servo_rate}),
         actuator_output_status_hz=args.actuator_rate,
         gimbal=args.gimbal,
         command_target=args.command_target,
@@ -292,6 +313,8 @@ def main(argv: list[str] | None = None, prog: str = "sitl") -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["arduplane"]:
         return run_arduplane(argv[1:])
+    if argv[:1] == ["px4"]:
+        return run_px4(argv[1:])
     args = build_parser(prog).parse_args(argv)
     previous = _stop_on_signals()
     try:
