@@ -104,7 +104,8 @@ def test_report_writes_every_figure_and_lists_it(recorded_run, tmp_path):
     assert f"| CAN frames TX / RX | {tx} / {len(frames) - tx} |" in markdown
     assert "| Decoder rejections | 1 |" in markdown
     # the run summary's columns, under its names: sent recv pushed offline lost late rej, L, state
-    assert "| servo | sent | recv | pushed | offline | lost | late | rej | L mean [ms] |" in markdown
+    header = "| servo | sent | recv | pushed | offline | lost | late | rej | L mean [ms] |"
+    assert header in markdown
     assert "| left | 10 | 9 | 0 | 0 | 1 | 0 | 0 | 1.00 | 0.20 | 1.50 | n/a |" in markdown
     assert "| Commands traced (complete / superseded / timed_out / open) |" in markdown
 
