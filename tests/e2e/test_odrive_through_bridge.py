@@ -131,9 +131,7 @@ def test_a_silent_axis_goes_offline_and_comes_back() -> None:
             mark = peer.count()
             device.faults.silent = True
             assert wait_until(lambda: not status(bridge, "direct").online, WAIT_S)
-            assert wait_until(
-                lambda: "servo direct offline" in peer.statustexts(mark), WAIT_S
-            )
+            assert wait_until(lambda: "servo direct offline" in peer.statustexts(mark), WAIT_S)
             assert status(bridge, "geared").online  # the others keep pushing
             device.faults.silent = False
             assert wait_until(lambda: status(bridge, "direct").online, WAIT_S)

@@ -106,9 +106,7 @@ def test_an_uncommanded_pushing_servo_that_falls_silent_is_offline_until_it_push
             yaw.faults.silent = True  # the trial's silent port: nothing from this servo
             assert wait_until(lambda: not status(bridge, "gimbal_yaw").online, WAIT_S)
             assert status(bridge, "gimbal_roll").online  # the others keep pushing
-            assert wait_until(
-                lambda: "servo gimbal_yaw offline" in peer.statustexts(mark), WAIT_S
-            )
+            assert wait_until(lambda: "servo gimbal_yaw offline" in peer.statustexts(mark), WAIT_S)
             # a gimbal command that needs the silent axis is refused, not accepted
             params = [0.0, 0.0, 30.0, 0.0, 0.0, 0.0, MAV_MOUNT_MODE_MAVLINK_TARGETING]
             result = peer.command(MAV_CMD_DO_MOUNT_CONTROL, params, target=GIMBAL_TARGET)

@@ -145,9 +145,7 @@ def test_a_silent_motor_goes_offline_and_comes_back(name: str) -> None:
             mark = peer.count()
             device.faults.silent = True
             assert wait_until(lambda: not status(bridge, name).online, WAIT_S)
-            assert wait_until(
-                lambda: f"servo {name} offline" in peer.statustexts(mark), WAIT_S
-            )
+            assert wait_until(lambda: f"servo {name} offline" in peer.statustexts(mark), WAIT_S)
             device.faults.silent = False
             assert wait_until(lambda: status(bridge, name).online, WAIT_S)
         finally:
