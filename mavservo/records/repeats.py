@@ -24,6 +24,8 @@ from dataclasses import dataclass
 
 #: a problem's repeats within this long of its last text are counted, then summed up
 REPEAT_INTERVAL_S = 10.0
+#: a counted onset whose problem lasts this long is summed up at once (once per interval)
+LASTING_S = 2.0
 
 Key = tuple[str, str]
 """(subject, kind): ``("servo aileron", "offline")``, ``("servo aileron", "fault OVERHEAT")``."""
@@ -39,6 +41,10 @@ class _Episodes:
     """An onset was said: its clearing is said too."""
     repeats: int = 0
     """Onsets counted, not said, since ``said_at``."""
+    counted_at: float | None = None
+    """When the last counted onset came (the problem has lasted since, while active)."""
+    lasting_said: bool = False
+    """A lasting problem was summed up in this interval already."""
 
 
 @dataclass(frozen=True)
@@ -72,6 +78,7 @@ class Repeats:
         episodes.active = True
         if episodes.said_at is not None and t - episodes.said_at < self.interval_s:
             episodes.repeats += 1
+            episodes.counted_at = t
             self.counted += 1
             return None
         if episodes.repeats and episodes.said_at is not None:  # not flushed in time
@@ -96,10 +103,22 @@ class Repeats:
         out = []
         for key, episodes in self._episodes.items():
             said_at = episodes.said_at
-            if not episodes.repeats or said_at is None or t - said_at < self.interval_s:
+            if not episodes.repeats or said_at is None:
                 continue
             subject, kind = key
             count, span = episodes.repeats + 1, t - said_at
+            if t - said_at < self.interval_s:
+                counted_at = episodes.counted_at
+                lasting = (
+                    episodes.active
+                    and not episodes.lasting_said
+                    and counted_at is not None
+                    and t - counted_at >= LASTING_S
+                )
+                if lasting:  # it flapped, then stayed: said now, counted on
+                    episodes.lasting_said = episodes.clear_owed = True
+                    out.append(Summary(key, repeated(f"{subject} {kind}", count, span), True))
+                continue
             if episodes.active:
                 text = repeated(f"{subject} {kind}", count, span)
             else:
@@ -108,4 +127,5 @@ class Repeats:
             episodes.repeats = 0
             episodes.said_at = t
             episodes.clear_owed = episodes.active
+            episodes.lasting_said = False
         return out
