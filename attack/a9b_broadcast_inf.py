@@ -1,7 +1,7 @@
 """Minimal reproduction: a broadcast (target component 0) command that concerns nothing the
 bridge maps, with one parameter at +inf, draws a COMMAND_ACK DENIED from the gimbal component
-(154); the same command without the inf draws none (docs/security.md: a broadcast that concerns
-nothing the bridge maps gets no ACK, "two answers would confuse the sender").
+(154); the same command without the inf draws none (docs/engineering/security.md: a broadcast that
+concerns nothing the bridge maps gets no ACK, "two answers would confuse the sender").
 
 Usage: python attack/a9b_broadcast_inf.py  (uses the sim.yaml gimbal, act_as_manager false)
 """

@@ -3,7 +3,7 @@
 Why this exists: the ``aa55`` interface claims to be much faster and more robust than python-can's
 ``seeedstudio`` driver, which decodes the same wire format one byte per read. This script checks
 the claim on the same byte streams, in the same run, and prints a markdown table for
-docs/benchmarks.md. Measured:
+docs/engineering/benchmarks.md. Measured:
 
 * (a) decoding bytes already in memory: seeedstudio fed from an in-memory fake port, against
   ``Decoder.feed`` on 4096-byte chunks (alone, and with the ``can.Message`` conversion a bus user
@@ -112,8 +112,8 @@ def corrupted_stream(
 
     The garbage bytes are 0xAA a quarter of the time (uniform otherwise): uniform noise almost
     never contains a start byte, so it would not test resynchronisation at all. Frames are
-    data frames (seeedstudio misreads remote frames, see docs/architecture.md), standard or
-    extended, DLC 0-8, and no frame repeats one of the previous ``MATCH_WINDOW`` ones, so an
+    data frames (seeedstudio misreads remote frames, see docs/engineering/architecture.md), standard
+    or extended, DLC 0-8, and no frame repeats one of the previous ``MATCH_WINDOW`` ones, so an
     output matches at most one truth frame.
     """
     rng = random.Random(seed)

@@ -1,5 +1,5 @@
 """Amplification factor of the bridge's UDP server: datagrams out per datagram in from senders
-that never sent a verified frame (docs/security.md, "UDP server peers").
+that never sent a verified frame (docs/engineering/security.md, "UDP server peers").
 
 A real Bridge (simulated AA-55 adapter and servos) listens on ``udpin:127.0.0.1:PORT`` with
 signing on. ``--senders`` sockets on 127.0.0.1 (each a stand-in for one spoofed source address)

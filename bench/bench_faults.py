@@ -404,8 +404,8 @@ class DeployedRig:
         # A deployed bridge starts beside an autopilot that is already running. The child takes
         # ~0.5 s of CPU at SCHED_FIFO to import; started under the bridge's first slots, the two
         # cores were busy at real-time priority while the bridge started, and the simulator
-        # child left a poll round unread for 61 ms (docs/reliability.md, "Start-up"). So the
-        # bridge starts once the autopilot talks.
+        # child left a poll round unread for 61 ms (docs/engineering/reliability.md, "Start-up"). So
+        # the bridge starts once the autopilot talks.
         if not wait_for_datagram(port, AUTOPILOT_START_TIMEOUT_S):
             self.autopilot.kill()
             self.autopilot.wait(5)

@@ -1,4 +1,4 @@
-"""CPU cost of the link's MAVLink parser on hostile and clean input (docs/security.md).
+"""CPU cost of the link's MAVLink parser on hostile and clean input (docs/engineering/security.md).
 
 ``FrameScanner`` (mavservo/mavlink/framing.py) as a datagram and as a stream, against
 pymavlink's ``parse_buffer`` (the parser the link used before), on 65,000-byte buffers of

@@ -10,8 +10,9 @@ against the plan (the plan's ratio for the stream times what the monitor output 
 longest gap between two of them on the link, and the busiest sliding 1-s window of bytes.
 
 Why: the plan fitted the budget on average, yet against ArduPlane SITL the link carried 25 of
-144 planned ACTUATOR_OUTPUT_STATUS (docs/sitl.md); this measures the same thing without SITL.
-ESC_INFO and ESC_STATUS are not in pymavlink's ArduPilot dialect, so they are not counted here.
+144 planned ACTUATOR_OUTPUT_STATUS (docs/engineering/sitl.md); this measures the same thing without
+SITL. ESC_INFO and ESC_STATUS are not in pymavlink's ArduPilot dialect, so they are not counted
+here.
 """
 
 from __future__ import annotations

@@ -1,1 +1,1 @@
-"""The test suite: folders mirror the packages of mavservo (docs/architecture.md)."""
+"""The test suite: folders mirror the packages of mavservo (docs/engineering/architecture.md)."""

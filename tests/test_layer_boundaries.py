@@ -1,4 +1,5 @@
-"""The typed boundaries between layers do what their contracts say (docs/architecture.md).
+"""The typed boundaries between layers do what their contracts say
+(docs/engineering/architecture.md).
 
 Each test drives a boundary through its Protocol: the sink's typed result decides what the
 backend answers, an observer that implements only some hooks still gets them through the

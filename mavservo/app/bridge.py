@@ -120,8 +120,8 @@ def settle_heap() -> None:
     Why: start-up builds a large, long-lived heap (pymavlink's message classes, the config,
     profiles, buffers). Every full collection walks all of it, and in the soak such a pass
     stopped the bridge for 58-106 ms, long enough to miss a 20 ms command slot
-    (docs/reliability.md). Frozen objects are never collected, so call this once, in a process
-    that runs one bridge (``mavservo run``), after :meth:`Bridge.start`. No ``gc.collect()``
+    (docs/engineering/reliability.md). Frozen objects are never collected, so call this once, in a
+    process that runs one bridge (``mavservo run``), after :meth:`Bridge.start`. No ``gc.collect()``
     first: with the scheduler already running, that full pass is itself the pause to avoid (the
     soak saw it take 140 ms, 7 command slots); the little start-up garbage frozen with the rest
     is never freed, which costs less.
@@ -314,8 +314,8 @@ class Bridge:
         # anchors its first slot when it starts, and start-up work after that anchor ran while
         # the first slots were due (opening the MAVLink link imports pymavlink's 2.4 MB dialect
         # module, holding the interpreter lock: 5-10 ms stalls of the whole process, see
-        # docs/reliability.md, "Start-up"). Setpoints that arrive meanwhile are queued by the
-        # scheduler and go out in its first slot.
+        # docs/engineering/reliability.md, "Start-up"). Setpoints that arrive meanwhile are queued
+        # by the scheduler and go out in its first slot.
         for scheduler in self.schedulers.values():
             scheduler.start()
         self._started = True

@@ -76,7 +76,7 @@ EVENT_DEBT_SHARE = 0.05
 #: any other stream. ArduPilot's MAVLink mount (``AP_Mount_Gremsy::healthy``, master
 #: 90700977c5) calls the gimbal unhealthy, and refuses to arm, after 1 s without a
 #: GIMBAL_DEVICE_ATTITUDE_STATUS; against ArduPlane SITL, behind ~70 other streams at the
-#: default budget, gaps of up to 6.3 s came out (docs/sitl.md).
+#: default budget, gaps of up to 6.3 s came out (docs/engineering/sitl.md).
 #: GIMBAL_MANAGER_STATUS of a gimbal that is its own manager too: behind the other streams it
 #: went about once every 8 s at the default budget, and MAVSDK's Gimbal plugin showed a control
 #: granted 2 s late (issue 38); a client needs it at >= 1 Hz (it is planned as fixed bytes).

@@ -1,6 +1,6 @@
 """Files only the run's owner can read: the run directory's modes and its atomic JSON writes.
 
-CAN frames and MAVLink traffic are nobody else's business (docs/reliability.md): the run
+CAN frames and MAVLink traffic are nobody else's business (docs/engineering/reliability.md): the run
 directory is 0700 and every file in it 0600, whatever the umask. Every writer of the run
 directory (the buffered sinks, python-can's CAN log writers, ``run.json``/``metrics.json``)
 creates its file through here, so the rule lives in one place.

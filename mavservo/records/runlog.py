@@ -23,8 +23,8 @@ A run that fails to start keeps ``run.json`` alone, with ``start_failed``: why (
 Times handed in are ``time.monotonic()`` seconds; the files carry wall-clock time, computed with
 the offset captured once at start (and stored in ``run.json`` so a reader can go back).
 
-Failure rules (docs/reliability.md, "Disk full"): the directory is 0700 and every file 0600,
-whatever the umask (CAN frames and MAVLink traffic are nobody else's business). Every file is
+Failure rules (docs/engineering/reliability.md, "Disk full"): the directory is 0700 and every file
+0600, whatever the umask (CAN frames and MAVLink traffic are nobody else's business). Every file is
 flushed once a second, the BLF one too (a container per second, its header rewritten with the
 wall-clock start, so a killed run keeps all but the last second with wall-clock times). A file
 that cannot be written (disk full) is cut back to its last complete flush and closed, the

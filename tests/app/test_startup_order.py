@@ -3,8 +3,8 @@
 Why it matters: a scheduler anchors its first command slot when it starts. Start-up work done
 after that anchor (opening the MAVLink link imports pymavlink's large dialect module while
 holding the interpreter lock) ran while the first slots were due and delayed them
-(docs/reliability.md, "Start-up"). Behaviour only, no timing thresholds: the order of events
-is checked, with the clocks the code itself uses.
+(docs/engineering/reliability.md, "Start-up"). Behaviour only, no timing thresholds: the order of
+events is checked, with the clocks the code itself uses.
 """
 
 from __future__ import annotations

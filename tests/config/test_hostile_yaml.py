@@ -4,7 +4,7 @@ Each used to hang ``mavservo check``/``run`` (a 9-level alias bomb: the duplicat
 visited 9**9 nodes) or end in a RecursionError traceback (``a: &x [*x]``, 1,000 brackets).
 Now every input ends in the config (or a ConfigError whose every line is ``FILE:LINE: ...``),
 refused while composing, before anything is expanded. Timing is measured by hand in
-bench/fuzz_config.py (docs/reliability.md), not asserted here.
+bench/fuzz_config.py (docs/engineering/reliability.md), not asserted here.
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@
 Found by review (rvlb): the bridge's own gimbal status and a stranger's requested copy of it
 shared one decimation credit, so a stranger asking for GIMBAL_DEVICE_ATTITUDE_STATUS ten times
 a second took the turns of the status the autopilot needs every second (ArduPilot's mount
-calls the gimbal unhealthy after 1 s without it, docs/sitl.md)."""
+calls the gimbal unhealthy after 1 s without it, docs/engineering/sitl.md)."""
 
 from __future__ import annotations
 

@@ -157,8 +157,8 @@ def test_a_held_back_stream_gets_its_turn_among_the_others() -> None:
 def test_the_gimbal_status_reaches_the_autopilot_every_second_among_many_streams() -> None:
     """ArduPilot's MAVLink mount (AP_Mount_Gremsy::healthy, master 90700977c5) reports the
     gimbal unhealthy, and refuses to arm, when no GIMBAL_DEVICE_ATTITUDE_STATUS came in the last
-    second. Against a live ArduPlane SITL (docs/sitl.md, 9 servos and a gimbal at the default
-    1,000 B/s budget) the status left with gaps of up to 6.3 s, 19 over 1 s in 120 s: one
+    second. Against a live ArduPlane SITL (docs/engineering/sitl.md, 9 servos and a gimbal at the
+    default 1,000 B/s budget) the status left with gaps of up to 6.3 s, 19 over 1 s in 120 s: one
     reservation of the window at a time, claimed by whichever of ~70 streams came first after
     the last one expired, so the gimbal's turn came seconds late. The bridge's tick order and
     the default rates here, in simulated time."""
@@ -207,7 +207,7 @@ def test_every_stream_gets_its_planned_turns_through_the_waiting_line(
     """`config/ardupilot-sitl.yaml`'s telemetry (six servos, no gimbal, the default rates and
     budget) in the bridge's tick order, 120 s of simulated time. Against ArduPlane SITL the
     link carried 25 of the 144 planned ACTUATOR_OUTPUT_STATUS, 50 of 113 ESC_TELEMETRY and
-    ESC_STATUS (docs/sitl.md) while its mean was 407 of 1,000 B/s: the many small
+    ESC_STATUS (docs/engineering/sitl.md) while its mean was 407 of 1,000 B/s: the many small
     NAMED_VALUE_FLOATs took the window, and the reservation that was to keep a held-back
     stream's turn idled the link.
     This mix gave the same through the old window (40 of 141, 51 and 56 of 113); through the

@@ -1,7 +1,7 @@
 """Security end to end: the whole Bridge (config -> UDP MAVLink -> simulated AA-55 adapter ->
 simulated servos) against hostile and broken MAVLink input on 127.0.0.1.
 
-What is pinned (docs/security.md has the threat model):
+What is pinned (docs/engineering/security.md has the threat model):
 
 * with signing on, unsigned, wrongly signed and replayed commands are refused, counted, never
   applied and never ACKed; a correctly signed one from an allowed source is applied and ACKed;

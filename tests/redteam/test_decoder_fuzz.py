@@ -94,9 +94,9 @@ def test_fixed_protocol_catches_every_single_byte_error_per_frame(
 
     Two compensating errors in one frame (+1 here, -1 there) or a false 0xAA 0x55 start inside a
     corrupted frame can pass it (1 in 256 when it happens; bench/fuzz_aa55.py found the first
-    within seconds, docs/reliability.md has the measured rates), so this pins the guarantee that
-    does hold: one corrupted byte per frame, no 0xAA / 0x55 inside the frames (so no false start can
-    form), nothing invented.
+    within seconds, docs/engineering/reliability.md has the measured rates), so this pins the
+    guarantee that does hold: one corrupted byte per frame, no 0xAA / 0x55 inside the frames (so no
+    false start can form), nothing invented.
     """
     wire = bytearray()
     for frame in sent:

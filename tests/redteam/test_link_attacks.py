@@ -1,4 +1,5 @@
-"""Attacks on the MAVLink link itself, over real sockets on 127.0.0.1 (docs/security.md).
+"""Attacks on the MAVLink link itself, over real sockets on 127.0.0.1
+(docs/engineering/security.md).
 
 Each test replays one finding of an attack run against ``mavservo/mavlink/link.py``:
 

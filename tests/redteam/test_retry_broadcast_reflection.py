@@ -135,8 +135,8 @@ def test_an_identical_repeat_with_nothing_in_between_is_still_a_retry(sim_rig: S
 def test_a_broadcast_nothing_here_handles_draws_no_ack_even_with_inf(
     sim_rig: SimRig, cmd: int, params: tuple[float, ...]
 ) -> None:
-    """docs/security.md: a broadcast that concerns nothing the bridge maps gets no ACK (the
-    autopilot answers it). Before the fix the gimbal's infinite-parameter guard DENIED it."""
+    """docs/engineering/security.md: a broadcast that concerns nothing the bridge maps gets no ACK
+    (the autopilot answers it). Before the fix the gimbal's infinite-parameter guard DENIED it."""
     gcs = sim_rig.peer(GCS)
     command(gcs, (1, 0), cmd, *params)
     command(gcs, (1, 140), DO_SET_SERVO, 10, 1500)  # a marker: once ACKed, the first was handled

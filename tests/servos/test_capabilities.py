@@ -45,7 +45,7 @@ EXPECTED = {
     "dronecan": {"Releasing", "ConfigWarnings", "NodeReports", "BusNodeFamily"},
     "robstride": {"Releasing", "SplitStartup", "Advising"},
 }
-"""What each built-in family does beyond the core (docs/architecture.md, the capability
+"""What each built-in family does beyond the core (docs/engineering/architecture.md, the capability
 table): a method renamed by mistake would silently drop a capability, and this says so."""
 
 

@@ -91,7 +91,7 @@ def test_launcher_says_clearly_when_ardupilot_is_missing(tmp_path: Path) -> None
 def test_dry_run_without_ardupilot_shows_the_command_to_use_once_it_is_installed(
     tmp_path: Path,
 ) -> None:
-    # docs/sitl.md: "--dry-run  # the SITL command it would run", built or not
+    # docs/engineering/sitl.md: "--dry-run  # the SITL command it would run", built or not
     done = subprocess.run(
         ["bash", str(SCRIPT), "--dry-run", "--gimbal", "--port", "14600", "--", "--console"],
         env=_bare_env(tmp_path, False),

@@ -241,7 +241,8 @@ def test_fixed_protocol_never_emits_a_frame_that_was_not_sent(
 ) -> None:
     """The checksum catches one corrupted byte per frame: every frame out is one that went in.
 
-    (Two compensating errors in one frame can pass a byte-sum checksum; see docs/reliability.md.)
+    (Two compensating errors in one frame can pass a byte-sum checksum; see
+    docs/engineering/reliability.md.)
     """
     stream = bytearray(b"".join(encode(f, "fixed") for f in sent))
     frames_hit = data.draw(st.sets(st.integers(0, len(sent) - 1), min_size=1, max_size=4))
@@ -554,7 +555,7 @@ data_frames = frames().filter(lambda f: not f.is_remote_frame)
 @given(st.lists(data_frames, min_size=1, max_size=20))
 def test_seeedstudio_writes_what_we_read_and_reads_what_we_write(sent: list[Frame]) -> None:
     # Remote frames are left out: seeedstudio reads DLC data bytes after a remote frame's ID,
-    # which the adapter does not send (see docs/architecture.md).
+    # which the adapter does not send (see docs/engineering/architecture.md).
     writer = _seeed()
     for f in sent:
         writer.send(f.to_message(is_rx=False))

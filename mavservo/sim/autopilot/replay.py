@@ -23,7 +23,7 @@ from mavservo.mavlink import mavlink2, open_connection
 from mavservo.sim.autopilot.background import Background
 from mavservo.threads import BackgroundLoop
 
-# What the bridge consumes (docs/architecture.md, mavservo/mavlink/).
+# What the bridge consumes (docs/engineering/architecture.md, mavservo/mavlink/).
 BRIDGE_TYPES: frozenset[str] = frozenset(
     {
         "HEARTBEAT",

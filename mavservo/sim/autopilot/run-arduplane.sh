@@ -106,7 +106,7 @@ if [[ -n "$binary" ]]; then
 elif [[ $dry_run -eq 1 ]]; then
   # show what to run once ArduPilot is built, and say it is not yet
   binary_cmd "${ARDUPILOT_HOME:-${tree:-ARDUPILOT_HOME}}/build/sitl/bin/arduplane"
-  echo "run-arduplane.sh: ArduPilot SITL is not built here; once it is (see docs/sitl.md)," \
+  echo "run-arduplane.sh: ArduPilot SITL is not built here; once it is (see docs/engineering/sitl.md)," \
     "this is the command:" >&2
 else
   where="neither arduplane on PATH nor \$ARDUPILOT_HOME/build/sitl/bin/arduplane"
@@ -117,7 +117,7 @@ Build it yourself, once, for example:
   git clone --recursive https://github.com/ArduPilot/ardupilot && cd ardupilot
   Tools/environment_install/install-prereqs-ubuntu.sh -y && ./waf configure --board sitl && ./waf plane
 then set ARDUPILOT_HOME to the tree (or put Tools/autotest, or build/sitl/bin, on PATH).
-This script never downloads nor builds anything, and never runs sim_vehicle.py. See docs/sitl.md.
+This script never downloads nor builds anything, and never runs sim_vehicle.py. See docs/engineering/sitl.md.
 MSG
   exit 3
 fi
