@@ -151,7 +151,8 @@ def test_an_expected_start_up_failure_is_one_line(
         holder.close()
     err = capsys.readouterr().err
     assert code == 1
-    assert f"cannot start: mavlink: UDP port 127.0.0.1:{port} is in use" in err
+    assert "cannot start: the autopilot link (" in err  # which link, its FILE:LINE and key
+    assert f"UDP port 127.0.0.1:{port} is in use" in err
     assert "Traceback" not in err
 
 

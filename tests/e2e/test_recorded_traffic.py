@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import pytest
 
+from mavservo.mavlink import open_connection
 from mavservo.sim.autopilot.replay import iter_tlog, replay
 from tests.support.bridge import Recorder, pwm_to_angle, running, sim_servo
 from tests.support.paths import TEST_DATA
@@ -108,7 +109,9 @@ def test_plane_servos_recording_drives_every_change_to_the_servos() -> None:
     # (end of the prefix in recording seconds, what must hold there)
     checkpoints = [13.6, 27.6, 62.5, 68.0, 89.96]
     with running(PLANE, observers=[recorder]) as (bridge, port):
-        url = f"udpout:127.0.0.1:{port}"
+        # one socket for the whole recording, as the autopilot has: the bridge pins the
+        # autopilot's identity to the address it is heard from (issue 40)
+        url = open_connection(f"udpout:127.0.0.1:{port}", source_system=255, source_component=0)
         start = 0.0
         for end in checkpoints:
             result = replay(SERVOS_TLOG, url, speed=SPEED, start_s=start, end_s=end)
@@ -168,7 +171,7 @@ def test_plane_gimbal_recording_points_the_gimbal_servos() -> None:
     ]
     axes = ("gimbal_roll", "gimbal_pitch", "gimbal_yaw")
     with running(GIMBAL, observers=[recorder]) as (bridge, port):
-        url = f"udpout:127.0.0.1:{port}"
+        url = open_connection(f"udpout:127.0.0.1:{port}", source_system=255, source_component=0)
         start = 0.0
         for end, pose in checkpoints:
             replay(GIMBAL_TLOG, url, speed=SPEED, start_s=start, end_s=end)

@@ -79,7 +79,11 @@ def test_check_names_each_clash_between_two_bridges(tmp_path: Path) -> None:
     assert "no clash between the 2 configs" in out.getvalue()
     # each plans within its 500 B/s, and check adds them up for the radio both share
     total = re.search(r"together: 2 bridges put ([\d,]+) B/s", out.getvalue())
-    assert total and 500 < int(total.group(1).replace(",", "")) <= 1000
+    each = re.findall(r"autopilot link: ([\d,]+) B/s of periodic", out.getvalue())
+    assert total and len(each) == 2
+    summed = sum(int(n.replace(",", "")) for n in each)  # each rounded on its own
+    assert abs(int(total.group(1).replace(",", "")) - summed) <= len(each)
+    assert all(0 < int(n.replace(",", "")) <= 500 for n in each)
 
 
 # ------------------------------------------------------------------------ the router

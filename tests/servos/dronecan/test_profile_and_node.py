@@ -363,7 +363,7 @@ channels: []
     [
         (100, 12, 1, 12, "actuator id 1 is already used"),
         (12, 12, 2, 6, "node id 12 is also a servo's node id"),
-        (100, 128, 2, 11, "id must be in 1..127"),
+        (100, 128, 2, 11, "ids are 1..127, got 128"),
         (100, 12, 256, 12, "less than or equal to 255"),
         (0, 12, 2, 6, "node_id"),
     ],
