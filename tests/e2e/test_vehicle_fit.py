@@ -167,7 +167,7 @@ def test_check_prints_identity_esc_numbers_and_the_link_estimate(tmp_path: Any) 
     assert check_main([str(default_config_path())], out=out, err=err) == 0
     text = out.getvalue()
     assert f"servo ESC numbers: ESC 17-{16 + servos}" in text
-    assert "autopilot link: 675 B/s of periodic telemetry within a budget of 1,000 B/s" in text
+    assert "autopilot link: 648 B/s of periodic telemetry within a budget of 1,000 B/s" in text
     assert "no second above 1,000 B/s" in text
     assert "monitor outputs:" in text
     # decimated to fit (the rate depends on every stream of the plan), never dropped to 0
