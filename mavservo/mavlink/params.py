@@ -18,10 +18,9 @@ Rules (https://mavlink.io/en/services/parameter.html):
 * PARAM_SET: a PARAM_VALUE with the value now in force. A refused set gets PARAM_ERROR (345,
   common.xml; MAV_PARAM_ERROR) with the reason's code first: VALUE_OUT_OF_RANGE when the
   config's rules refuse the value, PERMISSION_DENIED when the sender may not write (or not
-  now: more than ``SETS_PER_S`` sets a second; MAV_PARAM_ERROR (common.xml l. 2919-2947) has no
-  "busy" code, and
-  "Caller is not permitted to set the value" is what a rate limit is; those answers are
-  rate-limited in turn, ``RATE_LIMITED_ANSWERS_PER_S`` per requester),
+  now: more than ``SETS_PER_S`` sets a second; MAV_PARAM_ERROR, common.xml l. 2919-2947, has
+  no "busy" code, and "Caller is not permitted to set the value" is what a rate limit is;
+  those answers are rate-limited in turn, ``RATE_LIMITED_ANSWERS_PER_S`` per requester),
   TYPE_UNSUPPORTED for a ``param_type`` that cannot carry a value, DOES_NOT_EXIST for an unknown
   name; then, for a name that exists, the old PARAM_VALUE for clients that predate PARAM_ERROR
   (plus a STATUSTEXT with the owner's reason and a counter). Why the order: MAVSDK's parameter
