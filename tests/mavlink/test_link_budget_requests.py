@@ -345,9 +345,9 @@ def test_two_threads_sends_leave_in_the_order_they_were_decided() -> None:
             second_decided.wait(0.5)  # bounded: with the order kept, the second waits for us
         record(component_id, msg, system_id, **where)
 
-    def watched_decide(out: Any, requested: bool) -> Any:
-        decided = decide(out, requested)
-        if any(m is second[0] for _, m, _ in decided):
+    def watched_decide(out: Any, requested: bool, reply_to: Any = None) -> Any:
+        decided = decide(out, requested, reply_to)
+        if any(m is second[0] for _, m, _, _ in decided):
             second_decided.set()
         return decided
 
