@@ -20,8 +20,8 @@ earlier result and not applied twice (DO_REPEAT_SERVO would otherwise restart). 
 retry is decided per servo the command drives (its servo channel or actuator indices resolved
 through the mapping, so a DO_SET_SERVO and a DO_SET_ACTUATOR for one servo share one window;
 for anything else, the target component and command): a command is a retry only when it is
-identical (same sender, message type, target and parameters) to the LAST command for every
-servo it drives,
+identical (same sender, its ids and the origin they came from, message type, target and
+parameters) to the LAST command for every servo it drives,
 and either comes inside ``retry_window_s`` or carries confirmation > 0. Any other command for
 one of those outputs in between, from anyone, ends the window: 1100, 1900, 1100 us on one
 channel is three commands, never a retry (the MAVLink spec makes confirmation 0 a first
@@ -51,6 +51,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 from mavservo.mavlink.arbitration import CommandHold
 from mavservo.mavlink.backend import ActuatorBackend, ApplyResult, Outcome
 from mavservo.mavlink.component import HostedComponent
+from mavservo.mavlink.origin import Requester, origin_of
 from mavservo.mavlink.servo_commands import (
     INT32_MAX,
     MAV_CMD_DO_REPEAT_SERVO,
@@ -99,6 +100,9 @@ class Command:
     params: tuple[float, ...]
     is_int: bool = False
     confirmation: int = 0
+    #: where it came from (UDP address, TCP connection; None: a link with one peer), see
+    #: :mod:`.origin`
+    origin: Hashable = None
 
     @classmethod
     def from_message(cls, msg: Any) -> Command:
@@ -112,6 +116,7 @@ class Command:
                 msg.command,
                 tuple(float(p) for p in params),
                 is_int=True,
+                origin=origin_of(msg),
             )
         params = (
             msg.param1,
@@ -129,13 +134,25 @@ class Command:
             msg.command,
             tuple(float(p) for p in params),
             confirmation=int(msg.confirmation),
+            origin=origin_of(msg),
         )
 
+    @property
+    def requester(self) -> Requester:
+        """Who sent it: the claimed ids and the origin they spoke from."""
+        return Requester(self.source[0], self.source[1], self.origin)
+
     def retry_key(self) -> tuple:
-        """Identity of a command for retry detection (NaN-safe, ignores confirmation): sender,
-        target, command, message type (COMMAND_INT and COMMAND_LONG differ) and parameters."""
+        """Identity of a command for retry detection (NaN-safe, ignores confirmation): sender
+        (its ids *and* origin), target, command, message type (COMMAND_INT and COMMAND_LONG
+        differ) and parameters.
+
+        Why the origin (issue 40): on an unsigned link the ids are a claim. Keyed by ids only, a
+        stranger at another address repeating the station's DO_SET_SERVO as 255/190 had its
+        copy taken for the station's retry (ACKed with the station's result, nothing applied),
+        and the station's own command after a stranger's identical one was a "retry" of it."""
         params = tuple("nan" if math.isnan(p) else p for p in self.params)
-        return (self.source, self.target_component, self.command, self.is_int, params)
+        return (self.requester, self.target_component, self.command, self.is_int, params)
 
 
 class RateLimitedLog:

@@ -17,7 +17,10 @@ Rules (https://mavlink.io/en/services/parameter.html):
   PARAM_ERROR (MAV_PARAM_ERROR_DOES_NOT_EXIST).
 * PARAM_SET: a PARAM_VALUE with the value now in force. A refused set gets PARAM_ERROR (345,
   common.xml; MAV_PARAM_ERROR) with the reason's code first: VALUE_OUT_OF_RANGE when the
-  config's rules refuse the value, PERMISSION_DENIED when the sender may not write,
+  config's rules refuse the value, PERMISSION_DENIED when the sender may not write (or not
+  now: more than ``SETS_PER_S`` sets a second; MAV_PARAM_ERROR, common.xml l. 2919-2947, has
+  no "busy" code, and "Caller is not permitted to set the value" is what a rate limit is;
+  those answers are rate-limited in turn, ``RATE_LIMITED_ANSWERS_PER_S`` per requester),
   TYPE_UNSUPPORTED for a ``param_type`` that cannot carry a value, DOES_NOT_EXIST for an unknown
   name; then, for a name that exists, the old PARAM_VALUE for clients that predate PARAM_ERROR
   (plus a STATUSTEXT with the owner's reason and a counter). Why the order: MAVSDK's parameter
@@ -58,6 +61,13 @@ log = logging.getLogger(__name__)
 #: at a time, a flood of 200/s used to cost 400 fsyncs a second (issue 32, finding 2).
 SETS_PER_S = 10.0
 SET_BURST = 30
+#: Rate-limited sets one requester (ids and origin) gets an answer to, per second and in a
+#: burst; the rest are counted (``set_rate_limited_unanswered``) and ignored. Why: a set over
+#: the rate is refused, and a client that gets no answer reports a time-out and sends it
+#: again (MAVSDK), but a flood must not become a flood of answers (each is a PARAM_ERROR and
+#: a PARAM_VALUE on a 1,000 B/s link).
+RATE_LIMITED_ANSWERS_PER_S = 2.0
+RATE_LIMITED_ANSWER_BURST = 5
 #: At most one log line per kind of set outcome per this many seconds.
 SET_LOG_INTERVAL_S = 1.0
 
@@ -184,6 +194,9 @@ class ParameterServer:
         self._announce = announce
         self.counters: Counter[str] = Counter()
         self._set_rate = PerSender(SETS_PER_S, SET_BURST)
+        self._rate_limited_answers = PerSender(
+            RATE_LIMITED_ANSWERS_PER_S, RATE_LIMITED_ANSWER_BURST
+        )
         self._log = RateLimitedLog(SET_LOG_INTERVAL_S)
         self._refusals = RefusalDigest()
         self._now: float | None = None
@@ -297,13 +310,18 @@ class ParameterServer:
             return [self._error(component_id, sender, name, -1, "DOES_NOT_EXIST")]
         # per identity and origin: a flood claiming the station's ids from another address
         # spends its own bucket, not the station's (issue 40: 0 of 10 sets applied)
-        if self._now is not None and not self._set_rate.allow(requester_of(msg), self._now):
+        requester = requester_of(msg)
+        if self._now is not None and not self._set_rate.allow(requester, self._now):
             self.counters["set_rate_limited"] += 1
             self._refused(
                 sender,
                 f"{name}: more than {SETS_PER_S:g} sets/s from {sender[0]}/{sender[1]}, ignored",
             )
-            return []
+            # answered (the client says why instead of timing out), a few a second at most
+            if not self._rate_limited_answers.allow(requester, self._now):
+                self.counters["set_rate_limited_unanswered"] += 1
+                return []
+            return self._refusal(component_id, sender, names, name, "PERMISSION_DENIED")
         value = decode_param_value(float(msg.param_value), int(msg.param_type))
         if value is None:
             self.counters["set_bad_type"] += 1

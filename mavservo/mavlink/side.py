@@ -22,7 +22,7 @@ from mavservo.mavlink.commands import Outgoing
 from mavservo.mavlink.component import HostedComponent
 from mavservo.mavlink.link import MavlinkLink
 from mavservo.mavlink.mavlink_core import MavlinkCore
-from mavservo.mavlink.origin import requester_of
+from mavservo.mavlink.origin import Requester, requester_of
 from mavservo.mavlink.params import ParameterOwner
 from mavservo.mavlink.settings import MavlinkSettings
 from mavservo.mavlink.telemetry import MAV_SEVERITY_WARNING
@@ -89,7 +89,8 @@ class MavlinkSide:
         self._tick_errors = 0  # failures the core's own guards did not catch
         #: events the link budget could not take yet, in order (sent before newer ones), each
         #: with whether a peer asked for it (a requested message is an event whatever its type)
-        self._held: list[tuple[int, Any, bool]] = []
+        #: and, if so, who asked (the answer goes to that origin only)
+        self._held: list[tuple[int, Any, bool, Requester | None]] = []
         #: ``on_sent(msg, t)`` after each message went out (latency tracing); must not block.
         self.on_sent: Callable[[Any, float], None] | None = None
         #: CAN frames to and from the autopilot's CAN port (``mavlink-can`` buses), straight
@@ -162,7 +163,10 @@ class MavlinkSide:
                 # everyone else's ACKs out): to it only, with the next tick
                 self.core.queue_responses(requester_of(msg), out, now)
                 return
-        self._send(out, requested=True)
+        # a verified sender's responses go at once, but to where it spoke from only: sent to
+        # every peer, the station's COMMAND_ACK and the message it asked for reached a
+        # stranger claiming its ids from another address too (issue 40 after issue 38's merge)
+        self._send(out, requested=True, reply_to=requester_of(msg))
 
     def announce(self, text: str, severity: int = MAV_SEVERITY_WARNING) -> None:
         """Queue a STATUSTEXT from the servo component (thread-safe, for the other layers)."""
@@ -196,30 +200,35 @@ class MavlinkSide:
                 delay = 0
             self._loop.wait(delay)
 
-    def _send(self, out: list[Outgoing], requested: bool = False) -> None:
+    def _send(
+        self, out: list[Outgoing], requested: bool = False, reply_to: Requester | None = None
+    ) -> None:
         """Send ``out`` within the link budget: periodic telemetry goes to the monitors at
         once and to the link in its turn (the budget's waiting line: what waited goes first,
         a message the plan decimates goes to the monitors only); an event (STATUSTEXT chunk,
         ACK) the budget cannot take now goes to the monitors at once and waits, in order, for
         the link at a next tick instead of being lost (a long text arrives whole).
         ``requested``: the responses to a peer's message (its ACK, a message it asked for),
-        events whatever their type."""
+        events whatever their type, to ``reply_to`` only (the origin of the request)."""
         with self._send_order:  # sent in the order decided, whichever thread decided first
             with self._lock:  # the budget's bucket and the held events are shared by two threads
-                decided = self._decide(out, requested)
+                decided = self._decide(out, requested, reply_to)
             system_id = self.core.system_id
-            for component_id, msg, where in decided:
+            for component_id, msg, where, to in decided:
                 self.link.send(
                     component_id,
                     msg,
                     system_id,
                     to_link=where != _MONITORS,
                     to_monitors=where != _LINK,
+                    reply_to=to,
                 )
                 if self.on_sent is not None and where != _LINK:  # when it first left
                     self.on_sent(msg, self._clock())
 
-    def _decide(self, out: list[Outgoing], requested: bool) -> list[tuple[int, Any, str]]:
+    def _decide(
+        self, out: list[Outgoing], requested: bool, reply_to: Requester | None = None
+    ) -> list[tuple[int, Any, str, Requester | None]]:
         """Where each message goes. The held events first (the monitors had them when they
         were held: to the link only), then ``out`` (new: the monitors at once, whatever the
         link takes; before, a held event reached the monitors only when the link took it,
@@ -227,17 +236,19 @@ class MavlinkSide:
         budget = self.core.budget
         now = self._clock()
         held, self._held = self._held, []
-        pending = [(cid, msg, asked, False) for cid, msg, asked in held]
-        pending += [(cid, msg, requested, True) for cid, msg in out]
-        decided = [(component_id, msg, _LINK) for component_id, msg in budget.due(now)]
-        for component_id, msg, asked, new in pending:
+        pending = [(cid, msg, asked, to, False) for cid, msg, asked, to in held]
+        pending += [(cid, msg, requested, reply_to, True) for cid, msg in out]
+        decided: list[tuple[int, Any, str, Requester | None]] = [
+            (component_id, msg, _LINK, None) for component_id, msg in budget.due(now)
+        ]
+        for component_id, msg, asked, to, new in pending:
             if new and not self.core.link_carries(msg):  # px4: the autopilot would drop it
-                decided.append((component_id, msg, _MONITORS))
+                decided.append((component_id, msg, _MONITORS, to))
                 continue
             if not (asked or budget.is_event(msg)):
                 # periodic: the monitors now, the link now, in its turn (WAITS) or not (SKIPPED)
                 goes = budget.offer(component_id, msg, now) is Admission.NOW
-                decided.append((component_id, msg, _BOTH if goes else _MONITORS))
+                decided.append((component_id, msg, _BOTH if goes else _MONITORS, to))
                 continue
             # an event: in order behind one that waits, or waits itself for the budget; an
             # essential one (heartbeat, CRITICAL text) never waits behind others (a heartbeat
@@ -247,23 +258,25 @@ class MavlinkSide:
                 Admission.NOW
             )
             if not goes:
-                self._hold(component_id, msg, asked)
+                self._hold(component_id, msg, asked, to)
             if new:
-                decided.append((component_id, msg, _BOTH if goes else _MONITORS))
+                decided.append((component_id, msg, _BOTH if goes else _MONITORS, to))
             elif goes:
-                decided.append((component_id, msg, _LINK))
+                decided.append((component_id, msg, _LINK, to))
         return decided
 
-    def _hold(self, component_id: int, msg: Any, requested: bool) -> None:
+    def _hold(
+        self, component_id: int, msg: Any, requested: bool, reply_to: Requester | None = None
+    ) -> None:
         """Keep an event for the next tick; beyond :data:`MAX_HELD_EVENTS` the oldest one
         that is not essential (the bridge's CRITICAL text, its heartbeat; one a peer asked for
         is an answer) is dropped and counted."""
-        self._held.append((component_id, msg, requested))
+        self._held.append((component_id, msg, requested, reply_to))
         if len(self._held) > MAX_HELD_EVENTS:
             victim = next(
                 (
                     i
-                    for i, (_, m, asked) in enumerate(self._held)
+                    for i, (_, m, asked, _to) in enumerate(self._held)
                     if asked or not self.core.budget.essential(m)  # one asked for: an answer
                 ),
                 None,

@@ -17,6 +17,7 @@ import time
 os.environ.setdefault("MAVLINK20", "1")
 
 from mavservo.mavlink.mavlink_core import MavlinkCore  # noqa: E402
+from mavservo.mavlink.origin import tag  # noqa: E402
 from tests.mavlink.test_udp_peers import bridge, introduce, is_ack  # noqa: E402, F401, F811
 from tests.support.mavlink_doubles import (
     # noqa: E402
@@ -44,6 +45,18 @@ def send(core: MavlinkCore, msg, now: float, src=GCS) -> list[int]:
     """The COMMAND_ACK results the core answers ``msg`` with."""
     out = core.on_message(wire(msg, src), now)
     return [m.result for _, m in out if m.get_type() == "COMMAND_ACK"]
+
+
+def send_from(core: MavlinkCore, msg, now: float, origin) -> list[int]:
+    """As :func:`send`, as 255/190 from ``origin`` (a UDP address; the ids pin nothing here)."""
+    received = wire(msg, GCS)
+    tag(received, origin, pinned=True)
+    out = core.on_message(received, now)
+    return [m.result for _, m in out if m.get_type() == "COMMAND_ACK"]
+
+
+STATION_ADDRESS = ("127.0.0.1", 14550)
+STRANGER_ADDRESS = ("127.0.0.66", 14550)
 
 
 def pwms(backend: RecordingBackend, channel: int = 1) -> list[float]:
@@ -160,3 +173,31 @@ def test_retry_of_a_temporarily_rejected_command_is_a_fresh_attempt():
     assert send(core, command_long(SERVO, 183, 1, 1100), 0.5) == [ACCEPTED]
     assert pwms(backend) == [1100.0, 1100.0]  # the refused attempt, then the one applied
     assert core.commands.counters["retry_not_reapplied"] == 0
+
+
+def test_the_stations_ids_from_another_address_are_another_sender_for_retries():
+    """Issue 40 on the retry table: keyed by ids only, a stranger claiming 255/190 from another
+    address made the station's identical command a "retry" of its own (ACKed, not applied),
+    and the stranger's copy of the station's command a retry of the station's. Keyed by ids
+    and origin, each is a command of its own; the station's own repeat is still a retry."""
+    core, backend = make_core()
+    set_1100 = command_long(SERVO, 183, 1, 1100)
+    assert send_from(core, set_1100, 0.0, STRANGER_ADDRESS) == [ACCEPTED]
+    assert send_from(core, set_1100, 0.3, STATION_ADDRESS) == [ACCEPTED]
+    assert pwms(backend) == [1100.0, 1100.0]  # the station's command applied, not a retry
+    assert core.commands.counters["retry_not_reapplied"] == 0
+    assert send_from(core, set_1100, 0.6, STATION_ADDRESS) == [ACCEPTED]  # its own repeat
+    assert pwms(backend) == [1100.0, 1100.0]
+    assert core.commands.counters["retry_not_reapplied"] == 1
+
+
+def test_a_stranger_repeating_the_stations_repeat_servo_is_not_its_retry():
+    """The other way round: the station's DO_REPEAT_SERVO, then a stranger's identical copy as
+    255/190 from another address, is the stranger's command (it restarts the repeat, as anyone's
+    new command would with ``allowed_sources`` empty), not the station's retry ACKed again."""
+    core, backend = make_core()
+    repeat = command_long(SERVO, 184, 9, 1900, 3, 2)
+    assert send_from(core, repeat, 0.0, STATION_ADDRESS) == [ACCEPTED]
+    assert send_from(core, repeat, 0.3, STRANGER_ADDRESS) == [ACCEPTED]
+    assert core.commands.counters["retry_not_reapplied"] == 0
+    assert pwms(backend, 9) == [1900.0, 1900.0]  # applied twice: two senders' commands

@@ -36,9 +36,14 @@ from mavservo.config.parameters import (
 )
 from mavservo.config.schema import Config
 from mavservo.mavlink.connection import mavlink2
+from mavservo.mavlink.origin import tag
 from mavservo.mavlink.params import (
     FTP_ERROR_UNKNOWN_COMMAND,
     FTP_OPCODE_NAK,
+    RATE_LIMITED_ANSWER_BURST,
+    RATE_LIMITED_ANSWERS_PER_S,
+    SET_BURST,
+    SETS_PER_S,
     ParameterServer,
     SetResult,
     WritePolicy,
@@ -270,6 +275,48 @@ def test_every_refused_set_says_why_with_its_code_and_the_value_in_force() -> No
     assert error.error == mavlink2.MAV_PARAM_ERROR_PERMISSION_DENIED
     assert value.get_type() == "PARAM_VALUE" and value.param_id == "A_ONE"
     assert len(store.sets) == before
+
+
+def test_a_rate_limited_set_gets_permission_denied_a_few_times_a_second_per_requester() -> None:
+    """A set over the rate (``SETS_PER_S``) is refused: before, with no answer at all (MAVSDK
+    retried and reported a time-out). Now PARAM_ERROR PERMISSION_DENIED, then the value in
+    force, as every other refusal; but a flood is not answered in full: a few a second per
+    requester (ids and origin), the rest counted. The same ids from another address are
+    another requester, answered from their own bucket."""
+    server, store, _ = _server()
+
+    def set_from(origin: tuple[str, int], value: float, now: float) -> list[Any]:
+        msg = wire(mavlink2.MAVLink_param_set_message(1, 140, b"A_ONE", value, 9), GCS)
+        tag(msg, origin, pinned=True)
+        return [m for _, m in server.handle(msg, 1, GCS, now)]
+
+    flood_s, per_s = 3.0, 100
+    station, other = ("127.0.0.1", 14550), ("127.0.0.66", 14550)
+    answers = [set_from(station, 1.0, i / per_s) for i in range(int(flood_s * per_s))]
+    applied = len(store.sets)
+    assert applied <= SET_BURST + SETS_PER_S * flood_s + 1
+    answered = [a for a in answers if a and a[0].get_type() == "PARAM_ERROR"]
+    assert 0 < len(answered) <= RATE_LIMITED_ANSWER_BURST + RATE_LIMITED_ANSWERS_PER_S * flood_s
+    for error, value in answered:
+        assert (error.param_id, error.error) == (
+            "A_ONE",
+            mavlink2.MAV_PARAM_ERROR_PERMISSION_DENIED,
+        )
+        assert (error.target_system, error.target_component) == GCS
+        assert (value.get_type(), value.param_id, value.param_value) == (
+            "PARAM_VALUE",
+            "A_ONE",
+            1.0,
+        )
+    unanswered = len(answers) - applied - len(answered)
+    assert sum(not a for a in answers) == unanswered > 0
+    assert server.counters["set_rate_limited_unanswered"] == unanswered
+    # the same ids from another address: their own set bucket, then their own answers
+    for _ in range(SET_BURST):
+        set_from(other, 2.0, flood_s)
+    error, value = set_from(other, 2.0, flood_s)
+    assert error.error == mavlink2.MAV_PARAM_ERROR_PERMISSION_DENIED
+    assert value.param_value == 2.0
 
 
 def test_unsigned_requests_on_a_signing_link_are_refused_and_counted() -> None:

@@ -494,3 +494,57 @@ def test_a_stalled_reader_is_no_autopilot_loss() -> None:
         stats = side.stats()
         assert stats["failsafe_count"] == 0, stats
         assert stats["failsafe_deferred"] > 0
+
+
+@pytest.mark.parametrize("extra", ["", ALLOW_GCS], ids=["ids-not-privileged", "ids-allowed"])
+def test_a_download_and_an_ack_go_to_the_station_while_its_ids_are_claimed_elsewhere(
+    extra: str,
+) -> None:
+    """The merge of issue 38 (FTP replies queued per requester, within the link budget) and
+    issue 40 (answers to the origin, keyed by ids and origin), end to end on the default
+    budget: the station (255/190 on 127.0.0.1) downloads general.json over MAVLink FTP as
+    QGroundControl does and asks for a message with REQUEST_MESSAGE, while a stranger on
+    127.0.0.66 claims 255/190 with a HEARTBEAT every 50 ms (the identity's last address is
+    the stranger's throughout). The station gets the file and its COMMAND_ACK; the stranger
+    gets no FTP reply and no ACK, whether the ids are privileged (pinned to the station) or
+    not (then both are served, each its own answers). Before (90f533f), with the ids allowed,
+    the station's ACK and the message it asked for went to every peer, the stranger too: a
+    verified sender's responses were sent at once, to everyone."""
+    from mavservo.mavlink.connection import open_connection
+    from tests.support.qgc_ftp import QgcLikeFtp
+
+    with _bridge(extra) as (bridge, port):
+        stranger = Peer(port, GCS, STRANGER_HOST)
+        station = open_connection(
+            f"udpout:127.0.0.1:{port}", source_system=GCS[0], source_component=GCS[1]
+        )
+        claiming = threading.Event()
+
+        def claim() -> None:
+            for _ in range(400):  # bounded: 20 s at most
+                if claiming.wait(0.05):
+                    return
+                stranger.heartbeat()
+
+        claimer = threading.Thread(target=claim, daemon=True)
+        try:
+            station.mav.heartbeat_send(6, 8, 0, 0, 4)
+            assert wait_until(lambda: _stats(bridge)["link"].get("received", 0) >= 1)
+            claimer.start()
+            got = QgcLikeFtp(station, (1, 140)).download("/general.json")
+            station.mav.command_long_send(1, 140, REQUEST_MESSAGE, 0, 375, 0, 0, 0, 0, 0, 0)
+            ack = station.recv_match(type="COMMAND_ACK", blocking=True, timeout=3.0)
+            claiming.set()
+            claimer.join(2.0)
+            to_stranger = _drain(stranger.sock, 0.5)
+        finally:
+            claiming.set()
+            station.close()
+            stranger.close()
+        served = bytes(bridge.mavlink.core.metadata.servers[140].files["general.json"])
+        assert got.data == served
+        assert ack is not None and (ack.command, ack.result) == (REQUEST_MESSAGE, 0)
+        kinds = Counter(m.get_type() for m in to_stranger)
+        assert kinds["FILE_TRANSFER_PROTOCOL"] == 0, kinds
+        assert kinds["COMMAND_ACK"] == 0, [m for m in to_stranger if m.get_type() == "COMMAND_ACK"]
+        assert to_stranger  # it is a peer the bridge sends to (its broadcasts), not cut off
