@@ -61,6 +61,9 @@ def test_four_rmd_x_through_arduplane_sitl_lose_nothing_and_survive_its_restart(
     assert restart["outage_detected_after_kill_s"] is not None, restart
     assert restart["bus_back_after_relaunch_s"] is not None, restart
     assert restart["servos_online_after_relaunch_s"] is not None, restart
+    said = [e for e in restart["events"] if e.startswith("fc: ")]  # in the port's own words
+    assert any(e.startswith("fc: the autopilot stopped forwarding CAN bus 1") for e in said), said
+    assert any(e.startswith("fc: the autopilot's CAN port is back after") for e in said), said
 
 
 def ap_periph() -> str | None:
