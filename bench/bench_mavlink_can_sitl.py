@@ -67,7 +67,9 @@ def config(url: str, bus: str, count: int = SERVOS, scheduler: str = "") -> str:
     )
 
 
-def sitl_command(arduplane: str, home: Path, parm: Path, wipe: bool) -> list[str]:
+def sitl_command(
+    arduplane: str, home: Path, parm: Path, wipe: bool, serial1_tcp: bool = False
+) -> list[str]:
     defaults = [
         home / "Tools/autotest/models/plane.parm",
         PACKAGE / "arduplane-companion.parm",
@@ -84,7 +86,12 @@ def sitl_command(arduplane: str, home: Path, parm: Path, wipe: bool) -> list[str
         "--serial0",
         "tcp:0",
         "--serial1",
-        "udpclient:127.0.0.1:14551",
+        # SIM_BAUDLIMIT_EN on a UDP port: a datagram must hold whole MAVLink packets, and the
+        # limiter allows only the bytes since its last call (libraries/AP_HAL/utility/
+        # DataRateLimit.cpp l. 6-24; AP_HAL_SITL/UARTDriver.cpp l. 840-857), ~6 B a 1 ms
+        # call at 57,600 baud: never a packet. A TCP port writes what the limit allows
+        # (tcp:N listens on 5760 + N).
+        "tcp:2" if serial1_tcp else "udpclient:127.0.0.1:14551",
         "--serial2",
         "udpclient:127.0.0.1:14552",
         "-I0",
@@ -129,28 +136,42 @@ def metrics_of(logs: Path) -> dict[str, Any]:
     return json.loads((run / "metrics.json").read_text())
 
 
-def limit_baud() -> None:
-    """SIM_BAUDLIMIT_EN 1 through SERIAL0 (TCP 5760): every port then carries its baud."""
-    from pymavlink import mavutil
-
-    conn = mavutil.mavlink_connection("tcp:127.0.0.1:5760", source_system=255)
-    try:
-        if conn.wait_heartbeat(timeout=30) is None:
-            raise RuntimeError("SITL never sent a heartbeat on SERIAL0")
-        conn.mav.param_set_send(
-            conn.target_system, conn.target_component, b"SIM_BAUDLIMIT_EN", 1, 2
-        )
-        time.sleep(1.0)
-    finally:
-        conn.close()
-
-
 def metrics_of_after(process: subprocess.Popen[bytes], logs: Path, seconds: float) -> Any:
     """The metrics of a bridge run once it ended (its CPU too, in the figures)."""
     cpu = wait_cpu(process, seconds + 60)
     metrics = metrics_of(logs)
     metrics["_cpu_s"] = cpu
     return metrics
+
+
+def start_periph(binary: str, home: Path, work: Path) -> subprocess.Popen[bytes]:
+    """AP_Periph SITL (-I1: its ports off the vehicle's) on the vehicle's multicast CAN, with
+    sim_vehicle's defaults for it; its clock runs on the vehicle's multicast state."""
+    scratch = work / "periph"
+    scratch.mkdir()
+    parm = Path(binary).resolve().parents[3] / "Tools/autotest/default_params/periph.parm"
+    if not parm.exists():
+        parm = home / "Tools/autotest/default_params/periph.parm"
+    command = [binary, "-I1"] + (["--defaults", str(parm)] if parm.exists() else [])
+    log = open(work / "periph.log", "ab")  # noqa: SIM115 - kept for the child's life
+    return subprocess.Popen(
+        command, cwd=scratch, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT
+    )
+
+
+def link_rates(metrics: dict[str, Any]) -> dict[str, float]:
+    """Frames per second on the MAVLink link for the mavlink-can bus: CAN_FRAME from the
+    autopilot (every frame it forwarded: the servos' replies, and the 29-bit frames the bus
+    ignored), and to it (the bridge's frames), over the run."""
+    bus = next(iter(metrics["buses"].values()))
+    transport = bus.get("transport", {})
+    uptime = metrics["uptime_s"] or 1.0
+    forwarded = transport.get("received", 0) + transport.get("ignored", 0)
+    return {
+        "from_autopilot": round(forwarded / uptime, 1),
+        "of_them_29_bit": round(transport.get("ignored", 0) / uptime, 1),
+        "to_autopilot": round(transport.get("sent", 0) / uptime, 1),
+    }
 
 
 def _print(out: dict[str, Any]) -> int:
@@ -204,13 +225,22 @@ def main() -> int:
     parser.add_argument(
         "--tunnel-only", action="store_true", help="bridge A only: no baseline, no restart"
     )
+    parser.add_argument(
+        "--periph",
+        default="",
+        help="an AP_Periph SITL binary to put on the bus too (DroneCAN traffic of another node)",
+    )
+    parser.add_argument(
+        "--no-autopilot-filter",
+        action="store_true",
+        help="bridge A's bus with options.filter_at_autopilot false (no CAN_FILTER_MODIFY)",
+    )
     args = parser.parse_args()
     home = Path(args.arduplane).resolve().parents[3]
     work = Path(tempfile.mkdtemp(prefix="mavcan-bench-"))
     parm = work / "can.parm"
-    # SIM_BAUDLIMIT_EN is set once SITL runs: from the defaults file (this build) no port ever
-    # sent a byte
-    limit = f"SERIAL1_BAUD {args.baud_limit}\n" if args.baud_limit else ""
+    # SERIAL1 on TCP then (see sitl_command): the limit applies from the start
+    limit = f"SERIAL1_BAUD {args.baud_limit}\nSIM_BAUDLIMIT_EN 1\n" if args.baud_limit else ""
     parm.write_text(CAN_PARAMS + limit)
     out: dict[str, Any] = {"machine": os.uname().nodename, "cpus": os.cpu_count()}
     out["servos"], out["scheduler"], out["baud_limit"] = args.servos, args.scheduler, limit
@@ -218,7 +248,7 @@ def main() -> int:
     def launch(wipe: bool) -> subprocess.Popen[bytes]:
         log = open(work / "sitl.log", "ab")  # noqa: SIM115 - kept for the child's life
         return subprocess.Popen(
-            sitl_command(args.arduplane, home, parm, wipe),
+            sitl_command(args.arduplane, home, parm, wipe, serial1_tcp=bool(args.baud_limit)),
             cwd=work,
             stdin=subprocess.DEVNULL,
             stdout=log,
@@ -226,6 +256,7 @@ def main() -> int:
         )
 
     sitl = launch(wipe=True)
+    periph = start_periph(args.periph, home, work) if args.periph else None
     mcast_servos = VirtualServoBus(
         [SimServo("rmd-x", i) for i in range(1, args.servos + 1)],
         channel=0,
@@ -237,8 +268,9 @@ def main() -> int:
         a_cfg, b_cfg = work / "a.yaml", work / "b.yaml"
         a_cfg.write_text(
             config(
-                "udpin:127.0.0.1:14551",
-                "{name: fc, interface: mavlink-can, channel: 1}",
+                "tcp:127.0.0.1:5762" if args.baud_limit else "udpin:127.0.0.1:14551",
+                "{name: fc, interface: mavlink-can, channel: 1"
+                + (", options: {filter_at_autopilot: false}}" if args.no_autopilot_filter else "}"),
                 args.servos,
                 args.scheduler,
             )
@@ -253,12 +285,11 @@ def main() -> int:
         )
         if args.tunnel_only:
             a = start_bridge(a_cfg, work / "a", args.seconds)
-            if args.baud_limit:
-                # only once the bridge listens: a SITL UDP port limited while nobody listens
-                # never sends again (this build)
-                time.sleep(3.0)
-                limit_baud()
-            out["mavlink_can"] = figures(metrics_of_after(a, work / "a", args.seconds), 0.0)
+            metrics = metrics_of_after(a, work / "a", args.seconds)
+            out["mavlink_can"] = figures(metrics, 0.0)
+            out["link_frames_per_s"] = link_rates(metrics)
+            out["filter_at_autopilot"] = not args.no_autopilot_filter
+            out["periph"] = bool(args.periph)
             return _print(out)
         a = start_bridge(a_cfg, work / "a", args.seconds)
         b = start_bridge(b_cfg, work / "b", args.seconds)
@@ -332,11 +363,14 @@ def main() -> int:
             "transport": summary["buses"]["fc"]["transport"],
         }
     finally:
-        sitl.send_signal(signal.SIGTERM)
-        try:
-            sitl.wait(10)
-        except subprocess.TimeoutExpired:
-            sitl.kill()
+        for child in (sitl, periph):
+            if child is None:
+                continue
+            child.send_signal(signal.SIGTERM)
+            try:
+                child.wait(10)
+            except subprocess.TimeoutExpired:
+                child.kill()
         mcast_servos.stop()
         emulator.stop()
     print(json.dumps(out, indent=1))

@@ -369,9 +369,12 @@ class Bridge:
     def _count_stop_frames(self, summary: dict[str, Any]) -> None:
         """The bus nodes' counters again, now that the schedulers have sent their stop frames
         (DroneCAN's SAFETY_ON goes out then: the summary taken before the stop never counted
-        it), and ``safety_on``, the SafetyState SAFETY_ON broadcasts of the run, on top."""
+        it), and ``safety_on``, the SafetyState SAFETY_ON broadcasts of the run, on top; the
+        servos' reply outcomes once the stop booked what the bus held
+        (:func:`reply_outcomes_at_stop`)."""
         safety_on = 0
         for name, scheduler in self.schedulers.items():
+            reply_outcomes_at_stop(summary["servos"], scheduler.metrics().get("servos", {}))
             nodes = [node.stats() for node in scheduler.nodes if isinstance(node, CountingNode)]
             if name in summary["buses"]:
                 summary["buses"][name]["nodes"] = nodes
@@ -551,6 +554,28 @@ class Bridge:
         if self.health_reporter is not None:
             out["health"] = self.health_reporter.summary()
         return out
+
+
+#: A servo's reply outcomes, final only once its scheduler stopped (see below).
+REPLY_OUTCOMES = ("timed_out", "late", "lost")
+
+
+def reply_outcomes_at_stop(servos: dict[str, Any], stopped: dict[str, Any]) -> None:
+    """Put the schedulers' reply outcomes after their stop into the summary's ``servos``.
+
+    The summary is taken before the schedulers stop; a reply the receive thread had not read
+    by then (its timeout passed, the reply waiting in the bus: a tunnel or a loaded machine)
+    read as lost. A stopping scheduler books what the bus holds (``FrameReceiver.drain``), so
+    its counts say which of those replies came late and which never came. Frames sent stay
+    the summary's (the stop frames are counted apart); received grows by the late replies
+    booked since (a late reply is received too, never the stop frames' answers)."""
+    for name, figures in stopped.items():
+        frames = servos.get(name, {}).get("frames")
+        final = figures.get("frames", {})
+        if frames is None or not all(key in final for key in REPLY_OUTCOMES):
+            continue
+        frames["received"] = frames.get("received", 0) + final["late"] - frames.get("late", 0)
+        frames.update({key: final[key] for key in REPLY_OUTCOMES})
 
 
 def _fault_names(faults: Any) -> str:

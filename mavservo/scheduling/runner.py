@@ -232,6 +232,8 @@ class Scheduler:
         self._threads = []
         if was_running and stopped:  # a runner still in bus.send would be a second writer
             self._writer.send_final_frames()
+            # replies already received (or in flight) are booked, late ones as late, not lost
+            self._receiver.drain(self.timing.reply_timeout_s)
         now = self._clock()
         with self._lock:
             runs = [("sends", self._writer.failures), ("receives", self._receiver.failures)]

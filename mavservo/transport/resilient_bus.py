@@ -23,6 +23,7 @@ from typing import Any
 import can
 
 from mavservo.transport.counters import TransportCounters, transport_stats
+from mavservo.transport.outage_words import outage_words
 
 log = logging.getLogger(__name__)
 
@@ -39,8 +40,11 @@ class ResilientBus(can.BusABC, TransportCounters):
     ``on_frame(msg, t)``: every frame the adapter delivers, with the monotonic time it was
     taken, before any filtering (the run log's "every frame"); called on the receiving
     thread, must not block. The inner bus is read only through python-can's documented
-    ``BusABC`` attributes and the :class:`TransportCounters` contract, so a foreign bus's extra
-    attributes (a ``stats`` that is not a method) are never touched.
+    ``BusABC`` attributes and the :class:`TransportCounters` and
+    :class:`~mavservo.transport.outage_words.SaysItsOutages` contracts, so a foreign bus's extra
+    attributes (a ``stats`` that is not a method) are never touched. The loss and return events
+    are worded by the kind of the first bus opened (a USB adapter's "CAN adapter lost", the
+    autopilot's CAN port's "the autopilot stopped forwarding CAN bus 1").
     """
 
     def __init__(
@@ -65,6 +69,7 @@ class ResilientBus(can.BusABC, TransportCounters):
         self._bus: can.BusABC | None = factory()  # the first open must work: errors surface
         #: what the factory opens (the serial device of an AA-55 adapter), named in warnings
         self.path = path or str(self._bus.channel_info or name)
+        self._words = outage_words(self._bus)
         self.on_frame = on_frame
         self.failed_reopens = 0  # in the current outage
         self._reopen_warned_at: float | None = None
@@ -93,14 +98,14 @@ class ResilientBus(can.BusABC, TransportCounters):
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         bus = self._bus
         if bus is None:
-            raise can.CanOperationError(f"{self.name}: device disconnected, reconnecting")
+            raise can.CanOperationError(self._words.down_text(self.name))
         try:
             bus.send(msg, timeout)
         except (can.CanOperationError, OSError) as exc:
             if isinstance(exc, can.CanTimeoutError):
                 raise
             self._lost(bus, exc)
-            raise can.CanOperationError(f"{self.name}: device lost: {exc}") from exc
+            raise can.CanOperationError(self._words.lost_text(self.name, exc)) from exc
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         bus = self._bus
@@ -160,7 +165,7 @@ class ResilientBus(can.BusABC, TransportCounters):
             bus.shutdown()
         except Exception as close_exc:  # a vanished device may fail to close
             log.debug("%s: close after loss failed: %s", self.name, close_exc)
-        self._on_event(f"{self.name}: CAN adapter lost ({exc}); reconnecting")
+        self._on_event(self._words.lost_text(self.name, exc))
 
     def _try_reconnect(self) -> can.BusABC | None:
         now = self._clock()
@@ -180,7 +185,7 @@ class ResilientBus(can.BusABC, TransportCounters):
             self.reconnects += 1
             down_for = now - (self.down_since or now)
             self.down_since = None
-        self._on_event(f"{self.name}: CAN adapter back after {down_for:.1f} s")
+        self._on_event(self._words.back_text(self.name, down_for))
         return bus
 
     def _reopen_failed(self, exc: BaseException, now: float) -> None:
@@ -191,14 +196,7 @@ class ResilientBus(can.BusABC, TransportCounters):
             log.debug("%s: reopen of %s failed: %s", self.name, self.path, exc)
             return
         self._reopen_warned_at = now
-        log.warning(
-            "%s: cannot reopen %s (%d failed attempts since it was lost): %s; still trying "
-            "(an adapter that came back under another device name needs a config change)",
-            self.name,
-            self.path,
-            self.failed_reopens,
-            exc,
-        )
+        log.warning("%s", self._words.retrying_text(self.name, self.path, self.failed_reopens, exc))
 
     def stats(self) -> dict[str, Any]:
         """The device's counters since start-up, across reconnects (each reopened device starts

@@ -49,6 +49,7 @@ from typing import Any, Protocol
 import can
 
 from mavservo.transport.counters import TransportCounters
+from mavservo.transport.outage_words import OutageWords, SaysItsOutages
 
 #: The python-can interface name (``can.buses[].interface``).
 MAVLINK_CAN = "mavlink-can"
@@ -118,7 +119,7 @@ class FrameCarrier(Protocol):
         """CAN_FILTER_MODIFY: forward only frames whose :func:`filter_key` is in ``ids``."""
 
 
-class TunnelledCanBus(can.BusABC, TransportCounters):
+class TunnelledCanBus(can.BusABC, TransportCounters, SaysItsOutages):
     """The autopilot's CAN bus ``channel`` (1-based), through ``carrier``; see the module.
 
     ``clock`` is injectable so a test runs minutes of keep-alive in no time; ``confirm_s`` > 0
@@ -289,8 +290,8 @@ class TunnelledCanBus(can.BusABC, TransportCounters):
             if self._lost is None and silent > self._forward_timeout_s:
                 self.counters["outages"] += 1
                 self._lost = (
-                    f"autopilot stopped forwarding CAN bus {self.bus_number}: nothing heard for "
-                    f"{silent:.1f} s (no frame, no answer to MAV_CMD_CAN_FORWARD)"
+                    f"the autopilot stopped forwarding CAN bus {self.bus_number}: nothing heard "
+                    f"for {silent:.1f} s (no frame, no answer to MAV_CMD_CAN_FORWARD)"
                 )
                 self._arrived.notify_all()
             due = now >= self._next_request
@@ -316,6 +317,18 @@ class TunnelledCanBus(can.BusABC, TransportCounters):
                     return False
                 self._arrived.wait(min(left, _MAX_WAIT_S))
             return self._lost is None
+
+    def outage_words(self) -> OutageWords:
+        """Not a device unplugged: the forward stopped (the reason says how: nothing heard, or
+        the request refused) and the bus asks the autopilot again; back once it answered."""
+        return OutageWords(
+            lost="{name}: {reason}; asking the autopilot again",
+            back="{name}: the autopilot's CAN port is back after {down_for:.1f} s "
+            f"(forwarding CAN bus {self.bus_number} again)",
+            down="{name}: the autopilot's CAN port is not forwarding; asking it again",
+            retrying="{name}: no answer from the autopilot for CAN bus "
+            f"{self.bus_number} ({{failed}} requests since it stopped): {{reason}}; still asking",
+        )
 
     @property
     def forwarding(self) -> bool:

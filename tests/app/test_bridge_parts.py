@@ -179,3 +179,18 @@ def _heartbeat() -> Any:
     from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
     return mavlink2.MAVLink_heartbeat_message(1, 3, 0, 0, 4, 3)
+
+
+def test_the_summary_takes_the_reply_outcomes_the_stop_booked() -> None:
+    """The summary is taken before the schedulers stop; replies still in the bus then were
+    read as lost. After the stop the scheduler booked them late: the summary says so, counts
+    them received, and keeps its frames sent (the stop frames are counted apart)."""
+    from mavservo.app.bridge import reply_outcomes_at_stop
+
+    before = {"s1": {"frames": {"sent": 100, "received": 96, "timed_out": 4, "late": 0, "lost": 4}}}
+    after = {"s1": {"frames": {"sent": 102, "received": 102, "timed_out": 4, "late": 4, "lost": 0}}}
+    after["gone"] = {"frames": {"timed_out": 9, "late": 0, "lost": 9}}  # not in the summary
+    reply_outcomes_at_stop(before, after)
+    assert before == {
+        "s1": {"frames": {"sent": 100, "received": 100, "timed_out": 4, "late": 4, "lost": 0}}
+    }

@@ -80,10 +80,12 @@ def test_servos_on_the_autopilots_can_port_follow_and_survive_its_restart() -> N
         assert link.forwarder.counters["forwarded"] > 0
 
         autopilot.reboot(3.0)  # silent 3 s, then boots with no forward
-        assert wait_until(lambda: any("stopped forwarding CAN bus 1" in t for t in events(bridge)))
+        lost_said = "fc: the autopilot stopped forwarding CAN bus 1"
+        assert wait_until(lambda: any(t.startswith(lost_said) for t in events(bridge)))
         assert wait_until(lambda: not any(online(bridge).values()), 10.0)
         # the operator hears it: STATUSTEXT from the bridge reaches the autopilot's link
-        assert wait_until(lambda: "back after" in " ".join(events(bridge)), 15.0), events(bridge)
+        back_said = "fc: the autopilot's CAN port is back after"
+        assert wait_until(lambda: back_said in " ".join(events(bridge)), 15.0), events(bridge)
         assert wait_until(lambda: all(online(bridge).values()), 10.0)
         commands = servos[0].commands
         assert wait_until(lambda: servos[0].commands > commands + 5, 10.0)
@@ -91,6 +93,15 @@ def test_servos_on_the_autopilots_can_port_follow_and_survive_its_restart() -> N
         assert stats["disconnects"] == 1 and stats["reconnects"] == 1 and stats["outages"] == 1
         texts = [m.text for _, m in autopilot.received.messages("STATUSTEXT")]
         assert any(" offline" in t for t in texts), texts
+        # the bus kind's words, wherever the event goes: STATUSTEXT (a first chunk holds the
+        # start), the event list of the run log and the summary; never a USB adapter's
+        for said in (lost_said, back_said):
+            assert any(t.startswith(said[:50]) for t in texts), texts
+        summary = bridge.stop()
+    said = [t for t in summary["events"] if t.startswith("fc: ")]
+    assert any(t.startswith(lost_said) for t in said), said
+    assert any(t.startswith(back_said) for t in said), said
+    assert not any("adapter" in t for t in said + texts), said + texts
 
 
 def test_replies_the_autopilots_port_has_no_room_for_are_counted_lost_never_silent() -> None:

@@ -61,3 +61,41 @@ def test_four_rmd_x_through_arduplane_sitl_lose_nothing_and_survive_its_restart(
     assert restart["outage_detected_after_kill_s"] is not None, restart
     assert restart["bus_back_after_relaunch_s"] is not None, restart
     assert restart["servos_online_after_relaunch_s"] is not None, restart
+    said = [e for e in restart["events"] if e.startswith("fc: ")]  # in the port's own words
+    assert any(e.startswith("fc: the autopilot stopped forwarding CAN bus 1") for e in said), said
+    assert any(e.startswith("fc: the autopilot's CAN port is back after") for e in said), said
+
+
+def ap_periph() -> str | None:
+    """An AP_Periph SITL binary (``$AP_PERIPH`` or ``AP_Periph`` on PATH): another DroneCAN
+    node on the vehicle's multicast CAN, so the port carries DroneCAN traffic."""
+    path = os.environ.get("AP_PERIPH") or shutil.which("AP_Periph")
+    return path if path and os.access(path, os.X_OK) else None
+
+
+def tunnel_run(*extra: str) -> dict:
+    script = (
+        "ip link set lo up && ip link set lo multicast on && "
+        "ip route add 239.0.0.0/8 dev lo && "
+        f"exec {sys.executable} {REPO / 'bench/bench_mavlink_can_sitl.py'} "
+        f"--arduplane {BINARY} --tunnel-only --seconds 15 " + " ".join(extra)
+    )
+    done = subprocess.run(
+        ["unshare", "-n", "sh", "-c", script], capture_output=True, text=True, timeout=240
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    return json.loads(done.stdout)
+
+
+@pytest.mark.skipif(ap_periph() is None, reason="needs an AP_Periph SITL binary ($AP_PERIPH)")
+def test_the_autopilots_filter_keeps_the_servo_replies_and_drops_its_dronecan() -> None:
+    """CAN_FILTER_MODIFY (on by default for an 11-bit-only bus) with ArduPlane's and an
+    AP_Periph's DroneCAN on the port: every servo reply still forwarded, the DroneCAN frames
+    no longer; without the filter they come along (the link carries them)."""
+    periph = f"--periph {ap_periph()}"
+    filtered = tunnel_run(periph)
+    unfiltered = tunnel_run(periph, "--no-autopilot-filter")
+    for run in (filtered, unfiltered):
+        assert run["mavlink_can"]["frames_sent"] > 0 and run["mavlink_can"]["lost"] == 0, run
+    assert unfiltered["link_frames_per_s"]["of_them_29_bit"] > 10, unfiltered
+    assert filtered["mavlink_can"]["transport"]["ignored"] == 0, filtered

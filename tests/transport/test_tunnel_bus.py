@@ -19,6 +19,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from mavservo.mavlink.can_tunnel import CanTunnel
 from mavservo.sim.autopilot.can_forward import CanForwardLink
+from mavservo.transport.resilient_bus import ResilientBus
 from mavservo.transport.tunnel_bus import TunnelledCanBus, tunnel_factory
 
 _channels = itertools.count()
@@ -91,7 +92,7 @@ def open_bus(wire: Wire, **kwargs: Any) -> TunnelledCanBus:
     return TunnelledCanBus(1, carrier=wire.tunnel, clock=wire.clock, **kwargs)
 
 
-def drain(bus: TunnelledCanBus) -> list[can.Message]:
+def drain(bus: can.BusABC) -> list[can.Message]:
     out = []
     for _ in range(10_000):
         msg = bus.recv(timeout=0)
@@ -105,7 +106,7 @@ NODE_STATUS = can.Message(arbitration_id=0x1015501, is_extended_id=True, data=by
 SERVO_REPLY = can.Message(arbitration_id=0x241, is_extended_id=False, data=bytes(range(8)))
 
 
-def run(wire: Wire, bus: TunnelledCanBus, seconds: float, frame_every: int = 3) -> int:
+def run(wire: Wire, bus: can.BusABC, seconds: float, frame_every: int = 3) -> int:
     """``seconds`` of fake time in 10 ms steps, the node sending a frame every ``frame_every``
     steps (~33/s, like the autopilot's DroneCAN); returns the frames the bus received."""
     got = 0
@@ -335,3 +336,38 @@ def test_any_frame_crosses_the_tunnel_both_ways_unchanged(
             msg.is_remote_frame,
             bytes(msg.data),
         )
+
+
+def test_the_port_lost_and_back_say_what_happened_not_an_adapters_words(wire: Wire) -> None:
+    """The events (console, STATUSTEXT, run log, summary: one text) of a ``mavlink-can`` bus
+    are the bus kind's: the autopilot stopped forwarding, its CAN port is back; a USB adapter
+    keeps its own (python-can's ``virtual`` bus stands for a device here)."""
+    events: list[str] = []
+    factory = tunnel_factory({"channel": 1, "clock": wire.clock}, wire.tunnel)
+    bus = ResilientBus(factory, name="fc", on_event=events.append, clock=wire.clock)
+    try:
+        run(wire, bus, 1.0)
+        wire.alive = False
+        run(wire, bus, 3.0)
+        wire.alive = True
+        wire.link.reboot()
+        run(wire, bus, 2.0)
+    finally:
+        bus.shutdown()
+    assert len(events) == 2, events
+    lost, back = events
+    assert lost.startswith("fc: the autopilot stopped forwarding CAN bus 1: nothing heard for ")
+    assert lost.endswith("; asking the autopilot again")
+    assert back.startswith("fc: the autopilot's CAN port is back after ")
+    assert back.endswith(" s (forwarding CAN bus 1 again)")
+    assert not any("adapter" in text or "device" in text for text in events)
+
+    said: list[str] = []
+    device = ResilientBus(
+        lambda: can.Bus(interface="virtual", channel="words"), name="usb", on_event=said.append
+    )
+    assert device.inner is not None
+    device.inner.shutdown()  # the device goes away: python-can raises on the closed bus
+    device.recv(timeout=0)
+    device.shutdown()
+    assert said == ["usb: CAN adapter lost (Cannot operate on a closed bus); reconnecting"]
