@@ -3,7 +3,7 @@
 Why this exists: the ``aa55`` interface claims to be much faster and more robust than python-can's
 ``seeedstudio`` driver, which decodes the same wire format one byte per read. This script checks
 the claim on the same byte streams, in the same run, and prints a markdown table for
-docs/engineering/benchmarks.md. Measured:
+docs/benchmarks.md. Measured:
 
 * (a) decoding bytes already in memory: seeedstudio fed from an in-memory fake port, against
   ``Decoder.feed`` on 4096-byte chunks (alone, and with the ``can.Message`` conversion a bus user

@@ -9,7 +9,7 @@ core is free; ``realtime=True`` asks for SCHED_FIFO, which is what holds under l
 (asked for, or inherited from the process, as under the systemd unit in deploy/) spins
 ``fifo_spin_s`` instead (default 0): its plain timed wake-up is late by 0.1-0.25 ms at p99 even
 with every core busy, a tenth of the command goal, while a spin at real-time priority is never
-preempted and cost a third of the scheduler's CPU (docs/engineering/benchmarks.md, Scheduler).
+preempted and cost a third of the scheduler's CPU (docs/benchmarks.md, Scheduler).
 """
 
 from __future__ import annotations

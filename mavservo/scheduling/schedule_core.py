@@ -132,7 +132,7 @@ class TimingConfig:
     """The spin used instead of ``spin_s`` when the runner thread runs under SCHED_FIFO
     (``realtime=True``, or inherited, e.g. systemd's ``CPUSchedulingPolicy=fifo``): a FIFO
     thread's plain timed wake-up is already within ~0.25 ms at p99, and a spin it runs is never
-    preempted, so it buys little and costs CPU (see docs/engineering/benchmarks.md, Scheduler)."""
+    preempted, so it buys little and costs CPU (see docs/benchmarks.md, Scheduler)."""
     telemetry_phase_s: float | None = None
     """Offset of the first telemetry tick after the first command slot, in
     ``[0, telemetry_period_s)``; None: automatic, clear of command bursts (module docstring)."""

@@ -2,7 +2,7 @@
 simulated autopilot's sweeps and steps without one health event.
 
 Short runs here (CI: three bridges at a time, about 20 s in all); bench/bench_health.py
-``quiet`` runs each for 60 s (docs/engineering/benchmarks.md). A run counts only if every servo's
+``quiet`` runs each for 60 s (docs/benchmarks.md). A run counts only if every servo's
 states were judged: a monitor that saw nothing is not quiet.
 """
 

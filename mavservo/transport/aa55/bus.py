@@ -160,7 +160,7 @@ class AA55Bus(can.BusABC, TransportCounters):
         :data:`AUTO_BUSY_FRACTION` of its capacity, never letting more than
         :data:`AUTO_HOLD_BYTES` gather. (A wake-up is what costs: on the shared dev
         VM a saturated line takes 6.5% of a core at 0, 4.8% at 4 ms, 3.2% at 10 ms; see
-        docs/engineering/benchmarks.md.)
+        docs/benchmarks.md.)
     :param on_reject: called with ``(reason, raw_bytes)`` for each rejected candidate, from the
         receiving thread; must not block (it is how run logs record garbage on the line).
     """
@@ -362,7 +362,7 @@ class AA55Bus(can.BusABC, TransportCounters):
         One read brings ~15 frames at a saturated line; the 2nd to 15th need no clock, lock or
         loop, only the filter check. The 1st is read on a thread that has just slept, when every
         instruction and object it touches is out of the caches (20-60 us per wake-up after 1 ms
-        of sleep on a shared VM, see docs/engineering/benchmarks.md), so the wait is one loop of our
+        of sleep on a shared VM, see docs/benchmarks.md), so the wait is one loop of our
         own instead of ``BusABC.recv`` (its clock, logging and filter layers) over
         :meth:`_recv_internal`. Same contract: ``timeout`` None waits for ever, 0 does not
         block, and a message the filters drop does not end the wait.

@@ -412,7 +412,7 @@ class Decoder:
             # Nothing held back: scan the caller's bytes where they are and keep only the tail.
             # Copying a whole read into the buffer first costs little on a warm CPU but ~15 us
             # on one that has just woken up, when the bus calls this
-            # (docs/engineering/benchmarks.md).
+            # (docs/benchmarks.md).
             return self._scan(data, timestamp, idle=False)
         self._buf += data
         return self._scan(self._buf, timestamp, idle=False)
