@@ -624,3 +624,19 @@ def test_an_unknown_key_anywhere_in_a_servo_is_reported_on_its_line(key, servo_i
     assert [(e["line"], e["path"]) for e in errors] == [
         (str(insert_at + 1), f"servos[{servo_index}].{key}")
     ]
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        # the url deleted from a hardware config leaves `mavlink:` with nothing under it
+        ("mavlink:\n", "'mavlink' is empty (nothing under it); write its keys under it"),
+        ("mavlink: udpin:0.0.0.0:14550\n", "expected keys under 'mavlink', found"),
+        ("can:\n  buses:\n", "'buses' is empty (nothing under it); write its items"),
+        ("can:\n  buses: can0\n", "expected items (lines starting with '- ') under 'buses'"),
+    ],
+)
+def test_an_empty_or_flat_section_is_named_in_yaml_terms(text: str, expected: str):
+    messages = [e["msg"] for e in _errors(text + "servos: []\n")]
+    assert any(expected in m for m in messages), messages
+    assert not any("instance of" in m or "valid dictionary" in m for m in messages), messages
