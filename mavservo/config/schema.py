@@ -186,7 +186,14 @@ class SigningConfig(StrictModel):
         try:
             raw = read_small_file(resolved, MAX_KEY_FILE_BYTES)
         except SmallFileError as exc:
-            raise ValueError(f"expected a readable key file: {exc}") from None
+            hint = ""
+            if not resolved.exists():
+                hint = (
+                    f'; make one: python3 -c "import secrets; print(secrets.token_hex(32))" > '
+                    f"{resolved} && chmod 600 {resolved}, and give the autopilot the same key "
+                    "(docs/hardware/ardupilot.md, MAVLink signing)"
+                )
+            raise ValueError(f"expected a readable key file: {exc}{hint}") from None
         if _parse_key_bytes(raw) is None:
             raise ValueError(
                 f"key file {resolved} must hold 64 hex characters, found {len(raw.strip())} bytes"

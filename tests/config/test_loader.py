@@ -97,6 +97,8 @@ def test_signing_configs_refuse_to_load_without_their_key_file(tmp_path: Path):
     text = (REPO / "config" / "plane-surfaces.yaml").read_text()
     errors = _errors(text, "plane-surfaces.yaml", base_dir=tmp_path)
     assert [e["path"] for e in errors] == ["mavlink.signing.key_file"]
+    # the error says how to make the missing file, not only that it is missing
+    assert "secrets.token_hex(32)" in errors[0]["msg"] and "chmod 600" in errors[0]["msg"]
     key_line = next(
         n
         for n, line in enumerate(text.splitlines(), 1)
