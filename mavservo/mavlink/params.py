@@ -124,7 +124,7 @@ class WritePolicy:
             "recommended: mavlink.signing. Without it this link takes "
             + " and ".join(writes)
             + " on their word: a source id is a claim, held to the address it was first "
-            "heard from, which is no authentication (docs/security.md)"
+            "heard from, which is no authentication (docs/engineering/security.md)"
         ]
 
 
