@@ -507,6 +507,7 @@ def test_check_main_prints_mapping_and_load_and_returns_zero():
     for servo in config.servos:
         assert servo.name in text
     assert re.search(r"bus0: R = 0\.\d+", text)
+    assert "paper" not in text  # a user has no paper: the heading says what R counts
     assert err.getvalue() == ""
 
 
