@@ -643,3 +643,16 @@ def test_an_empty_or_flat_section_is_named_in_yaml_terms(text: str, expected: st
     messages = [e["msg"] for e in _errors(text + "servos: []\n")]
     assert any(expected in m for m in messages), messages
     assert not any("instance of" in m or "valid dictionary" in m for m in messages), messages
+
+
+@pytest.mark.parametrize(("written", "meant"), [(921, "921600"), (57, "57600"), (115, "115200")])
+def test_an_ardupilot_baud_code_is_refused_with_the_baud_rate_it_stands_for(written, meant):
+    # SERIAL2_BAUD 921 copied into the config: the link would be silent at 921 baud
+    errors = _errors(f"mavlink:\n  url: /dev/serial0\n  baud: {written}\n" + BASE)
+    assert [e["path"] for e in errors] == ["mavlink.baud"] and errors[0]["line"] == "3"
+    assert f"write baud: {meant}" in errors[0]["msg"]
+
+
+def test_a_slow_but_real_baud_rate_is_accepted():
+    config = load_config_text("mavlink:\n  url: /dev/serial0\n  baud: 1200\n" + BASE, "ok.yaml")
+    assert config.mavlink.baud == 1200
