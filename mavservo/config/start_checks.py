@@ -77,7 +77,7 @@ def simulated_autopilot_findings(config: Config, *, port: str | None = None) -> 
         why, loc = "mavlink.url is not set", ("can", "buses", first, "channel")
     message = (
         f"{why}, so the built-in simulated autopilot would move the real servos of bus "
-        f"{buses}; it only drives simulated buses. Nothing was started: {AUTOPILOT_LINK_HINT}"
+        f"{buses}; it only drives simulated buses, so nothing starts: {AUTOPILOT_LINK_HINT}"
     )
     return [(loc, message)]
 
