@@ -356,7 +356,9 @@ class MavlinkConfig(StrictModel):
     url: str = "sim"
     """Where the autopilot is, as a pymavlink connection string: ``udpin:0.0.0.0:14551``,
     ``udpout:HOST:PORT``, ``tcp:HOST:PORT``, a serial device such as ``/dev/ttyAMA0`` or
-    ``/dev/serial0``; ``sim`` starts the built-in simulated autopilot."""
+    ``/dev/serial0``; ``sim`` (also when the key is left out) starts the built-in simulated
+    autopilot, which never drives a bus that reaches hardware (only ``channel: sim`` and
+    software buses such as python-can's ``virtual``): with a real bus it is an error."""
     baud: Int = Field(115200, gt=0)
     """Serial links only: the baud rate in bit/s, the one the autopilot's ``SERIALn_BAUD`` names
     (``SERIALn_BAUD`` 921 is ``baud: 921600``)."""
