@@ -656,3 +656,17 @@ def test_an_ardupilot_baud_code_is_refused_with_the_baud_rate_it_stands_for(writ
 def test_a_slow_but_real_baud_rate_is_accepted():
     config = load_config_text("mavlink:\n  url: /dev/serial0\n  baud: 1200\n" + BASE, "ok.yaml")
     assert config.mavlink.baud == 1200
+
+
+def test_an_unclosed_brace_names_the_line_it_opened_on():
+    # PyYAML reports the next line ("expected ',' or '}', but got '-'"), where nothing is wrong
+    text = BASE.replace("can_id: 1}", "can_id: 1") + "channels: []\n"
+    errors = _errors(text)
+    assert len(errors) == 1 and errors[0]["line"] == "3"
+    assert "the '{' on line 2 is not closed: is its '}' missing?" in errors[0]["msg"]
+
+
+def test_an_unclosed_bracket_inside_a_multiline_mapping_is_named():
+    text = "servos:\n  - {name: a, profile: rmd-x, can_id: 1, limits_deg: [-10, 10,\n     x: 1}\n"
+    (error,) = _errors(text)
+    assert "the '[' on line 2 is not closed: is its ']' missing?" in error["msg"]
