@@ -183,3 +183,19 @@ def test_a_missing_usb_autopilot_is_not_called_an_adapter(
     status, err = _run(path, capsys)
     assert status == 1 and f"the autopilot link ({path}:1: mavlink.url)" in err
     assert "is the autopilot (its USB cable" in err and "is the adapter" not in err
+
+
+def test_a_failing_command_line_override_is_named_not_the_files_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # the file's url is fine; the --mavlink that replaced it is what did not open
+    gone = tmp_path / "ttyACM-gone"
+    path = _write(
+        tmp_path,
+        "mavlink: {url: 'udpin:127.0.0.1:0'}\nservos: [{name: a, profile: rmd-x, can_id: 1}]\n",
+    )
+    status = run.main([str(path), "--mavlink", str(gone), "--no-log", "--duration", "1", "-q"])
+    err = capsys.readouterr().err
+    assert status == 1
+    assert f"the autopilot link (--mavlink {gone}, replacing mavlink.url): cannot open" in err
+    assert f"{path}:1" not in err
