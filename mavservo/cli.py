@@ -7,6 +7,7 @@ file only dispatches, so ``mavservo --help`` stays fast and a broken optional ex
 
 from __future__ import annotations
 
+import difflib
 import importlib
 import os
 import sys
@@ -102,7 +103,10 @@ def _dispatch(args: list[str]) -> int:
         args = ["run", *args]
     name, rest = args[0], args[1:]
     if name not in COMMANDS:
-        print(f"mavservo: unknown command {name!r}\n\n{_usage()}", file=sys.stderr)
+        print(
+            f"mavservo: unknown command {name!r}{_unknown_hint(name)}\n\n{_usage()}",
+            file=sys.stderr,
+        )
         return 2
     command = COMMANDS[name]
     try:
@@ -113,6 +117,14 @@ def _dispatch(args: list[str]) -> int:
     func = getattr(module, command.function)
     result = func(rest, prog=f"mavservo {name}") if command.takes_prog else func(rest)
     return int(result or 0)
+
+
+def _unknown_hint(name: str) -> str:
+    """What the user most likely meant: a misspelt command, or a config given without ``run``."""
+    if name.endswith((".yaml", ".yml")):
+        return f"; to run a config: mavservo run {name} (to check it: mavservo check {name})"
+    close = difflib.get_close_matches(name, list(COMMANDS), n=1)
+    return f" (did you mean {close[0]!r}?)" if close else ""
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -143,7 +143,7 @@ def resolved_mapping(config: Config) -> str:
     lines += ["", "health checks (servos[].health; docs/health.md):"]
     for servo in config.servos:  # the thresholds in force, derived or set (issue 33)
         lines += describe_limits(servo.name, servo_limits(config, servo))
-    lines += ["", "worst-case bus load (paper eq. 4):"]
+    lines += ["", "worst-case bus load R (bits of every frame at the configured rates / bitrate):"]
     lines += ["  " + _load_line(load) for load in bus_loads(config)]
     return "\n".join(lines)
 

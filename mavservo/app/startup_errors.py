@@ -49,7 +49,11 @@ def link_open_error(mavlink: MavlinkConfig, exc: BaseException) -> DeviceOpenErr
     number = getattr(exc, "errno", None)
     if url.startswith("/") or url.upper().startswith("COM"):
         device = url.partition(",")[0]
-        causes = serial_causes(device, exc)
+        causes = serial_causes(
+            device,
+            exc,
+            what="the autopilot (its USB cable, or the USB-serial adapter on its TELEM port)",
+        )
     elif number == errno.EADDRINUSE:
         causes = [
             "busy: another program (a second mavservo, MAVProxy, mavlink-router, a ground "

@@ -225,9 +225,31 @@ def _describe(error: ErrorDetails, loc: tuple[str | int, ...], scalar: ScalarNod
     for prefix in ("Value error, ", "Assertion failed, "):
         message = message.removeprefix(prefix)
     value = error.get("input")
+    if kind in _SECTION_ERRORS:
+        return _describe_section(kind, loc, value, scalar)
     if isinstance(value, (dict, list)) or kind in ("value_error", "assertion_error"):
         return message
     return f"{message}, found {_found(value, scalar, kind)}"
+
+
+#: A section or list given the wrong shape: pydantic's text names Python classes
+#: ("a valid dictionary or instance of MavlinkConfig"), which a YAML author cannot act on.
+_SECTION_ERRORS = ("model_type", "dict_type", "list_type")
+
+
+def _describe_section(
+    kind: str, loc: tuple[str | int, ...], value: Any, scalar: ScalarNode | None
+) -> str:
+    """Say what the key needs under it, in YAML terms; an empty key is the usual cause.
+
+    A user who deletes the only line under ``mavlink:`` (its ``url``) leaves ``mavlink:`` with
+    nothing under it, which YAML reads as null.
+    """
+    what = "items (lines starting with '- ')" if kind == "list_type" else "keys"
+    key = loc[-1]
+    if value is None:
+        return f"{key!r} is empty (nothing under it); write its {what} under it, indented"
+    return f"expected {what} under {key!r}, found {_found(value, scalar, kind)}"
 
 
 #: Strict-type errors (schema.Float/Int/Bool) that a YAML boolean or a quoted value can cause.

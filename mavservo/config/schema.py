@@ -206,7 +206,14 @@ class SigningConfig(StrictModel):
         try:
             raw = read_small_file(resolved, MAX_KEY_FILE_BYTES)
         except SmallFileError as exc:
-            raise ValueError(f"expected a readable key file: {exc}") from None
+            hint = ""
+            if not resolved.exists():
+                hint = (
+                    f'; make one: python3 -c "import secrets; print(secrets.token_hex(32))" > '
+                    f"{resolved} && chmod 600 {resolved}, and give the autopilot the same key "
+                    "(docs/hardware/ardupilot.md, MAVLink signing)"
+                )
+            raise ValueError(f"expected a readable key file: {exc}{hint}") from None
         if _parse_key_bytes(raw) is None:
             raise ValueError(
                 f"key file {resolved} must hold 64 hex characters, found {len(raw.strip())} bytes"
@@ -341,15 +348,40 @@ class StreamRequestConfig(StrictModel):
         return self
 
 
+#: ArduPilot's SERIALn_BAUD codes below 1200 and the baud rate each stands for (ArduPilot
+#: libraries/AP_SerialManager/AP_SerialManager.cpp, map_baudrate(): its switch; any other value
+#: up to 2000 is taken as kbaud, so every value below 1200 is a code there).
+ARDUPILOT_BAUD_CODES = {
+    1: 1200,
+    2: 2400,
+    4: 4800,
+    9: 9600,
+    19: 19200,
+    38: 38400,
+    57: 57600,
+    100: 100000,
+    111: 111100,
+    115: 115200,
+    230: 230400,
+    256: 256000,
+    460: 460800,
+    500: 500000,
+    921: 921600,
+}
+
+
 class MavlinkConfig(StrictModel):
     """The MAVLink side: where the autopilot is and how the bridge presents itself."""
 
     url: str = "sim"
     """Where the autopilot is, as a pymavlink connection string: ``udpin:0.0.0.0:14551``,
     ``udpout:HOST:PORT``, ``tcp:HOST:PORT``, a serial device such as ``/dev/ttyAMA0`` or
-    ``/dev/serial0``; ``sim`` starts the built-in simulated autopilot."""
+    ``/dev/serial0``; ``sim`` (also when the key is left out) starts the built-in simulated
+    autopilot, which never drives a bus that reaches hardware (only ``channel: sim`` and
+    software buses such as python-can's ``virtual``): with a real bus it is an error."""
     baud: Int = Field(115200, gt=0)
-    """Serial links only: the baud rate (the autopilot's ``SERIALn_BAUD``, e.g. 921 for 921600)."""
+    """Serial links only: the baud rate in bit/s, the one the autopilot's ``SERIALn_BAUD`` names
+    (``SERIALn_BAUD`` 921 is ``baud: 921600``)."""
     system_id: Literal["follow"] | Annotated[Int, Field(ge=1, le=255)] = "follow"
     """The bridge's MAVLink system id: ``follow`` takes the autopilot's, or a fixed 1..255."""
     servo_component_id: Int = 140
@@ -403,6 +435,21 @@ class MavlinkConfig(StrictModel):
         if problem is not None:
             raise ValueError(problem)
         return url
+
+    @field_validator("baud")
+    @classmethod
+    def _baud_is_in_bits_per_second(cls, baud: int) -> int:
+        # ArduPilot's SERIALn_BAUD takes codes in thousands (ARDUPILOT_BAUD_CODES: 921 ->
+        # 921600); a MAVLink link below 1200 baud is that code copied, silent rather than slow.
+        if baud < 1200:
+            hint = ""
+            if baud in ARDUPILOT_BAUD_CODES:
+                hint = (
+                    f": ArduPilot's SERIALn_BAUD {baud} is {ARDUPILOT_BAUD_CODES[baud]} baud; "
+                    f"write baud: {ARDUPILOT_BAUD_CODES[baud]}"
+                )
+            raise ValueError(f"expected a baud rate in bit/s (1200 or more), got {baud}{hint}")
+        return baud
 
     @field_validator("monitor_outputs")
     @classmethod

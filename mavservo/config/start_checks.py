@@ -16,7 +16,7 @@ on a laptop must not fail for.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from mavservo.config.endpoints import describe_bus
@@ -77,7 +77,7 @@ def simulated_autopilot_findings(config: Config, *, port: str | None = None) -> 
         why, loc = "mavlink.url is not set", ("can", "buses", first, "channel")
     message = (
         f"{why}, so the built-in simulated autopilot would move the real servos of bus "
-        f"{buses}; it only drives simulated buses. Nothing was started: {AUTOPILOT_LINK_HINT}"
+        f"{buses}; it only drives simulated buses, so nothing starts: {AUTOPILOT_LINK_HINT}"
     )
     return [(loc, message)]
 
@@ -121,6 +121,8 @@ class Preflight:
     #: the config in force: the file, its overlay, then the command line's overrides
     config: Config
     warnings: list[Problem]
+    #: the command line's ``--mavlink`` and ``--port``, which replace what the file says
+    overrides: dict[tuple[str | int, ...], str] = field(default_factory=dict)
 
     def line_of(self, loc: Sequence[str | int]) -> int | None:
         """The line of key ``loc`` in the file (None when it is not written there)."""
@@ -128,7 +130,12 @@ class Preflight:
         return None if document is None else document.line_of(loc)[1]
 
     def place(self, loc: Sequence[str | int]) -> str:
-        """``FILE:LINE: key`` of ``loc``, for a message about it found after loading."""
+        """``FILE:LINE: key`` of ``loc``, for a message about it found after loading; the
+        command-line option instead when one replaced the key (a failing ``--mavlink URL`` is
+        not the file's line)."""
+        option = self.overrides.get(tuple(loc))
+        if option is not None:
+            return f"{option}, replacing {format_path(loc)}"
         line = self.line_of(loc)
         where = f"{self.path}:{line}" if line is not None else str(self.path)
         return f"{where}: {format_path(loc)}"
@@ -149,7 +156,12 @@ def preflight(
     if errors:
         raise ConfigError(str(path), located(errors, loaded.document))
     warnings = [*loaded.warnings, *located(machine_findings(config), loaded.document)]
-    return Preflight(path, loaded, config, warnings)
+    overrides: dict[tuple[str | int, ...], str] = {}
+    if mavlink is not None:
+        overrides[("mavlink", "url")] = f"--mavlink {mavlink}"
+    if port is not None:
+        overrides[("can", "buses", 0, "channel")] = f"--port {port}"
+    return Preflight(path, loaded, config, warnings, overrides)
 
 
 def refuse_simulated_autopilot_on_hardware(config: Config) -> None:

@@ -238,7 +238,8 @@ def parse_yaml(text: str) -> YamlDocument:
             mark = exc.context_mark
         line = mark.line + 1 if mark is not None else None
         what = " ".join(part for part in (exc.context, exc.problem) if part)
-        raise YamlSyntaxError(line, f"invalid YAML: {what}{_syntax_hint(what)}") from None
+        hint = _syntax_hint(what) or _unclosed_hint(exc, line)
+        raise YamlSyntaxError(line, f"invalid YAML: {what}{hint}") from None
     except yaml.reader.ReaderError as exc:
         raise YamlSyntaxError(
             text[: exc.position].count("\n") + 1,
@@ -280,6 +281,18 @@ def _syntax_hint(what: str) -> str:
         " (check the indentation of this line and the lines above: the keys of one mapping,"
         f" and the '-' items of one list, must start in the same column{quoting})"
     )
+
+
+def _unclosed_hint(exc: yaml.MarkedYAMLError, line: int | None) -> str:
+    """Name the line of a ``{`` or ``[`` that runs into the next line unclosed: PyYAML reports
+    the line after it (``expected ',' or '}', but got '-'``), where nothing is wrong."""
+    context = exc.context or ""
+    opened = exc.context_mark.line + 1 if exc.context_mark is not None else None
+    if not context.startswith("while parsing a flow") or opened is None or opened == line:
+        return ""
+    bracket = "{" if "mapping" in context else "["
+    closing = "}" if bracket == "{" else "]"
+    return f" (the {bracket!r} on line {opened} is not closed: is its {closing!r} missing?)"
 
 
 def _line(node: Node | None) -> int | None:

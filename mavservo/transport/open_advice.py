@@ -48,8 +48,10 @@ def failure_errno(exc: BaseException | str) -> int | None:
     return int(found.group(1)) if found else None
 
 
-def serial_causes(device: str, exc: BaseException | str) -> list[str]:
-    """The usual causes of a serial device that did not open, most likely first."""
+def serial_causes(device: str, exc: BaseException | str, *, what: str = "the adapter") -> list[str]:
+    """The usual causes of a serial device that did not open, most likely first. ``what`` is
+    the thing that should be at ``device``: the CAN adapter, or the autopilot's USB port or
+    serial adapter for the MAVLink link."""
     number = failure_errno(exc)
     text = str(exc).lower()
     causes: list[str] = []
@@ -59,7 +61,7 @@ def serial_causes(device: str, exc: BaseException | str) -> list[str]:
         causes.append(DIALOUT)
     elif number in _MISSING and not causes:
         causes.append(
-            f"missing: nothing at {device}: is the adapter plugged in (a charge-only USB cable "
+            f"missing: nothing at {device}: is {what} plugged in (a charge-only USB cable "
             "has no data lines)? USB names move between boots and replugs: use the stable "
             "/dev/serial/by-id/... path (`ls -l /dev/serial/by-id/`)"
         )
@@ -70,7 +72,7 @@ def serial_causes(device: str, exc: BaseException | str) -> list[str]:
         )
     if not causes:  # nothing said which: the usual suspects, in order
         causes += [
-            f"the device: is {device} the adapter (`ls -l /dev/serial/by-id/`), plugged in?",
+            f"the device: is {device} {what} (`ls -l /dev/serial/by-id/`), plugged in?",
             DIALOUT,
         ]
     return causes

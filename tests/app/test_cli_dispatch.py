@@ -77,3 +77,19 @@ def test_a_reader_that_left_is_not_an_error(argv: list[str]):
     finally:
         os.close(write_end)
     assert (result.returncode, result.stderr) == (0, "")
+
+
+@pytest.mark.parametrize(
+    ("argv", "hint"),
+    [
+        (["rnu"], "unknown command 'rnu' (did you mean 'run'?)"),
+        (["chek", "my.yaml"], "(did you mean 'check'?)"),
+        (["my-rig.yaml"], "to run a config: mavservo run my-rig.yaml"),
+    ],
+)
+def test_an_unknown_command_says_what_was_meant(
+    argv: list[str], hint: str, capsys: pytest.CaptureFixture[str]
+):
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert hint in err and "usage: mavservo COMMAND" in err

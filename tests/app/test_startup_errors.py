@@ -124,6 +124,9 @@ def test_serial_causes_follow_the_errno() -> None:
     assert "/dev/serial/by-id/" in missing[0] and "cable" in missing[0]
     busy = serial_causes("/dev/ttyUSB0", "aa55: /dev/ttyUSB0 is in use by another process")
     assert "fuser" in busy[0]
+    assert "is the adapter plugged in" in missing[0]
+    link = serial_causes("/dev/ttyACM0", _os_error(errno.ENOENT), what="the autopilot")
+    assert "is the autopilot plugged in" in link[0] and "adapter" not in link[0]
     pi = serial_causes("/dev/serial0", _os_error(errno.ENOENT))
     assert "enable_uart=1" in pi[0] and len(pi) == 1
 
@@ -166,3 +169,33 @@ def test_a_socketcan_interface_that_is_down_is_refused_at_the_open(
         "ip link set can7 up type can bitrate 500000"
         in open_causes("socketcan", "can7", 500_000, "socketcan: interface can7 is down")[0]
     )
+
+
+def test_a_missing_usb_autopilot_is_not_called_an_adapter(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    missing = tmp_path / "ttyACM-gone"
+    path = _write(
+        tmp_path,
+        f"mavlink: {{url: {missing}, baud: 115200}}\n"
+        "servos: [{name: a, profile: rmd-x, can_id: 1}]\n",
+    )
+    status, err = _run(path, capsys)
+    assert status == 1 and f"the autopilot link ({path}:1: mavlink.url)" in err
+    assert "is the autopilot (its USB cable" in err and "is the adapter" not in err
+
+
+def test_a_failing_command_line_override_is_named_not_the_files_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    # the file's url is fine; the --mavlink that replaced it is what did not open
+    gone = tmp_path / "ttyACM-gone"
+    path = _write(
+        tmp_path,
+        "mavlink: {url: 'udpin:127.0.0.1:0'}\nservos: [{name: a, profile: rmd-x, can_id: 1}]\n",
+    )
+    status = run.main([str(path), "--mavlink", str(gone), "--no-log", "--duration", "1", "-q"])
+    err = capsys.readouterr().err
+    assert status == 1
+    assert f"the autopilot link (--mavlink {gone}, replacing mavlink.url): cannot open" in err
+    assert f"{path}:1" not in err

@@ -97,6 +97,8 @@ def test_signing_configs_refuse_to_load_without_their_key_file(tmp_path: Path):
     text = (REPO / "config" / "plane-surfaces.yaml").read_text()
     errors = _errors(text, "plane-surfaces.yaml", base_dir=tmp_path)
     assert [e["path"] for e in errors] == ["mavlink.signing.key_file"]
+    # the error says how to make the missing file, not only that it is missing
+    assert "secrets.token_hex(32)" in errors[0]["msg"] and "chmod 600" in errors[0]["msg"]
     key_line = next(
         n
         for n, line in enumerate(text.splitlines(), 1)
@@ -505,6 +507,7 @@ def test_check_main_prints_mapping_and_load_and_returns_zero():
     for servo in config.servos:
         assert servo.name in text
     assert re.search(r"bus0: R = 0\.\d+", text)
+    assert "paper" not in text  # a user has no paper: the heading says what R counts
     assert err.getvalue() == ""
 
 
@@ -624,3 +627,46 @@ def test_an_unknown_key_anywhere_in_a_servo_is_reported_on_its_line(key, servo_i
     assert [(e["line"], e["path"]) for e in errors] == [
         (str(insert_at + 1), f"servos[{servo_index}].{key}")
     ]
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        # the url deleted from a hardware config leaves `mavlink:` with nothing under it
+        ("mavlink:\n", "'mavlink' is empty (nothing under it); write its keys under it"),
+        ("mavlink: udpin:0.0.0.0:14550\n", "expected keys under 'mavlink', found"),
+        ("can:\n  buses:\n", "'buses' is empty (nothing under it); write its items"),
+        ("can:\n  buses: can0\n", "expected items (lines starting with '- ') under 'buses'"),
+    ],
+)
+def test_an_empty_or_flat_section_is_named_in_yaml_terms(text: str, expected: str):
+    messages = [e["msg"] for e in _errors(text + "servos: []\n")]
+    assert any(expected in m for m in messages), messages
+    assert not any("instance of" in m or "valid dictionary" in m for m in messages), messages
+
+
+@pytest.mark.parametrize(("written", "meant"), [(921, "921600"), (57, "57600"), (115, "115200")])
+def test_an_ardupilot_baud_code_is_refused_with_the_baud_rate_it_stands_for(written, meant):
+    # SERIAL2_BAUD 921 copied into the config: the link would be silent at 921 baud
+    errors = _errors(f"mavlink:\n  url: /dev/serial0\n  baud: {written}\n" + BASE)
+    assert [e["path"] for e in errors] == ["mavlink.baud"] and errors[0]["line"] == "3"
+    assert f"write baud: {meant}" in errors[0]["msg"]
+
+
+def test_a_slow_but_real_baud_rate_is_accepted():
+    config = load_config_text("mavlink:\n  url: /dev/serial0\n  baud: 1200\n" + BASE, "ok.yaml")
+    assert config.mavlink.baud == 1200
+
+
+def test_an_unclosed_brace_names_the_line_it_opened_on():
+    # PyYAML reports the next line ("expected ',' or '}', but got '-'"), where nothing is wrong
+    text = BASE.replace("can_id: 1}", "can_id: 1") + "channels: []\n"
+    errors = _errors(text)
+    assert len(errors) == 1 and errors[0]["line"] == "3"
+    assert "the '{' on line 2 is not closed: is its '}' missing?" in errors[0]["msg"]
+
+
+def test_an_unclosed_bracket_inside_a_multiline_mapping_is_named():
+    text = "servos:\n  - {name: a, profile: rmd-x, can_id: 1, limits_deg: [-10, 10,\n     x: 1}\n"
+    (error,) = _errors(text)
+    assert "the '[' on line 2 is not closed: is its ']' missing?" in error["msg"]
