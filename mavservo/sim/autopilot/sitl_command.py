@@ -80,7 +80,14 @@ def build_parser(prog: str = "sitl") -> argparse.ArgumentParser:
         help="which autopilot to simulate: ArduPlane's port, or PX4's onboard link "
         "(mavservo/sim/autopilot/px4.py; its defaults are PX4's) (default: %(default)s)",
     )
-    s.add_argument("--profile", default="sweep", choices=sorted(PROFILES))
+    s.add_argument(
+        "--profile",
+        default="sweep",
+        choices=sorted(PROFILES),
+        help="how the servo outputs move: hold (at trim), sweep (repeating control-surface "
+        "chirps), staircase or steps (min to max in held steps), random-walk (seeded by "
+        "--seed) (default: %(default)s)",
+    )
     s.add_argument("--seed", type=int, default=0, help="random-walk seed")
     s.add_argument("--duration", type=float, default=None, help="seconds (default: until Ctrl-C)")
     s.add_argument(
@@ -101,7 +108,11 @@ def build_parser(prog: str = "sitl") -> argparse.ArgumentParser:
         help="act as a gimbal manager (MNT1_TYPE 6) with a demo target sequence",
     )
     s.add_argument(
-        "--script", type=Path, help="YAML list of events (see mavservo/config/autopilot_script.py)"
+        "--script",
+        type=Path,
+        help="YAML list of timed commands, e.g. '- {at: 2.0, do_set_servo: {channel: 9, pwm: "
+        "1100}}' (also do_repeat_servo, do_set_actuator, gimbal, dropout; see "
+        "simulation.autopilot.script in docs/configuration.md and config/sim.yaml)",
     )
     s.add_argument(
         "--dropout",
@@ -145,8 +156,12 @@ def build_parser(prog: str = "sitl") -> argparse.ArgumentParser:
     )
 
     r = sub.add_parser("replay", help="replay a .tlog into a MAVLink link")
-    r.add_argument("file", type=Path)
-    r.add_argument("--url", default="udpout:127.0.0.1:14551")
+    r.add_argument("file", type=Path, help="the telemetry log (.tlog) to send")
+    r.add_argument(
+        "--url",
+        default="udpout:127.0.0.1:14551",
+        help="pymavlink connection string to send it to (default: %(default)s)",
+    )
     r.add_argument("--speed", type=float, default=1.0, help="time factor (4 = 4x faster)")
     r.add_argument("--as-fast", action="store_true", help="ignore timestamps, send at once")
     r.add_argument(
@@ -156,7 +171,13 @@ def build_parser(prog: str = "sitl") -> argparse.ArgumentParser:
     )
     r.add_argument("--start", type=float, default=0.0, help="skip the first seconds of the file")
     r.add_argument("--end", type=float, default=None, help="stop at this file time")
-    r.add_argument("--max-duration", type=float, default=None, help="wall-clock bound, seconds")
+    r.add_argument(
+        "--max-duration",
+        type=float,
+        default=None,
+        help="stop after this many seconds of wall-clock time, wherever the file is "
+        "(default: play to --end or the end of the file)",
+    )
     return parser
 
 
