@@ -43,27 +43,29 @@ def describe_bus(bus: BusConfig) -> str:
 
 
 def endpoint_lines(config: Config) -> list[str]:
-    """One line for the MAVLink side and one per bus, plus a line per key that was left out.
+    """One line for the MAVLink side and one per bus; a key that was left out is named on its line.
 
     "Left out" is judged from the keys the file set (pydantic's ``model_fields_set``), so a
     config must come from :func:`~mavservo.config.load_config` or
-    :func:`~mavservo.config.overrides.apply_overrides`, which keep that record.
+    :func:`~mavservo.config.overrides.apply_overrides`, which keep that record. The note goes at
+    the end of the line that describes the simulation, so each link is said once (issue 37).
     """
     lines = []
     mavlink = config.mavlink
     url_given = "mavlink" in config.model_fields_set and "url" in mavlink.model_fields_set
-    if mavlink.url == SIM and not url_given:
-        lines.append("mavlink.url: not set, using the built-in stream simulator")
     link = describe_url(mavlink.url, mavlink.baud)
     if mavlink.signing is not None:
         link += ", signed"
+    if mavlink.url == SIM and not url_given:
+        link += " (mavlink.url not set)"
     lines.append(f"mavlink: {link}")
     can_given = "can" in config.model_fields_set and "buses" in config.can.model_fields_set
-    if not can_given:
-        key = "can.buses" if "can" in config.model_fields_set else "can"
-        lines.append(f"{key}: not set, using the built-in simulation")
+    left_out = "can.buses" if "can" in config.model_fields_set else "can"
     for index, bus in enumerate(config.can.buses):
-        if can_given and is_simulated(bus) and "channel" not in bus.model_fields_set:
-            lines.append(f"can.buses[{index}].channel: not set, using the built-in simulation")
-        lines.append(f"{bus.name}: {describe_bus(bus)}")
+        note = ""
+        if not can_given:
+            note = f" ({left_out} not set)"
+        elif is_simulated(bus) and "channel" not in bus.model_fields_set:
+            note = f" (can.buses[{index}].channel not set)"
+        lines.append(f"{bus.name}: {describe_bus(bus)}{note}")
     return lines

@@ -47,9 +47,11 @@ def test_check_says_when_left_out_keys_mean_the_simulation(tmp_path: Path):
     config.write_text(SERVO)
     status, out, _ = _check(config)
     assert status == 0
-    assert "can: not set, using the built-in simulation" in out
-    assert "mavlink.url: not set, using the built-in stream simulator" in out
-    assert "bus0: built-in simulation" in out and "@ 1 Mbit/s" in out
+    assert "mavlink: built-in stream simulator (mavlink.url not set)" in out
+    assert "bus0: built-in simulation" in out and "@ 1 Mbit/s (can not set)" in out
+    # Each link is said once: one line for the simulated autopilot, one for the bus.
+    assert out.count("stream simulator") == 1
+    assert out.count("built-in simulation") == 1
     assert "(1 servo, " in out  # not "1 servos"
 
 
@@ -76,19 +78,28 @@ def test_an_explicit_sim_is_described_without_a_not_set_note():
 
 def test_a_bus_without_a_channel_is_named_as_the_key_left_out():
     config = load_config_text("can: {buses: [{name: left}]}\n" + SERVO)
-    assert "can.buses[0].channel: not set, using the built-in simulation" in endpoint_lines(config)
+    lines = endpoint_lines(config)
+    assert [line for line in lines if line.startswith("left:")] == [
+        "left: built-in simulation (AA-55 adapter emulator on a pty, simulated servos) @ 1 Mbit/s"
+        " (can.buses[0].channel not set)"
+    ]
+    assert len(lines) == 2
 
 
 def test_overrides_keep_the_record_of_what_the_file_left_out():
     config = load_config_text(SERVO)
     overridden = apply_overrides(config, port="/dev/ttyUSB3")
     lines = endpoint_lines(overridden)
-    assert "mavlink.url: not set, using the built-in stream simulator" in lines
+    assert "mavlink: built-in stream simulator (mavlink.url not set)" in lines
+    assert len(lines) == 2
     assert "bus0: aa55 /dev/ttyUSB3 @ 1 Mbit/s (serial 2000000 baud)" in lines
     assert not any(line.startswith("can") for line in lines)
     lines = endpoint_lines(apply_overrides(config, mavlink="udpin:0.0.0.0:14550"))
     assert "mavlink: udpin:0.0.0.0:14550 (listening)" in lines
-    assert "can: not set, using the built-in simulation" in lines
+    assert any(
+        line.startswith("bus0: built-in simulation") and line.endswith("(can not set)")
+        for line in lines
+    )
 
 
 def test_run_banner_lists_the_connections(tmp_path: Path):
@@ -99,8 +110,9 @@ def test_run_banner_lists_the_connections(tmp_path: Path):
     StatusDisplay(enabled=False, stream=stream).started(config, bridge)
     lines = stream.getvalue().splitlines()
     assert lines[0] == f"mavservo: running {config}"
-    assert "  can: not set, using the built-in simulation" in lines
-    assert "  mavlink.url: not set, using the built-in stream simulator" in lines
+    assert "  mavlink: built-in stream simulator (mavlink.url not set)" in lines
+    assert lines[2].startswith("  bus0: built-in simulation") and lines[2].endswith("(can not set)")
+    assert len(lines) == 3
 
 
 def test_mavservo_run_prints_the_interface_and_mavlink_url(tmp_path: Path):
@@ -196,7 +208,7 @@ def test_run_reports_what_the_file_left_out_and_a_bad_mavlink_option(tmp_path: P
     assert "\n" not in err
     proc = run_briefly(config, "--mavlink", "udpin:127.0.0.1:0")
     assert proc.returncode == 0, proc.stderr
-    assert "  can: not set, using the built-in simulation" in proc.stdout
+    assert "(can not set)" in proc.stdout
     assert "  mavlink: udpin:127.0.0.1:0 (listening)" in proc.stdout
     assert "mavlink.url: not set" not in proc.stdout
 
