@@ -545,8 +545,21 @@ def test_scan_ids_are_clipped_to_the_family_range(
         listen=0.3,
     )
     assert code == 0 and "probed 32 ids" in out, out
+    # ... and the skipped ids are named with the reason, not left out quietly
+    assert (
+        "--scan rmd-x: probing ids 1-32 only, rmd-x ids are 1-32; skipped 0, 33-536870911" in out
+    ), out
     code = doctor_main([str(path), "--scan", "rmd-x", "--ids", "100-200"])
     assert code == 2 and "rmd-x ids are 1-32" in capsys.readouterr().err
+
+
+def test_skipped_ids_are_named_as_ranges() -> None:
+    from mavservo.app.doctor import _skipped_ids
+
+    assert _skipped_ids(range(1, 81), range(1, 33)) == "33-80"
+    assert _skipped_ids(range(0, 33), range(1, 33)) == "0"
+    assert _skipped_ids(range(1, 33), range(1, 33)) == ""
+    assert _skipped_ids(range(0, 34), range(1, 33)) == "0, 33"
 
 
 def test_a_foreign_flood_adds_no_phantom_servos_to_the_yaml(tmp_path: Path) -> None:

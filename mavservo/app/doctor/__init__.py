@@ -170,6 +170,23 @@ class FrameLog:
         self._writer.stop()
 
 
+def _skipped_ids(asked: range, probed: range) -> str:
+    """The ids of ``asked`` left out of ``probed`` (a sub-range), e.g. ``"0, 33-80"``; "" for none.
+
+    Said aloud because ``--ids 1-80`` quietly probing 1..32 reads as "nothing at 33..80"
+    (issue 37)."""
+
+    def span(start: int, stop: int) -> str:
+        return str(start) if stop - start == 1 else f"{start}-{stop - 1}"
+
+    parts = []
+    if asked.start < probed.start:
+        parts.append(span(asked.start, probed.start))
+    if probed.stop < asked.stop:
+        parts.append(span(probed.stop, asked.stop))
+    return ", ".join(parts)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     path = Path(args.config) if args.config else default_config_path()
@@ -199,6 +216,12 @@ def main(argv: Sequence[str] | None = None) -> int:
                     file=sys.stderr,
                 )
                 return EXIT_INVALID
+            skipped = _skipped_ids(args.ids, ids)
+            if skipped:
+                print(
+                    f"mavservo doctor: --scan {family}: probing ids {ids.start}-{ids.stop - 1} "
+                    f"only, {family} ids are {cls.min_id}-{cls.max_id}; skipped {skipped}"
+                )
         scans.append((family, ids))
     log_dir = Path(args.log_dir) if args.log_dir else config.logging.dir
     frame_log = FrameLog(log_dir / f"doctor-{time.strftime('%Y%m%d-%H%M%S')}.asc")
