@@ -332,7 +332,7 @@ def format_summary(summary: dict[str, Any]) -> str:
     mav = summary.get("mavlink") or {}
     if mav:
         lines += _mavlink_lines(mav)
-        lines += _stream_lines(mav.get("stream") or {})
+        lines += _stream_lines(mav.get("stream") or {}, uptime)
     lines += _health_lines(summary.get("health") or {})
     if summary.get("identity"):
         lines.append(f"  identity at the end: {summary['identity']}")
@@ -411,18 +411,16 @@ def _health_lines(health: dict[str, Any]) -> list[str]:
     return lines
 
 
-def _stream_lines(stream: dict[str, Any]) -> list[str]:
+def _stream_lines(stream: dict[str, Any], uptime_s: float | None = None) -> list[str]:
     """One line per mirrored stream: the rate asked of the autopilot against the rate received."""
     lines = []
     for name, figures in (stream.get("streams") or {}).items():
         asked = figures.get("requested_hz")
-        received = figures.get("received_hz")
         low = figures.get("low_rate_windows", 0)
         lines.append(
             f"  autopilot stream {name}: asked "
             f"{'nothing' if asked is None else f'{asked:g} Hz'} ({figures.get('answer')}), "
-            f"received {'-' if received is None else f'{received:.1f} Hz'} (last "
-            f"{WINDOW_S:g} s window), {figures.get('received', 0)} messages"
+            + _received_text(figures, uptime_s)
             + (
                 f", below the {figures.get('needed_hz', 0):g} Hz needed in {low} windows"
                 if low
@@ -434,6 +432,25 @@ def _stream_lines(stream: dict[str, Any]) -> list[str]:
             f"  autopilot restarts seen: {stream['autopilot_restarts']} (streams re-asked)"
         )
     return lines
+
+
+def _received_text(figures: dict[str, Any], uptime_s: float | None) -> str:
+    """The rate received in words. The rate is measured over whole ``WINDOW_S`` windows; a run
+    shorter than one has none, so it gets the whole run's average instead of a bare "-" (issue
+    37), and a longer run without one says why."""
+    count = figures.get("received", 0)
+    received = figures.get("received_hz")
+    if received is not None:
+        return f"received {received:.1f} Hz (last {WINDOW_S:g} s window), {count} messages"
+    if uptime_s is not None and 0 < uptime_s < WINDOW_S:
+        return (
+            f"received {count} messages in the whole {uptime_s:.1f} s run "
+            f"(about {count / uptime_s:.1f} Hz; the rate is measured over {WINDOW_S:g} s)"
+        )
+    return (
+        f"received {count} messages, rate not measured (no whole {WINDOW_S:g} s window "
+        "with the autopilot heard)"
+    )
 
 
 def _run_log_lines(run_dir: str, outcome: dict[str, Any]) -> list[str]:
