@@ -107,8 +107,13 @@ class HeartbeatNotices:
 
 def _num(value: float | None, fmt: str) -> str:
     """``value`` formatted, or "-" when it is not known: None (nothing reported yet) or NaN
-    (a field the servo's family never reports, e.g. current on a DroneCAN actuator.Status)."""
-    return "-" if value is None or math.isnan(value) else format(value, fmt)
+    (a field the servo's family never reports, e.g. current on a DroneCAN actuator.Status).
+    The "-" takes the format's width, so a status line keeps its columns before the first
+    report as after it (issue 37)."""
+    if value is None or math.isnan(value):
+        width = fmt.partition(".")[0]
+        return format("-", f">{width}") if width.isdigit() else "-"
+    return format(value, fmt)
 
 
 def liveness(row: dict[str, Any]) -> str:

@@ -115,5 +115,35 @@ def test_a_field_the_family_never_reports_reads_as_a_dash_not_nan() -> None:
     }
     line = status_line(row)
     assert "nan" not in line
-    assert "I - A" in line and "T - C" in line
+    assert "I     - A" in line and "T     - C" in line
     assert "pos     9.5 deg" in line
+
+
+def test_status_columns_line_up_before_the_first_report() -> None:
+    """Before its first report a servo's values are "-": the line printed "set - deg  pos - deg"
+    and its columns slid left of the reporting servos' (issue 37)."""
+    from mavservo.app.console import status_line
+
+    reporting = {
+        "servo": "aileron_l",
+        "setpoint_deg": -12.5,
+        "position_deg": 100.25,
+        "velocity_dps": -3.0,
+        "current_a": 1.25,
+        "temperature_c": 41.0,
+        "faults": "",
+        "online": True,
+        "age_s": 0.05,
+    }
+    waiting = {
+        **reporting,
+        "servo": "rudder",
+        **dict.fromkeys(
+            ("setpoint_deg", "position_deg", "velocity_dps", "current_a", "temperature_c")
+        ),
+        "age_s": None,
+    }
+    lines = [status_line(reporting), status_line(waiting)]
+    for unit in (" deg  pos", " deg  vel", " dps  I", " A  T", " C  age", " ms"):
+        assert lines[0].index(unit) == lines[1].index(unit), (unit, lines)
+    assert len(lines[0]) == len(lines[1])
