@@ -10,6 +10,7 @@ so a change is visible. Real UDP connections on 127.0.0.1.
 from __future__ import annotations
 
 import os
+import socket
 from collections.abc import Iterator
 from typing import Any
 
@@ -18,6 +19,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as v20_common
 
 from mavservo.app import monitor
+from mavservo.mavlink import connection
 from mavservo.mavlink.connection import mavlink2, open_connection
 from mavservo.mavlink.link import MavlinkLink
 from tests.support.waiting import free_udp_port
@@ -99,3 +101,47 @@ def test_the_monitor_opens_without_side_effects(
     assert monitor.main([url, "--duration", "0", "--plain", "--no-heartbeat"]) == 0
     capsys.readouterr()
     assert_untouched(foreign_pymavlink_state)
+
+
+def _refusing_tcp_port() -> int:
+    """A 127.0.0.1 port nobody listens on (bound for its number, then closed)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        probe.bind(("127.0.0.1", 0))
+        return int(probe.getsockname()[1])
+
+
+def test_a_refused_tcp_connect_prints_nothing_and_raises_once(
+    capfd: pytest.CaptureFixture[str],
+) -> None:
+    """pymavlink's mavtcp printed "[Errno 111] Connection refused sleeping" to stdout for every
+    refused attempt before the bridge's own error (issue 37): now the error is raised, once,
+    and nothing is printed."""
+    with pytest.raises(ConnectionRefusedError):
+        open_connection(f"tcp:127.0.0.1:{_refusing_tcp_port()}", reconnect_delay=0.01)
+    out, err = capfd.readouterr()
+    assert "sleeping" not in out + err and "refused" not in out + err
+
+
+def test_a_refused_tcp_connect_is_still_retried_like_pymavlink_does(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The attempts are still made (a peer that is starting gets pymavlink's time), silently."""
+    pauses: list[float] = []
+    monkeypatch.setattr(connection.time, "sleep", pauses.append)
+    with pytest.raises(ConnectionRefusedError):
+        open_connection(f"tcp:127.0.0.1:{_refusing_tcp_port()}")
+    assert pauses == [connection.TCP_RECONNECT_DELAY_S] * (connection.TCP_CONNECT_ATTEMPTS - 1)
+
+
+def test_a_tcp_client_still_connects_to_a_listening_peer() -> None:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as server:
+        server.bind(("127.0.0.1", 0))
+        server.listen(1)
+        port = server.getsockname()[1]
+        client = open_connection(f"tcp:127.0.0.1:{port}", source_system=255, source_component=190)
+        peer, _ = server.accept()
+        with peer:
+            client.mav.heartbeat_send(6, 8, 0, 0, 0)
+            peer.settimeout(5.0)
+            assert peer.recv(1) == b"\xfd"  # a MAVLink 2 frame's start byte
+        client.close()
