@@ -39,6 +39,8 @@ from typing import Any, Protocol
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink2
 
+from mavservo.mavlink.origin import from_pinned
+
 #: ``MAV_CMD_CAN_FORWARD`` (common.xml 32000): param1 = the bus to forward, 1-based, 0 = stop.
 MAV_CMD_CAN_FORWARD = mavlink2.MAV_CMD_CAN_FORWARD
 _FRAME_TYPES = ("CAN_FRAME", "CANFD_FRAME")
@@ -173,11 +175,21 @@ class CanTunnel:
         sink.on_frame(int(msg.id), bytes(msg.data[:length]), kind == "CANFD_FRAME", now)
 
     def _for_us(self, msg: Any) -> bool:
-        """From the followed autopilot and addressed to the servo component."""
+        """From the followed autopilot, from the address its identity is pinned to (or signed),
+        and addressed to the servo component. Why the address (issue 40): on an unsigned link
+        a stranger claiming the autopilot's ids from elsewhere is refused by the core, but the
+        tunnel takes its frames before the core sees them: its CAN_FRAMEs would have been
+        servo replies (a position, a fault) the bridge believed. Counted as
+        ``claimed_elsewhere``."""
         source = (msg.get_srcSystem(), msg.get_srcComponent())
-        return source == self._autopilot() and (msg.target_system, msg.target_component) == (
+        if source != self._autopilot() or (msg.target_system, msg.target_component) != (
             self._own()
-        )
+        ):
+            return False
+        if from_pinned(msg) or getattr(msg, "_signed", False):
+            return True
+        self.counters["claimed_elsewhere"] += 1
+        return False
 
     def stats(self) -> dict[str, int]:
         return dict(self.counters)

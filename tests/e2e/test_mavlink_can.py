@@ -159,3 +159,26 @@ def test_a_full_autopilot_buffer_is_counted_and_the_servos_offline_are_said() ->
         forwarder._write = write
         assert wait_until(lambda: all(online(bridge).values()), 10.0)
         assert wait_until(lambda: all(s.state is not None for s in statuses(bridge)), 10.0)
+
+
+def test_a_stranger_claiming_the_autopilot_feeds_the_tunnel_nothing() -> None:
+    """Issue 40 on the tunnel: CAN_FRAMEs claiming the autopilot's ids from another address
+    (unsigned link) would be servo replies the bridge believed; they are refused and counted,
+    while the real autopilot's frames keep the servos online."""
+    from mavservo.mavlink import open_connection
+
+    with flight_controller(BODY) as (bridge, _autopilot, _link, _servos):
+        assert wait_until(lambda: all(online(bridge).values()), 10.0), online(bridge)
+        assert bridge.can_tunnel is not None
+        port = int(bridge.config.mavlink.url.rsplit(":", 1)[1])
+        spoofer = open_connection(f"udpout:127.0.0.1:{port}", source_system=1, source_component=1)
+        try:
+            reply = bytes([0x9C, 40, 0, 0, 0, 0, 0x10, 0x27])  # RMD-X 0x9C status of servo 1
+            for _ in range(20):
+                spoofer.mav.can_frame_send(1, 140, 0, 8, 0x241, reply)
+            assert wait_until(
+                lambda: bridge.can_tunnel.stats().get("claimed_elsewhere", 0) >= 20, 10.0
+            ), bridge.can_tunnel.stats()
+        finally:
+            spoofer.close()
+        assert all(online(bridge).values())
