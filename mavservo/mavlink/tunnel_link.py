@@ -41,11 +41,19 @@ class TunnelLink:
         )
         component = settings.servo_component_id
         self.link.add_component(component, self._system_id)
+        # the autopilot pins the address it is first heard from, as on the bridge's side: else
+        # (issue 40, review) a stranger claiming its ids from elsewhere on an unsigned link fed
+        # the doctor's tunnel CAN frames it took for servo replies (CanTunnel._for_us)
+        self.link.privileged = lambda source: source == self._expected_autopilot()
         self.tunnel.attach(
             send=lambda msg: self._send(component, msg),
             autopilot=lambda: self._autopilot,
             own=lambda: (self._system_id, component),
         )
+
+    def _expected_autopilot(self) -> tuple[int, int]:
+        """The autopilot once heard, else the (system, component) it is expected as."""
+        return self._autopilot or (self._system_id, self._settings.autopilot_component)
 
     def _send(self, component_id: int, msg: Any) -> bool:
         if not self.link.is_open:

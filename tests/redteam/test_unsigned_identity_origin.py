@@ -548,3 +548,43 @@ def test_a_download_and_an_ack_go_to_the_station_while_its_ids_are_claimed_elsew
         assert kinds["FILE_TRANSFER_PROTOCOL"] == 0, kinds
         assert kinds["COMMAND_ACK"] == 0, [m for m in to_stranger if m.get_type() == "COMMAND_ACK"]
         assert to_stranger  # it is a peer the bridge sends to (its broadcasts), not cut off
+
+
+def test_the_doctors_tunnel_link_takes_no_can_frame_claiming_the_autopilot_from_elsewhere() -> None:
+    """Issue 40 on ``mavservo doctor``'s own link (:class:`TunnelLink`, no core behind it): the
+    autopilot's ids pin the address it is first heard from, so CAN_FRAMEs claiming them from
+    another address (unsigned UDP) are refused and counted, not taken for servo replies. Before:
+    nothing was pinned on that link and all 10 of the stranger's frames were taken."""
+    from mavservo.mavlink import open_connection
+    from mavservo.mavlink.settings import MavlinkSettings
+    from mavservo.mavlink.tunnel_link import TunnelLink
+
+    port = free_udp_port()
+    tunnel_link = TunnelLink(MavlinkSettings(url=f"udpin:127.0.0.1:{port}", system_id=1))
+    url = f"udpout:127.0.0.1:{port}"
+    autopilot = open_connection(url, source_system=1, source_component=1)
+    stranger = open_connection(url, source_system=1, source_component=1)
+    try:
+        tunnel_link.link.start()
+        stats = tunnel_link.tunnel.stats
+
+        def heartbeat() -> None:
+            autopilot.mav.heartbeat_send(2, 3, 0, 0, 4)  # quadrotor, ArduPilot
+
+        assert wait_until(lambda: (heartbeat(), tunnel_link._heard.wait(0.05))[1], 3.0)
+        heartbeat()  # its address is pinned from its second frame on (the first named it)
+        reply = bytes([0x9C, 40, 0, 0, 0, 0, 0x10, 0x27])
+        for _ in range(10):
+            autopilot.mav.can_frame_send(1, 140, 0, 8, 0x241, reply)
+            stranger.mav.can_frame_send(1, 140, 0, 8, 0x241, reply)
+        # no sink on bus 0: the autopilot's frames are counted unsubscribed, the stranger's not
+        assert wait_until(
+            lambda: stats().get("unsubscribed", 0) + stats().get("claimed_elsewhere", 0) >= 20,
+            3.0,
+        ), stats()
+        assert stats().get("claimed_elsewhere", 0) == 10, stats()
+        assert stats().get("unsubscribed", 0) == 10, stats()
+    finally:
+        autopilot.close()
+        stranger.close()
+        tunnel_link.stop()
