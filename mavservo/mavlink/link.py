@@ -1229,12 +1229,36 @@ class MavlinkLink:
         must not choose it. Under the write lock, so no write sees the stranger's address."""
         with self._write_lock:
             before = getattr(conn, "last_address", None)
-            data = conn.recv(UDP_MAX_DATAGRAM)
+            try:  # pymavlink's mavudp.recv without dropping the sender's address
+                data, sender = conn.port.recvfrom(UDP_MAX_DATAGRAM)
+            except OSError as exc:
+                if exc.errno in (errno.EAGAIN, errno.EWOULDBLOCK, errno.ECONNREFUSED):
+                    return []
+                raise
+            broadcast = getattr(conn, "broadcast", False)
+            if broadcast:
+                conn.last_address = sender
             messages = self._not_our_own(self._scanner.datagram(bytes(data)) if data else [])
-            if data and not messages and getattr(conn, "broadcast", False):
+            if data and not messages and broadcast:
                 conn.last_address = before
                 self.counters["strangers_ignored"] += 1
+        if messages and not broadcast:
+            self._tag_stranger(messages, sender, conn)
         return messages
+
+    def _tag_stranger(self, messages: list[Any], sender: Hashable, conn: Any) -> None:
+        """``udpout``: frames from another address than the one we send to are tagged with it,
+        the peer we send to holding every privileged identity. Why (issue 40, review): the
+        socket takes datagrams from anyone who finds its port, and untagged they all counted
+        as from the single peer: a stranger's HEARTBEAT claiming the autopilot kept the
+        bridge out of failsafe, its SERVO_OUTPUT_RAW was mirrored."""
+        host, port = conn.destination_addr
+        try:
+            peer: Hashable = (socket.gethostbyname(host), int(port))
+        except OSError:
+            peer = (host, int(port))
+        if sender != peer:
+            self._tag_origin(messages, sender, lambda identity: peer)
 
     def _answer_or_ignore(
         self, conn: UdpServer, sender: tuple[str, int], messages: list[Any]

@@ -9,8 +9,10 @@ connection, a privileged identity is bound to: :data:`~.link.PIN_REBIND_S`); the
 answers, rate limits and sessions by :class:`Requester` (identity *and* origin), and answers
 go back to the origin the request came from, never to the identity's last address.
 
-A frame from a link with a single peer (serial, ``udpout:``) or made by a test carries no tag:
-its origin is None and it counts as from the pinned address (there is no other).
+A frame from a link with a single peer (serial, ``udpout:`` from the address it sends to) or
+made by a test carries no tag: its origin is None and it counts as from the pinned address (there
+is no other). A ``udpout:`` socket takes datagrams from anyone who finds its port: those from
+another address are tagged with it, the peer holding every privileged identity.
 """
 
 from __future__ import annotations

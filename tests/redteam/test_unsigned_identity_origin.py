@@ -588,3 +588,43 @@ def test_the_doctors_tunnel_link_takes_no_can_frame_claiming_the_autopilot_from_
         autopilot.close()
         stranger.close()
         tunnel_link.stop()
+
+
+def test_on_a_udpout_link_a_stranger_claiming_the_autopilot_is_not_from_its_address() -> None:
+    """``udpout``: the socket takes datagrams from anyone who finds its port. Frames claiming the
+    autopilot from another address than the one the link sends to are tagged as not from its
+    pinned address (the core refuses them); the autopilot's own are. Before: untagged, all 5 of
+    the stranger's HEARTBEATs counted as the autopilot's (they kept the bridge out of failsafe)."""
+    from mavservo.mavlink import open_connection
+    from mavservo.mavlink.link import MavlinkLink
+    from mavservo.mavlink.origin import from_pinned
+
+    port = free_udp_port()
+    autopilot = open_connection(f"udpin:127.0.0.1:{port}", source_system=1, source_component=1)
+    heard: list[tuple[int, bool]] = []
+    link = MavlinkLink(
+        f"udpout:127.0.0.1:{port}",
+        lambda msg, now: heard.append((msg.custom_mode, from_pinned(msg))),
+    )
+    link.privileged = lambda source: source == (1, 1)
+    link.add_component(140, 1)
+    stranger = None
+    try:
+        link.start()
+        ping = mavlink2.MAVLink_heartbeat_message(0, 8, 0, 0, 0, 3)
+        assert wait_until(lambda: (link.send(140, ping, 1), autopilot.recv_msg())[1], 3.0)
+        stranger = open_connection(
+            f"udpout:127.0.0.1:{link._conn.port.getsockname()[1]}",
+            source_system=1,
+            source_component=1,
+        )
+        for _ in range(5):
+            autopilot.mav.heartbeat_send(2, 3, 0, 1, 4)  # custom_mode 1: the autopilot
+            stranger.mav.heartbeat_send(2, 3, 0, 2, 4)  # custom_mode 2: the stranger
+        assert wait_until(lambda: len(heard) >= 10, 3.0), heard
+        assert sorted(Counter(heard).items()) == [((1, True), 5), ((2, False), 5)], heard
+    finally:
+        link.stop()
+        autopilot.close()
+        if stranger is not None:
+            stranger.close()
