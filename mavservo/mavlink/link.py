@@ -46,6 +46,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import functools
 import logging
 import select
 import socket
@@ -1252,13 +1253,20 @@ class MavlinkLink:
         socket takes datagrams from anyone who finds its port, and untagged they all counted
         as from the single peer: a stranger's HEARTBEAT claiming the autopilot kept the
         bridge out of failsafe, its SERVO_OUTPUT_RAW was mirrored."""
-        host, port = conn.destination_addr
-        try:
-            peer: Hashable = (socket.gethostbyname(host), int(port))
-        except OSError:
-            peer = (host, int(port))
+        peer = self._udpout_peer(conn.destination_addr)
         if sender != peer:
             self._tag_origin(messages, sender, lambda identity: peer)
+
+    @staticmethod
+    @functools.lru_cache(maxsize=4)
+    def _udpout_peer(destination: tuple[str, int]) -> Hashable:
+        """The address datagrams from the ``udpout`` peer come from: its host resolved once
+        (a name is looked up the first time, never per datagram on the receive path)."""
+        host, port = destination
+        try:
+            return (socket.gethostbyname(host), int(port))
+        except OSError:
+            return (host, int(port))
 
     def _answer_or_ignore(
         self, conn: UdpServer, sender: tuple[str, int], messages: list[Any]
